@@ -1,0 +1,176 @@
+"""The identified state estimator, run on filterpy's KalmanFilter, returning modal states.
+
+The identified innovation model (paper Eqs. 30-31)
+
+    x_{k+1} = A x_k + B u_k + A K e_k,        y_k = C x_k + D u_k + e_k,
+
+is run as a Kalman filter with ``F = A``, ``B``, ``H = C`` and the gain ``K``:
+
+    e_k      = y_k - C xhat_k - D u_k               (innovation)
+    xpost_k  = xhat_k + K e_k                        (update_steadystate on y_k - D u_k)
+    xhat_k+1 = A xpost_k + B u_k                     (predict_steadystate)
+
+which is ``xhat_{k+1} = A xhat_k + B u_k + A K e_k``. The published modal state is the filtered
+``xpost_k`` in the normalized modal form (two coordinates per physical mode); the estimated
+output is ``C xpost_k + D u_k``.
+
+Start-up (optional): from an uncertain initial state ``P_0`` the optimal gain is time varying.
+In this model the process noise ``A K e_k`` and the measurement noise ``e_k`` are the same
+white sequence, so with ``S_k = C P_k C^T + Re``
+
+    K_k     = (P_k C^T + K Re) S_k^{-1}
+    P_{k+1} = A (P_k + K Re K^T - K_k S_k K_k^T) A^T,
+
+which tends to ``K_k -> K`` and ``P_k -> 0``. The gain is handed to the KalmanFilter each step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+__all__ = ["EstimatorOutput", "ModalStateEstimator"]
+
+
+@dataclass
+class EstimatorOutput:
+    """Estimator results for a block of N samples.
+
+    Attributes
+    ----------
+    modal_coordinates : (N, n_modes, 2) filtered modal states of the physical modes.
+    states : (N, n) all filtered states.
+    y_estimated : (N, p) ``C xpost + D u``.
+    innovations : (N, p) ``y - C xhat - D u`` (one-step prediction errors).
+    """
+
+    modal_coordinates: np.ndarray
+    states: np.ndarray
+    y_estimated: np.ndarray
+    innovations: np.ndarray
+
+
+class ModalStateEstimator:
+    """Steady-state (or start-up time-varying) estimator of an identified modal model.
+
+    Parameters
+    ----------
+    A, B, C, D, K : the model in normalized modal form (paper convention for K).
+    n_physical_states : the first states that belong to physical modes (2 per mode).
+    innovation_covariance : (p, p) ``Re``; needed for the start-up filter.
+    initial_covariance : (n, n) or scalar ``P_0`` of the start-up filter; ``None`` runs the
+        steady-state filter from the first sample.
+    """
+
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray,
+        K: np.ndarray,
+        n_physical_states: int,
+        innovation_covariance: np.ndarray | None = None,
+        initial_covariance: np.ndarray | float | None = None,
+    ) -> None:
+        n, m = B.shape
+        p = C.shape[0]
+        if A.shape != (n, n) or C.shape != (p, n) or D.shape != (p, m) or K.shape != (n, p):
+            raise ValueError(
+                f"inconsistent model shapes A{A.shape} B{B.shape} C{C.shape} D{D.shape} K{K.shape}"
+            )
+        if n_physical_states % 2 or not 0 <= n_physical_states <= n:
+            raise ValueError(f"n_physical_states must be even and <= {n}, got {n_physical_states}")
+        self.n_states, self.n_inputs, self.n_outputs = n, m, p
+        self.n_physical_states = n_physical_states
+        self.D = np.asarray(D, dtype=float)
+        self.K_steady = np.asarray(K, dtype=float)
+        self.innovation_covariance = (
+            np.eye(p) if innovation_covariance is None else np.asarray(innovation_covariance, dtype=float)
+        )
+        kf = KalmanFilter(dim_x=n, dim_z=p, dim_u=m)
+        kf.F = np.asarray(A, dtype=float)
+        kf.B = np.asarray(B, dtype=float)
+        kf.H = np.asarray(C, dtype=float)
+        kf.K = self.K_steady.copy()
+        kf.R = self.innovation_covariance.copy()
+        kf.x = np.zeros((n, 1))
+        self.kf = kf
+        self._start_up = initial_covariance is not None
+        if self._start_up:
+            P0 = np.asarray(initial_covariance, dtype=float)
+            kf.P = P0 * np.eye(n) if P0.ndim == 0 else P0.copy()
+        else:
+            kf.P = np.zeros((n, n))
+
+    @classmethod
+    def from_model(cls, model, initial_covariance: np.ndarray | float | None = None) -> "ModalStateEstimator":
+        """Build from an :class:`okid_ros.core.pipeline.IdentifiedModel` (or any object with
+        ``A, B, C, D, K, innovation_covariance`` and ``n_physical_states``)."""
+        return cls(
+            model.A,
+            model.B,
+            model.C,
+            model.D,
+            model.K,
+            model.n_physical_states,
+            model.innovation_covariance,
+            initial_covariance,
+        )
+
+    @property
+    def state(self) -> np.ndarray:
+        """(n,) the current one-step prediction ``xhat_k``."""
+        return self.kf.x[:, 0].copy()
+
+    def set_state(self, x: np.ndarray) -> None:
+        """Set the predicted state ``xhat_k`` (n,), e.g. after a warm start."""
+        self.kf.x = np.asarray(x, dtype=float).reshape(self.n_states, 1).copy()
+
+    def _start_up_gain(self) -> None:
+        """Time-varying gain K_k from P_k (see module docstring); switches off once converged."""
+        kf, Re, K = self.kf, self.innovation_covariance, self.K_steady
+        P, C = kf.P, kf.H
+        S = C @ P @ C.T + Re
+        gain = np.linalg.solve(S.T, (P @ C.T + K @ Re).T).T
+        kf.K = gain
+        kf.P = kf.F @ (P + K @ Re @ K.T - gain @ S @ gain.T) @ kf.F.T
+        kf.P = 0.5 * (kf.P + kf.P.T)
+        if np.abs(gain - K).max() <= 1e-9 * max(np.abs(K).max(), 1e-300):
+            kf.K = K.copy()
+            self._start_up = False
+
+    def step(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,))."""
+        u = np.asarray(u, dtype=float).reshape(self.n_inputs)
+        y = np.asarray(y, dtype=float).reshape(self.n_outputs)
+        if self._start_up:
+            self._start_up_gain()
+        du = self.D @ u
+        self.kf.update_steadystate(y - du)
+        innovation = self.kf.y[:, 0].copy()
+        x_post = self.kf.x[:, 0].copy()
+        y_est = self.kf.H @ x_post + du
+        self.kf.predict_steadystate(u.reshape(self.n_inputs, 1))
+        return x_post, y_est, innovation
+
+    def run(self, u: np.ndarray, y: np.ndarray) -> EstimatorOutput:
+        """Process a block ``u`` (N, m), ``y`` (N, p)."""
+        u = np.asarray(u, dtype=float).reshape(-1, self.n_inputs)
+        y = np.asarray(y, dtype=float).reshape(-1, self.n_outputs)
+        if u.shape[0] != y.shape[0]:
+            raise ValueError(f"u and y have different lengths: {u.shape[0]} and {y.shape[0]}")
+        n_samples = u.shape[0]
+        states = np.empty((n_samples, self.n_states))
+        y_est = np.empty((n_samples, self.n_outputs))
+        innov = np.empty((n_samples, self.n_outputs))
+        for k in range(n_samples):
+            states[k], y_est[k], innov[k] = self.step(u[k], y[k])
+        return EstimatorOutput(self.modal_coordinates(states), states, y_est, innov)
+
+    def modal_coordinates(self, states: np.ndarray) -> np.ndarray:
+        """(..., n_modes, 2) the physical modes' coordinates of states (..., n)."""
+        phys = np.asarray(states)[..., : self.n_physical_states]
+        return phys.reshape(*phys.shape[:-1], self.n_physical_states // 2, 2)

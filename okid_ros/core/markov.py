@@ -1,0 +1,89 @@
+"""Markov parameters from ARX coefficients.
+
+Two sequences can be read off an identified ARX model:
+
+System Markov parameters (paper Eq. 24)
+    With ``A_i``, ``B_i`` the ARX output and input coefficients and ``B_0 = D``,
+
+        C A^j B = B_{j+1} + sum_{i=1..j} A_i C A^{j-i} B + A_{j+1} D,      j = 0 .. q-1,
+
+    which yields the pulse response ``D, CB, CAB, ..., CA^{q-1}B``. The paper proves Eq. (24)
+    holds with process and measurement noise. Its continuation beyond ``q`` (Eq. 28,
+    ``C A^j B = sum_i A_i C A^{j-i} B``) holds only **without process noise**, so by default
+    only ``q + 1`` terms are returned. This is the paper's route to ERA; it amplifies junk ARX
+    input coefficients in unexcited bands (see ``../shared/identification-findings.md``).
+
+Observer (Kalman-predictor) Markov parameters
+    In the innovation form ``x_{k+1} = A x_k + B u_k + A K e_k`` the optimal predictor is
+    ``x_{k+1} = Abar x_k + Bbar u_k + L y_k`` with ``L = A K``, ``Abar = A - L C``,
+    ``Bbar = B - L D``, and for large ``q`` the ARX lag blocks approach
+
+        [A_i, B_i] = C Abar^{i-1} [L, Bbar],        i = 1 .. q,
+
+    which decay at the rate of the predictor, not of the structure. These are what OKID realizes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+
+__all__ = ["markov_from_arx", "observer_markov_from_arx", "markov_from_state_space"]
+
+
+def markov_from_arx(arx: ArxFit, n_terms: int | None = None, extend_noise_free: bool = False) -> np.ndarray:
+    """System Markov parameters ``Y_0 = D, Y_{j+1} = C A^j B`` by paper Eq. (24).
+
+    Parameters
+    ----------
+    arx : the identified ARX model (order q).
+    n_terms : number of terms to return (default ``q + 1``: ``D`` and ``C A^j B``, j < q).
+    extend_noise_free : allow ``n_terms > q + 1`` by Eq. (28). Valid only without process noise.
+
+    Returns
+    -------
+    (n_terms, p, m) array; entry 0 is ``D``.
+    """
+    q, p, m = arx.order, arx.n_outputs, arx.n_inputs
+    n_terms = q + 1 if n_terms is None else int(n_terms)
+    if n_terms > q + 1 and not extend_noise_free:
+        raise ValueError(
+            f"Eq. 24 gives {q + 1} terms for ARX order {q}; Eq. 28 would extend it but does not hold "
+            "with process noise (pass extend_noise_free=True to accept that)"
+        )
+    a_coef = arx.output_coefficients  # (q, p, p)
+    b_coef = arx.input_coefficients  # (q, p, m)
+    d = arx.D
+    markov = np.zeros((n_terms, p, m))
+    markov[0] = d
+    for j in range(n_terms - 1):  # markov[j + 1] = C A^j B
+        acc = np.zeros((p, m))
+        if j < q:
+            acc += b_coef[j] + a_coef[j] @ d
+        for i in range(1, min(j, q) + 1):
+            acc += a_coef[i - 1] @ markov[j - i + 1]
+        markov[j + 1] = acc
+    return markov
+
+
+def observer_markov_from_arx(arx: ArxFit) -> np.ndarray:
+    """Observer Markov parameters ``C Abar^{i-1} [L, Bbar]``, i = 1..q: shape (q, p, p + m).
+
+    These are the ARX lag blocks ``[A_i, B_i]`` themselves (see module docstring).
+    """
+    return arx.observer_markov
+
+
+def markov_from_state_space(
+    A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, n_terms: int
+) -> np.ndarray:
+    """Markov parameters ``D, CB, CAB, ...`` of a state-space model: (n_terms, p, m)."""
+    p, m = D.shape
+    out = np.zeros((n_terms, p, m))
+    out[0] = D
+    x = B.copy()
+    for j in range(1, n_terms):
+        out[j] = C @ x
+        x = A @ x
+    return out

@@ -1,0 +1,345 @@
+"""Modes of an identified model and its normalized real modal form.
+
+Discrete eigenvalues ``z = exp(s dt)`` give continuous poles ``s = ln(z) / dt = -zeta w + i w_d``,
+so ``frequency_rad_s = |s|`` (undamped natural frequency) and ``damping_ratio = -Re(s) / |s|``.
+
+Normalized modal form
+    One real 2x2 block per complex pair ``z = sigma + i omega`` (``omega > 0``) with eigenvector
+    ``psi = a + i b``: in the basis ``[a, b]``
+
+        A_i = [[ sigma, omega],
+               [-omega, sigma]]                  (the paper's published blocks have this form).
+
+    ``psi`` is fixed up to a complex factor, which rotates and scales ``[a, b]`` without changing
+    ``A_i``. We fix it deterministically so that re-identifying the same structure gives the
+    same modal coordinates:
+
+    - rotation: the reference output row ``c_ref`` (row 0 unless that row sees less than 10 % of
+      the mode's largest output, then the first row that sees at least 10 %) has
+      ``C[c_ref] b = 0`` and ``C[c_ref] a > 0`` (the paper's C has a zero in row 1 at each mode's
+      second state);
+    - scale: ``||C [a, b]||_F = 1``, so a modal coordinate is in output units (e.g. m/s^2 for
+      accelerometers) and its amplitude is the share of the output carried by that mode.
+
+    Physical modes come first, by increasing frequency; the remaining states (real poles and
+    non-physical pairs) follow.
+
+Accuracy indicators per mode
+    - MPC, modal phase collinearity of the shape ``C psi`` (1: a real normal mode);
+    - MSV, modal singular value ``|C psi| |chi B| / sqrt(1 - |z|^2)``, the mode's share of the
+      pulse response's energy, reported relative to the largest mode (0..1];
+    - EMAC, extended modal amplitude coherence: the mode's residue refitted (poles fixed) to the
+      *late* half of a reference Markov sequence (from the ARX model, Eq. 24) compared in amplitude
+      and phase with the model's residue (1: the mode keeps decaying as predicted).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg
+
+__all__ = [
+    "Mode",
+    "ModalForm",
+    "continuous_poles",
+    "identify_modes",
+    "modal_form",
+    "mac",
+    "mpc",
+    "match_modes",
+]
+
+DEFAULT_MAX_DAMPING = 0.2
+DEFAULT_MAX_NYQUIST_FRACTION = 0.95
+DEFAULT_MIN_MSV = 1e-3
+
+
+@dataclass
+class Mode:
+    """One vibration mode (a complex-conjugate pole pair) of an identified model."""
+
+    frequency_rad_s: float
+    frequency_hz: float
+    damping_ratio: float
+    eigenvalue: complex
+    shape: np.ndarray  # (p,) complex output shape, normalized (unit norm, reference row real > 0)
+    mpc: float
+    msv: float
+    emac: float
+    stable: bool
+    physical: bool
+    id: int = 0
+    mac_previous: float = float("nan")
+    extras: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """JSON-ready summary (no complex numbers)."""
+        return {
+            "id": int(self.id),
+            "frequency_rad_s": float(self.frequency_rad_s),
+            "frequency_hz": float(self.frequency_hz),
+            "damping_ratio": float(self.damping_ratio),
+            "mpc": float(self.mpc),
+            "msv": float(self.msv),
+            "emac": float(self.emac),
+            "mac_previous": None if np.isnan(self.mac_previous) else float(self.mac_previous),
+            "stable": bool(self.stable),
+            "shape_real": [float(x) for x in self.shape.real],
+            "shape_imag": [float(x) for x in self.shape.imag],
+        }
+
+
+@dataclass
+class ModalForm:
+    """A model in normalized real modal form, ``x_modal = T^{-1} x``.
+
+    Attributes
+    ----------
+    A, B, C, K : transformed matrices (D is unchanged).
+    T : (n, n) the transform, ``A_modal = T^{-1} A T``.
+    modes : the physical modes, in the order of their blocks.
+    n_physical_states : ``2 len(modes)``; states beyond it are non-physical.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    T: np.ndarray
+    modes: list[Mode]
+    n_physical_states: int
+
+
+def continuous_poles(eigenvalues: np.ndarray, sample_time_s: float) -> np.ndarray:
+    """``s = ln(z) / dt`` for discrete eigenvalues ``z``."""
+    z = np.asarray(eigenvalues, dtype=complex)
+    with np.errstate(divide="ignore"):
+        return np.log(z) / sample_time_s
+
+
+def mpc(shape: np.ndarray) -> float:
+    """Modal phase collinearity of a complex shape: 1 when all components share one phase."""
+    re, im = shape.real, shape.imag
+    sxx, syy, sxy = re @ re, im @ im, re @ im
+    tr = sxx + syy
+    if tr <= 0:
+        return 0.0
+    disc = np.sqrt(max((sxx - syy) ** 2 + 4 * sxy**2, 0.0))
+    return float((disc / tr) ** 2)
+
+
+def mac(a: np.ndarray, b: np.ndarray) -> float:
+    """Modal assurance criterion ``|a^H b|^2 / (|a|^2 |b|^2)`` of two (complex) shapes."""
+    den = np.vdot(a, a).real * np.vdot(b, b).real
+    if den <= 0:
+        return 0.0
+    return float(abs(np.vdot(a, b)) ** 2 / den)
+
+
+def _reference_row(c_psi: np.ndarray) -> int:
+    mags = np.abs(c_psi)
+    if mags[0] >= 0.1 * mags.max():
+        return 0
+    return int(np.flatnonzero(mags >= 0.1 * mags.max())[0])
+
+
+def _emac(
+    eigenvalues: np.ndarray, residues: np.ndarray, reference_markov: np.ndarray
+) -> np.ndarray:
+    """EMAC of each pole from a reference Markov sequence ``Y_j = C A^{j-1} B`` (J, p, m)."""
+    n_terms = reference_markov.shape[0]
+    j = np.arange(n_terms // 2, n_terms)
+    if j.size < eigenvalues.size:
+        return np.full(eigenvalues.size, np.nan)
+    basis = eigenvalues[None, :] ** (j[:, None] - 1)  # (J/2, n)
+    target = reference_markov[j].reshape(j.size, -1)  # (J/2, p m)
+    fitted, *_ = linalg.lstsq(basis, target.astype(complex))  # (n, p m)
+    out = np.empty(eigenvalues.size)
+    for i in range(eigenvalues.size):
+        model = residues[i].ravel()
+        ref = fitted[i]
+        weight = np.abs(model) ** 2
+        if weight.sum() <= 0:
+            out[i] = 0.0
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.minimum(np.abs(ref) / np.abs(model), np.abs(model) / np.abs(ref))
+        ratio = np.nan_to_num(ratio)
+        dphase = np.abs(np.angle(ref * np.conj(model)))
+        phase_weight = np.clip(1.0 - dphase / (np.pi / 4), 0.0, 1.0)
+        out[i] = float(np.sum(weight * ratio * phase_weight) / weight.sum())
+    return out
+
+
+def identify_modes(
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    sample_time_s: float,
+    reference_markov: np.ndarray | None = None,
+    max_damping: float = DEFAULT_MAX_DAMPING,
+    max_nyquist_fraction: float = DEFAULT_MAX_NYQUIST_FRACTION,
+    min_msv: float = DEFAULT_MIN_MSV,
+) -> tuple[list[Mode], np.ndarray]:
+    """All complex-pair modes of ``A``, with indicators and a physical flag.
+
+    A mode is *physical* if it is stable, its damping ratio is in [0, max_damping), its
+    frequency is below ``max_nyquist_fraction`` of Nyquist, and its relative MSV is at least
+    ``min_msv`` (the input reaches it and the output sees it).
+
+    Parameters
+    ----------
+    A : (n, n); B : (n, m); C : (p, n).
+    reference_markov : optional (J, p, m) ``Y_j = C A^{j-1} B`` for EMAC (``Y_0 = D`` excluded).
+
+    Returns
+    -------
+    modes : list of Mode sorted by frequency (physical and not).
+    eigenvectors : (n, len(modes)) complex eigenvectors ``psi`` of the listed modes, normalized
+        as described in the module docstring.
+    """
+    z, psi = linalg.eig(A)
+    chi = linalg.inv(psi)
+    s = continuous_poles(z, sample_time_s)
+    nyquist_rad_s = np.pi / sample_time_s
+    upper = np.flatnonzero(z.imag > 1e-12 * max(1.0, np.abs(z).max()))
+    c_psi = C @ psi
+    b_chi = chi @ B
+    residues = np.einsum("pi,im->ipm", c_psi, b_chi)
+    msv = np.array([np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12)) for i in upper])
+    msv_rel = msv / msv.max() if msv.size and msv.max() > 0 else msv
+    emac = (
+        _emac(z, residues, reference_markov)[upper]
+        if reference_markov is not None
+        else np.full(upper.size, np.nan)
+    )
+    modes: list[Mode] = []
+    vectors = []
+    for idx, i in enumerate(upper):
+        w = abs(s[i])
+        zeta = -s[i].real / w if w > 0 else 1.0
+        shape = c_psi[:, i]
+        ref = _reference_row(shape)
+        rot = np.exp(-1j * np.angle(shape[ref]))
+        vec = psi[:, i] * rot
+        cn = np.linalg.norm(C @ np.column_stack([vec.real, vec.imag]))
+        vec = vec / cn if cn > 0 else vec
+        shape = C @ vec
+        shape_unit = shape / np.linalg.norm(shape) if np.linalg.norm(shape) > 0 else shape
+        stable = bool(abs(z[i]) < 1.0)
+        physical = bool(
+            stable
+            and 0.0 <= zeta < max_damping
+            and w < max_nyquist_fraction * nyquist_rad_s
+            and msv_rel[idx] >= min_msv
+        )
+        modes.append(
+            Mode(
+                frequency_rad_s=float(w),
+                frequency_hz=float(w / (2 * np.pi)),
+                damping_ratio=float(zeta),
+                eigenvalue=complex(z[i]),
+                shape=shape_unit,
+                mpc=mpc(shape_unit),
+                msv=float(msv_rel[idx]),
+                emac=float(emac[idx]),
+                stable=stable,
+                physical=physical,
+            )
+        )
+        vectors.append(vec)
+    order = np.argsort([m.frequency_rad_s for m in modes], kind="stable")
+    modes = [modes[i] for i in order]
+    vecs = np.column_stack([vectors[i] for i in order]) if vectors else np.zeros((A.shape[0], 0), complex)
+    return modes, vecs
+
+
+def modal_form(
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    K: np.ndarray,
+    sample_time_s: float,
+    reference_markov: np.ndarray | None = None,
+    **criteria,
+) -> ModalForm:
+    """Transform an innovation-form model to the normalized real modal form.
+
+    ``criteria`` are passed to :func:`identify_modes` (``max_damping`` and so on).
+    """
+    n = A.shape[0]
+    modes, vecs = identify_modes(A, B, C, sample_time_s, reference_markov, **criteria)
+    physical = [i for i, m in enumerate(modes) if m.physical]
+    others = [i for i, m in enumerate(modes) if not m.physical]
+    columns = []
+    for i in physical + others:
+        columns += [vecs[:, i].real, vecs[:, i].imag]
+    # Real eigenvalues: one state each, scaled like the pairs (unit output norm).
+    z, psi = linalg.eig(A)
+    real_idx = np.flatnonzero(np.abs(z.imag) <= 1e-12 * max(1.0, np.abs(z).max()))
+    for i in real_idx[np.argsort(-z[real_idx].real)]:
+        vec = psi[:, i].real
+        cn = np.linalg.norm(C @ vec)
+        vec = vec / cn if cn > 1e-12 * np.linalg.norm(vec) else vec / np.linalg.norm(vec)
+        # Deterministic sign: the largest component of the output (or state) shape positive.
+        ref = C @ vec if cn > 0 else vec
+        vec = vec * np.sign(ref[np.argmax(np.abs(ref))] or 1.0)
+        columns.append(vec)
+    T = np.column_stack(columns) if columns else np.zeros((n, 0))
+    if T.shape != (n, n) or np.linalg.cond(T) > 1e12:
+        # Defective or repeated eigenvalues: fall back to the identity (no modal coordinates).
+        T = np.eye(n)
+        physical = []
+    T_inv = linalg.inv(T)
+    A_m = T_inv @ A @ T
+    # Clean the numerically zero couplings between blocks so the published A is block diagonal.
+    blocks = np.zeros_like(A_m)
+    pos = 0
+    for i in physical + others:
+        blocks[pos : pos + 2, pos : pos + 2] = A_m[pos : pos + 2, pos : pos + 2]
+        pos += 2
+    blocks[pos:, pos:] = np.diag(np.diag(A_m)[pos:]) if pos < n else blocks[pos:, pos:]
+    if np.allclose(blocks, A_m, atol=1e-8 * max(1.0, np.abs(A_m).max())):
+        A_m = blocks
+    phys_modes = [modes[i] for i in physical]
+    return ModalForm(
+        A=A_m, B=T_inv @ B, C=C @ T, K=T_inv @ K, T=T, modes=phys_modes, n_physical_states=2 * len(phys_modes)
+    )
+
+
+def match_modes(
+    previous: list[Mode],
+    current: list[Mode],
+    max_frequency_change: float = 0.05,
+    min_mac: float = 0.7,
+) -> list[int | None]:
+    """Match each current mode to a previous one by frequency and MAC.
+
+    A pair qualifies when the relative frequency change is below ``max_frequency_change`` and
+    the MAC of the shapes is at least ``min_mac``; pairs are taken greedily by the score
+    ``|df/f| / max_frequency_change + (1 - MAC)``, each previous mode used once.
+
+    Returns
+    -------
+    For each current mode, the index in ``previous`` it continues, or None if it is new.
+    """
+    candidates = []
+    for i, cur in enumerate(current):
+        for j, prev in enumerate(previous):
+            df = abs(cur.frequency_rad_s - prev.frequency_rad_s) / max(prev.frequency_rad_s, 1e-12)
+            if df >= max_frequency_change:
+                continue
+            m = mac(cur.shape, prev.shape) if cur.shape.size == prev.shape.size else 0.0
+            if m < min_mac:
+                continue
+            candidates.append((df / max_frequency_change + (1.0 - m), i, j, m))
+    candidates.sort()
+    result: list[int | None] = [None] * len(current)
+    used: set[int] = set()
+    for _, i, j, _m in candidates:
+        if result[i] is None and j not in used:
+            result[i] = j
+            used.add(j)
+    return result
