@@ -1,0 +1,168 @@
+"""The whole chain against known truth: the paper's published model and designed structures."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from okid_ros.cli import main as okid_ros_main
+from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.pipeline import IdentificationError, identify
+from okid_ros.core.statespace import one_step_prediction
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.systems import lowpass_input, simulate_innovation, white_input
+
+DT = 0.008
+PAPER_MODES = [(37.097, 0.002763), (46.1325, 0.028684)]  # computed from the published A
+
+
+def _paper_record(n_samples: int, cutoff_hz: float | None, seed: int):
+    truth = paper_model()
+    total = n_samples + 4000  # the last 4000 samples are held out for validation
+    u = white_input(total, 2, seed=seed) if cutoff_hz is None else lowpass_input(total, 2, cutoff_hz, DT, seed=seed)
+    y, _ = simulate_innovation(truth, u, seed=seed + 1000)
+    return truth, u[:n_samples], y[:n_samples], u[n_samples:], y[n_samples:]
+
+
+def _ratio(model, truth, u, y, burn_in: int = 500) -> float:
+    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y)
+    _, e0 = one_step_prediction(truth.A, truth.B, truth.C, truth.D, truth.K, u, y)
+    return float(np.trace(np.cov(e[burn_in:].T)) / np.trace(np.cov(e0[burn_in:].T)))
+
+
+def _closest(modes, frequency_rad_s):
+    return min(modes, key=lambda m: abs(m.frequency_rad_s - frequency_rad_s))
+
+
+def test_paper_case_low_pass_input_recovers_both_modes():
+    """The paper's experiment: 15 Hz low-pass thruster inputs, 3750 samples at 125 Hz, q = 100.
+
+    Judged by RMS errors over noise seeds (one seed can be lucky or unlucky). Measured over 6
+    seeds: mode 1 RMS 0.16 % / 0.13 pp, mode 2 RMS 0.6 % / 0.35 pp, ratio <= 1.02.
+    """
+    errors = []
+    for seed in range(3):
+        truth, u, y, u_val, y_val = _paper_record(3750, 15.0, seed)
+        model = identify(u, y, DT, order=100)
+        row = []
+        for freq, zeta in PAPER_MODES:
+            mode = _closest(model.modes, freq)
+            row += [100 * (mode.frequency_rad_s / freq - 1), 100 * (mode.damping_ratio - zeta)]
+        errors.append(row)
+        assert _ratio(model, truth, u_val, y_val) < 1.10
+    rms = np.sqrt(np.mean(np.square(errors), axis=0))
+    assert np.abs(errors).max(axis=0)[[0, 2]].max() < 3.0  # every seed finds both modes
+    assert rms[0] < 0.5 and rms[1] < 0.3  # mode 1: frequency %, damping pp
+    assert rms[2] < 1.2 and rms[3] < 1.0  # mode 2
+
+
+def test_paper_method_as_published_works_with_broadband_input():
+    truth, u, y, u_val, y_val = _paper_record(15000, None, seed=3)
+    model = identify(u, y, DT, order=100, method="paper", n_states=6)
+    assert model.method == "paper" and model.gain_method == "whitening"
+    # Less accurate than the robust chain (measured: up to 1 % and 1.3 pp on mode 2), but it works.
+    for freq, zeta in PAPER_MODES:
+        mode = _closest(model.modes, freq)
+        assert abs(mode.frequency_rad_s / freq - 1) < 0.02
+        assert abs(mode.damping_ratio - zeta) * 100 < 1.5
+    assert _ratio(model, truth, u_val, y_val) < 1.5
+
+
+def test_whitening_gain_option_gives_a_working_predictor():
+    truth, u, y, u_val, y_val = _paper_record(15000, 50.0, seed=4)
+    refit = identify(u, y, DT, order=100)
+    white = identify(u, y, DT, order=100, gain="whitening")
+    assert white.gain_method == "whitening"
+    np.testing.assert_allclose(white.A, refit.A)
+    assert _ratio(refit, truth, u_val, y_val) < 1.03
+    assert _ratio(white, truth, u_val, y_val) < 1.5
+
+
+def test_estimator_reproduces_the_innovation_form_predictor_and_modal_coordinates():
+    truth, u, y, _, _ = _paper_record(3750, 15.0, seed=5)
+    model = identify(u, y, DT, order=100)
+    estimator = ModalStateEstimator.from_model(model)
+    out = estimator.run(u, y)
+    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y)
+    np.testing.assert_allclose(out.innovations, e, atol=1e-9 * np.abs(y).max())
+    assert out.modal_coordinates.shape == (3750, len(model.modes), 2)
+    # Filtered outputs are closer to the measurements than the one-step predictions.
+    assert np.mean((y - out.y_estimated) ** 2) < np.mean(e**2)
+    # Physical states reproduce most of the output (the modal coordinates are in output units).
+    y_modes = out.states[:, : model.n_physical_states] @ model.C[:, : model.n_physical_states].T
+    assert np.var(y - y_modes) < 0.1 * np.var(y)
+
+
+def test_estimator_start_up_gain_converges_to_the_steady_gain():
+    truth = paper_model()
+    est = ModalStateEstimator(truth.A, truth.B, truth.C, truth.D, truth.K, 6, truth.innovation_covariance, initial_covariance=100.0)
+    u = white_input(3000, 2, seed=6)
+    y, _ = simulate_innovation(truth, u, seed=7)
+    out = est.run(u, y)
+    np.testing.assert_allclose(est.kf.K, truth.K)
+    steady = ModalStateEstimator(truth.A, truth.B, truth.C, truth.D, truth.K, 6)
+    out_steady = steady.run(u, y)
+    # The start-up filter is no worse early on and identical once converged.
+    assert np.mean(out.innovations[:200] ** 2) <= np.mean(out_steady.innovations[:200] ** 2) * 1.05
+    np.testing.assert_allclose(out.innovations[-100:], out_steady.innovations[-100:], atol=1e-3)
+
+
+def test_identify_errors_are_one_line_reasons():
+    u, y = np.zeros((300, 2)), np.ones((300, 2))
+    with pytest.raises(IdentificationError, match="at least 503 needed"):
+        identify(u, y, DT, order=100)
+    with pytest.raises(IdentificationError, match="sample_time_s"):
+        identify(u, y, -1.0, order=10)
+    with pytest.raises(IdentificationError, match="method"):
+        identify(u, y, DT, order=10, method="magic")
+
+
+def test_identify_command_writes_the_json_contract(tmp_path, capsys):
+    _, u, y, _, _ = _paper_record(3750, 15.0, seed=8)
+    data = tmp_path / "run.npz"
+    np.savez(data, u=u, y=y, sample_time_s=DT)
+    out = tmp_path / "model.json"
+    assert okid_ros_main(["identify", str(data), "--order", "100", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    for key in ("sample_time_s", "n_states", "A", "B", "C", "D", "K", "innovation_covariance", "hankel_singular_values", "modes"):
+        assert key in doc
+    n = doc["n_states"]
+    assert np.array(doc["A"]).shape == (n, n) and np.array(doc["K"]).shape == (n, 2)
+    assert doc["sample_time_s"] == DT
+    freqs = [m["frequency_rad_s"] for m in doc["modes"]]
+    assert min(abs(f - 37.097) for f in freqs) < 0.4
+    for mode in doc["modes"]:
+        assert {"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac"} <= set(mode)
+        assert mode["frequency_hz"] == pytest.approx(mode["frequency_rad_s"] / (2 * np.pi))
+        assert 0 <= mode["damping_ratio"] < 0.2
+
+
+@pytest.mark.parametrize(
+    "arrays, reason",
+    [
+        ({"u": np.zeros((600, 2)), "y": np.zeros((599, 2)), "sample_time_s": DT}, "length mismatch"),
+        ({"u": np.zeros((600, 2)), "y": np.full((600, 2), np.nan), "sample_time_s": DT}, "NaN"),
+        ({"u": np.zeros((300, 2)), "y": np.ones((300, 2)), "sample_time_s": DT}, "503 needed"),
+        ({"u": np.zeros((600, 2)), "y": np.ones((600, 2))}, "missing key"),
+        ({"u": np.zeros((600, 2, 2)), "y": np.ones((600, 2)), "sample_time_s": DT}, "2-D"),
+    ],
+)
+def test_identify_command_rejects_bad_input_without_traceback(tmp_path, capsys, arrays, reason):
+    data = tmp_path / "bad.npz"
+    np.savez(data, **arrays)
+    status = okid_ros_main(["identify", str(data), "--order", "100", "--json", str(tmp_path / "o.json")])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert reason in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_identify_reads_csv(tmp_path):
+    _, u, y, _, _ = _paper_record(1500, 15.0, seed=9)
+    path = tmp_path / "run.csv"
+    rows = "\n".join(",".join(f"{v:.10g}" for v in row) for row in np.hstack([u, y]))
+    path.write_text(f"# sample_time_s=0.008\nu1,u2,y1,y2\n{rows}\n")
+    out = tmp_path / "m.json"
+    assert okid_ros_main(["identify", str(path), "--order", "40", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["sample_time_s"] == DT
