@@ -106,8 +106,8 @@ def test_matches_solve_normal_equations_with_same_prior():
     est_gcv.update(u, y)
     ref_gcv, lam, _, _ = solve_normal_equations(normal, prior_precision(q, p, m, ms, "tc", 0.8), "gcv")
     sol = est_gcv.solve()
-    assert sol.ok and sol.penalty == pytest.approx(lam, rel=1e-6)
-    assert rel(sol.theta, ref_gcv) <= 1e-6
+    assert sol.ok and sol.penalty == pytest.approx(lam, rel=1e-4)  # scalar-search tolerance
+    assert rel(sol.theta, ref_gcv) <= 1e-5
 
 
 def test_arx_fit_of_window_equals_fit_arx_on_window_samples():

@@ -335,12 +335,10 @@ class SlidingWindowArx:
     def _set_theta(self, theta: np.ndarray) -> None:
         q, w, p, m = self.order, self._w, self.n_outputs, self.n_inputs
         self._theta = theta
-        self._theta_u = np.ascontiguousarray(theta[:m])  # (m, p): D^T
-        # Lag coefficients in buffer time order (lag q first), for e = y - u th_u - hist th_h.
-        self._theta_hist = np.ascontiguousarray(theta[m:].reshape(q, w, p)[::-1].reshape(q * w, p))
-        self._theta_psi = np.zeros((self._D, p))  # coefficients of psi_k (y_k part zero)
-        self._theta_psi[: q * w] = self._theta_hist
-        self._theta_psi[q * w + p :] = self._theta_u
+        # Coefficients of psi_k = [v_{k-q}, ..., v_{k-1}, y_k, u_k] (time order, y_k part zero),
+        # so that e_k = y_k - psi_k^T theta_psi needs no reordering of the buffer.
+        self._theta_psi = np.zeros((self._D, p))
+        self._theta_psi[self._phi_index] = theta
 
     @property
     def adaptation_enabled(self) -> bool:
@@ -429,26 +427,27 @@ class SlidingWindowArx:
                 return None
             if code == _STAMP_GAP:
                 self.mark_gap()
-        # One sum catches NaN/Inf; only if it is not finite (or overflows) look closer.
-        if not math.isfinite(float(u.sum() + y.sum())):
-            if not (np.isfinite(u).all() and np.isfinite(y).all()):
-                st.rejected_nonfinite += 1
-                self.mark_gap()
-                return None
         if self._n >= self._cap:
             self._make_room(1)
         n = self._n
         buf = self._buf
-        buf[n, : self.n_outputs] = y
-        buf[n, self.n_outputs :] = u
+        row = buf[n]
+        row[: self.n_outputs] = y
+        row[self.n_outputs :] = u
+        # One sum catches NaN/Inf; only if it is not finite (or overflows) look closer. The
+        # slot is only taken (n advanced) once the sample is accepted.
+        if not math.isfinite(float(row.sum())) and not np.isfinite(row).all():
+            st.rejected_nonfinite += 1
+            self.mark_gap()
+            return None
         self._n = n + 1
         st.samples_accepted += 1
         self._run += 1
         self._start[n] = self._run == 1
         if self._run <= self.order:
             return None
-        q = self.order
-        err = y - u @ self._theta_u - buf[n - q : n].reshape(-1) @ self._theta_hist
+        # psi_k is the contiguous slice of the buffer ending at this sample.
+        err = y - buf[n - self.order : n + 1].reshape(-1) @ self._theta_psi
         if self._adapting:
             self._elig[n] = True
             self._n_pend += 1
@@ -815,5 +814,5 @@ class SlidingWindowArx:
 
     def memory_bytes(self) -> int:
         """Bytes held by the sample buffer, ``G``, the prior and the coefficients."""
-        arrays = (self._buf, self._elig, self._start, self._G, self.precision, self._theta, self._theta_psi, self._theta_hist)
+        arrays = (self._buf, self._elig, self._start, self._G, self.precision, self._theta, self._theta_psi)
         return int(sum(a.nbytes for a in arrays))
