@@ -21,3 +21,10 @@ from okid_ros.sim.systems import (  # noqa: F401
 )
 from okid_ros.sim.paper_model import paper_model, paper_modes  # noqa: F401
 from okid_ros.sim.oracle import kalman_predictor, one_step_predictions  # noqa: F401
+
+__all__ = [
+    "BenchmarkCase", "InnovationModel", "NoisyStateSpace", "benchmark_case", "benchmark_cases",
+    "lowpass_input", "modal_structure", "propagate_states", "simulate", "simulate_innovation",
+    "simulate_noisy", "white_input", "paper_model", "paper_modes", "kalman_predictor",
+    "one_step_predictions",
+]

@@ -43,7 +43,9 @@ __all__ = [
     "lowpass_input",
     "simulate_innovation",
     "simulate_noisy",
+    "simulate",
     "propagate_states",
+    "suggested_arx_order",
     "benchmark_cases",
     "benchmark_case",
 ]
@@ -611,9 +613,10 @@ class BenchmarkCase:
     system : the true system (``InnovationModel`` or ``NoisyStateSpace``).
     make_input : ``make_input(n_samples, seed) -> u`` of shape (n_samples, m).
     n_samples : data lengths to run (identification data).
-    arx_order : suggested ARX order ``q`` for ARX-based methods (about
-        ``5 / -ln rho(A - L C)`` of the true predictor, rounded up; a property of the
-        system class, not tuned per method).
+    arx_order : suggested ARX order ``q`` for ARX-based methods: ``5 / -ln rho(A - L C)``
+        of the true predictor (the lag after which its memory has decayed to e^-5), rounded
+        up to a multiple of 20 and capped at 200 (:func:`suggested_arx_order`); 100 for the
+        paper case as in the paper.  A property of the system, not tuned per method.
     max_physical_damping : damping-ratio cut for "physical" modes when scoring.
     """
 
@@ -633,6 +636,21 @@ class BenchmarkCase:
     @property
     def n_states(self) -> int:
         return self.system.n_states
+
+
+def suggested_arx_order(system: TrueSystem, decay: float = 5.0, step: int = 20,
+                        cap: int = 200) -> int:
+    """ARX order covering the memory of the true one-step predictor.
+
+    ``q = decay / -ln rho(A - L C)`` with ``L`` the oracle predictor gain, rounded up to a
+    multiple of ``step`` and capped at ``cap``.
+    """
+    from okid_ros.sim.oracle import kalman_predictor
+
+    K, _ = kalman_predictor(system)
+    rho = float(np.max(np.abs(np.linalg.eigvals(system.A - system.A @ K @ system.C))))
+    q = decay / -np.log(rho)
+    return int(min(cap, step * np.ceil(q / step)))
 
 
 def _paper_case(cutoff_hz: Optional[float]) -> BenchmarkCase:
@@ -686,7 +704,8 @@ def light_damping_case() -> BenchmarkCase:
             "2 accelerometers (D != 0), 50 Hz sampling, white input; disturbance forces "
             "(std 0.3 of the input) and 5 % measurement noise (correlated S through D).")
     return BenchmarkCase("light-damping", desc, sys_,
-                         lambda N, seed: white_input(N, 2, seed), (3750, 15000), 200)
+                         lambda N, seed: white_input(N, 2, seed), (3750, 15000),
+                         suggested_arx_order(sys_))
 
 
 def close_pair_case() -> BenchmarkCase:
@@ -700,7 +719,8 @@ def close_pair_case() -> BenchmarkCase:
             "7.3 Hz (2 %) and 12.6 Hz (1.5 %), 2 inputs, 3 accelerometers, 100 Hz sampling, "
             "inputs low-passed at 20 Hz; disturbance forces (std 0.3) and 5 % measurement noise.")
     return BenchmarkCase("close-pair", desc, sys_,
-                         lambda N, seed: lowpass_input(N, 2, 20.0, dt, seed), (3750, 15000), 150)
+                         lambda N, seed: lowpass_input(N, 2, 20.0, dt, seed), (3750, 15000),
+                         suggested_arx_order(sys_))
 
 
 def more_outputs_case() -> BenchmarkCase:
@@ -714,7 +734,8 @@ def more_outputs_case() -> BenchmarkCase:
             "2 inputs, 6 accelerometers, 100 Hz sampling, inputs low-passed at 25 Hz; "
             "disturbance forces (std 0.3) and 5 % measurement noise.")
     return BenchmarkCase("more-outputs", desc, sys_,
-                         lambda N, seed: lowpass_input(N, 2, 25.0, dt, seed), (3750, 15000), 150)
+                         lambda N, seed: lowpass_input(N, 2, 25.0, dt, seed), (3750, 15000),
+                         suggested_arx_order(sys_))
 
 
 def separate_noise_case() -> BenchmarkCase:
@@ -728,7 +749,8 @@ def separate_noise_case() -> BenchmarkCase:
             "damping), 1 input, 3 displacement sensors (D = 0, S = 0), 100 Hz sampling, white "
             "input; disturbance forces std 0.5 and 20 % measurement noise (noisy sensors).")
     return BenchmarkCase("separate-noise", desc, sys_,
-                         lambda N, seed: white_input(N, 1, seed), (3750, 15000), 120)
+                         lambda N, seed: white_input(N, 1, seed), (3750, 15000),
+                         suggested_arx_order(sys_))
 
 
 _CASES = {
