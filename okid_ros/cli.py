@@ -1,0 +1,56 @@
+"""`okid-ros`: the command-line entry point, one subcommand per module of okid_ros.commands."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from okid_ros import __version__
+from okid_ros.errors import OkidError
+
+PROG = "okid-ros"
+
+# One line per subcommand, in the order `--help` lists them (see okid_ros/commands/__init__.py).
+COMMAND_MODULES: tuple[str, ...] = (
+    "okid_ros.commands.info",
+    "okid_ros.commands.identify",
+    "okid_ros.commands.track",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser with every subcommand of COMMAND_MODULES registered."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Online system identification (OKID) for ROS 2 Jazzy: "
+        "ARX identification, ERA realization and modal state estimation.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        # Importing only registers the parser; modules defer heavy imports to run().
+        importlib.import_module(name).add_parser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run `okid-ros` with `argv` (default: sys.argv[1:]) and return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args))
+    except OkidError as exc:
+        # Expected failures are one line, like argparse's own usage errors, never a traceback.
+        print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
