@@ -51,7 +51,7 @@ __all__ = [
     "match_modes",
 ]
 
-DEFAULT_MAX_DAMPING = 0.2
+DEFAULT_MAX_DAMPING = 0.1
 DEFAULT_MAX_NYQUIST_FRACTION = 0.95
 DEFAULT_MIN_MSV = 1e-3
 
@@ -209,7 +209,10 @@ def identify_modes(
     b_chi = chi @ B
     residues = np.einsum("pi,im->ipm", c_psi, b_chi)
     msv = np.array([np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12)) for i in upper])
-    msv_rel = msv / msv.max() if msv.size and msv.max() > 0 else msv
+    # Relative to the largest *stable* mode: an unstable pole's MSV is unbounded.
+    stable_msv = msv[np.abs(z[upper]) < 1.0]
+    scale = stable_msv.max() if stable_msv.size and stable_msv.max() > 0 else (msv.max() if msv.size else 1.0)
+    msv_rel = msv / scale if scale > 0 else msv
     emac = (
         _emac(z, residues, reference_markov)[upper]
         if reference_markov is not None

@@ -31,7 +31,7 @@ from okid_ros.core.era import HankelDecomposition, decompose_hankel, default_han
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.markov import markov_from_arx, markov_from_state_space
 from okid_ros.core.modal import ModalForm, Mode, modal_form
-from okid_ros.core.refit import PredictorFit, refit_predictor
+from okid_ros.core.refit import PredictorFit, fit_from_states, refit_predictor
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
 from okid_ros.core.statespace import one_step_prediction
 
@@ -39,6 +39,10 @@ __all__ = ["IdentifiedModel", "IdentificationError", "identify", "identify_from_
 
 METHODS = ("okid", "paper")
 GAINS = ("refit", "whitening")
+COMPLETIONS = ("auto", "predictor", "states")
+# Above this many flops for the refit's normal equations, "auto" completes from states instead
+# (2e10 is ~1 s here; the paper case needs 2e8, 28 outputs need 3e11).
+PREDICTOR_REFIT_FLOP_LIMIT = 2e10
 
 
 class IdentificationError(ValueError):
@@ -68,6 +72,7 @@ class IdentifiedModel:
     order_scores: dict = field(default_factory=dict)
     x0: np.ndarray | None = None
     system_markov: np.ndarray | None = None
+    completion: str = "predictor"
 
     @property
     def n_states(self) -> int:
@@ -90,6 +95,7 @@ class IdentifiedModel:
             "n_outputs": int(self.C.shape[0]),
             "method": self.method,
             "gain_method": self.gain_method,
+            "completion": self.completion,
             "arx_order": int(self.arx.order),
             "arx_regularization": self.arx.regularization,
             "arx_penalty": float(self.arx.penalty),
@@ -107,14 +113,28 @@ class IdentifiedModel:
         }
 
 
-def _past_square_root(u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None) -> np.ndarray:
-    """Lower Cholesky factor of the covariance of ``z_k = [v_{k-1}; ...; v_{k-c}]``."""
+def _past_data(u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Past-data vectors ``z_k = [v_{k-1}; ...; v_{k-c}]`` and a square root of their covariance.
+
+    Returns
+    -------
+    z : (M, (p + m) c) one row per usable sample; rows : (M,) their sample indices;
+    weight : lower Cholesky factor of ``z^T z / M``.
+    """
     m = u.shape[1]
-    phi, _, _ = arx_regressors(u, y, n_cols, valid)
+    phi, _, rows = arx_regressors(u, y, n_cols, valid)
     z = phi[:, m:]
     cov = z.T @ z / max(z.shape[0], 1)
     jitter = 1e-10 * max(np.trace(cov) / cov.shape[0], np.finfo(float).tiny)
-    return linalg.cholesky(cov + jitter * np.eye(cov.shape[0]), lower=True)
+    return z, rows, linalg.cholesky(cov + jitter * np.eye(cov.shape[0]), lower=True)
+
+
+def _choose_completion(completion: str, n_samples: int, n_outputs: int, n_inputs: int, max_states: int) -> str:
+    """"predictor" (LS refit) while its normal equations stay cheap, else "states"."""
+    if completion != "auto":
+        return completion
+    flops = n_samples * n_outputs * (max_states * (n_outputs + n_inputs)) ** 2
+    return "predictor" if flops <= PREDICTOR_REFIT_FLOP_LIMIT else "states"
 
 
 def _candidate_orders(n_states: int | str, decomposition: HankelDecomposition, max_states: int) -> list[int]:
@@ -183,6 +203,7 @@ def identify_from_arx(
     gain: str = "refit",
     valid: np.ndarray | None = None,
     ar_order: int | None = None,
+    completion: str = "auto",
     **mode_criteria,
 ) -> IdentifiedModel:
     """Steps 2-5 of the robust chain on an identified ARX model and the data of its window.
@@ -198,26 +219,45 @@ def identify_from_arx(
     gain : "refit" (least squares, default) or "whitening" (the paper's method).
     valid : (N,) bool, optional mask of trustworthy samples (for the weighting only).
     ar_order : order of the whitening filter when ``gain="whitening"`` (default: q).
+    completion : how the realization is completed into ``(A, B, C, D, K)``: "predictor"
+        (least-squares refit of ``L``, ``Bbar``, ``D`` for the realized ``Abar``, ``C``),
+        "states" (regressions on the predictor-based state sequence; fast with many outputs)
+        or "auto" (the refit unless it is expensive); see :mod:`okid_ros.core.refit`.
     mode_criteria : passed to :func:`okid_ros.core.modal.identify_modes`.
     """
     if gain not in GAINS:
         raise IdentificationError(f"gain must be one of {GAINS}, got {gain!r}")
+    if completion not in COMPLETIONS:
+        raise IdentificationError(f"completion must be one of {COMPLETIONS}, got {completion!r}")
     u, y = check_io_arrays(u, y)
     blocks = arx.observer_markov  # (q, p, p + m): C Abar^{i-1} [L, Bbar]
     if hankel_rows is None or hankel_cols is None:
         rows, cols = default_hankel_size(blocks.shape[0] - 1)
         hankel_rows = rows if hankel_rows is None else hankel_rows
         hankel_cols = cols if hankel_cols is None else hankel_cols
-    weight = _past_square_root(u, y, hankel_cols, valid)
+    z, z_rows, weight = _past_data(u, y, hankel_cols, valid)
     decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, weight)
+    orders = _candidate_orders(n_states, decomposition, max_states)
+    completion = _choose_completion(completion, u.shape[0], y.shape[1], u.shape[1], max(orders))
+    if completion == "states":
+        # States of every candidate order at once: xhat_k = S^-1/2 U^T H(0) z_k.
+        top = max(orders)
+        projected = z @ (decomposition.U[:, :top].T @ decomposition.h0).T
+        projected /= np.sqrt(decomposition.s[:top])
+        contiguous = np.all(np.diff(z_rows) == 1)
+        if not contiguous:
+            raise IdentificationError("the state completion needs a contiguous record (no gaps)")
     scores: dict[int, float] = {}
     best: PredictorFit | None = None
     best_score = np.inf
     reasons = []
-    for n in _candidate_orders(n_states, decomposition, max_states):
-        realization = decomposition.realize(n)
+    for n in orders:
         try:
-            fit = refit_predictor(realization.A, realization.C, u, y)
+            if completion == "states":
+                fit = fit_from_states(projected[:, :n], u[z_rows], y[z_rows])
+            else:
+                realization = decomposition.realize(n)
+                fit = refit_predictor(realization.A, realization.C, u, y)
         except (ValueError, linalg.LinAlgError) as exc:
             reasons.append(f"n={n}: {exc}")
             continue
@@ -226,7 +266,12 @@ def identify_from_arx(
             best, best_score = fit, scores[n]
     if best is None:
         raise IdentificationError("no model order gave a usable predictor: " + "; ".join(reasons[:3]))
-    return _finish(best, arx, sample_time_s, decomposition.s, gain, scores, u, y, ar_order, mode_criteria)
+    if completion == "states":
+        # Express x0 at the first sample of the record for the estimator's warm start.
+        u, y = u[z_rows], y[z_rows]
+    model = _finish(best, arx, sample_time_s, decomposition.s, gain, scores, u, y, ar_order, mode_criteria)
+    model.completion = completion
+    return model
 
 
 def _identify_paper(
@@ -286,6 +331,7 @@ def identify(
     max_states: int = 40,
     hankel_rows: int | None = None,
     hankel_cols: int | None = None,
+    completion: str = "auto",
     **mode_criteria,
 ) -> IdentifiedModel:
     """Identify an innovation-form model in modal form from one input/output record.
@@ -300,6 +346,7 @@ def identify(
     gain : "refit" or "whitening" (okid method only; the paper method always whitens).
     ar_order : order r of the whitening AR filter (default: q).
     max_states : upper bound of the automatic order search.
+    completion : "auto", "predictor" or "states" (see :func:`identify_from_arx`).
 
     Raises
     ------
@@ -334,7 +381,7 @@ def identify(
         return _identify_paper(arx, u, y, sample_time_s, n_states, hankel_rows, hankel_cols, ar_order, mode_criteria)
     return identify_from_arx(
         arx, u, y, sample_time_s, n_states, max_states, hankel_rows, hankel_cols, gain, ar_order=ar_order,
-        **mode_criteria,
+        completion=completion, **mode_criteria,
     )
 
 

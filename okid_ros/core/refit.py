@@ -1,4 +1,8 @@
-"""Least-squares refit of the predictor's input matrices once ``Abar`` and ``C`` are fixed.
+"""Least-squares completion of a realization: ``(Abar, C)`` or a state sequence -> full model.
+
+Two ways, both linear least squares on the data:
+
+:func:`refit_predictor` (accurate, cost grows with p^2)
 
 With the predictor poles ``Abar`` (n, n) and output matrix ``C`` (p, n) taken from the
 realization, the one-step predictor
@@ -12,7 +16,15 @@ is *linear* in ``Gam = [L, Bbar]`` (n, p + m), ``D`` (p, m) and the initial stat
 So they are refitted by linear least squares on the data, which is far less fragile than taking
 ``L`` from the realization (an error in ``L`` moves the physical poles of ``A = Abar + L C``).
 Then ``A = Abar + L C``, ``B = Bbar + L D`` and the paper's gain is ``K = A^{-1} L``.
-The convolutions are done by FFT, one output channel at a time to bound memory.
+The convolutions are done by FFT, one output channel at a time to bound memory. The normal
+equations cost about ``N p (n (p + m))^2`` flops: fine for a few outputs, slow for tens.
+
+:func:`fit_from_states` (fast, for many outputs)
+    The weighted ERA gives ``Gamma`` and, through the ARX predictor, a state estimate for each
+    sample, ``xhat_k = pinv(Gamma) H(0) z_k`` with ``z_k = [v_{k-1}; ...; v_{k-c}]`` (the
+    predictor-based subspace idea). Then ``y_k = C xhat_k + D u_k + e_k`` gives ``C``, ``D`` and
+    the innovations, and ``xhat_{k+1} = A xhat_k + B u_k + L e_k`` gives ``A``, ``B``, ``L``.
+    Cost ``O(N (n + m + p)^2)`` once the states are formed.
 """
 
 from __future__ import annotations
@@ -24,7 +36,7 @@ from scipy import fft, linalg
 
 from okid_ros.core.statespace import spectral_radius
 
-__all__ = ["PredictorFit", "refit_predictor", "gain_from_predictor"]
+__all__ = ["PredictorFit", "refit_predictor", "fit_from_states", "gain_from_predictor"]
 
 
 @dataclass
@@ -153,3 +165,35 @@ def refit_predictor(
     # Free parameters: (Abar, C, Gam, D) less the n^2 of a similarity transform, plus x0.
     n_free = n * (2 * p + m) + p * m + n_x0
     return PredictorFit(A, B, C.copy(), D, K, x0, 0.5 * (cov + cov.T), innovations, n_free)
+
+
+def fit_from_states(states: np.ndarray, u: np.ndarray, y: np.ndarray) -> PredictorFit:
+    """Innovation-form model from a state sequence by two least-squares regressions.
+
+    Parameters
+    ----------
+    states : (N, n) state estimates ``xhat_k`` of the samples of ``u`` (N, m) and ``y`` (N, p),
+        consecutive in time.
+
+    Returns
+    -------
+    PredictorFit (``x0`` is the first state; ``innovations`` are the residuals of the output
+    equation).
+    """
+    n_samples, n = states.shape
+    m, p = u.shape[1], y.shape[1]
+    if n_samples <= 2 * (n + m + p):
+        raise ValueError(f"{n_samples} samples are too few to fit a {n}-state model")
+    if not np.all(np.isfinite(states)):
+        raise ValueError("the state sequence is not finite")
+    regressor = np.hstack([states, u])
+    cd = linalg.lstsq(regressor, y)[0].T
+    C, D = cd[:, :n], cd[:, n:]
+    innovations = y - regressor @ cd.T
+    abl = linalg.lstsq(np.hstack([states[:-1], u[:-1], innovations[:-1]]), states[1:])[0].T
+    A, B, L = abl[:, :n], abl[:, n : n + m], abl[:, n + m :]
+    cov = innovations.T @ innovations / n_samples
+    n_free = n * (2 * p + m) + p * m
+    return PredictorFit(
+        A, B, C, D, gain_from_predictor(A, L), states[0].copy(), 0.5 * (cov + cov.T), innovations, n_free
+    )
