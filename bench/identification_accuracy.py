@@ -13,7 +13,8 @@ case's ARX order where the method has one), and the models are scored against th
 * one-step prediction-error power on the held-out record divided by the oracle Kalman
   predictor's (1.0 is the limit), median and max over seeds; ``n/a`` for methods without a
   noise model (python-control's ERA);
-* relative error of the stochastic Markov parameters ``C A^i K`` (i = 1..100), median;
+* relative error of the stochastic Markov parameters ``C A^i K`` (i = 1..100, outputs scaled to
+  unit innovation by the true ``Re^{-1/2}``), median;
 * wall time of the identification call, median.
 
 Usage::
@@ -310,7 +311,8 @@ def header(args, note: str, methods: list[str]) -> str:
         "(physical: stable, damping < 20 %, below Nyquist, unmatched) are totals over seeds. "
         "Ratio: one-step prediction-error power on a held-out record of "
         f"{args.val_samples} samples (first {args.burn_in} skipped) over the oracle Kalman "
-        "predictor's; 1.0 is the limit. C A^i K err: relative error of i = 1..100, median. "
+        "predictor's; 1.0 is the limit. C A^i K err: relative Frobenius error of i = 1..100 with "
+        "outputs scaled to unit innovation (Re^-1/2 M Re^1/2), median. "
         "n/a: the method gives no noise model.",
         "",
         "Methods: " + ", ".join(methods) + ".",

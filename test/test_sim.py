@@ -252,6 +252,18 @@ def test_true_model_ratio_is_one_and_markov_error_is_similarity_invariant():
     off = dict(moved, K=1.02 * moved["K"])
     assert stochastic_markov_error(off, m, 100) == pytest.approx(0.02, rel=1e-6)
     assert prediction_error_ratio(off, m, u, y) > 1.0
+    # the innovation weighting makes the error independent of output units
+    Sy = np.diag([100.0, 1.0])
+    scaled_truth = InnovationModel(m.A, m.B, Sy @ m.C, Sy @ m.D, m.K @ np.linalg.inv(Sy),
+                                   Sy @ m.innovation_covariance @ Sy, m.sample_time_s)
+    dK = 0.05 * np.random.default_rng(1).standard_normal(moved["K"].shape)
+    off2 = dict(off, K=moved["K"] + dK)
+    off2_scaled = dict(off2, C=Sy @ off2["C"], D=Sy @ off2["D"], K=off2["K"] @ np.linalg.inv(Sy))
+    e1 = stochastic_markov_error(off2, m, 100)
+    assert stochastic_markov_error(off2_scaled, scaled_truth, 100) == pytest.approx(e1, rel=1e-9)
+    raw = stochastic_markov_error(off2, m, 100, weighting=None)
+    raw_scaled = stochastic_markov_error(off2_scaled, scaled_truth, 100, weighting=None)
+    assert abs(raw_scaled / raw - 1) > 0.05
 
 
 # ---------------------------------------------------------------------------

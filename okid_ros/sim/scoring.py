@@ -232,30 +232,45 @@ def prediction_error_ratio(model: Any, truth: Union[InnovationModel, NoisyStateS
 
 
 def stochastic_markov_error(model: Any, truth: Union[InnovationModel, NoisyStateSpace],
-                            n_terms: int = 100) -> float:
+                            n_terms: int = 100, weighting: Optional[str] = "innovation") -> float:
     """Relative error of the stochastic Markov parameters ``C A^i K``, i = 1..n_terms.
 
-    ``||[C A^i K]_model - [C A^i K]_true||_F / ||[C A^i K]_true||_F`` over the stacked
-    (n_terms * p, p) sequences, computed as ``C A^{i-1} L`` with ``L = A K``.  Invariant to
-    similarity transforms of the model.
+    ``M_i = C A^i K = C A^{i-1} L`` (``L = A K``) are the coefficients of the noise model
+    ``H(z) = I + sum_i M_i z^{-i}`` (paper Eq. 39).  The error is::
+
+        ||W (M_model - M_true) W^{-1}||_F / ||W M_true W^{-1}||_F    over i = 1..n_terms
+
+    with ``W = Re^{-1/2}`` of the true innovation covariance (``weighting="innovation"``,
+    default): the error of the noise model with outputs scaled to unit innovation, so it does
+    not depend on the units or scales of the outputs (with 6 accelerometers of very different
+    noise levels the unweighted norm is dominated by the noisiest channel).  ``weighting=None``
+    gives the plain Frobenius ratio.  Invariant to similarity transforms of the model.
 
     Parameters
     ----------
     model : identified model (see :func:`model_matrices`); must carry ``K`` or ``predictor_gain``.
-    truth : true system (oracle gain for a ``NoisyStateSpace``).
+    truth : true system (oracle gain and innovation covariance for a ``NoisyStateSpace``).
     n_terms : number of terms.
+    weighting : ``"innovation"`` or ``None``.
     """
     mm = model_matrices(model)
     if mm["L"] is None:
         raise ValueError("model has no gain K or L")
-    K_o, _ = kalman_predictor(truth)
+    K_o, Re = kalman_predictor(truth)
+    if weighting == "innovation":
+        Lc = np.linalg.cholesky(0.5 * (Re + Re.T))
+        left, right = np.linalg.inv(Lc), Lc
+    elif weighting is None:
+        left = right = np.eye(Re.shape[0])
+    else:
+        raise ValueError("weighting must be 'innovation' or None")
 
     def seq(A, C, L):
         out = np.empty((n_terms, C.shape[0], L.shape[1]))
         M = L.copy()
         with np.errstate(over="ignore", invalid="ignore"):
             for i in range(n_terms):
-                out[i] = C @ M
+                out[i] = left @ C @ M @ right
                 M = A @ M
         return out
 
