@@ -1,0 +1,99 @@
+"""Helpers for tests that run ROS 2 processes; the fixtures in conftest.py wrap them.
+
+Importable from test modules as `import ros_helpers` (pytest puts test/ on sys.path).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+# Jazzy replaced these by ROS_AUTOMATIC_DISCOVERY_RANGE; a stray value would override it.
+ROS_VARS_REMOVED = ("ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS")
+
+
+def subprocess_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """A copy of `base` (default os.environ) for a ROS process isolated in `domain_id`."""
+    env = dict(os.environ if base is None else base)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # discovery never leaves this machine
+    for var in ROS_VARS_REMOVED:
+        env.pop(var, None)
+    env["PYTHONUNBUFFERED"] = "1"  # output arrives line by line for wait_for_output
+    return env
+
+
+class RosProcess:
+    """A subprocess whose combined stdout/stderr is collected by a reader thread."""
+
+    def __init__(self, args: list[str], env: Mapping[str, str], cwd: Path = REPO_ROOT) -> None:
+        self.args = args
+        self.proc = subprocess.Popen(
+            args, env=env, cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True, bufsize=1,
+            start_new_session=True,  # signals reach the process group, not pytest
+        )
+        self._lines: list[str] = []
+        self._changed = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._changed:
+                self._lines.append(line)
+                self._changed.notify_all()
+        with self._changed:
+            self._changed.notify_all()
+
+    def output(self) -> str:
+        """Everything the process printed so far."""
+        with self._changed:
+            return "".join(self._lines)
+
+    def wait_for_output(self, pattern: str, timeout_s: float = 30.0) -> re.Match[str]:
+        """Wait until a printed line matches the regex `pattern`; fail on timeout or exit."""
+        regex = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        seen = 0
+        with self._changed:
+            while True:
+                for line in self._lines[seen:]:
+                    if match := regex.search(line):
+                        return match
+                seen = len(self._lines)
+                if self.proc.poll() is not None and not self._reader.is_alive():
+                    pytest.fail(f"{self.args} exited with {self.proc.returncode} before "
+                                f"printing /{pattern}/; output:\n{self.output()}")
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    pytest.fail(f"{self.args} did not print /{pattern}/ within {timeout_s} s; "
+                                f"output:\n{''.join(self._lines)}")
+                self._changed.wait(timeout=min(remaining, 0.5))
+
+    def stop(self, timeout_s: float = 10.0) -> int:
+        """Stop like Ctrl-C (SIGINT), escalating to SIGTERM and SIGKILL; return the exit code."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if self.proc.poll() is not None:
+                break
+            try:
+                os.killpg(self.proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                continue
+        self.proc.wait()
+        self._reader.join(timeout=timeout_s)
+        return self.proc.returncode
