@@ -1,0 +1,116 @@
+"""The `okid-ros` entry point: subcommand registration, errors as one line, no ROS for --help."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import types
+from importlib import metadata
+
+import pytest
+
+import okid_ros
+from okid_ros import cli
+from okid_ros.errors import DataError, OkidError, ParameterError
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    for module in cli.COMMAND_MODULES:
+        assert f"    {module.rsplit('.', 1)[-1]} " in out
+
+
+def test_no_command_prints_help_and_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([]) == 2
+    assert "usage: okid-ros" in capsys.readouterr().err
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["--version"])
+    assert capsys.readouterr().out.strip() == f"okid-ros {okid_ros.__version__}"
+
+
+@pytest.fixture
+def fake_command(monkeypatch: pytest.MonkeyPatch) -> types.ModuleType:
+    """A command module `fake` whose run() raises what the test puts in `module.error`."""
+    module = types.ModuleType("okid_ros_test_fake_command")
+    module.error = None
+
+    def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+        parser = subparsers.add_parser("fake", help="test command")
+        parser.set_defaults(func=run)
+        return parser
+
+    def run(args: argparse.Namespace) -> int:
+        if module.error is not None:
+            raise module.error
+        return 7
+
+    module.add_parser, module.run = add_parser, run
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, module.__name__))
+    return module
+
+
+def test_command_exit_status_is_returned(fake_command: types.ModuleType) -> None:
+    assert cli.main(["fake"]) == 7
+
+
+@pytest.mark.parametrize("error", [OkidError("plain"), DataError("no topic /imu in bag.mcap"),
+                                   ParameterError("window_length must be in [10, 100000]")])
+def test_okid_error_is_one_line_and_status_2(fake_command: types.ModuleType, error: OkidError,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    fake_command.error = error
+    assert cli.main(["fake"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == f"okid-ros fake: error: {error}\n"
+    assert captured.out == ""
+
+
+def test_other_exceptions_are_not_hidden(fake_command: types.ModuleType) -> None:
+    fake_command.error = ZeroDivisionError("a bug")
+    with pytest.raises(ZeroDivisionError):
+        cli.main(["fake"])
+
+
+def test_command_modules_follow_the_contract() -> None:
+    """Each module has add_parser and run, and the parser is built without ROS or plotting.
+
+    Run in a fresh interpreter: this one has imported rclpy already.
+    """
+    code = (
+        "import sys; from okid_ros import cli; cli.build_parser()\n"
+        "heavy = sorted(m for m in ('rclpy', 'okid_msgs', 'matplotlib', 'rosbags')"
+        " if m in sys.modules)\n"
+        "assert not heavy, f'imported while building the parser: {heavy}'\n"
+        "import importlib\n"
+        "for name in cli.COMMAND_MODULES:\n"
+        "    module = importlib.import_module(name)\n"
+        "    assert callable(module.add_parser) and callable(module.run), name\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+
+
+def test_console_scripts_are_declared() -> None:
+    scripts = {ep.name: ep.value for ep in metadata.entry_points(group="console_scripts")
+               if ep.value.startswith("okid_ros.")}
+    assert scripts["okid-ros"] == "okid_ros.cli:main"
+    assert scripts["arx_identifier"] == "okid_ros.nodes.arx_identifier_node:main"
+    assert scripts["modal_estimator"] == "okid_ros.nodes.modal_estimator_node:main"
+
+
+def test_info_selftest_over_dds(ros_env: dict[str, str]) -> None:
+    """`make demo`'s current command: okid_msgs through Fast DDS in a separate process."""
+    result = subprocess.run(
+        [sys.executable, "-m", "okid_ros.cli", "info", "--selftest", "--count", "50"],
+        env=ros_env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "selftest: 50/50 okid_msgs/IoSample delivered over rmw_fastrtps_cpp" in result.stdout
+    assert f"ROS_DOMAIN_ID={ros_env['ROS_DOMAIN_ID']}" in result.stdout
