@@ -9,7 +9,7 @@ system ``[Phi; sqrt(penalty) L^T] Theta = [Y; 0]``). The outputs carry a large o
 the add/remove rounding is larger than with zero-mean data. The run is done twice: with the
 default periodic refactorization, and with it switched off (to show what it prevents).
 Prints the maximum relative deviation, the estimator's own memory (``memory_bytes``), the
-memory traced by ``tracemalloc`` and the process RSS at the first and last checkpoint.
+memory traced by ``tracemalloc`` and the process RSS (first, second, largest and last checkpoint).
 One BLAS thread.
 """
 
@@ -87,8 +87,8 @@ def run(u: np.ndarray, y: np.ndarray, refactor_every: int | None, check_every: i
         "cond": cond,
         "checks": len(mem),
         "mem": (mem[0], mem[-1]),
-        "traced": (traced[0], traced[-1]),
-        "rss": (rss[0], rss[-1]),
+        "traced": (traced[0], traced[1] if len(traced) > 1 else traced[0], max(traced), traced[-1]),
+        "rss": (rss[0], rss[1] if len(rss) > 1 else rss[0], max(rss), rss[-1]),
         "refactorizations": est.status.refactorizations,
         "feed_us": feed_s / n * 1e6,
         "total_s": time.perf_counter() - t0,
@@ -104,7 +104,8 @@ def main() -> None:
     print(f"# recursive window over {args.samples} samples (d = 402, W = {WINDOW}, y offset {OFFSET})\n")
     print("| refactorization | checks | max rel. dev. vs batch lstsq | max rel. dev. vs fresh normal eq. "
           "| scaled cond(R) | refactorizations "
-          "| estimator memory (MB) first -> last | traced (MB) first -> last | RSS (MB) first -> last "
+          "| estimator memory (MB) first -> last | traced (MB) first, second, max, last "
+          "| RSS (MB) first, second, max, last "
           "| feed us/sample |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     mb = 1.0 / 2**20
@@ -115,8 +116,8 @@ def main() -> None:
         print(f"| {label} | {r['checks']} | {r['worst']:.2e} | {r['worst_fresh']:.2e} | {r['cond']:.3g} "
               f"| {r['refactorizations']} "
               f"| {r['mem'][0] * mb:.2f} -> {r['mem'][1] * mb:.2f} "
-              f"| {r['traced'][0] * mb:.2f} -> {r['traced'][1] * mb:.2f} "
-              f"| {r['rss'][0] * mb:.0f} -> {r['rss'][1] * mb:.0f} | {r['feed_us']:.1f} |")
+              f"| {', '.join(f'{x * mb:.2f}' for x in r['traced'])} "
+              f"| {', '.join(f'{x * mb:.0f}' for x in r['rss'])} | {r['feed_us']:.1f} |")
     r = results["every 100000 rows (default)"]
     print()
     print(f"max_rel_deviation={r['worst']:.3e} drift={r['worst_fresh']:.3e} memory_bytes={r['mem'][1]} flat={r['mem'][0] == r['mem'][1]}")

@@ -418,3 +418,17 @@ def test_long_run_no_drift_and_flat_memory():
     assert worst <= RTOL
     assert len(set(sizes[1:])) == 1
     assert est.status.refactorizations == 2
+
+
+def test_to_arx_fit_packages_the_current_window_estimate():
+    q, p, m, W = 3, 2, 2, 300
+    u, y = simulate(800, p, m, seed=20)
+    est = SlidingWindowArx(q, p, m, window=W, penalty=0.5)
+    est.update(u, y)
+    fit = est.to_arx_fit()
+    np.testing.assert_array_equal(fit.theta, est.coefficients())
+    assert (fit.order, fit.n_outputs, fit.n_inputs, fit.n_rows) == (q, p, m, W)
+    phi, t, _ = arx_regressors(u, y, q)
+    resid = t[-W:] - phi[-W:] @ fit.theta
+    np.testing.assert_allclose(fit.residual_covariance * (W - fit.effective_parameters), resid.T @ resid, rtol=1e-8)
+    assert 0 < fit.effective_parameters < est.n_params
