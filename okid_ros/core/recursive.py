@@ -28,7 +28,7 @@ rounding of the add/remove cycle never accumulates.
 
 Memory: the sample buffer holds the samples that the rows of the window need, ``W + q`` of
 them without gaps (``(W + q)(p + m)`` floats; with many gaps inside the window up to
-``q`` more per gap), times at most 2 for amortized compaction, plus ``G`` and the prior, O(d^2).
+``q`` more per gap), with 2-4 times that allocated for amortized compaction, plus ``G`` and the prior, O(d^2).
 
 Bad samples and gaps
 --------------------
@@ -302,7 +302,7 @@ class SlidingWindowArx:
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget all samples, rows, counters and estimates (the configuration is kept)."""
-        q, w, D = self.order, self._w, self._D
+        q, D = self.order, self._D
         cap = 2 * ((self.window or 0) + q + self.block_size) + 16
         self._alloc(cap)
         self._n = 0  # buffer positions in use
@@ -333,7 +333,7 @@ class SlidingWindowArx:
         self._rows = sliding_window_view(self._buf.reshape(-1), self._D)[:: self._w]
 
     def _set_theta(self, theta: np.ndarray) -> None:
-        q, w, p, m = self.order, self._w, self.n_outputs, self.n_inputs
+        p = self.n_outputs
         self._theta = theta
         # Coefficients of psi_k = [v_{k-q}, ..., v_{k-1}, y_k, u_k] (time order, y_k part zero),
         # so that e_k = y_k - psi_k^T theta_psi needs no reordering of the buffer.
