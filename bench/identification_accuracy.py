@@ -97,7 +97,10 @@ def _our_methods() -> tuple[dict[str, Method], str]:
     def paper(u, y, dt, n, q):
         return identify(u, y, dt, order=q, n_states=n, method="paper")
 
-    return {"okid": okid, "paper": paper, "okid-auto": okid_auto}, ""
+    def okid_ls(u, y, dt, n, q):
+        return identify(u, y, dt, order=q, n_states="auto", refine=False)
+
+    return {"okid": okid, "paper": paper, "okid-auto": okid_auto, "okid-ls": okid_ls}, ""
 
 
 def _peer_method(name: str) -> Method:
@@ -118,7 +121,7 @@ def all_methods() -> tuple[dict[str, Method], str]:
     return methods, note
 
 
-DEFAULT_METHODS = ("okid", "paper", "control-era", "sippy-n4sid", "sippy-moesp", "sippy-cva",
+DEFAULT_METHODS = ("okid-auto", "okid", "okid-ls", "paper", "control-era", "sippy-n4sid", "sippy-moesp", "sippy-cva",
                    "nfoursid")
 
 
@@ -193,7 +196,9 @@ def run_case(case: BenchmarkCase, n_samples: int, seeds: list[int], methods: dic
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    model = fn(u, y, case.sample_time_s, case.n_states, case.arx_order)
+                    # copies: a method that scales its data in place must not touch the next's
+                    model = fn(u.copy(), y.copy(), case.sample_time_s, case.n_states,
+                               case.arx_order)
                 dt_s = time.perf_counter() - t0
                 with np.errstate(all="ignore"):
                     sc = score_model(model, case, u_val, y_val, burn_in)
@@ -342,7 +347,7 @@ def main(argv: Optional[list[str]] = None) -> int:
 
     available, note = all_methods()
     wanted = args.methods.split(",") if args.methods else list(DEFAULT_METHODS)
-    unknown = [m for m in wanted if m not in available and m not in ("okid", "paper", "okid-auto")
+    unknown = [m for m in wanted if m not in available and m not in ("okid", "paper", "okid-auto", "okid-ls")
                and m not in PEERS]
     if unknown:
         ap.error(f"unknown methods: {', '.join(unknown)}")

@@ -31,6 +31,7 @@ from okid_ros.core.era import HankelDecomposition, decompose_hankel, default_han
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.markov import markov_from_arx, markov_from_state_space
 from okid_ros.core.modal import ModalForm, Mode, modal_form
+from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit, fit_from_states, refit_predictor
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
 from okid_ros.core.statespace import one_step_prediction
@@ -43,6 +44,10 @@ COMPLETIONS = ("auto", "predictor", "states")
 # Above this many flops for the refit's normal equations, "auto" completes from states instead
 # (2e10 is ~1 s here; the paper case needs 2e8, 28 outputs need 3e11).
 PREDICTOR_REFIT_FLOP_LIMIT = 2e10
+# The prediction-error refinement uses finite-difference Jacobians: skip it for larger models.
+MAX_REFINE_PARAMETERS = 400
+# The automatic order search stops this many states past the best BIC so far.
+ORDER_SEARCH_PATIENCE = 8
 
 
 class IdentificationError(ValueError):
@@ -73,6 +78,7 @@ class IdentifiedModel:
     x0: np.ndarray | None = None
     system_markov: np.ndarray | None = None
     completion: str = "predictor"
+    refined: bool = False
 
     @property
     def n_states(self) -> int:
@@ -96,6 +102,7 @@ class IdentifiedModel:
             "method": self.method,
             "gain_method": self.gain_method,
             "completion": self.completion,
+            "refined": self.refined,
             "arx_order": int(self.arx.order),
             "arx_regularization": self.arx.regularization,
             "arx_penalty": float(self.arx.penalty),
@@ -204,6 +211,7 @@ def identify_from_arx(
     valid: np.ndarray | None = None,
     ar_order: int | None = None,
     completion: str = "auto",
+    refine: bool = True,
     **mode_criteria,
 ) -> IdentifiedModel:
     """Steps 2-5 of the robust chain on an identified ARX model and the data of its window.
@@ -223,6 +231,8 @@ def identify_from_arx(
         (least-squares refit of ``L``, ``Bbar``, ``D`` for the realized ``Abar``, ``C``),
         "states" (regressions on the predictor-based state sequence; fast with many outputs)
         or "auto" (the refit unless it is expensive); see :mod:`okid_ros.core.refit`.
+    refine : finish with the prediction-error refinement of :mod:`okid_ros.core.refine` (skipped
+        above ``MAX_REFINE_PARAMETERS``; kept only if it lowers the cost).
     mode_criteria : passed to :func:`okid_ros.core.modal.identify_modes`.
     """
     if gain not in GAINS:
@@ -249,7 +259,7 @@ def identify_from_arx(
             raise IdentificationError("the state completion needs a contiguous record (no gaps)")
     scores: dict[int, float] = {}
     best: PredictorFit | None = None
-    best_score = np.inf
+    best_score, best_n = np.inf, 0
     reasons = []
     for n in orders:
         try:
@@ -263,14 +273,22 @@ def identify_from_arx(
             continue
         scores[n] = fit.bic()
         if scores[n] < best_score:
-            best, best_score = fit, scores[n]
+            best, best_score, best_n = fit, scores[n], n
+        elif n_states == "auto" and n >= best_n + ORDER_SEARCH_PATIENCE:
+            break  # BIC has not improved for a while: larger orders only add spurious states
     if best is None:
         raise IdentificationError("no model order gave a usable predictor: " + "; ".join(reasons[:3]))
+    refined = False
+    if refine and refinement_size(best.A.shape[0], y.shape[1], u.shape[1]) <= MAX_REFINE_PARAMETERS:
+        better = refine_prediction_error(best.A, best.B, best.C, best.D, best.K, u, y, burn_in=arx.order)
+        if better is not None:
+            best, refined = better, True
     if completion == "states":
         # Express x0 at the first sample of the record for the estimator's warm start.
         u, y = u[z_rows], y[z_rows]
     model = _finish(best, arx, sample_time_s, decomposition.s, gain, scores, u, y, ar_order, mode_criteria)
     model.completion = completion
+    model.refined = refined
     return model
 
 
@@ -332,6 +350,7 @@ def identify(
     hankel_rows: int | None = None,
     hankel_cols: int | None = None,
     completion: str = "auto",
+    refine: bool = True,
     **mode_criteria,
 ) -> IdentifiedModel:
     """Identify an innovation-form model in modal form from one input/output record.
@@ -347,6 +366,7 @@ def identify(
     ar_order : order r of the whitening AR filter (default: q).
     max_states : upper bound of the automatic order search.
     completion : "auto", "predictor" or "states" (see :func:`identify_from_arx`).
+    refine : prediction-error refinement as the last step (see :func:`identify_from_arx`).
 
     Raises
     ------
@@ -381,7 +401,7 @@ def identify(
         return _identify_paper(arx, u, y, sample_time_s, n_states, hankel_rows, hankel_cols, ar_order, mode_criteria)
     return identify_from_arx(
         arx, u, y, sample_time_s, n_states, max_states, hankel_rows, hankel_cols, gain, ar_order=ar_order,
-        completion=completion, **mode_criteria,
+        completion=completion, refine=refine, **mode_criteria,
     )
 
 
