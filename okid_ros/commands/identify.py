@@ -52,6 +52,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="ARX regularization (default: ridge for okid, none for paper)")
     parser.add_argument("--gain", choices=("refit", "whitening"), default="refit",
                         help="estimator gain: least-squares refit (default) or the paper's whitening")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="skip the final prediction-error refinement (faster, less accurate)")
     parser.add_argument("--max-states", type=_positive_int, default=40, metavar="N",
                         help="largest order tried by --states auto (default: %(default)s)")
     parser.add_argument("--json", required=True, metavar="OUT.json", help="where to write the model")
@@ -82,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
             gain=args.gain,
             ar_order=args.ar_order,
             max_states=args.max_states,
+            refine=not args.no_refine,
         )
     except IdentificationError as exc:
         raise DataError(str(exc)) from None
