@@ -21,7 +21,7 @@ matters, are left out of the cost. The result is mapped back to the real modal b
 from __future__ import annotations
 
 import numpy as np
-from scipy import linalg, optimize, signal
+from scipy import linalg, signal
 
 from okid_ros.core.refit import PredictorFit, gain_from_predictor
 
@@ -136,6 +136,45 @@ class _Predictor:
         return y_hat
 
 
+def _levenberg_marquardt(residuals, jacobian, theta: np.ndarray, max_evaluations: int) -> tuple[np.ndarray, float]:
+    """Minimize ``||residuals(theta)||^2`` by Levenberg-Marquardt with Marquardt's diagonal scaling.
+
+    Solves the small normal equations ``(J^T J + mu diag(J^T J)) dx = -J^T r`` instead of an SVD
+    of the tall Jacobian: the parameters are tens, the residuals thousands.
+    """
+    r = residuals(theta)
+    cost = float(r @ r)
+    mu = 1e-3
+    evaluations = 1
+    while evaluations < max_evaluations:
+        J = jacobian(theta)
+        g = J.T @ r
+        H = J.T @ J
+        diag = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
+        improved = False
+        while evaluations < max_evaluations:
+            try:
+                step = -linalg.solve(H + mu * np.diag(diag), g, assume_a="pos")
+            except (linalg.LinAlgError, ValueError):
+                mu *= 10.0
+                continue
+            trial = theta + step
+            r_trial = residuals(trial)
+            evaluations += 1
+            cost_trial = float(r_trial @ r_trial)
+            if cost_trial < cost:
+                improved = cost - cost_trial > 1e-10 * cost
+                theta, r, cost = trial, r_trial, cost_trial
+                mu = max(mu / 3.0, 1e-9)
+                break
+            mu *= 4.0
+            if mu > 1e8:
+                return theta, cost
+        if not improved:
+            break
+    return theta, cost
+
+
 def refine_prediction_error(
     A: np.ndarray,
     B: np.ndarray,
@@ -197,12 +236,10 @@ def refine_prediction_error(
 
     theta0 = model.pack(pairs, reals, D)
     cost0 = float(np.sum(residuals(theta0) ** 2))
-    result = optimize.least_squares(
-        residuals, theta0, jac=jacobian, method="trf", x_scale="jac", max_nfev=max_evaluations
-    )
-    if not np.all(np.isfinite(result.x)) or 2 * result.cost >= cost0:
+    theta, cost = _levenberg_marquardt(residuals, jacobian, theta0, max_evaluations)
+    if not np.all(np.isfinite(theta)) or cost >= cost0:
         return None
-    pairs, reals, D_new = model.unpack(result.x)
+    pairs, reals, D_new = model.unpack(theta)
     # Back to real coordinates: one 2x2 block per pair (states Re xi, Im xi), one state per real pole.
     Abar_r = np.zeros((n, n))
     G_r = np.zeros((n, p + m))
@@ -222,7 +259,7 @@ def refine_prediction_error(
     L_new, Bbar_new = G_r[:, :p], G_r[:, p:]
     A_new = Abar_r + L_new @ C_r
     B_new = Bbar_new + L_new @ D_new
-    innovations = y - model.predict(result.x, v, u)
+    innovations = y - model.predict(theta, v, u)
     used = innovations[burn_in:]
     cov = used.T @ used / used.shape[0]
     n_free = n * (2 * p + m) + p * m
