@@ -78,6 +78,17 @@ def test_other_exceptions_are_not_hidden(fake_command: types.ModuleType) -> None
         cli.main(["fake"])
 
 
+def test_unimportable_command_does_not_break_the_others(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = "okid_ros.commands.not_written_yet"
+    monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, missing))
+    assert "not_written_yet" in cli.build_parser().format_help()
+    assert cli.main(["not_written_yet", "--some", "args"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("okid-ros not_written_yet: error: this command is unavailable: ")
+    assert err.count("\n") == 1
+
+
 def test_command_modules_follow_the_contract() -> None:
     """Each module has add_parser and run, and the parser is built without ROS or plotting.
 
