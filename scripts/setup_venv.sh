@@ -142,7 +142,9 @@ build_msgs() {
     log "building okid_msgs with colcon into $VENV"
     # Merge-install into the venv prefix: the libraries land in $VENV/lib (on the library path
     # the wheels' start-up hook sets) and the Python package in site-packages, so nothing has
-    # to be sourced. Build files and logs stay inside the venv.
+    # to be sourced. Build files and logs stay inside the venv. Always a clean build (~15 s):
+    # an incremental one can keep a stale CMake cache (another checkout, a renamed message).
+    rm -rf "$VENV/.build/colcon"
     (
         export CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV"
         "$VENV/bin/colcon" --log-base "$VENV/.build/log" build \
