@@ -1,0 +1,188 @@
+"""Input sources: which topics fill which channels of the sample ``[u; y]``.
+
+Both nodes read the same sources, given by the string array parameter ``inputs.sources``,
+one string per topic::
+
+    KIND TOPIC [FIELD=CHANNEL ...]
+
+``CHANNEL`` is ``u<i>`` (input i, 0-based, i < n_inputs) or ``y<j>`` (output j < n_outputs).
+Kinds, their message types and their fields:
+
+============  ==================================  ===========================================
+KIND          message type                        FIELDs
+============  ==================================  ===========================================
+io_sample     okid_msgs/msg/IoSample              ``u[i]``, ``y[j]``; no mapping: all channels,
+                                                  ``u[i]=ui`` and ``y[j]=yj``
+imu           sensor_msgs/msg/Imu                 ``linear_acceleration.x|y|z``,
+                                                  ``angular_velocity.x|y|z``
+accel         geometry_msgs/msg/AccelStamped      ``accel.linear.x|y|z``, ``accel.angular.x|y|z``
+wrench        geometry_msgs/msg/WrenchStamped     ``wrench.force.x|y|z``, ``wrench.torque.x|y|z``
+                                                  (``force.x`` and ``torque.x`` are short forms)
+array         std_msgs/msg/Float64MultiArray      ``data[i]``; ``data[i]=stamp`` takes the stamp
+                                                  in seconds from element i
+============  ==================================  ===========================================
+
+Examples::
+
+    io_sample /okid/io_sample
+    imu /truss/tip_accel_1 linear_acceleration.x=y0
+    wrench /truss/thruster_1 force.x=u0
+    array /daq/frame data[0]=stamp data[1]=u0 data[2]=u1 data[3]=y0 data[4]=y1
+
+Stamps: ``header.stamp`` of the message; a Float64MultiArray has no header, so without a
+``stamp`` element it is stamped with its arrival time on the node clock, which is only as good
+as the transport jitter (use it with one source for all channels, or give a stamp element).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "channel_index"]
+
+#: kind -> (message type, field aliases -> canonical field path)
+SOURCE_KINDS: dict[str, str] = {
+    "io_sample": "okid_msgs/msg/IoSample",
+    "imu": "sensor_msgs/msg/Imu",
+    "accel": "geometry_msgs/msg/AccelStamped",
+    "wrench": "geometry_msgs/msg/WrenchStamped",
+    "array": "std_msgs/msg/Float64MultiArray",
+}
+
+_AXES = ("x", "y", "z")
+_FIELDS: dict[str, dict[str, tuple]] = {
+    "imu": {
+        f"{group}.{a}": (group, a) for group in ("linear_acceleration", "angular_velocity") for a in _AXES
+    },
+    "accel": {
+        **{f"accel.{g}.{a}": ("accel", g, a) for g in ("linear", "angular") for a in _AXES},
+        **{f"{g}.{a}": ("accel", g, a) for g in ("linear", "angular") for a in _AXES},
+    },
+    "wrench": {
+        **{f"wrench.{g}.{a}": ("wrench", g, a) for g in ("force", "torque") for a in _AXES},
+        **{f"{g}.{a}": ("wrench", g, a) for g in ("force", "torque") for a in _AXES},
+    },
+}
+_INDEXED = re.compile(r"^(u|y|data)\[(\d+)\]$")
+_CHANNEL = re.compile(r"^(u|y)(\d+)$")
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """One parsed input source.
+
+    Attributes
+    ----------
+    kind : io_sample, imu, accel, wrench or array.
+    topic : the topic name.
+    msg_type : ROS type name, e.g. ``sensor_msgs/msg/Imu``.
+    fields : per value, the attribute path in the message; a final int indexes a sequence
+        (``("linear_acceleration", "x")``, ``("u", 1)``, ``("data", 3)``).
+    channels : per value, the channel index in ``[u_0 .. u_{m-1}, y_0 .. y_{p-1}]``.
+    stamp_index : element of ``data`` holding the stamp in seconds (array sources), else None.
+    text : the specification as given.
+    whole_sample : an io_sample source without mappings (``u`` and ``y`` must have m and p values).
+    """
+
+    kind: str
+    topic: str
+    msg_type: str
+    fields: tuple[tuple, ...]
+    channels: tuple[int, ...]
+    stamp_index: int | None
+    text: str
+    whole_sample: bool = False  # io_sample without mappings: u and y as they are
+
+    @property
+    def has_header(self) -> bool:
+        return self.kind != "array"
+
+
+def channel_index(name: str, n_inputs: int, n_outputs: int) -> int:
+    """'u1' -> 1, 'y0' -> n_inputs; ValueError for a bad name or an index out of range."""
+    match = _CHANNEL.match(name)
+    if not match:
+        raise ValueError(f"channel {name!r} must be u<i> (input) or y<j> (output)")
+    kind, idx = match.group(1), int(match.group(2))
+    limit = n_inputs if kind == "u" else n_outputs
+    if idx >= limit:
+        what = "n_inputs" if kind == "u" else "n_outputs"
+        raise ValueError(f"channel {name} is out of range: {what} = {limit}")
+    return idx if kind == "u" else n_inputs + idx
+
+
+def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
+    """Parse one ``KIND TOPIC [FIELD=CHANNEL ...]`` string; ValueError says what is wrong."""
+    parts = text.split()
+    if len(parts) < 2:
+        raise ValueError(f"input source {text!r}: expected 'KIND TOPIC [FIELD=CHANNEL ...]'")
+    kind, topic, mappings = parts[0], parts[1], parts[2:]
+    if kind not in SOURCE_KINDS:
+        raise ValueError(f"input source {text!r}: unknown kind {kind!r}; kinds are {', '.join(SOURCE_KINDS)}")
+    if not topic.startswith("/") and not re.match(r"^[A-Za-z~]", topic):
+        raise ValueError(f"input source {text!r}: {topic!r} is not a topic name")
+    fields: list[tuple] = []
+    channels: list[int] = []
+    stamp_index = None
+    if kind == "io_sample" and not mappings:
+        fields = [("u", i) for i in range(n_inputs)] + [("y", j) for j in range(n_outputs)]
+        channels = list(range(n_inputs + n_outputs))
+    for mapping in mappings:
+        if mapping.count("=") != 1:
+            raise ValueError(f"input source {text!r}: mapping {mapping!r} must be FIELD=CHANNEL")
+        field_text, channel_text = mapping.split("=")
+        if kind in ("io_sample", "array"):
+            match = _INDEXED.match(field_text)
+            wanted = ("u", "y") if kind == "io_sample" else ("data",)
+            if not match or match.group(1) not in wanted:
+                form = "u[i] or y[j]" if kind == "io_sample" else "data[i]"
+                raise ValueError(f"input source {text!r}: field {field_text!r} must be {form}")
+            path: tuple = (match.group(1), int(match.group(2)))
+        else:
+            if field_text not in _FIELDS[kind]:
+                valid = sorted(f for f in _FIELDS[kind] if f.count(".") == (2 if kind != "imu" else 1))
+                raise ValueError(
+                    f"input source {text!r}: {kind} has no field {field_text!r}; fields are {', '.join(valid)}"
+                )
+            path = _FIELDS[kind][field_text]
+        if channel_text == "stamp":
+            if kind != "array":
+                raise ValueError(f"input source {text!r}: only array sources take the stamp from a field")
+            if stamp_index is not None:
+                raise ValueError(f"input source {text!r}: two stamp fields")
+            stamp_index = path[1]
+            continue
+        try:
+            channel = channel_index(channel_text, n_inputs, n_outputs)
+        except ValueError as exc:
+            raise ValueError(f"input source {text!r}: {exc}") from None
+        if channel in channels:
+            raise ValueError(f"input source {text!r}: channel {channel_text} mapped twice")
+        fields.append(path)
+        channels.append(channel)
+    if not channels:
+        raise ValueError(f"input source {text!r}: maps no channel (add FIELD=CHANNEL)")
+    return SourceSpec(
+        kind, topic, SOURCE_KINDS[kind], tuple(fields), tuple(channels), stamp_index, text,
+        whole_sample=kind == "io_sample" and not mappings,
+    )
+
+
+def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
+    """Parse every source; the channels must be covered exactly once over all sources."""
+    specs = [parse_source(t, n_inputs, n_outputs) for t in texts if t.strip()]
+    if not specs:
+        raise ValueError("inputs.sources is empty: give at least one input source")
+    owner: dict[int, str] = {}
+    for spec in specs:
+        for c in spec.channels:
+            if c in owner:
+                name = f"u{c}" if c < n_inputs else f"y{c - n_inputs}"
+                raise ValueError(f"channel {name} is mapped by two sources: {owner[c]!r} and {spec.text!r}")
+            owner[c] = spec.text
+    missing = [f"u{c}" if c < n_inputs else f"y{c - n_inputs}"
+               for c in range(n_inputs + n_outputs) if c not in owner]
+    if missing:
+        raise ValueError(f"no input source provides channel(s) {', '.join(missing)}")
+    return specs
