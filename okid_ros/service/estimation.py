@@ -1,0 +1,714 @@
+"""Node 2 without ROS: realization of ARX models, mode tracking and the modal state estimator.
+
+:class:`ModalEstimationService` receives every assembled sample (:meth:`step`) and, now and
+then, an ARX fit of node 1 (:meth:`submit_arx`). For every sample it runs the identified state
+estimator (:class:`okid_ros.core.estimator.ModalStateEstimator`, filterpy) and returns the
+modal states; for an ARX fit it realizes a model (:func:`okid_ros.core.pipeline.identify_from_arx`:
+weighted ERA, least-squares refit of B, D and the gain, normalized modal form) from the fit
+and the samples of its window, which this service buffers itself.
+
+Life of a model update::
+
+    submit_arx(fit, stamp_end_s)   newest request kept; older waiting ones are replaced
+    take_job()                     when the buffer holds the window's end sample: a job with a
+                                   copy of the window (u, y), or None
+    run_job(job)                   the expensive part (ERA + refit, ~0.5 s at q = 100), then a
+                                   warm start: the new model's predictor runs over the window
+                                   and over the samples that arrived meanwhile, so its state
+                                   is converged when it takes over; any thread
+    deliver(outcome)               hands the result back
+    step(...)                      the next sample switches models at a sample boundary
+
+``process_pending()`` runs the last three synchronously (offline processing).
+
+Checks before a model is accepted (otherwise the current one is kept, with the reason in
+:meth:`diagnostics`):
+
+- the realization succeeded, ``A`` is stable (spectral radius < 1) and has a physical mode;
+- modes are not lost: at least ``min_matched_fraction`` of the current model's modes are found
+  again (frequency within ``max_frequency_change``, MAC >= ``min_mac``, by
+  :func:`okid_ros.core.modal.match_modes`). After ``max_consecutive_rejections`` models
+  rejected in a row for lost modes, the next stable one is accepted (the structure changed).
+
+Mode ids are persistent: a mode matched to one seen in the last ``mode_memory`` accepted
+models keeps its id (and ``mac_previous`` is its MAC to it); other modes get fresh ids.
+
+No jump at a model switch: the new estimator starts from the state its own predictor reaches
+over the buffered samples (not from zero), and the normalized modal form of
+:mod:`okid_ros.core.modal` fixes each mode's coordinates up to the identification error, so
+matched modes continue smoothly. The size of the step at each switch relative to the modes'
+RMS amplitude is measured and reported (``last_switch_jump``).
+
+Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
+predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
+time jump the estimator restarts from zero.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping
+
+import numpy as np
+from scipy import linalg
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.modal import Mode, mac, match_modes
+from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
+from okid_ros.service.sample_grid import RESTART_SKIP  # noqa: F401  (the ``skipped`` of a restart)
+
+__all__ = [
+    "ModalEstimationParams",
+    "ModalEstimationService",
+    "ModalStatesResult",
+    "ModelUpdate",
+    "RealizationJob",
+    "RealizationOutcome",
+]
+
+
+
+@dataclass
+class ModalEstimationParams:
+    """Settings of the realization, mode tracking and estimator (ROS names in params.py)."""
+
+    sample_time_s: float = 0.008
+    n_inputs: int = 2
+    n_outputs: int = 2
+    n_states: int = 0  # 0: automatic (BIC)
+    max_states: int = 40
+    gain: str = "refit"
+    refine: bool = True
+    max_damping: float = 0.2
+    min_msv: float = 1e-3
+    max_nyquist_fraction: float = 0.95
+    max_frequency_change: float = 0.05
+    min_mac: float = 0.7
+    min_matched_fraction: float = 0.5
+    max_consecutive_rejections: int = 3
+    mode_memory: int = 10
+    buffer_length: int = 0  # 0: sized from the ARX window
+    max_gap_samples: int = 10
+    handover_samples: int = 4
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> "ModalEstimationParams":
+        """From the resolved node parameters (dotted names)."""
+        return cls(
+            sample_time_s=float(values["sample_time_s"]),
+            n_inputs=int(values["n_inputs"]),
+            n_outputs=int(values["n_outputs"]),
+            n_states=int(values["realization.n_states"]),
+            max_states=int(values["realization.max_states"]),
+            gain=str(values["realization.gain"]),
+            refine=bool(values["realization.refine"]),
+            max_damping=float(values["modes.max_damping"]),
+            min_msv=float(values["modes.min_msv"]),
+            max_nyquist_fraction=float(values["modes.max_nyquist_fraction"]),
+            max_frequency_change=float(values["tracking.max_frequency_change"]),
+            min_mac=float(values["tracking.min_mac"]),
+            min_matched_fraction=float(values["tracking.min_matched_fraction"]),
+            max_consecutive_rejections=int(values["tracking.max_consecutive_rejections"]),
+            mode_memory=int(values["tracking.mode_memory"]),
+            buffer_length=int(values["estimator.buffer_length"]),
+            max_gap_samples=int(values["estimator.max_gap_samples"]),
+        )
+
+
+@dataclass
+class ModelUpdate:
+    """An accepted model, as ``StateSpaceModel`` carries it."""
+
+    model: IdentifiedModel
+    model_id: int
+    arx_model_id: int
+    stamp_s: float  # newest sample of the window it was identified from
+    modes: list[Mode]  # physical modes with persistent ids, in state order
+    realization_time_s: float
+    window_samples: int
+
+
+@dataclass
+class ModalStatesResult:
+    """The estimate for one sample, as ``ModalStates`` carries it.
+
+    Attributes
+    ----------
+    stamp_s : the sample's stamp [s].
+    model_id : id of the model that produced it.
+    modes : the model's physical modes (persistent ids), in the order of ``coordinates``.
+    coordinates : (n_modes, 2) normalized modal states.
+    y_estimated : (p,) ``C x + D u`` (filtered).
+    innovation : (p,) ``y - C xhat - D u`` (one-step prediction error).
+    update : the model accepted at this sample, if any (publish it before the states).
+    """
+
+    stamp_s: float
+    model_id: int
+    modes: list[Mode]
+    coordinates: np.ndarray
+    y_estimated: np.ndarray
+    innovation: np.ndarray
+    update: ModelUpdate | None = None
+
+
+@dataclass
+class RealizationJob:
+    """Everything :meth:`ModalEstimationService.run_job` needs (a copy; thread-safe)."""
+
+    fit: ArxFit
+    arx_model_id: int
+    stamp_end_s: float
+    u: np.ndarray
+    y: np.ndarray
+    end_index: int  # absolute buffer index of the window's last sample
+    params: ModalEstimationParams
+    generation: int = 0  # outcomes of jobs taken before a reset are dropped
+
+
+@dataclass
+class RealizationOutcome:
+    """Result of :meth:`ModalEstimationService.run_job`.
+
+    ``model`` is None when the realization failed its checks (``reason``); otherwise
+    ``state`` is the new model's predicted state for the sample after ``last_index``.
+    """
+
+    job: RealizationJob
+    model: IdentifiedModel | None
+    reason: str = ""
+    state: np.ndarray | None = None
+    last_index: int = -1
+    last_input: np.ndarray | None = None
+    realization_time_s: float = 0.0
+    warm_start_samples: int = 0
+
+
+class _SampleBuffer:
+    """Ring buffer of recent samples, indexed by an absolute sample counter; thread-safe."""
+
+    def __init__(self, capacity: int, m: int, p: int) -> None:
+        self.lock = threading.Lock()
+        self.m, self.p = m, p
+        self._alloc(max(int(capacity), 16))
+        self.count = 0
+
+    def _alloc(self, cap: int) -> None:
+        self.cap = cap
+        self.stamps = np.zeros(cap)
+        self.u = np.zeros((cap, self.m))
+        self.y = np.zeros((cap, self.p))
+        self.skipped = np.zeros(cap, dtype=np.int64)
+
+    def clear(self) -> None:
+        with self.lock:
+            self.count = 0
+
+    def resize(self, cap: int) -> None:
+        with self.lock:
+            if cap <= self.cap:
+                return
+            first = max(self.count - self.cap, 0)
+            idx = np.arange(first, self.count) % self.cap
+            old = (self.stamps[idx], self.u[idx], self.y[idx], self.skipped[idx])
+            self._alloc(cap)
+            new = np.arange(first, self.count) % cap
+            self.stamps[new], self.u[new], self.y[new], self.skipped[new] = old
+
+    def append(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> int:
+        with self.lock:
+            i = self.count % self.cap
+            self.stamps[i] = stamp_s
+            self.u[i] = u
+            self.y[i] = y
+            self.skipped[i] = skipped
+            self.count += 1
+            return self.count - 1
+
+    @property
+    def first(self) -> int:
+        return max(self.count - self.cap, 0)
+
+    def get(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of samples lo..hi-1 (absolute indices, clipped to what is stored)."""
+        with self.lock:
+            lo = max(lo, self.first)
+            hi = min(hi, self.count)
+            idx = np.arange(lo, max(hi, lo)) % self.cap
+            return self.stamps[idx].copy(), self.u[idx].copy(), self.y[idx].copy(), self.skipped[idx].copy()
+
+    def find_end(self, stamp_s: float, tol: float) -> tuple[int, float]:
+        """Newest stored sample with stamp <= stamp_s + tol (index, its stamp), or (-1, nan).
+
+        Searched within the newest contiguous timeline (after the last restart).
+        """
+        with self.lock:
+            lo, hi = self.first, self.count
+            if hi == lo:
+                return -1, math.nan
+            idx = np.arange(lo, hi) % self.cap
+            st = self.stamps[idx]
+            restarts = np.flatnonzero(self.skipped[idx] < 0)
+            start = int(restarts[-1]) if restarts.size else 0
+            ok = np.flatnonzero(st[start:] <= stamp_s + tol)
+            if ok.size == 0:
+                return -1, math.nan
+            k = start + int(ok[-1])
+            return lo + k, float(st[k])
+
+    def newest_stamp(self) -> float:
+        with self.lock:
+            return float(self.stamps[(self.count - 1) % self.cap]) if self.count else math.nan
+
+
+def _predictor(model: IdentifiedModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``F = A - A K C``, ``Gu = B - A K D``, ``Gy = A K``: ``xhat+ = F xhat + Gu u + Gy y``."""
+    AK = model.A @ model.K
+    return model.A - AK @ model.C, model.B - AK @ model.D, AK
+
+
+def _run_predictor(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray,
+                   skipped: np.ndarray, u_prev: np.ndarray | None, max_gap: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """Advance the predicted state over samples (same result as ModalStateEstimator.step)."""
+    F, Gu, Gy = _predictor(model)
+    w = u @ Gu.T + y @ Gy.T
+    A, B = model.A, model.B
+    for k in range(u.shape[0]):
+        s = int(skipped[k])
+        if s:
+            x = _bridge(A, B, x, u_prev, s, max_gap)
+        x = F @ x + w[k]
+        u_prev = u[k]
+    return x, u_prev
+
+
+def _bridge(A: np.ndarray, B: np.ndarray, x: np.ndarray, u_prev: np.ndarray | None, skipped: int, max_gap: int) -> np.ndarray:
+    """State over ``skipped`` missing samples: open-loop prediction, or zero after a long gap."""
+    if skipped < 0 or skipped > max_gap or u_prev is None:
+        return np.zeros_like(x)
+    bu = B @ u_prev
+    for _ in range(skipped):
+        x = A @ x + bu
+    return x
+
+
+@dataclass
+class _Active:
+    model: IdentifiedModel
+    estimator: ModalStateEstimator
+    model_id: int
+    modes: list[Mode]
+    n_modes: int
+
+
+@dataclass
+class _Stats:
+    samples: int = 0
+    rejected_samples: int = 0
+    arx_received: int = 0
+    arx_replaced: int = 0
+    arx_refused: int = 0
+    realizations: int = 0
+    models_accepted: int = 0
+    models_rejected: int = 0
+    consecutive_rejections: int = 0
+    forced_accepts: int = 0
+    estimator_restarts: int = 0
+    gaps_bridged: int = 0
+    last_reason: str = ""
+    last_accepted: bool = False
+    last_realization_time_s: float = math.nan
+    last_window_samples: int = 0
+    last_switch_jump: float = math.nan
+    max_switch_jump: float = 0.0
+    switches_measured: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+class ModalEstimationService:
+    """Realization, persistent mode ids and per-sample modal state estimation.
+
+    Parameters
+    ----------
+    params : :class:`ModalEstimationParams`.
+    """
+
+    def __init__(self, params: ModalEstimationParams) -> None:
+        self.params = params
+        if params.gain not in ("refit", "whitening"):
+            raise ValueError(f"gain must be refit or whitening, got {params.gain!r}")
+        self._lock = threading.Lock()
+        cap = params.buffer_length if params.buffer_length > 0 else 8192
+        self._buffer = _SampleBuffer(cap, params.n_inputs, params.n_outputs)
+        self.enabled = True
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget the model, the mode ids, the buffer and the counters."""
+        with self._lock:
+            self._buffer.clear()
+            self._active: _Active | None = None
+            self._registry: dict[int, tuple[Mode, int]] = {}  # id -> (mode, accepted-model count when last seen)
+            self._next_mode_id = 0
+            self._model_id = 0
+            self._request: tuple[ArxFit, float, int, int] | None = None
+            self._busy = False
+            self._ready: RealizationOutcome | None = None
+            self._generation = getattr(self, "_generation", -1) + 1  # outcomes of older jobs are dropped
+            self._stats = _Stats()
+            self._u_prev: np.ndarray | None = None
+            self._power: dict[int, float] = {}
+
+    def set_enabled(self, on: bool) -> None:
+        """When disabled, ARX fits are ignored and the current model is kept (states still run)."""
+        self.enabled = bool(on)
+
+    @property
+    def model_id(self) -> int:
+        return self._model_id
+
+    @property
+    def has_model(self) -> bool:
+        return self._active is not None
+
+    @property
+    def has_request(self) -> bool:
+        """An ARX fit is waiting for :meth:`take_job`."""
+        return self._request is not None
+
+    @property
+    def busy(self) -> bool:
+        """A job was taken and its outcome not yet applied."""
+        return self._busy
+
+    # ------------------------------------------------------------------ ARX fits
+    def submit_arx(self, fit: ArxFit, stamp_end_s: float, arx_model_id: int = 0, window_rows: int | None = None) -> bool:
+        """Offer an ARX fit of the window ending at ``stamp_end_s``; False if refused at once.
+
+        The newest request waits until :meth:`take_job`; a request still waiting is replaced.
+        """
+        st = self._stats
+        st.arx_received += 1
+        prm = self.params
+        if not self.enabled:
+            return False
+        if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
+            st.arx_refused += 1
+            st.last_reason = (
+                f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator has "
+                f"n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}"
+            )
+            return False
+        if not math.isfinite(stamp_end_s):
+            st.arx_refused += 1
+            st.last_reason = "ARX model without a stamp"
+            return False
+        rows = int(window_rows) if window_rows else int(fit.n_rows)
+        need = rows + fit.order
+        if prm.buffer_length <= 0 and self._buffer.cap < need * 1.1 + 64:
+            self._buffer.resize(int(need * 1.1) + 64)
+        with self._lock:
+            if self._request is not None:
+                st.arx_replaced += 1
+            self._request = (fit, float(stamp_end_s), int(arx_model_id), rows)
+        return True
+
+    def take_job(self) -> RealizationJob | None:
+        """A realization job for the waiting ARX fit, once the buffer covers its window.
+
+        Returns None when there is nothing to do, a job is running, or the buffer has not yet
+        received the window's last sample. A request whose window is not in the buffer (too
+        few contiguous samples) is dropped with a reason.
+        """
+        with self._lock:
+            if self._busy or self._request is None or not self.enabled:
+                return None
+            fit, stamp_end, arx_id, rows = self._request
+            dt = self.params.sample_time_s
+            if self._buffer.count > 0 and self._buffer.newest_stamp() < stamp_end - 0.5 * dt:
+                return None  # the window's last sample has not arrived here yet
+            self._request = None
+            end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)
+            need = rows + fit.order
+            if end < 0:
+                return self._refuse("no buffered sample at or before the ARX window's end")
+            stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
+            # Keep the newest contiguous run (the window's rows never span a gap either).
+            breaks = np.flatnonzero(skipped[1:] != 0) + 1
+            start = int(breaks[-1]) if breaks.size else 0
+            u, y = u[start:], y[start:]
+            minimum = max(4 * fit.order, need // 2)
+            if u.shape[0] < minimum:
+                return self._refuse(
+                    f"buffer holds {u.shape[0]} contiguous samples of the ARX window of {need}; need at least {minimum}"
+                )
+            self._busy = True
+            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation)
+
+    def _refuse(self, reason: str) -> None:
+        self._stats.arx_refused += 1
+        self._stats.last_reason = reason
+        return None
+
+    def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
+        """Realize the model of a job and warm-start its predictor (expensive; any thread).
+
+        With ``follow``, the warm start continues over samples that arrive while it runs, until
+        at most ``handover_samples`` are left for :meth:`step` to catch up.
+        """
+        prm = job.params
+        t0 = time.perf_counter()
+        try:
+            model = identify_from_arx(
+                job.fit, job.u, job.y, prm.sample_time_s,
+                n_states=prm.n_states if prm.n_states > 0 else "auto",
+                max_states=prm.max_states, gain=prm.gain, refine=prm.refine,
+                max_damping=prm.max_damping, min_msv=prm.min_msv,
+                max_nyquist_fraction=prm.max_nyquist_fraction,
+            )
+        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+            return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
+        elapsed = time.perf_counter() - t0
+        radius = float(np.max(np.abs(linalg.eigvals(model.A)))) if model.n_states else 0.0
+        if not radius < 1.0:
+            return RealizationOutcome(job, None, f"unstable model: spectral radius {radius:.6f} >= 1", realization_time_s=elapsed)
+        if not model.modes:
+            return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
+        x = np.zeros(model.n_states)
+        x, u_prev = _run_predictor(model, x, job.u, job.y, np.zeros(job.u.shape[0], dtype=np.int64), None, prm.max_gap_samples)
+        last = job.end_index
+        count = job.u.shape[0]
+        if follow:
+            for _ in range(50):
+                # Never the newest buffered sample: step() may be applying this outcome to it.
+                available = self._buffer.count - 1
+                if available - 1 - last <= prm.handover_samples:
+                    break
+                _, u, y, skipped = self._buffer.get(last + 1, available)
+                if u.shape[0] == 0:
+                    break
+                x, u_prev = _run_predictor(model, x, u, y, skipped, u_prev, prm.max_gap_samples)
+                last += u.shape[0]
+                count += u.shape[0]
+        return RealizationOutcome(job, model, "", x, last, u_prev, elapsed, count)
+
+    def deliver(self, outcome: RealizationOutcome) -> None:
+        """Hand a job's outcome back; it is applied at the next :meth:`step`."""
+        with self._lock:
+            if outcome.job.generation != self._generation:
+                return  # taken before a reset
+            self._ready = outcome
+
+    def process_pending(self) -> bool:
+        """Synchronously: take a job if one is due, run it, deliver it. True if one ran."""
+        job = self.take_job()
+        if job is None:
+            return False
+        self.deliver(self.run_job(job, follow=False))
+        return True
+
+    # ------------------------------------------------------------------ samples
+    def step(self, stamp_s: float, u, y, skipped: int = 0) -> ModalStatesResult | None:
+        """Process one sample; return its modal states (None before the first model).
+
+        Parameters
+        ----------
+        stamp_s : the sample's stamp [s].
+        u : (m,) inputs; y : (p,) outputs.
+        skipped : missing slots just before this sample (0: contiguous); -1 after a time jump
+            or restart (see :class:`okid_ros.service.sample_grid.GridSample`).
+        """
+        prm = self.params
+        u = np.asarray(u, dtype=float).reshape(-1)
+        y = np.asarray(y, dtype=float).reshape(-1)
+        st = self._stats
+        if u.size != prm.n_inputs or y.size != prm.n_outputs or not (np.isfinite(u).all() and np.isfinite(y).all()):
+            st.rejected_samples += 1
+            return None
+        st.samples += 1
+        index = self._buffer.append(float(stamp_s), u, y, int(skipped))
+        update = None
+        if self._ready is not None:
+            with self._lock:
+                outcome, self._ready = self._ready, None
+            update = self._apply(outcome, index)
+        active = self._active
+        if active is None:
+            self._u_prev = u
+            return None
+        est = active.estimator
+        if skipped:
+            x = est.state
+            bridged = _bridge(active.model.A, active.model.B, x, self._u_prev, int(skipped), prm.max_gap_samples)
+            if skipped > 0 and skipped <= prm.max_gap_samples:
+                st.gaps_bridged += 1
+            else:
+                st.estimator_restarts += 1
+            est.set_state(bridged)
+        x_post, y_est, innov = est.step(u, y)
+        self._u_prev = u
+        n = active.n_modes
+        coords = x_post[: 2 * n].reshape(n, 2)
+        if update is not None and self._switch_reference is not None:
+            self._measure_jump(active, coords)
+        self._track_power(active, coords)
+        return ModalStatesResult(float(stamp_s), active.model_id, active.modes, coords, y_est, innov, update)
+
+    # ------------------------------------------------------------------ model switch
+    def _apply(self, outcome: RealizationOutcome, index: int) -> ModelUpdate | None:
+        """Check an outcome and switch to its model before sample ``index``."""
+        st = self._stats
+        prm = self.params
+        self._busy = False
+        self._switch_reference = None
+        st.realizations += 1
+        st.last_realization_time_s = outcome.realization_time_s
+        st.last_window_samples = int(outcome.job.u.shape[0])
+        st.last_accepted = False
+        if outcome.model is None:
+            st.models_rejected += 1
+            st.last_reason = outcome.reason
+            return None
+        model = outcome.model
+        memory = [(mid, mode) for mid, (mode, seen) in self._registry.items()
+                  if st.models_accepted - seen <= prm.mode_memory]
+        matches = match_modes([mode for _, mode in memory], model.modes, prm.max_frequency_change, prm.min_mac)
+        ids = [memory[j][0] if j is not None else None for j in matches]
+        active = self._active
+        if active is not None and active.modes:
+            current_ids = {mode.id for mode in active.modes}
+            found = len(current_ids & {i for i in ids if i is not None})
+            fraction = found / len(current_ids)
+            if fraction < prm.min_matched_fraction:
+                forced = 0 < prm.max_consecutive_rejections <= st.consecutive_rejections
+                if not forced:
+                    st.models_rejected += 1
+                    st.consecutive_rejections += 1
+                    st.last_reason = (
+                        f"modes lost: {found} of the current model's {len(current_ids)} modes found in the new "
+                        f"model (tracking.min_matched_fraction {prm.min_matched_fraction:g})"
+                    )
+                    return None
+                st.forced_accepts += 1
+        st.consecutive_rejections = 0
+        st.last_accepted = True
+        st.last_reason = ""
+        # Persistent ids and the MAC against the matched mode.
+        modes: list[Mode] = []
+        for mode, mid, j in zip(model.modes, ids, matches):
+            if mid is None:
+                mid = self._next_mode_id
+                self._next_mode_id += 1
+                mac_prev = math.nan
+            else:
+                mac_prev = mac(mode.shape, memory[j][1].shape)
+            mode.id = mid
+            mode.mac_previous = mac_prev
+            modes.append(mode)
+        st.models_accepted += 1
+        for mode in modes:
+            self._registry[mode.id] = (replace(mode), st.models_accepted)
+        # Catch up the samples between the warm start and this one.
+        x = outcome.state
+        u_prev = outcome.last_input
+        if outcome.last_index < index - 1:
+            _, u, y, skipped = self._buffer.get(outcome.last_index + 1, index)
+            x, u_prev = _run_predictor(model, x, u, y, skipped, u_prev, prm.max_gap_samples)
+        estimator = ModalStateEstimator.from_model(model)
+        estimator.set_state(x)
+        self._model_id += 1
+        if active is not None:
+            self._switch_reference = (active, self._previous_coordinates(active, index))
+        self._active = _Active(model, estimator, self._model_id, modes, len(modes))
+        self._u_prev = u_prev if u_prev is not None else self._u_prev
+        return ModelUpdate(
+            model=model, model_id=self._model_id, arx_model_id=outcome.job.arx_model_id,
+            stamp_s=outcome.job.stamp_end_s, modes=modes,
+            realization_time_s=outcome.realization_time_s, window_samples=int(outcome.job.u.shape[0]),
+        )
+
+    def _previous_coordinates(self, old: _Active, index: int) -> dict[int, np.ndarray]:
+        """The old model's modal states for sample ``index`` (run on a copy of its estimator)."""
+        _, u, y, skipped = self._buffer.get(index, index + 1)
+        if u.shape[0] != 1:
+            return {}
+        x = old.estimator.state
+        if skipped[0]:
+            x = _bridge(old.model.A, old.model.B, x, self._u_prev, int(skipped[0]), self.params.max_gap_samples)
+        K, C, D = old.estimator.K_steady, old.model.C, old.model.D
+        x_post = x + K @ (y[0] - C @ x - D @ u[0])
+        coords = x_post[: 2 * old.n_modes].reshape(old.n_modes, 2)
+        return {mode.id: coords[i] for i, mode in enumerate(old.modes)}
+
+    def _measure_jump(self, active: _Active, coords: np.ndarray) -> None:
+        """Step of the matched modes' coordinates at a switch, relative to their RMS amplitude."""
+        _, previous = self._switch_reference
+        self._switch_reference = None
+        jumps = []
+        for i, mode in enumerate(active.modes):
+            old = previous.get(mode.id)
+            power = self._power.get(mode.id)
+            if old is None or not power:
+                continue
+            jumps.append(float(np.linalg.norm(coords[i] - old)) / math.sqrt(power))
+        if jumps:
+            st = self._stats
+            st.last_switch_jump = max(jumps)
+            st.max_switch_jump = max(st.max_switch_jump, st.last_switch_jump)
+            st.switches_measured += 1
+
+    def _track_power(self, active: _Active, coords: np.ndarray) -> None:
+        """Exponential average (about 1000 samples) of each mode's squared coordinate norm."""
+        sq = np.einsum("ij,ij->i", coords, coords)
+        for i, mode in enumerate(active.modes):
+            old = self._power.get(mode.id)
+            self._power[mode.id] = float(sq[i]) if old is None else old + 1e-3 * (float(sq[i]) - old)
+
+    _switch_reference = None
+
+    # ------------------------------------------------------------------ inspection
+    @property
+    def current_model(self) -> IdentifiedModel | None:
+        return None if self._active is None else self._active.model
+
+    @property
+    def current_modes(self) -> list[Mode]:
+        return [] if self._active is None else list(self._active.modes)
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Counters and health as a flat dict."""
+        st = self._stats
+        buf = self._buffer
+        return {
+            "samples": st.samples,
+            "rejected_samples": st.rejected_samples,
+            "buffer_samples": min(buf.count, buf.cap),
+            "buffer_capacity": buf.cap,
+            "arx_models_received": st.arx_received,
+            "arx_models_replaced": st.arx_replaced,
+            "arx_models_refused": st.arx_refused,
+            "realizations": st.realizations,
+            "models_accepted": st.models_accepted,
+            "models_rejected": st.models_rejected,
+            "consecutive_rejections": st.consecutive_rejections,
+            "last_model_accepted": st.last_accepted,
+            "forced_accepts": st.forced_accepts,
+            "last_reason": st.last_reason,
+            "last_realization_time_s": st.last_realization_time_s,
+            "last_window_samples": st.last_window_samples,
+            "last_switch_jump": st.last_switch_jump,
+            "max_switch_jump": st.max_switch_jump,
+            "switches_measured": st.switches_measured,
+            "gaps_bridged": st.gaps_bridged,
+            "estimator_restarts": st.estimator_restarts,
+            "model_id": self._model_id,
+            "n_modes": 0 if self._active is None else self._active.n_modes,
+            "n_states": 0 if self._active is None else self._active.model.n_states,
+            "busy": self._busy,
+            "enabled": self.enabled,
+        }

@@ -1,0 +1,426 @@
+"""Node 1 without ROS: windowed ARX identification on assembled samples.
+
+:class:`ArxIdentificationService` feeds samples into the recursive sliding-window least squares
+of :mod:`okid_ros.core.recursive` and, when asked (at the publish rate), solves the window's
+regularized ARX problem (:func:`okid_ros.core.arx.fit_from_normal_equations`: the batch fit on
+exactly the window's rows, ridge or TC prior, penalty by GCV or fixed) and packages it as an
+:class:`ArxSnapshot` for the ``ArxModel`` message.
+
+The solve costs O(d^3) (d = 402 for p = m = 2, q = 100: tens of milliseconds) and only reads a
+copy of the normal equations, so a caller with a sample stream to serve can split it::
+
+    capture = service.capture()               # cheap; on the thread that pushes samples
+    result = solve_capture(capture)           # expensive; any thread
+    snapshot = service.accept(capture, result)
+
+:meth:`ArxIdentificationService.snapshot` does the three in a row.
+
+Sample policy (:meth:`ArxIdentificationService.push`): a sample with NaN/Inf or the wrong size is
+rejected and counted; its stamp must advance by more than half a sample time over the previous
+accepted one (else duplicate or out of order: rejected and counted); a step of more than 1.5
+sample times, or ``gap_before``, breaks the lag history so that no regressor spans the gap.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
+from okid_ros.core.recursive import SlidingWindowArx
+from okid_ros.core.regressors import regressor_length
+
+__all__ = [
+    "ArxIdentificationParams",
+    "ArxIdentificationService",
+    "ArxSnapshot",
+    "WindowCapture",
+    "SolveResult",
+    "solve_capture",
+]
+
+
+@dataclass
+class ArxIdentificationParams:
+    """Settings of the identification (see ``okid_ros/service/params.py`` for the ROS names).
+
+    Attributes
+    ----------
+    sample_time_s : dt [s].
+    order : ARX order q.
+    n_inputs, n_outputs : m and p.
+    window_length : regressor rows in the sliding window; 0 for infinite history with
+        ``forgetting_factor``.
+    forgetting_factor : lambda in (0, 1] (only with ``window_length`` 0).
+    regularization : "none", "ridge" or "tc".
+    penalty_by_gcv : choose the penalty (and TC decay) by GCV at every solve.
+    penalty : fixed penalty otherwise.
+    tc_decay : fixed TC decay otherwise.
+    min_window_fill : snapshots of a window filled less than this are invalid.
+    max_condition_number : condition number of the column-scaled normal equations above which
+        the window is unexcited (snapshot invalid, last good fit kept).
+    publish_period_s : period of :meth:`ArxIdentificationService.due` (offline processing).
+    """
+
+    sample_time_s: float = 0.008
+    order: int = 100
+    n_inputs: int = 2
+    n_outputs: int = 2
+    window_length: int = 4000
+    forgetting_factor: float = 1.0
+    regularization: str = "ridge"
+    penalty_by_gcv: bool = True
+    penalty: float = 1.0
+    tc_decay: float = 0.95
+    min_window_fill: float = 0.5
+    max_condition_number: float = 1e12
+    publish_period_s: float = 1.0
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> "ArxIdentificationParams":
+        """From the resolved node parameters (dotted names, :func:`okid_ros.service.params.resolve_parameters`)."""
+        return cls(
+            sample_time_s=float(values["sample_time_s"]),
+            order=int(values["arx.order"]),
+            n_inputs=int(values["n_inputs"]),
+            n_outputs=int(values["n_outputs"]),
+            window_length=int(values["arx.window_length"]),
+            forgetting_factor=float(values["arx.forgetting_factor"]),
+            regularization=str(values["arx.regularization"]),
+            penalty_by_gcv=bool(values["arx.penalty_by_gcv"]),
+            penalty=float(values["arx.penalty"]),
+            tc_decay=float(values["arx.tc_decay"]),
+            min_window_fill=float(values["arx.min_window_fill"]),
+            max_condition_number=float(values["arx.max_condition_number"]),
+            publish_period_s=1.0 / float(values["publish_rate_hz"]),
+        )
+
+    @property
+    def n_params(self) -> int:
+        """d = m + q (p + m), coefficients per output."""
+        return regressor_length(self.order, self.n_outputs, self.n_inputs)
+
+
+@dataclass
+class WindowCapture:
+    """A copy of the window's normal equations and counters at one instant."""
+
+    normal: NormalEquations
+    stamp_s: float
+    rows: int
+    fill: float
+    samples_used: int
+    samples_rejected: int
+    params: ArxIdentificationParams
+
+
+@dataclass
+class SolveResult:
+    """The regularized least-squares solution of a captured window.
+
+    ``fit`` is None when the window could not give a model; ``reason`` says why.
+    """
+
+    fit: ArxFit | None
+    condition_number: float
+    reason: str
+    solve_time_s: float
+
+
+@dataclass
+class ArxSnapshot:
+    """What ``ArxModel`` carries: the window's ARX fit and its health.
+
+    Attributes
+    ----------
+    model_id : increments with every snapshot; 0 after a reset.
+    valid : the window is filled enough and its solve was accepted.
+    fit : this window's fit when valid, else the last good one (None if there never was one).
+    stamp_s : stamp of the newest sample in the window [s] (nan before the first sample).
+    reason : why the snapshot is invalid ('' if valid).
+    window_length : rows the window holds when full (0 with forgetting only).
+    window_rows : rows in the window now (effective number with forgetting).
+    window_fill : window_rows / window_length (with forgetting: of 1 / (1 - lambda)).
+    condition_number : condition number of the column-scaled normal equations of this window
+        (nan when not solved). The regressor matrix's own 2-norm condition number is its root.
+    penalty : regularization penalty of ``fit``.
+    samples_used, samples_rejected : since start or reset.
+    solve_time_s : seconds the solve took.
+    """
+
+    model_id: int
+    valid: bool
+    fit: ArxFit | None
+    stamp_s: float
+    reason: str
+    sample_time_s: float
+    order: int
+    n_inputs: int
+    n_outputs: int
+    window_length: int
+    window_rows: int
+    window_fill: float
+    forgetting_factor: float
+    condition_number: float
+    penalty: float
+    samples_used: int
+    samples_rejected: int
+    solve_time_s: float = 0.0
+
+
+def solve_capture(capture: WindowCapture) -> SolveResult:
+    """Solve a captured window (pure; safe to run on another thread)."""
+    prm = capture.params
+    t0 = time.perf_counter()
+    if capture.rows == 0:
+        return SolveResult(None, math.nan, "no regressor rows in the window yet", 0.0)
+    if capture.fill < prm.min_window_fill:
+        return SolveResult(
+            None, math.nan,
+            f"window fill {capture.fill:.2f} below arx.min_window_fill {prm.min_window_fill:.2f}", 0.0,
+        )
+    penalty: float | str = "gcv" if prm.penalty_by_gcv else prm.penalty
+    decay: float | str = "gcv" if prm.penalty_by_gcv else prm.tc_decay
+    try:
+        fit = fit_from_normal_equations(
+            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay
+        )
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
+    cond = float(fit.condition_number)
+    elapsed = time.perf_counter() - t0
+    if not cond <= prm.max_condition_number:
+        return SolveResult(
+            None, cond,
+            f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}",
+            elapsed,
+        )
+    if not np.all(np.isfinite(fit.theta)):
+        return SolveResult(None, cond, "solution not finite", elapsed)
+    return SolveResult(fit, cond, "", elapsed)
+
+
+@dataclass
+class _Counters:
+    samples_seen: int = 0
+    samples_used: int = 0
+    rejected_nonfinite: int = 0
+    rejected_wrong_size: int = 0
+    rejected_duplicate: int = 0
+    rejected_out_of_order: int = 0
+    gaps: int = 0
+
+    @property
+    def rejected(self) -> int:
+        return self.rejected_nonfinite + self.rejected_wrong_size + self.rejected_duplicate + self.rejected_out_of_order
+
+
+@dataclass
+class _Health:
+    last_reason: str = ""
+    last_condition_number: float = math.nan
+    last_solve_time_s: float = 0.0
+    snapshots: int = 0
+    valid_snapshots: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+class ArxIdentificationService:
+    """Windowed recursive ARX identification: samples in, :class:`ArxSnapshot` out.
+
+    Parameters
+    ----------
+    params : :class:`ArxIdentificationParams`.
+
+    Raises
+    ------
+    ValueError on inconsistent parameters (from the core estimator).
+    """
+
+    def __init__(self, params: ArxIdentificationParams) -> None:
+        self.params = params
+        if params.regularization not in ("none", "ridge", "tc"):
+            raise ValueError(f"regularization must be none, ridge or tc, got {params.regularization!r}")
+        window = params.window_length if params.window_length > 0 else None
+        self._est = SlidingWindowArx(
+            params.order, params.n_outputs, params.n_inputs, window=window,
+            forgetting=1.0 if window else params.forgetting_factor,
+            penalty=0.0, max_condition_number=math.inf, block_size=128,
+        )
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget the window, the counters, the last good fit; model ids restart at 0."""
+        self._est.reset()
+        self._counters = _Counters()
+        self._health = _Health()
+        self._last_stamp: float | None = None
+        self._last_good: ArxFit | None = None
+        self._last_good_penalty = math.nan
+        self._model_id = 0
+        self._due_stamp: float | None = None
+
+    @property
+    def adaptation_enabled(self) -> bool:
+        return self._est.adaptation_enabled
+
+    def set_adaptation(self, on: bool) -> None:
+        """Adaptation off: samples are still checked and counted, but the window is frozen."""
+        self._est.adaptation_enabled = bool(on)
+
+    @property
+    def newest_stamp_s(self) -> float:
+        return math.nan if self._last_stamp is None else self._last_stamp
+
+    # ------------------------------------------------------------------ samples
+    def push(self, stamp_s: float, u, y, gap_before: bool = False) -> bool:
+        """Offer one sample; return whether it was accepted into the window's history.
+
+        Parameters
+        ----------
+        stamp_s : sample time stamp [s].
+        u : (m,) inputs; y : (p,) outputs.
+        gap_before : the caller knows samples are missing before this one (or time restarted):
+            the lag history is broken and the stamp need not advance.
+        """
+        c = self._counters
+        c.samples_seen += 1
+        prm = self.params
+        u = np.asarray(u, dtype=float).reshape(-1)
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if u.size != prm.n_inputs or y.size != prm.n_outputs:
+            c.rejected_wrong_size += 1
+            return False
+        stamp_s = float(stamp_s)
+        if not (math.isfinite(stamp_s) and np.isfinite(u).all() and np.isfinite(y).all()):
+            c.rejected_nonfinite += 1
+            return False
+        dt = prm.sample_time_s
+        last = self._last_stamp
+        if gap_before:
+            self._est.mark_gap()
+            c.gaps += 1
+        elif last is not None:
+            step = stamp_s - last
+            if step < -0.5 * dt:
+                c.rejected_out_of_order += 1
+                return False
+            if step <= 0.5 * dt:
+                c.rejected_duplicate += 1
+                return False
+            if step > 1.5 * dt:
+                self._est.mark_gap()
+                c.gaps += 1
+        self._last_stamp = stamp_s
+        self._est.push(u, y)
+        c.samples_used += 1
+        return True
+
+    def push_block(self, stamps_s, u, y) -> int:
+        """Push samples one by one (same checks); return how many were accepted."""
+        return sum(self.push(t, uk, yk) for t, uk, yk in zip(stamps_s, u, y))
+
+    # ------------------------------------------------------------------ solving
+    def capture(self) -> WindowCapture:
+        """Copy the window's normal equations and counters (cheap compared to the solve)."""
+        normal = self._est.normal_equations()
+        status = self._est.status
+        return WindowCapture(
+            normal=normal,
+            stamp_s=self.newest_stamp_s,
+            rows=int(status.rows_in_window),
+            fill=float(status.window_fill),
+            samples_used=self._counters.samples_used,
+            samples_rejected=self._counters.rejected,
+            params=self.params,
+        )
+
+    def accept(self, capture: WindowCapture, result: SolveResult) -> ArxSnapshot:
+        """Turn a solved capture into the next snapshot (keeps the last good fit on failure)."""
+        valid = result.fit is not None
+        if valid:
+            self._last_good = result.fit
+            self._last_good_penalty = float(result.fit.penalty)
+        h = self._health
+        h.snapshots += 1
+        h.valid_snapshots += int(valid)
+        h.last_reason = result.reason
+        h.last_condition_number = result.condition_number
+        h.last_solve_time_s = result.solve_time_s
+        self._model_id += 1
+        prm = self.params
+        return ArxSnapshot(
+            model_id=self._model_id,
+            valid=valid,
+            fit=result.fit if valid else self._last_good,
+            stamp_s=capture.stamp_s,
+            reason=result.reason,
+            sample_time_s=prm.sample_time_s,
+            order=prm.order,
+            n_inputs=prm.n_inputs,
+            n_outputs=prm.n_outputs,
+            window_length=max(prm.window_length, 0),
+            window_rows=capture.rows,
+            window_fill=capture.fill,
+            forgetting_factor=prm.forgetting_factor if prm.window_length == 0 else 1.0,
+            condition_number=result.condition_number,
+            penalty=self._last_good_penalty if self._last_good is not None else math.nan,
+            samples_used=capture.samples_used,
+            samples_rejected=capture.samples_rejected,
+            solve_time_s=result.solve_time_s,
+        )
+
+    def snapshot(self) -> ArxSnapshot:
+        """Capture, solve and accept in one call."""
+        capture = self.capture()
+        return self.accept(capture, solve_capture(capture))
+
+    def due(self, stamp_s: float) -> bool:
+        """For offline processing: True once per ``publish_period_s`` of sample time.
+
+        The first call starts the clock; a stamp going backwards (a time jump) restarts it.
+        """
+        if self._due_stamp is None or stamp_s < self._due_stamp:
+            self._due_stamp = stamp_s
+            return False
+        if stamp_s - self._due_stamp >= self.params.publish_period_s - 1e-9:
+            self._due_stamp += self.params.publish_period_s * math.floor(
+                (stamp_s - self._due_stamp) / self.params.publish_period_s + 1e-9
+            )
+            return True
+        return False
+
+    # ------------------------------------------------------------------ inspection
+    def window_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The samples the window's rows are built from: u (n, m), y (n, p), segment_start (n,)."""
+        return self._est.window_samples()
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Counters and health as a flat dict (values are numbers, strings or bools)."""
+        st = self._est.status
+        c, h = self._counters, self._health
+        return {
+            "samples_seen": c.samples_seen,
+            "samples_used": c.samples_used,
+            "samples_rejected": c.rejected,
+            "rejected_nonfinite": c.rejected_nonfinite,
+            "rejected_wrong_size": c.rejected_wrong_size,
+            "rejected_duplicate": c.rejected_duplicate,
+            "rejected_out_of_order": c.rejected_out_of_order,
+            "gaps": c.gaps,
+            "window_rows": int(st.rows_in_window),
+            "window_fill": float(st.window_fill),
+            "adaptation": bool(st.adapting),
+            "condition_number": h.last_condition_number,
+            "last_solve_time_s": h.last_solve_time_s,
+            "snapshots": h.snapshots,
+            "valid_snapshots": h.valid_snapshots,
+            "model_id": self._model_id,
+            "has_good_model": self._last_good is not None,
+            "last_reason": h.last_reason,
+        }

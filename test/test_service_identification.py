@@ -1,0 +1,120 @@
+"""Node 1's logic without ROS: okid_ros/service/identification.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from okid_ros.core.arx import fit_arx
+from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+from okid_ros.service.params import ARX_NODE, resolve_parameters
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+Q, W = 8, 300
+
+
+@pytest.fixture(scope="module")
+def record():
+    model = paper_model()
+    u = lowpass_input(900, 2, 50.0, model.sample_time_s, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    return model.sample_time_s, u, y
+
+
+def make_service(dt: float, **overrides) -> ArxIdentificationService:
+    values = {"sample_time_s": dt, "arx.order": Q, "arx.window_length": W, **overrides}
+    return ArxIdentificationService(ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, values)))
+
+
+def test_snapshot_equals_the_batch_fit_on_the_window(record):
+    dt, u, y = record
+    service = make_service(dt)
+    n = 700
+    assert service.push_block(10.0 + dt * np.arange(n), u[:n], y[:n]) == n
+    snap = service.snapshot()
+    assert snap.valid and snap.window_rows == W and snap.window_fill == 1.0
+    assert snap.stamp_s == pytest.approx(10.0 + (n - 1) * dt)
+    batch = fit_arx(u[n - W - Q : n], y[n - W - Q : n], Q, "ridge", "gcv")
+    # Same rows, same prior; the GCV penalty comes from a bounded scalar search (tolerance ~1e-5).
+    assert snap.penalty == pytest.approx(batch.penalty, rel=1e-3)
+    np.testing.assert_allclose(snap.fit.theta, batch.theta, atol=1e-5 * np.abs(batch.theta).max())
+    assert snap.condition_number == pytest.approx(batch.condition_number, rel=1e-6)
+
+
+def test_bad_samples_are_counted_and_never_enter_the_window(record):
+    dt, u, y = record
+    clean, dirty = make_service(dt), make_service(dt)
+    n = 500
+    clean.push_block(dt * np.arange(n), u[:n], y[:n])
+    for k in range(n):
+        t = k * dt
+        assert dirty.push(t, u[k], y[k])
+        if k == 100:
+            assert not dirty.push(t + 0.2 * dt, u[k] + 1, y[k])  # duplicate stamp
+            assert not dirty.push(t - 3 * dt, u[k], y[k])  # out of order
+            assert not dirty.push(t + dt, [math.nan, 0.0], y[k])
+            assert not dirty.push(t + dt, u[k], y[k][:1])  # wrong size
+    d = dirty.diagnostics()
+    assert (d["rejected_duplicate"], d["rejected_out_of_order"], d["rejected_nonfinite"], d["rejected_wrong_size"]) == (1, 1, 1, 1)
+    assert d["samples_rejected"] == 4 and d["samples_used"] == n
+    np.testing.assert_array_equal(dirty.snapshot().fit.theta, clean.snapshot().fit.theta)
+
+
+def test_a_gap_breaks_the_lag_history(record):
+    dt, u, y = record
+    service = make_service(dt, **{"arx.window_length": 1000, "arx.min_window_fill": 0.0})
+    keep = np.ones(600, dtype=bool)
+    keep[250:253] = False  # three samples never arrive: a stamp jump of 4 sample times
+    idx = np.flatnonzero(keep)
+    service.push_block(idx * dt, u[idx], y[idx])
+    snap = service.snapshot()
+    assert service.diagnostics()["gaps"] == 1
+    # Rows: 600 - 3 samples, minus q lags at the start and q again after the gap.
+    assert snap.window_rows == 600 - 3 - 2 * Q
+    batch = fit_arx(u[:600], y[:600], Q, "ridge", "gcv", valid=keep)
+    np.testing.assert_allclose(snap.fit.theta, batch.theta, atol=1e-5 * np.abs(batch.theta).max())
+
+
+def test_invalid_until_filled_then_unexcited_window_keeps_the_last_good_fit(record):
+    dt, u, y = record
+    service = make_service(dt, **{"arx.max_condition_number": 1e8})
+    service.push_block(dt * np.arange(100), u[:100], y[:100])
+    first = service.snapshot()
+    assert not first.valid and "window fill" in first.reason and first.fit is None
+    service.push_block(dt * np.arange(100, 500), u[100:500], y[100:500])
+    good = service.snapshot()
+    assert good.valid and good.model_id == first.model_id + 1
+    # A window of constant samples: rank deficient.
+    for k in range(500, 500 + W + Q):
+        service.push(k * dt, [1.0, 1.0], [0.5, 0.5])
+    bad = service.snapshot()
+    assert not bad.valid and "unexcited" in bad.reason
+    assert bad.fit is good.fit  # the last good fit travels on
+    assert service.diagnostics()["has_good_model"]
+
+
+def test_adaptation_off_freezes_the_window_and_reset_restarts(record):
+    dt, u, y = record
+    service = make_service(dt)
+    service.push_block(dt * np.arange(400), u[:400], y[:400])
+    frozen = service.snapshot().fit.theta
+    service.set_adaptation(False)
+    service.push_block(dt * np.arange(400, 800), u[400:800], y[400:800])
+    np.testing.assert_array_equal(service.snapshot().fit.theta, frozen)
+    service.set_adaptation(True)
+    service.push_block(dt * np.arange(800, 900), u[800:900], y[800:900])
+    assert not np.array_equal(service.snapshot().fit.theta, frozen)
+    service.reset()
+    assert service.diagnostics()["samples_used"] == 0
+    snap = service.snapshot()
+    assert snap.model_id == 1 and not snap.valid
+
+
+def test_due_fires_once_per_publish_period():
+    service = make_service(0.01, **{"publish_rate_hz": 2.0})
+    fired = [k for k in range(301) if service.due(k * 0.01)]
+    assert fired == [50, 100, 150, 200, 250, 300]
+    assert not service.due(0.0)  # time went back: the clock restarts
+    assert service.due(0.5)
