@@ -1,0 +1,322 @@
+"""Messages <-> numpy: the one place where ROS message layouts meet the service layer.
+
+Reading uses attribute access only, so it works on rclpy messages and on messages deserialized
+by ``rosbags`` alike. Writing builds messages from a :class:`MessageTypes` namespace with every
+field given as a keyword, which both rclpy classes and rosbags dataclasses accept:
+
+    types = ros_message_types()                 # rclpy classes (okid_msgs, std_msgs, ...)
+    types = MessageTypes.from_typestore(store)  # rosbags classes, for writing bags
+
+Float arrays are passed as float64 numpy arrays. This module imports no ROS package at import
+time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.markov import markov_from_arx
+from okid_ros.core.modal import Mode
+from okid_ros.service.estimation import ModalStatesResult, ModelUpdate
+from okid_ros.service.identification import ArxSnapshot
+from okid_ros.service.inputs import SourceSpec
+
+__all__ = [
+    "MessageTypes",
+    "ros_message_types",
+    "stamp_to_seconds",
+    "seconds_to_stamp",
+    "source_values",
+    "io_sample_msg",
+    "arx_model_msg",
+    "arx_fit_from_msg",
+    "mode_msg",
+    "mode_from_msg",
+    "modal_states_msg",
+    "modal_states_from_msg",
+    "state_space_model_msg",
+    "state_space_from_msg",
+]
+
+_EMPTY = np.zeros(0)
+
+
+@dataclass(frozen=True)
+class MessageTypes:
+    """Message classes to build outgoing messages with (rclpy's or rosbags')."""
+
+    Time: Any
+    Header: Any
+    IoSample: Any
+    Mode: Any
+    ModalStates: Any
+    ArxModel: Any
+    StateSpaceModel: Any
+
+    @classmethod
+    def from_typestore(cls, store: Any) -> "MessageTypes":
+        """From a rosbags typestore that has the okid_msgs types registered."""
+        t = store.types
+        return cls(
+            t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"], t["okid_msgs/msg/IoSample"],
+            t["okid_msgs/msg/Mode"], t["okid_msgs/msg/ModalStates"], t["okid_msgs/msg/ArxModel"],
+            t["okid_msgs/msg/StateSpaceModel"],
+        )
+
+
+def ros_message_types() -> MessageTypes:
+    """The rclpy message classes (needs the ROS Python packages and okid_msgs)."""
+    from builtin_interfaces.msg import Time
+    from okid_msgs.msg import ArxModel, IoSample, ModalStates, Mode as ModeMsg, StateSpaceModel
+    from std_msgs.msg import Header
+
+    return MessageTypes(Time, Header, IoSample, ModeMsg, ModalStates, ArxModel, StateSpaceModel)
+
+
+# ---------------------------------------------------------------------------------- time
+def stamp_to_seconds(stamp: Any) -> float:
+    """``builtin_interfaces/Time`` (``sec``, ``nanosec``) -> seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def seconds_to_stamp(t: float, types: MessageTypes) -> Any:
+    """Seconds -> ``builtin_interfaces/Time`` (nanoseconds rounded; negative or NaN -> 0)."""
+    if not math.isfinite(t) or t < 0:
+        return types.Time(sec=0, nanosec=0)
+    ns = int(round(t * 1e9))
+    return types.Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def _header(t: float, frame_id: str, types: MessageTypes) -> Any:
+    return types.Header(stamp=seconds_to_stamp(t, types), frame_id=frame_id)
+
+
+def _f64(values: Any) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1))
+
+
+# ---------------------------------------------------------------------------------- inputs
+def source_values(msg: Any, spec: SourceSpec, n_inputs: int, n_outputs: int) -> tuple[float | None, np.ndarray]:
+    """The stamp [s] and channel values of one input message, in the order of ``spec.channels``.
+
+    The stamp is None when the message has none (Float64MultiArray without a stamp element):
+    the caller stamps it with the arrival time. Values of the wrong size come back as an
+    empty array, which :class:`okid_ros.service.sample_grid.SampleGrid` counts as wrong_size.
+    """
+    kind = spec.kind
+    if kind == "io_sample":
+        u, y = msg.u, msg.y
+        stamp = stamp_to_seconds(msg.header.stamp)
+        if spec.whole_sample:
+            if len(u) != n_inputs or len(y) != n_outputs:
+                return stamp, _EMPTY
+            return stamp, np.concatenate([np.asarray(u, dtype=float), np.asarray(y, dtype=float)])
+        try:
+            return stamp, np.array([(u if name == "u" else y)[i] for name, i in spec.fields], dtype=float)
+        except IndexError:
+            return stamp, _EMPTY
+    if kind == "array":
+        data = msg.data
+        try:
+            values = np.array([data[i] for _, i in spec.fields], dtype=float)
+            stamp = float(data[spec.stamp_index]) if spec.stamp_index is not None else None
+        except IndexError:
+            return None, _EMPTY
+        return stamp, values
+    stamp = stamp_to_seconds(msg.header.stamp)
+    values = np.empty(len(spec.fields))
+    for i, path in enumerate(spec.fields):
+        obj = msg
+        for name in path:
+            obj = getattr(obj, name)
+        values[i] = obj
+    return stamp, values
+
+
+def io_sample_msg(t: float, u: Any, y: Any, types: MessageTypes, frame_id: str = "") -> Any:
+    """An ``okid_msgs/IoSample``."""
+    return types.IoSample(header=_header(t, frame_id, types), u=_f64(u), y=_f64(y))
+
+
+# ---------------------------------------------------------------------------------- ArxModel
+def arx_model_msg(snapshot: ArxSnapshot, types: MessageTypes, frame_id: str = "", markov: bool = True) -> Any:
+    """``okid_msgs/ArxModel`` of a snapshot (coefficients empty if there never was a good fit).
+
+    ``condition_number`` is the 2-norm condition number of the column-scaled regressor matrix,
+    the square root of that of the normal equations the service reports.
+    """
+    fit = snapshot.fit
+    p, m = snapshot.n_outputs, snapshot.n_inputs
+    if fit is not None:
+        theta = _f64(fit.theta)
+        rows, cols = fit.theta.shape
+        res_cov = _f64(fit.residual_covariance)
+        markov_params = markov_from_arx(fit) if markov else np.zeros((0, p, m))
+    else:
+        theta, rows, cols, res_cov, markov_params = _EMPTY, 0, 0, _EMPTY, np.zeros((0, p, m))
+    cond = snapshot.condition_number
+    return types.ArxModel(
+        header=_header(snapshot.stamp_s, frame_id, types),
+        model_id=int(snapshot.model_id),
+        valid=bool(snapshot.valid),
+        sample_time_s=float(snapshot.sample_time_s),
+        order=int(snapshot.order),
+        n_inputs=int(m),
+        n_outputs=int(p),
+        window_length=int(snapshot.window_length),
+        window_fill=int(snapshot.window_rows),
+        forgetting_factor=float(snapshot.forgetting_factor),
+        regularization=float(snapshot.penalty) if math.isfinite(snapshot.penalty) else 0.0,
+        coefficients_rows=int(rows),
+        coefficients_cols=int(cols),
+        coefficients=theta,
+        markov_parameters_count=int(markov_params.shape[0]),
+        markov_parameters=_f64(markov_params),
+        residual_covariance=res_cov,
+        condition_number=math.sqrt(cond) if cond >= 0 else math.nan,
+        samples_used=int(snapshot.samples_used),
+        samples_rejected=int(snapshot.samples_rejected),
+    )
+
+
+def arx_fit_from_msg(msg: Any) -> tuple[ArxFit, float, int]:
+    """``ArxModel`` -> (ArxFit, stamp of its newest sample [s], rows in its window).
+
+    Raises
+    ------
+    ValueError when the coefficient array does not match its declared shape.
+    """
+    m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
+    d = m + q * (p + m)
+    rows, cols = int(msg.coefficients_rows), int(msg.coefficients_cols)
+    theta = np.asarray(msg.coefficients, dtype=float)
+    if (rows, cols) != (d, p) or theta.size != d * p:
+        raise ValueError(
+            f"ArxModel coefficients are {rows} x {cols} ({theta.size} values); order {q} with "
+            f"{m} inputs and {p} outputs needs {d} x {p}"
+        )
+    cov = np.asarray(msg.residual_covariance, dtype=float)
+    cov = cov.reshape(p, p) if cov.size == p * p else np.eye(p)
+    cond = float(msg.condition_number)
+    fit = ArxFit(
+        theta=theta.reshape(d, p), order=q, n_inputs=m, n_outputs=p, residual_covariance=cov,
+        condition_number=cond * cond, regularization="ridge", penalty=float(msg.regularization),
+        n_rows=int(msg.window_fill),
+    )
+    return fit, stamp_to_seconds(msg.header.stamp), int(msg.window_fill)
+
+
+# ---------------------------------------------------------------------------------- modes
+def mode_msg(mode: Mode, types: MessageTypes) -> Any:
+    """``okid_msgs/Mode`` of a core Mode (NaN for indicators that could not be computed)."""
+    return types.Mode(
+        id=int(mode.id),
+        frequency_hz=float(mode.frequency_hz),
+        frequency_rad_s=float(mode.frequency_rad_s),
+        damping_ratio=float(mode.damping_ratio),
+        emac=float(mode.emac),
+        mpc=float(mode.mpc),
+        msv=float(mode.msv),
+        mac_previous=float(mode.mac_previous),
+        stable=bool(mode.stable),
+        shape_real=_f64(np.real(mode.shape)),
+        shape_imag=_f64(np.imag(mode.shape)),
+    )
+
+
+def mode_from_msg(msg: Any) -> dict[str, Any]:
+    """``Mode`` -> dict with the message's field names (shape as a complex array)."""
+    return {
+        "id": int(msg.id),
+        "frequency_hz": float(msg.frequency_hz),
+        "frequency_rad_s": float(msg.frequency_rad_s),
+        "damping_ratio": float(msg.damping_ratio),
+        "emac": float(msg.emac),
+        "mpc": float(msg.mpc),
+        "msv": float(msg.msv),
+        "mac_previous": float(msg.mac_previous),
+        "stable": bool(msg.stable),
+        "shape": np.asarray(msg.shape_real, dtype=float) + 1j * np.asarray(msg.shape_imag, dtype=float),
+    }
+
+
+def modal_states_msg(result: ModalStatesResult, types: MessageTypes, frame_id: str = "",
+                     mode_msgs: list | None = None) -> Any:
+    """``okid_msgs/ModalStates`` of one sample's estimate.
+
+    ``mode_msgs``: the model's Mode messages, if the caller keeps them per model (they change
+    only with the model; building them per sample costs more than the rest of the message).
+    """
+    if mode_msgs is None:
+        mode_msgs = [mode_msg(m, types) for m in result.modes]
+    return types.ModalStates(
+        header=_header(result.stamp_s, frame_id, types),
+        model_id=int(result.model_id),
+        modes=mode_msgs,
+        modal_coordinates=_f64(result.coordinates),
+        y_estimated=_f64(result.y_estimated),
+        innovation=_f64(result.innovation),
+    )
+
+
+def modal_states_from_msg(msg: Any) -> dict[str, Any]:
+    """``ModalStates`` -> dict: stamp_s, model_id, modes (dicts), coordinates (n, 2), y_estimated, innovation."""
+    coords = np.asarray(msg.modal_coordinates, dtype=float)
+    return {
+        "stamp_s": stamp_to_seconds(msg.header.stamp),
+        "model_id": int(msg.model_id),
+        "modes": [mode_from_msg(m) for m in msg.modes],
+        "coordinates": coords.reshape(-1, 2),
+        "y_estimated": np.asarray(msg.y_estimated, dtype=float),
+        "innovation": np.asarray(msg.innovation, dtype=float),
+    }
+
+
+# ---------------------------------------------------------------------------------- StateSpaceModel
+def state_space_model_msg(update: ModelUpdate, types: MessageTypes, frame_id: str = "") -> Any:
+    """``okid_msgs/StateSpaceModel`` of an accepted model (states in normalized modal form)."""
+    model = update.model
+    n, m = model.B.shape
+    p = model.C.shape[0]
+    return types.StateSpaceModel(
+        header=_header(update.stamp_s, frame_id, types),
+        model_id=int(update.model_id),
+        arx_model_id=int(update.arx_model_id),
+        sample_time_s=float(model.sample_time_s),
+        n_states=int(n),
+        n_inputs=int(m),
+        n_outputs=int(p),
+        a=_f64(model.A),
+        b=_f64(model.B),
+        c=_f64(model.C),
+        d=_f64(model.D),
+        k=_f64(model.K),
+        innovation_covariance=_f64(model.innovation_covariance),
+        hankel_singular_values=_f64(model.hankel_singular_values),
+        modes=[mode_msg(mo, types) for mo in update.modes],
+    )
+
+
+def state_space_from_msg(msg: Any) -> dict[str, Any]:
+    """``StateSpaceModel`` -> dict: stamp_s, model_id, arx_model_id, sample_time_s, A, B, C, D, K,
+    innovation_covariance, hankel_singular_values, modes (dicts)."""
+    n, m, p = int(msg.n_states), int(msg.n_inputs), int(msg.n_outputs)
+    return {
+        "stamp_s": stamp_to_seconds(msg.header.stamp),
+        "model_id": int(msg.model_id),
+        "arx_model_id": int(msg.arx_model_id),
+        "sample_time_s": float(msg.sample_time_s),
+        "A": np.asarray(msg.a, dtype=float).reshape(n, n),
+        "B": np.asarray(msg.b, dtype=float).reshape(n, m),
+        "C": np.asarray(msg.c, dtype=float).reshape(p, n),
+        "D": np.asarray(msg.d, dtype=float).reshape(p, m),
+        "K": np.asarray(msg.k, dtype=float).reshape(n, p),
+        "innovation_covariance": np.asarray(msg.innovation_covariance, dtype=float).reshape(p, p),
+        "hankel_singular_values": np.asarray(msg.hankel_singular_values, dtype=float),
+        "modes": [mode_from_msg(mo) for mo in msg.modes],
+    }

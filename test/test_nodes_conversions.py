@@ -1,0 +1,109 @@
+"""Message <-> numpy conversions, duck-typed: plain namespaces stand in for rclpy or rosbags
+message classes (okid_ros/nodes/conversions.py imports no ROS package)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace as NS
+
+import numpy as np
+import pytest
+
+from okid_ros.nodes import conversions as cv
+from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
+from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+from okid_ros.service.inputs import parse_source
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+TYPES = cv.MessageTypes(NS, NS, NS, NS, NS, NS, NS)  # every "class" takes the fields as keywords
+
+
+def stamped(t: float, **fields):
+    sec = int(t)
+    return NS(header=NS(stamp=NS(sec=sec, nanosec=int(round((t - sec) * 1e9))), frame_id=""), **fields)
+
+
+def vec(x, y, z):
+    return NS(x=x, y=y, z=z)
+
+
+def test_source_values_of_every_kind():
+    imu = stamped(12.5, linear_acceleration=vec(1.0, 2.0, 3.0), angular_velocity=vec(4.0, 5.0, 6.0))
+    stamp, values = cv.source_values(imu, parse_source("imu /a linear_acceleration.z=y1 angular_velocity.x=y0", 2, 2), 2, 2)
+    assert stamp == pytest.approx(12.5) and values.tolist() == [3.0, 4.0]
+    wrench = stamped(1.0, wrench=NS(force=vec(7.0, 8.0, 9.0), torque=vec(0.1, 0.2, 0.3)))
+    _, values = cv.source_values(wrench, parse_source("wrench /w force.y=u0 torque.z=u1", 2, 2), 2, 2)
+    assert values.tolist() == [8.0, 0.3]
+    accel = stamped(1.0, accel=NS(linear=vec(1.5, 0.0, 0.0), angular=vec(0.0, 0.0, 2.5)))
+    _, values = cv.source_values(accel, parse_source("accel /x accel.linear.x=y0 angular.z=y1", 1, 2), 1, 2)
+    assert values.tolist() == [1.5, 2.5]
+    array = NS(data=[3.25, 10.0, 20.0])
+    stamp, values = cv.source_values(array, parse_source("array /d data[0]=stamp data[2]=u0 data[1]=y0", 1, 1), 1, 1)
+    assert stamp == 3.25 and values.tolist() == [20.0, 10.0]
+    stamp, values = cv.source_values(NS(data=[1.0]), parse_source("array /d data[2]=u0 data[0]=y0", 1, 1), 1, 1)
+    assert stamp is None and values.size == 0  # too short: wrong size
+    io = stamped(2.0, u=[1.0, 2.0], y=[3.0, 4.0])
+    _, values = cv.source_values(io, parse_source("io_sample /io", 2, 2), 2, 2)
+    assert values.tolist() == [1.0, 2.0, 3.0, 4.0]
+    _, values = cv.source_values(stamped(2.0, u=[1.0], y=[3.0, 4.0]), parse_source("io_sample /io", 2, 2), 2, 2)
+    assert values.size == 0
+    _, values = cv.source_values(io, parse_source("io_sample /io y[1]=y0", 1, 1), 1, 1)
+    assert values.tolist() == [4.0]
+
+
+def test_stamps_round_trip_to_the_nanosecond():
+    t = 1732212345.123456789
+    stamp = cv.seconds_to_stamp(t, TYPES)
+    assert stamp.sec == 1732212345 and abs(stamp.nanosec - 123456789) < 500
+    assert cv.stamp_to_seconds(cv.seconds_to_stamp(12.008, TYPES)) == pytest.approx(12.008, abs=1e-12)
+
+
+@pytest.fixture(scope="module")
+def identified():
+    model = paper_model()
+    dt = model.sample_time_s
+    u = lowpass_input(1500, 2, 50.0, dt, seed=5)
+    y, _ = simulate_innovation(model, u, seed=6)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, 20, 2, 2, 1000))
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    result = None
+    for k in range(1500):
+        ident.push(k * dt, u[k], y[k])
+        result = est.step(k * dt, u[k], y[k]) or result
+        if k == 1200:
+            snap = ident.snapshot()
+            est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+            est.process_pending()
+    return snap, est, result
+
+
+def test_arx_model_round_trip(identified):
+    snap, _, _ = identified
+    msg = cv.arx_model_msg(snap, TYPES, frame_id="rig")
+    assert msg.valid and msg.order == 20 and msg.coefficients_rows == 2 + 20 * 4
+    assert msg.markov_parameters_count == 21 and msg.markov_parameters.size == 21 * 4
+    assert msg.condition_number == pytest.approx(np.sqrt(snap.condition_number))
+    fit, stamp, rows = cv.arx_fit_from_msg(msg)
+    np.testing.assert_array_equal(fit.theta, snap.fit.theta)
+    assert stamp == pytest.approx(snap.stamp_s) and rows == snap.window_rows
+    np.testing.assert_allclose(fit.residual_covariance, snap.fit.residual_covariance)
+    msg.coefficients = msg.coefficients[:-1]
+    with pytest.raises(ValueError, match="needs 82 x 2"):
+        cv.arx_fit_from_msg(msg)
+
+
+def test_state_space_and_modal_states_round_trip(identified):
+    _, est, result = identified
+    assert result is not None and est.has_model
+    update = NS(model=est.current_model, model_id=3, arx_model_id=7, stamp_s=4.0, modes=est.current_modes)
+    back = cv.state_space_from_msg(cv.state_space_model_msg(update, TYPES))
+    model = est.current_model
+    for name in ("A", "B", "C", "D", "K", "innovation_covariance"):
+        np.testing.assert_array_equal(back[name], getattr(model, name))
+    assert back["model_id"] == 3 and back["arx_model_id"] == 7
+    assert [m["id"] for m in back["modes"]] == [m.id for m in est.current_modes]
+    states = cv.modal_states_from_msg(cv.modal_states_msg(result, TYPES))
+    np.testing.assert_array_equal(states["coordinates"], result.coordinates)
+    np.testing.assert_array_equal(states["innovation"], result.innovation)
+    mode = states["modes"][0]
+    assert mode["frequency_rad_s"] == pytest.approx(result.modes[0].frequency_rad_s)
+    np.testing.assert_allclose(mode["shape"], result.modes[0].shape)
