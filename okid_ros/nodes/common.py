@@ -1,0 +1,255 @@
+"""What both nodes share: parameter declaration, input topics on the sample grid, diagnostics,
+and the process entry point.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import re
+import sys
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+
+from okid_ros.errors import ParameterError
+from okid_ros.nodes.conversions import source_values
+from okid_ros.service.inputs import SourceSpec, parse_sources
+from okid_ros.service.params import ParamSpec, validate_value
+from okid_ros.service.sample_grid import GridSample, SampleGrid
+
+__all__ = [
+    "declare_parameters",
+    "InputFrontend",
+    "DiagnosticsPublisher",
+    "reliable_qos",
+    "sensor_qos",
+    "run_node",
+]
+
+_INT64_MAX = 2**63 - 1
+
+
+def reliable_qos(depth: int = 10, latched: bool = False) -> QoSProfile:
+    """Reliable output QoS (transient local when ``latched``: late subscribers get the last one)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+def sensor_qos(depth: int) -> QoSProfile:
+    """Sensor-data QoS (best effort, volatile) with a queue of ``depth`` messages."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    kind = spec.kind
+    types = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+             float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+             list: ParameterType.PARAMETER_STRING_ARRAY}
+    desc = ParameterDescriptor(
+        name=spec.name, type=types[kind], description=spec.full_description(), read_only=True,
+    )
+    if spec.choices:
+        desc.additional_constraints = "one of: " + ", ".join(spec.choices)
+    if kind is float and (spec.low is not None or spec.high is not None):
+        desc.floating_point_range = [FloatingPointRange(
+            from_value=float(-sys.float_info.max if spec.low is None else spec.low),
+            to_value=float(sys.float_info.max if spec.high is None else spec.high), step=0.0,
+        )]
+    if kind is int and (spec.low is not None or spec.high is not None):
+        desc.integer_range = [IntegerRange(
+            from_value=int(-_INT64_MAX if spec.low is None else spec.low),
+            to_value=int(_INT64_MAX if spec.high is None else spec.high), step=1,
+        )]
+    return desc
+
+
+def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare every parameter with its descriptor; return the validated values.
+
+    Raises
+    ------
+    ParameterError naming the parameter and its valid range (the node must not start).
+    """
+    values: dict[str, Any] = {}
+    for spec in specs:
+        unit = f" {spec.unit}" if spec.unit else ""
+        try:
+            param = node.declare_parameter(spec.name, spec.default, _descriptor(spec))
+        except InvalidParameterValueException as exc:
+            found = re.search(r"value \((.*?)\)", str(exc))
+            value = found.group(1) if found else "the given value"
+            raise ParameterError(
+                f"parameter {spec.name} = {value} is out of range; valid range {spec.range_text()}{unit}"
+            ) from None
+        except InvalidParameterTypeException as exc:
+            want = {bool: "true or false", int: "an integer", float: "a floating-point number (e.g. 1.0, not 1)",
+                    str: "a string", list: "a list of strings"}[spec.kind]
+            raise ParameterError(f"parameter {spec.name} must be {want}: {exc}") from None
+        values[spec.name] = validate_value(spec, param.value)
+    return values
+
+
+class InputFrontend:
+    """Subscriptions of the input sources, assembly on the sample grid, rates and staleness.
+
+    ``on_sample`` is called (on the executor thread) with every complete
+    :class:`~okid_ros.service.sample_grid.GridSample`.
+    """
+
+    def __init__(self, node: Node, values: dict[str, Any], on_sample: Callable[[GridSample], None]) -> None:
+        self.node = node
+        self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
+        try:
+            self.specs: list[SourceSpec] = parse_sources(values["inputs.sources"], self.m, self.p)
+        except ValueError as exc:
+            raise ParameterError(f"parameter inputs.sources: {exc}") from None
+        self.grid = SampleGrid(
+            float(values["sample_time_s"]), self.m, self.p, [s.channels for s in self.specs],
+            tolerance=float(values["inputs.stamp_tolerance"]),
+            latency_samples=int(values["inputs.latency_samples"]),
+            time_jump_s=float(values["inputs.time_jump_s"]),
+        )
+        self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
+        self.on_sample = on_sample
+        self._clock = node.get_clock()
+        n = len(self.specs)
+        self.last_arrival_ns: list[int | None] = [None] * n
+        self.stale = [False] * n
+        self._counts = [0] * n
+        self._rate_mark = (self._clock.now().nanoseconds, [0] * n)
+        self.rates_hz = [0.0] * n
+        qos = sensor_qos(int(values["inputs.queue_depth"]))
+        self.subscriptions = []
+        for i, spec in enumerate(self.specs):
+            msg_type = _import_type(spec.msg_type)
+            self.subscriptions.append(node.create_subscription(
+                msg_type, spec.topic, partial(self._on_message, i), qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            ))
+
+    def _on_message(self, index: int, msg: Any) -> None:
+        now_ns = self._clock.now().nanoseconds
+        self.last_arrival_ns[index] = now_ns
+        self._counts[index] += 1
+        stamp, values = source_values(msg, self.specs[index], self.m, self.p)
+        if stamp is None:
+            stamp = now_ns * 1e-9
+        for sample in self.grid.add(index, stamp, values):
+            self.on_sample(sample)
+
+    def reset(self) -> None:
+        self.grid.reset()
+
+    def update_health(self) -> list[str]:
+        """Recompute input rates and staleness; return messages for inputs that changed state."""
+        now = self._clock.now().nanoseconds
+        t0, counts0 = self._rate_mark
+        span = (now - t0) * 1e-9
+        if span > 0:
+            self.rates_hz = [(c - c0) / span for c, c0 in zip(self._counts, counts0)]
+        self._rate_mark = (now, list(self._counts))
+        changes = []
+        for i, spec in enumerate(self.specs):
+            last = self.last_arrival_ns[i]
+            stale = last is None or now - last > self.stale_timeout_ns
+            if stale != self.stale[i]:
+                if stale:
+                    changes.append(f"input {spec.topic} is stale: no message for more than "
+                                   f"{self.stale_timeout_ns * 1e-9:g} s")
+                elif last is not None:
+                    changes.append(f"input {spec.topic} is receiving again")
+            self.stale[i] = stale
+        return changes
+
+    def status(self, node_name: str) -> DiagnosticStatus:
+        """Diagnostics of the inputs: per topic rate, staleness, messages and rejections."""
+        values: dict[str, Any] = {}
+        for i, spec in enumerate(self.specs):
+            c = self.grid.source_counters(i)
+            values[f"{spec.topic} type"] = spec.msg_type
+            values[f"{spec.topic} rate_hz"] = round(self.rates_hz[i], 3)
+            values[f"{spec.topic} stale"] = self.stale[i]
+            values[f"{spec.topic} messages"] = c.messages
+            values[f"{spec.topic} rejected"] = c.rejected_messages
+        for key, value in self.grid.counters.as_dict().items():
+            values[f"grid {key}"] = value
+        stale = [s.topic for s, flag in zip(self.specs, self.stale) if flag]
+        level = DiagnosticStatus.WARN if stale else DiagnosticStatus.OK
+        message = ("stale: " + ", ".join(stale)) if stale else f"{len(self.specs)} input(s) receiving"
+        return make_status(f"{node_name}: inputs", level, message, values)
+
+
+def make_status(name: str, level: bytes, message: str, values: dict[str, Any]) -> DiagnosticStatus:
+    """A DiagnosticStatus with its values as KeyValue strings."""
+    def text(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, float):
+            return "nan" if math.isnan(v) else f"{v:.6g}"
+        return str(v)
+
+    return DiagnosticStatus(
+        level=level, name=name, message=message, hardware_id="okid_ros",
+        values=[KeyValue(key=k, value=text(v)) for k, v in values.items()],
+    )
+
+
+class DiagnosticsPublisher:
+    """Publishes DiagnosticArray on /diagnostics (diagnostic_updater is not available as a wheel)."""
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        self.publisher = node.create_publisher(DiagnosticArray, "/diagnostics", reliable_qos(10))
+
+    def publish(self, statuses: list[DiagnosticStatus]) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.status = statuses
+        self.publisher.publish(msg)
+
+
+def _import_type(name: str) -> type:
+    """'sensor_msgs/msg/Imu' -> the rclpy message class."""
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
+
+
+def run_node(factory: Callable[[], Node], name: str, args: Sequence[str] | None = None) -> int:
+    """Create the node, spin until Ctrl-C / SIGTERM / shutdown; 2 if the parameters are invalid."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        try:
+            node = factory()
+        except ParameterError as exc:
+            print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        return 0
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        rclpy.try_shutdown()
