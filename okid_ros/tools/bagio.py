@@ -1,0 +1,390 @@
+"""Bag input and output on the `rosbags` library: any rosbag2 in, new rosbag2 out, no ROS needed.
+
+Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader``: rosbag2
+directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file) and ROS 1
+bags, deserialized with the definitions stored in the bag (bags without definitions fall back
+to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
+the middle of the messages, becomes a one-line :class:`BagReadError` naming the path.
+
+Writing (:class:`BagWriter`) creates a rosbag2 of format version 9 (Jazzy) with the message
+definitions embedded, so any reader can decode it, and refuses an existing path unless
+``force`` is given (then it only removes what is recognizably a bag, see
+:func:`prepare_output`). Messages are built with the typestore's classes (the nodes'
+:mod:`okid_ros.nodes.conversions` accepts them) and serialized by rosbags, not by
+``rclpy.serialization.serialize_message``: rmw_fastrtps sizes that buffer by an upper-bound
+estimate, so its bytes carry trailing garbage that strict CDR readers (rosbags' own
+``deserialize_cdr`` among them) reject as a size mismatch. Bytes taken from the wire (an rclpy
+subscription with ``raw=True``) have their exact size and are written as they are
+(:meth:`BagWriter.write_raw`).
+
+Custom data: rosbag2 metadata (version >= 6) has a ``custom_data`` map of strings; the tools
+store JSON documents there under keys starting with ``okid_ros.`` (the simulated truth:
+:data:`TRUTH_KEY`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import shutil
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from okid_ros.tools.errors import BagReadError, BagWriteError, OutputExistsError
+
+__all__ = [
+    "OKID_MSGS_PACKAGE",
+    "STORAGES",
+    "TRUTH_KEY",
+    "BagReader",
+    "BagWriter",
+    "message_definition_dir",
+    "okid_typestore",
+    "open_bag",
+    "prepare_output",
+]
+
+OKID_MSGS_PACKAGE = "okid_msgs"
+#: Storage plugins of the writer, as named by rosbag2 (`ros2 bag record -s ...`).
+STORAGES = ("mcap", "sqlite3")
+#: custom_data key of the simulated truth (JSON, see okid_ros.tools.simulate_bag).
+TRUTH_KEY = "okid_ros.truth"
+#: custom_data key under which `process` records its source bag and parameters (JSON).
+PROCESS_KEY = "okid_ros.process"
+
+_REPO_MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
+# Files a rosbag2 directory may hold; --force removes nothing else.
+_BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def message_definition_dir() -> Path:
+    """Directory with the okid_msgs ``.msg`` files.
+
+    The installed interface package comes first (``share/okid_msgs/msg`` under each prefix of
+    ``AMENT_PREFIX_PATH`` and under this interpreter's prefix), since its definitions are the
+    ones the rclpy classes were generated from; the repository's ``msg_defs/msg`` is the
+    fallback for a source checkout without a build.
+
+    Raises:
+        BagReadError: no definitions anywhere.
+    """
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    for prefix in prefixes:
+        candidate = Path(prefix) / "share" / OKID_MSGS_PACKAGE / "msg"
+        if any(candidate.glob("*.msg")):
+            return candidate
+    if any(_REPO_MSG_DIR.glob("*.msg")):
+        return _REPO_MSG_DIR
+    raise BagReadError(f"no okid_msgs message definitions found (looked in share/{OKID_MSGS_PACKAGE}/msg of "
+                       f"AMENT_PREFIX_PATH and {sys.prefix}, and in {_REPO_MSG_DIR})")
+
+
+@functools.lru_cache(maxsize=1)
+def okid_typestore() -> Any:
+    """The ROS 2 Jazzy typestore of rosbags with okid_msgs registered (cached)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict = {}
+    for path in sorted(message_definition_dir().glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(), f"{OKID_MSGS_PACKAGE}/msg/{path.stem}"))
+    store.register(types)
+    return store
+
+
+def msgtype_name(msgtype: str) -> str:
+    """``pkg/msg/Name`` for ``pkg/Name`` or ``pkg/msg/Name`` (ROS 1 style names too)."""
+    parts = msgtype.split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return msgtype
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------------
+
+
+class BagReader:
+    """An open bag: topics, types, metadata and deserialized messages in log-time order.
+
+    Use :func:`open_bag`. ``topics`` maps each topic to its message type (``pkg/msg/Name``).
+    """
+
+    def __init__(self, path: Path, reader: Any) -> None:
+        self.path = path
+        self._reader = reader
+        self.topics: dict[str, str] = {}
+        for connection in reader.connections:
+            self.topics.setdefault(connection.topic, msgtype_name(connection.msgtype))
+
+    @property
+    def start_ns(self) -> int:
+        return int(self._reader.start_time) if self._reader.message_count else 0
+
+    @property
+    def end_ns(self) -> int:
+        return int(self._reader.end_time) if self._reader.message_count else 0
+
+    @property
+    def duration_s(self) -> float:
+        return max(0, self.end_ns - self.start_ns) * 1e-9
+
+    def message_count(self, topics: Iterable[str] | None = None) -> int:
+        """Messages on ``topics`` (all topics when None)."""
+        wanted = None if topics is None else set(topics)
+        return sum(c.msgcount for c in self._reader.connections if wanted is None or c.topic in wanted)
+
+    @property
+    def custom_data(self) -> dict[str, str]:
+        """rosbag2 ``custom_data`` of the metadata (empty for bags without it)."""
+        data: dict[str, str] = {}
+        for sub in getattr(self._reader, "readers", []):
+            metadata = getattr(getattr(sub, "storage", None), "metadata", None)
+            custom = getattr(metadata, "custom", None)
+            if custom:
+                data.update(custom)
+        return data
+
+    def custom_json(self, key: str) -> dict | None:
+        """The JSON document stored under ``key`` in custom_data, or None."""
+        import json
+
+        text = self.custom_data.get(key)
+        if text is None:
+            return None
+        try:
+            return json.loads(text)
+        except ValueError as exc:
+            raise BagReadError(f"{self.path}: custom_data {key!r} is not valid JSON ({_one_line(exc)})") from None
+
+    def require_topic(self, topic: str, msgtypes: Sequence[str]) -> str:
+        """Check that ``topic`` exists with one of ``msgtypes``; return its type.
+
+        Raises:
+            BagReadError: the topic is missing or has another type.
+        """
+        if topic not in self.topics:
+            have = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics.items())) or "none"
+            raise BagReadError(f"{self.path}: no topic {topic}; the bag has: {have}")
+        msgtype = self.topics[topic]
+        if msgtype not in {msgtype_name(m) for m in msgtypes}:
+            raise BagReadError(f"{self.path}: topic {topic} has type {msgtype}, expected "
+                               f"{' or '.join(msgtype_name(m) for m in msgtypes)}")
+        return msgtype
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """Yield ``(topic, msgtype, log_time_ns, cdr_bytes)`` in log-time order."""
+        wanted = None if topics is None else set(topics)
+        connections = [c for c in self._reader.connections if wanted is None or c.topic in wanted]
+        if not connections:
+            return
+        try:
+            for connection, stamp_ns, raw in self._reader.messages(connections=connections):
+                yield connection.topic, msgtype_name(connection.msgtype), int(stamp_ns), raw
+        except BagReadError:
+            raise
+        except Exception as exc:  # corrupt chunk, truncated file, bad compression ...
+            raise BagReadError(f"{self.path}: cannot read messages ({type(exc).__name__}: {_one_line(exc)})") from None
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, Any]]:
+        """Yield ``(topic, log_time_ns, message)``, messages deserialized by rosbags."""
+        for topic, msgtype, stamp_ns, raw in self.raw_messages(topics):
+            try:
+                msg = self._reader.deserialize(raw, msgtype)
+            except Exception as exc:
+                raise BagReadError(f"{self.path}: cannot decode a {msgtype} message on {topic} at "
+                                   f"{stamp_ns} ns ({_one_line(exc)})") from None
+            yield topic, stamp_ns, msg
+
+
+class _OpenBag:
+    """Context manager behind :func:`open_bag`."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._reader: Any = None
+
+    def __enter__(self) -> BagReader:
+        from rosbags.highlevel import AnyReader
+
+        path = self.path
+        if not path.exists():
+            raise BagReadError(f"{path}: no such bag")
+        try:
+            reader = AnyReader([path], default_typestore=okid_typestore())
+            reader.open()
+        except Exception as exc:  # the readers raise many kinds; all mean "not a usable bag"
+            raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
+                               f"({type(exc).__name__}: {_one_line(exc)})") from None
+        self._reader = reader
+        return BagReader(path, reader)
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self._reader is not None:
+            try:
+                self._reader.close()
+            except Exception:  # noqa: BLE001 - closing a broken bag must not hide the first error
+                pass
+            self._reader = None
+
+
+def open_bag(path: str | os.PathLike) -> _OpenBag:
+    """Open a bag for reading: ``with open_bag(path) as bag: ...``.
+
+    Args:
+        path: rosbag2 directory, ``.mcap`` or ``.db3`` file, or ROS 1 ``.bag``.
+
+    Raises:
+        BagReadError: missing path or unreadable bag (one line, names the path).
+    """
+    return _OpenBag(Path(path))
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+# --------------------------------------------------------------------------------------------
+
+
+def _is_bag_directory(path: Path) -> bool:
+    entries = list(path.iterdir())
+    return (path / "metadata.yaml").is_file() and all(
+        e.is_file() and (e.suffix in _BAG_SUFFIXES or "".join(e.suffixes[-2:]) in {".db3.zstd", ".mcap.zstd"})
+        for e in entries
+    )
+
+
+def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> Path:
+    """Make sure ``path`` can be created: refuse an existing one unless ``force``.
+
+    With ``force`` an existing file is removed, and an existing directory only if it is a
+    rosbag2 directory (``metadata.yaml`` and storage files, nothing else) or empty; anything
+    else is refused even with ``force``, so a typo cannot delete a folder of other work.
+
+    Args:
+        path: output path.
+        force: allow replacing an existing output.
+        kind: what the output is, for the message ("bag", "JSON lines file", ...).
+
+    Returns:
+        The path.
+
+    Raises:
+        OutputExistsError: it exists and may not be replaced.
+        BagWriteError: the parent folder cannot be created.
+    """
+    out = Path(path)
+    if out.exists() or out.is_symlink():
+        if not force:
+            raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
+        if out.is_dir() and not out.is_symlink():
+            if any(out.iterdir()) and not _is_bag_directory(out):
+                raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
+                                        f"with --force")
+            shutil.rmtree(out)
+        else:
+            out.unlink()
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BagWriteError(f"{out}: cannot create the parent folder ({_one_line(exc)})") from None
+    return out
+
+
+class BagWriter:
+    """A new rosbag2 (format version 9), used as a context manager.
+
+    Args:
+        path: the bag directory to create.
+        storage: "mcap" (default, `ros2 bag record`'s default since Iron) or "sqlite3".
+        force: replace an existing bag (see :func:`prepare_output`).
+
+    Raises:
+        OutputExistsError: ``path`` exists and ``force`` is false.
+        BagWriteError: the bag cannot be created or written.
+
+    Example::
+
+        with BagWriter("out/run1") as bag:
+            bag.add_topic("/okid/io_sample", "okid_msgs/msg/IoSample")
+            bag.write("/okid/io_sample", stamp_ns, msg)   # a typestore message
+    """
+
+    def __init__(self, path: str | os.PathLike, storage: str = "mcap", force: bool = False) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        if storage not in STORAGES:
+            raise BagWriteError(f"storage must be one of {', '.join(STORAGES)}, got {storage!r}")
+        self.path = prepare_output(path, force)
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self.typestore = okid_typestore()
+        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        self._connections: dict[str, tuple[Any, str]] = {}
+        self.counts: dict[str, int] = {}
+        self._open = False
+
+    def __enter__(self) -> BagWriter:
+        try:
+            self._writer.open()
+        except Exception as exc:
+            raise BagWriteError(f"{self.path}: cannot create the bag ({_one_line(exc)})") from None
+        self._open = True
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Write the metadata and close (also after an error: what was written stays readable)."""
+        if self._open:
+            self._open = False
+            try:
+                self._writer.close()
+            except Exception as exc:
+                raise BagWriteError(f"{self.path}: cannot finish the bag ({_one_line(exc)})") from None
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Store a string in the metadata's ``custom_data``."""
+        self._writer.set_custom_data(key, value)
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Add a topic of ``msgtype`` (``pkg/msg/Name``; must be known to the typestore)."""
+        msgtype = msgtype_name(msgtype)
+        if msgtype not in self.typestore.types:
+            raise BagWriteError(f"{self.path}: unknown message type {msgtype} for {topic}")
+        connection = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+        self._connections[topic] = (connection, msgtype)
+        self.counts[topic] = 0
+
+    def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
+        """Write a typestore message (see :meth:`msg_class`) on ``topic`` at log time ``stamp_ns``."""
+        connection, msgtype = self._connections[topic]
+        try:
+            raw = self.typestore.serialize_cdr(msg, msgtype)
+            self._writer.write(connection, int(stamp_ns), raw)
+        except Exception as exc:
+            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({_one_line(exc)})") from None
+        self.counts[topic] += 1
+
+    def write_raw(self, topic: str, stamp_ns: int, data: bytes) -> None:
+        """Write already serialized CDR bytes (e.g. from an rclpy ``raw=True`` subscription)."""
+        connection, msgtype = self._connections[topic]
+        try:
+            self._writer.write(connection, int(stamp_ns), data)
+        except Exception as exc:
+            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({_one_line(exc)})") from None
+        self.counts[topic] += 1
+
+    def msg_class(self, msgtype: str) -> type:
+        """The typestore dataclass of ``msgtype``."""
+        return self.typestore.types[msgtype_name(msgtype)]
