@@ -1,0 +1,236 @@
+"""Publish a bag on live topics with its original timing, like ``ros2 bag play``.
+
+Messages are read in log-time order and published when ``(t - t_first) / rate`` has elapsed
+on the monotonic wall clock since the start of the pass, each with the Python class of its
+type (``pkg/msg/Name`` -> ``pkg.msg.Name``, imported on demand): the stored CDR bytes are
+turned into that class by ``rclpy.serialization.deserialize_message`` and published by an rclpy
+publisher. Header stamps are not touched, so with ``loop`` every pass starts again at the
+first stamp of the bag: subscribers see a backward time jump, as with ``ros2 bag play --loop``
+(the nodes' sample grid re-anchors on it, see :mod:`okid_ros.service.sample_grid`).
+
+Publishers are reliable, keep-last with ``queue_depth``, volatile: compatible with the
+sensor-data (best effort) subscriptions of the nodes and with reliable ones. With ``clock``
+the player also publishes the bag time on ``/clock`` (rosgraph_msgs/Clock) at ``clock_hz``
+for nodes run with ``use_sim_time``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from okid_ros.tools.bagio import open_bag
+from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
+
+__all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class"]
+
+
+@dataclass
+class ReplayStats:
+    """What a replay did.
+
+    Attributes:
+        published: messages published per output topic.
+        passes: passes over the bag started (> 1 with loop).
+        max_lag_s: largest delay of a publication behind its schedule [s].
+        wall_time_s: time from the first publication to the end [s].
+    """
+
+    published: dict[str, int] = field(default_factory=dict)
+    passes: int = 0
+    max_lag_s: float = 0.0
+    wall_time_s: float = 0.0
+
+    @property
+    def total(self) -> int:
+        return sum(self.published.values())
+
+
+def parse_remaps(items: Sequence[str]) -> dict[str, str]:
+    """``["/a:=/b", ...]`` -> ``{"/a": "/b"}``; ToolParameterError for a malformed item."""
+    remaps: dict[str, str] = {}
+    for item in items:
+        source, sep, target = item.partition(":=")
+        if not sep or not source or not target:
+            raise ToolParameterError(f"--remap {item!r} must be FROM:=TO, e.g. /okid/io_sample:=/rig/io")
+        remaps[source] = target
+    return remaps
+
+
+def message_class(msgtype: str) -> type:
+    """The rclpy message class of ``pkg/msg/Name``; ReplayError if it cannot be imported."""
+    parts = msgtype.split("/")
+    if len(parts) != 3 or parts[1] != "msg":
+        raise ReplayError(f"cannot replay message type {msgtype!r}: expected pkg/msg/Name")
+    pkg, _, name = parts
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    except (ImportError, AttributeError) as exc:
+        raise ReplayError(f"no Python message class for {msgtype} ({exc}); build or source the package "
+                          f"{pkg}, or leave its topics out with --topics") from None
+
+
+class BagPlayer:
+    """Replays one bag; :meth:`run` blocks until the end (or ``stop()``, or the duration).
+
+    Args:
+        path: the bag.
+        rate: playback speed factor (> 0; 2.0 plays twice as fast).
+        loop: start again from the beginning at the end.
+        topics: topics to play (default: all).
+        remaps: output topic per bag topic.
+        delay_s: wait after creating the publishers, before the first message (discovery).
+        duration_s: stop after this much wall time of playback (None: no limit).
+        queue_depth: depth of each publisher's history.
+        clock: publish the bag time on /clock.
+        clock_hz: rate of /clock messages in bag time.
+        node_name: name of the player's ROS node.
+        log: callable for progress lines (default: print to stderr).
+
+    Raises:
+        BagReadError, ToolParameterError, ReplayError (at construction or start).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        rate: float = 1.0,
+        loop: bool = False,
+        topics: Sequence[str] | None = None,
+        remaps: dict[str, str] | None = None,
+        delay_s: float = 0.0,
+        duration_s: float | None = None,
+        queue_depth: int = 1000,
+        clock: bool = False,
+        clock_hz: float = 100.0,
+        node_name: str = "okid_replay",
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        if not rate > 0:
+            raise ToolParameterError(f"--rate must be a positive factor, got {rate}")
+        if delay_s < 0:
+            raise ToolParameterError(f"--delay must be >= 0 s, got {delay_s}")
+        if duration_s is not None and not duration_s > 0:
+            raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
+        if not clock_hz > 0:
+            raise ToolParameterError(f"--clock rate must be positive, got {clock_hz}")
+        self.path = Path(path)
+        self.rate = float(rate)
+        self.loop = bool(loop)
+        self.remaps = dict(remaps or {})
+        self.delay_s = float(delay_s)
+        self.duration_s = duration_s
+        self.queue_depth = int(queue_depth)
+        self.clock = bool(clock)
+        self.clock_hz = float(clock_hz)
+        self.node_name = node_name
+        self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+        self._stop = threading.Event()
+        with open_bag(self.path) as bag:
+            self.bag_topics = dict(bag.topics)
+            self.duration_bag_s = bag.duration_s
+            wanted = list(topics) if topics else sorted(bag.topics)
+            unknown = [t for t in wanted if t not in bag.topics]
+            if unknown:
+                raise BagReadError(f"{self.path}: no topic {', '.join(unknown)}; the bag has: "
+                                   f"{', '.join(sorted(bag.topics)) or 'none'}")
+            self.topics = wanted
+            self.message_count = bag.message_count(wanted)
+        bad_remaps = [t for t in self.remaps if t not in self.topics]
+        if bad_remaps:
+            raise ToolParameterError(f"--remap of {', '.join(bad_remaps)}: not a replayed topic "
+                                     f"({', '.join(self.topics)})")
+        self.classes = {t: message_class(self.bag_topics[t]) for t in self.topics}
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (thread-safe)."""
+        self._stop.set()
+
+    def _sleep_until(self, deadline: float, wall_end: float | None) -> bool:
+        """Sleep until the monotonic ``deadline``; False if stopped or out of time first."""
+        while True:
+            now = time.monotonic()
+            if self._stop.is_set() or (wall_end is not None and now >= wall_end):
+                return False
+            remaining = deadline - now
+            if remaining <= 0:
+                return True
+            limit = remaining if wall_end is None else min(remaining, wall_end - now)
+            self._stop.wait(min(limit, 0.05))
+
+    def run(self, context=None) -> ReplayStats:
+        """Play the bag (blocks). ``context``: an initialized rclpy Context, else one is made."""
+        try:
+            import rclpy
+            from rclpy.exceptions import InvalidTopicNameException
+            from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+            from rclpy.serialization import deserialize_message
+        except ImportError as exc:
+            raise ReplayError(f"ROS 2 (rclpy) is not available ({exc}); run `make setup` or source ROS") from None
+
+        own_context = context is None
+        if own_context:
+            context = rclpy.Context()
+            rclpy.init(context=context, args=[])
+        stats = ReplayStats(published={self.remaps.get(t, t): 0 for t in self.topics})
+        node = rclpy.create_node(self.node_name, context=context)
+        try:
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
+                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+            publishers = {}
+            for topic in self.topics:
+                name = self.remaps.get(topic, topic)
+                try:
+                    publishers[topic] = node.create_publisher(self.classes[topic], name, qos)
+                except (InvalidTopicNameException, ValueError) as exc:
+                    raise ToolParameterError(f"cannot publish on {name!r}: {' '.join(str(exc).split())}") from None
+            clock_pub = None
+            if self.clock:
+                from rosgraph_msgs.msg import Clock
+
+                clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+                clock_msg = Clock()
+            self.log(f"replay {self.path}: {self.message_count} messages on {len(self.topics)} topics, "
+                     f"{self.duration_bag_s:.1f} s at rate {self.rate:g}{' (loop)' if self.loop else ''}")
+            if self.delay_s:
+                self._sleep_until(time.monotonic() + self.delay_s, None)
+            started = time.monotonic()
+            wall_end = None if self.duration_s is None else started + self.duration_s
+            clock_step_ns = int(1e9 / self.clock_hz)
+            while not self._stop.is_set():
+                stats.passes += 1
+                if stats.passes > 1:
+                    self.log(f"replay: pass {stats.passes} (stamps jump back to the start of the bag)")
+                pass_start = time.monotonic()
+                first_ns = None
+                next_clock_ns = None
+                with open_bag(self.path) as bag:
+                    for topic, _msgtype, stamp_ns, raw in bag.raw_messages(self.topics):
+                        if first_ns is None:
+                            first_ns = stamp_ns
+                        due = pass_start + (stamp_ns - first_ns) * 1e-9 / self.rate
+                        if not self._sleep_until(due, wall_end):
+                            break
+                        stats.max_lag_s = max(stats.max_lag_s, time.monotonic() - due)
+                        if clock_pub is not None and (next_clock_ns is None or stamp_ns >= next_clock_ns):
+                            clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
+                            clock_pub.publish(clock_msg)
+                            next_clock_ns = stamp_ns + clock_step_ns
+                        publishers[topic].publish(deserialize_message(bytes(raw), self.classes[topic]))
+                        stats.published[self.remaps.get(topic, topic)] += 1
+                    else:
+                        if self.loop and first_ns is not None:
+                            continue
+                        break
+                break
+            stats.wall_time_s = time.monotonic() - started
+        finally:
+            node.destroy_node()
+            if own_context:
+                context.try_shutdown()
+        return stats
