@@ -1,0 +1,499 @@
+"""The two nodes' logic run offline over a bag, faster than real time.
+
+Per node, exactly what the live node does with its topics, minus the middleware:
+
+- identification (``okid_arx_identifier``): input messages -> its own
+  :class:`~okid_ros.service.sample_grid.SampleGrid` -> :class:`ArxIdentificationService`;
+  instead of the node's wall-clock timer, a snapshot is taken every ``1 / publish_rate_hz``
+  seconds of *sample* time (:meth:`ArxIdentificationService.due`) and written as ``ArxModel``;
+- estimation (``okid_modal_estimator``): input messages -> its own sample grid ->
+  :class:`ModalEstimationService` ``step`` per sample -> ``ModalStates`` (and
+  ``StateSpaceModel`` on each accepted model); every valid ``ArxModel`` goes back in through
+  the same message conversion the node uses (``arx_fit_from_msg``) and is realized at once
+  (``process_pending``), so it takes over at the next sample. Live, the realization runs on a
+  worker thread while samples go on, and a model that arrives while one is being realized
+  replaces the waiting one; offline every valid ArxModel is realized.
+
+The parameters come from the same YAML file as the nodes' (sections ``/**`` and per node,
+:func:`okid_ros.service.params.load_parameters`), so they mean the same thing live and offline.
+
+Messages are built by :mod:`okid_ros.nodes.conversions` with the rosbags typestore's classes
+and written with the rosbags writer (see :mod:`okid_ros.tools.bagio` for why not rclpy's
+serializer); the output bag therefore needs no ROS installation to be written or read.
+The log time of every output message is the stamp of the sample being processed when it was
+produced. The truth of a simulated input (``okid_ros.truth``) is copied into the output's
+metadata, and ``okid_ros.process`` records the source and the resolved parameters.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from okid_ros.errors import ParameterError
+from okid_ros.tools.bagio import PROCESS_KEY, TRUTH_KEY, BagWriter, open_bag, prepare_output
+from okid_ros.tools.errors import BagReadError, BagWriteError
+
+__all__ = ["ProcessSummary", "OfflineNodes", "load_node_parameters", "process_bag", "mode_summary"]
+
+
+def _deep_merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _set_dotted(tree: dict, name: str, value: Any) -> None:
+    *parents, leaf = name.split(".")
+    for part in parents:
+        tree = tree.setdefault(part, {})
+    tree[leaf] = value
+
+
+def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequence[str] = (),
+                         sources: Sequence[str] = ()) -> tuple[dict, dict]:
+    """Resolved parameters of both nodes, as the nodes would read them.
+
+    Args:
+        param_files: ROS parameter YAML files, later ones override earlier ones (as several
+            ``--params-file`` do); none: the defaults (equal to config/okid.yaml).
+        overrides: ``NAME=VALUE`` (dotted name, YAML value), applied to each node that has
+            the parameter, after the files.
+        sources: if given, replaces ``inputs.sources`` of both nodes.
+
+    Returns:
+        (identification node values, estimation node values), dotted names.
+
+    Raises:
+        ParameterError: unreadable file, bad value, or an override no node knows.
+    """
+    import yaml
+
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
+
+    tree: dict = {}
+    for path in param_files:
+        path = Path(path)
+        try:
+            loaded = yaml.safe_load(path.read_text())
+        except OSError as exc:
+            raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+        except yaml.YAMLError as exc:
+            raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+        if not isinstance(loaded, dict):
+            raise ParameterError(f"parameter file {path} has no node sections")
+        tree = _deep_merge(tree, loaded)
+    names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
+    layered: list[tuple[str, Any]] = []
+    for item in overrides:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
+        if not any(name in known for known in names.values()):
+            raise ParameterError(f"--param {name}: no such parameter of {ARX_NODE} or {ESTIMATOR_NODE}")
+        layered.append((name, value))
+    if sources:
+        layered.append(("inputs.sources", list(sources)))
+    for node in (ARX_NODE, ESTIMATOR_NODE):
+        keys = [k for k in (node, f"/{node}") if isinstance(tree.get(k), dict)] or [node]
+        for key in keys:
+            section = tree.setdefault(key, {}).setdefault("ros__parameters", {})
+            for name, value in layered:
+                if name in names[node]:
+                    _set_dotted(section, name, value)
+    with tempfile.TemporaryDirectory() as tmp:
+        merged = Path(tmp) / "params.yaml"
+        merged.write_text(yaml.safe_dump(tree))
+        label = ", ".join(str(p) for p in param_files) or "the defaults"
+        values = []
+        for node in (ARX_NODE, ESTIMATOR_NODE):
+            try:
+                values.append(load_parameters(merged, node))
+            except ParameterError as exc:
+                raise ParameterError(str(exc).replace(str(merged), label)) from None
+    return values[0], values[1]
+
+
+def mode_summary(mode: Any) -> dict:
+    """JSON-ready dict of a core Mode (NaN indicators as null)."""
+    def num(x: float) -> float | None:
+        x = float(x)
+        return x if math.isfinite(x) else None
+
+    return {
+        "id": int(mode.id),
+        "frequency_rad_s": float(mode.frequency_rad_s),
+        "frequency_hz": float(mode.frequency_hz),
+        "damping_ratio": float(mode.damping_ratio),
+        "emac": num(mode.emac),
+        "mpc": num(mode.mpc),
+        "msv": num(mode.msv),
+        "mac_previous": num(mode.mac_previous),
+        "stable": bool(mode.stable),
+    }
+
+
+@dataclass
+class ProcessSummary:
+    """What :func:`process_bag` did."""
+
+    input_messages: int = 0
+    samples: int = 0
+    arx_models: int = 0
+    valid_arx_models: int = 0
+    models: int = 0
+    modal_states: int = 0
+    first_stamp_s: float = math.nan
+    last_stamp_s: float = math.nan
+    elapsed_s: float = 0.0
+    updates: list = field(default_factory=list)  # the JSON lines
+    arx_diagnostics: dict = field(default_factory=dict)
+    estimator_diagnostics: dict = field(default_factory=dict)
+    grid_counters: dict = field(default_factory=dict)
+
+    @property
+    def data_duration_s(self) -> float:
+        return 0.0 if math.isnan(self.first_stamp_s) else self.last_stamp_s - self.first_stamp_s
+
+    @property
+    def final_modes(self) -> list[dict]:
+        return self.updates[-1]["modes"] if self.updates else []
+
+
+class _NodeInputs:
+    """One node's input sources and sample grid (what InputFrontend does, minus subscriptions)."""
+
+    def __init__(self, values: dict) -> None:
+        from okid_ros.service.inputs import parse_sources
+        from okid_ros.service.sample_grid import SampleGrid
+
+        self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
+        try:
+            self.specs = parse_sources(values["inputs.sources"], self.m, self.p)
+        except ValueError as exc:
+            raise ParameterError(f"parameter inputs.sources: {exc}") from None
+        self.grid = SampleGrid(
+            float(values["sample_time_s"]), self.m, self.p, [s.channels for s in self.specs],
+            tolerance=float(values["inputs.stamp_tolerance"]),
+            latency_samples=int(values["inputs.latency_samples"]),
+            time_jump_s=float(values["inputs.time_jump_s"]),
+        )
+        self.by_topic: dict[str, list[int]] = {}
+        for i, spec in enumerate(self.specs):
+            self.by_topic.setdefault(spec.topic, []).append(i)
+
+    def add(self, topic: str, msg: Any, arrival_s: float) -> list:
+        from okid_ros.nodes.conversions import source_values
+
+        samples = []
+        for i in self.by_topic.get(topic, ()):
+            stamp, values = source_values(msg, self.specs[i], self.m, self.p)
+            samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
+        return samples
+
+
+class OfflineNodes:
+    """Both nodes without ROS: feed input messages, get output messages.
+
+    Args:
+        arx_values, est_values: resolved parameters (:func:`load_node_parameters`).
+        types: message classes for the outputs (default: the rosbags typestore's).
+    """
+
+    def __init__(self, arx_values: dict, est_values: dict, types: Any = None) -> None:
+        from okid_ros.nodes.conversions import MessageTypes
+        from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
+        from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+        from okid_ros.tools.bagio import okid_typestore
+
+        self.types = types or MessageTypes.from_typestore(okid_typestore())
+        self.arx_inputs = _NodeInputs(arx_values)
+        self.est_inputs = _NodeInputs(est_values)
+        try:
+            self.arx = ArxIdentificationService(ArxIdentificationParams.from_parameters(arx_values))
+            self.est = ModalEstimationService(ModalEstimationParams.from_parameters(est_values))
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self.arx_topic = str(arx_values["arx_model_topic"])
+        self.arx_input_topic = str(est_values["arx_model_topic"])
+        self.state_space_topic = str(est_values["state_space_model_topic"])
+        self.modal_states_topic = str(est_values["modal_states_topic"])
+        self.summary = ProcessSummary()
+        self._mode_msgs: list = []
+
+    @property
+    def input_topics(self) -> dict[str, str]:
+        """Topic -> message type of every input source of either node."""
+        out = {}
+        for inputs in (self.arx_inputs, self.est_inputs):
+            for spec in inputs.specs:
+                out[spec.topic] = spec.msg_type
+        return out
+
+    @property
+    def output_topics(self) -> dict[str, str]:
+        return {
+            self.arx_topic: "okid_msgs/msg/ArxModel",
+            self.state_space_topic: "okid_msgs/msg/StateSpaceModel",
+            self.modal_states_topic: "okid_msgs/msg/ModalStates",
+        }
+
+    def feed(self, topic: str, msg: Any, log_time_s: float) -> list[tuple[str, Any]]:
+        """One input message (rosbags or rclpy); returns the ``(topic, message)`` outputs in order."""
+        self.summary.input_messages += 1
+        # node 2 first: a model realized from the previous ArxModel takes over at this sample
+        out = self._estimate(self.est_inputs.add(topic, msg, log_time_s))
+        out += self._identify(self.arx_inputs.add(topic, msg, log_time_s))
+        return out
+
+    def finish(self) -> list[tuple[str, Any]]:
+        """End of the record: complete samples still pending in the grids are processed too."""
+        out = self._estimate(self.est_inputs.grid.flush())
+        out += self._identify(self.arx_inputs.grid.flush())
+        s = self.summary
+        s.arx_diagnostics = self.arx.diagnostics()
+        s.estimator_diagnostics = self.est.diagnostics()
+        s.grid_counters = self.arx_inputs.grid.counters.as_dict()
+        return out
+
+    def _estimate(self, samples: list) -> list[tuple[str, Any]]:
+        """What the estimation node does with its samples (modal_estimator_node._on_sample)."""
+        from okid_ros.nodes.conversions import mode_msg, modal_states_msg, state_space_model_msg
+        from okid_ros.service.sample_grid import RESTART_SKIP
+
+        s = self.summary
+        out: list[tuple[str, Any]] = []
+        for sample in samples:
+            skipped = RESTART_SKIP if sample.restart else sample.skipped
+            result = self.est.step(sample.stamp_s, sample.u, sample.y, skipped)
+            if result is None:
+                continue
+            if result.update is not None:
+                update = result.update
+                self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
+                out.append((self.state_space_topic, state_space_model_msg(update, self.types)))
+                s.models += 1
+                s.updates.append({
+                    "stamp_s": float(update.stamp_s),
+                    "applied_at_stamp_s": float(sample.stamp_s),
+                    "model_id": int(update.model_id),
+                    "arx_model_id": int(update.arx_model_id),
+                    "n_states": int(update.model.n_states),
+                    "window_samples": int(update.window_samples),
+                    "realization_time_s": float(update.realization_time_s),
+                    "modes": [mode_summary(m) for m in update.modes],
+                })
+            out.append((self.modal_states_topic, modal_states_msg(result, self.types, mode_msgs=self._mode_msgs)))
+            s.modal_states += 1
+        return out
+
+    def _identify(self, samples: list) -> list[tuple[str, Any]]:
+        """What the identification node does (push, publish at its rate), and the estimation
+        node's handling of each ArxModel (modal_estimator_node._on_arx_model), realized at once."""
+        from okid_ros.nodes.conversions import arx_fit_from_msg, arx_model_msg
+
+        s = self.summary
+        out: list[tuple[str, Any]] = []
+        for sample in samples:
+            s.samples += 1
+            if math.isnan(s.first_stamp_s):
+                s.first_stamp_s = sample.stamp_s
+            s.last_stamp_s = sample.stamp_s
+            self.arx.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
+            if not self.arx.due(sample.stamp_s):
+                continue
+            arx_msg = arx_model_msg(self.arx.snapshot(), self.types)
+            out.append((self.arx_topic, arx_msg))
+            s.arx_models += 1
+            if self.arx_input_topic != self.arx_topic or not arx_msg.valid:
+                continue  # the estimator listens elsewhere, or ignores invalid models (as live)
+            s.valid_arx_models += 1
+            try:
+                fit, stamp_s, rows = arx_fit_from_msg(arx_msg)
+            except ValueError:
+                continue
+            self.est.submit_arx(fit, stamp_s, int(arx_msg.model_id), rows)
+            self.est.process_pending()
+        return out
+
+
+def process_bag(
+    bag_path: str | Path,
+    out_path: str | Path,
+    arx_values: dict,
+    est_values: dict,
+    jsonl_path: str | Path | None = None,
+    force: bool = False,
+    storage: str = "mcap",
+    progress: bool | None = None,
+    progress_stream: TextIO | None = None,
+    provenance: dict | None = None,
+    on_update: Callable[[dict], None] | None = None,
+) -> ProcessSummary:
+    """Run both nodes' logic over ``bag_path``; write ``out_path`` (and ``jsonl_path``).
+
+    Args:
+        bag_path: input bag (any rosbag2 / ROS 1 bag that AnyReader opens).
+        out_path: output bag to create (refused if it exists, unless ``force``).
+        arx_values, est_values: resolved node parameters.
+        jsonl_path: one JSON object per model update.
+        force: replace existing outputs.
+        storage: storage plugin of the output bag.
+        progress: progress bar on ``progress_stream`` (default stderr); None: only on a terminal.
+        provenance: extra JSON recorded under ``okid_ros.process`` in the output metadata.
+        on_update: called with each JSON line as it is produced.
+
+    Raises:
+        BagReadError: missing/corrupt input, a source topic missing or of another type.
+        OutputExistsError: an output exists and ``force`` is false.
+    """
+    bag_path, out_path = Path(bag_path), Path(out_path)
+    if out_path.resolve() == bag_path.resolve():
+        raise BagWriteError(f"{out_path}: the output bag cannot be the input bag")
+    nodes = OfflineNodes(arx_values, est_values)
+    clash = sorted(set(nodes.input_topics) & set(nodes.output_topics))
+    if clash:
+        raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
+    if jsonl_path is not None:
+        jsonl_path = Path(jsonl_path)
+        if jsonl_path.exists() and not force:
+            prepare_output(jsonl_path, force=False, kind="JSON lines file")
+    if out_path.exists() and not force:
+        prepare_output(out_path, force=False)
+    started = time.perf_counter()
+    created: list[Path] = []
+    try:
+        with open_bag(bag_path) as bag:
+            for topic, msgtype in nodes.input_topics.items():
+                bag.require_topic(topic, [msgtype])
+            total = bag.message_count(nodes.input_topics)
+            if total == 0:
+                raise BagReadError(f"{bag_path}: the input topics {', '.join(nodes.input_topics)} have no messages")
+            truth = bag.custom_data.get(TRUTH_KEY)
+            # Outputs are created only once the input is known to be usable.
+            jsonl = None
+            if jsonl_path is not None:
+                prepare_output(jsonl_path, force=force, kind="JSON lines file")
+                jsonl = open(jsonl_path, "w")
+                created.append(jsonl_path)
+            writer = BagWriter(out_path, storage=storage, force=force)
+            created.append(out_path)
+            bar = _Progress(total, progress, progress_stream)
+            with writer:
+                if truth is not None:
+                    writer.set_custom_data(TRUTH_KEY, truth)
+                for topic, msgtype in nodes.output_topics.items():
+                    writer.add_topic(topic, msgtype)
+                written_updates = 0
+
+                def emit(outputs: list, log_ns: int) -> None:
+                    nonlocal written_updates
+                    for out_topic, out_msg in outputs:
+                        writer.write(out_topic, _log_time_ns(nodes.summary.last_stamp_s, log_ns), out_msg)
+                    while written_updates < len(nodes.summary.updates):
+                        line = nodes.summary.updates[written_updates]
+                        written_updates += 1
+                        if jsonl is not None:
+                            jsonl.write(json.dumps(line) + "\n")
+                            jsonl.flush()
+                        if on_update is not None:
+                            on_update(line)
+
+                try:
+                    log_ns = 0
+                    for topic, log_ns, msg in bag.messages(nodes.input_topics):
+                        emit(nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
+                        bar.update()
+                    emit(nodes.finish(), log_ns)
+                finally:
+                    bar.close()
+                    if jsonl is not None:
+                        jsonl.close()
+                summary = nodes.summary
+                summary.elapsed_s = time.perf_counter() - started
+                writer.set_custom_data(PROCESS_KEY, json.dumps({
+                    "source": str(bag_path),
+                    "input_topics": nodes.input_topics,
+                    "samples": summary.samples,
+                    "arx_models": summary.arx_models,
+                    "models": summary.models,
+                    "elapsed_s": summary.elapsed_s,
+                    "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
+                    **(provenance or {}),
+                }, default=str))
+    except KeyboardInterrupt:
+        raise  # what was written stays, closed and readable
+    except BaseException:
+        for path in created:  # no half-written outputs after an error
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            elif path.exists():
+                path.unlink()
+        raise
+    return summary
+
+
+def _log_time_ns(sample_stamp_s: float, log_ns: int) -> int:
+    """The stamp of the sample being processed, or the input's log time before the first one."""
+    if math.isnan(sample_stamp_s):
+        return int(log_ns)
+    return int(round(sample_stamp_s * 1e9))
+
+
+class _Progress:
+    """tqdm on stderr if installed, else a plain percentage line; off when not wanted."""
+
+    def __init__(self, total: int, enabled: bool | None, stream: TextIO | None) -> None:
+        self.stream = stream or sys.stderr
+        if enabled is None:
+            enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.enabled = enabled
+        self.total = total
+        self.count = 0
+        self._bar = None
+        self._last_pct = -1
+        if not enabled:
+            return
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            return
+        self._bar = tqdm(total=total, file=self.stream, unit="msg", unit_scale=True, desc="process",
+                         mininterval=0.5, dynamic_ncols=True)
+
+    def update(self) -> None:
+        self.count += 1
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.update(1)
+            return
+        pct = 100 * self.count // max(self.total, 1)
+        if pct != self._last_pct and pct % 5 == 0:
+            self._last_pct = pct
+            self.stream.write(f"\rprocess: {pct:3d} % ({self.count}/{self.total} messages)")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+        elif self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
