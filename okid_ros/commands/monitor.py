@@ -1,0 +1,44 @@
+"""`okid-ros monitor [--topic T] [--once] [--duration S]`: live terminal view of the modes."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `monitor`."""
+    parser = subparsers.add_parser(
+        "monitor",
+        help="live terminal table of the identified modes from okid_msgs/ModalStates",
+        description="Subscribe to okid_msgs/ModalStates and show one row per mode: id, frequency "
+        "(Hz, rad/s), damping ratio, trend of the frequency, EMAC, MPC, MSV, MAC, stability and the RMS "
+        "amplitude of its modal coordinates over recent samples. On a terminal the table is redrawn in "
+        "place; otherwise (pipe, file) a table is printed every --interval seconds.",
+    )
+    parser.add_argument("--topic", default="/okid/modal_states", help="ModalStates topic (default: %(default)s)")
+    parser.add_argument("--once", action="store_true",
+                        help="print one table after the first message and exit (waits up to --duration, "
+                        "default 30 s; exit status 2 if nothing arrives)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="exit after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--interval", type=float, default=None, metavar="S",
+                        help="seconds between tables (default: 0.25 on a terminal, 2 otherwise)")
+    parser.add_argument("--window", type=int, default=250, metavar="N",
+                        help="samples in the RMS amplitude (default: %(default)s)")
+    parser.add_argument("--trend-window", type=float, default=10.0, metavar="S",
+                        help="look-back of the frequency trend in stamp seconds (default: %(default)s)")
+    parser.add_argument("--no-ansi", action="store_true", help="never redraw in place, print tables")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from okid_ros.tools.monitor import run_monitor
+
+    try:
+        run_monitor(args.topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
+                    window_samples=args.window, trend_window_s=args.trend_window,
+                    ansi=False if args.no_ansi else None)
+    except KeyboardInterrupt:
+        return 0
+    return 0
