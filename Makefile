@@ -25,7 +25,7 @@ test: setup
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
 
 demo: setup
-	$(VENV)/bin/okid-ros info --selftest
+	$(VENV)/bin/okid-ros demo --out-dir out/demo
 
 clean:
 	rm -rf "$(VENV)" build install log okid_ros.egg-info

@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "okid_ros.commands.process",
     "okid_ros.commands.monitor",
     "okid_ros.commands.plot",
+    "okid_ros.commands.demo",
 )
 
 
