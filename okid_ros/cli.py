@@ -29,6 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "okid_ros.commands.monitor",
     "okid_ros.commands.plot",
     "okid_ros.commands.demo",
+    "okid_ros.commands.up",
 )
 
 

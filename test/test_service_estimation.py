@@ -107,9 +107,10 @@ def test_model_switch_without_a_jump_in_the_modal_states(pipeline):
     est, results, _ = pipeline
     ratios = switch_jump_ratios(results)
     assert len(ratios) >= 3 * 7
-    # A switch must look like any other sample: below 1.5 times the 99th percentile of the
-    # rotation-removed steps (a cold start gives about 10 times, see the next test).
-    assert max(ratios) < 1.5, ratios
+    # A switch must look like any other sample: below twice the 99th percentile of the
+    # rotation-removed steps (measured: at most 1.1 over 3 seeds; a cold start reaches about 6,
+    # see the next test).
+    assert max(ratios) < 2.0, ratios
     assert est.diagnostics()["max_switch_jump"] < 0.5  # relative to the modes' RMS amplitude
 
 
@@ -118,8 +119,9 @@ def test_the_jump_measure_detects_a_cold_start(monkeypatch):
         return np.zeros_like(x), (u[-1] if len(u) else u_prev)
 
     monkeypatch.setattr(estimation, "_run_predictor", cold)
-    _, results, _ = run_pipeline(n_samples=3300)
-    assert max(switch_jump_ratios(results)) > 3.0
+    est, results, _ = run_pipeline(n_samples=3300)
+    assert max(switch_jump_ratios(results)) > 4.0
+    assert est.diagnostics()["max_switch_jump"] > 0.8
 
 
 def test_keeps_the_last_good_model_when_modes_are_lost(pipeline):

@@ -234,18 +234,16 @@ def run_node(factory: Callable[[], Node], name: str, args: Sequence[str] | None 
     rclpy.init(args=args)
     node = None
     try:
-        try:
-            node = factory()
-        except ParameterError as exc:
-            print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
-            return 2
+        node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        try:
-            executor.spin()
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
+        executor.spin()
         return 0
+    except ParameterError as exc:
+        print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0  # Ctrl-C or SIGTERM, also while starting
     finally:
         if node is not None:
             close = getattr(node, "close", None)

@@ -312,6 +312,7 @@ class _Stats:
     arx_received: int = 0
     arx_replaced: int = 0
     arx_refused: int = 0
+    arx_unchanged: int = 0
     realizations: int = 0
     models_accepted: int = 0
     models_rejected: int = 0
@@ -357,6 +358,7 @@ class ModalEstimationService:
             self._next_mode_id = 0
             self._model_id = 0
             self._request: tuple[ArxFit, float, int, int] | None = None
+            self._last_request_end: float | None = None
             self._busy = False
             self._ready: RealizationOutcome | None = None
             self._generation = getattr(self, "_generation", -1) + 1  # outcomes of older jobs are dropped
@@ -391,6 +393,8 @@ class ModalEstimationService:
         """Offer an ARX fit of the window ending at ``stamp_end_s``; False if refused at once.
 
         The newest request waits until :meth:`take_job`; a request still waiting is replaced.
+        A fit whose window ends where the last taken or the waiting one ends (node 1
+        republishing an unchanged window, e.g. while the inputs are silent) is ignored.
         """
         st = self._stats
         st.arx_received += 1
@@ -408,6 +412,11 @@ class ModalEstimationService:
             st.arx_refused += 1
             st.last_reason = "ARX model without a stamp"
             return False
+        pending = self._request
+        for end in (self._last_request_end, None if pending is None else pending[1]):
+            if end is not None and abs(stamp_end_s - end) <= 0.5 * prm.sample_time_s:
+                st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
+                return False
         rows = int(window_rows) if window_rows else int(fit.n_rows)
         need = rows + fit.order
         if prm.buffer_length <= 0 and self._buffer.cap < need * 1.1 + 64:
@@ -433,6 +442,7 @@ class ModalEstimationService:
             if self._buffer.count > 0 and self._buffer.newest_stamp() < stamp_end - 0.5 * dt:
                 return None  # the window's last sample has not arrived here yet
             self._request = None
+            self._last_request_end = stamp_end
             end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)
             need = rows + fit.order
             if end < 0:
@@ -692,6 +702,7 @@ class ModalEstimationService:
             "arx_models_received": st.arx_received,
             "arx_models_replaced": st.arx_replaced,
             "arx_models_refused": st.arx_refused,
+            "arx_models_unchanged": st.arx_unchanged,
             "realizations": st.realizations,
             "models_accepted": st.models_accepted,
             "models_rejected": st.models_rejected,

@@ -112,7 +112,7 @@ SHARED_PARAMS: tuple[ParamSpec, ...] = (
         "inputs.sources", ["io_sample /okid/io_sample"],
         "input topics, one 'KIND TOPIC [FIELD=CHANNEL ...]' string each (see okid_ros/service/inputs.py)",
     ),
-    ParamSpec("inputs.queue_depth", 100, "subscription queue depth of each input topic (sensor-data QoS)", "messages", 1, 100000),
+    ParamSpec("inputs.queue_depth", 1000, "subscription queue depth of each input topic (sensor-data QoS); covers stalls of the node of depth / rate seconds", "messages", 1, 100000),
     ParamSpec("inputs.stamp_tolerance", 0.25, "largest distance of a stamp from its grid slot", "sample times", 0.01, 0.49),
     ParamSpec("inputs.latency_samples", 5, "slots newer data may be ahead before an incomplete slot is dropped as missing", "samples", 0, 100000),
     ParamSpec("inputs.time_jump_s", 1.0, "a stamp this much older than the newest one is a time jump (re-anchors the grid)", "s", 1e-3, 1e6),

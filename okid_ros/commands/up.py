@@ -1,0 +1,142 @@
+"""`okid-ros up --params FILE`: both nodes as separate processes, for installs without launch_ros.
+
+    okid-ros up --params config/okid.yaml
+    okid-ros up --params config/okid.yaml --params my_overrides.yaml --use-sim-time
+
+Starts ``python -m okid_ros.nodes.arx_identifier_node --ros-args --params-file FILE ...`` and
+the same for ``modal_estimator_node``, with this interpreter and environment; their output goes
+straight to this terminal. Ctrl-C or SIGTERM stops both: SIGINT to each, then SIGTERM and SIGKILL
+to what is still running after the grace period. If one node exits on its own (for example a
+parameter out of range), the other is stopped too and `up` exits with the node's status.
+The nodes die with `up` even if it is killed (parent-death signal).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from okid_ros.errors import OkidError
+
+NODE_MODULES = {
+    "okid_arx_identifier": "okid_ros.nodes.arx_identifier_node",
+    "okid_modal_estimator": "okid_ros.nodes.modal_estimator_node",
+}
+_PR_SET_PDEATHSIG = 1
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `up`."""
+    parser = subparsers.add_parser(
+        "up",
+        help="run both nodes (ARX identifier and modal estimator) until Ctrl-C",
+        description="Start okid_arx_identifier and okid_modal_estimator as separate processes with "
+        "the given ROS parameter file(s), forward their output and stop both cleanly on Ctrl-C or "
+        "SIGTERM. The pip-route equivalent of `ros2 launch okid_ros okid.launch.py`.",
+    )
+    parser.add_argument("--params", action="append", required=True, metavar="FILE",
+                        help="ROS 2 parameter YAML keyed by node name; repeat to layer files "
+                        "(later files win), e.g. config/okid.yaml")
+    parser.add_argument("--use-sim-time", action="store_true", help="run the nodes' timers on /clock")
+    parser.add_argument("--log-level", default="info", choices=("debug", "info", "warn", "error"),
+                        help="ROS log level of both nodes (default: %(default)s)")
+    parser.add_argument("--grace", type=float, default=10.0, metavar="S",
+                        help="seconds each node gets to stop after SIGINT before SIGTERM (default: %(default)s)")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def _die_with_parent() -> None:
+    """In the child: receive SIGTERM when `up` dies, however it dies (Linux)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
+def node_command(module: str, params: list[str], use_sim_time: bool, log_level: str) -> list[str]:
+    """The command line of one node process."""
+    cmd = [sys.executable, "-m", module, "--ros-args"]
+    for path in params:
+        cmd += ["--params-file", path]
+    if use_sim_time:
+        cmd += ["-p", "use_sim_time:=true"]
+    return cmd + ["--log-level", log_level]
+
+
+class _Stop(Exception):
+    pass
+
+
+def _stop(processes: dict[str, subprocess.Popen], grace_s: float) -> None:
+    """SIGINT to every running node, then SIGTERM, then SIGKILL, each after ``grace_s``."""
+    for sig, wait_s in ((signal.SIGINT, grace_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        running = [p for p in processes.values() if p.poll() is None]
+        if not running:
+            return
+        for proc in running:
+            try:
+                proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + wait_s
+        for proc in running:
+            try:
+                proc.wait(timeout=max(deadline - time.monotonic(), 0.01))
+            except subprocess.TimeoutExpired:
+                pass
+
+
+def run(args: argparse.Namespace) -> int:
+    """Start both nodes and supervise them until a signal or until one exits."""
+    params = []
+    for path in args.params:
+        file = Path(path)
+        if not file.is_file():
+            raise OkidError(f"parameter file {path} does not exist")
+        params.append(str(file.resolve()))
+    if args.grace <= 0:
+        raise OkidError(f"--grace must be > 0 seconds, got {args.grace}")
+
+    def on_signal(signum, frame):
+        raise _Stop(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    processes: dict[str, subprocess.Popen] = {}
+    status = 0
+    try:
+        for name, module in NODE_MODULES.items():
+            # Own session: a terminal's Ctrl-C reaches only `up`, which stops the nodes in order.
+            processes[name] = subprocess.Popen(
+                node_command(module, params, args.use_sim_time, args.log_level),
+                start_new_session=True, preexec_fn=_die_with_parent,
+            )
+        print(f"okid-ros up: started {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}; "
+              "Ctrl-C stops both", flush=True)
+        while True:
+            for name, proc in processes.items():
+                code = proc.poll()
+                if code is not None:
+                    print(f"okid-ros up: {name} exited with status {code}; stopping the other node",
+                          file=sys.stderr, flush=True)
+                    status = code if code != 0 else 1
+                    raise _Stop(name)
+            time.sleep(0.2)
+    except _Stop:
+        pass
+    finally:
+        # A second Ctrl-C while stopping must not leave the nodes behind.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        _stop(processes, args.grace)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    codes = {name: proc.returncode for name, proc in processes.items()}
+    if status == 0:
+        print("okid-ros up: stopped (" + ", ".join(f"{n}: {c}" for n, c in codes.items()) + ")", flush=True)
+    return status
