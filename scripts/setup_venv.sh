@@ -114,7 +114,6 @@ install_wheels() {
     "$VENV/bin/python" -m pip install -q -r "$REQ/ros-jazzy.txt" -r "$REQ/python.txt" -c "$REQ/lock.txt"
     fix_cmake_paths
     mark_done wheels "$h"
-    rm -f "$STAMPS/msgs"  # new wheels: rebuild the messages against them
 }
 
 # The exported CMake targets of the message wheels carry include paths of the machine they
@@ -137,7 +136,8 @@ fix_cmake_paths() {
 
 build_msgs() {
     local h
-    h="$(hash_of msg_defs/package.xml msg_defs/CMakeLists.txt msg_defs/msg/*.msg)"
+    # Rebuilt when the messages or the ROS wheels they are generated with change.
+    h="$(hash_of requirements/ros-jazzy.txt msg_defs/package.xml msg_defs/CMakeLists.txt msg_defs/msg/*.msg)"
     stage_done msgs "$h" && return 0
     log "building okid_msgs with colcon into $VENV"
     # Merge-install into the venv prefix: the libraries land in $VENV/lib (on the library path
