@@ -8,27 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-
-def _states(text: str) -> int | str:
-    if text == "auto":
-        return text
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {value}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+from okid_ros.commands._args import positive_int, states_or_auto
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -41,10 +21,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "form, the innovation covariance, the Hankel singular values and the physical modes.",
     )
     parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; or .csv (see docs)")
-    parser.add_argument("--order", type=_positive_int, required=True, metavar="Q", help="ARX order q (paper: 100)")
-    parser.add_argument("--states", type=_states, default="auto", metavar="N|auto",
+    parser.add_argument("--order", type=positive_int, required=True, metavar="Q", help="ARX order q (paper: 100)")
+    parser.add_argument("--states", type=states_or_auto, default="auto", metavar="N|auto",
                         help="model order n, or auto (lowest BIC; default)")
-    parser.add_argument("--ar-order", type=_positive_int, default=None, metavar="R",
+    parser.add_argument("--ar-order", type=positive_int, default=None, metavar="R",
                         help="order of the AR whitening filter for --gain whitening (default: Q)")
     parser.add_argument("--method", choices=("okid", "paper"), default="okid",
                         help="okid: robust chain (default); paper: the published method as is")
@@ -54,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="estimator gain: least-squares refit (default) or the paper's whitening")
     parser.add_argument("--no-refine", action="store_true",
                         help="skip the final prediction-error refinement (faster, less accurate)")
-    parser.add_argument("--max-states", type=_positive_int, default=40, metavar="N",
+    parser.add_argument("--max-states", type=positive_int, default=40, metavar="N",
                         help="largest order tried by --states auto (default: %(default)s)")
     parser.add_argument("--json", required=True, metavar="OUT.json", help="where to write the model")
     parser.set_defaults(func=run)

@@ -20,31 +20,7 @@ from __future__ import annotations
 
 import argparse
 
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _states(text: str) -> int | str:
-    return text if text == "auto" else _positive_int(text)
-
-
-def _penalty(text: str) -> float | str:
-    if text == "gcv":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}") from None
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {value}")
-    return value
+from okid_ros.commands._args import penalty_or_gcv, positive_int, states_or_auto
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -57,18 +33,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "of the window and write its physical modes as one JSON line.",
     )
     parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; or .csv (see docs)")
-    parser.add_argument("--order", type=_positive_int, required=True, metavar="Q", help="ARX order q")
-    parser.add_argument("--window", type=_positive_int, default=4000, metavar="W",
+    parser.add_argument("--order", type=positive_int, required=True, metavar="Q", help="ARX order q")
+    parser.add_argument("--window", type=positive_int, default=4000, metavar="W",
                         help="regressor rows in the window (default: %(default)s)")
-    parser.add_argument("--every", type=_positive_int, default=250, metavar="S",
+    parser.add_argument("--every", type=positive_int, default=250, metavar="S",
                         help="samples between updates once the window is full (default: %(default)s)")
-    parser.add_argument("--states", type=_states, default="auto", metavar="N|auto",
+    parser.add_argument("--states", type=states_or_auto, default="auto", metavar="N|auto",
                         help="model order n, or auto (lowest BIC; default)")
-    parser.add_argument("--max-states", type=_positive_int, default=40, metavar="N",
+    parser.add_argument("--max-states", type=positive_int, default=40, metavar="N",
                         help="largest order tried by --states auto (default: %(default)s)")
     parser.add_argument("--regularization", choices=("ridge", "tc", "none"), default="ridge",
                         help="ARX regularization of each window (default: %(default)s)")
-    parser.add_argument("--penalty", type=_penalty, default="gcv", metavar="gcv|X",
+    parser.add_argument("--penalty", type=penalty_or_gcv, default="gcv", metavar="gcv|X",
                         help="regularization penalty: chosen by GCV per update (default) or fixed")
     parser.add_argument("--gain", choices=("refit", "whitening"), default="refit",
                         help="estimator gain: least-squares refit (default) or the paper's whitening")

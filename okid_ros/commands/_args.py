@@ -1,0 +1,36 @@
+"""Argument types shared by the `okid-ros` subcommands (argparse `type=` callables)."""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv"]
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def states_or_auto(text: str) -> int | str:
+    """A model order >= 1, or "auto"."""
+    return text if text == "auto" else positive_int(text)
+
+
+def penalty_or_gcv(text: str) -> float | str:
+    """A regularization penalty >= 0, or "gcv"."""
+    if text == "gcv":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}") from None
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {value}")
+    return value
