@@ -27,6 +27,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--delay", type=float, default=0.5, metavar="S",
                         help="wait after creating the publishers so subscribers discover them "
                         "(default: %(default)s s)")
+    parser.add_argument("--wait-for-subscribers", action="store_true",
+                        help="before playing, wait until every replayed topic has a subscriber (then --delay)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds of playback (default: the whole bag, or forever with --loop)")
     parser.add_argument("--clock", nargs="?", type=float, const=100.0, default=None, metavar="HZ",
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     player = BagPlayer(
         args.bag, rate=args.rate, loop=args.loop, topics=args.topics, remaps=remaps, delay_s=args.delay,
         duration_s=args.duration, queue_depth=args.queue_depth, clock=args.clock is not None,
-        clock_hz=args.clock or 100.0,
+        clock_hz=args.clock or 100.0, wait_for_subscribers=args.wait_for_subscribers,
     )
     stats = player.run()
     print(f"replayed {stats.total} messages on {len(stats.published)} topics in {stats.wall_time_s:.1f} s "

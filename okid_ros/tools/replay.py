@@ -84,7 +84,9 @@ class BagPlayer:
         loop: start again from the beginning at the end.
         topics: topics to play (default: all).
         remaps: output topic per bag topic.
-        delay_s: wait after creating the publishers, before the first message (discovery).
+        delay_s: wait after creating the publishers (and after the subscribers, with
+            ``wait_for_subscribers``), before the first message (discovery).
+        wait_for_subscribers: before playing, wait until every publisher has a subscription.
         duration_s: stop after this much wall time of playback (None: no limit).
         queue_depth: depth of each publisher's history.
         clock: publish the bag time on /clock.
@@ -110,6 +112,7 @@ class BagPlayer:
         clock_hz: float = 100.0,
         node_name: str = "okid_replay",
         log: Callable[[str], None] | None = None,
+        wait_for_subscribers: bool = False,
     ) -> None:
         if not rate > 0:
             raise ToolParameterError(f"--rate must be a positive factor, got {rate}")
@@ -124,6 +127,7 @@ class BagPlayer:
         self.loop = bool(loop)
         self.remaps = dict(remaps or {})
         self.delay_s = float(delay_s)
+        self.wait_for_subscribers = bool(wait_for_subscribers)
         self.duration_s = duration_s
         self.queue_depth = int(queue_depth)
         self.clock = bool(clock)
@@ -197,6 +201,13 @@ class BagPlayer:
                 clock_msg = Clock()
             self.log(f"replay {self.path}: {self.message_count} messages on {len(self.topics)} topics, "
                      f"{self.duration_bag_s:.1f} s at rate {self.rate:g}{' (loop)' if self.loop else ''}")
+            if self.wait_for_subscribers:
+                waiting = [p for p in publishers.values() if p.get_subscription_count() == 0]
+                if waiting:
+                    self.log(f"replay: waiting for subscribers on {', '.join(p.topic_name for p in waiting)}")
+                while any(p.get_subscription_count() == 0 for p in publishers.values()):
+                    if not self._sleep_until(time.monotonic() + 0.05, None):
+                        break
             if self.delay_s:
                 self._sleep_until(time.monotonic() + self.delay_s, None)
             started = time.monotonic()
