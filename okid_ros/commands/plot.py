@@ -13,18 +13,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description="Read a bag with /okid/arx_model, /okid/state_space_model and /okid/modal_states "
         "(the output of `okid-ros process`, or a live recording) and write PNG files: system Markov "
         "parameters (1,1), stochastic Markov parameters C A^i K (1,1), modal states, measured against "
-        "estimated output 1, and frequency and damping of each mode over time. The truth of a "
-        "simulated experiment is drawn when the bag metadata (or --truth-from) carries it.",
+        "estimated output 1, and frequency and damping of each mode over time. The measured output and "
+        "the truth of a simulated experiment come from the input bag: --input, or for `process` output "
+        "the source bag recorded in its metadata.",
     )
     parser.add_argument("bag", metavar="OUT", help="output bag of `okid-ros process` (or a live recording)")
     parser.add_argument("--out-dir", default=None, metavar="DIR",
                         help="folder for the PNG files (default: OUT_figures next to the bag)")
+    parser.add_argument("--input", default=None, metavar="BAG",
+                        help="the input bag: measured outputs and truth (default: the source recorded by process)")
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="the nodes' parameter file(s), for the input topics of --input (default: those "
+                        "recorded by process, else the built-in defaults)")
     parser.add_argument("--window", type=float, default=5.0, metavar="S",
                         help="seconds of modal states and outputs shown, at the end of the bag (default: %(default)s)")
     parser.add_argument("--terms", type=int, default=100, metavar="N",
                         help="stochastic Markov parameters drawn (default: %(default)s)")
-    parser.add_argument("--truth-from", default=None, metavar="BAG",
-                        help="take the truth from this bag's metadata (e.g. the input of process)")
     parser.add_argument("--force", action="store_true", help="replace existing PNG files")
     parser.set_defaults(func=run)
     return parser
@@ -35,19 +39,33 @@ def run(args: argparse.Namespace) -> int:
 
     from okid_ros.tools.bagio import TRUTH_KEY, open_bag
     from okid_ros.tools.errors import ToolParameterError
-    from okid_ros.tools.plots import read_plot_data, write_figures
+    from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
+    from okid_ros.tools.process import load_node_parameters
 
     if not args.window > 0:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
-    truth = None
-    if args.truth_from:
-        with open_bag(args.truth_from) as bag:
-            truth = bag.custom_json(TRUTH_KEY)
     bag_path = Path(args.bag)
     out_dir = Path(args.out_dir) if args.out_dir else bag_path.with_name(bag_path.name + "_figures")
-    data = read_plot_data(bag_path, window_s=args.window, truth=truth)
+    data = read_plot_data(bag_path, window_s=args.window)
+    info = data.process_info or {}
+    input_bag = args.input
+    if input_bag is None and info.get("source") and Path(info["source"]).exists():
+        input_bag = info["source"]
+    note = ""
+    if input_bag is not None:
+        if args.params or "parameters" not in info:
+            est_values = load_node_parameters(args.params)[1]
+        else:
+            est_values = info["parameters"]["okid_modal_estimator"]
+        if data.truth is None:
+            with open_bag(input_bag) as bag:
+                data.truth = bag.custom_json(TRUTH_KEY)
+        matched = add_measured_outputs(data, input_bag, est_values)
+        note = f"; measured outputs from {input_bag} ({matched} samples)"
+    else:
+        note = "; no input bag: measured output drawn as y_estimated + innovation"
     written = write_figures(data, out_dir, force=args.force, n_stochastic=args.terms)
-    print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth in the metadata)"))
+    print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
     for path in written:
         print(f"  {path}")
     return 0

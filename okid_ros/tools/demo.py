@@ -178,7 +178,8 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
     from okid_msgs.msg import ModalStates
     from okid_ros.tools.bagio import BagWriter, TRUTH_KEY, open_bag
     from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
-    from okid_ros.tools.plots import read_plot_data, write_figures
+    from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
+    from okid_ros.tools.process import load_node_parameters
     from okid_ros.tools.recorder import LiveRecorder
     from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS, simulate_experiment, \
         write_experiment_bag
@@ -273,7 +274,8 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
             replay_log = open(run_dir / "replay.log", "w")
             logs.append(replay_log)
             replay = subprocess.Popen(
-                cli + ["replay", str(experiment_bag), "--rate", f"{rate:g}", "--delay", "1.0", "--topics", *input_topics],
+                cli + ["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers", "--delay", "0.5",
+                       "--topics", *input_topics],
                 env=env, stdout=replay_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
             processes.append(replay)
             say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
@@ -298,6 +300,7 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
 
         # 4. figures
         data = read_plot_data(live_bag, window_s=5.0)
+        add_measured_outputs(data, experiment_bag, load_node_parameters([params_file])[1])
         figures = write_figures(data, run_dir / "figures")
         say(f"[4/5] {len(figures)} figures -> {run_dir / 'figures'}: {', '.join(p.name for p in figures)}")
 

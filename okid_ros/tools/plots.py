@@ -14,10 +14,16 @@ fig3_stochastic_markov.png     stochastic Markov parameters C A^i K (1,1), i = 1
                                last StateSpaceModel (paper Fig. 3)
 fig4_modal_states.png          first coordinate of each mode's normalized modal state over the
                                last ``window_s`` seconds (paper Fig. 4)
-fig5_output_estimate.png       output 1 measured (y_estimated + innovation) and estimated
-                               (y_estimated) over the last ``window_s`` seconds (paper Fig. 5)
+fig5_output_estimate.png       output 1 measured and estimated (``y_estimated``) over the last
+                               ``window_s`` seconds (paper Fig. 5)
 modes_over_time.png            frequency and damping ratio of every mode id at each model update
 =============================  ==================================================================
+
+The measured output of Fig. 5 comes from the input bag (``input_bag``; for ``process`` output
+the source recorded in its metadata is used by default), assembled into samples with the
+estimator node's ``inputs.sources`` exactly as the node does and matched by stamp. Without an
+input bag it falls back to ``y_estimated + innovation``, which is the measurement only if
+``y_estimated`` is the one-step prediction (see ``msg_defs/msg/ModalStates.msg``).
 
 Time axes are the bag's log time from its first message (the sample stamps for ``process``
 output, the receive time for live recordings), so a replay loop does not fold the axis.
@@ -32,10 +38,18 @@ from pathlib import Path
 
 import numpy as np
 
-from okid_ros.tools.bagio import TRUTH_KEY, open_bag
+from okid_ros.tools.bagio import PROCESS_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
 
-__all__ = ["FIGURES", "PlotData", "read_plot_data", "write_figures", "system_markov", "stochastic_markov"]
+__all__ = [
+    "FIGURES",
+    "PlotData",
+    "add_measured_outputs",
+    "read_plot_data",
+    "stochastic_markov",
+    "system_markov",
+    "write_figures",
+]
 
 FIGURES = (
     "fig2_system_markov.png",
@@ -81,9 +95,13 @@ class PlotData:
     state_space: dict | None = None  # last StateSpaceModel: A, C, K, n, model_id, sample_time_s
     mode_history: dict = field(default_factory=lambda: defaultdict(list))  # id -> [(t_s, f_hz, zeta)]
     modal_t: list = field(default_factory=list)  # log time [s] of the recent ModalStates
+    modal_stamp_ns: list = field(default_factory=list)  # their header stamps [ns]
     modal_first: list = field(default_factory=list)  # {mode id: first coordinate}
     y_estimated: list = field(default_factory=list)  # (p,) per recent sample
     innovation: list = field(default_factory=list)
+    measured: list | None = None  # (p,) measured outputs per recent sample (nan if not found)
+    measured_source: str = ""
+    process_info: dict | None = None
     truth: dict | None = None
     counts: dict = field(default_factory=dict)
 
@@ -111,6 +129,7 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
             bag.require_topic(topic, [expected[topic]])
         if data.truth is None:
             data.truth = bag.custom_json(TRUTH_KEY)
+        data.process_info = bag.custom_json(PROCESS_KEY)
         data.start_ns = bag.start_ns
         data.counts = {t: bag.message_count([t]) for t in present}
         for topic, log_ns, msg in bag.messages(list(present)):
@@ -132,15 +151,58 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
             else:
                 first = {int(mode.id): float(msg.modal_coordinates[2 * i])
                          for i, mode in enumerate(msg.modes) if 2 * i < len(msg.modal_coordinates)}
-                recent.append((t_s, first, np.asarray(msg.y_estimated, float), np.asarray(msg.innovation, float)))
-                while recent and recent[0][0] < t_s - window_s:
+                stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                recent.append((t_s, stamp_ns, first, np.asarray(msg.y_estimated, float),
+                               np.asarray(msg.innovation, float)))
+                while recent and recent[0][0] <= t_s - window_s:
                     recent.popleft()
-    for t_s, first, y_est, innov in recent:
+    for t_s, stamp_ns, first, y_est, innov in recent:
         data.modal_t.append(t_s)
+        data.modal_stamp_ns.append(stamp_ns)
         data.modal_first.append(first)
         data.y_estimated.append(y_est)
         data.innovation.append(innov)
     return data
+
+
+def add_measured_outputs(data: PlotData, input_bag: str | Path, est_values: dict) -> int:
+    """Fill ``data.measured`` from the input bag: samples assembled with the estimator node's
+    sources (as the node does), matched to the ModalStates by stamp; return how many matched.
+
+    Raises:
+        BagReadError: unreadable input bag, or a source topic missing / of another type.
+    """
+    import bisect
+
+    from okid_ros.tools.process import NodeInputs
+
+    if not data.modal_stamp_ns:
+        return 0
+    inputs = NodeInputs(est_values)
+    # Sample stamps pass through float seconds (about 0.2 us resolution at today's epoch):
+    # match them to the ModalStates stamps to the nearest within 2 us, not exactly.
+    wanted = sorted(set(data.modal_stamp_ns))
+    tolerance_ns = 2_000
+    found: dict[int, np.ndarray] = {}
+    with open_bag(input_bag) as bag:
+        for spec in inputs.specs:
+            bag.require_topic(spec.topic, [spec.msg_type])
+        for topic, log_ns, msg in bag.messages([s.topic for s in inputs.specs]):
+            for sample in inputs.add(topic, msg, log_ns * 1e-9):
+                stamp_ns = sample.stamp_s * 1e9
+                i = bisect.bisect_left(wanted, stamp_ns - tolerance_ns)
+                if i < len(wanted) and abs(wanted[i] - stamp_ns) <= tolerance_ns:
+                    found[wanted[i]] = sample.y
+        for sample in inputs.grid.flush():
+            stamp_ns = sample.stamp_s * 1e9
+            i = bisect.bisect_left(wanted, stamp_ns - tolerance_ns)
+            if i < len(wanted) and abs(wanted[i] - stamp_ns) <= tolerance_ns:
+                found[wanted[i]] = sample.y
+    p = len(data.y_estimated[0]) if data.y_estimated else 1
+    missing = np.full(p, np.nan)
+    data.measured = [found.get(stamp, missing) for stamp in data.modal_stamp_ns]
+    data.measured_source = str(input_bag)
+    return len(found)
 
 
 def _truth_matrices(truth: dict | None) -> dict | None:
@@ -223,9 +285,13 @@ def write_figures(data: PlotData, out_dir: str | Path, force: bool = False, n_st
         save(fig, FIGURES[2])
 
         y_est = np.array([y[0] if y.size else np.nan for y in data.y_estimated])
-        innov = np.array([e[0] if e.size else np.nan for e in data.innovation])
+        if data.measured is not None:
+            measured, label = np.array([y[0] for y in data.measured]), "measured"
+        else:
+            innov = np.array([e[0] if e.size else np.nan for e in data.innovation])
+            measured, label = y_est + innov, "y_estimated + innovation"
         fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.plot(t, y_est + innov, lw=0.8, label="measured")
+        ax.plot(t, measured, lw=0.8, label=label)
         ax.plot(t, y_est, "--", lw=0.8, label="estimated")
         ax.set_xlabel("time [s]")
         ax.set_ylabel("output 1")

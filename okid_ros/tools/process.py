@@ -42,7 +42,14 @@ from okid_ros.errors import ParameterError
 from okid_ros.tools.bagio import PROCESS_KEY, TRUTH_KEY, BagWriter, open_bag, prepare_output
 from okid_ros.tools.errors import BagReadError, BagWriteError
 
-__all__ = ["ProcessSummary", "OfflineNodes", "load_node_parameters", "process_bag", "mode_summary"]
+__all__ = [
+    "NodeInputs",
+    "OfflineNodes",
+    "ProcessSummary",
+    "load_node_parameters",
+    "mode_summary",
+    "process_bag",
+]
 
 
 def _deep_merge(base: dict, extra: dict) -> dict:
@@ -177,7 +184,7 @@ class ProcessSummary:
         return self.updates[-1]["modes"] if self.updates else []
 
 
-class _NodeInputs:
+class NodeInputs:
     """One node's input sources and sample grid (what InputFrontend does, minus subscriptions)."""
 
     def __init__(self, values: dict) -> None:
@@ -224,8 +231,8 @@ class OfflineNodes:
         from okid_ros.tools.bagio import okid_typestore
 
         self.types = types or MessageTypes.from_typestore(okid_typestore())
-        self.arx_inputs = _NodeInputs(arx_values)
-        self.est_inputs = _NodeInputs(est_values)
+        self.arx_inputs = NodeInputs(arx_values)
+        self.est_inputs = NodeInputs(est_values)
         try:
             self.arx = ArxIdentificationService(ArxIdentificationParams.from_parameters(arx_values))
             self.est = ModalEstimationService(ModalEstimationParams.from_parameters(est_values))
