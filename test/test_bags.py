@@ -1,0 +1,331 @@
+"""Bags without DDS: simulate -> process -> modes against the truth, the output bag read back by
+rosbags alone, a bag written by rosbags alone processed, the figures, and the one-line errors
+(existing outputs refused, missing topic, wrong type, corrupt file)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from okid_ros.cli import main
+from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
+from okid_ros.tools.bagio import TRUTH_KEY, open_bag
+from okid_ros.tools.plots import add_measured_outputs, read_plot_data
+from okid_ros.tools.process import load_node_parameters
+from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONFIG = REPO_ROOT / "config" / "okid.yaml"
+START_S = 1_700_000_000
+# ArxModel every 4 s of data: with the default window (4000 rows, valid from half full, about
+# 17 s) a 25 s record gives two models (at 20 s and 24 s), which keeps the test short.
+FAST = ["--param", "publish_rate_hz=0.25"]
+TRUTH = paper_modes()
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert err.strip().count("\n") == 0, err
+    for fragment in fragments:
+        assert fragment in err, err
+
+
+def assert_modes_match_truth(modes: list[dict]) -> None:
+    """Every true mode has an identified one within 1 % in frequency and 1 point in damping."""
+    for true in TRUTH:
+        near = [m for m in modes if abs(m["frequency_rad_s"] / true["frequency_rad_s"] - 1) < 0.01]
+        assert near, f"no mode near {true['frequency_rad_s']:.3f} rad/s in {modes}"
+        best = min(near, key=lambda m: abs(m["frequency_rad_s"] - true["frequency_rad_s"]))
+        assert abs(best["damping_ratio"] - true["damping_ratio"]) < 0.01, (best, true)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A 25 s simulated bag (MCAP) processed once with the nodes' default parameters."""
+    root = tmp_path_factory.mktemp("bags")
+    bag, out, jsonl = root / "experiment", root / "out", root / "models.jsonl"
+    assert main(["simulate", "--out", str(bag), "--duration", "25", "--start-time", str(START_S)]) == 0
+    assert main(["process", str(bag), "--params", str(CONFIG), "--out", str(out), "--jsonl", str(jsonl),
+                 "--no-progress", *FAST]) == 0
+    return {"root": root, "bag": bag, "out": out, "jsonl": jsonl}
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory) -> Path:
+    """3 s, sqlite3: enough for the error paths (no model is identified from it)."""
+    bag = tmp_path_factory.mktemp("small") / "small"
+    assert main(["simulate", "--out", str(bag), "--duration", "3", "--storage", "sqlite3",
+                 "--start-time", str(START_S)]) == 0
+    return bag
+
+
+def test_simulated_bag_has_the_topics_on_the_grid_and_the_truth_in_its_metadata(run):
+    with open_bag(run["bag"]) as bag:
+        assert bag.topics == {
+            **{t: "geometry_msgs/msg/WrenchStamped" for t in THRUSTER_TOPICS},
+            **{t: "sensor_msgs/msg/Imu" for t in IMU_TOPICS},
+            IO_SAMPLE_TOPIC: "okid_msgs/msg/IoSample",
+        }
+        assert bag.message_count() == 5 * 3125
+        truth = bag.custom_json(TRUTH_KEY)
+        stamps, io, imu = [], [], []
+        for topic, log_ns, msg in bag.messages([IO_SAMPLE_TOPIC, IMU_TOPICS[1], THRUSTER_TOPICS[0]]):
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            assert stamp_ns == log_ns
+            if topic == IO_SAMPLE_TOPIC:
+                stamps.append(stamp_ns)
+                io.append((msg.u[0], msg.y[1]))
+            elif topic == IMU_TOPICS[1]:
+                imu.append(msg.linear_acceleration.x)
+                assert msg.orientation_covariance[0] == -1.0
+            else:
+                assert msg.wrench.force.y == 0.0
+    assert np.all(np.diff(stamps) == 8_000_000) and stamps[0] == START_S * 1_000_000_000
+    assert np.array_equal([y for _, y in io], imu)  # the Imu carries output 2 of the IoSample
+    assert [m["frequency_rad_s"] for m in truth["modes"]] == pytest.approx([m["frequency_rad_s"] for m in TRUTH])
+    assert np.allclose(truth["A"], paper_model().A)
+    # the metadata.yaml is what other tools read: custom_data is there in plain text
+    assert TRUTH_KEY in (run["bag"] / "metadata.yaml").read_text()
+
+
+def test_process_identifies_the_true_modes_and_writes_json_lines(run):
+    lines = [json.loads(line) for line in run["jsonl"].read_text().splitlines()]
+    assert len(lines) >= 2
+    for line in lines:
+        assert isinstance(line["stamp_s"], float) and line["stamp_s"] > START_S
+        for mode in line["modes"]:
+            assert {"frequency_rad_s", "frequency_hz", "damping_ratio"} <= set(mode)
+            assert mode["frequency_hz"] == pytest.approx(mode["frequency_rad_s"] / (2 * np.pi))
+    assert [line["stamp_s"] for line in lines] == sorted(line["stamp_s"] for line in lines)
+    assert_modes_match_truth(lines[-1]["modes"])
+
+
+def test_output_bag_reads_back_with_rosbags_alone(run):
+    lines = [json.loads(line) for line in run["jsonl"].read_text().splitlines()]
+    counts: dict[str, int] = {}
+    with AnyReader([run["out"]]) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == {
+            "/okid/arx_model": "okid_msgs/msg/ArxModel",
+            "/okid/state_space_model": "okid_msgs/msg/StateSpaceModel",
+            "/okid/modal_states": "okid_msgs/msg/ModalStates",
+        }
+        last_model = last_states = None
+        for connection, log_ns, raw in reader.messages():
+            msg = reader.deserialize(raw, connection.msgtype)
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+            if connection.topic == "/okid/state_space_model":
+                last_model = msg
+            elif connection.topic == "/okid/modal_states":
+                last_states = msg
+                assert log_ns == msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        custom = reader.readers[0].storage.metadata.custom
+    assert counts["/okid/arx_model"] == 6  # one per 4 s of the 25 s record
+    assert counts["/okid/state_space_model"] == len(lines)
+    assert counts["/okid/modal_states"] == 624  # from the first model (ArxModel at 20 s) on
+    n = last_model.n_states
+    assert len(last_model.a) == n * n and len(last_model.k) == n * 2
+    assert [m.id for m in last_states.modes] == [m["id"] for m in lines[-1]["modes"]]
+    assert len(last_states.modal_coordinates) == 2 * len(last_states.modes)
+    assert len(last_states.y_estimated) == len(last_states.innovation) == 2
+    assert json.loads(custom[TRUTH_KEY])["modes"][0]["frequency_rad_s"] == pytest.approx(TRUTH[0]["frequency_rad_s"])
+    assert json.loads(custom["okid_ros.process"])["source"] == str(run["bag"])
+
+
+def test_fig5_measured_output_is_the_input_bags_output_at_the_same_stamp(run):
+    data = read_plot_data(run["out"], window_s=2.0)
+    assert len(data.modal_stamp_ns) == 250
+    assert add_measured_outputs(data, run["bag"], load_node_parameters()[1]) == 250
+    with open_bag(run["bag"]) as bag:
+        y = {log_ns: msg.y for _, log_ns, msg in bag.messages([IO_SAMPLE_TOPIC])}
+    for stamp_ns, measured in zip(data.modal_stamp_ns, data.measured):
+        assert np.array_equal(measured, y[stamp_ns])
+    assert data.truth is not None and data.process_info["source"] == str(run["bag"])
+
+
+def test_sensor_topics_give_the_same_models_as_io_sample(run, capsys):
+    """config/okid_imu_wrench.yaml assembles the same samples from 2 Wrench + 2 Imu topics."""
+    out, jsonl = run["root"] / "out_sensors", run["root"] / "sensors.jsonl"
+    code, stdout, err = run_cli(capsys, "process", run["bag"], "--params", CONFIG, "--params",
+                                REPO_ROOT / "config" / "okid_imu_wrench.yaml", "--out", out, "--jsonl", jsonl,
+                                "--no-progress", *FAST)
+    assert code == 0, err
+    assert "12500 messages, 3125 samples" in stdout
+    sensors = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    io = [json.loads(line) for line in run["jsonl"].read_text().splitlines()]
+    assert len(sensors) == len(io)
+    for a, b in zip(sensors, io):
+        assert [m["frequency_rad_s"] for m in a["modes"]] == pytest.approx([m["frequency_rad_s"] for m in b["modes"]], rel=1e-9)
+
+
+def _okid_typestore_from_scratch():
+    """The rosbags Jazzy typestore plus okid_msgs, registered here without project code."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for path in sorted((REPO_ROOT / "msg_defs" / "msg").glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(), f"okid_msgs/msg/{path.stem}"))
+    store.register(types)
+    return store
+
+
+def test_a_bag_written_by_the_rosbags_writer_alone_is_processed(tmp_path, capsys):
+    """sqlite3, format version 8, other topic names, receive-time log stamps with jitter,
+    and an unrelated topic."""
+    store = _okid_typestore_from_scratch()
+    model = paper_model()
+    n = int(25 / model.sample_time_s)
+    u = lowpass_input(n, 2, 15.0, model.sample_time_s, seed=7)
+    y, _ = simulate_innovation(model, u, seed=8)
+    Time, Header = store.types["builtin_interfaces/msg/Time"], store.types["std_msgs/msg/Header"]
+    IoSample, String = store.types["okid_msgs/msg/IoSample"], store.types["std_msgs/msg/String"]
+    rng = np.random.default_rng(3)
+    bag = tmp_path / "foreign"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        io = writer.add_connection("/rig/io", "okid_msgs/msg/IoSample", typestore=store)
+        chatter = writer.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+        for k in range(n):
+            stamp_ns = 1_600_000_000 * 10**9 + k * 8_000_000
+            msg = IoSample(header=Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="rig"),
+                           u=u[k].copy(), y=y[k].copy())
+            writer.write(io, stamp_ns + int(rng.uniform(0.2e6, 3e6)), store.serialize_cdr(msg, "okid_msgs/msg/IoSample"))
+            if k % 125 == 0:
+                writer.write(chatter, stamp_ns, store.serialize_cdr(String(data="hello"), "std_msgs/msg/String"))
+    out, jsonl = tmp_path / "out", tmp_path / "models.jsonl"
+    code, stdout, err = run_cli(capsys, "process", bag, "--params", CONFIG, "--source", "io_sample /rig/io",
+                                "--out", out, "--jsonl", jsonl, "--no-progress", *FAST)
+    assert code == 0, err
+    lines = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    assert lines, stdout
+    assert_modes_match_truth(lines[-1]["modes"])
+    with AnyReader([out]) as reader:
+        assert sum(c.msgcount for c in reader.connections if c.topic == "/okid/modal_states") == 624
+
+
+def test_figures_are_written_and_not_overwritten(run, capsys):
+    figures = run["root"] / "figures"
+    code, stdout, err = run_cli(capsys, "plot", run["out"], "--out-dir", figures)
+    assert code == 0, err
+    # the source that process recorded; all 624 ModalStates (from 20.008 s on) are in the last 5 s
+    assert f"measured outputs from {run['bag']} (624 samples)" in stdout
+    names = sorted(p.name for p in figures.iterdir())
+    assert names == sorted(["fig2_system_markov.png", "fig3_stochastic_markov.png", "fig4_modal_states.png",
+                            "fig5_output_estimate.png", "modes_over_time.png"])
+    for path in figures.iterdir():
+        data = path.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    before = (figures / "fig2_system_markov.png").stat().st_mtime_ns
+    code, _, err = run_cli(capsys, "plot", run["out"], "--out-dir", figures)
+    assert_one_line_error(code, err, "exist already", "--force")
+    assert (figures / "fig2_system_markov.png").stat().st_mtime_ns == before
+    assert run_cli(capsys, "plot", run["out"], "--out-dir", figures, "--force")[0] == 0
+    # an input bag is not an output bag
+    code, _, err = run_cli(capsys, "plot", run["bag"], "--out-dir", run["root"] / "nofig")
+    assert_one_line_error(code, err, "/okid/modal_states")
+
+
+def test_an_existing_output_is_refused_and_left_untouched(small_bag, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("precious")
+    code, _, err = run_cli(capsys, "process", small_bag, "--out", out, "--no-progress")
+    assert_one_line_error(code, err, str(out), "exists already", "--force")
+    # --force replaces bags only, never another folder
+    code, _, err = run_cli(capsys, "process", small_bag, "--out", out, "--force", "--no-progress")
+    assert_one_line_error(code, err, "not a rosbag2 directory")
+    assert (out / "notes.txt").read_text() == "precious"
+
+    bag_out, jsonl = tmp_path / "bag_out", tmp_path / "m.jsonl"
+    assert run_cli(capsys, "process", small_bag, "--out", bag_out, "--no-progress")[0] == 0
+    stamp = (bag_out / "metadata.yaml").stat().st_mtime_ns
+    jsonl.write_text("keep\n")
+    for argv in (["--out", bag_out], ["--out", tmp_path / "new", "--jsonl", jsonl]):
+        code, _, err = run_cli(capsys, "process", small_bag, *argv, "--no-progress")
+        assert_one_line_error(code, err, "exists already")
+    assert (bag_out / "metadata.yaml").stat().st_mtime_ns == stamp
+    assert jsonl.read_text() == "keep\n" and not (tmp_path / "new").exists()
+    assert run_cli(capsys, "process", small_bag, "--out", bag_out, "--jsonl", jsonl, "--force", "--no-progress")[0] == 0
+    assert (bag_out / "metadata.yaml").stat().st_mtime_ns != stamp and jsonl.read_text() == ""
+    # simulate refuses too, and the output may not be the input
+    code, _, err = run_cli(capsys, "simulate", "--out", small_bag, "--duration", "1")
+    assert_one_line_error(code, err, "exists already")
+    code, _, err = run_cli(capsys, "process", small_bag, "--out", small_bag, "--force", "--no-progress")
+    assert_one_line_error(code, err, "cannot be the input")
+    assert (small_bag / "metadata.yaml").is_file()
+
+
+@pytest.mark.parametrize("source, fragments", [
+    ("io_sample /okid/nothing", ["no topic /okid/nothing", "/okid/io_sample (okid_msgs/msg/IoSample)"]),
+    ("io_sample /accel/tip1/imu", ["/accel/tip1/imu has type sensor_msgs/msg/Imu", "expected okid_msgs/msg/IoSample"]),
+])
+def test_a_missing_topic_or_a_wrong_type_is_one_line(small_bag, tmp_path, capsys, source, fragments):
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "process", small_bag, "--source", source, "--out", out, "--no-progress")
+    assert_one_line_error(code, err, str(small_bag), *fragments)
+    assert not out.exists()
+
+
+def _truncate_storage(bag: Path) -> None:
+    storage = next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) // 3])
+
+
+def _garbage_storage(bag: Path) -> None:
+    storage = next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+    storage.write_bytes(b"\x00garbage" * 1000)
+
+
+def _garbage_metadata(bag: Path) -> None:
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("damage", [_truncate_storage, _garbage_storage, _garbage_metadata])
+def test_a_corrupt_bag_is_one_line(tmp_path, capsys, storage, damage):
+    bag = tmp_path / "bag"
+    assert run_cli(capsys, "simulate", "--out", bag, "--duration", "2", "--storage", storage)[0] == 0
+    damage(bag)
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "process", bag, "--out", out, "--no-progress")
+    assert_one_line_error(code, err, str(bag))
+    assert not out.exists()
+
+
+def test_a_missing_bag_and_bad_options_are_one_line(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "process", tmp_path / "nope", "--out", tmp_path / "out")
+    assert_one_line_error(code, err, "no such bag")
+    code, _, err = run_cli(capsys, "process", tmp_path / "nope", "--out", tmp_path / "out", "--param", "arx.order=0")
+    assert_one_line_error(code, err, "arx.order")
+    code, _, err = run_cli(capsys, "process", tmp_path / "nope", "--out", tmp_path / "out", "--param", "bogus=1")
+    assert_one_line_error(code, err, "bogus")
+    code, _, err = run_cli(capsys, "simulate", "--out", tmp_path / "s", "--duration", "-1")
+    assert_one_line_error(code, err, "--duration")
+
+
+def test_a_bare_mcap_file_opens_like_its_bag(run):
+    mcap = next(run["bag"].glob("*.mcap"))
+    with open_bag(mcap) as bare, open_bag(run["bag"]) as whole:
+        assert bare.topics == whole.topics
+        assert bare.message_count() == whole.message_count()
+
+
+def test_force_on_a_bag_replaces_it(small_bag, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(small_bag, copy)
+    assert main(["simulate", "--out", str(copy), "--duration", "1", "--force"]) == 0
+    with open_bag(copy) as bag:
+        assert bag.message_count([IO_SAMPLE_TOPIC]) == 125

@@ -1,0 +1,174 @@
+"""Replay over real DDS: every message with its recorded stamps and spacing on (remapped) topics;
+a looped replay (stamps jump back) through both live nodes, which keep running and keep
+publishing modal states. ROS_DOMAIN_ID is this session's (conftest.py)."""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+
+from okid_msgs.msg import IoSample, ModalStates
+from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
+from sensor_msgs.msg import Imu
+
+START_NS = 1_700_000_000 * 1_000_000_000
+DT_NS = 8_000_000
+# Fast enough for a short test: a window of 1000 rows is valid from 500 rows (about 5 s of
+# data), and the window is solved twice a second.
+FAST_PARAMS = """
+okid_arx_identifier:
+  ros__parameters:
+    publish_rate_hz: 2.0
+    arx:
+      window_length: 1000
+"""
+
+
+class Listener:
+    """In-process subscriptions that keep (receive time, message) per topic."""
+
+    def __init__(self, topics: dict[str, type]) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, args=[])
+        self.node = rclpy.create_node("okid_test_listener", context=self.context)
+        self.received: dict[str, list] = {topic: [] for topic in topics}
+        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        for topic, cls in topics.items():
+            self.node.create_subscription(cls, topic, self._keep(topic), qos)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = False
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _keep(self, topic: str):
+        def callback(msg) -> None:
+            self.received[topic].append((time.monotonic(), msg))
+        return callback
+
+    def _spin(self) -> None:
+        while not self._stop and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_for_publishers(self, topics, timeout_s: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not all(self.node.count_publishers(t) for t in topics):
+            assert time.monotonic() < deadline, f"no publisher on {topics}"
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self._stop = True
+        self.thread.join(timeout=5)
+        self.executor.shutdown()
+        self.context.try_shutdown()
+
+
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def replay(ros_domain_id: int, *args: str) -> RosProcess:
+    return RosProcess([sys.executable, "-m", "okid_ros.cli", "replay", *args], subprocess_env(ros_domain_id), REPO_ROOT)
+
+
+def wait_exit(proc: RosProcess, timeout_s: float) -> int:
+    try:
+        return proc.proc.wait(timeout=timeout_s)
+    except Exception:
+        proc.stop()
+        pytest.fail(f"{proc.args} did not finish within {timeout_s} s; output:\n{proc.output()}")
+
+
+@pytest.fixture(scope="module")
+def short_bag(tmp_path_factory) -> Path:
+    bag = tmp_path_factory.mktemp("replay") / "short"
+    write_experiment_bag(bag, simulate_experiment(2.0, start_ns=START_NS), storage="sqlite3")
+    return bag
+
+
+def test_replay_publishes_every_message_with_its_stamps_and_timing(ros_domain_id, short_bag):
+    listener = Listener({"/test/io": IoSample, IMU_TOPICS[0]: Imu, IO_SAMPLE_TOPIC: IoSample})
+    try:
+        proc = replay(ros_domain_id, str(short_bag), "--rate", "2", "--topics", IO_SAMPLE_TOPIC, IMU_TOPICS[0],
+                      "--remap", f"{IO_SAMPLE_TOPIC}:=/test/io", "--wait-for-subscribers", "--delay", "0.3")
+        assert wait_exit(proc, 60) == 0, proc.output()
+        deadline = time.monotonic() + 5
+        while min(len(listener.received["/test/io"]), len(listener.received[IMU_TOPICS[0]])) < 250:
+            assert time.monotonic() < deadline, {t: len(v) for t, v in listener.received.items()}
+            time.sleep(0.05)
+        io = listener.received["/test/io"]
+        assert len(io) == 250 and not listener.received[IO_SAMPLE_TOPIC]  # remapped, not on the original
+        assert [stamp_ns(m) for _, m in io] == [START_NS + k * DT_NS for k in range(250)]
+        arrival = np.array([t for t, _ in io])
+        # the bag spans 1.992 s; at rate 2 it plays in about 1 s, spaced as recorded
+        assert 0.85 < arrival[-1] - arrival[0] < 1.4, arrival[-1] - arrival[0]
+        assert np.median(np.diff(arrival)) == pytest.approx(0.004, abs=0.002)
+        assert "replayed 500 messages on 2 topics" in proc.output()
+        assert "/test/io: 250" in proc.output()
+    finally:
+        listener.close()
+
+
+def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
+    for args, fragment in (
+        ([str(short_bag), "--topics", "/nope"], "no topic /nope"),
+        ([str(short_bag), "--remap", "/okid/io_sample"], "must be FROM:=TO"),
+        ([str(short_bag), "--rate", "0"], "--rate"),
+        ([str(tmp_path / "missing")], "no such bag"),
+    ):
+        proc = replay(ros_domain_id, *args)
+        assert wait_exit(proc, 60) == 2
+        out = proc.output().strip()
+        assert fragment in out and out.count("\n") == 0 and "Traceback" not in out, out
+
+
+def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domain_id, tmp_path):
+    """Pass 1 brings the first models; the loop sends the stamps 16 s back; the nodes go on."""
+    bag = tmp_path / "loop"
+    write_experiment_bag(bag, simulate_experiment(16.0, start_ns=START_NS))
+    fast = tmp_path / "fast.yaml"
+    fast.write_text(FAST_PARAMS)
+    env = subprocess_env(ros_domain_id)
+    nodes = {
+        module: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", "--ros-args", "--params-file",
+                            str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(fast)], env, REPO_ROOT)
+        for module in ("arx_identifier_node", "modal_estimator_node")
+    }
+    listener = Listener({"/okid/modal_states": ModalStates})
+    try:
+        for proc in nodes.values():
+            proc.wait_for_output(r"ready:", timeout_s=60)
+        listener.wait_for_publishers(["/okid/modal_states"])
+        player = replay(ros_domain_id, str(bag), "--rate", "2", "--loop", "--duration", "13",
+                        "--topics", IO_SAMPLE_TOPIC, "--wait-for-subscribers", "--delay", "0.5")
+        assert wait_exit(player, 90) == 0, player.output()
+        assert "pass 2 (stamps jump back" in player.output()
+        time.sleep(1.0)
+        states = [m for _, m in listener.received["/okid/modal_states"]]
+        stamps = np.array([stamp_ns(m) for m in states])
+        jumps = np.flatnonzero(np.diff(stamps) < -1_000_000_000)
+        assert len(jumps) == 1, (len(states), stamps[:3], stamps[-3:])
+        before, after = states[: jumps[0] + 1], states[jumps[0] + 1:]
+        assert stamp_ns(before[-1]) > START_NS + 10 * 1_000_000_000  # pass 1 ran to its end
+        assert stamp_ns(after[0]) < START_NS + 2 * 1_000_000_000     # pass 2 from the start again
+        assert len(after) > 200, len(after)  # and the estimates went on through the jump
+        assert all(np.diff([stamp_ns(m) for m in after]) > 0)
+        ids = [m.model_id for m in states]
+        assert ids == sorted(ids) and ids[0] >= 1  # models are never lost or renumbered
+        assert all(len(m.modes) >= 2 for m in after)
+        for proc in nodes.values():
+            assert proc.proc.poll() is None, proc.output()  # both nodes survived the jump
+        assert "Traceback" not in "".join(p.output() for p in nodes.values())
+    finally:
+        listener.close()
+        for proc in nodes.values():
+            proc.stop()
