@@ -107,3 +107,9 @@ def test_state_space_and_modal_states_round_trip(identified):
     mode = states["modes"][0]
     assert mode["frequency_rad_s"] == pytest.approx(result.modes[0].frequency_rad_s)
     np.testing.assert_allclose(mode["shape"], result.modes[0].shape)
+    reused = stamped(0.0, model_id=0, modes=[], modal_coordinates=None, y_estimated=None, innovation=None)
+    modes = [cv.mode_msg(m, TYPES) for m in result.modes]
+    cv.fill_modal_states(reused, result, modes)
+    again = cv.modal_states_from_msg(reused)
+    np.testing.assert_array_equal(again["coordinates"], result.coordinates)
+    assert again["stamp_s"] == pytest.approx(result.stamp_s) and reused.modes is modes

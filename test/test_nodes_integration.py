@@ -343,15 +343,30 @@ def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io
     probe.wait_until("the reset", future.done, 10)
     assert future.result().success
     constant = ([1.0, -1.0], [0.5, 0.25])
-    for k in paced(20, 700.0):
-        probe.publish_io(t + k * DT, *constant)  # applies a realization finished during the silence
-    time.sleep(1.0)
+    # Constant samples until node 2 has applied any realization it started before the reset
+    # (and realized any good window still waiting); from then on no model may change.
+    sent = 0
+
+    def idle() -> bool:
+        est = probe.diagnostics.get("okid_modal_estimator: estimation", {})
+        return est.get("busy") == "false" and est.get("arx_request_waiting") == "false"
+
+    deadline = time.monotonic() + 30
+    while True:
+        for k in paced(50, 700.0):
+            probe.publish_io(t + (sent + k) * DT, *constant)
+        sent += 50
+        time.sleep(0.3)  # a diagnostics period
+        with probe.lock:
+            if idle():
+                break
+        assert time.monotonic() < deadline, "node 2 stayed busy"
     with probe.lock:
         n_models = len(probe.models)
         model_id = probe.states[-1].model_id
     for k in paced(1200, 700.0):
-        probe.publish_io(t + (20 + k) * DT, *constant)
-    t += 1220 * DT
+        probe.publish_io(t + (sent + k) * DT, *constant)
+    t += (sent + 1200) * DT
     probe.wait_until("modal states of the last constant sample", lambda: stamp_s(probe.states[-1]) >= t - DT - 1e-6, 10)
     probe.wait_until("node 1 to call the window unexcited",
                      lambda: "unexcited" in probe.diagnostics.get("okid_arx_identifier: identification", {}).get("last_reason", ""), 10)

@@ -4,8 +4,7 @@ Subscribes the input sources of ``inputs.sources`` (sensor-data QoS), assembles 
 the sample grid by header stamp, feeds them to
 :class:`okid_ros.service.identification.ArxIdentificationService` and publishes
 ``okid_msgs/ArxModel`` on ``arx_model_topic`` (default ``/okid/arx_model``, reliable) at
-``publish_rate_hz`` on the node clock (so ``use_sim_time`` works). The solve runs on a worker
-thread so that samples keep flowing while it runs.
+``publish_rate_hz`` on the node clock (so ``use_sim_time`` works).
 
 Services: ``~/reset`` (std_srvs/Trigger) forgets the window; ``~/enable`` (std_srvs/SetBool)
 switches adaptation on and off (off: the window is frozen and the same model is republished).
@@ -13,13 +12,16 @@ Diagnostics on ``/diagnostics``.
 
 Run: ``ros2 run okid_ros arx_identifier --ros-args --params-file config/okid.yaml`` or
 ``python -m okid_ros.nodes.arx_identifier_node --ros-args --params-file config/okid.yaml``.
+
+The solve runs on a worker thread, which also publishes the result; a lock keeps it apart from
+``~/reset``.
 """
 
 from __future__ import annotations
 
 import sys
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
@@ -31,6 +33,7 @@ from okid_ros.nodes.common import (
     DiagnosticsPublisher,
     InputFrontend,
     declare_parameters,
+    name_thread,
     make_status,
     reliable_qos,
     run_node,
@@ -68,13 +71,13 @@ class ArxIdentifierNode(Node):
         )
         self.inputs = InputFrontend(self, values, self._on_sample)
         self.diagnostics = DiagnosticsPublisher(self)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="arx_solve")
-        self._solving: Future | None = None
-        self._solved: tuple[int, WindowCapture, SolveResult] | None = None
+        self._pool = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="arx_solve", initializer=name_thread, initargs=("okid_arx_solve",)
+        )
+        self._solving = False
         self._generation = 0
         self._skipped_publishes = 0
         self._lock = threading.Lock()
-        self._solved_signal = self.create_guard_condition(self._on_solved)
         self.create_timer(1.0 / float(values["publish_rate_hz"]), self._on_publish_timer)
         self.create_timer(1.0 / float(values["diagnostics_rate_hz"]), self._on_diagnostics_timer)
         self.create_service(Trigger, "~/reset", self._on_reset)
@@ -92,39 +95,34 @@ class ArxIdentifierNode(Node):
 
     # ------------------------------------------------------------------ publishing
     def _on_publish_timer(self) -> None:
-        if self._solving is not None:
+        if self._solving:
             self._skipped_publishes += 1  # the previous solve is still running
             return
         capture = self.service.capture()
-        generation = self._generation
-        self._solving = self._pool.submit(self._solve, generation, capture)
+        self._solving = True  # before submit: the worker clears it when done
+        self._pool.submit(self._solve, self._generation, capture)
 
     def _solve(self, generation: int, capture: WindowCapture) -> None:
+        """On the worker thread: solve, then accept and publish (rclpy publishers are thread-safe)."""
         try:
             result = solve_capture(capture)
         except Exception as exc:  # never lose the worker: report and go on
             result = SolveResult(None, float("nan"), f"internal error in the solve: {exc!r}", 0.0)
-        with self._lock:
-            self._solved = (generation, capture, result)
-        self._solved_signal.trigger()
-
-    def _on_solved(self) -> None:
-        with self._lock:
-            solved, self._solved = self._solved, None
-        self._solving = None
-        if solved is None:
-            return
-        generation, capture, result = solved
-        if generation != self._generation:
-            return  # solved before a reset
-        snapshot = self.service.accept(capture, result)
-        self.publisher.publish(arx_model_msg(snapshot, self.types))
+        try:
+            with self._lock:
+                if generation != self._generation:
+                    return  # solved before a reset
+                snapshot = self.service.accept(capture, result)
+            self.publisher.publish(arx_model_msg(snapshot, self.types))
+        finally:
+            self._solving = False
 
     # ------------------------------------------------------------------ services
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self._generation += 1
-        self.service.reset()
-        self.inputs.reset()
+        with self._lock:
+            self._generation += 1
+            self.service.reset()
+            self.inputs.reset()
         self.get_logger().info("reset: window, counters and model ids cleared")
         response.success = True
         response.message = "ARX window reset"

@@ -28,6 +28,7 @@ from okid_ros.service.params import ParamSpec, validate_value
 from okid_ros.service.sample_grid import GridSample, SampleGrid
 
 __all__ = [
+    "name_thread",
     "declare_parameters",
     "InputFrontend",
     "DiagnosticsPublisher",
@@ -37,6 +38,16 @@ __all__ = [
 ]
 
 _INT64_MAX = 2**63 - 1
+
+
+def name_thread(name: str) -> None:
+    """Give the calling thread an OS name (``top -H``, /proc/PID/task/TID/comm; Linux, <= 15 chars)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").prctl(15, name.encode()[:15], 0, 0, 0)  # PR_SET_NAME
+    except (OSError, AttributeError):
+        pass
 
 
 def reliable_qos(depth: int = 10, latched: bool = False) -> QoSProfile:

@@ -14,6 +14,7 @@ time.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,6 +39,7 @@ __all__ = [
     "mode_msg",
     "mode_from_msg",
     "modal_states_msg",
+    "fill_modal_states",
     "modal_states_from_msg",
     "state_space_model_msg",
     "state_space_from_msg",
@@ -262,6 +264,24 @@ def modal_states_msg(result: ModalStatesResult, types: MessageTypes, frame_id: s
         y_estimated=_f64(result.y_estimated),
         innovation=_f64(result.innovation),
     )
+
+
+def fill_modal_states(msg: Any, result: ModalStatesResult, mode_msgs: list) -> Any:
+    """Refill an existing ``ModalStates`` message in place (the node's per-sample path).
+
+    Cheaper than building one per sample: rclpy serializes on publish, so one message object
+    can be reused. Float arrays go in as ``array.array('d')``, the form rclpy stores.
+    """
+    ns = int(round(result.stamp_s * 1e9)) if math.isfinite(result.stamp_s) and result.stamp_s >= 0 else 0
+    stamp = msg.header.stamp
+    stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+    msg.model_id = int(result.model_id)
+    if msg.modes is not mode_msgs:
+        msg.modes = mode_msgs
+    msg.modal_coordinates = array("d", result.coordinates.ravel().tolist())
+    msg.y_estimated = array("d", result.y_estimated.tolist())
+    msg.innovation = array("d", result.innovation.tolist())
+    return msg
 
 
 def modal_states_from_msg(msg: Any) -> dict[str, Any]:

@@ -3,7 +3,8 @@
 Subscribes ``okid_msgs/ArxModel`` (``arx_model_topic``) and the same input sources as node 1
 (``inputs.sources``, sensor-data QoS), buffers the assembled samples, realizes each valid ARX
 model on a worker thread (:class:`okid_ros.service.estimation.ModalEstimationService`: weighted
-ERA, refit of B, D and the gain, modal form, checks, warm start) and publishes:
+ERA, refit of B, D and the gain, modal form, checks, warm start) off the sample path, and
+publishes:
 
 - ``okid_msgs/StateSpaceModel`` on ``state_space_model_topic`` (default
   ``/okid/state_space_model``; reliable, transient local: a late subscriber gets the current
@@ -16,16 +17,21 @@ the reason is in the diagnostics. Services: ``~/reset`` (std_srvs/Trigger) forge
 the mode ids and the buffer; ``~/enable`` (std_srvs/SetBool) with false freezes the current
 model (ARX models are ignored), true resumes.
 
-The realization (~0.5 s at q = 100) runs on a worker thread; Python's thread switch interval
-is lowered to 0.2 ms in this process so that the per-sample path gets the interpreter quickly
-while the worker runs Python code.
+The realization (~1 s at q = 100) runs in a worker process of its own at a lower priority
+(``realization.worker: process``, the default), so it never holds this interpreter's lock;
+only the last part of the warm start (the samples that arrived meanwhile, a few milliseconds)
+runs here, on the pool's thread. With ``realization.worker: thread`` it runs on a thread, and
+Python's thread switch interval is lowered to 0.2 ms so that the per-sample path gets the
+interpreter quickly while the worker runs Python code.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import sys
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
@@ -37,13 +43,14 @@ from okid_ros.nodes.common import (
     DiagnosticsPublisher,
     InputFrontend,
     declare_parameters,
+    name_thread,
     make_status,
     reliable_qos,
     run_node,
 )
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
-    modal_states_msg,
+    fill_modal_states,
     mode_msg,
     ros_message_types,
     state_space_model_msg,
@@ -53,6 +60,7 @@ from okid_ros.service.estimation import (
     ModalEstimationService,
     RealizationJob,
     RealizationOutcome,
+    realize,
 )
 from okid_ros.service.params import ESTIMATOR_NODE, node_params
 from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
@@ -89,9 +97,21 @@ class ModalEstimatorNode(Node):
         )
         self.inputs = InputFrontend(self, values, self._on_sample)
         self.diagnostics = DiagnosticsPublisher(self)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="realization")
+        if values["realization.worker"] == "process":
+            # A process of its own: the realization never holds this interpreter's lock.
+            self._pool = ProcessPoolExecutor(
+                max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                initializer=_worker_init, initargs=("okid_realize",),
+            )
+            self._pool.submit(_worker_warm_up)  # start it (and its imports) now, not at the first model
+        else:
+            self._pool = ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix="realization", initializer=name_thread, initargs=("okid_realize",)
+            )
         self._job: Future | None = None
+        self._running_job: RealizationJob | None = None
         self._mode_msgs: list = []
+        self._states_msg = self.types.ModalStates()  # refilled and published for every sample
         self._arx_invalid = 0
         self._arx_malformed = 0
         self._last_logged_reason = ""
@@ -121,7 +141,7 @@ class ModalEstimatorNode(Node):
                     f"model {update.model_id} (ARX {update.arx_model_id}, {update.model.n_states} states, "
                     f"realized in {update.realization_time_s:.2f} s): {modes}"
                 )
-            self.states_publisher.publish(modal_states_msg(result, self.types, mode_msgs=self._mode_msgs))
+            self.states_publisher.publish(fill_modal_states(self._states_msg, result, self._mode_msgs))
         if self._job is None and self.service.has_request:
             self._start_job()
 
@@ -142,14 +162,18 @@ class ModalEstimatorNode(Node):
 
     def _start_job(self) -> None:
         job = self.service.take_job()
-        if job is not None:
-            self._job = self._pool.submit(self._realize, job)
+        if job is None:
+            return
+        self._running_job = job
+        self._job = self._pool.submit(realize, job)
+        self._job.add_done_callback(self._on_realized)
 
-    def _realize(self, job: RealizationJob) -> None:
+    def _on_realized(self, future: Future) -> None:
+        """On the pool's thread: continue the warm start to the newest sample, hand it over."""
         try:
-            outcome = self.service.run_job(job)
+            outcome = self.service.follow(future.result())
         except Exception as exc:  # never lose the worker: report and go on
-            outcome = RealizationOutcome(job, None, f"internal error in the realization: {exc!r}")
+            outcome = RealizationOutcome(self._running_job, None, f"internal error in the realization: {exc!r}")
         self.service.deliver(outcome)
         self._job = None
 
@@ -207,6 +231,23 @@ class ModalEstimatorNode(Node):
     def close(self) -> None:
         """Stop the worker (called at shutdown)."""
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _worker_init(name: str) -> None:
+    """In the realization worker: a name for top/ps, Ctrl-C left to the node, lower priority so
+    that the per-sample path wins when the cores are busy."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    name_thread(name)
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+
+
+def _worker_warm_up() -> None:
+    """Nothing: the worker process has imported the core when this returns."""
 
 
 def main(args: list[str] | None = None) -> int:

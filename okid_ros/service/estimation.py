@@ -12,10 +12,11 @@ Life of a model update::
     submit_arx(fit, stamp_end_s)   newest request kept; older waiting ones are replaced
     take_job()                     when the buffer holds the window's end sample: a job with a
                                    copy of the window (u, y), or None
-    run_job(job)                   the expensive part (ERA + refit, ~0.5 s at q = 100), then a
-                                   warm start: the new model's predictor runs over the window
-                                   and over the samples that arrived meanwhile, so its state
-                                   is converged when it takes over; any thread
+    realize(job)                   the expensive part (ERA + refit + refinement, ~1 s at
+                                   q = 100), then a warm start: the new model's predictor runs
+                                   over the window; pure, any thread or process
+    follow(outcome)                the warm start goes on over the samples that arrived
+                                   meanwhile, so the state is converged when it takes over
     deliver(outcome)               hands the result back
     step(...)                      the next sample switches models at a sample boundary
 
@@ -62,6 +63,7 @@ from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identif
 from okid_ros.service.sample_grid import RESTART_SKIP  # noqa: F401  (the ``skipped`` of a restart)
 
 __all__ = [
+    "realize",
     "ModalEstimationParams",
     "ModalEstimationService",
     "ModalStatesResult",
@@ -296,6 +298,35 @@ def _bridge(A: np.ndarray, B: np.ndarray, x: np.ndarray, u_prev: np.ndarray | No
     return x
 
 
+def realize(job: RealizationJob) -> RealizationOutcome:
+    """Realize the model of a job, check it, warm-start its predictor over the job's window.
+
+    Pure (reads only the job) and picklable: runs on any thread or in another process. The
+    expensive part of a model update: weighted ERA, refit, order selection, refinement.
+    """
+    prm = job.params
+    t0 = time.perf_counter()
+    try:
+        model = identify_from_arx(
+            job.fit, job.u, job.y, prm.sample_time_s,
+            n_states=prm.n_states if prm.n_states > 0 else "auto",
+            max_states=prm.max_states, gain=prm.gain, refine=prm.refine,
+            max_damping=prm.max_damping, min_msv=prm.min_msv,
+            max_nyquist_fraction=prm.max_nyquist_fraction,
+        )
+    except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+        return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
+    elapsed = time.perf_counter() - t0
+    radius = float(np.max(np.abs(linalg.eigvals(model.A)))) if model.n_states else 0.0
+    if not radius < 1.0:
+        return RealizationOutcome(job, None, f"unstable model: spectral radius {radius:.6f} >= 1", realization_time_s=elapsed)
+    if not model.modes:
+        return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
+    x, u_prev = _run_predictor(model, np.zeros(model.n_states), job.u, job.y,
+                               np.zeros(job.u.shape[0], dtype=np.int64), None, prm.max_gap_samples)
+    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0])
+
+
 @dataclass
 class _Active:
     model: IdentifiedModel
@@ -466,46 +497,31 @@ class ModalEstimationService:
         return None
 
     def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
-        """Realize the model of a job and warm-start its predictor (expensive; any thread).
+        """:func:`realize` a job, then (``follow``) :meth:`follow` the samples that arrived since."""
+        outcome = realize(job)
+        return self.follow(outcome) if follow else outcome
 
-        With ``follow``, the warm start continues over samples that arrive while it runs, until
-        at most ``handover_samples`` are left for :meth:`step` to catch up.
+    def follow(self, outcome: RealizationOutcome) -> RealizationOutcome:
+        """Continue a realized outcome's warm start over the samples buffered since its window.
+
+        Runs (on any thread) until at most ``handover_samples`` are left for :meth:`step`.
         """
-        prm = job.params
-        t0 = time.perf_counter()
-        try:
-            model = identify_from_arx(
-                job.fit, job.u, job.y, prm.sample_time_s,
-                n_states=prm.n_states if prm.n_states > 0 else "auto",
-                max_states=prm.max_states, gain=prm.gain, refine=prm.refine,
-                max_damping=prm.max_damping, min_msv=prm.min_msv,
-                max_nyquist_fraction=prm.max_nyquist_fraction,
-            )
-        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-            return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
-        elapsed = time.perf_counter() - t0
-        radius = float(np.max(np.abs(linalg.eigvals(model.A)))) if model.n_states else 0.0
-        if not radius < 1.0:
-            return RealizationOutcome(job, None, f"unstable model: spectral radius {radius:.6f} >= 1", realization_time_s=elapsed)
-        if not model.modes:
-            return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
-        x = np.zeros(model.n_states)
-        x, u_prev = _run_predictor(model, x, job.u, job.y, np.zeros(job.u.shape[0], dtype=np.int64), None, prm.max_gap_samples)
-        last = job.end_index
-        count = job.u.shape[0]
-        if follow:
-            for _ in range(50):
-                # Never the newest buffered sample: step() may be applying this outcome to it.
-                available = self._buffer.count - 1
-                if available - 1 - last <= prm.handover_samples:
-                    break
-                _, u, y, skipped = self._buffer.get(last + 1, available)
-                if u.shape[0] == 0:
-                    break
-                x, u_prev = _run_predictor(model, x, u, y, skipped, u_prev, prm.max_gap_samples)
-                last += u.shape[0]
-                count += u.shape[0]
-        return RealizationOutcome(job, model, "", x, last, u_prev, elapsed, count)
+        if outcome.model is None:
+            return outcome
+        prm = outcome.job.params
+        x, u_prev, last, count = outcome.state, outcome.last_input, outcome.last_index, outcome.warm_start_samples
+        for _ in range(50):
+            # Never the newest buffered sample: step() may be applying this outcome to it.
+            available = self._buffer.count - 1
+            if available - 1 - last <= prm.handover_samples:
+                break
+            _, u, y, skipped = self._buffer.get(last + 1, available)
+            if u.shape[0] == 0:
+                break
+            x, u_prev = _run_predictor(outcome.model, x, u, y, skipped, u_prev, prm.max_gap_samples)
+            last += u.shape[0]
+            count += u.shape[0]
+        return replace(outcome, state=x, last_input=u_prev, last_index=last, warm_start_samples=count)
 
     def deliver(self, outcome: RealizationOutcome) -> None:
         """Hand a job's outcome back; it is applied at the next :meth:`step`."""
@@ -721,5 +737,6 @@ class ModalEstimationService:
             "n_modes": 0 if self._active is None else self._active.n_modes,
             "n_states": 0 if self._active is None else self._active.model.n_states,
             "busy": self._busy,
+            "arx_request_waiting": self._request is not None,
             "enabled": self.enabled,
         }

@@ -141,6 +141,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("realization.n_states", 0, "model order n of the ERA realization; 0: lowest BIC over even orders up to realization.max_states", "states", 0, 400),
     ParamSpec("realization.max_states", 40, "largest order tried when realization.n_states is 0 (the search stops 8 states past the best)", "states", 2, 400),
     ParamSpec("realization.refine", True, "finish each realization with the prediction-error refinement of the core (skipped for large models)"),
+    ParamSpec("realization.worker", "process", "where realizations run: a worker process (never competes with the per-sample path for the interpreter lock) or a thread", choices=("process", "thread")),
     ParamSpec("realization.gain", "refit", "estimator gain: least-squares refit, or the paper's AR whitening", choices=("refit", "whitening")),
     ParamSpec("modes.max_damping", 0.2, "largest damping ratio of a physical mode", "", 1e-6, 1.0),
     ParamSpec("modes.min_msv", 1e-3, "smallest relative modal singular value of a physical mode", "", 0.0, 1.0),
