@@ -152,7 +152,7 @@ def _stop_process(proc: subprocess.Popen, grace_s: float) -> None:
 
 
 def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: float = 1.0,
-             params: str | Path | None = None, sensors: bool = False, seed: int = 1,
+             params: list[str | Path] | None = None, sensors: bool = False, seed: int = 1,
              stream: TextIO | None = None, ansi: bool | None = None, startup_timeout_s: float = 90.0) -> DemoResult:
     """Run the demo (see the module docstring); returns when everything is stopped.
 
@@ -160,8 +160,8 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
         out_dir: parent of the run folders.
         duration_s: length of the simulated experiment [s] (the replay takes duration_s / rate).
         rate: replay speed factor.
-        params: the nodes' parameter file (default config/okid.yaml, with ``sensors``
-            config/okid_imu_wrench.yaml).
+        params: the nodes' parameter files, later ones override (default config/okid.yaml;
+            with ``sensors`` config/okid_imu_wrench.yaml).
         sensors: feed the nodes the Imu and WrenchStamped topics instead of IoSample.
         seed: seed of the simulation.
         stream: where the monitor and the report go (default stdout).
@@ -191,9 +191,11 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
         out.write(text + "\n")
         out.flush()
 
-    params_file = Path(params) if params else default_params_file("okid_imu_wrench.yaml" if sensors else "okid.yaml")
-    if not params_file.is_file():
-        raise OkidError(f"parameter file {params_file} does not exist")
+    param_files = [Path(p) for p in params] if params else [
+        default_params_file("okid_imu_wrench.yaml" if sensors else "okid.yaml")]
+    for path in param_files:
+        if not path.is_file():
+            raise OkidError(f"parameter file {path} does not exist")
     run_dir = Path(out_dir) / time.strftime("%Y%m%d-%H%M%S")
     if run_dir.exists():
         raise OkidError(f"{run_dir} exists already; wait a second and run again")
@@ -230,10 +232,11 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
         cli = [sys.executable, "-m", "okid_ros.cli"]
         nodes_log = open(run_dir / "nodes.log", "w")
         logs.append(nodes_log)
-        nodes = subprocess.Popen(cli + ["up", "--params", str(params_file)], env=env, stdout=nodes_log,
+        up_args = [arg for path in param_files for arg in ("--params", str(path))]
+        nodes = subprocess.Popen(cli + ["up", *up_args], env=env, stdout=nodes_log,
                                  stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
         processes.append(nodes)
-        say(f"[2/5] started both nodes: okid-ros up --params {params_file} (log: {run_dir / 'nodes.log'})")
+        say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run_dir / 'nodes.log'})")
 
         context = rclpy.Context()
         rclpy.init(context=context, args=[])
@@ -300,7 +303,7 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
 
         # 4. figures
         data = read_plot_data(live_bag, window_s=5.0)
-        add_measured_outputs(data, experiment_bag, load_node_parameters([params_file])[1])
+        add_measured_outputs(data, experiment_bag, load_node_parameters(param_files)[1])
         figures = write_figures(data, run_dir / "figures")
         say(f"[4/5] {len(figures)} figures -> {run_dir / 'figures'}: {', '.join(p.name for p in figures)}")
 
