@@ -12,8 +12,9 @@ definitions embedded, so any reader can decode it, and refuses an existing path 
 :func:`prepare_output`). Messages are built with the typestore's classes (the nodes'
 :mod:`okid_ros.nodes.conversions` accepts them) and serialized by rosbags, not by
 ``rclpy.serialization.serialize_message``: rmw_fastrtps sizes that buffer by an upper-bound
-estimate, so its bytes carry trailing garbage that strict CDR readers (rosbags' own
-``deserialize_cdr`` among them) reject as a size mismatch. Bytes taken from the wire (an rclpy
+estimate and does not clear it, so for messages with empty arrays (an invalid ArxModel: 132
+bytes for 124 bytes of CDR) the bytes end in uninitialized memory, which strict CDR readers
+(rosbags' own ``deserialize_cdr`` among them) reject as a size mismatch. Bytes taken from the wire (an rclpy
 subscription with ``raw=True``) have their exact size and are written as they are
 (:meth:`BagWriter.write_raw`).
 
