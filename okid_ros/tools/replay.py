@@ -240,6 +240,12 @@ class BagPlayer:
                         break
                 break
             stats.wall_time_s = time.monotonic() - started
+            # Reliable subscribers may not have acknowledged the last messages yet; destroying
+            # the publishers now would drop them.
+            from rclpy.duration import Duration
+
+            for publisher in publishers.values():
+                publisher.wait_for_all_acked(Duration(seconds=2.0))
         finally:
             node.destroy_node()
             if own_context:
