@@ -25,8 +25,9 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG = REPO_ROOT / "config" / "okid.yaml"
 START_S = 1_700_000_000
 # ArxModel every 4 s of data: with the default window (4000 rows, valid from half full, about
-# 17 s) a 25 s record gives two models (at 20 s and 24 s), which keeps the test short.
-FAST = ["--param", "publish_rate_hz=0.25"]
+# 17 s) a 25 s record gives two models (at 20 s and 24 s), which keeps the test short; the
+# truth has 6 states, so orders up to 8 are enough for the automatic order selection.
+FAST = ["--param", "publish_rate_hz=0.25", "--param", "realization.max_states=8"]
 TRUTH = paper_modes()
 
 
@@ -329,3 +330,27 @@ def test_force_on_a_bag_replaces_it(small_bag, tmp_path):
     assert main(["simulate", "--out", str(copy), "--duration", "1", "--force"]) == 0
     with open_bag(copy) as bag:
         assert bag.message_count([IO_SAMPLE_TOPIC]) == 125
+
+
+def test_a_ros1_bag_is_read_and_its_messages_come_out_as_cdr(tmp_path):
+    from rosbags.rosbag1 import Writer as Ros1Writer
+
+    store = _okid_typestore_from_scratch()
+    T = store.types
+    bag = tmp_path / "old.bag"
+    with Ros1Writer(bag) as writer:
+        connection = writer.add_connection("/okid/io_sample", "okid_msgs/msg/IoSample", typestore=store)
+        for k in range(10):
+            msg = T["okid_msgs/msg/IoSample"](
+                header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=5, nanosec=k * 8_000_000),
+                                                frame_id="rig"),
+                u=np.array([k, -k], dtype=float), y=np.array([2.0 * k, 0.5], dtype=float))
+            writer.write(connection, 5 * 10**9 + k * 8_000_000, store.serialize_ros1(msg, "okid_msgs/msg/IoSample"))
+    with open_bag(bag) as reader:
+        assert reader.topics == {"/okid/io_sample": "okid_msgs/msg/IoSample"}
+        decoded = [msg for _, _, msg in reader.messages()]
+        cdr = [raw for _, _, _, raw in reader.raw_messages()]
+    assert [list(m.u) for m in decoded] == [[k, -k] for k in range(10)]
+    again = [store.deserialize_cdr(raw, "okid_msgs/msg/IoSample") for raw in cdr]  # what replay publishes
+    assert [list(m.y) for m in again] == [[2.0 * k, 0.5] for k in range(10)]
+    assert again[3].header.stamp.nanosec == 24_000_000 and again[3].header.frame_id == "rig"

@@ -182,29 +182,44 @@ class BagReader:
                                f"{' or '.join(msgtype_name(m) for m in msgtypes)}")
         return msgtype
 
-    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
-        """Yield ``(topic, msgtype, log_time_ns, cdr_bytes)`` in log-time order."""
+    def _stored(self, topics: Iterable[str] | None) -> Iterator[tuple[Any, int, bytes]]:
+        """``(connection, log_time_ns, bytes as stored)`` in log-time order, errors as BagReadError."""
         wanted = None if topics is None else set(topics)
         connections = [c for c in self._reader.connections if wanted is None or c.topic in wanted]
         if not connections:
             return
         try:
             for connection, stamp_ns, raw in self._reader.messages(connections=connections):
-                yield connection.topic, msgtype_name(connection.msgtype), int(stamp_ns), raw
+                yield connection, int(stamp_ns), raw
         except BagReadError:
             raise
         except Exception as exc:  # corrupt chunk, truncated file, bad compression ...
             raise BagReadError(f"{self.path}: cannot read messages ({type(exc).__name__}: {_one_line(exc)})") from None
 
+    def _decode(self, connection: Any, stamp_ns: int, raw: bytes) -> Any:
+        try:
+            return self._reader.deserialize(raw, connection.msgtype)
+        except Exception as exc:
+            raise BagReadError(f"{self.path}: cannot decode a {connection.msgtype} message on {connection.topic} "
+                               f"at {stamp_ns} ns ({_one_line(exc)})") from None
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """Yield ``(topic, msgtype, log_time_ns, cdr_bytes)`` in log-time order.
+
+        Messages of ROS 1 bags are decoded and serialized again as CDR, so the bytes are always
+        what a ROS 2 subscriber expects.
+        """
+        ros1 = not getattr(self._reader, "is2", True)
+        for connection, stamp_ns, raw in self._stored(topics):
+            if ros1:
+                msg = self._decode(connection, stamp_ns, raw)
+                raw = bytes(self._reader.typestore.serialize_cdr(msg, connection.msgtype))
+            yield connection.topic, msgtype_name(connection.msgtype), stamp_ns, raw
+
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, Any]]:
         """Yield ``(topic, log_time_ns, message)``, messages deserialized by rosbags."""
-        for topic, msgtype, stamp_ns, raw in self.raw_messages(topics):
-            try:
-                msg = self._reader.deserialize(raw, msgtype)
-            except Exception as exc:
-                raise BagReadError(f"{self.path}: cannot decode a {msgtype} message on {topic} at "
-                                   f"{stamp_ns} ns ({_one_line(exc)})") from None
-            yield topic, stamp_ns, msg
+        for connection, stamp_ns, raw in self._stored(topics):
+            yield connection.topic, stamp_ns, self._decode(connection, stamp_ns, raw)
 
 
 class _OpenBag:
