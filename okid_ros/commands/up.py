@@ -6,7 +6,8 @@
 Starts ``python -m okid_ros.nodes.arx_identifier_node --ros-args --params-file FILE ...`` and
 the same for ``modal_estimator_node``, with this interpreter and environment; their output goes
 straight to this terminal. Ctrl-C or SIGTERM stops both: SIGINT to each, then SIGTERM and SIGKILL
-to what is still running after the grace period. If one node exits on its own (for example a
+to what is still running after the grace period (further signals to `up` while it stops are
+ignored, so it never leaves a node behind). If one node exits on its own (for example a
 parameter out of range), the other is stopped too and `up` exits with the node's status.
 The nodes die with `up` even if it is killed (parent-death signal).
 """
@@ -44,7 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--use-sim-time", action="store_true", help="run the nodes' timers on /clock")
     parser.add_argument("--log-level", default="info", choices=("debug", "info", "warn", "error"),
                         help="ROS log level of both nodes (default: %(default)s)")
-    parser.add_argument("--grace", type=float, default=10.0, metavar="S",
+    parser.add_argument("--grace", type=float, default=5.0, metavar="S",
                         help="seconds each node gets to stop after SIGINT before SIGTERM (default: %(default)s)")
     parser.set_defaults(func=run)
     return parser
@@ -131,8 +132,9 @@ def run(args: argparse.Namespace) -> int:
     except _Stop:
         pass
     finally:
-        # A second Ctrl-C while stopping must not leave the nodes behind.
+        # Already stopping: a second Ctrl-C or a SIGTERM must not leave the nodes behind.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         _stop(processes, args.grace)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
