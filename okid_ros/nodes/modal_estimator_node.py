@@ -111,6 +111,7 @@ class ModalEstimatorNode(Node):
         self._job: Future | None = None
         self._running_job: RealizationJob | None = None
         self._mode_msgs: list = []
+        self._updates_to_log: list = []
         self._states_msg = self.types.ModalStates()  # refilled and published for every sample
         self._arx_invalid = 0
         self._arx_malformed = 0
@@ -136,11 +137,7 @@ class ModalEstimatorNode(Node):
                 update = result.update
                 self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
                 self.model_publisher.publish(state_space_model_msg(update, self.types))
-                modes = ", ".join(f"#{m.id} {m.frequency_hz:.3f} Hz {100 * m.damping_ratio:.2f} %" for m in update.modes)
-                self.get_logger().info(
-                    f"model {update.model_id} (ARX {update.arx_model_id}, {update.model.n_states} states, "
-                    f"realized in {update.realization_time_s:.2f} s): {modes}"
-                )
+                self._updates_to_log.append(update)  # logged by the diagnostics timer: a log call costs ~1 ms
             self.states_publisher.publish(fill_modal_states(self._states_msg, result, self._mode_msgs))
         if self._job is None and self.service.has_request:
             self._start_job()
@@ -197,6 +194,13 @@ class ModalEstimatorNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def _on_diagnostics_timer(self) -> None:
+        updates, self._updates_to_log = self._updates_to_log, []
+        for update in updates:
+            modes = ", ".join(f"#{m.id} {m.frequency_hz:.3f} Hz {100 * m.damping_ratio:.2f} %" for m in update.modes)
+            self.get_logger().info(
+                f"model {update.model_id} (ARX {update.arx_model_id}, {update.model.n_states} states, "
+                f"realized in {update.realization_time_s:.2f} s): {modes}"
+            )
         for change in self.inputs.update_health():
             if "stale" in change:
                 self.get_logger().warning(change)
@@ -237,9 +241,14 @@ def _worker_init(name: str) -> None:
     """In the realization worker: a name for top/ps, Ctrl-C left to the node, lower priority so
     that the per-sample path wins when the cores are busy."""
     import signal
+    import warnings
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     name_thread(name)
+    # Numerical warnings of the realization (ill-conditioned refits of candidate orders) are
+    # part of its normal work; a model that fails its checks is reported in the diagnostics.
+    warnings.filterwarnings("ignore", module=r"okid_ros\.core\..*")
+    warnings.filterwarnings("ignore", module=r"scipy\..*")
     try:
         os.nice(10)
     except OSError:

@@ -1,0 +1,352 @@
+"""Latency and CPU of both nodes over DDS at 1 kHz (p = 2, m = 2, q = 100).
+
+Run:  .venv/bin/python bench/dds_latency.py [--duration 30] [--rate 1000] [--states 0]
+
+What it does:
+
+1. starts ``okid_arx_identifier`` and ``okid_modal_estimator`` as processes from
+   config/okid.yaml with the sample time set to 1/rate (ARX order 100, window 4000 rows,
+   a model per second, automatic order: the shipped defaults otherwise), in a ROS domain of
+   its own (``ROS_DOMAIN_ID``, default 57) with localhost discovery;
+2. a receiver process subscribes ``/okid/modal_states`` and stamps each arrival with
+   CLOCK_MONOTONIC;
+3. this process publishes ``okid_msgs/IoSample`` at ``--rate`` Hz (a 3-mode structure at 12, 35
+   and 80 Hz driven by low-passed noise, header stamps on the sample grid), recording the
+   CLOCK_MONOTONIC time of each publish call;
+4. once the first model is in use it measures for ``--duration`` seconds: per sample, the
+   latency from the publish call to the arrival of the ModalStates that carries it (matched by
+   stamp), the samples without ModalStates (dropped), and the CPU time of each node with its
+   worker (node 2's realization runs in a child process named okid_realize, node 1's solve on a
+   thread named okid_arx_solve; the rest is the executor thread and DDS).
+
+Prints a markdown table; docs/benchmarks-nodes.md has the numbers of this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def parse_args() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=30.0, help="measured seconds (default 30)")
+    parser.add_argument("--rate", type=float, default=1000.0, help="samples per second (default 1000)")
+    parser.add_argument("--order", type=int, default=100, help="ARX order q (default 100)")
+    parser.add_argument("--window", type=int, default=4000, help="ARX window rows (default 4000)")
+    parser.add_argument("--publish-rate", type=float, default=1.0, help="ArxModel rate [Hz] (default 1)")
+    parser.add_argument("--states", type=int, default=0, help="realization order, 0 = auto (default)")
+    parser.add_argument("--worker", default="process", choices=("process", "thread"), help="realization.worker (default process)")
+    parser.add_argument("--domain", type=int, default=57, help="ROS_DOMAIN_ID (default 57)")
+    parser.add_argument("--control", action="store_true",
+                        help="instead of the two nodes, a bare rclpy echo node (IoSample in, ModalStates out): "
+                        "the floor of rclpy + Fast DDS + scheduling on this machine")
+    parser.add_argument("--role", default="bench", choices=("bench", "receiver", "echo"), help=argparse.SUPPRESS)
+    parser.add_argument("--out", default="", help=argparse.SUPPRESS)
+    return parser.parse_args()
+
+
+# ------------------------------------------------------------------------------ receiver process
+def receiver(out: str) -> None:
+    """Subscribe /okid/modal_states; on SIGINT write (stamp ns, arrival ns, model id) as JSON."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from okid_msgs.msg import ModalStates
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    rclpy.init()
+    node = Node("okid_bench_receiver")
+    stamps: list[int] = []
+    arrivals: list[int] = []
+    models: list[int] = []
+    clock = time.monotonic_ns
+
+    def on_states(msg: ModalStates) -> None:
+        arrivals.append(clock())
+        stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        models.append(msg.model_id)
+
+    node.create_subscription(ModalStates, "/okid/modal_states", on_states,
+                             QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
+    callbacks: dict[str, list[tuple[float, float]]] = {}
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if "input callback max_ms" in values:
+                callbacks.setdefault(status.name.split(":")[0], []).append(
+                    (float(values["input callback mean_us"]), float(values["input callback max_ms"])))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+    print("receiver ready", flush=True)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    Path(out).write_text(json.dumps({"stamps": stamps, "arrivals": arrivals, "models": models, "callbacks": callbacks}))
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+# ------------------------------------------------------------------------------ control node
+def echo() -> None:
+    """The floor: a bare rclpy node that republishes each IoSample as an empty ModalStates with
+    the same stamp (same QoS as the estimator node), no identification at all."""
+    import rclpy
+    from okid_msgs.msg import IoSample, ModalStates
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    rclpy.init()
+    node = Node("okid_bench_echo")
+    out = ModalStates()
+    publisher = node.create_publisher(ModalStates, "/okid/modal_states", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+
+    def on_sample(msg: IoSample) -> None:
+        out.header = msg.header
+        publisher.publish(out)
+
+    node.create_subscription(IoSample, "/okid/io_sample", on_sample,
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+# ------------------------------------------------------------------------------ CPU accounting
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(entry.name))
+            except (OSError, ValueError, IndexError):
+                continue
+    return out
+
+
+def cpu_seconds(pid: int, children: bool = True) -> dict[str, float]:
+    """CPU seconds (user + system) of a process and its child processes: 'total' and per thread
+    name (a child process's threads count under their names too)."""
+    out: dict[str, float] = {"total": 0.0}
+    for proc in [pid, *(_children(pid) if children else [])]:
+        try:
+            tasks = list(Path(f"/proc/{proc}/task").iterdir())
+        except OSError:
+            continue
+        for task in tasks:
+            try:
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+                name = (task / "comm").read_text().strip()
+            except OSError:
+                continue
+            seconds = (int(fields[11]) + int(fields[12])) / CLK_TCK
+            out[name] = out.get(name, 0.0) + seconds
+            out["total"] += seconds
+    return out
+
+
+def cpu_share(before: dict[str, float], after: dict[str, float], wall: float, worker: str) -> tuple[float, float, float]:
+    """(whole process, the named worker thread, everything else) in cores."""
+    total = (after["total"] - before["total"]) / wall
+    work = (after.get(worker, 0.0) - before.get(worker, 0.0)) / wall
+    return total, work, total - work
+
+
+# ------------------------------------------------------------------------------ bench
+def main() -> int:
+    args = parse_args()
+    if args.role == "receiver":
+        receiver(args.out)
+        return 0
+    if args.role == "echo":
+        echo()
+        return 0
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(args.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+    import numpy as np
+    import rclpy
+    from okid_msgs.msg import IoSample
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    sys.path.insert(0, str(REPO))
+    from okid_ros.sim import lowpass_input, modal_structure, simulate
+
+    dt = 1.0 / args.rate
+    tmp = Path(tempfile.mkdtemp(prefix="okid_bench_"))
+    overrides = tmp / "bench.yaml"
+    overrides.write_text(
+        f"/**:\n  ros__parameters:\n    sample_time_s: {dt!r}\n"
+        f"okid_arx_identifier:\n  ros__parameters:\n    publish_rate_hz: {args.publish_rate!r}\n"
+        f"    arx:\n      order: {args.order}\n      window_length: {args.window}\n"
+        f"okid_modal_estimator:\n  ros__parameters:\n    realization:\n      n_states: {args.states}\n"
+        f"      worker: {args.worker}\n"
+    )
+    params = ["--ros-args", "--params-file", str(REPO / "config" / "okid.yaml"), "--params-file", str(overrides)]
+    logs = {name: open(tmp / f"{name}.log", "w") for name in ("arx", "est", "receiver")}
+    if args.control:
+        nodes = [[sys.executable, "-c", "import time; time.sleep(1e9)"], [sys.executable, __file__, "--role", "echo"]]
+    else:
+        nodes = [[sys.executable, "-m", "okid_ros.nodes.arx_identifier_node", *params],
+                 [sys.executable, "-m", "okid_ros.nodes.modal_estimator_node", *params]]
+    procs = {
+        "arx": subprocess.Popen(nodes[0], env=env, cwd=REPO, stdout=logs["arx"], stderr=subprocess.STDOUT),
+        "est": subprocess.Popen(nodes[1], env=env, cwd=REPO, stdout=logs["est"], stderr=subprocess.STDOUT),
+        "receiver": subprocess.Popen([sys.executable, __file__, "--role", "receiver", "--out", str(tmp / "rx.json")],
+                                     env=env, cwd=REPO, stdout=logs["receiver"], stderr=subprocess.STDOUT),
+    }
+    try:
+        return run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, ReliabilityPolicy,
+                         lowpass_input, modal_structure, simulate)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in procs.values():
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        for log in logs.values():
+            log.close()
+
+
+def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, ReliabilityPolicy,
+              lowpass_input, modal_structure, simulate) -> int:
+    system = modal_structure([12.0, 35.0, 80.0], 0.02, 2, 2, dt, seed=3)
+    warmup_s = 3.0 if args.control else (args.window + args.order) * dt + 15.0  # window, first model
+    n = int((warmup_s + args.duration + 2.0) / dt)
+    u = lowpass_input(n, 2, min(200.0, 0.4 / dt), dt, seed=1)
+    y = simulate(system, u, seed=2)
+
+    rclpy.init()
+    node = Node("okid_bench_publisher")
+    publisher = node.create_publisher(IoSample, "/okid/io_sample", QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    deadline = time.monotonic() + 30.0
+    while publisher.get_subscription_count() < (1 if args.control else 2):  # the nodes
+        if time.monotonic() > deadline:
+            print("the nodes did not subscribe /okid/io_sample within 30 s; logs in", tmp, file=sys.stderr)
+            return 1
+        time.sleep(0.1)
+    time.sleep(2.0)  # the receiver's subscription of /okid/modal_states
+    msgs = []
+    t0_ns = (time.time_ns() // 1_000_000_000 + 1) * 1_000_000_000
+    dt_ns = int(round(dt * 1e9))
+    for k in range(n):
+        msg = IoSample()
+        stamp = t0_ns + k * dt_ns
+        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp // 1_000_000_000, stamp % 1_000_000_000
+        msg.u = u[k].tolist()
+        msg.y = y[k].tolist()
+        msgs.append(msg)
+    published = np.zeros(n, dtype=np.int64)
+    cpu_before = cpu_after = None
+    measure_from = None
+    print(f"publishing {n} samples at {args.rate:g} Hz ({n * dt:.0f} s; measuring the last {args.duration:g} s)", flush=True)
+    start = time.monotonic_ns()
+    clock = time.monotonic_ns
+    for k in range(n):
+        wait = start + k * dt_ns - clock()
+        if wait > 0:
+            time.sleep(wait * 1e-9)  # no busy wait: the publisher must not eat the nodes' CPU
+        published[k] = clock()
+        publisher.publish(msgs[k])
+        if measure_from is None and k * dt >= warmup_s:
+            measure_from = k
+            cpu_before = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
+            harness_before = sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid))
+            load_before = os.getloadavg()[0]
+            wall_before = time.monotonic()
+    wall = time.monotonic() - wall_before
+    cpu_after = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
+    harness = (sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid)) - harness_before) / wall
+    load_after = os.getloadavg()[0]
+    time.sleep(2.0)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    procs["receiver"].send_signal(signal.SIGINT)
+    procs["receiver"].wait(timeout=20)
+    rx = json.loads((tmp / "rx.json").read_text())
+    stamps = np.array(rx["stamps"], dtype=np.int64)
+    arrivals = np.array(rx["arrivals"], dtype=np.int64)
+    index = np.rint((stamps - t0_ns) / dt_ns).astype(np.int64)
+    keep = (index >= measure_from) & (index < n)
+    lat_ms = (arrivals[keep] - published[index[keep]]) * 1e-6
+    expected = n - measure_from
+    received = int(np.unique(index[keep]).size)
+    models = sorted(set(rx["models"]))
+    arx_total, arx_solve, arx_rest = cpu_share(cpu_before["arx"], cpu_after["arx"], wall, "okid_arx_solve")
+    est_total, est_real, est_rest = cpu_share(cpu_before["est"], cpu_after["est"], wall, "okid_realize")
+    est_log = (tmp / "est.log").read_text()
+    realize = [float(x) for x in re.findall(r"realized in ([0-9.]+) s", est_log)]
+    np.savez(tmp / "latency.npz", index=index[keep], latency_ms=lat_ms, published_ns=published, t0_ns=t0_ns)
+    print()
+    if args.control:
+        print(f"\nbench/dds_latency.py --control: rate {args.rate:g} Hz, a bare rclpy echo node instead of the "
+              f"two okid nodes, measured {wall:.1f} s, {os.cpu_count()} cores")
+    else:
+        print(f"bench/dds_latency.py: rate {args.rate:g} Hz, p = 2, m = 2, q = {args.order}, window {args.window}, "
+              f"ArxModel {args.publish_rate:g} Hz, states {'auto' if args.states == 0 else args.states}, "
+              f"realization in a {args.worker}, "
+              f"measured {wall:.1f} s, {os.cpu_count()} cores")
+    print()
+    print("| measure | value |")
+    print("|---|---|")
+    if lat_ms.size:
+        q = np.percentile(lat_ms, [50, 90, 99, 99.9])
+        print(f"| latency p50 [ms] | {q[0]:.3f} |")
+        print(f"| latency p90 [ms] | {q[1]:.3f} |")
+        print(f"| latency p99 [ms] | {q[2]:.3f} |")
+        print(f"| latency p99.9 [ms] | {q[3]:.3f} |")
+        print(f"| latency max [ms] | {lat_ms.max():.3f} |")
+    print(f"| samples published (measured) | {expected} |")
+    print(f"| ModalStates received | {received} |")
+    print(f"| dropped samples | {expected - received} ({100 * (expected - received) / max(expected, 1):.3f} %) |")
+    print(f"| CPU okid_arx_identifier [cores] | {arx_total:.3f} (solve thread {arx_solve:.3f}, rest {arx_rest:.3f}) |")
+    print(f"| CPU okid_modal_estimator [cores] | {est_total:.3f} (realization worker {est_real:.3f}, rest {est_rest:.3f}) |")
+    print(f"| models in use during the run | {len(models)} (ids {models[0] if models else '-'}..{models[-1] if models else '-'}) |")
+    for name, series in sorted(rx.get("callbacks", {}).items()):
+        recent = series[-max(int(wall), 1):]  # about one diagnostics message per second measured
+        if recent:
+            print(f"| {name}: time in its input callback per message | mean {np.mean([a for a, _ in recent]):.0f} us, "
+                  f"longest {max(b for _, b in recent):.1f} ms |")
+    print(f"| CPU publisher + receiver (this benchmark) [cores] | {harness:.3f} |")
+    print(f"| load average (1 min) at start / end of the measurement | {load_before:.2f} / {load_after:.2f} "
+          f"({os.cpu_count()} cores; the two nodes and this benchmark make about 1.5) |")
+    if realize:
+        print(f"| realization time [s] | median {np.median(realize):.2f}, max {max(realize):.2f} ({len(realize)} models) |")
+    print(f"\nlogs and per-sample latencies (latency.npz) in {tmp}")
+    if not lat_ms.size:
+        print("no ModalStates received", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
