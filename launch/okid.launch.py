@@ -16,6 +16,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -27,8 +28,9 @@ def generate_launch_description() -> LaunchDescription:
         "package": "okid_ros",
         "output": "screen",
         "emulate_tty": True,
-        "parameters": [params_file, {"use_sim_time": use_sim_time}],
-        "arguments": ["--ros-args", "--log-level", log_level],
+        # A launch argument is a string: declare the type so use_sim_time is a bool parameter.
+        "parameters": [params_file, {"use_sim_time": ParameterValue(use_sim_time, value_type=bool)}],
+        "ros_arguments": ["--log-level", log_level],
     }
     return LaunchDescription([
         DeclareLaunchArgument(

@@ -40,7 +40,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 
 from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
 
@@ -342,6 +342,12 @@ def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io
     future = client.call_async(Trigger.Request())
     probe.wait_until("the reset", future.done, 10)
     assert future.result().success
+    for node in NODES.values():  # the enable services answer (adaptation / model updates stay on)
+        enable = probe.node.create_client(SetBool, f"/{node}/enable")
+        assert enable.wait_for_service(timeout_sec=10)
+        answer = enable.call_async(SetBool.Request(data=True))
+        probe.wait_until(f"{node}/enable", answer.done, 10)
+        assert answer.result().success
     constant = ([1.0, -1.0], [0.5, 0.25])
     # Constant samples until node 2 has applied any realization it started before the reset
     # (and realized any good window still waiting); from then on no model may change.

@@ -1,0 +1,80 @@
+"""The shipped parameter files and the launch file agree with the nodes' declarations
+(okid_ros/service/params.py), without starting ROS."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from okid_ros.service.inputs import parse_sources
+from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG = REPO / "config" / "okid.yaml"
+
+
+def flatten(tree: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+@pytest.mark.parametrize("node", [ARX_NODE, ESTIMATOR_NODE])
+def test_okid_yaml_lists_every_parameter_with_its_default(node):
+    tree = yaml.safe_load(CONFIG.read_text())
+    listed = {**flatten(tree["/**"]["ros__parameters"]), **flatten(tree[node]["ros__parameters"])}
+    specs = {spec.name: spec for spec in node_params(node)}
+    assert set(listed) == set(specs), "config/okid.yaml and params.py list different parameters"
+    for name, spec in specs.items():
+        assert listed[name] == spec.default, f"{name}: YAML {listed[name]!r}, declared default {spec.default!r}"
+    values = load_parameters(CONFIG, node)
+    assert values["sample_time_s"] == 0.008 and values["n_inputs"] == values["n_outputs"] == 2
+    if node == ARX_NODE:
+        assert values["arx.order"] == 100 and values["arx_model_topic"] == "/okid/arx_model"
+    else:
+        assert values["modal_states_topic"] == "/okid/modal_states"
+        assert values["state_space_model_topic"] == "/okid/state_space_model"
+    assert values["inputs.sources"] == ["io_sample /okid/io_sample"]
+
+
+def test_every_parameter_in_okid_yaml_is_commented_with_its_default():
+    text = CONFIG.read_text()
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        match = re.match(r"^\s+([a-z_]+):\s*\S", line)
+        if not match or line.strip().startswith("#") or match.group(1) == "ros__parameters":
+            continue
+        comment = []
+        j = i - 1
+        while j >= 0 and lines[j].strip().startswith("#"):
+            comment.insert(0, lines[j])
+            j -= 1
+        assert "Default" in " ".join(comment), f"config/okid.yaml line {i + 1} ({match.group(1)}) has no comment with its default"
+
+
+def test_the_sensor_example_maps_every_channel_once():
+    values = load_parameters(REPO / "config" / "okid_imu_wrench.yaml", ESTIMATOR_NODE)
+    specs = parse_sources(values["inputs.sources"], values["n_inputs"], values["n_outputs"])
+    assert sorted(s.kind for s in specs) == ["imu", "imu", "wrench", "wrench"]
+
+
+def test_launch_file_starts_both_console_scripts_under_their_node_names():
+    tree = ast.parse((REPO / "launch" / "okid.launch.py").read_text())
+    nodes = {}
+    for call in ast.walk(tree):
+        if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node":
+            kw = {k.arg: k.value.value for k in call.keywords if isinstance(k.value, ast.Constant)}
+            nodes[kw["name"]] = kw["executable"]
+    assert nodes == {ARX_NODE: "arx_identifier", ESTIMATOR_NODE: "modal_estimator"}
+    setup = (REPO / "setup.py").read_text()
+    for executable, module in (("arx_identifier", "arx_identifier_node"), ("modal_estimator", "modal_estimator_node")):
+        assert f'"{executable} = okid_ros.nodes.{module}:main"' in setup
+    assert "params_file" in (REPO / "launch" / "okid.launch.py").read_text()
