@@ -268,17 +268,25 @@ def io_nodes(ros_domain_id, fast_params):
     stop_nodes(procs)
 
 
-def test_io_sample_stream_converges_to_the_true_modes_without_jumps(probe, io_nodes):
+N_CONVERGE = 6000
+
+
+@pytest.fixture(scope="module")
+def converged(probe, io_nodes):
+    """6000 samples (48 s of data) published as IoSample at 500 samples/s; the outputs seen."""
     probe.wait_for_subscribers([probe.io])
-    n = 6000
-    u, y = simulated(n, seed=1)
-    for k in paced(n, 500.0):
+    u, y = simulated(N_CONVERGE, seed=1)
+    for k in paced(N_CONVERGE, 500.0):
         probe.publish_io(T0 + k * DT, u[k], y[k])
     probe.wait_until("the last sample's modal states",
-                     lambda: probe.states and stamp_s(probe.states[-1]) >= T0 + (n - 1) * DT - 1e-6, 20)
+                     lambda: probe.states and stamp_s(probe.states[-1]) >= T0 + (N_CONVERGE - 1) * DT - 1e-6, 20)
     with probe.lock:
-        states = list(probe.states)
-        models = list(probe.models)
+        return list(probe.states), list(probe.models)
+
+
+def test_io_sample_stream_converges_to_the_true_modes_without_jumps(probe, converged):
+    states, models = converged
+    n = N_CONVERGE
     first = stamp_s(states[0])
     # One ModalStates per sample from the first model on (reliable out, best-effort in).
     assert len(states) >= 0.98 * ((T0 + (n - 1) * DT - first) / DT + 1)
@@ -295,7 +303,7 @@ def test_io_sample_stream_converges_to_the_true_modes_without_jumps(probe, io_no
     assert jump < 0.5, jump
 
 
-def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io_nodes):
+def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io_nodes, converged):
     """NaN, wrong sizes, duplicate and out-of-order stamps, silence, then an unexcited window."""
     with probe.lock:
         t = stamp_s(probe.states[-1]) + DT
