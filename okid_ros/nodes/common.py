@@ -40,7 +40,8 @@ __all__ = [
 ]
 
 _INT64_MAX = 2**63 - 1
-#: Messages an input callback takes from its topic's queue after the one it was called with.
+#: Rounds (one message per input topic each) an input callback takes from the queues after
+#: the message it was called with.
 DRAIN_MAX = 50
 
 
@@ -163,18 +164,22 @@ class InputFrontend:
     def _on_message(self, index: int, msg: Any) -> None:
         start = time.perf_counter()
         self._handle(index, msg)
-        # Drain what else is queued on this topic: the executor's overhead per message is paid
-        # once per backlog, so the node catches up quickly after any stall.
-        sub = self.subscriptions[index]
+        # Drain what else is queued, one message per topic and round so that the topics stay
+        # in step (the grid's latency budget counts slots): the executor's overhead per message
+        # is then paid once per backlog, and the node catches up quickly after any stall.
         for _ in range(DRAIN_MAX):
-            try:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, False)
-            except Exception:  # destroyed while shutting down, or an rclpy without this API
+            taken_any = False
+            for i, sub in enumerate(self.subscriptions):
+                try:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, False)
+                except Exception:  # destroyed while shutting down, or an rclpy without this API
+                    return
+                if taken is not None:
+                    taken_any = True
+                    self._handle(i, taken[0])
+            if not taken_any:
                 break
-            if taken is None:
-                break
-            self._handle(index, taken[0])
         took = time.perf_counter() - start
         self._busy_s += took
         self._busy_max_s = max(self._busy_max_s, took)
