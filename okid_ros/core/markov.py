@@ -29,7 +29,12 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit
 
-__all__ = ["markov_from_arx", "observer_markov_from_arx", "markov_from_state_space"]
+__all__ = [
+    "markov_from_arx",
+    "observer_markov_from_arx",
+    "markov_from_state_space",
+    "stochastic_markov_from_state_space",
+]
 
 
 def markov_from_arx(arx: ArxFit, n_terms: int | None = None, extend_noise_free: bool = False) -> np.ndarray:
@@ -87,3 +92,12 @@ def markov_from_state_space(
         out[j] = C @ x
         x = A @ x
     return out
+
+
+def stochastic_markov_from_state_space(A: np.ndarray, C: np.ndarray, K: np.ndarray, n_terms: int) -> np.ndarray:
+    """Stochastic Markov parameters ``C A^i K``, i = 1..n_terms, of the innovation form: (n_terms, p, p).
+
+    These are the MA coefficients of paper Eq. (39) (the paper's Fig. 3); ``K`` is the paper's
+    gain (predictor gain ``A K``).
+    """
+    return markov_from_state_space(A, A @ K, C, np.eye(C.shape[0]), n_terms + 1)[1:]

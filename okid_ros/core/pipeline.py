@@ -29,7 +29,7 @@ from scipy import linalg
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations
 from okid_ros.core.era import HankelDecomposition, decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
-from okid_ros.core.markov import markov_from_arx, markov_from_state_space
+from okid_ros.core.markov import markov_from_arx, stochastic_markov_from_state_space
 from okid_ros.core.modal import ModalForm, Mode, modal_form
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit, fit_from_states, refit_predictor
@@ -93,7 +93,7 @@ class IdentifiedModel:
 
     def stochastic_markov(self, n_terms: int) -> np.ndarray:
         """``C A^i K`` for i = 1..n_terms: (n_terms, p, p) (paper Fig. 3)."""
-        return markov_from_state_space(self.A, self.A @ self.K, self.C, np.eye(self.C.shape[0]), n_terms + 1)[1:]
+        return stochastic_markov_from_state_space(self.A, self.C, self.K, n_terms)
 
     def to_json_dict(self) -> dict:
         """The ``identify --json`` document (nested lists, damping ratios as fractions)."""

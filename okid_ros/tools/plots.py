@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.markov import markov_from_state_space, stochastic_markov_from_state_space
 from okid_ros.tools.bagio import PROCESS_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
 
@@ -46,8 +47,6 @@ __all__ = [
     "PlotData",
     "add_measured_outputs",
     "read_plot_data",
-    "stochastic_markov",
-    "system_markov",
     "write_figures",
 ]
 
@@ -62,27 +61,6 @@ FIGURES = (
 ARX_TOPIC = "/okid/arx_model"
 STATE_SPACE_TOPIC = "/okid/state_space_model"
 MODAL_STATES_TOPIC = "/okid/modal_states"
-
-
-def system_markov(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, n_terms: int) -> np.ndarray:
-    """``Y_0 = D, Y_k = C A^(k-1) B``: (n_terms, p, m)."""
-    out = np.empty((n_terms, C.shape[0], B.shape[1]))
-    out[0] = D
-    X = B.copy()
-    for k in range(1, n_terms):
-        out[k] = C @ X
-        X = A @ X
-    return out
-
-
-def stochastic_markov(A: np.ndarray, C: np.ndarray, K: np.ndarray, n_terms: int) -> np.ndarray:
-    """``C A^i K`` for i = 1 .. n_terms: (n_terms, p, p) (paper Fig. 3, innovation form)."""
-    out = np.empty((n_terms, C.shape[0], K.shape[1]))
-    X = A @ K
-    for i in range(n_terms):
-        out[i] = C @ X
-        X = A @ X
-    return out
 
 
 @dataclass
@@ -246,7 +224,7 @@ def write_figures(data: PlotData, out_dir: str | Path, force: bool = False, n_st
         k = np.arange(Y.shape[0])
         ax.plot(k, Y[:, 0, 0], ".-", ms=3, lw=0.8, label=f"identified (ArxModel {data.arx_model_id})")
         if truth is not None:
-            Yt = system_markov(truth["A"], truth["B"], truth["C"], truth["D"], Y.shape[0])
+            Yt = markov_from_state_space(truth["A"], truth["B"], truth["C"], truth["D"], Y.shape[0])
             ax.plot(k, Yt[:, 0, 0], "--", lw=0.8, color="k", label="truth")
         ax.set_xlabel("k (time step)")
         ax.set_ylabel("Y_k (1,1)")
@@ -258,10 +236,10 @@ def write_figures(data: PlotData, out_dir: str | Path, force: bool = False, n_st
         ss = data.state_space
         fig, ax = plt.subplots(figsize=(7, 3.5))
         i = np.arange(1, n_stochastic + 1)
-        M = stochastic_markov(ss["A"], ss["C"], ss["K"], n_stochastic)
+        M = stochastic_markov_from_state_space(ss["A"], ss["C"], ss["K"], n_stochastic)
         ax.plot(i, M[:, 0, 0], ".-", ms=3, lw=0.8, label=f"identified (model {ss['model_id']}, n = {ss['n']})")
         if truth is not None:
-            Mt = stochastic_markov(truth["A"], truth["C"], truth["K"], n_stochastic)
+            Mt = stochastic_markov_from_state_space(truth["A"], truth["C"], truth["K"], n_stochastic)
             ax.plot(i, Mt[:, 0, 0], "--", lw=0.8, color="k", label="truth")
         ax.set_xlabel("i (time step)")
         ax.set_ylabel("C A^i K (1,1)")
