@@ -338,7 +338,7 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
                   f"longest {max(b for _, b in recent):.1f} ms |")
     print(f"| CPU publisher + receiver (this benchmark) [cores] | {harness:.3f} |")
     print(f"| load average (1 min) at start / end of the measurement | {load_before:.2f} / {load_after:.2f} "
-          f"({os.cpu_count()} cores; the two nodes and this benchmark make about 1.5) |")
+          f"({os.cpu_count()} cores) |")
     if realize:
         print(f"| realization time [s] | median {np.median(realize):.2f}, max {max(realize):.2f} ({len(realize)} models) |")
     print(f"\nlogs and per-sample latencies (latency.npz) in {tmp}")
