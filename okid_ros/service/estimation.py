@@ -50,7 +50,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -60,7 +60,6 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.modal import Mode, mac, match_modes
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
-from okid_ros.service.sample_grid import RESTART_SKIP  # noqa: F401  (the ``skipped`` of a restart)
 
 __all__ = [
     "realize",
@@ -358,7 +357,6 @@ class _Stats:
     last_switch_jump: float = math.nan
     max_switch_jump: float = 0.0
     switches_measured: int = 0
-    extra: dict = field(default_factory=dict)
 
 
 class ModalEstimationService:
@@ -546,8 +544,9 @@ class ModalEstimationService:
         ----------
         stamp_s : the sample's stamp [s].
         u : (m,) inputs; y : (p,) outputs.
-        skipped : missing slots just before this sample (0: contiguous); -1 after a time jump
-            or restart (see :class:`okid_ros.service.sample_grid.GridSample`).
+        skipped : missing slots just before this sample (0: contiguous); -1
+            (``sample_grid.RESTART_SKIP``) after a time jump or restart (see
+            :class:`okid_ros.service.sample_grid.GridSample`).
         """
         prm = self.params
         u = np.asarray(u, dtype=float).reshape(-1)

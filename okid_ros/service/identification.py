@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
@@ -226,7 +226,6 @@ class _Health:
     last_solve_time_s: float = 0.0
     snapshots: int = 0
     valid_snapshots: int = 0
-    extra: dict = field(default_factory=dict)
 
 
 class ArxIdentificationService:
