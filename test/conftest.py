@@ -16,8 +16,14 @@ For module-scoped processes use `ros_helpers.RosProcess` with
 
 from __future__ import annotations
 
-import fcntl
 import os
+
+# One BLAS thread, as the CLI and the nodes use: set before any test module imports numpy
+# (multi-threaded BLAS made the core 5-20x slower on the shared 2-core machines).
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import fcntl  # noqa: E402
 import sys
 import tempfile
 from collections.abc import Callable, Iterator

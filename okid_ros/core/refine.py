@@ -20,6 +20,8 @@ matters, are left out of the cost. The result is mapped back to the real modal b
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import linalg, signal
 
@@ -148,15 +150,25 @@ def _levenberg_marquardt(residuals, jacobian, theta: np.ndarray, max_evaluations
     evaluations = 1
     while evaluations < max_evaluations:
         J = jacobian(theta)
-        g = J.T @ r
-        H = J.T @ J
+        with np.errstate(all="ignore"):
+            g = J.T @ r
+            H = J.T @ J
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+            break
         diag = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
         improved = False
         while evaluations < max_evaluations:
             try:
-                step = -linalg.solve(H + mu * np.diag(diag), g, assume_a="pos")
+                with warnings.catch_warnings():
+                    # A damped system that is merely ill-conditioned still gives a usable step.
+                    warnings.simplefilter("ignore", linalg.LinAlgWarning)
+                    step = -linalg.solve(H + mu * np.diag(diag), g, assume_a="pos")
             except (linalg.LinAlgError, ValueError):
+                step = None
+            if step is None or not np.all(np.isfinite(step)):
                 mu *= 10.0
+                if mu > 1e8:
+                    return theta, cost
                 continue
             trial = theta + step
             r_trial = residuals(trial)
