@@ -84,7 +84,7 @@ class ModalEstimationParams:
     max_states: int = 40
     gain: str = "refit"
     refine: bool = True
-    max_damping: float = 0.2
+    max_damping: float = 0.1
     min_msv: float = 1e-3
     max_nyquist_fraction: float = 0.95
     max_frequency_change: float = 0.05

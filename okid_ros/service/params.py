@@ -143,7 +143,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("realization.refine", True, "finish each realization with the prediction-error refinement of the core (skipped for large models)"),
     ParamSpec("realization.worker", "process", "where realizations run: a worker process (never competes with the per-sample path for the interpreter lock) or a thread", choices=("process", "thread")),
     ParamSpec("realization.gain", "refit", "estimator gain: least-squares refit, or the paper's AR whitening", choices=("refit", "whitening")),
-    ParamSpec("modes.max_damping", 0.2, "largest damping ratio of a physical mode", "", 1e-6, 1.0),
+    ParamSpec("modes.max_damping", 0.1, "largest damping ratio of a physical mode", "", 1e-6, 1.0),
     ParamSpec("modes.min_msv", 1e-3, "smallest relative modal singular value of a physical mode", "", 0.0, 1.0),
     ParamSpec("modes.max_nyquist_fraction", 0.95, "physical modes lie below this fraction of the Nyquist frequency", "", 0.01, 1.0),
     ParamSpec("tracking.max_frequency_change", 0.05, "relative frequency change up to which a mode keeps its id", "", 1e-6, 1.0),
