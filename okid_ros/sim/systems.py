@@ -63,8 +63,33 @@ def _as2d(x, name: str) -> np.ndarray:
     return a
 
 
+class _Dimensions:
+    """Dimensions of a model with ``A`` (n, n), ``B`` (n, m), ``C`` (p, n), and a shape check."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def n_inputs(self) -> int:
+        return self.B.shape[1]
+
+    @property
+    def n_outputs(self) -> int:
+        return self.C.shape[0]
+
+    def _check_shapes(self, arrays: tuple[tuple[str, np.ndarray, tuple[int, int]], ...]) -> None:
+        for name, arr, shape in arrays:
+            if arr.shape != shape:
+                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
+
+
 @dataclass
-class InnovationModel:
+class InnovationModel(_Dimensions):
     """Innovation-form model in the paper's convention (predictor gain ``A @ K``).
 
     Equations::
@@ -99,29 +124,16 @@ class InnovationModel:
         self.K = _as2d(self.K, "K")
         self.innovation_covariance = _as2d(self.innovation_covariance, "innovation_covariance")
         n, m, p = self.n_states, self.n_inputs, self.n_outputs
-        for name, arr, shape in (
+        self._check_shapes((
             ("A", self.A, (n, n)),
             ("B", self.B, (n, m)),
             ("C", self.C, (p, n)),
             ("D", self.D, (p, m)),
             ("K", self.K, (n, p)),
             ("innovation_covariance", self.innovation_covariance, (p, p)),
-        ):
-            if arr.shape != shape:
-                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
+        ))
         self.sample_time_s = float(self.sample_time_s)
 
-    @property
-    def n_states(self) -> int:
-        return self.A.shape[0]
-
-    @property
-    def n_inputs(self) -> int:
-        return self.B.shape[1]
-
-    @property
-    def n_outputs(self) -> int:
-        return self.C.shape[0]
 
     @property
     def predictor_gain(self) -> np.ndarray:
@@ -150,7 +162,7 @@ class InnovationModel:
 
 
 @dataclass
-class NoisyStateSpace:
+class NoisyStateSpace(_Dimensions):
     """State space with process noise ``w`` and measurement noise ``v``.
 
     Equations::
@@ -190,7 +202,7 @@ class NoisyStateSpace:
         if self.cross_covariance is None:
             self.cross_covariance = np.zeros((n, p))
         self.cross_covariance = _as2d(self.cross_covariance, "S")
-        for name, arr, shape in (
+        self._check_shapes((
             ("A", self.A, (n, n)),
             ("B", self.B, (n, m)),
             ("C", self.C, (p, n)),
@@ -198,22 +210,9 @@ class NoisyStateSpace:
             ("Q", self.process_noise_covariance, (n, n)),
             ("R", self.measurement_noise_covariance, (p, p)),
             ("S", self.cross_covariance, (n, p)),
-        ):
-            if arr.shape != shape:
-                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
+        ))
         self.sample_time_s = float(self.sample_time_s)
 
-    @property
-    def n_states(self) -> int:
-        return self.A.shape[0]
-
-    @property
-    def n_inputs(self) -> int:
-        return self.B.shape[1]
-
-    @property
-    def n_outputs(self) -> int:
-        return self.C.shape[0]
 
     def joint_noise_covariance(self) -> np.ndarray:
         """``[[Q, S], [S^T, R]]``, shape (n + p, n + p): covariance of ``[w_k; v_k]``."""
