@@ -25,9 +25,9 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.conversions import source_values
-from okid_ros.service.inputs import SourceSpec, parse_sources
+from okid_ros.service.inputs import sources_and_grid
 from okid_ros.service.params import ParamSpec, validate_value
-from okid_ros.service.sample_grid import GridSample, SampleGrid
+from okid_ros.service.sample_grid import GridSample
 
 __all__ = [
     "name_thread",
@@ -130,16 +130,7 @@ class InputFrontend:
     def __init__(self, node: Node, values: dict[str, Any], on_sample: Callable[[GridSample], None]) -> None:
         self.node = node
         self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
-        try:
-            self.specs: list[SourceSpec] = parse_sources(values["inputs.sources"], self.m, self.p)
-        except ValueError as exc:
-            raise ParameterError(f"parameter inputs.sources: {exc}") from None
-        self.grid = SampleGrid(
-            float(values["sample_time_s"]), self.m, self.p, [s.channels for s in self.specs],
-            tolerance=float(values["inputs.stamp_tolerance"]),
-            latency_samples=int(values["inputs.latency_samples"]),
-            time_jump_s=float(values["inputs.time_jump_s"]),
-        )
+        self.specs, self.grid = sources_and_grid(values)
         self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
         self.on_sample = on_sample
         self._clock = node.get_clock()

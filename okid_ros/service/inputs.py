@@ -186,3 +186,33 @@ def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
     if missing:
         raise ValueError(f"no input source provides channel(s) {', '.join(missing)}")
     return specs
+
+
+def sources_and_grid(values: dict):
+    """Input sources and the sample grid described by node parameters (``inputs.*`` and dims).
+
+    Shared by the nodes and ``okid-ros process`` so both assemble samples the same way.
+
+    Returns
+    -------
+    (specs, grid): list of SourceSpec and a :class:`okid_ros.service.sample_grid.SampleGrid`.
+
+    Raises
+    ------
+    okid_ros.errors.ParameterError naming ``inputs.sources`` when a source is invalid.
+    """
+    from okid_ros.errors import ParameterError
+    from okid_ros.service.sample_grid import SampleGrid
+
+    m, p = int(values["n_inputs"]), int(values["n_outputs"])
+    try:
+        specs = parse_sources(values["inputs.sources"], m, p)
+    except ValueError as exc:
+        raise ParameterError(f"parameter inputs.sources: {exc}") from None
+    grid = SampleGrid(
+        float(values["sample_time_s"]), m, p, [s.channels for s in specs],
+        tolerance=float(values["inputs.stamp_tolerance"]),
+        latency_samples=int(values["inputs.latency_samples"]),
+        time_jump_s=float(values["inputs.time_jump_s"]),
+    )
+    return specs, grid

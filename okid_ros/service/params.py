@@ -40,6 +40,7 @@ __all__ = [
     "ARX_PARAMS",
     "ESTIMATOR_PARAMS",
     "node_params",
+    "read_parameter_file",
     "validate_value",
     "resolve_parameters",
     "load_parameters",
@@ -227,6 +228,22 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def read_parameter_file(path: str | Path) -> Mapping:
+    """The YAML tree of a ROS parameter file (node sections at the top), or ParameterError."""
+    import yaml
+
+    path = Path(path)
+    try:
+        tree = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+    if not isinstance(tree, Mapping):
+        raise ParameterError(f"parameter file {path} has no node sections")
+    return tree
+
+
 def load_parameters(path: str | Path, node: str, strict: bool = False) -> dict[str, Any]:
     """Read a ROS parameter YAML file the way the node would and return its resolved parameters.
 
@@ -237,17 +254,7 @@ def load_parameters(path: str | Path, node: str, strict: bool = False) -> dict[s
     ------
     ParameterError on an unreadable file or an invalid value (the message names the file).
     """
-    import yaml
-
-    path = Path(path)
-    try:
-        tree = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ParameterError(f"parameter file {path} is not valid YAML: {exc}") from None
-    if not isinstance(tree, Mapping):
-        raise ParameterError(f"parameter file {path} has no node sections")
+    tree = read_parameter_file(path)
     merged: dict[str, Any] = {}
     for key in ("/**", node, f"/{node}"):
         section = tree.get(key)

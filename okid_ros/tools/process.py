@@ -88,20 +88,11 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     """
     import yaml
 
-    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params, read_parameter_file
 
     tree: dict = {}
     for path in param_files:
-        path = Path(path)
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
-        except yaml.YAMLError as exc:
-            raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
-        if not isinstance(loaded, dict):
-            raise ParameterError(f"parameter file {path} has no node sections")
-        tree = _deep_merge(tree, loaded)
+        tree = _deep_merge(tree, dict(read_parameter_file(path)))
     names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
     layered: list[tuple[str, Any]] = []
     for item in overrides:
@@ -188,20 +179,10 @@ class NodeInputs:
     """One node's input sources and sample grid (what InputFrontend does, minus subscriptions)."""
 
     def __init__(self, values: dict) -> None:
-        from okid_ros.service.inputs import parse_sources
-        from okid_ros.service.sample_grid import SampleGrid
+        from okid_ros.service.inputs import sources_and_grid
 
         self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
-        try:
-            self.specs = parse_sources(values["inputs.sources"], self.m, self.p)
-        except ValueError as exc:
-            raise ParameterError(f"parameter inputs.sources: {exc}") from None
-        self.grid = SampleGrid(
-            float(values["sample_time_s"]), self.m, self.p, [s.channels for s in self.specs],
-            tolerance=float(values["inputs.stamp_tolerance"]),
-            latency_samples=int(values["inputs.latency_samples"]),
-            time_jump_s=float(values["inputs.time_jump_s"]),
-        )
+        self.specs, self.grid = sources_and_grid(values)
         self.by_topic: dict[str, list[int]] = {}
         for i, spec in enumerate(self.specs):
             self.by_topic.setdefault(spec.topic, []).append(i)
