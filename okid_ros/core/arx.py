@@ -8,7 +8,7 @@ of :mod:`okid_ros.core.regressors`,
 i.e. ``(R + penalty P^{-1}) Theta = r`` with the normal equations ``R = Phi^T Phi`` (d, d) and
 ``r = Phi^T Y`` (d, p). The paper uses ``penalty = 0``; with inputs that leave part of the band
 unexcited that solution is junk there and the rest of the chain amplifies it
-(``../shared/identification-findings.md``). ``P`` is a prior covariance of the coefficients:
+(``docs/method.md``). ``P`` is a prior covariance of the coefficients:
 
 - ``"ridge"``: diagonal, each regressor column scaled by its mean square (so outputs and inputs
   of different units are penalized alike);
@@ -39,6 +39,9 @@ __all__ = [
     "solve_normal_equations",
     "solve_fixed_penalty",
     "minimum_samples",
+    "ArxOrderChoice",
+    "center_normal_equations",
+    "select_arx_order",
 ]
 
 REGULARIZATIONS = ("none", "ridge", "tc")
@@ -55,12 +58,17 @@ class NormalEquations:
     r : (d, p) ``Phi^T Y``.
     yy : (p, p) ``Y^T Y``.
     n_rows : number of regressor rows summed.
+    phi_sum : (d,) ``Phi^T 1``, the column sums of the regressor rows (None if not kept).
+    y_sum : (p,) ``Y^T 1``, the column sums of the targets (None if not kept).
+        With both, :func:`center_normal_equations` gives the fit with an intercept (offsets).
     """
 
     R: np.ndarray
     r: np.ndarray
     yy: np.ndarray
     n_rows: int
+    phi_sum: np.ndarray | None = None
+    y_sum: np.ndarray | None = None
 
 
 @dataclass
@@ -123,7 +131,9 @@ def minimum_samples(order: int, n_outputs: int, n_inputs: int) -> int:
 
 def normal_equations(phi: np.ndarray, targets: np.ndarray) -> NormalEquations:
     """Form ``Phi^T Phi``, ``Phi^T Y`` and ``Y^T Y`` of a block of regressor rows."""
-    return NormalEquations(phi.T @ phi, phi.T @ targets, targets.T @ targets, phi.shape[0])
+    return NormalEquations(
+        phi.T @ phi, phi.T @ targets, targets.T @ targets, phi.shape[0], phi.sum(axis=0), targets.sum(axis=0)
+    )
 
 
 def prior_precision(
@@ -260,6 +270,8 @@ def fit_arx(
     penalty: float | str = "gcv",
     decay: float | str = "gcv",
     valid: np.ndarray | None = None,
+    *,
+    center: bool = False,
 ) -> ArxFit:
     """Fit a MIMO ARX model of order q by regularized least squares (paper Eq. 23).
 
@@ -271,6 +283,7 @@ def fit_arx(
     penalty : a fixed penalty, or "gcv" to choose it by generalized cross-validation.
     decay : TC kernel alpha, or "gcv" to choose it from ``TC_DECAYS`` with the penalty.
     valid : (N,) bool, optional mask of trustworthy samples (gaps break the regressors).
+    center : fit an intercept too (signals with offsets; :func:`center_normal_equations`).
 
     Returns
     -------
@@ -300,7 +313,7 @@ def fit_arx(
             f"too few samples for ARX order {order}: {u.shape[0]} given, at least {needed} recommended"
         )
     normal = normal_equations(phi, targets)
-    return fit_from_normal_equations(normal, order, p, m, regularization, penalty, decay)
+    return fit_from_normal_equations(normal, order, p, m, regularization, penalty, decay, center=center)
 
 
 def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, order: int) -> np.ndarray:
@@ -308,6 +321,33 @@ def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, 
     m, w = n_inputs, n_outputs + n_inputs
     diag = np.diag(normal.R)[m:].reshape(order, w)
     return np.maximum(diag.mean(axis=0) / max(normal.n_rows, 1), np.finfo(float).tiny)
+
+
+def center_normal_equations(normal: NormalEquations) -> NormalEquations:
+    """The normal equations of the column-centered rows: the fit with an intercept.
+
+    Least squares with a constant term equals least squares on regressors and targets with
+    their column means removed: ``R - s s^T / n``, ``r - s t^T / n``, ``Y^T Y - t t^T / n``
+    with the column sums ``s`` of ``Phi`` and ``t`` of ``Y``. Used to identify records and
+    live inputs with offsets (non-zero means).
+
+    Raises
+    ------
+    ValueError
+        If the normal equations do not carry the column sums.
+    """
+    if normal.phi_sum is None or normal.y_sum is None:
+        raise ValueError("these normal equations keep no column sums: cannot remove offsets")
+    n = max(normal.n_rows, 1)
+    s, t = normal.phi_sum, normal.y_sum
+    return NormalEquations(
+        normal.R - np.outer(s, s) / n,
+        normal.r - np.outer(s, t) / n,
+        normal.yy - np.outer(t, t) / n,
+        normal.n_rows,
+        np.zeros_like(s),
+        np.zeros_like(t),
+    )
 
 
 def fit_from_normal_equations(
@@ -318,9 +358,17 @@ def fit_from_normal_equations(
     regularization: str = "ridge",
     penalty: float | str = "gcv",
     decay: float | str = "gcv",
+    *,
+    center: bool = False,
 ) -> ArxFit:
-    """The ARX solution of a window given only its normal equations (see :func:`fit_arx`)."""
+    """The ARX solution of a window given only its normal equations (see :func:`fit_arx`).
+
+    ``center=True`` fits an intercept (offsets of inputs and outputs) along with the
+    coefficients (:func:`center_normal_equations`).
+    """
     p, m = n_outputs, n_inputs
+    if center:
+        normal = center_normal_equations(normal)
     ms = channel_mean_square(normal, p, m, order)
     cond = scaled_condition_number(normal.R)
     chosen_decay: float | None = None
@@ -376,3 +424,87 @@ def solve_fixed_penalty(
     system = normal.R + lam * precision if lam > 0.0 else normal.R
     factor = linalg.cho_factor(system, lower=False, check_finite=False)
     return linalg.cho_solve(factor, normal.r, check_finite=False)
+
+
+@dataclass
+class ArxOrderChoice:
+    """Result of :func:`select_arx_order`.
+
+    Attributes
+    ----------
+    order : the chosen ARX order q.
+    scores : GCV score per row of each order tried (q -> score; lower is better).
+    limited_by : why larger orders were not tried ("" if the candidates ran out or the
+        score rose), e.g. the record length or the cost limit.
+    """
+
+    order: int
+    scores: dict[int, float]
+    limited_by: str = ""
+
+
+def select_arx_order(
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    candidates: tuple[int, ...],
+    min_order: int = 2,
+    max_coefficients: int = 2500,
+    min_rows_per_coefficient: float = 2.0,
+    patience: int = 2,
+    center: bool = False,
+) -> ArxOrderChoice:
+    """Choose the ARX order by generalized cross-validation of the ridge fit.
+
+    The GCV score ``n rss / (n - dof)^2`` of the ridge fit (penalty itself chosen by GCV)
+    estimates the one-step prediction error on new data, so it compares orders fairly. The
+    candidates at or above ``min_order`` are tried in increasing order while the regressor
+    length ``d = m + q (p + m)`` stays within ``max_coefficients`` and the record gives at
+    least ``min_rows_per_coefficient`` rows per coefficient; the search stops ``patience``
+    candidates after the best one.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) one contiguous record.
+    candidates : ARX orders to try.
+    min_order : smallest order allowed (e.g. what the realization's Hankel matrix needs).
+    center : score the fits with an intercept (signals with offsets).
+
+    Raises
+    ------
+    ValueError
+        If no candidate fits the record.
+    """
+    u, y = check_io_arrays(u, y)
+    m, p = u.shape[1], y.shape[1]
+    tried = {max(int(q), 1) for q in candidates if q >= min_order}
+    tried = sorted(tried | ({min_order} if min_order > max(candidates) else set()))
+    scores: dict[int, float] = {}
+    limited_by = ""
+    best_q, best_score, since_best = 0, np.inf, 0
+    for q in tried:
+        d = regressor_length(q, p, m)
+        if d > max_coefficients:
+            limited_by = f"cost: ARX order {q} has {d} coefficients per output (limit {max_coefficients})"
+            break
+        if u.shape[0] - q < min_rows_per_coefficient * d:
+            limited_by = f"record length: ARX order {q} needs {int(min_rows_per_coefficient * d) + q} samples"
+            break
+        phi, targets, _ = arx_regressors(u, y, q)
+        normal = normal_equations(phi, targets)
+        if center:
+            normal = center_normal_equations(normal)
+        precision = prior_precision(q, p, m, channel_mean_square(normal, p, m, q), "ridge")
+        _, _, dof, gcv = solve_normal_equations(normal, precision, "gcv")
+        scores[q] = float(gcv) / normal.n_rows  # per row: orders differ in row count
+        if scores[q] < best_score:
+            best_q, best_score, since_best = q, scores[q], 0
+        else:
+            since_best += 1
+            if since_best >= patience:
+                break
+    if not scores:
+        raise ValueError(
+            f"no ARX order can be fitted to {u.shape[0]} samples with {m} inputs and {p} outputs ({limited_by})"
+        )
+    return ArxOrderChoice(best_q, scores, limited_by if best_q == max(scores) else "")

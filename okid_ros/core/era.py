@@ -1,6 +1,8 @@
 """Eigensystem Realization Algorithm (Juang & Pappa 1985), optionally data-weighted.
 
-Given Markov blocks ``Y_i = C A^{i-1} G`` (i = 1, 2, ...; each (p, r)), the block Hankel matrices
+Given Markov blocks ``Y_i = C A^{i-1} B`` (i = 1, 2, ...; each (p, r); ``B`` is the system's
+input matrix for system Markov parameters and ``[L, Bbar]`` for observer ones), the block
+Hankel matrices
 
     H(s) = [[Y_{1+s},     Y_{2+s},   ..., Y_{c+s}    ],
             [Y_{2+s},     Y_{3+s},   ..., Y_{c+1+s}  ],
@@ -10,7 +12,7 @@ Given Markov blocks ``Y_i = C A^{i-1} G`` (i = 1, 2, ...; each (p, r)), the bloc
 factor as ``H(s) = Gamma A^s Ctrb``. With the SVD ``H(0) W = U S V^T`` truncated to n states,
 
     Gamma = U_n S_n^{1/2},   A = S_n^{-1/2} U_n^T H(1) W V_n S_n^{-1/2},
-    C = Gamma[:p],           G = pinv(Gamma) H(0)[:, :r].
+    C = Gamma[:p],           B = pinv(Gamma) H(0)[:, :r].
 
 ``W = I`` is the paper's ERA. For the observer Markov parameters of an ARX model the block
 columns of ``H(0)`` multiply the past data ``z_k = [v_{k-1}; ...; v_{k-c}]``, so weighting on the
@@ -42,13 +44,13 @@ class Realization:
 
     Attributes
     ----------
-    A : (n, n); G : (n, r) the realized input matrix of the Markov blocks; C : (p, n).
+    A : (n, n); B : (n, r) the realized input matrix of the Markov blocks; C : (p, n).
     singular_values : all singular values of the (weighted) ``H(0)``, descending.
     observability : (p b, n) ``Gamma``.
     """
 
     A: np.ndarray
-    G: np.ndarray
+    B: np.ndarray
     C: np.ndarray
     singular_values: np.ndarray
     observability: np.ndarray
@@ -94,7 +96,7 @@ class HankelDecomposition:
         return int(np.sum(self.s > tol))
 
     def realize(self, n_states: int) -> Realization:
-        """Truncate to ``n_states`` and return ``(A, G, C)``."""
+        """Truncate to ``n_states`` and return ``(A, B, C)``."""
         if not 1 <= n_states <= self.max_states:
             raise ValueError(
                 f"n_states must be in 1..{self.max_states} (the numerical rank of the Hankel matrix), "
@@ -105,8 +107,8 @@ class HankelDecomposition:
         sq = np.sqrt(sn)
         gamma = Un * sq
         A = (Un.T @ self.h1w @ Vn) / np.outer(sq, sq)
-        G = linalg.lstsq(gamma, self.h0[:, :r])[0]
-        return Realization(A=A, G=G, C=gamma[:p].copy(), singular_values=self.s, observability=gamma)
+        B = linalg.lstsq(gamma, self.h0[:, :r])[0]
+        return Realization(A=A, B=B, C=gamma[:p].copy(), singular_values=self.s, observability=gamma)
 
 
 def decompose_hankel(
@@ -119,7 +121,7 @@ def decompose_hankel(
 
     Parameters
     ----------
-    blocks : (K, p, r) Markov blocks, ``blocks[i] = C A^i G`` (the feedthrough excluded).
+    blocks : (K, p, r) Markov blocks, ``blocks[i] = C A^i B`` (the feedthrough excluded).
     n_rows, n_cols : Hankel block rows b and columns c, ``b + c <= K`` (default: split K).
     right_weight : (r c, r c), optional square root ``W`` of the covariance of the past data,
         e.g. a Cholesky factor.
@@ -152,5 +154,5 @@ def era(
     n_cols: int | None = None,
     right_weight: np.ndarray | None = None,
 ) -> Realization:
-    """Realize ``(A, G, C)`` of order ``n_states`` from Markov blocks (see :func:`decompose_hankel`)."""
+    """Realize ``(A, B, C)`` of order ``n_states`` from Markov blocks (see :func:`decompose_hankel`)."""
     return decompose_hankel(blocks, n_rows, n_cols, right_weight).realize(n_states)

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from okid_ros.core.statespace import InnovationModel
+
 __all__ = ["EstimatorOutput", "ModalStateEstimator"]
 
 
@@ -57,43 +59,38 @@ class ModalStateEstimator:
 
     Parameters
     ----------
-    A, B, C, D, K : the model in normalized modal form (paper convention for K).
+    model : the innovation model in normalized modal form (paper convention for K).
     n_physical_states : the first states that belong to physical modes (2 per mode).
-    innovation_covariance : (p, p) ``Re``; needed for the start-up filter.
     initial_covariance : (n, n) or scalar ``P_0`` of the start-up filter; ``None`` runs the
         steady-state filter from the first sample.
+    input_offset, output_offset : (m,), (p,) means removed from the signals before the model
+        applies (``u - input_offset``, ``y - output_offset``); the estimated output has the
+        output offset added back. None: no offsets.
     """
 
     def __init__(
         self,
-        A: np.ndarray,
-        B: np.ndarray,
-        C: np.ndarray,
-        D: np.ndarray,
-        K: np.ndarray,
+        model: InnovationModel,
+        *,
         n_physical_states: int,
-        innovation_covariance: np.ndarray | None = None,
         initial_covariance: np.ndarray | float | None = None,
+        input_offset: np.ndarray | None = None,
+        output_offset: np.ndarray | None = None,
     ) -> None:
-        n, m = B.shape
-        p = C.shape[0]
-        if A.shape != (n, n) or C.shape != (p, n) or D.shape != (p, m) or K.shape != (n, p):
-            raise ValueError(
-                f"inconsistent model shapes A{A.shape} B{B.shape} C{C.shape} D{D.shape} K{K.shape}"
-            )
+        n, m, p = model.n_states, model.n_inputs, model.n_outputs
         if n_physical_states % 2 or not 0 <= n_physical_states <= n:
             raise ValueError(f"n_physical_states must be even and <= {n}, got {n_physical_states}")
         self.n_states, self.n_inputs, self.n_outputs = n, m, p
         self.n_physical_states = n_physical_states
-        self.D = np.asarray(D, dtype=float)
-        self.K_steady = np.asarray(K, dtype=float)
-        self.innovation_covariance = (
-            np.eye(p) if innovation_covariance is None else np.asarray(innovation_covariance, dtype=float)
-        )
+        self.D = model.D
+        self.K_steady = model.K
+        self.innovation_covariance = model.innovation_covariance
+        self.input_offset = np.zeros(m) if input_offset is None else np.asarray(input_offset, float).reshape(m)
+        self.output_offset = np.zeros(p) if output_offset is None else np.asarray(output_offset, float).reshape(p)
         kf = KalmanFilter(dim_x=n, dim_z=p, dim_u=m)
-        kf.F = np.asarray(A, dtype=float)
-        kf.B = np.asarray(B, dtype=float)
-        kf.H = np.asarray(C, dtype=float)
+        kf.F = model.A
+        kf.B = model.B
+        kf.H = model.C
         kf.K = self.K_steady.copy()
         kf.R = self.innovation_covariance.copy()
         kf.x = np.zeros((n, 1))
@@ -107,17 +104,13 @@ class ModalStateEstimator:
 
     @classmethod
     def from_model(cls, model, initial_covariance: np.ndarray | float | None = None) -> "ModalStateEstimator":
-        """Build from an :class:`okid_ros.core.pipeline.IdentifiedModel` (or any object with
-        ``A, B, C, D, K, innovation_covariance`` and ``n_physical_states``)."""
+        """Build from an ``IdentifiedModel`` (its physical states and offsets)."""
         return cls(
-            model.A,
-            model.B,
-            model.C,
-            model.D,
-            model.K,
-            model.n_physical_states,
-            model.innovation_covariance,
-            initial_covariance,
+            model,
+            n_physical_states=model.n_physical_states,
+            initial_covariance=initial_covariance,
+            input_offset=getattr(model, "input_offset", None),
+            output_offset=getattr(model, "output_offset", None),
         )
 
     @property
@@ -144,15 +137,15 @@ class ModalStateEstimator:
 
     def step(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,))."""
-        u = np.asarray(u, dtype=float).reshape(self.n_inputs)
-        y = np.asarray(y, dtype=float).reshape(self.n_outputs)
+        u = np.asarray(u, dtype=float).reshape(self.n_inputs) - self.input_offset
+        y = np.asarray(y, dtype=float).reshape(self.n_outputs) - self.output_offset
         if self._start_up:
             self._start_up_gain()
         du = self.D @ u
         self.kf.update_steadystate(y - du)
         innovation = self.kf.y[:, 0].copy()
         x_post = self.kf.x[:, 0].copy()
-        y_est = self.kf.H @ x_post + du
+        y_est = self.kf.H @ x_post + du + self.output_offset
         self.kf.predict_steadystate(u.reshape(self.n_inputs, 1))
         return x_post, y_est, innovation
 

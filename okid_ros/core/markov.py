@@ -11,7 +11,7 @@ System Markov parameters (paper Eq. 24)
     holds with process and measurement noise. Its continuation beyond ``q`` (Eq. 28,
     ``C A^j B = sum_i A_i C A^{j-i} B``) holds only **without process noise**, so by default
     only ``q + 1`` terms are returned. This is the paper's route to ERA; it amplifies junk ARX
-    input coefficients in unexcited bands (see ``../shared/identification-findings.md``).
+    input coefficients in unexcited bands (see ``docs/method.md``).
 
 Observer (Kalman-predictor) Markov parameters
     In the innovation form ``x_{k+1} = A x_k + B u_k + A K e_k`` the optimal predictor is
@@ -31,7 +31,6 @@ from okid_ros.core.arx import ArxFit
 
 __all__ = [
     "markov_from_arx",
-    "observer_markov_from_arx",
     "markov_from_state_space",
     "stochastic_markov_from_state_space",
 ]
@@ -70,14 +69,6 @@ def markov_from_arx(arx: ArxFit, n_terms: int | None = None, extend_noise_free: 
             acc += a_coef[i - 1] @ markov[j - i + 1]
         markov[j + 1] = acc
     return markov
-
-
-def observer_markov_from_arx(arx: ArxFit) -> np.ndarray:
-    """Observer Markov parameters ``C Abar^{i-1} [L, Bbar]``, i = 1..q: shape (q, p, p + m).
-
-    These are the ARX lag blocks ``[A_i, B_i]`` themselves (see module docstring).
-    """
-    return arx.observer_markov
 
 
 def markov_from_state_space(

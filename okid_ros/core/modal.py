@@ -35,10 +35,13 @@ Accuracy indicators per mode
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
+
+from okid_ros.core.options import ModeCriteria
 
 __all__ = [
     "Mode",
@@ -51,9 +54,8 @@ __all__ = [
     "match_modes",
 ]
 
-DEFAULT_MAX_DAMPING = 0.1
-DEFAULT_MAX_NYQUIST_FRACTION = 0.95
-DEFAULT_MIN_MSV = 1e-3
+#: MPC says something about a shape only with this many outputs (with one it is always 1).
+MIN_OUTPUTS_FOR_MPC = 3
 
 
 @dataclass
@@ -72,7 +74,11 @@ class Mode:
     physical: bool
     id: int = 0
     mac_previous: float = float("nan")
+    stability: float = float("nan")  # fraction of neighbouring model orders with the same pole
     extras: dict = field(default_factory=dict)
+    # Standard deviations (okid_ros.core.uncertainty); NaN until computed or when not computable.
+    frequency_hz_std: float = float("nan")
+    damping_ratio_std: float = float("nan")
 
     def as_dict(self) -> dict:
         """JSON-ready summary (no complex numbers)."""
@@ -85,7 +91,10 @@ class Mode:
             "msv": float(self.msv),
             "emac": float(self.emac),
             "mac_previous": None if np.isnan(self.mac_previous) else float(self.mac_previous),
+            "stability": None if np.isnan(self.stability) else float(self.stability),
             "stable": bool(self.stable),
+            "frequency_hz_std": None if np.isnan(self.frequency_hz_std) else float(self.frequency_hz_std),
+            "damping_ratio_std": None if np.isnan(self.damping_ratio_std) else float(self.damping_ratio_std),
             "shape_real": [float(x) for x in self.shape.real],
             "shape_imag": [float(x) for x in self.shape.imag],
         }
@@ -179,20 +188,23 @@ def identify_modes(
     C: np.ndarray,
     sample_time_s: float,
     reference_markov: np.ndarray | None = None,
-    max_damping: float = DEFAULT_MAX_DAMPING,
-    max_nyquist_fraction: float = DEFAULT_MAX_NYQUIST_FRACTION,
-    min_msv: float = DEFAULT_MIN_MSV,
+    *,
+    criteria: ModeCriteria | None = None,
 ) -> tuple[list[Mode], np.ndarray]:
     """All complex-pair modes of ``A``, with indicators and a physical flag.
 
     A mode is *physical* if it is stable, its damping ratio is in [0, max_damping), its
-    frequency is below ``max_nyquist_fraction`` of Nyquist, and its relative MSV is at least
-    ``min_msv`` (the input reaches it and the output sees it).
+    frequency is below ``max_nyquist_fraction`` of Nyquist, its relative MSV is at least
+    ``min_msv`` (the input reaches it and the output sees it) and, with at least
+    ``MIN_OUTPUTS_FOR_MPC`` outputs, its MPC is at least ``min_mpc`` (criteria of
+    :class:`okid_ros.core.options.ModeCriteria`; the stability across model orders is judged
+    by :mod:`okid_ros.core.stabilization`).
 
     Parameters
     ----------
     A : (n, n); B : (n, m); C : (p, n).
     reference_markov : optional (J, p, m) ``Y_j = C A^{j-1} B`` for EMAC (``Y_0 = D`` excluded).
+    criteria : the physical-mode criteria (default: :class:`ModeCriteria` defaults).
 
     Returns
     -------
@@ -200,6 +212,8 @@ def identify_modes(
     eigenvectors : (n, len(modes)) complex eigenvectors ``psi`` of the listed modes, normalized
         as described in the module docstring.
     """
+    criteria = ModeCriteria() if criteria is None else criteria
+    check_mpc = C.shape[0] >= MIN_OUTPUTS_FOR_MPC
     z, psi = linalg.eig(A)
     chi = linalg.inv(psi)
     s = continuous_poles(z, sample_time_s)
@@ -208,7 +222,10 @@ def identify_modes(
     c_psi = C @ psi
     b_chi = chi @ B
     residues = np.einsum("pi,im->ipm", c_psi, b_chi)
-    msv = np.array([np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12)) for i in upper])
+    msv = np.array([
+        np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12))
+        for i in upper
+    ])
     # Relative to the largest *stable* mode: an unstable pole's MSV is unbounded.
     stable_msv = msv[np.abs(z[upper]) < 1.0]
     scale = stable_msv.max() if stable_msv.size and stable_msv.max() > 0 else (msv.max() if msv.size else 1.0)
@@ -234,9 +251,10 @@ def identify_modes(
         stable = bool(abs(z[i]) < 1.0)
         physical = bool(
             stable
-            and 0.0 <= zeta < max_damping
-            and w < max_nyquist_fraction * nyquist_rad_s
-            and msv_rel[idx] >= min_msv
+            and 0.0 <= zeta < criteria.max_damping
+            and w < criteria.max_nyquist_fraction * nyquist_rad_s
+            and msv_rel[idx] >= criteria.min_msv
+            and (not check_mpc or mpc(shape_unit) >= criteria.min_mpc)
         )
         modes.append(
             Mode(
@@ -266,14 +284,25 @@ def modal_form(
     K: np.ndarray,
     sample_time_s: float,
     reference_markov: np.ndarray | None = None,
-    **criteria,
+    *,
+    criteria: ModeCriteria | None = None,
+    stability: Callable[[Mode], float] | None = None,
 ) -> ModalForm:
     """Transform an innovation-form model to the normalized real modal form.
 
-    ``criteria`` are passed to :func:`identify_modes` (``max_damping`` and so on).
+    ``criteria`` are passed to :func:`identify_modes`. ``stability(mode)`` gives the fraction
+    of neighbouring model orders in which the mode is found (:mod:`okid_ros.core.stabilization`;
+    NaN: not judged); a physical mode below ``criteria.min_stable_fraction`` is listed as
+    non-physical.
     """
     n = A.shape[0]
-    modes, vecs = identify_modes(A, B, C, sample_time_s, reference_markov, **criteria)
+    criteria = ModeCriteria() if criteria is None else criteria
+    modes, vecs = identify_modes(A, B, C, sample_time_s, reference_markov, criteria=criteria)
+    if stability is not None:
+        for mode in modes:
+            if mode.physical:
+                mode.stability = float(stability(mode))
+                mode.physical = not mode.stability < criteria.min_stable_fraction
     physical = [i for i, m in enumerate(modes) if m.physical]
     others = [i for i, m in enumerate(modes) if not m.physical]
     columns = []

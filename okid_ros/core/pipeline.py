@@ -2,128 +2,68 @@
 
 Two methods share the steps of the paper:
 
-``method="okid"`` (default, robust)
-    1. ARX of order q, ridge-regularized with the penalty chosen by GCV (:mod:`.arx`).
-    2. Observer Markov parameters ``C Abar^{i-1} [L, Bbar]`` = the ARX lag blocks (:mod:`.markov`).
-    3. ERA on them, with the Hankel matrix weighted on the right by a square root of the
+``method="okid"`` (default, robust; each step is a module)
+    1. Offsets: the record's means are removed (``offsets="remove"``) and kept with the model.
+    2. ARX of order q, ridge-regularized with the penalty chosen by GCV; q itself chosen by GCV
+       unless given (:mod:`.arx`).
+    3. Observer Markov parameters ``C Abar^{i-1} [L, Bbar]`` = the ARX lag blocks (:mod:`.markov`).
+    4. ERA on them, with the Hankel matrix weighted on the right by a square root of the
        covariance of the past data (:mod:`.era`): ``Abar`` and ``C`` for every candidate order.
-    4. ``L``, ``Bbar``, ``D``, ``x0`` refitted by least squares for each order (:mod:`.refit`);
-       the order with the lowest BIC of the refitted predictor wins (or the order given).
-    5. ``A = Abar + L C``, ``B = Bbar + L D``, ``K = A^{-1} L``; normalized modal form
-       (:mod:`.modal`); the full-order predictor is kept, only physical modes are listed.
-    Optionally ``gain="whitening"`` replaces the refitted K by the paper's method (:mod:`.gain`).
+    5. Completion into ``(A, B, C, D, K)`` for each order: least-squares refit of the predictor
+       (:mod:`.refit`, few outputs) or regressions on the state sequence with a stable ``A``
+       and the Riccati gain (:mod:`.state_completion`, many outputs, and whenever the refit
+       leaves ``A`` unstable or ``gain="riccati"``); the order with the lowest BIC wins, the
+       search going past ``max_states`` while BIC is lowest at the limit.
+    6. Optional prediction-error refinement that keeps ``A`` and the predictor stable
+       (:mod:`.refine`); the chosen order's state sequence re-estimated (:mod:`.state_completion`).
+    7. Modes in normalized modal form (:mod:`.modal`), physical only when stable across the
+       neighbouring orders (:mod:`.stabilization`); the full-order predictor is kept; the
+       standard deviation of each mode's frequency and damping (:mod:`.uncertainty`).
+    8. The model is checked (stable ``A``, stable predictor, finite) before it is returned.
 
 ``method="paper"`` (the paper as published)
     Unregularized ARX, system Markov parameters by Eq. (24), ERA on them, ``D = B_0`` and K by
     AR whitening and polynomial inversion. It fails when the input leaves part of the band
-    unexcited (see ``../shared/identification-findings.md``); kept for comparison.
+    unexcited (``docs/method.md``); kept for comparison, and checked like every model.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations
-from okid_ros.core.era import HankelDecomposition, decompose_hankel, default_hankel_size
+from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations, select_arx_order
+from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
-from okid_ros.core.markov import markov_from_arx, stochastic_markov_from_state_space
-from okid_ros.core.modal import ModalForm, Mode, modal_form
+from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
+from okid_ros.core.markov import markov_from_arx
+from okid_ros.core.modal import modal_form
+from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
+from okid_ros.core.order_search import Completer, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
-from okid_ros.core.refit import PredictorFit, fit_from_states, refit_predictor
+from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
-from okid_ros.core.statespace import one_step_prediction
+from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
+from okid_ros.core.statespace import InnovationModel
+from okid_ros.core.uncertainty import attach_mode_uncertainty
 
-__all__ = ["IdentifiedModel", "IdentificationError", "identify", "identify_from_arx"]
+__all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
 METHODS = ("okid", "paper")
-GAINS = ("refit", "whitening")
-COMPLETIONS = ("auto", "predictor", "states")
-# Above this many flops for the refit's normal equations, "auto" completes from states instead
-# (2e10 is ~1 s here; the paper case needs 2e8, 28 outputs need 3e11).
-PREDICTOR_REFIT_FLOP_LIMIT = 2e10
 # The prediction-error refinement forms J^T J (N p residuals x parameters^2 flops) per iteration:
 # skip it for models where that gets slow (measured: 6 outputs, 15000 samples, 312 parameters
 # took 3 minutes); the paper case needs 4e7 flops per iteration.
 MAX_REFINE_PARAMETERS = 400
 MAX_REFINE_FLOPS_PER_ITERATION = 2e9
-# The automatic order search stops this many states past the best BIC so far.
-ORDER_SEARCH_PATIENCE = 8
+# An offset this large against the channel's standard deviation is worth a warning.
+LARGE_OFFSET_FRACTION = 0.1
 
 
-class IdentificationError(ValueError):
-    """The data or the options cannot give a model; the message says why."""
-
-
-@dataclass
-class IdentifiedModel:
-    """An identified innovation-form model in normalized modal form (paper convention).
-
-    ``x_{k+1} = A x_k + B u_k + A K e_k``, ``y_k = C x_k + D u_k + e_k``, ``cov(e) =
-    innovation_covariance``. The first ``2 len(modes)`` states are the physical modes' blocks.
-    """
-
-    sample_time_s: float
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray
-    D: np.ndarray
-    K: np.ndarray
-    innovation_covariance: np.ndarray
-    hankel_singular_values: np.ndarray
-    modes: list[Mode]
-    arx: ArxFit
-    method: str = "okid"
-    gain_method: str = "refit"
-    order_scores: dict = field(default_factory=dict)
-    x0: np.ndarray | None = None
-    system_markov: np.ndarray | None = None
-    completion: str = "predictor"
-    refined: bool = False
-
-    @property
-    def n_states(self) -> int:
-        return int(self.A.shape[0])
-
-    @property
-    def n_physical_states(self) -> int:
-        return 2 * len(self.modes)
-
-    def stochastic_markov(self, n_terms: int) -> np.ndarray:
-        """``C A^i K`` for i = 1..n_terms: (n_terms, p, p) (paper Fig. 3)."""
-        return stochastic_markov_from_state_space(self.A, self.C, self.K, n_terms)
-
-    def to_json_dict(self) -> dict:
-        """The ``identify --json`` document (nested lists, damping ratios as fractions)."""
-        return {
-            "sample_time_s": float(self.sample_time_s),
-            "n_states": self.n_states,
-            "n_inputs": int(self.B.shape[1]),
-            "n_outputs": int(self.C.shape[0]),
-            "method": self.method,
-            "gain_method": self.gain_method,
-            "completion": self.completion,
-            "refined": self.refined,
-            "arx_order": int(self.arx.order),
-            "arx_regularization": self.arx.regularization,
-            "arx_penalty": float(self.arx.penalty),
-            "condition_number": float(self.arx.condition_number),
-            "A": self.A.tolist(),
-            "B": self.B.tolist(),
-            "C": self.C.tolist(),
-            "D": self.D.tolist(),
-            "K": self.K.tolist(),
-            "K_convention": "x[k+1] = A x[k] + B u[k] + A K e[k]; y[k] = C x[k] + D u[k] + e[k]",
-            "innovation_covariance": self.innovation_covariance.tolist(),
-            "hankel_singular_values": [float(s) for s in self.hankel_singular_values],
-            "order_scores": {str(k): float(v) for k, v in self.order_scores.items()},
-            "modes": [m.as_dict() for m in self.modes],
-        }
-
-
-def _past_data(u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _past_data(
+    u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Past-data vectors ``z_k = [v_{k-1}; ...; v_{k-c}]`` and a square root of their covariance.
 
     Returns
@@ -139,66 +79,66 @@ def _past_data(u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | No
     return z, rows, linalg.cholesky(cov + jitter * np.eye(cov.shape[0]), lower=True)
 
 
-def _choose_completion(completion: str, n_samples: int, n_outputs: int, n_inputs: int, max_states: int) -> str:
-    """"predictor" (LS refit) while its normal equations stay cheap, else "states"."""
-    if completion != "auto":
-        return completion
-    flops = n_samples * n_outputs * (max_states * (n_outputs + n_inputs)) ** 2
-    return "predictor" if flops <= PREDICTOR_REFIT_FLOP_LIMIT else "states"
+def _remove_offsets(
+    u: np.ndarray, y: np.ndarray, offsets: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """Means removed (``offsets="remove"``) or zero offsets; warnings for large offsets."""
+    if offsets not in OFFSETS:
+        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    u_mean, y_mean = u.mean(axis=0), y.mean(axis=0)
+    warnings = []
+    for name, mean, data in (("input", u_mean, u), ("output", y_mean, y)):
+        std = data.std(axis=0)
+        large = np.flatnonzero(np.abs(mean) > LARGE_OFFSET_FRACTION * np.maximum(std, np.finfo(float).tiny))
+        if large.size:
+            listed = ", ".join(
+                f"{name} {i}: {mean[i]:.4g} ({abs(mean[i]) / max(std[i], 1e-300):.2f} std)" for i in large[:4]
+            )
+            action = "removed" if offsets == "remove" else "NOT removed (offsets='none')"
+            warnings.append(f"large offsets {action}: {listed}{' ...' if large.size > 4 else ''}")
+    if offsets == "none":
+        return u, y, np.zeros(u.shape[1]), np.zeros(y.shape[1]), warnings
+    return u - u_mean, y - y_mean, u_mean, y_mean, warnings
 
 
-def _candidate_orders(n_states: int | str, decomposition: HankelDecomposition, max_states: int) -> list[int]:
-    limit = min(decomposition.max_states, max_states)
-    if n_states == "auto":
-        return list(range(2, limit + 1, 2)) or [1]
-    n = int(n_states)
-    if not 1 <= n <= decomposition.max_states:
-        raise IdentificationError(
-            f"--states {n} is not supported: the Hankel matrix of these data has numerical rank "
-            f"{decomposition.max_states}"
-        )
-    return [n]
+# ----------------------------------------------------------------------------- the chain
 
 
-def _finish(
-    fit: PredictorFit,
-    arx: ArxFit,
+def _refine(
+    best: PredictorFit, u: np.ndarray, y: np.ndarray, arx: ArxFit, options: RealizationOptions
+) -> PredictorFit | None:
+    """Step 6: the prediction-error refinement, when affordable (None: not run or no gain)."""
+    model = best.model
+    n_par = refinement_size(model.n_states, model.n_outputs, model.n_inputs)
+    if not options.refine or n_par > MAX_REFINE_PARAMETERS or y.size * n_par**2 > MAX_REFINE_FLOPS_PER_ITERATION:
+        return None
+    return refine_prediction_error(model, u, y, burn_in=arx.order)
+
+
+def _package(
+    model: InnovationModel,
+    x0: np.ndarray,
     sample_time_s: float,
-    singular_values: np.ndarray,
-    gain_method: str,
-    scores: dict,
-    u: np.ndarray,
-    y: np.ndarray,
-    ar_order: int | None,
-    mode_criteria: dict,
+    arx: ArxFit,
+    reference_markov: np.ndarray,
+    options: RealizationOptions,
+    stability=None,
+    **fields: Any,
 ) -> IdentifiedModel:
-    """Optional whitening gain, modal form and packaging of the chosen predictor."""
-    K, cov = fit.K, fit.innovation_covariance
-    if gain_method == "whitening":
-        white = gain_by_whitening(fit.A, fit.B, fit.C, fit.D, u, y, ar_order=ar_order or arx.order, x0=fit.x0)
-        K, cov = white.K, white.innovation_covariance
-    system_markov = markov_from_arx(arx)
-    form: ModalForm = modal_form(fit.A, fit.B, fit.C, K, sample_time_s, system_markov[1:], **mode_criteria)
-    T_inv = linalg.inv(form.T)
+    """Step 7-8: normalized modal form, physical modes, the final checks."""
+    form = modal_form(model.A, model.B, model.C, model.K, sample_time_s, reference_markov,
+                      criteria=options.modes, stability=stability)
     for i, mode in enumerate(form.modes):
         mode.id = i
-    return IdentifiedModel(
-        sample_time_s=sample_time_s,
-        A=form.A,
-        B=form.B,
-        C=form.C,
-        D=fit.D,
-        K=form.K,
-        innovation_covariance=cov,
-        hankel_singular_values=singular_values,
-        modes=form.modes,
-        arx=arx,
-        method="okid",
-        gain_method=gain_method,
-        order_scores=scores,
-        x0=T_inv @ fit.x0,
-        system_markov=system_markov,
+    identified = IdentifiedModel(
+        A=form.A, B=form.B, C=form.C, D=model.D, K=form.K,
+        innovation_covariance=model.innovation_covariance, sample_time_s=sample_time_s,
+        modes=form.modes, arx=arx, x0=linalg.solve(form.T, x0), **fields,
     )
+    problem = identified.stability_problem()
+    if problem:
+        raise IdentificationError(f"refused: {problem}")
+    return identified
 
 
 def identify_from_arx(
@@ -206,172 +146,163 @@ def identify_from_arx(
     u: np.ndarray,
     y: np.ndarray,
     sample_time_s: float,
-    n_states: int | str = "auto",
-    max_states: int = 40,
-    hankel_rows: int | None = None,
-    hankel_cols: int | None = None,
-    gain: str = "refit",
+    *,
+    options: RealizationOptions | None = None,
     valid: np.ndarray | None = None,
-    ar_order: int | None = None,
-    completion: str = "auto",
-    refine: bool = True,
-    **mode_criteria,
+    offsets: str = "remove",
+    **option_changes: Any,
 ) -> IdentifiedModel:
-    """Steps 2-5 of the robust chain on an identified ARX model and the data of its window.
+    """Steps 3-8 of the robust chain on an identified ARX model and the data of its window.
 
     Parameters
     ----------
     arx : the (regularized) ARX model of the window.
-    u : (N, m); y : (N, p) the samples of the window, contiguous (used for the weighting and the
-        least-squares refit).
+    u : (N, m); y : (N, p) the samples of the window, contiguous (used for the weighting, the
+        completion and the refinement).
     sample_time_s : sample time in seconds.
-    n_states : model order, or "auto" for the lowest BIC over even orders up to ``max_states``.
-    hankel_rows, hankel_cols : ERA block sizes (default: split the q observer Markov blocks).
-    gain : "refit" (least squares, default) or "whitening" (the paper's method).
+    options : :class:`~okid_ros.core.options.RealizationOptions` (default: its defaults).
     valid : (N,) bool, optional mask of trustworthy samples (for the weighting only).
-    ar_order : order of the whitening filter when ``gain="whitening"`` (default: q).
-    completion : how the realization is completed into ``(A, B, C, D, K)``: "predictor"
-        (least-squares refit of ``L``, ``Bbar``, ``D`` for the realized ``Abar``, ``C``),
-        "states" (regressions on the predictor-based state sequence; fast with many outputs)
-        or "auto" (the refit unless it is expensive); see :mod:`okid_ros.core.refit`.
-    refine : finish with the prediction-error refinement of :mod:`okid_ros.core.refine` (skipped
-        above ``MAX_REFINE_PARAMETERS`` or ``MAX_REFINE_FLOPS_PER_ITERATION``; kept only if it
-        lowers the cost).
-    mode_criteria : passed to :func:`okid_ros.core.modal.identify_modes`.
+    offsets : "remove" (the window's means are removed and kept with the model) or "none".
+    option_changes : individual options (``n_states=8``, ``max_damping=0.05``, ...) applied on
+        top of ``options``.
+
+    Raises
+    ------
+    IdentificationError with a one-line reason.
     """
-    if gain not in GAINS:
-        raise IdentificationError(f"gain must be one of {GAINS}, got {gain!r}")
-    if completion not in COMPLETIONS:
-        raise IdentificationError(f"completion must be one of {COMPLETIONS}, got {completion!r}")
-    u, y = check_io_arrays(u, y)
+    try:
+        options = (options or RealizationOptions()).with_changes(**option_changes)
+        u, y = check_io_arrays(u, y)
+    except (TypeError, ValueError) as exc:
+        raise IdentificationError(str(exc)) from None
+    u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
     blocks = arx.observer_markov  # (q, p, p + m): C Abar^{i-1} [L, Bbar]
-    if hankel_rows is None or hankel_cols is None:
-        rows, cols = default_hankel_size(blocks.shape[0] - 1)
-        hankel_rows = rows if hankel_rows is None else hankel_rows
-        hankel_cols = cols if hankel_cols is None else hankel_cols
+    rows, cols = default_hankel_size(blocks.shape[0] - 1)
+    hankel_rows = options.hankel_rows or rows
+    hankel_cols = options.hankel_cols or cols
     z, z_rows, weight = _past_data(u, y, hankel_cols, valid)
     decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, weight)
-    orders = _candidate_orders(n_states, decomposition, max_states)
-    completion = _choose_completion(completion, u.shape[0], y.shape[1], u.shape[1], max(orders))
-    if completion == "states":
-        # States of every candidate order at once: xhat_k = S^-1/2 U^T H(0) z_k.
-        top = max(orders)
-        projected = z @ (decomposition.U[:, :top].T @ decomposition.h0).T
-        projected /= np.sqrt(decomposition.s[:top])
-        contiguous = np.all(np.diff(z_rows) == 1)
-        if not contiguous:
-            raise IdentificationError("the state completion needs a contiguous record (no gaps)")
-    scores: dict[int, float] = {}
-    best: PredictorFit | None = None
-    best_score, best_n = np.inf, 0
-    reasons = []
-    for n in orders:
-        try:
-            if completion == "states":
-                fit = fit_from_states(projected[:, :n], u[z_rows], y[z_rows])
-            else:
-                realization = decomposition.realize(n)
-                fit = refit_predictor(realization.A, realization.C, u, y)
-        except (ValueError, linalg.LinAlgError) as exc:
-            reasons.append(f"n={n}: {exc}")
-            continue
-        scores[n] = fit.bic()
-        if scores[n] < best_score:
-            best, best_score, best_n = fit, scores[n], n
-        elif n_states == "auto" and n >= best_n + ORDER_SEARCH_PATIENCE:
-            break  # BIC has not improved for a while: larger orders only add spurious states
-    if best is None:
-        raise IdentificationError("no model order gave a usable predictor: " + "; ".join(reasons[:3]))
-    refined = False
-    n_par = refinement_size(best.A.shape[0], y.shape[1], u.shape[1])
-    if refine and n_par <= MAX_REFINE_PARAMETERS and y.size * n_par**2 <= MAX_REFINE_FLOPS_PER_ITERATION:
-        better = refine_prediction_error(best.A, best.B, best.C, best.D, best.K, u, y, burn_in=arx.order)
-        if better is not None:
-            best, refined = better, True
-    if completion == "states":
-        # Express x0 at the first sample of the record for the estimator's warm start.
-        u, y = u[z_rows], y[z_rows]
-    model = _finish(best, arx, sample_time_s, decomposition.s, gain, scores, u, y, ar_order, mode_criteria)
-    model.completion = completion
-    model.refined = refined
-    return model
+    search_top = options.max_states if options.automatic_order else int(options.n_states)
+    completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
+    completer = Completer(decomposition, z, z_rows, u, y, completion, options, burn_in=arx.order)
+    search = search_orders(completer, options)
+    n_best = search.best_order() if options.automatic_order else int(options.n_states)
+    best = search.fits[n_best]
+    if completion == "states" or (options.state_passes and n_best in completer.via_states):
+        # The search screened the orders; complete the chosen one (gain, re-estimation passes).
+        best = completer.complete(n_best, passes=options.state_passes)
+    refined = _refine(best, u, y, arx, options)
+    if refined is not None:
+        best = refined
+    model = best.model
+    gain_method = options.gain
+    if options.gain == "whitening":
+        white = gain_by_whitening(model.A, model.B, model.C, model.D, u, y,
+                                  ar_order=options.ar_order or arx.order, x0=best.x0)
+        model = InnovationModel(model.A, model.B, model.C, model.D, white.K, white.innovation_covariance)
+    if search.max_states_reached:
+        warnings.append(
+            f"BIC is lowest at the largest model order the search could try ({max(search.fits)} states, "
+            f"limited by {search.limit_reason}); the model may need more states"
+        )
+    diagram = stabilization_diagram({n: fit.model for n, fit in search.fits.items()}, sample_time_s, options.modes)
+    system_markov = markov_from_arx(arx)
+    identified = _package(
+        model, best.x0, sample_time_s, arx, system_markov[1:], options,
+        stability=lambda mode: stable_fraction(mode, diagram, n_best, options.modes),
+        hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
+        order_scores={n: fit.bic() for n, fit in search.fits.items()}, stabilization=diagram,
+        system_markov=system_markov, completion=completion, refined=refined is not None,
+        input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
+        warnings=warnings,
+    )
+    # Step 7b: standard deviations of every mode's frequency and damping (on the offset-free data).
+    identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
+    return identified
 
 
 def _identify_paper(
-    arx: ArxFit,
-    u: np.ndarray,
-    y: np.ndarray,
-    sample_time_s: float,
-    n_states: int | str,
-    hankel_rows: int | None,
-    hankel_cols: int | None,
-    ar_order: int | None,
-    mode_criteria: dict,
+    arx: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, options: RealizationOptions,
+    u_offset: np.ndarray, y_offset: np.ndarray, warnings: list[str],
 ) -> IdentifiedModel:
     system_markov = markov_from_arx(arx)  # (q + 1, p, m): D, CB, CAB, ...
-    decomposition = decompose_hankel(system_markov[1:], hankel_rows, hankel_cols)
-    if n_states == "auto":
+    decomposition = decompose_hankel(system_markov[1:], options.hankel_rows, options.hankel_cols)
+    if options.automatic_order:
         # The paper counts the significant singular values: take the largest gap.
         s = decomposition.s[: decomposition.max_states]
         n = int(np.argmax(s[:-1] / s[1:]) + 1) if s.size > 1 else 1
     else:
-        n = int(n_states)
+        n = int(options.n_states)
         if not 1 <= n <= decomposition.max_states:
-            raise IdentificationError(f"--states {n} exceeds the Hankel rank {decomposition.max_states}")
+            raise IdentificationError(f"{n} states exceed the Hankel rank {decomposition.max_states}")
     real = decomposition.realize(n)
-    A, B, C, D = real.A, real.G, real.C, arx.D
-    white = gain_by_whitening(A, B, C, D, u, y, ar_order=ar_order or arx.order)
-    form = modal_form(A, B, C, white.K, sample_time_s, system_markov[1:], **mode_criteria)
-    for i, mode in enumerate(form.modes):
-        mode.id = i
-    return IdentifiedModel(
-        sample_time_s=sample_time_s,
-        A=form.A,
-        B=form.B,
-        C=form.C,
-        D=D,
-        K=form.K,
-        innovation_covariance=white.innovation_covariance,
-        hankel_singular_values=decomposition.s,
-        modes=form.modes,
-        arx=arx,
-        method="paper",
-        gain_method="whitening",
-        system_markov=system_markov,
+    white = gain_by_whitening(real.A, real.B, real.C, arx.D, u, y, ar_order=options.ar_order or arx.order)
+    model = InnovationModel(real.A, real.B, real.C, arx.D, white.K, white.innovation_covariance)
+    return _package(
+        model, np.zeros(n), sample_time_s, arx, system_markov[1:], options,
+        hankel_singular_values=decomposition.s, method="paper", gain_method="whitening",
+        system_markov=system_markov, input_offset=u_offset, output_offset=y_offset, warnings=warnings,
     )
+
+
+def choose_arx_order(
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    options: RealizationOptions | None = None,
+    arx_orders: ArxOrderOptions | None = None,
+    center: bool = True,
+) -> tuple[int, dict]:
+    """Step 2a: the ARX order by GCV, at least what the realization's Hankel matrix needs.
+
+    ``center``: the fits take the offsets as an intercept (as ``offsets="remove"`` does).
+
+    Returns
+    -------
+    order : the chosen q; scores : GCV score per row of each order tried.
+    """
+    options = options or RealizationOptions()
+    arx_orders = arx_orders or ArxOrderOptions()
+    p = y.shape[1]
+    states = options.max_states if options.automatic_order else int(options.n_states)
+    # ERA needs p * (Hankel block rows) >= states; the rows are about half the lags.
+    min_order = 2 * int(np.ceil(states / p)) + 1
+    try:
+        choice = select_arx_order(
+            u, y, candidates=arx_orders.candidates, min_order=min_order,
+            max_coefficients=arx_orders.max_coefficients,
+            min_rows_per_coefficient=arx_orders.min_rows_per_coefficient, center=center,
+        )
+    except ValueError as exc:
+        raise IdentificationError(str(exc)) from None
+    return choice.order, choice.scores
 
 
 def identify(
     u: np.ndarray,
     y: np.ndarray,
     sample_time_s: float,
-    order: int = 100,
-    n_states: int | str = "auto",
+    *,
+    order: int | str = AUTO,
     method: str = "okid",
     regularization: str | None = None,
-    gain: str = "refit",
-    ar_order: int | None = None,
-    max_states: int = 40,
-    hankel_rows: int | None = None,
-    hankel_cols: int | None = None,
-    completion: str = "auto",
-    refine: bool = True,
-    **mode_criteria,
+    offsets: str = "remove",
+    options: RealizationOptions | None = None,
+    arx_orders: ArxOrderOptions | None = None,
+    **option_changes: Any,
 ) -> IdentifiedModel:
     """Identify an innovation-form model in modal form from one input/output record.
 
     Parameters
     ----------
     u : (N, m) inputs; y : (N, p) outputs; sample_time_s : sample time in seconds.
-    order : ARX order q (paper: 100).
-    n_states : model order n, or "auto".
+    order : ARX order q (the paper: 100), or "auto" (chosen by GCV, :func:`select_arx_order`).
     method : "okid" (robust, default) or "paper" (as published).
     regularization : ARX regularization "ridge" (okid default), "tc", or "none" (paper default).
-    gain : "refit" or "whitening" (okid method only; the paper method always whitens).
-    ar_order : order r of the whitening AR filter (default: q).
-    max_states : upper bound of the automatic order search.
-    completion : "auto", "predictor" or "states" (see :func:`identify_from_arx`).
-    refine : prediction-error refinement as the last step (see :func:`identify_from_arx`).
+    offsets : "remove" (the record's means, kept with the model; default) or "none".
+    options : :class:`~okid_ros.core.options.RealizationOptions` of the realization.
+    arx_orders : :class:`~okid_ros.core.options.ArxOrderOptions` of ``order="auto"``.
+    option_changes : individual realization options (``n_states=6``, ``refine=False``, ...).
 
     Raises
     ------
@@ -381,13 +312,23 @@ def identify(
         raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
     if not np.isfinite(sample_time_s) or sample_time_s <= 0:
         raise IdentificationError(f"sample_time_s must be a positive number, got {sample_time_s}")
-    if order < 2:
-        raise IdentificationError(f"ARX order must be >= 2, got {order}")
     try:
+        options = (options or RealizationOptions()).with_changes(**option_changes)
         u, y = check_io_arrays(u, y)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise IdentificationError(str(exc)) from None
     m, p = u.shape[1], y.shape[1]
+    if offsets not in OFFSETS:
+        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    # The ARX fit takes the offsets as an intercept and identify_from_arx removes the record's
+    # means before the completion, exactly as the live window does: same samples, same model.
+    center = offsets == "remove"
+    arx_scores: dict = {}
+    if order == AUTO:
+        order, arx_scores = choose_arx_order(u, y, options=options, arx_orders=arx_orders, center=center)
+    order = int(order)
+    if order < 2:
+        raise IdentificationError(f"ARX order must be >= 2, got {order}")
     d = regressor_length(order, p, m)
     needed = order + d + 1
     if u.shape[0] < needed:
@@ -399,18 +340,13 @@ def identify(
         regularization = "none" if method == "paper" else "ridge"
     phi, targets, _ = arx_regressors(u, y, order)
     try:
-        arx = fit_from_normal_equations(normal_equations(phi, targets), order, p, m, regularization)
+        arx = fit_from_normal_equations(normal_equations(phi, targets), order, p, m, regularization, center=center)
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
     if method == "paper":
-        return _identify_paper(arx, u, y, sample_time_s, n_states, hankel_rows, hankel_cols, ar_order, mode_criteria)
-    return identify_from_arx(
-        arx, u, y, sample_time_s, n_states, max_states, hankel_rows, hankel_cols, gain, ar_order=ar_order,
-        completion=completion, refine=refine, **mode_criteria,
-    )
-
-
-def prediction_errors(model: IdentifiedModel, u: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """One-step prediction errors of an identified model on a record: (N, p)."""
-    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y)
-    return e
+        u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
+        model = _identify_paper(arx, u, y, sample_time_s, options, u_offset, y_offset, warnings)
+    else:
+        model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
+    model.arx_order_scores = arx_scores
+    return model

@@ -1,8 +1,4 @@
-"""Least-squares completion of a realization: ``(Abar, C)`` or a state sequence -> full model.
-
-Two ways, both linear least squares on the data:
-
-:func:`refit_predictor` (accurate, cost grows with p^2)
+"""Least-squares completion of a realization ``(Abar, C)`` into a full innovation model.
 
 With the predictor poles ``Abar`` (n, n) and output matrix ``C`` (p, n) taken from the
 realization, the one-step predictor
@@ -19,12 +15,8 @@ Then ``A = Abar + L C``, ``B = Bbar + L D`` and the paper's gain is ``K = A^{-1}
 The convolutions are done by FFT, one output channel at a time to bound memory. The normal
 equations cost about ``N p (n (p + m))^2`` flops: fine for a few outputs, slow for tens.
 
-:func:`fit_from_states` (fast, for many outputs)
-    The weighted ERA gives ``Gamma`` and, through the ARX predictor, a state estimate for each
-    sample, ``xhat_k = pinv(Gamma) H(0) z_k`` with ``z_k = [v_{k-1}; ...; v_{k-c}]`` (the
-    predictor-based subspace idea). Then ``y_k = C xhat_k + D u_k + e_k`` gives ``C``, ``D`` and
-    the innovations, and ``xhat_{k+1} = A xhat_k + B u_k + L e_k`` gives ``A``, ``B``, ``L``.
-    Cost ``O(N (n + m + p)^2)`` once the states are formed.
+The other completion, from a state sequence (fast with many outputs), is
+:mod:`okid_ros.core.state_completion`.
 """
 
 from __future__ import annotations
@@ -34,41 +26,41 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft, linalg
 
-from okid_ros.core.statespace import spectral_radius
+from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius
 
-__all__ = ["PredictorFit", "refit_predictor", "fit_from_states", "gain_from_predictor"]
+__all__ = ["PredictorFit", "refit_predictor", "gain_from_predictor", "innovation_covariance"]
 
 
 @dataclass
 class PredictorFit:
-    """A refitted innovation-form model (paper convention) and its fit statistics.
+    """A completed innovation model and its fit statistics on the record it was fitted to.
 
     Attributes
     ----------
-    A, B, C, D, K : the innovation form ``x+ = A x + B u + A K e``, ``y = C x + D u + e``.
+    model : the innovation form ``x+ = A x + B u + A K e``, ``y = C x + D u + e``.
     x0 : (n,) initial predictor state of the fitted record.
-    innovation_covariance : (p, p) covariance of the one-step prediction errors.
-    innovations : (N, p) the prediction errors on the fitted record.
+    innovations : (N, p) the one-step prediction errors on the fitted record.
     n_parameters : free parameters of the predictor (for information criteria).
     """
 
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray
-    D: np.ndarray
-    K: np.ndarray
+    model: InnovationModel
     x0: np.ndarray
-    innovation_covariance: np.ndarray
     innovations: np.ndarray
     n_parameters: int
 
     def bic(self) -> float:
         """Bayesian information criterion ``N log det(Re) + n_par log N`` (lower is better)."""
         n_samples = self.innovations.shape[0]
-        sign, logdet = np.linalg.slogdet(self.innovation_covariance)
-        if sign <= 0:
+        sign, logdet = np.linalg.slogdet(self.model.innovation_covariance)
+        if sign <= 0 or not np.isfinite(logdet):
             return float("inf")
         return float(n_samples * logdet + self.n_parameters * np.log(n_samples))
+
+
+def innovation_covariance(innovations: np.ndarray) -> np.ndarray:
+    """(p, p) symmetric sample covariance ``e^T e / N`` of innovations (N, p)."""
+    cov = innovations.T @ innovations / max(innovations.shape[0], 1)
+    return 0.5 * (cov + cov.T)
 
 
 def gain_from_predictor(A: np.ndarray, L: np.ndarray) -> np.ndarray:
@@ -161,39 +153,5 @@ def refit_predictor(
     A = Abar + L @ C
     B = Bbar + L @ D
     K = gain_from_predictor(A, L)
-    cov = innovations.T @ innovations / n_samples
-    # Free parameters: (Abar, C, Gam, D) less the n^2 of a similarity transform, plus x0.
-    n_free = n * (2 * p + m) + p * m + n_x0
-    return PredictorFit(A, B, C.copy(), D, K, x0, 0.5 * (cov + cov.T), innovations, n_free)
-
-
-def fit_from_states(states: np.ndarray, u: np.ndarray, y: np.ndarray) -> PredictorFit:
-    """Innovation-form model from a state sequence by two least-squares regressions.
-
-    Parameters
-    ----------
-    states : (N, n) state estimates ``xhat_k`` of the samples of ``u`` (N, m) and ``y`` (N, p),
-        consecutive in time.
-
-    Returns
-    -------
-    PredictorFit (``x0`` is the first state; ``innovations`` are the residuals of the output
-    equation).
-    """
-    n_samples, n = states.shape
-    m, p = u.shape[1], y.shape[1]
-    if n_samples <= 2 * (n + m + p):
-        raise ValueError(f"{n_samples} samples are too few to fit a {n}-state model")
-    if not np.all(np.isfinite(states)):
-        raise ValueError("the state sequence is not finite")
-    regressor = np.hstack([states, u])
-    cd = linalg.lstsq(regressor, y)[0].T
-    C, D = cd[:, :n], cd[:, n:]
-    innovations = y - regressor @ cd.T
-    abl = linalg.lstsq(np.hstack([states[:-1], u[:-1], innovations[:-1]]), states[1:])[0].T
-    A, B, L = abl[:, :n], abl[:, n : n + m], abl[:, n + m :]
-    cov = innovations.T @ innovations / n_samples
-    n_free = n * (2 * p + m) + p * m
-    return PredictorFit(
-        A, B, C, D, gain_from_predictor(A, L), states[0].copy(), 0.5 * (cov + cov.T), innovations, n_free
-    )
+    model = InnovationModel(A, B, C.copy(), D, K, innovation_covariance(innovations))
+    return PredictorFit(model, x0, innovations, free_parameters(n, p, m, initial_state=fit_initial_state))

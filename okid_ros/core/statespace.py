@@ -9,9 +9,138 @@ whose one-step predictor is ``x_{k+1} = (A - A K C) x_k + (B - A K D) u_k + A K 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["simulate", "one_step_prediction", "spectral_radius"]
+__all__ = [
+    "InnovationModel",
+    "InnovationPredictor",
+    "free_parameters",
+    "one_step_prediction",
+    "predictor_states",
+    "simulate",
+    "spectral_radius",
+]
+
+
+def _as2d(x, name: str) -> np.ndarray:
+    a = np.atleast_2d(np.asarray(x, dtype=float))
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D array, got shape {a.shape}")
+    return a
+
+
+def free_parameters(n_states: int, n_outputs: int, n_inputs: int, *, initial_state: bool = False) -> int:
+    """Free parameters of an n-state innovation model: ``(A, B, C, D, K)`` less a similarity.
+
+    ``n (2 p + m) + p m`` (plus ``n`` for a fitted initial state), the count used by the
+    information criteria of the order selection.
+    """
+    n, p, m = n_states, n_outputs, n_inputs
+    return n * (2 * p + m) + p * m + (n if initial_state else 0)
+
+
+@dataclass
+class InnovationModel:
+    """Innovation-form model in the paper's convention (Eqs. 30-31; predictor gain ``A K``).
+
+    Equations::
+
+        x_{k+1} = A x_k + B u_k + A K e_k
+        y_k     = C x_k + D u_k + e_k,        e_k ~ N(0, innovation_covariance)
+
+    The one model type of the core: the refit, the refinement, the modal form, the identified
+    model, the simulators' truth and the estimator all pass it.
+
+    Attributes
+    ----------
+    A : (n, n) state matrix.
+    B : (n, m) input matrix.
+    C : (p, n) output matrix.
+    D : (p, m) direct feed-through.
+    K : (n, p) the paper's Kalman filter gain (predictor gain ``A @ K``).
+    innovation_covariance : (p, p) covariance ``Re`` of ``e_k``.
+    sample_time_s : sample period in seconds (nan where a step does not need it).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    K: np.ndarray
+    innovation_covariance: np.ndarray
+    sample_time_s: float = float("nan")
+
+    def __post_init__(self) -> None:
+        self.A = _as2d(self.A, "A")
+        self.B = _as2d(self.B, "B")
+        self.C = _as2d(self.C, "C")
+        self.D = _as2d(self.D, "D")
+        self.K = _as2d(self.K, "K")
+        self.innovation_covariance = _as2d(self.innovation_covariance, "innovation_covariance")
+        n, m, p = self.n_states, self.n_inputs, self.n_outputs
+        for name, arr, shape in (
+            ("A", self.A, (n, n)),
+            ("B", self.B, (n, m)),
+            ("C", self.C, (p, n)),
+            ("D", self.D, (p, m)),
+            ("K", self.K, (n, p)),
+            ("innovation_covariance", self.innovation_covariance, (p, p)),
+        ):
+            if arr.shape != shape:
+                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
+        self.sample_time_s = float(self.sample_time_s)
+
+    @property
+    def n_states(self) -> int:
+        return int(self.A.shape[0])
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.B.shape[1])
+
+    @property
+    def n_outputs(self) -> int:
+        return int(self.C.shape[0])
+
+    @property
+    def predictor_gain(self) -> np.ndarray:
+        """``L = A K``, shape (n, p): the gain of ``x_{k+1|k} = A x + B u + L e``."""
+        return self.A @ self.K
+
+    def predictor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(F, G_u, G_y)`` of the one-step predictor ``xhat+ = F xhat + G_u u + G_y y``.
+
+        ``F = A - A K C`` (n, n), ``G_u = B - A K D`` (n, m), ``G_y = A K`` (n, p).
+        """
+        L = self.predictor_gain
+        return self.A - L @ self.C, self.B - L @ self.D, L
+
+    def spectral_radius(self) -> float:
+        """Spectral radius of ``A`` (the model is stable when it is below 1)."""
+        return spectral_radius(self.A)
+
+    def predictor_spectral_radius(self) -> float:
+        """Spectral radius of ``A - A K C`` (the estimator converges when it is below 1)."""
+        return spectral_radius(self.predictor()[0])
+
+    def stability_problem(self) -> str:
+        """Why this model must not be used (unstable A or predictor, non-finite), or ``""``."""
+        arrays = (self.A, self.B, self.C, self.D, self.K, self.innovation_covariance)
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            return "the model has non-finite entries"
+        rho = self.spectral_radius()
+        if not rho < 1.0:
+            return f"unstable model: spectral radius of A {rho:.6f} >= 1"
+        rho = self.predictor_spectral_radius()
+        if not rho < 1.0:
+            return f"unstable predictor: spectral radius of A - A K C {rho:.6f} >= 1"
+        return ""
+
+    def n_parameters(self) -> int:
+        """Free parameters (:func:`free_parameters`)."""
+        return free_parameters(self.n_states, self.n_outputs, self.n_inputs)
 
 
 def spectral_radius(A: np.ndarray) -> float:
@@ -19,8 +148,8 @@ def spectral_radius(A: np.ndarray) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
 
 
-def _run(F: np.ndarray, G: np.ndarray, H: np.ndarray, J: np.ndarray, w: np.ndarray, x0: np.ndarray) -> np.ndarray:
-    """Outputs of ``x+ = F x + G w, z = H x + J w`` for inputs ``w`` (N, r): (N, p)."""
+def _run_states(F: np.ndarray, G: np.ndarray, w: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """States ``x_k`` (N, n) of ``x+ = F x + G w`` for inputs ``w`` (N, r), from ``x0``."""
     n_samples = w.shape[0]
     states = np.empty((n_samples, F.shape[0]))
     x = x0.astype(float).copy()
@@ -28,7 +157,12 @@ def _run(F: np.ndarray, G: np.ndarray, H: np.ndarray, J: np.ndarray, w: np.ndarr
     for k in range(n_samples):
         states[k] = x
         x = F @ x + Gw[k]
-    return states @ H.T + w @ J.T
+    return states
+
+
+def _run(F: np.ndarray, G: np.ndarray, H: np.ndarray, J: np.ndarray, w: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """Outputs of ``x+ = F x + G w, z = H x + J w`` for inputs ``w`` (N, r): (N, p)."""
+    return _run_states(F, G, w, x0) @ H.T + w @ J.T
 
 
 def simulate(
@@ -69,3 +203,117 @@ def one_step_prediction(
     x0 = np.zeros(A.shape[0]) if x0 is None else np.asarray(x0, dtype=float)
     y_hat = _run(F, G, C, J[:, : m + C.shape[0]], w, x0)
     return y_hat, y - y_hat
+
+
+def predictor_states(
+    model: InnovationModel, u: np.ndarray, y: np.ndarray, x0: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """States ``xhat_k`` of the model's one-step predictor and its innovations.
+
+    Parameters
+    ----------
+    model : the innovation model (its predictor must be stable for long records).
+    u : (N, m); y : (N, p); x0 : (n,) the predicted state of the first sample (default 0).
+
+    Returns
+    -------
+    states : (N, n) ``xhat_k`` (the prediction of x_k from samples before k);
+    innovations : (N, p) ``y_k - C xhat_k - D u_k``.
+    """
+    F, Gu, Gy = model.predictor()
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    x0 = np.zeros(model.n_states) if x0 is None else np.asarray(x0, dtype=float)
+    with np.errstate(all="ignore"):
+        states = _run_states(F, np.hstack([Gu, Gy]), np.hstack([u, y]), x0)
+        innovations = y - states @ model.C.T - u @ model.D.T
+    return states, innovations
+
+
+class InnovationPredictor:
+    """The one-step predictor of an innovation model, stepped over samples as they come.
+
+    ``xhat_{k+1} = F xhat_k + G_u u_k + G_y y_k`` with ``(F, G_u, G_y) = model.predictor()``,
+    on the signals less the model's offsets (``input_offset``, ``output_offset`` if it has
+    them). The warm start of a new model, the change test and the watchdog all step this one
+    predictor (the estimator runs the same recursion on filterpy's KalmanFilter).
+
+    Parameters
+    ----------
+    model : an :class:`InnovationModel` (or one with offsets, e.g. ``IdentifiedModel``).
+    state : (n,) initial predicted state (zeros by default).
+    """
+
+    def __init__(self, model: InnovationModel, state: np.ndarray | None = None) -> None:
+        self.A, self.B, self.C, self.D = model.A, model.B, model.C, model.D
+        self.F, self.Gu, self.Gy = model.predictor()
+        m, p = model.n_inputs, model.n_outputs
+        u_off, y_off = getattr(model, "input_offset", None), getattr(model, "output_offset", None)
+        self.input_offset = np.zeros(m) if u_off is None else np.asarray(u_off, float).reshape(m)
+        self.output_offset = np.zeros(p) if y_off is None else np.asarray(y_off, float).reshape(p)
+        n = model.n_states
+        self.x = np.zeros(n) if state is None else np.asarray(state, dtype=float).reshape(n).copy()
+
+    @property
+    def memory_samples(self) -> int:
+        """Samples after which the effect of a wrong initial state has decayed by e^-5."""
+        radius = spectral_radius(self.F)
+        if radius <= 0.0:
+            return 1
+        if radius >= 1.0:
+            return 100_000
+        return int(min(np.ceil(5.0 / -np.log(radius)), 100_000))
+
+    def bridge(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> bool:
+        """Predict over ``skipped`` missing samples with the input held (open loop).
+
+        A longer gap than ``max_gap``, a restart (``skipped`` < 0) or no held input sets the
+        state to zero instead; returns False then (the state is wrong for a while).
+        """
+        if skipped < 0 or skipped > max_gap or u_held is None:
+            self.x = np.zeros_like(self.x)
+            return False
+        bu = self.B @ (np.asarray(u_held, dtype=float) - self.input_offset)
+        for _ in range(int(skipped)):
+            self.x = self.A @ self.x + bu
+        return True
+
+    def step(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The innovation (p,) of one sample ``u`` (m,), ``y`` (p,); advances the state."""
+        u = np.asarray(u, dtype=float) - self.input_offset
+        y = np.asarray(y, dtype=float) - self.output_offset
+        e = y - self.D @ u - self.C @ self.x
+        self.x = self.F @ self.x + self.Gu @ u + self.Gy @ y
+        return e
+
+    def run(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Innovations (N, p) of samples ``u`` (N, m), ``y`` (N, p); advances the state."""
+        u = np.asarray(u, dtype=float) - self.input_offset
+        y = np.asarray(y, dtype=float) - self.output_offset
+        Ft, Ct = self.F.T, self.C.T
+        forcing = u @ self.Gu.T + y @ self.Gy.T
+        direct = y - u @ self.D.T
+        e = np.empty_like(direct)
+        x = self.x
+        for k in range(u.shape[0]):
+            e[k] = direct[k] - x @ Ct
+            x = x @ Ft + forcing[k]
+        self.x = x
+        return e
+
+    def run_with_gaps(self, u: np.ndarray, y: np.ndarray, skipped: np.ndarray, u_held: np.ndarray | None,
+                      max_gap: int) -> np.ndarray | None:
+        """:meth:`run` over samples that follow ``skipped[k]`` missing slots each (bridged).
+
+        Returns the last input seen (to hold over the next gap).
+        """
+        starts = np.flatnonzero(np.asarray(skipped) != 0)
+        bounds = [0, *starts.tolist(), u.shape[0]]
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            if hi <= lo:
+                continue
+            if skipped[lo]:
+                self.bridge(u_held, int(skipped[lo]), max_gap)
+            self.run(u[lo:hi], y[lo:hi])
+            u_held = u[hi - 1]
+        return u_held

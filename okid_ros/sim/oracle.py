@@ -21,10 +21,11 @@ from __future__ import annotations
 from typing import Optional, Union
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
-from okid_ros.sim.systems import InnovationModel, NoisyStateSpace, propagate_states
+from okid_ros.core.kalman_gain import riccati_covariance, riccati_predictor_gain
+from okid_ros.core.statespace import InnovationModel
+from okid_ros.sim.models import NoisyStateSpace
+from okid_ros.sim.simulators import propagate_states
 
 __all__ = [
     "kalman_predictor",
@@ -34,37 +35,10 @@ __all__ = [
 ]
 
 
-def riccati_covariance(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                       S: Optional[np.ndarray] = None) -> np.ndarray:
-    """Stabilizing solution ``P`` (n, n) of the filtering Riccati equation (module docstring).
-
-    Parameters
-    ----------
-    A : (n, n); C : (p, n); Q : (n, n) PSD; R : (p, p) PD; S : (n, p) or ``None``.
-    """
-    n, p = A.shape[0], C.shape[0]
-    S = np.zeros((n, p)) if S is None else np.asarray(S, dtype=float)
-    P = scipy.linalg.solve_discrete_are(A.T, C.T, Q, R, s=S)
-    return 0.5 * (P + P.T)
-
-
 def predictor_gain(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
                    S: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Steady-state predictor gain.
-
-    Returns
-    -------
-    L : (n, p) predictor gain ``(A P C^T + S) Re^{-1}``.
-    Re : (p, p) innovation covariance ``C P C^T + R``.
-    P : (n, n) a-priori state error covariance.
-    """
-    n, p = A.shape[0], C.shape[0]
-    S = np.zeros((n, p)) if S is None else np.asarray(S, dtype=float)
-    P = riccati_covariance(A, C, Q, R, S)
-    Re = C @ P @ C.T + R
-    Re = 0.5 * (Re + Re.T)
-    L = np.linalg.solve(Re, (A @ P @ C.T + S).T).T
-    return L, Re, P
+    """Steady-state predictor gain ``(L, Re, P)`` (:func:`okid_ros.core.kalman_gain.riccati_predictor_gain`)."""
+    return riccati_predictor_gain(A, C, Q, R, S)
 
 
 def kalman_predictor(system: Union[InnovationModel, NoisyStateSpace]
@@ -82,17 +56,8 @@ def kalman_predictor(system: Union[InnovationModel, NoisyStateSpace]
         gain) when ``S = 0``; ``K = A^{-1} L`` in general.
     Re : (p, p) innovation covariance ``C P C^T + R``.
     """
-    if isinstance(system, InnovationModel):
-        return system.K.copy(), system.innovation_covariance.copy()
-    A, C = system.A, system.C
-    Q, R, S = (system.process_noise_covariance, system.measurement_noise_covariance,
-               system.cross_covariance)
-    L, Re, P = predictor_gain(A, C, Q, R, S)
-    if np.allclose(S, 0.0):
-        K = np.linalg.solve(Re, (P @ C.T).T).T
-    else:
-        K = np.linalg.solve(A, L)
-    return K, Re
+    model = system if isinstance(system, InnovationModel) else system.to_innovation_form()
+    return model.K.copy(), model.innovation_covariance.copy()
 
 
 def one_step_predictions(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,

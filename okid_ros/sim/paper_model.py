@@ -57,7 +57,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from okid_ros.sim.systems import InnovationModel
+from okid_ros.core.statespace import InnovationModel
 
 __all__ = [
     "PAPER_SAMPLE_TIME_S",

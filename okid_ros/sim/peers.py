@@ -44,7 +44,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from okid_ros.sim.oracle import predictor_gain as _riccati_predictor_gain
+from okid_ros.core.kalman_gain import riccati_predictor_gain as _riccati_predictor_gain
 
 __all__ = ["PEERS", "peer_identify", "available_peers"]
 

@@ -5,7 +5,7 @@ a sudden change of the structure.
 
 :func:`added_mass_structure` builds the structure before and after a uniform added mass, in
 the same state coordinates so that the state carries over the change; :func:`simulate_switched`
-simulates a list of :class:`~okid_ros.sim.systems.NoisyStateSpace` systems one after the other
+simulates a list of :class:`~okid_ros.sim.models.NoisyStateSpace` systems one after the other
 with a continuous state.
 
 The added mass
@@ -14,7 +14,7 @@ A mass change that scales *every* natural frequency by the same factor ``f`` wit
 the mode shapes is a mass matrix scaled as a whole, ``M' = M / f^2`` (the added mass is
 distributed like the structure's own mass). Stiffness and mode shapes ``Phi`` stay; with the
 shapes kept normalized to the original mass the modal mass becomes ``1 / f^2``, so in the
-modal coordinates ``q`` of :func:`~okid_ros.sim.systems.modal_structure` (``x = Phi q``)::
+modal coordinates ``q`` of :func:`~okid_ros.sim.models.modal_structure` (``x = Phi q``)::
 
     q_i'' + 2 z_i (f w_i) q_i' + (f w_i)^2 q_i = f^2 (phi_in_i^T u + phi_w_i^T d)
 
@@ -33,14 +33,9 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from okid_ros.sim.systems import (
-    NoisyStateSpace,
-    _initial_state,
-    _sqrt_psd,
-    lowpass_input,
-    modal_structure,
-    propagate_states,
-)
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.models import NoisyStateSpace, modal_structure
+from okid_ros.sim.simulators import _initial_state, _sqrt_psd, propagate_states
 
 __all__ = [
     "SwitchedCase",
@@ -67,7 +62,7 @@ def added_mass_structure(
 ) -> tuple[NoisyStateSpace, NoisyStateSpace]:
     """A modal structure before and after a uniform added mass (see the module docstring).
 
-    Parameters are those of :func:`~okid_ros.sim.systems.modal_structure` (the *before* system
+    Parameters are those of :func:`~okid_ros.sim.models.modal_structure` (the *before* system
     is exactly ``modal_structure(frequencies_hz, damping_ratios, ...)``), plus
 
     frequency_factor : ``f``, every natural frequency is multiplied by it (0.94: a 6 % drop,
@@ -188,7 +183,7 @@ class SwitchedCase:
     damping_ratios : (n_modes,) true damping ratios (unchanged).
     make_input : ``make_input(n_samples, seed) -> u`` (n_samples, m).
     arx_order : ARX order q for tracking (covers the true predictor's memory, see
-        :func:`~okid_ros.sim.systems.suggested_arx_order`).
+        :func:`~okid_ros.sim.cases.suggested_arx_order`).
     """
 
     name: str
@@ -210,8 +205,11 @@ class SwitchedCase:
         return self.frequency_factor * self.frequencies_hz
 
     def simulate(self, n_samples: int, change_index: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(u, y)`` of ``n_samples`` with the change at ``change_index`` (the first sample of
-        the new structure); input seed ``100 + seed``, noise seed ``200 + seed``."""
+        """``(u, y)`` of ``n_samples`` with the change at ``change_index``.
+
+        ``change_index`` is the first sample of the new structure; input seed ``100 + seed``,
+        noise seed ``200 + seed``.
+        """
         u = self.make_input(n_samples, 100 + seed)
         return u, simulate_switched([self.before, self.after], change_index, u, seed=200 + seed)
 

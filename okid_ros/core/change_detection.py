@@ -1,0 +1,417 @@
+"""Innovation monitoring: divergence of the estimator and structural change of the system.
+
+Both tests look at the identified model's innovations ``e_k = y_k - C xhat_k - D u_k``
+(paper Eqs. 30-31), whitened by the model's innovation covariance ``Re = L L^T``::
+
+    z_k = L^{-1} e_k,        nis_k = z_k^T z_k        (normalized innovation squared)
+
+For a correct model ``z_k`` is white with unit covariance, so ``nis_k`` is chi-square with
+``p`` degrees of freedom (mean ``p``).
+
+Divergence (:class:`DivergenceMonitor`)
+---------------------------------------
+A sample is *diverged* when its innovation is not finite or the mean ``nis`` over the last
+``window_samples`` samples exceeds ``nis_ratio * p`` (default 100 p: under a correct model the
+window mean exceeds 100 p with probability far below 1e-100). ``sustained`` is true once
+``window_samples`` samples in a row are diverged: the caller restarts the estimator.
+
+Structural change (:class:`ChangeDetector`, :class:`StructuralChangeMonitor`)
+---------------------------------------------------------------------------
+An identified model is never exact, and its out-of-sample innovations are somewhat larger and
+less white than ``Re`` says. The statistic is therefore calibrated on the model's own
+innovations: after the detector is armed with a *reference model* (the first model after a
+start or a change), its first ``reference_samples`` whitened innovations give a reference mean
+``mu`` and covariance ``S = M^{-1} M^{-T}``, and from then on ``w_k = M (z_k - mu)`` is
+monitored. The reference model stays fixed while the structure does not change (later models
+of the same structure do not move the reference), so a slowly improving or a single poorer
+model update cannot look like a change.
+
+A structural change (frequency, damping, mode shape) makes the reference model's predictor
+wrong, and its innovations grow. The test is Page's CUSUM for a covariance increase by a
+factor ``gamma`` (``variance_ratio``): the log-likelihood ratio of ``N(0, gamma I)`` against
+``N(0, I)`` for one sample is ``l_k = (1 - 1/gamma) |w_k|^2 / 2 - (p / 2) ln gamma``, and::
+
+    g_k = max(0, g_{k-1} + l_k),        alarm when g_k > h.
+
+The change point estimate is the sample after the last ``g = 0``
+before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of
+samples between false alarms (the average run length under no change, ARL0): it is computed
+for chi-square increments by the Markov-chain method of Brook & Evans (1972)
+(:func:`cusum_threshold`). Covariance increases above ``gamma ln(gamma) / (gamma - 1)``
+(1.22 for gamma = 1.5) make ``g`` drift upwards and are detected; the larger, the faster.
+
+No rclpy; numpy and scipy only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy import linalg, stats
+
+from okid_ros.core.statespace import InnovationPredictor
+
+__all__ = [
+    "DEFAULT_FALSE_ALARM_SAMPLES",
+    "DEFAULT_VARIANCE_RATIO",
+    "DEFAULT_REFERENCE_SAMPLES",
+    "ChangeAlarm",
+    "ChangeDetector",
+    "DivergenceMonitor",
+    "StructuralChangeMonitor",
+    "cusum_average_run_length",
+    "cusum_threshold",
+    "predictor_spectral_radius",
+    "whitening_matrix",
+]
+
+DEFAULT_FALSE_ALARM_SAMPLES = 1e7  # expected samples between false alarms (11 h at 250 Hz)
+DEFAULT_VARIANCE_RATIO = 1.5  # gamma, the covariance increase the CUSUM is tuned to
+DEFAULT_REFERENCE_SAMPLES = 1000  # calibration samples after each (re)arming
+
+
+def whitening_matrix(covariance: np.ndarray) -> np.ndarray:
+    """``L^{-1}`` with ``covariance = L L^T`` (Cholesky), so ``L^{-1} e`` has unit covariance.
+
+    Parameters
+    ----------
+    covariance : (p, p) symmetric positive definite.
+
+    Raises
+    ------
+    ValueError if the covariance is not finite and positive definite.
+    """
+    cov = np.asarray(covariance, dtype=float)
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
+        raise ValueError(f"innovation covariance must be square, got shape {cov.shape}")
+    if not np.all(np.isfinite(cov)):
+        raise ValueError("innovation covariance holds NaN or Inf")
+    try:
+        lower = linalg.cholesky(0.5 * (cov + cov.T), lower=True)
+    except linalg.LinAlgError:
+        raise ValueError("innovation covariance is not positive definite") from None
+    return linalg.solve_triangular(lower, np.eye(cov.shape[0]), lower=True)
+
+
+def predictor_spectral_radius(model) -> float:
+    """Spectral radius of the one-step predictor ``A - A K C`` of a model (0 for n = 0)."""
+    return model.predictor_spectral_radius() if model.A.shape[0] else 0.0
+
+
+@dataclass
+class ChangeAlarm:
+    """A declared change.
+
+    Attributes
+    ----------
+    alarm_index : index of the sample at which the CUSUM crossed the threshold.
+    change_index : estimated first sample of the new structure (after the last g = 0).
+    statistic : CUSUM value g at the alarm [nats, log-likelihood ratio].
+    threshold : h [nats].
+    variance_ratio : mean of |w|^2 / p from change_index to alarm_index (1 under no change).
+    """
+
+    alarm_index: int
+    change_index: int
+    statistic: float
+    threshold: float
+    variance_ratio: float
+
+
+@lru_cache(maxsize=64)
+def cusum_average_run_length(threshold: float, n_outputs: int, variance_ratio: float, bins: int = 400) -> float:
+    """ARL0 of the CUSUM of this module under no change (chi-square increments), in samples.
+
+    Brook & Evans' Markov chain: ``g`` (scaled to ``s = |w|^2`` units, increments ``s - c``)
+    discretized into ``bins`` states on ``[0, h)``; state 0 is ``g = 0``.
+    """
+    gamma, p = float(variance_ratio), int(n_outputs)
+    a = 0.5 * (1.0 - 1.0 / gamma)
+    c = 0.5 * p * math.log(gamma) / a
+    h = float(threshold) / a
+    width = h / (bins - 0.5)
+    centers = np.arange(bins) * width  # state i: g in [(i - 0.5) w, (i + 0.5) w), state 0 at g = 0
+    upper = (np.arange(bins) + 0.5) * width
+    cdf = stats.chi2(p).cdf
+    # P(next state <= j | state i) = P(s <= upper_j - centers_i + c)
+    below = cdf(np.maximum(upper[None, :] - centers[:, None] + c, 0.0))
+    R = np.diff(np.concatenate([np.zeros((bins, 1)), below], axis=1), axis=1)
+    arl = np.linalg.solve(np.eye(bins) - R, np.ones(bins))
+    return float(arl[0])
+
+
+@lru_cache(maxsize=64)
+def cusum_threshold(
+    false_alarm_samples: float, n_outputs: int, variance_ratio: float = DEFAULT_VARIANCE_RATIO
+) -> float:
+    """The CUSUM threshold h [nats] whose ARL0 is ``false_alarm_samples`` (bisection)."""
+    target = float(false_alarm_samples)
+    if not target > 1.0:
+        raise ValueError(f"false_alarm_samples must be > 1, got {false_alarm_samples}")
+    lo, hi = 0.0, 2.0
+    while cusum_average_run_length(hi, n_outputs, variance_ratio) < target:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if cusum_average_run_length(mid, n_outputs, variance_ratio) < target:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+class ChangeDetector:
+    """Calibrated CUSUM on whitened innovations (see the module docstring).
+
+    Parameters
+    ----------
+    n_outputs : p.
+    false_alarm_samples : expected samples between false alarms under no change (ARL0).
+    variance_ratio : gamma > 1, the covariance increase the test is tuned to.
+    reference_samples : samples of calibration after each :meth:`restart`.
+    """
+
+    def __init__(self, n_outputs: int, *, false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES,
+                 variance_ratio: float = DEFAULT_VARIANCE_RATIO,
+                 reference_samples: int = DEFAULT_REFERENCE_SAMPLES) -> None:
+        if not variance_ratio > 1.0:
+            raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
+        if int(reference_samples) < 10 * n_outputs:
+            raise ValueError(f"reference_samples must be >= {10 * n_outputs}, got {reference_samples}")
+        self.n_outputs = p = int(n_outputs)
+        self.variance_ratio = float(variance_ratio)
+        self.false_alarm_samples = float(false_alarm_samples)
+        self.reference_samples = int(reference_samples)
+        self.threshold = cusum_threshold(self.false_alarm_samples, p, self.variance_ratio)
+        self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
+        self._b = 0.5 * p * math.log(self.variance_ratio)
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the calibration and the statistic: the next samples calibrate again."""
+        self._ref: list[np.ndarray] = []
+        self._ref_count = 0
+        self.mean: np.ndarray | None = None
+        self.rewhiten: np.ndarray | None = None
+        self.statistic = 0.0
+        self._last_zero = -1
+        self._sum_nis = 0.0
+        self._n_nis = 0
+
+    @property
+    def calibrated(self) -> bool:
+        return self.rewhiten is not None
+
+    def process(self, z: np.ndarray, first_index: int) -> ChangeAlarm | None:
+        """Feed whitened innovations ``z`` (N, p) of samples ``first_index ..``.
+
+        Returns the first alarm in the block (the rest of the block is not processed), else None.
+        """
+        z = np.asarray(z, dtype=float).reshape(-1, self.n_outputs)
+        start = 0
+        if not self.calibrated:
+            take = min(self.reference_samples - self._ref_count, z.shape[0])
+            self._ref.append(z[:take])
+            self._ref_count += take
+            start = take
+            if self._ref_count >= self.reference_samples:
+                ref = np.concatenate(self._ref)
+                self._ref = []
+                self.mean = ref.mean(axis=0)
+                cov = np.atleast_2d(np.cov(ref, rowvar=False))
+                self.rewhiten = whitening_matrix(cov)
+                self._last_zero = first_index + start - 1
+        if start >= z.shape[0] or not self.calibrated:
+            return None
+        w = (z[start:] - self.mean) @ self.rewhiten.T
+        nis = np.einsum("ij,ij->i", w, w)
+        for k in range(nis.shape[0]):
+            alarm = self._add(float(nis[k]), first_index + start + k)
+            if alarm is not None:
+                return alarm
+        return None
+
+    def push(self, z: np.ndarray, index: int) -> ChangeAlarm | None:
+        """One whitened innovation ``z`` (p,) of sample ``index`` (the per-sample path)."""
+        if not self.calibrated:
+            return self.process(z[None, :], index)
+        w = self.rewhiten @ (z - self.mean)
+        return self._add(float(w @ w), index)
+
+    def _add(self, nis: float, index: int) -> ChangeAlarm | None:
+        """One CUSUM step with the calibrated ``|w|^2`` of sample ``index``."""
+        g = self.statistic + self._a * nis - self._b
+        if g <= 0.0:
+            self.statistic = 0.0
+            self._last_zero = index
+            self._sum_nis, self._n_nis = 0.0, 0
+            return None
+        self.statistic = g
+        self._sum_nis += nis
+        self._n_nis += 1
+        if g > self.threshold:
+            return ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
+                               self._sum_nis / (self._n_nis * self.n_outputs))
+        return None
+
+
+class DivergenceMonitor:
+    """Flags diverged samples and sustained divergence (see the module docstring).
+
+    Parameters
+    ----------
+    n_outputs : p.
+    window_samples : samples of the moving mean of ``nis`` and of divergence before it is
+        sustained.
+    nis_ratio : the moving mean above ``nis_ratio * p`` is divergence.
+    """
+
+    def __init__(self, n_outputs: int, *, window_samples: int = 25, nis_ratio: float = 100.0) -> None:
+        if int(window_samples) < 1 or not nis_ratio > 1.0:
+            raise ValueError("window_samples must be >= 1 and nis_ratio > 1")
+        self.n_outputs = int(n_outputs)
+        self.window_samples = int(window_samples)
+        self.nis_ratio = float(nis_ratio)
+        self.restart()
+
+    def restart(self) -> None:
+        self._recent = np.zeros(self.window_samples)
+        self._count = 0
+        self.consecutive = 0
+
+    def check(self, whitened: np.ndarray) -> bool:
+        """One sample's whitened innovation (p,); returns whether the sample is diverged."""
+        nis = float(np.dot(whitened, whitened))
+        if not math.isfinite(nis):
+            self.consecutive += 1
+            return True
+        self._recent[self._count % self.window_samples] = nis
+        self._count += 1
+        n = min(self._count, self.window_samples)
+        diverged = self._recent.sum() / n > self.nis_ratio * self.n_outputs
+        self.consecutive = self.consecutive + 1 if diverged else 0
+        return diverged
+
+    @property
+    def nis_ratio_now(self) -> float:
+        """Moving mean of the normalized innovation squared over its expectation p."""
+        n = min(self._count, self.window_samples)
+        return float(self._recent.sum() / (n * self.n_outputs)) if n else math.nan
+
+    @property
+    def sustained(self) -> bool:
+        """Diverged for ``window_samples`` samples in a row."""
+        return self.consecutive >= self.window_samples
+
+
+class StructuralChangeMonitor:
+    """A reference model's predictor, whitening and :class:`ChangeDetector`, sample by sample.
+
+    Life: :meth:`arm` with a model (and its predicted state for the next sample), then
+    :meth:`process` the samples; on an alarm the monitor disarms itself and waits for the next
+    :meth:`arm` (the first model of the new structure).
+
+    Parameters are those of :class:`ChangeDetector`.
+    """
+
+    def __init__(self, n_outputs: int, **detector_options) -> None:
+        self.detector = ChangeDetector(n_outputs, **detector_options)
+        self.disarm()
+
+    def disarm(self) -> None:
+        self.predictor: InnovationPredictor | None = None
+        self.whiten: np.ndarray | None = None
+        self.reference_rows = 0
+        self._hold = 0
+        self.detector.restart()
+
+    @property
+    def armed(self) -> bool:
+        return self.predictor is not None
+
+    @property
+    def state(self) -> str:
+        """'disarmed', 'calibrating' or 'monitoring'."""
+        if not self.armed:
+            return "disarmed"
+        return "monitoring" if self.detector.calibrated else "calibrating"
+
+    def arm(self, model, state: np.ndarray | None = None, *, reference_rows: int = 0) -> None:
+        """Take ``model`` as the reference (its predicted state for the next sample: ``state``).
+
+        Raises ValueError if the model's innovation covariance is not positive definite.
+        """
+        whiten = whitening_matrix(model.innovation_covariance)
+        self.model = model
+        self.predictor = InnovationPredictor(model, state)
+        self.whiten = whiten
+        self.reference_rows = int(reference_rows)
+        self._hold = 0
+        self.detector.restart()
+
+    def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
+        """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).
+
+        A short gap is bridged by prediction; otherwise the predictor restarts from zero and its
+        innovations are not tested until its start-up transient has decayed.
+        """
+        if self.armed and not self.predictor.bridge(u_held, skipped, max_gap):
+            self._hold = self.predictor.memory_samples
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Replace the reference predictor's state (e.g. after the estimator restarted)."""
+        if self.armed:
+            self.predictor.x = np.asarray(state, dtype=float).reshape(self.predictor.x.shape).copy()
+
+    def process(self, u: np.ndarray, y: np.ndarray, first_index: int, *, test: bool = True) -> ChangeAlarm | None:
+        """Samples ``first_index ..`` (u (N, m), y (N, p)); the first alarm, else None.
+
+        ``test=False``: the predictor runs over the samples but they are not tested (samples
+        the estimator flagged as diverged). After an alarm the monitor is disarmed.
+        """
+        if not self.armed or len(u) == 0:
+            return None
+        e = self.predictor.run(u, y)
+        if not test:
+            return None
+        if self._hold:
+            skip = min(self._hold, e.shape[0])
+            self._hold -= skip
+            e, u, first_index = e[skip:], u[skip:], first_index + skip
+        z = e @ self.whiten.T
+        if not np.all(np.isfinite(z)):
+            bad = int(np.flatnonzero(~np.all(np.isfinite(z), axis=1))[0])
+            z = z[:bad]  # a non-finite innovation is the estimator's problem, not a change
+        alarm = self.detector.process(z, first_index)
+        if alarm is not None:
+            self.disarm()
+        return alarm
+
+    def step(self, u: np.ndarray, y: np.ndarray, index: int, *, test: bool = True) -> ChangeAlarm | None:
+        """One sample ``u`` (m,), ``y`` (p,): :meth:`process` without the block overhead."""
+        if not self.armed:
+            return None
+        e = self.predictor.step(u, y)
+        if self._hold:
+            self._hold -= 1
+            return None
+        if not test:
+            return None
+        z = self.whiten @ e
+        if not np.all(np.isfinite(z)):
+            return None
+        alarm = self.detector.push(z, index)
+        if alarm is not None:
+            self.disarm()
+        return alarm
+
+    @property
+    def statistic(self) -> float:
+        return self.detector.statistic
+
+    @property
+    def threshold(self) -> float:
+        return self.detector.threshold

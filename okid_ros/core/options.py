@@ -1,0 +1,171 @@
+"""Options of the identification chain, with every default defined once.
+
+:class:`RealizationOptions` carries what turns an ARX model (and the samples of its window)
+into an innovation model: the model order or the automatic search and its limits, the Hankel
+sizes, the gain, the completion, the refinement and the criteria of a physical mode
+(:class:`ModeCriteria`). :func:`okid_ros.core.pipeline.identify`,
+:func:`okid_ros.core.pipeline.identify_from_arx`, the estimation service, ``okid-ros track``
+and the nodes' parameter table all take their defaults from here.
+
+>>> RealizationOptions(n_states=8).max_states
+40
+>>> RealizationOptions(gain="magic")
+Traceback (most recent call last):
+...
+ValueError: gain must be one of ('refit', 'riccati', 'whitening'), got 'magic'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping
+
+__all__ = [
+    "AUTO",
+    "GAINS",
+    "COMPLETIONS",
+    "OFFSETS",
+    "ModeCriteria",
+    "RealizationOptions",
+    "ArxOrderOptions",
+]
+
+AUTO = "auto"
+GAINS = ("refit", "riccati", "whitening")
+COMPLETIONS = ("auto", "predictor", "states")
+OFFSETS = ("remove", "none")
+
+
+@dataclass(frozen=True)
+class ModeCriteria:
+    """What makes a complex pole pair a physical mode (reported to users, modal coordinates).
+
+    Attributes
+    ----------
+    max_damping : largest damping ratio (fraction).
+    max_nyquist_fraction : the mode lies below this fraction of the Nyquist frequency.
+    min_msv : smallest modal singular value relative to the largest mode (input reaches it,
+        output sees it).
+    min_mpc : smallest modal phase collinearity of the output shape (1: a real normal mode).
+        Applied only with at least ``3`` outputs, where the MPC of a shape means something.
+    stability_frequency : relative frequency change within which a pole of a neighbouring
+        model order is "the same pole" (stabilization diagram, first criterion).
+    stability_damping : relative damping change of the second criterion.
+    stability_mac : smallest MAC of the third criterion (mode shape).
+    min_stable_fraction : a mode is physical only if the same pole (frequency and shape
+        criteria) is found in at least this fraction of the neighbouring orders tried
+        (0 turns the stability criterion off).
+    """
+
+    max_damping: float = 0.1
+    max_nyquist_fraction: float = 0.95
+    min_msv: float = 1e-3
+    min_mpc: float = 0.5
+    stability_frequency: float = 0.01
+    stability_damping: float = 0.05
+    stability_mac: float = 0.9
+    min_stable_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("max_damping", "max_nyquist_fraction", "stability_frequency", "stability_damping"):
+            value = getattr(self, name)
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"{name} must be in (0, 1], got {value}")
+        for name in ("min_msv", "min_mpc", "stability_mac", "min_stable_fraction"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {value}")
+
+
+@dataclass(frozen=True)
+class ArxOrderOptions:
+    """The automatic choice of the ARX order q (:func:`okid_ros.core.arx.select_arx_order`).
+
+    Attributes
+    ----------
+    candidates : ARX orders tried, increasing.
+    max_coefficients : largest regressor length ``d = m + q (p + m)`` tried (bounds the cost:
+        one symmetric eigendecomposition of ``d x d`` per order).
+    min_rows_per_coefficient : a candidate needs at least this many regressor rows per
+        coefficient.
+    """
+
+    candidates: tuple[int, ...] = (5, 10, 15, 20, 30, 40, 50, 60, 80, 100, 120, 150, 200)
+    max_coefficients: int = 2500
+    min_rows_per_coefficient: float = 2.0
+
+
+@dataclass(frozen=True)
+class RealizationOptions:
+    """How an ARX model is realized and completed into an innovation model.
+
+    Attributes
+    ----------
+    n_states : model order n, or ``"auto"`` (lowest BIC of the completed predictor).
+    max_states : upper limit of the automatic search. When BIC is lowest at the limit the
+        search goes on to ``max_states_limit`` (doubling), and says so when it stops there.
+    max_states_limit : hard upper limit of the automatic search.
+    hankel_rows, hankel_cols : ERA block rows and columns (None: split the ARX lag blocks).
+    gain : ``"refit"`` (least squares where the predictor is stable by construction, the
+        Riccati gain otherwise), ``"riccati"`` (always the Kalman gain of the discrete Riccati
+        equation on the residual covariances of the state-sequence regressions) or
+        ``"whitening"`` (the paper's AR whitening, Eqs. 36-45).
+    completion : ``"predictor"`` (least-squares refit of the predictor), ``"states"``
+        (regressions on the state sequence; fast with many outputs) or ``"auto"``.
+    state_passes : re-estimations of the state sequence with the completed model's own Kalman
+        predictor (each kept only if it lowers the one-step prediction error).
+    refine : finish with the prediction-error refinement when it is affordable.
+    max_radius : eigenvalues of ``A`` on or outside the unit circle are moved inside, to at
+        most this modulus (unstable poles of a realization are not structural modes).
+    ar_order : AR order of the whitening gain (None: the ARX order).
+    modes : :class:`ModeCriteria`.
+    """
+
+    n_states: int | str = AUTO
+    max_states: int = 40
+    max_states_limit: int = 160
+    hankel_rows: int | None = None
+    hankel_cols: int | None = None
+    gain: str = "refit"
+    completion: str = "auto"
+    state_passes: int = 2
+    refine: bool = True
+    max_radius: float = 0.9999
+    ar_order: int | None = None
+    modes: ModeCriteria = field(default_factory=ModeCriteria)
+
+    def __post_init__(self) -> None:
+        if self.gain not in GAINS:
+            raise ValueError(f"gain must be one of {GAINS}, got {self.gain!r}")
+        if self.completion not in COMPLETIONS:
+            raise ValueError(f"completion must be one of {COMPLETIONS}, got {self.completion!r}")
+        if self.n_states != AUTO and (not isinstance(self.n_states, int) or self.n_states < 1):
+            raise ValueError(f"n_states must be a positive integer or {AUTO!r}, got {self.n_states!r}")
+        if self.max_states < 1 or self.max_states_limit < self.max_states:
+            raise ValueError(
+                f"need 1 <= max_states <= max_states_limit, got {self.max_states} and {self.max_states_limit}"
+            )
+        if not 0.0 < self.max_radius < 1.0:
+            raise ValueError(f"max_radius must be in (0, 1), got {self.max_radius}")
+        if self.state_passes < 0:
+            raise ValueError(f"state_passes must be >= 0, got {self.state_passes}")
+
+    @property
+    def automatic_order(self) -> bool:
+        return self.n_states == AUTO
+
+    def with_changes(self, **changes: Any) -> "RealizationOptions":
+        """A copy with some options changed (mode criteria by their own names too)."""
+        mode_names = {f.name for f in fields(ModeCriteria)}
+        mode_changes = {k: changes.pop(k) for k in list(changes) if k in mode_names}
+        modes = replace(self.modes, **mode_changes) if mode_changes else self.modes
+        return replace(self, modes=modes, **changes)
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> "RealizationOptions":
+        """From a flat mapping of option names (mode criteria included); unknown names raise."""
+        known = {f.name for f in fields(cls)} | {f.name for f in fields(ModeCriteria)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown realization option(s): {', '.join(unknown)}")
+        return cls().with_changes(**dict(values))

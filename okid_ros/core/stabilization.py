@@ -1,0 +1,170 @@
+"""Stabilization across model orders: which poles are structural modes.
+
+Modal analysts identify a structure at a range of model orders and keep the poles that stay
+put as the order grows (the stabilization diagram of ``modalsd``, PolyMAX and pyOMA): a
+structural mode appears at every order above the one that first resolves it, with the same
+frequency, damping and mode shape, while poles that fit noise wander from order to order.
+
+Here each order tried by the order search contributes its completed model's poles (complex
+pairs of ``A`` below Nyquist). A pole of order n is marked against the poles of the previous
+order tried:
+
+- ``stable_frequency``: a pole within ``stability_frequency`` (relative) in frequency;
+- ``stable_damping``: that pole also within ``stability_damping`` (relative) in damping;
+- ``stable_shape``: that pole also with MAC >= ``stability_mac`` between the output shapes.
+
+A mode of the chosen model is *stable* when a pole with about its frequency and damping
+(:func:`stable_fraction`) is found in at least ``min_stable_fraction`` of the neighbouring
+orders tried (up to ``NEIGHBOURS`` on each side), and only stable modes are listed as
+physical. The tolerances are looser than the diagram's criteria and the shape is not
+required: the damping of a lightly damped mode and the shapes of a close pair (which mix from
+order to order) scatter more than a structural mode's frequency, while a pole that fits noise
+does not keep its frequency.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from okid_ros.core.modal import Mode, identify_modes, mac
+from okid_ros.core.options import ModeCriteria
+from okid_ros.core.statespace import InnovationModel
+
+__all__ = ["NEIGHBOURS", "StabilizationPole", "StabilizationOrder", "stabilization_diagram", "stable_fraction"]
+
+#: Neighbouring orders (on each side of the chosen one) a mode is looked for in.
+NEIGHBOURS = 4
+#: The frequency tolerance grows with a mode's damping up to this (a heavily damped pole would
+#: otherwise find a partner anywhere near).
+MAX_FREQUENCY_TOLERANCE = 0.03
+#: Damping ratios of the same pole agree within this factor, or within DAMPING_TOLERANCE.
+DAMPING_FACTOR = 3.0
+DAMPING_TOLERANCE = 0.005
+
+
+@dataclass
+class StabilizationPole:
+    """One complex pole pair of the model of one order, with the criteria it meets."""
+
+    frequency_hz: float
+    damping_ratio: float
+    shape: np.ndarray  # (p,) complex output shape, unit norm
+    stable_frequency: bool = False
+    stable_damping: bool = False
+    stable_shape: bool = False
+
+    def as_dict(self) -> dict:
+        """JSON-ready (no shape)."""
+        return {
+            "frequency_hz": float(self.frequency_hz),
+            "damping_ratio": float(self.damping_ratio),
+            "stable_frequency": bool(self.stable_frequency),
+            "stable_damping": bool(self.stable_damping),
+            "stable_shape": bool(self.stable_shape),
+        }
+
+
+@dataclass
+class StabilizationOrder:
+    """The poles of the model of one order."""
+
+    n_states: int
+    poles: list[StabilizationPole]
+
+    def as_dict(self) -> dict:
+        return {"n_states": int(self.n_states), "poles": [pole.as_dict() for pole in self.poles]}
+
+
+def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria) -> list[StabilizationPole]:
+    """Stable complex pole pairs below the Nyquist limit of the criteria, by frequency."""
+    modes, _ = identify_modes(model.A, model.B, model.C, sample_time_s)
+    nyquist_hz = 0.5 / sample_time_s
+    return [
+        StabilizationPole(m.frequency_hz, m.damping_ratio, m.shape)
+        for m in modes
+        if m.stable and 0.0 <= m.damping_ratio < 1.0 and m.frequency_hz < criteria.max_nyquist_fraction * nyquist_hz
+    ]
+
+
+def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tuple[bool, bool, bool]:
+    """(frequency, + damping, + shape) criteria of ``pole`` against the closest of ``others``."""
+    best = (False, False, False)
+    for other in others:
+        df = abs(other.frequency_hz - pole.frequency_hz) / max(pole.frequency_hz, 1e-300)
+        if df > criteria.stability_frequency:
+            continue
+        dz = abs(other.damping_ratio - pole.damping_ratio) / max(pole.damping_ratio, 1e-300)
+        damping_ok = dz <= criteria.stability_damping
+        same_size = pole.shape.size == other.shape.size
+        shape_ok = same_size and mac(pole.shape, other.shape) >= criteria.stability_mac
+        candidate = (True, damping_ok, damping_ok and shape_ok)
+        if sum(candidate) > sum(best):
+            best = candidate
+    return best
+
+
+def stabilization_diagram(
+    models: dict[int, InnovationModel], sample_time_s: float, criteria: ModeCriteria
+) -> list[StabilizationOrder]:
+    """The poles of every order's model, marked against the previous order tried.
+
+    Parameters
+    ----------
+    models : completed model of each order tried (order -> model).
+    sample_time_s : sample time [s].
+    criteria : tolerances of the three criteria.
+
+    Returns
+    -------
+    One :class:`StabilizationOrder` per order, increasing.
+    """
+    diagram: list[StabilizationOrder] = []
+    previous: list[StabilizationPole] = []
+    for n in sorted(models):
+        poles = _poles(models[n], sample_time_s, criteria)
+        for pole in poles:
+            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, previous, criteria)
+        diagram.append(StabilizationOrder(n, poles))
+        previous = poles
+    return diagram
+
+
+def stable_fraction(
+    mode: Mode, diagram: list[StabilizationOrder], n_states: int, criteria: ModeCriteria
+) -> float:
+    """Fraction of the neighbouring orders in whose model the same pole is found.
+
+    The same pole: frequency within ``stability_frequency`` or, for a more damped mode, within
+    its damping ratio up to :data:`MAX_FREQUENCY_TOLERANCE` (the frequency of a mode is known
+    to about its half-power bandwidth, so a
+    1 %-damped mode of a short record scatters by about 1 %), and damping within a factor
+    :data:`DAMPING_FACTOR` or :data:`DAMPING_TOLERANCE` (a heavily damped pole next to a lightly
+    damped mode is not that mode), and itself below ``max_damping``. Neighbours: up to
+    :data:`NEIGHBOURS` orders tried on each side of
+    ``n_states``. NaN when no neighbouring order was tried (nothing to judge by).
+    """
+    below = [entry for entry in diagram if entry.n_states < n_states][-NEIGHBOURS:]
+    above = [entry for entry in diagram if entry.n_states > n_states][:NEIGHBOURS]
+    neighbours = below + above
+    if not neighbours:
+        return float("nan")
+    tolerance = max(criteria.stability_frequency, min(mode.damping_ratio, MAX_FREQUENCY_TOLERANCE))
+    found = 0
+    for entry in neighbours:
+        for pole in entry.poles:
+            df = abs(pole.frequency_hz - mode.frequency_hz) / max(mode.frequency_hz, 1e-300)
+            if (df <= tolerance and pole.damping_ratio < criteria.max_damping
+                    and _same_damping(pole.damping_ratio, mode.damping_ratio)):
+                found += 1
+                break
+    return found / len(neighbours)
+
+
+def _same_damping(a: float, b: float) -> bool:
+    """Damping ratios close enough for the same pole (see :func:`stable_fraction`)."""
+    if abs(a - b) <= DAMPING_TOLERANCE:
+        return True
+    low, high = sorted((a, b))
+    return low > 0 and high <= DAMPING_FACTOR * low
