@@ -6,9 +6,14 @@ the sample grid by header stamp, feeds them to
 ``okid_msgs/ArxModel`` on ``arx_model_topic`` (default ``/okid/arx_model``, reliable) at
 ``publish_rate_hz`` on the node clock (so ``use_sim_time`` works).
 
+Subscribes ``okid_msgs/StructuralChange`` (``structural_change_topic``, default
+``structural_change`` in the rig namespace, from node 2): the window restarts at the change
+point (:meth:`~okid_ros.service.identification.ArxIdentificationService.restart_at`).
+
 Services: ``~/reset`` (std_srvs/Trigger) forgets the window; ``~/enable`` (std_srvs/SetBool)
 switches adaptation on and off (off: the window is frozen and the same model is republished).
-Diagnostics on ``/diagnostics``.
+Diagnostics on ``/diagnostics``. Parameters, services, namespaces, time jumps and run-time
+parameter changes are handled by :class:`okid_ros.nodes.base.OkidNode`.
 
 Run: ``ros2 run okid_ros arx_identifier --ros-args --params-file config/okid.yaml`` or
 ``python -m okid_ros.nodes.arx_identifier_node --ros-args --params-file config/okid.yaml``.
@@ -19,26 +24,19 @@ The solve runs on a worker thread, which also publishes the result; a lock keeps
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from std_srvs.srv import SetBool, Trigger
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.common import (
-    DiagnosticsPublisher,
-    InputFrontend,
-    declare_parameters,
-    name_thread,
-    make_status,
-    reliable_qos,
-    run_node,
-)
-from okid_ros.nodes.conversions import arx_model_msg, ros_message_types
+from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.common import make_status, name_thread, reliable_qos
+from okid_ros.nodes.conversions import arx_model_msg, ros_message_types, stamp_to_seconds
 from okid_ros.service.identification import (
     ArxIdentificationParams,
     ArxIdentificationService,
@@ -46,31 +44,37 @@ from okid_ros.service.identification import (
     WindowCapture,
     solve_capture,
 )
-from okid_ros.service.params import ARX_NODE, node_params
+from okid_ros.service.params import ARX_NODE
 from okid_ros.service.sample_grid import GridSample
 
 NODE_NAME = ARX_NODE
 
 
-class ArxIdentifierNode(Node):
+class ArxIdentifierNode(OkidNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, node_params(NODE_NAME))
-        self.values = values
+
+    def build(self) -> None:
+        """Service, publishers, worker, timers, inputs (at the start, or on configure)."""
+        values = self.values
         params = ArxIdentificationParams.from_parameters(values)
         try:
             self.service = ArxIdentificationService(params)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self.types = ros_message_types()
+        self.arx_model_topic = self.topic("arx_model_topic")
         self.publisher = self.create_publisher(
-            self.types.ArxModel, values["arx_model_topic"], reliable_qos(10),
+            self.types.ArxModel, self.arx_model_topic, reliable_qos(10),
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )
-        self.inputs = InputFrontend(self, values, self._on_sample)
-        self.diagnostics = DiagnosticsPublisher(self)
+        # Node 2 declares structural changes: the window restarts at the change point.
+        self.create_subscription(
+            self.types.StructuralChange, self.topic("structural_change_topic"), self._on_structural_change,
+            reliable_qos(10), qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
         self._pool = ThreadPoolExecutor(
             max_workers=1, thread_name_prefix="arx_solve", initializer=name_thread, initargs=("okid_arx_solve",)
         )
@@ -78,23 +82,36 @@ class ArxIdentifierNode(Node):
         self._generation = 0
         self._skipped_publishes = 0
         self._lock = threading.Lock()
-        self.create_timer(1.0 / float(values["publish_rate_hz"]), self._on_publish_timer)
-        self.create_timer(1.0 / float(values["diagnostics_rate_hz"]), self._on_diagnostics_timer)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SetBool, "~/enable", self._on_enable)
-        topics = ", ".join(f"{s.topic} ({s.kind})" for s in self.inputs.specs)
+        self._publish_timer = self.create_timer(1.0 / float(values["publish_rate_hz"]), self._on_publish_timer)
+        self.start_inputs()
         self.get_logger().info(
             f"ready: ARX order {params.order}, window {params.window_length or 'forgetting'}, "
-            f"m={params.n_inputs}, p={params.n_outputs}, dt={params.sample_time_s:g} s; inputs {topics}; "
-            f"publishing {values['arx_model_topic']} at {values['publish_rate_hz']:g} Hz"
+            f"m={params.n_inputs}, p={params.n_outputs}, dt={params.sample_time_s:g} s; inputs {self.input_summary()}; "
+            f"publishing {self.arx_model_topic} at {values['publish_rate_hz']:g} Hz"
         )
 
     # ------------------------------------------------------------------ samples
-    def _on_sample(self, sample: GridSample) -> None:
+    def on_sample(self, sample: GridSample) -> None:
         self.service.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
+
+    def _on_structural_change(self, msg) -> None:
+        """Restart the window at the change point (node 2 reports each change twice: once)."""
+        if not self.active:
+            return
+        with self._lock:
+            replayed = self.service.restart_at(stamp_to_seconds(msg.change_stamp))
+            if replayed >= 0:
+                self._generation += 1  # a solve of the old window still running is not published
+        if replayed >= 0:
+            self.get_logger().info(
+                f"structural change {msg.change_id}: window restarted at {stamp_to_seconds(msg.change_stamp):.3f} s "
+                f"with {replayed} samples"
+            )
 
     # ------------------------------------------------------------------ publishing
     def _on_publish_timer(self) -> None:
+        if not self.active:
+            return
         if self._solving:
             self._skipped_publishes += 1  # the previous solve is still running
             return
@@ -113,41 +130,43 @@ class ArxIdentifierNode(Node):
                 if generation != self._generation:
                     return  # solved before a reset
                 snapshot = self.service.accept(capture, result)
-            self.publisher.publish(arx_model_msg(snapshot, self.types))
+            self.publisher.publish(arx_model_msg(snapshot, self.types, frame_id=self.frame_id))
         finally:
             self._solving = False
 
-    # ------------------------------------------------------------------ services
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+    # ------------------------------------------------------------------ hooks of OkidNode
+    def reset_state(self, reason: str) -> str:
         with self._lock:
             self._generation += 1
             self.service.reset()
-            self.inputs.reset()
-        self.get_logger().info("reset: window, counters and model ids cleared")
-        response.success = True
-        response.message = "ARX window reset"
-        return response
+        return "window, counters and model ids cleared"
 
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
-        self.service.set_adaptation(request.data)
-        state = "on" if request.data else "off (window frozen)"
-        self.get_logger().info(f"adaptation {state}")
-        response.success = True
-        response.message = f"adaptation {state}"
-        return response
+    def set_enabled(self, on: bool) -> str:
+        self.service.set_adaptation(on)
+        return f"adaptation {'on' if on else 'off (window frozen)'}"
 
-    # ------------------------------------------------------------------ diagnostics
-    def _on_diagnostics_timer(self) -> None:
-        for change in self.inputs.update_health():
-            if "stale" in change:
-                self.get_logger().warning(change)
-            else:
-                self.get_logger().info(change)
+    def check_parameters(self, values: dict[str, Any]) -> None:
+        ArxIdentificationParams.from_parameters(values)
+
+    def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
+        # The solve reads the parameters from each capture: the next solve uses the new ones.
+        new = ArxIdentificationParams.from_parameters(values)
+        with self._lock:
+            self.service.params = dataclasses.replace(self.service.params, **{
+                f.name: getattr(new, f.name) for f in dataclasses.fields(new)
+                if f.name not in ("order", "window_length", "forgetting_factor", "n_inputs", "n_outputs",
+                                  "sample_time_s")
+            })
+        if "publish_rate_hz" in changed:
+            self._publish_timer.timer_period_ns = int(1e9 / float(values["publish_rate_hz"]))
+
+    def diagnostic_statuses(self) -> list:
         d = self.service.diagnostics()
         grid = self.inputs.grid.counters
         d["samples_rejected"] += grid.rejected_messages
         d["samples_missing"] = grid.missing
         d["skipped_publishes"] = self._skipped_publishes
+        d["time_jump_resets"] = self.time_jump_resets
         if not d["has_good_model"]:
             level = DiagnosticStatus.WARN
             message = f"no model yet: {d['last_reason'] or 'waiting for samples'}"
@@ -159,14 +178,12 @@ class ArxIdentifierNode(Node):
             message = f"model {d['model_id']} valid, window {100 * d['window_fill']:.0f} % full"
         if not d["adaptation"]:
             message += " (adaptation off)"
-        self.diagnostics.publish([
-            make_status(f"{NODE_NAME}: identification", level, message, d),
-            self.inputs.status(NODE_NAME),
-        ])
+        return [make_status(f"{self.status_name}: identification", level, message, d)]
 
     def close(self) -> None:
-        """Stop the worker (called at shutdown)."""
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        pool = getattr(self, "_pool", None)  # None: never configured (lifecycle)
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
 
 
 def main(args: list[str] | None = None) -> int:

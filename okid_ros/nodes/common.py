@@ -1,10 +1,11 @@
-"""What both nodes share: parameter declaration, input topics on the sample grid, diagnostics,
+"""What both nodes share.
+
+Parameter declaration, input topics on the sample grid, diagnostics,
 and the process entry point.
 """
 
 from __future__ import annotations
 
-import gc
 import importlib
 import math
 import re
@@ -14,11 +15,9 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -26,7 +25,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.conversions import source_values
 from okid_ros.service.inputs import sources_and_grid
-from okid_ros.service.params import ParamSpec, validate_value
+from okid_ros.service.params import ParamSpec, read_only_reason, validate_value
 from okid_ros.service.sample_grid import GridSample
 
 __all__ = [
@@ -36,7 +35,6 @@ __all__ = [
     "DiagnosticsPublisher",
     "reliable_qos",
     "sensor_qos",
-    "run_node",
 ]
 
 _INT64_MAX = 2**63 - 1
@@ -76,8 +74,10 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     types = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
              float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
              list: ParameterType.PARAMETER_STRING_ARRAY}
+    reason = read_only_reason(spec.name)
+    description = spec.full_description() + (f"; read-only: {reason}" if reason else "; can change at run time")
     desc = ParameterDescriptor(
-        name=spec.name, type=types[kind], description=spec.full_description(), read_only=True,
+        name=spec.name, type=types[kind], description=description, read_only=bool(reason),
     )
     if spec.choices:
         desc.additional_constraints = "one of: " + ", ".join(spec.choices)
@@ -130,7 +130,7 @@ class InputFrontend:
     def __init__(self, node: Node, values: dict[str, Any], on_sample: Callable[[GridSample], None]) -> None:
         self.node = node
         self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
-        self.specs, self.grid = sources_and_grid(values)
+        self.specs, self.grid = sources_and_grid(values, node.get_namespace())
         self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
         self.on_sample = on_sample
         self._clock = node.get_clock()
@@ -188,8 +188,19 @@ class InputFrontend:
     def reset(self) -> None:
         self.grid.reset()
 
-    def update_health(self) -> list[str]:
-        """Recompute input rates and staleness; return messages for inputs that changed state."""
+    def apply_parameters(self, values: dict[str, Any]) -> None:
+        """Take the run-time tunable ``inputs.*`` parameters (already validated)."""
+        self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
+        self.grid.tolerance = float(values["inputs.stamp_tolerance"])
+        self.grid.latency_samples = int(values["inputs.latency_samples"])
+        self.grid.time_jump_s = float(values["inputs.time_jump_s"])
+
+    def update_health(self) -> list[tuple[str, bool]]:
+        """Recompute input rates and staleness.
+
+        Return (message, is_warning) for inputs that
+        changed state. An input that never sent anything is waiting, not stale.
+        """
         now = self._clock.now().nanoseconds
         t0, counts0 = self._rate_mark
         span = (now - t0) * 1e-9
@@ -202,13 +213,13 @@ class InputFrontend:
         changes = []
         for i, spec in enumerate(self.specs):
             last = self.last_arrival_ns[i]
-            stale = last is None or now - last > self.stale_timeout_ns
+            stale = last is not None and now - last > self.stale_timeout_ns
             if stale != self.stale[i]:
                 if stale:
-                    changes.append(f"input {spec.topic} is stale: no message for more than "
-                                   f"{self.stale_timeout_ns * 1e-9:g} s")
-                elif last is not None:
-                    changes.append(f"input {spec.topic} is receiving again")
+                    changes.append((f"input {spec.topic} is stale: no message for more than "
+                                    f"{self.stale_timeout_ns * 1e-9:g} s", True))
+                else:
+                    changes.append((f"input {spec.topic} is receiving again", False))
             self.stale[i] = stale
         return changes
 
@@ -227,8 +238,14 @@ class InputFrontend:
         values["input callback mean_us"] = round(self.callback_stats[0], 1)
         values["input callback max_ms"] = round(self.callback_stats[1], 3)
         stale = [s.topic for s, flag in zip(self.specs, self.stale) if flag]
+        waiting = [s.topic for s, last in zip(self.specs, self.last_arrival_ns) if last is None]
         level = DiagnosticStatus.WARN if stale else DiagnosticStatus.OK
-        message = ("stale: " + ", ".join(stale)) if stale else f"{len(self.specs)} input(s) receiving"
+        if stale:
+            message = "stale: " + ", ".join(stale)
+        elif waiting:
+            message = "waiting for the first message on " + ", ".join(waiting)
+        else:
+            message = f"{len(self.specs)} input(s) receiving"
         return make_status(f"{node_name}: inputs", level, message, values)
 
 
@@ -267,29 +284,27 @@ def _import_type(name: str) -> type:
     return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
 
 
-def run_node(factory: Callable[[], Node], name: str, args: Sequence[str] | None = None) -> int:
-    """Create the node, spin until Ctrl-C / SIGTERM / shutdown; 2 if the parameters are invalid."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = factory()
-        # Everything allocated so far (modules, the node) is permanent: keep it out of the
-        # cyclic collector, whose full passes over it otherwise stall the sample path by
-        # 10-20 ms now and then.
-        gc.freeze()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-        return 0
-    except ParameterError as exc:
-        print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0  # Ctrl-C or SIGTERM, also while starting
-    finally:
-        if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+def check_parameter_files(node: Node, strict: bool, argv: Sequence[str] | None = None) -> None:
+    """Warn about (or, ``strict``, refuse) unknown names in the node's parameter files.
+
+    Names it does not
+    declare, and sections naming it that do not apply in its namespace (rcl ignores both).
+
+    Raises
+    ------
+    ParameterError when ``strict`` and there is a problem.
+    """
+    from okid_ros.service.param_files import file_report, params_files_from_args, read_files
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
+
+    names = {n: [s.name for s in node_params(n)] for n in (ARX_NODE, ESTIMATOR_NODE)}
+    namespace = node.get_namespace()
+    problems = [
+        problem
+        for label, tree in read_files(params_files_from_args(sys.argv if argv is None else argv))
+        for problem in file_report(tree, label, names, namespace, for_node=node.get_name())
+    ]
+    if problems and strict:
+        raise ParameterError("; ".join(problems) + " (strict_parameters is true)")
+    for problem in problems:
+        node.get_logger().warning(problem)

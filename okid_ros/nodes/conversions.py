@@ -23,7 +23,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import Mode
-from okid_ros.service.estimation import ModalStatesResult, ModelUpdate
+from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.identification import ArxSnapshot
 from okid_ros.service.inputs import SourceSpec
 
@@ -43,6 +43,8 @@ __all__ = [
     "modal_states_from_msg",
     "state_space_model_msg",
     "state_space_from_msg",
+    "structural_change_msg",
+    "structural_change_from_msg",
 ]
 
 _EMPTY = np.zeros(0)
@@ -59,6 +61,7 @@ class MessageTypes:
     ModalStates: Any
     ArxModel: Any
     StateSpaceModel: Any
+    StructuralChange: Any = None
 
     @classmethod
     def from_typestore(cls, store: Any) -> "MessageTypes":
@@ -67,17 +70,19 @@ class MessageTypes:
         return cls(
             t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"], t["okid_msgs/msg/IoSample"],
             t["okid_msgs/msg/Mode"], t["okid_msgs/msg/ModalStates"], t["okid_msgs/msg/ArxModel"],
-            t["okid_msgs/msg/StateSpaceModel"],
+            t["okid_msgs/msg/StateSpaceModel"], t["okid_msgs/msg/StructuralChange"],
         )
 
 
 def ros_message_types() -> MessageTypes:
     """The rclpy message classes (needs the ROS Python packages and okid_msgs)."""
     from builtin_interfaces.msg import Time
-    from okid_msgs.msg import ArxModel, IoSample, ModalStates, Mode as ModeMsg, StateSpaceModel
     from std_msgs.msg import Header
 
-    return MessageTypes(Time, Header, IoSample, ModeMsg, ModalStates, ArxModel, StateSpaceModel)
+    from okid_msgs.msg import ArxModel, IoSample, ModalStates, StateSpaceModel, StructuralChange
+    from okid_msgs.msg import Mode as ModeMsg
+
+    return MessageTypes(Time, Header, IoSample, ModeMsg, ModalStates, ArxModel, StateSpaceModel, StructuralChange)
 
 
 # ---------------------------------------------------------------------------------- time
@@ -171,9 +176,9 @@ def arx_model_msg(snapshot: ArxSnapshot, types: MessageTypes, frame_id: str = ""
         n_inputs=int(m),
         n_outputs=int(p),
         window_length=int(snapshot.window_length),
-        window_fill=int(snapshot.window_rows),
+        window_fill=int(snapshot.window_rows),  # the message's window_fill is a row count
         forgetting_factor=float(snapshot.forgetting_factor),
-        regularization=float(snapshot.penalty) if math.isfinite(snapshot.penalty) else 0.0,
+        regularization=float(snapshot.penalty) if math.isfinite(snapshot.penalty) else 0.0,  # the penalty
         coefficients_rows=int(rows),
         coefficients_cols=int(cols),
         coefficients=theta,
@@ -226,6 +231,8 @@ def mode_msg(mode: Mode, types: MessageTypes) -> Any:
         msv=float(mode.msv),
         mac_previous=float(mode.mac_previous),
         stable=bool(mode.stable),
+        frequency_hz_std=float(getattr(mode, "frequency_hz_std", math.nan)),
+        damping_ratio_std=float(getattr(mode, "damping_ratio_std", math.nan)),
         shape_real=_f64(np.real(mode.shape)),
         shape_imag=_f64(np.imag(mode.shape)),
     )
@@ -243,6 +250,8 @@ def mode_from_msg(msg: Any) -> dict[str, Any]:
         "msv": float(msg.msv),
         "mac_previous": float(msg.mac_previous),
         "stable": bool(msg.stable),
+        "frequency_hz_std": float(getattr(msg, "frequency_hz_std", math.nan)),
+        "damping_ratio_std": float(getattr(msg, "damping_ratio_std", math.nan)),
         "shape": np.asarray(msg.shape_real, dtype=float) + 1j * np.asarray(msg.shape_imag, dtype=float),
     }
 
@@ -318,13 +327,25 @@ def state_space_model_msg(update: ModelUpdate, types: MessageTypes, frame_id: st
         k=_f64(model.K),
         innovation_covariance=_f64(model.innovation_covariance),
         hankel_singular_values=_f64(model.hankel_singular_values),
+        input_offset=_f64(np.zeros(m) if model.input_offset is None else model.input_offset),
+        output_offset=_f64(np.zeros(p) if model.output_offset is None else model.output_offset),
+        spectral_radius=float(model.spectral_radius()),
+        predictor_spectral_radius=float(model.predictor_spectral_radius()),
         modes=[mode_msg(mo, types) for mo in update.modes],
     )
 
 
+def _offset_from_msg(values, size: int) -> np.ndarray:
+    """An offset field of StateSpaceModel; zeros when empty (a message from before the field)."""
+    return np.asarray(values, dtype=float).reshape(size) if len(values) else np.zeros(size)
+
+
 def state_space_from_msg(msg: Any) -> dict[str, Any]:
-    """``StateSpaceModel`` -> dict: stamp_s, model_id, arx_model_id, sample_time_s, A, B, C, D, K,
-    innovation_covariance, hankel_singular_values, modes (dicts)."""
+    """``StateSpaceModel`` -> dict.
+
+    Keys: stamp_s, model_id, arx_model_id, sample_time_s, A, B, C, D, K,
+    innovation_covariance, hankel_singular_values, input_offset, output_offset, modes (dicts).
+    """
     n, m, p = int(msg.n_states), int(msg.n_inputs), int(msg.n_outputs)
     return {
         "stamp_s": stamp_to_seconds(msg.header.stamp),
@@ -338,5 +359,45 @@ def state_space_from_msg(msg: Any) -> dict[str, Any]:
         "K": np.asarray(msg.k, dtype=float).reshape(n, p),
         "innovation_covariance": np.asarray(msg.innovation_covariance, dtype=float).reshape(p, p),
         "hankel_singular_values": np.asarray(msg.hankel_singular_values, dtype=float),
+        "input_offset": _offset_from_msg(msg.input_offset, m),
+        "output_offset": _offset_from_msg(msg.output_offset, p),
         "modes": [mode_from_msg(mo) for mo in msg.modes],
+    }
+
+
+# ---------------------------------------------------------------------------------- StructuralChange
+def structural_change_msg(event: StructuralChangeEvent, stamp_s: float, types: MessageTypes,
+                          frame_id: str = "") -> Any:
+    """``okid_msgs/StructuralChange`` of a change event, produced at the sample ``stamp_s``."""
+    return types.StructuralChange(
+        header=_header(stamp_s, frame_id, types),
+        change_id=int(event.change_id),
+        change_stamp=seconds_to_stamp(event.change_stamp_s, types),
+        detection_stamp=seconds_to_stamp(event.stamp_s, types),
+        detection_delay_samples=max(int(event.detection_delay_samples), 0),
+        statistic=float(event.statistic),
+        threshold=float(event.threshold),
+        variance_ratio=float(event.variance_ratio),
+        identified=bool(event.modes_after),
+        modes_before=[mode_msg(m, types) for m in event.modes_before],
+        modes_after=[mode_msg(m, types) for m in event.modes_after],
+        retired_ids=np.asarray(event.retired_ids, dtype=np.uint32),
+    )
+
+
+def structural_change_from_msg(msg: Any) -> dict[str, Any]:
+    """``StructuralChange`` -> dict with the message's field names (stamps in seconds)."""
+    return {
+        "stamp_s": stamp_to_seconds(msg.header.stamp),
+        "change_id": int(msg.change_id),
+        "change_stamp_s": stamp_to_seconds(msg.change_stamp),
+        "detection_stamp_s": stamp_to_seconds(msg.detection_stamp),
+        "detection_delay_samples": int(msg.detection_delay_samples),
+        "statistic": float(msg.statistic),
+        "threshold": float(msg.threshold),
+        "variance_ratio": float(msg.variance_ratio),
+        "identified": bool(msg.identified),
+        "modes_before": [mode_from_msg(m) for m in msg.modes_before],
+        "modes_after": [mode_from_msg(m) for m in msg.modes_after],
+        "retired_ids": [int(i) for i in msg.retired_ids],
     }

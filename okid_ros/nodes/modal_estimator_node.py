@@ -10,7 +10,11 @@ publishes:
   ``/okid/state_space_model``; reliable, transient local: a late subscriber gets the current
   model) for every accepted model;
 - ``okid_msgs/ModalStates`` on ``modal_states_topic`` (default ``/okid/modal_states``, reliable)
-  for every incoming sample once a model exists.
+  for every incoming sample once a model exists (not for samples where the estimator diverged);
+- ``okid_msgs/StructuralChange`` on ``structural_change_topic`` (default ``structural_change``
+  in the rig namespace, reliable) when the innovation monitor declares a structural change, and
+  again when the first model of the new structure is accepted; node 1 restarts its window at
+  the change.
 
 Models that fail their checks (unstable, modes lost) are not used; the last good one stays and
 the reason is in the diagnostics. Services: ``~/reset`` (std_srvs/Trigger) forgets the model,
@@ -27,33 +31,28 @@ interpreter quickly while the worker runs Python code.
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import sys
 import threading
+from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from std_srvs.srv import SetBool, Trigger
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.common import (
-    DiagnosticsPublisher,
-    InputFrontend,
-    declare_parameters,
-    name_thread,
-    make_status,
-    reliable_qos,
-    run_node,
-)
+from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.common import make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
     fill_modal_states,
     mode_msg,
     ros_message_types,
     state_space_model_msg,
+    structural_change_msg,
 )
 from okid_ros.service.estimation import (
     ModalEstimationParams,
@@ -62,20 +61,24 @@ from okid_ros.service.estimation import (
     RealizationOutcome,
     realize,
 )
-from okid_ros.service.params import ESTIMATOR_NODE, node_params
+from okid_ros.service.params import ESTIMATOR_NODE
 from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
+#: Fields of ModalEstimationParams fixed at the start (they size the buffer).
+_STRUCTURAL = ("sample_time_s", "n_inputs", "n_outputs", "buffer_length")
 
 
-class ModalEstimatorNode(Node):
+class ModalEstimatorNode(OkidNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, node_params(NODE_NAME))
-        self.values = values
+
+    def build(self) -> None:
+        """Service, publishers, worker, timers, inputs (at the start, or on configure)."""
+        values = self.values
         params = ModalEstimationParams.from_parameters(values)
         try:
             self.service = ModalEstimationService(params)
@@ -83,20 +86,24 @@ class ModalEstimatorNode(Node):
             raise ParameterError(str(exc)) from None
         self.types = ros_message_types()
         overrides = QoSOverridingOptions.with_default_policies()
+        self.topics = {key: self.topic(key) for key in (
+            "arx_model_topic", "state_space_model_topic", "modal_states_topic", "structural_change_topic")}
         self.states_publisher = self.create_publisher(
-            self.types.ModalStates, values["modal_states_topic"], reliable_qos(100),
+            self.types.ModalStates, self.topics["modal_states_topic"], reliable_qos(100),
             qos_overriding_options=overrides,
         )
         self.model_publisher = self.create_publisher(
-            self.types.StateSpaceModel, values["state_space_model_topic"], reliable_qos(5, latched=True),
+            self.types.StateSpaceModel, self.topics["state_space_model_topic"], reliable_qos(5, latched=True),
+            qos_overriding_options=overrides,
+        )
+        self.change_publisher = self.create_publisher(
+            self.types.StructuralChange, self.topics["structural_change_topic"], reliable_qos(10),
             qos_overriding_options=overrides,
         )
         self.create_subscription(
-            self.types.ArxModel, values["arx_model_topic"], self._on_arx_model, reliable_qos(5),
+            self.types.ArxModel, self.topics["arx_model_topic"], self._on_arx_model, reliable_qos(5),
             qos_overriding_options=overrides,
         )
-        self.inputs = InputFrontend(self, values, self._on_sample)
-        self.diagnostics = DiagnosticsPublisher(self)
         if values["realization.worker"] == "process":
             # A process of its own: the realization never holds this interpreter's lock.
             self._pool = ProcessPoolExecutor(
@@ -111,39 +118,47 @@ class ModalEstimatorNode(Node):
         self._job: Future | None = None
         self._running_job: RealizationJob | None = None
         self._mode_msgs: list = []
-        self._updates_to_log: list = []
+        self._updates_to_log: deque = deque()  # appended on the executor thread, logged on the side thread
+        self._changes_to_log: deque = deque()
         self._states_msg = self.types.ModalStates()  # refilled and published for every sample
+        self._states_msg.header.frame_id = self.frame_id
         self._arx_invalid = 0
         self._arx_malformed = 0
         self._last_logged_reason = ""
         self._lock = threading.Lock()
-        self.create_timer(1.0 / float(values["diagnostics_rate_hz"]), self._on_diagnostics_timer)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SetBool, "~/enable", self._on_enable)
-        topics = ", ".join(f"{s.topic} ({s.kind})" for s in self.inputs.specs)
+        self.start_inputs()
         order = "auto" if params.n_states == 0 else str(params.n_states)
         self.get_logger().info(
             f"ready: states {order}, m={params.n_inputs}, p={params.n_outputs}, dt={params.sample_time_s:g} s; "
-            f"inputs {topics}; models from {values['arx_model_topic']}; publishing "
-            f"{values['modal_states_topic']} and {values['state_space_model_topic']}"
+            f"inputs {self.input_summary()}; models from {self.topics['arx_model_topic']}; publishing "
+            f"{self.topics['modal_states_topic']} and {self.topics['state_space_model_topic']}"
         )
 
     # ------------------------------------------------------------------ samples
-    def _on_sample(self, sample: GridSample) -> None:
+    def on_sample(self, sample: GridSample) -> None:
         skipped = RESTART_SKIP if sample.restart else sample.skipped
         result = self.service.step(sample.stamp_s, sample.u, sample.y, skipped)
         if result is not None:
             if result.update is not None:
                 update = result.update
                 self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
-                self.model_publisher.publish(state_space_model_msg(update, self.types))
-                self._updates_to_log.append(update)  # logged by the diagnostics timer: a log call costs ~1 ms
+                # The StateSpaceModel (matrices, modes) is built and published off the sample path.
+                self.off_sample_path(lambda update=update: self.model_publisher.publish(
+                    state_space_model_msg(update, self.types, frame_id=self.frame_id)))
+                self._updates_to_log.append(update)  # logged with the diagnostics: a log call costs ~1 ms
+            if result.change is not None:
+                change = result.change
+                self.off_sample_path(lambda change=change, stamp_s=result.stamp_s: self.change_publisher.publish(
+                    structural_change_msg(change, stamp_s, self.types, frame_id=self.frame_id)))
+                self._changes_to_log.append(change)
             self.states_publisher.publish(fill_modal_states(self._states_msg, result, self._mode_msgs))
         if self._job is None and self.service.has_request:
             self._start_job()
 
     # ------------------------------------------------------------------ models
     def _on_arx_model(self, msg) -> None:
+        if not self.active:
+            return
         if not msg.valid:
             self._arx_invalid += 1
             return
@@ -174,48 +189,62 @@ class ModalEstimatorNode(Node):
         self.service.deliver(outcome)
         self._job = None
 
-    # ------------------------------------------------------------------ services
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+    # ------------------------------------------------------------------ hooks of OkidNode
+    def reset_state(self, reason: str) -> str:
         self.service.reset()
-        self.inputs.reset()
         self._mode_msgs = []
-        self.get_logger().info("reset: model, mode ids and sample buffer cleared")
-        response.success = True
-        response.message = "estimator reset"
-        return response
+        self._last_logged_reason = ""
+        return "model, mode ids and sample buffer cleared"
 
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
-        self.service.set_enabled(request.data)
-        state = "on" if request.data else "off (current model frozen)"
-        self.get_logger().info(f"model updates {state}")
-        response.success = True
-        response.message = f"model updates {state}"
-        return response
+    def set_enabled(self, on: bool) -> str:
+        self.service.set_enabled(on)
+        return f"model updates {'on' if on else 'off (current model frozen)'}"
 
-    # ------------------------------------------------------------------ diagnostics
-    def _on_diagnostics_timer(self) -> None:
-        updates, self._updates_to_log = self._updates_to_log, []
-        for update in updates:
+    def check_parameters(self, values: dict[str, Any]) -> None:
+        new = ModalEstimationParams.from_parameters(values)
+        if new.gain not in ("refit", "whitening"):
+            raise ValueError(f"realization.gain must be refit or whitening, got {new.gain!r}")
+
+    def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
+        # Jobs carry the parameters they were taken with: the next realization uses the new ones.
+        new = ModalEstimationParams.from_parameters(values)
+        self.service.params = dataclasses.replace(self.service.params, **{
+            f.name: getattr(new, f.name) for f in dataclasses.fields(new) if f.name not in _STRUCTURAL
+        })
+        if "frame_id" in changed:
+            self._states_msg.header.frame_id = self.frame_id
+
+    def before_diagnostics(self) -> None:
+        while self._changes_to_log:
+            change = self._changes_to_log.popleft()
+            modes = ", ".join(f"#{m.id} {m.frequency_hz:.3f} Hz" for m in (change.modes_after or change.modes_before))
+            what = "identified, modes after" if change.modes_after else "declared, modes before"
+            self.get_logger().warning(
+                f"structural change {change.change_id} at {change.change_stamp_s:.3f} s "
+                f"(statistic {change.statistic:.1f} > {change.threshold:.1f}) {what}: {modes}"
+            )
+        while self._updates_to_log:
+            update = self._updates_to_log.popleft()
             modes = ", ".join(f"#{m.id} {m.frequency_hz:.3f} Hz {100 * m.damping_ratio:.2f} %" for m in update.modes)
             self.get_logger().info(
                 f"model {update.model_id} (ARX {update.arx_model_id}, {update.model.n_states} states, "
                 f"realized in {update.realization_time_s:.2f} s): {modes}"
             )
-        for change in self.inputs.update_health():
-            if "stale" in change:
-                self.get_logger().warning(change)
-            else:
-                self.get_logger().info(change)
+
+    def diagnostic_statuses(self) -> list:
         d = self.service.diagnostics()
         grid = self.inputs.grid.counters
         d["arx_models_invalid"] = self._arx_invalid
         d["arx_models_malformed"] = self._arx_malformed
+        d["time_jump_resets"] = self.time_jump_resets
         d["samples_rejected"] = d.pop("rejected_samples") + grid.rejected_messages
         d["samples_missing"] = grid.missing
         reason = d["last_reason"]
-        if reason and reason != self._last_logged_reason:
+        # Once per distinct reason, numbers left out (a count that grows is the same reason).
+        reason_kind = "".join(c for c in reason if not c.isdigit())
+        if reason and reason_kind != self._last_logged_reason:
             self.get_logger().warning(f"model not used: {reason}")
-        self._last_logged_reason = reason
+        self._last_logged_reason = reason_kind
         if d["model_id"] == 0:
             level = DiagnosticStatus.WARN
             message = f"no model yet: {reason or 'waiting for a valid ArxModel'}"
@@ -225,21 +254,28 @@ class ModalEstimatorNode(Node):
         else:
             level = DiagnosticStatus.OK
             message = f"model {d['model_id']}: {d['n_modes']} modes, {d['n_states']} states"
+        if d["change_waiting_for_model"]:
+            level = DiagnosticStatus.WARN
+            message += (f"; structural change at {d['last_change_stamp_s']:.3f} s, "
+                        "waiting for a model of the new structure")
+        if d["order_limit_reached"]:
+            message += "; the automatic model order stopped at its limit (realization.max_states_limit)"
         if not d["enabled"]:
             message += " (model updates off)"
-        self.diagnostics.publish([
-            make_status(f"{NODE_NAME}: estimation", level, message, d),
-            self.inputs.status(NODE_NAME),
-        ])
+        return [make_status(f"{self.status_name}: estimation", level, message, d)]
 
     def close(self) -> None:
-        """Stop the worker (called at shutdown)."""
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        pool = getattr(self, "_pool", None)  # None: never configured (lifecycle)
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _worker_init(name: str) -> None:
-    """In the realization worker: a name for top/ps, Ctrl-C left to the node, lower priority so
-    that the per-sample path wins when the cores are busy."""
+    """Set up the realization worker process.
+
+    A name for top/ps, Ctrl-C left to the node, lower priority so
+    that the per-sample path wins when the cores are busy.
+    """
     import signal
     import warnings
 

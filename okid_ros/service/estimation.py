@@ -13,7 +13,8 @@ Life of a model update::
     take_job()                     when the buffer holds the window's end sample: a job with a
                                    copy of the window (u, y), or None
     realize(job)                   the expensive part (ERA + refit + refinement, ~1 s at
-                                   q = 100), then a warm start: the new model's predictor runs
+                                   q = 100; then the modes' standard deviations, a few ms),
+                                   then a warm start: the new model's predictor runs
                                    over the window; pure, any thread or process
     follow(outcome)                the warm start goes on over the samples that arrived
                                    meanwhile, so the state is converged when it takes over
@@ -23,9 +24,11 @@ Life of a model update::
 ``process_pending()`` runs the last three synchronously (offline processing).
 
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
-:meth:`diagnostics`):
+:meth:`diagnostics`, naming the check):
 
-- the realization succeeded, ``A`` is stable (spectral radius < 1) and has a physical mode;
+- the realization succeeded, ``A`` is stable (spectral radius < 1), so is its one-step
+  predictor ``A - A K C``, the innovation covariance is positive definite, and it has a
+  physical mode;
 - modes are not lost: at least ``min_matched_fraction`` of the current model's modes are found
   again (frequency within ``max_frequency_change``, MAC >= ``min_mac``, by
   :func:`okid_ros.core.modal.match_modes`). After ``max_consecutive_rejections`` models
@@ -40,6 +43,23 @@ over the buffered samples (not from zero), and the normalized modal form of
 matched modes continue smoothly. The size of the step at each switch relative to the modes'
 RMS amplitude is measured and reported (``last_switch_jump``).
 
+Divergence watchdog: each innovation is whitened by the model's innovation covariance
+(:class:`okid_ros.core.change_detection.DivergenceMonitor`); a diverged sample (non-finite, or
+the moving mean of the normalized innovation squared far above p) is not published (its model
+update or change event goes out with the next good sample), and sustained divergence restarts
+the estimator from the buffered samples (warm start with the model's predictor, diverged
+samples predicted over).
+
+Structural change: every sample also goes to a
+:class:`okid_ros.core.change_detection.StructuralChangeMonitor` armed with a reference model
+(the first model of a structure, then models of windows twice as long). On an alarm
+:class:`StructuralChangeEvent` is reported with the sample (``ModalStatesResult.change``);
+until a model identified from post-change data only is accepted, ARX windows that start before
+the change point are refused; that model is matched against the modes before the change only
+(modes not matched are retired, :class:`okid_ros.service.mode_registry.ModeRegistry`) and the
+event is reported again with the modes after. A divergence that comes back right after a
+restart is declared a change too.
+
 Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
 predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
 time jump the estimator restarts from zero.
@@ -50,16 +70,29 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit
+from okid_ros.core.change_detection import (
+    DEFAULT_FALSE_ALARM_SAMPLES,
+    DEFAULT_REFERENCE_SAMPLES,
+    DEFAULT_VARIANCE_RATIO,
+    DivergenceMonitor,
+    StructuralChangeMonitor,
+    predictor_spectral_radius,
+    whitening_matrix,
+)
 from okid_ros.core.estimator import ModalStateEstimator
-from okid_ros.core.modal import Mode, mac, match_modes
+from okid_ros.core.modal import Mode
+from okid_ros.core.options import AUTO, ModeCriteria, RealizationOptions
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
+from okid_ros.core.statespace import InnovationPredictor
+from okid_ros.service.mode_registry import ModeRegistry
+from okid_ros.service.sample_buffer import SampleBuffer
 
 __all__ = [
     "realize",
@@ -69,8 +102,12 @@ __all__ = [
     "ModelUpdate",
     "RealizationJob",
     "RealizationOutcome",
+    "StructuralChangeEvent",
 ]
 
+
+
+_REALIZATION = RealizationOptions()  # the core's defaults, defined there once
 
 
 @dataclass
@@ -81,12 +118,16 @@ class ModalEstimationParams:
     n_inputs: int = 2
     n_outputs: int = 2
     n_states: int = 0  # 0: automatic (BIC)
-    max_states: int = 40
-    gain: str = "refit"
-    refine: bool = True
-    max_damping: float = 0.1
-    min_msv: float = 1e-3
-    max_nyquist_fraction: float = 0.95
+    max_states: int = _REALIZATION.max_states
+    max_states_limit: int = _REALIZATION.max_states_limit
+    gain: str = _REALIZATION.gain
+    refine: bool = _REALIZATION.refine
+    max_damping: float = _REALIZATION.modes.max_damping
+    min_msv: float = _REALIZATION.modes.min_msv
+    max_nyquist_fraction: float = _REALIZATION.modes.max_nyquist_fraction
+    min_mpc: float = _REALIZATION.modes.min_mpc
+    min_stable_fraction: float = _REALIZATION.modes.min_stable_fraction
+    offsets: str = "remove"
     max_frequency_change: float = 0.05
     min_mac: float = 0.7
     min_matched_fraction: float = 0.5
@@ -95,6 +136,12 @@ class ModalEstimationParams:
     buffer_length: int = 0  # 0: sized from the ARX window
     max_gap_samples: int = 10
     handover_samples: int = 4
+    change_detection: bool = True
+    change_false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES
+    change_variance_ratio: float = DEFAULT_VARIANCE_RATIO
+    change_reference_samples: int = DEFAULT_REFERENCE_SAMPLES
+    divergence_window_samples: int = 25
+    divergence_nis_ratio: float = 100.0
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> "ModalEstimationParams":
@@ -105,11 +152,15 @@ class ModalEstimationParams:
             n_outputs=int(values["n_outputs"]),
             n_states=int(values["realization.n_states"]),
             max_states=int(values["realization.max_states"]),
+            max_states_limit=int(values["realization.max_states_limit"]),
             gain=str(values["realization.gain"]),
             refine=bool(values["realization.refine"]),
             max_damping=float(values["modes.max_damping"]),
             min_msv=float(values["modes.min_msv"]),
             max_nyquist_fraction=float(values["modes.max_nyquist_fraction"]),
+            min_mpc=float(values["modes.min_mpc"]),
+            min_stable_fraction=float(values["modes.min_stable_fraction"]),
+            offsets=str(values["offsets"]),
             max_frequency_change=float(values["tracking.max_frequency_change"]),
             min_mac=float(values["tracking.min_mac"]),
             min_matched_fraction=float(values["tracking.min_matched_fraction"]),
@@ -117,6 +168,26 @@ class ModalEstimationParams:
             mode_memory=int(values["tracking.mode_memory"]),
             buffer_length=int(values["estimator.buffer_length"]),
             max_gap_samples=int(values["estimator.max_gap_samples"]),
+            change_detection=bool(values["change.enabled"]),
+            change_false_alarm_samples=float(values["change.false_alarm_samples"]),
+            change_variance_ratio=float(values["change.variance_ratio"]),
+            change_reference_samples=int(values["change.reference_samples"]),
+            divergence_window_samples=int(values["estimator.divergence_window_samples"]),
+            divergence_nis_ratio=float(values["estimator.divergence_nis_ratio"]),
+        )
+
+    def realization_options(self) -> RealizationOptions:
+        """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`)."""
+        return RealizationOptions(
+            n_states=self.n_states if self.n_states > 0 else AUTO,
+            max_states=self.max_states,
+            max_states_limit=max(self.max_states, self.max_states_limit),
+            gain=self.gain,
+            refine=self.refine,
+            modes=ModeCriteria(
+                max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
+                min_msv=self.min_msv, min_mpc=self.min_mpc, min_stable_fraction=self.min_stable_fraction,
+            ),
         )
 
 
@@ -134,6 +205,39 @@ class ModelUpdate:
 
 
 @dataclass
+class StructuralChangeEvent:
+    """A structural change declared by the innovation monitor, as ``StructuralChange`` carries it.
+
+    Reported twice: when it is declared (``modes_after`` empty) and when the first model
+    identified from post-change data only is accepted (``modes_after`` set).
+
+    Attributes
+    ----------
+    change_id : 1 for the first change since start or reset, then 2, ...
+    stamp_s : stamp of the sample at which the change was declared [s].
+    change_stamp_s : estimated stamp of the first sample of the new structure [s].
+    statistic, threshold : the CUSUM statistic at the declaration and its threshold [nats].
+    variance_ratio : mean normalized innovation power since the change point (1: no change).
+    modes_before : the modes of the model in use when the change was declared.
+    modes_after : the modes of the first model of the new structure (empty until accepted).
+    retired_ids : ids of the modes before that no mode after matched (retired).
+    detection_delay_samples : samples from the change point to the declaration.
+    """
+
+    change_id: int
+    stamp_s: float
+    change_stamp_s: float
+    statistic: float
+    threshold: float
+    variance_ratio: float
+    modes_before: list[Mode]
+    modes_after: list[Mode] = field(default_factory=list)
+    retired_ids: list[int] = field(default_factory=list)
+    detection_delay_samples: int = 0
+    change_index: int = -1  # buffer index of the change point (internal)
+
+
+@dataclass
 class ModalStatesResult:
     """The estimate for one sample, as ``ModalStates`` carries it.
 
@@ -146,6 +250,7 @@ class ModalStatesResult:
     y_estimated : (p,) ``C x + D u`` (filtered).
     innovation : (p,) ``y - C xhat - D u`` (one-step prediction error).
     update : the model accepted at this sample, if any (publish it before the states).
+    change : a structural change declared or re-identified at this sample, if any.
     """
 
     stamp_s: float
@@ -155,6 +260,7 @@ class ModalStatesResult:
     y_estimated: np.ndarray
     innovation: np.ndarray
     update: ModelUpdate | None = None
+    change: StructuralChangeEvent | None = None
 
 
 @dataclass
@@ -189,112 +295,20 @@ class RealizationOutcome:
     warm_start_samples: int = 0
 
 
-class _SampleBuffer:
-    """Ring buffer of recent samples, indexed by an absolute sample counter; thread-safe."""
-
-    def __init__(self, capacity: int, m: int, p: int) -> None:
-        self.lock = threading.Lock()
-        self.m, self.p = m, p
-        self._alloc(max(int(capacity), 16))
-        self.count = 0
-
-    def _alloc(self, cap: int) -> None:
-        self.cap = cap
-        self.stamps = np.zeros(cap)
-        self.u = np.zeros((cap, self.m))
-        self.y = np.zeros((cap, self.p))
-        self.skipped = np.zeros(cap, dtype=np.int64)
-
-    def clear(self) -> None:
-        with self.lock:
-            self.count = 0
-
-    def resize(self, cap: int) -> None:
-        with self.lock:
-            if cap <= self.cap:
-                return
-            first = max(self.count - self.cap, 0)
-            idx = np.arange(first, self.count) % self.cap
-            old = (self.stamps[idx], self.u[idx], self.y[idx], self.skipped[idx])
-            self._alloc(cap)
-            new = np.arange(first, self.count) % cap
-            self.stamps[new], self.u[new], self.y[new], self.skipped[new] = old
-
-    def append(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> int:
-        with self.lock:
-            i = self.count % self.cap
-            self.stamps[i] = stamp_s
-            self.u[i] = u
-            self.y[i] = y
-            self.skipped[i] = skipped
-            self.count += 1
-            return self.count - 1
-
-    @property
-    def first(self) -> int:
-        return max(self.count - self.cap, 0)
-
-    def get(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of samples lo..hi-1 (absolute indices, clipped to what is stored)."""
-        with self.lock:
-            lo = max(lo, self.first)
-            hi = min(hi, self.count)
-            idx = np.arange(lo, max(hi, lo)) % self.cap
-            return self.stamps[idx].copy(), self.u[idx].copy(), self.y[idx].copy(), self.skipped[idx].copy()
-
-    def find_end(self, stamp_s: float, tol: float) -> tuple[int, float]:
-        """Newest stored sample with stamp <= stamp_s + tol (index, its stamp), or (-1, nan).
-
-        Searched within the newest contiguous timeline (after the last restart).
-        """
-        with self.lock:
-            lo, hi = self.first, self.count
-            if hi == lo:
-                return -1, math.nan
-            idx = np.arange(lo, hi) % self.cap
-            st = self.stamps[idx]
-            restarts = np.flatnonzero(self.skipped[idx] < 0)
-            start = int(restarts[-1]) if restarts.size else 0
-            ok = np.flatnonzero(st[start:] <= stamp_s + tol)
-            if ok.size == 0:
-                return -1, math.nan
-            k = start + int(ok[-1])
-            return lo + k, float(st[k])
-
-    def newest_stamp(self) -> float:
-        with self.lock:
-            return float(self.stamps[(self.count - 1) % self.cap]) if self.count else math.nan
-
-
-def _predictor(model: IdentifiedModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``F = A - A K C``, ``Gu = B - A K D``, ``Gy = A K``: ``xhat+ = F xhat + Gu u + Gy y``."""
-    AK = model.A @ model.K
-    return model.A - AK @ model.C, model.B - AK @ model.D, AK
-
-
 def _run_predictor(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray,
-                   skipped: np.ndarray, u_prev: np.ndarray | None, max_gap: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """Advance the predicted state over samples (same result as ModalStateEstimator.step)."""
-    F, Gu, Gy = _predictor(model)
-    w = u @ Gu.T + y @ Gy.T
-    A, B = model.A, model.B
-    for k in range(u.shape[0]):
-        s = int(skipped[k])
-        if s:
-            x = _bridge(A, B, x, u_prev, s, max_gap)
-        x = F @ x + w[k]
-        u_prev = u[k]
-    return x, u_prev
+                   skipped: np.ndarray, u_prev: np.ndarray | None,
+                   max_gap: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """Advance the predicted state over samples, gaps bridged (same result as ModalStateEstimator.step)."""
+    predictor = InnovationPredictor(model, x)
+    u_prev = predictor.run_with_gaps(u, y, skipped, u_prev, max_gap)
+    return predictor.x, u_prev
 
 
-def _bridge(A: np.ndarray, B: np.ndarray, x: np.ndarray, u_prev: np.ndarray | None, skipped: int, max_gap: int) -> np.ndarray:
+def _bridge(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | None, skipped: int, max_gap: int) -> np.ndarray:
     """State over ``skipped`` missing samples: open-loop prediction, or zero after a long gap."""
-    if skipped < 0 or skipped > max_gap or u_prev is None:
-        return np.zeros_like(x)
-    bu = B @ u_prev
-    for _ in range(skipped):
-        x = A @ x + bu
-    return x
+    predictor = InnovationPredictor(model, x)
+    predictor.bridge(u_prev, skipped, max_gap)
+    return predictor.x
 
 
 def realize(job: RealizationJob) -> RealizationOutcome:
@@ -308,17 +322,25 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     try:
         model = identify_from_arx(
             job.fit, job.u, job.y, prm.sample_time_s,
-            n_states=prm.n_states if prm.n_states > 0 else "auto",
-            max_states=prm.max_states, gain=prm.gain, refine=prm.refine,
-            max_damping=prm.max_damping, min_msv=prm.min_msv,
-            max_nyquist_fraction=prm.max_nyquist_fraction,
+            options=prm.realization_options(), offsets=prm.offsets,
         )
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
     elapsed = time.perf_counter() - t0
     radius = float(np.max(np.abs(linalg.eigvals(model.A)))) if model.n_states else 0.0
     if not radius < 1.0:
-        return RealizationOutcome(job, None, f"unstable model: spectral radius {radius:.6f} >= 1", realization_time_s=elapsed)
+        return RealizationOutcome(
+            job, None, f"unstable model (check: A stable): spectral radius of A {radius:.6f} >= 1",
+            realization_time_s=elapsed)
+    radius = predictor_spectral_radius(model)
+    if not radius < 1.0:
+        return RealizationOutcome(
+            job, None, f"unstable predictor (check: A - A K C stable): spectral radius {radius:.6f} >= 1",
+            realization_time_s=elapsed)
+    try:
+        whitening_matrix(model.innovation_covariance)
+    except ValueError as exc:
+        return RealizationOutcome(job, None, f"check: innovation covariance: {exc}", realization_time_s=elapsed)
     if not model.modes:
         return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
     x, u_prev = _run_predictor(model, np.zeros(model.n_states), job.u, job.y,
@@ -333,6 +355,8 @@ class _Active:
     model_id: int
     modes: list[Mode]
     n_modes: int
+    whiten: np.ndarray  # (p, p) inverse Cholesky factor of the innovation covariance
+    window_samples: int
 
 
 @dataclass
@@ -357,6 +381,14 @@ class _Stats:
     last_switch_jump: float = math.nan
     max_switch_jump: float = 0.0
     switches_measured: int = 0
+    diverged_samples: int = 0
+    divergence_restarts: int = 0
+    changes_detected: int = 0
+    windows_refused_for_change: int = 0
+    last_change_stamp_s: float = math.nan
+    last_change_statistic: float = math.nan
+    last_change_delay_samples: int = 0
+    modes_retired: int = 0
 
 
 class ModalEstimationService:
@@ -369,11 +401,10 @@ class ModalEstimationService:
 
     def __init__(self, params: ModalEstimationParams) -> None:
         self.params = params
-        if params.gain not in ("refit", "whitening"):
-            raise ValueError(f"gain must be refit or whitening, got {params.gain!r}")
+        params.realization_options()  # raises ValueError with the reason on a bad option
         self._lock = threading.Lock()
         cap = params.buffer_length if params.buffer_length > 0 else 8192
-        self._buffer = _SampleBuffer(cap, params.n_inputs, params.n_outputs)
+        self._buffer = SampleBuffer(cap, params.n_inputs, params.n_outputs)
         self.enabled = True
         self.reset()
 
@@ -383,8 +414,9 @@ class ModalEstimationService:
         with self._lock:
             self._buffer.clear()
             self._active: _Active | None = None
-            self._registry: dict[int, tuple[Mode, int]] = {}  # id -> (mode, accepted-model count when last seen)
-            self._next_mode_id = 0
+            prm = self.params
+            self._registry = ModeRegistry(max_frequency_change=prm.max_frequency_change, min_mac=prm.min_mac,
+                                          mode_memory=prm.mode_memory)
             self._model_id = 0
             self._request: tuple[ArxFit, float, int, int] | None = None
             self._last_request_end: float | None = None
@@ -394,6 +426,19 @@ class ModalEstimationService:
             self._stats = _Stats()
             self._u_prev: np.ndarray | None = None
             self._power: dict[int, float] = {}
+            self._divergence = DivergenceMonitor(prm.n_outputs, window_samples=prm.divergence_window_samples,
+                                                 nis_ratio=prm.divergence_nis_ratio)
+            self._monitor = StructuralChangeMonitor(
+                prm.n_outputs, false_alarm_samples=prm.change_false_alarm_samples,
+                variance_ratio=prm.change_variance_ratio, reference_samples=prm.change_reference_samples,
+            )
+            self._change: StructuralChangeEvent | None = None  # declared, waiting for its new model
+            self._changes = 0
+            self._held_update: ModelUpdate | None = None  # outputs of withheld samples, passed on
+            self._held_change: StructuralChangeEvent | None = None
+            self._accepted_change: StructuralChangeEvent | None = None
+            self._diverged: list[int] = []  # buffer indices of diverged samples since the last restart
+            self._restart_failed = False  # no good sample since the last divergence restart
 
     def set_enabled(self, on: bool) -> None:
         """When disabled, ARX fits are ignored and the current model is kept (states still run)."""
@@ -418,7 +463,9 @@ class ModalEstimationService:
         return self._busy
 
     # ------------------------------------------------------------------ ARX fits
-    def submit_arx(self, fit: ArxFit, stamp_end_s: float, arx_model_id: int = 0, window_rows: int | None = None) -> bool:
+    def submit_arx(
+        self, fit: ArxFit, stamp_end_s: float, arx_model_id: int = 0, window_rows: int | None = None
+    ) -> bool:
         """Offer an ARX fit of the window ending at ``stamp_end_s``; False if refused at once.
 
         The newest request waits until :meth:`take_job`; a request still waiting is replaced.
@@ -476,6 +523,13 @@ class ModalEstimationService:
             need = rows + fit.order
             if end < 0:
                 return self._refuse("no buffered sample at or before the ARX window's end")
+            change = self._change
+            if change is not None and end + 1 - need < change.change_index:
+                self._stats.windows_refused_for_change += 1
+                return self._refuse(
+                    f"ARX window starts before the structural change at {change.change_stamp_s:.3f} s; "
+                    f"waiting for a model of post-change data"
+                )
             stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
             # Keep the newest contiguous run (the window's rows never span a gap either).
             breaks = np.flatnonzero(skipped[1:] != 0) + 1
@@ -567,9 +621,11 @@ class ModalEstimationService:
             self._u_prev = u
             return None
         est = active.estimator
+        if skipped and prm.change_detection:
+            self._monitor.gap(self._u_prev, int(skipped), prm.max_gap_samples)
         if skipped:
             x = est.state
-            bridged = _bridge(active.model.A, active.model.B, x, self._u_prev, int(skipped), prm.max_gap_samples)
+            bridged = _bridge(active.model, x, self._u_prev, int(skipped), prm.max_gap_samples)
             if skipped > 0 and skipped <= prm.max_gap_samples:
                 st.gaps_bridged += 1
             else:
@@ -577,12 +633,108 @@ class ModalEstimationService:
             est.set_state(bridged)
         x_post, y_est, innov = est.step(u, y)
         self._u_prev = u
+        change, self._accepted_change = self._accepted_change, None
+        diverged = self._divergence.check(active.whiten @ innov)
+        if prm.change_detection:
+            change = self._watch_structure(active, float(stamp_s), index, u, y, test=not diverged) or change
+        if diverged:
+            # Never published: outputs of this sample wait for the next good one.
+            st.diverged_samples += 1
+            self._diverged.append(index)
+            if len(self._diverged) > self._buffer.cap:
+                del self._diverged[0]
+            if self._divergence.sustained:
+                if self._restart_failed and prm.change_detection and self._change is None:
+                    # Diverged again right after a restart: the model no longer fits at all.
+                    ratio = self._divergence.nis_ratio_now
+                    change = self._declare_change(active, float(stamp_s), index, self._diverged[0],
+                                                  self._monitor.statistic, self._monitor.threshold,
+                                                  ratio if math.isfinite(ratio) else 0.0) or change
+                self._restart_from_buffer(active, index)
+                self._restart_failed = True
+            self._held_update = update or self._held_update
+            self._held_change = change or self._held_change
+            return None
+        self._restart_failed = False
         n = active.n_modes
         coords = x_post[: 2 * n].reshape(n, 2)
         if update is not None and self._switch_reference is not None:
             self._measure_jump(active, coords)
         self._track_power(active, coords)
-        return ModalStatesResult(float(stamp_s), active.model_id, active.modes, coords, y_est, innov, update)
+        update, self._held_update = update or self._held_update, None
+        change, self._held_change = change or self._held_change, None
+        return ModalStatesResult(float(stamp_s), active.model_id, active.modes, coords, y_est, innov, update, change)
+
+    _accepted_change: StructuralChangeEvent | None = None  # set by _apply, reported by step
+
+    def _watch_structure(self, active: _Active, stamp_s: float, index: int, u: np.ndarray,
+                         y: np.ndarray, *, test: bool) -> StructuralChangeEvent | None:
+        """Feed the change monitor one sample (tested unless the estimator diverged on it)."""
+        alarm = self._monitor.step(u, y, index, test=test)
+        if alarm is None:
+            return None
+        return self._declare_change(active, stamp_s, index, alarm.change_index, alarm.statistic,
+                                    alarm.threshold, alarm.variance_ratio)
+
+    def _declare_change(self, active: _Active, stamp_s: float, index: int, change_index: int,
+                        statistic: float, threshold: float, variance_ratio: float) -> StructuralChangeEvent:
+        """A structural change at ``change_index``, declared at sample ``index``."""
+        self._monitor.disarm()
+        self._changes += 1
+        change_stamp = self._buffer.stamp_at(change_index)
+        event = StructuralChangeEvent(
+            change_id=self._changes, stamp_s=stamp_s,
+            change_stamp_s=change_stamp if math.isfinite(change_stamp) else stamp_s,
+            statistic=float(statistic), threshold=float(threshold),
+            variance_ratio=float(variance_ratio), modes_before=[replace(m) for m in active.modes],
+            detection_delay_samples=int(index - change_index),
+            change_index=int(change_index),
+        )
+        self._change = event
+        st = self._stats
+        st.changes_detected += 1
+        st.last_change_stamp_s = event.change_stamp_s
+        st.last_change_statistic = event.statistic
+        st.last_change_delay_samples = event.detection_delay_samples
+        return event
+
+    def _warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """A model's predicted state after the buffered samples up to ``index``, from zero.
+
+        Diverged samples may hold what made it diverge (a spike): predicted over, not used.
+        """
+        first = self._buffer.first
+        _, u, y, skipped = self._buffer.get(first, index + 1)
+        x, u_prev = np.zeros(model.n_states), None
+        lo = 0
+        for k in sorted(i - first for i in self._diverged if first <= i <= index) + [u.shape[0]]:
+            if k > lo:
+                x, u_prev = _run_predictor(model, x, u[lo:k], y[lo:k], skipped[lo:k], u_prev,
+                                           self.params.max_gap_samples)
+            if k < u.shape[0]:
+                if skipped[k]:
+                    x = _bridge(model, x, u_prev, int(skipped[k]), self.params.max_gap_samples)
+                x = _bridge(model, x, u[k], 1, 1)  # the diverged sample predicted over, open loop
+                u_prev = u[k]
+            lo = k + 1
+        if not np.all(np.isfinite(x)):
+            x = np.zeros(model.n_states)
+        return x, u_prev
+
+    def _restart_from_buffer(self, active: _Active, index: int) -> None:
+        """Restart the estimator after sustained divergence.
+
+        From zero, warm-started with the model's
+        predictor over the buffered samples up to ``index``.
+        """
+        x, u_prev = self._warm_state(active.model, index)
+        if self._monitor.armed:  # the change test's predictor saw the same samples
+            self._monitor.set_state(self._warm_state(self._monitor.model, index)[0])
+        self._diverged.clear()
+        active.estimator.set_state(x)
+        self._u_prev = u_prev if u_prev is not None else self._u_prev
+        self._divergence.restart()
+        self._stats.divergence_restarts += 1
 
     # ------------------------------------------------------------------ model switch
     def _apply(self, outcome: RealizationOutcome, index: int) -> ModelUpdate | None:
@@ -600,12 +752,19 @@ class ModalEstimationService:
             st.last_reason = outcome.reason
             return None
         model = outcome.model
-        memory = [(mid, mode) for mid, (mode, seen) in self._registry.items()
-                  if st.models_accepted - seen <= prm.mode_memory]
-        matches = match_modes([mode for _, mode in memory], model.modes, prm.max_frequency_change, prm.min_mac)
-        ids = [memory[j][0] if j is not None else None for j in matches]
+        change = self._change
+        job = outcome.job
+        window_first = job.end_index - job.u.shape[0] + 1
+        if change is not None and window_first < change.change_index:
+            st.models_rejected += 1
+            st.windows_refused_for_change += 1
+            st.last_reason = "model identified from a window that spans the structural change"
+            return None
+        # After a change: match against the modes before it only (no memory, no lost-mode check).
+        matches = self._registry.match(model.modes, None if change is None else change.modes_before)
+        ids = [None if found is None else found[0] for found in matches]
         active = self._active
-        if active is not None and active.modes:
+        if change is None and active is not None and active.modes:
             current_ids = {mode.id for mode in active.modes}
             found = len(current_ids & {i for i in ids if i is not None})
             fraction = found / len(current_ids)
@@ -623,21 +782,16 @@ class ModalEstimationService:
         st.consecutive_rejections = 0
         st.last_accepted = True
         st.last_reason = ""
-        # Persistent ids and the MAC against the matched mode.
-        modes: list[Mode] = []
-        for mode, mid, j in zip(model.modes, ids, matches):
-            if mid is None:
-                mid = self._next_mode_id
-                self._next_mode_id += 1
-                mac_prev = math.nan
-            else:
-                mac_prev = mac(mode.shape, memory[j][1].shape)
-            mode.id = mid
-            mode.mac_previous = mac_prev
-            modes.append(mode)
+        modes = self._registry.assign(model.modes, matches)
         st.models_accepted += 1
-        for mode in modes:
-            self._registry[mode.id] = (replace(mode), st.models_accepted)
+        if change is not None:
+            kept = {mode.id for mode in modes}
+            self._registry.retire_except(kept)
+            change.retired_ids = [mode.id for mode in change.modes_before if mode.id not in kept]
+            change.modes_after = [replace(mode) for mode in modes]
+            st.modes_retired += len(change.retired_ids)
+            self._change = None
+            self._accepted_change = change
         # Catch up the samples between the warm start and this one.
         x = outcome.state
         u_prev = outcome.last_input
@@ -649,7 +803,15 @@ class ModalEstimationService:
         self._model_id += 1
         if active is not None:
             self._switch_reference = (active, self._previous_coordinates(active, index))
-        self._active = _Active(model, estimator, self._model_id, modes, len(modes))
+        self._active = _Active(model, estimator, self._model_id, modes, len(modes),
+                               whitening_matrix(model.innovation_covariance), int(job.u.shape[0]))
+        self._divergence.restart()
+        monitor = self._monitor
+        rows = int(job.u.shape[0]) - job.fit.order  # regressor rows of the model's window
+        if prm.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows):
+            # The reference of the change test: the first model (of a structure), then models
+            # of windows at least twice as long as the reference's.
+            monitor.arm(model, x, reference_rows=rows)
         self._u_prev = u_prev if u_prev is not None else self._u_prev
         return ModelUpdate(
             model=model, model_id=self._model_id, arx_model_id=outcome.job.arx_model_id,
@@ -664,9 +826,9 @@ class ModalEstimationService:
             return {}
         x = old.estimator.state
         if skipped[0]:
-            x = _bridge(old.model.A, old.model.B, x, self._u_prev, int(skipped[0]), self.params.max_gap_samples)
-        K, C, D = old.estimator.K_steady, old.model.C, old.model.D
-        x_post = x + K @ (y[0] - C @ x - D @ u[0])
+            x = _bridge(old.model, x, self._u_prev, int(skipped[0]), self.params.max_gap_samples)
+        innovation = InnovationPredictor(old.model, x).run(u, y)[0]  # on the offset-free signals
+        x_post = x + old.estimator.K_steady @ innovation
         coords = x_post[: 2 * old.n_modes].reshape(old.n_modes, 2)
         return {mode.id: coords[i] for i, mode in enumerate(old.modes)}
 
@@ -709,6 +871,12 @@ class ModalEstimationService:
         """Counters and health as a flat dict."""
         st = self._stats
         buf = self._buffer
+        prm = self.params
+        model = self.current_model
+        extra = {
+            "order_limit_reached": bool(model is not None and model.max_states_reached),
+            "model_warnings": "" if model is None else "; ".join(model.warnings),
+        }
         return {
             "samples": st.samples,
             "rejected_samples": st.rejected_samples,
@@ -732,10 +900,23 @@ class ModalEstimationService:
             "switches_measured": st.switches_measured,
             "gaps_bridged": st.gaps_bridged,
             "estimator_restarts": st.estimator_restarts,
+            "diverged_samples": st.diverged_samples,
+            "divergence_restarts": st.divergence_restarts,
+            "change_monitor": self._monitor.state if prm.change_detection else "off",
+            "change_statistic": float(self._monitor.statistic),
+            "change_threshold": float(self._monitor.threshold),
+            "changes_detected": st.changes_detected,
+            "change_waiting_for_model": self._change is not None,
+            "last_change_stamp_s": st.last_change_stamp_s,
+            "last_change_statistic": st.last_change_statistic,
+            "last_change_delay_samples": st.last_change_delay_samples,
+            "windows_refused_for_change": st.windows_refused_for_change,
+            "modes_retired": st.modes_retired,
             "model_id": self._model_id,
             "n_modes": 0 if self._active is None else self._active.n_modes,
             "n_states": 0 if self._active is None else self._active.model.n_states,
             "busy": self._busy,
             "arx_request_waiting": self._request is not None,
             "enabled": self.enabled,
+            **extra,
         }

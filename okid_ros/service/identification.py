@@ -16,16 +16,24 @@ copy of the normal equations, so a caller with a sample stream to serve can spli
 :meth:`ArxIdentificationService.snapshot` does the three in a row.
 
 Sample policy (:meth:`ArxIdentificationService.push`): a sample with NaN/Inf or the wrong size is
-rejected and counted; its stamp must advance by more than half a sample time over the previous
-accepted one (else duplicate or out of order: rejected and counted); a step of more than 1.5
-sample times, or ``gap_before``, breaks the lag history so that no regressor spans the gap.
+rejected and counted; its stamp is checked by the sample grid's rule
+(:class:`okid_ros.service.sample_grid.StampSequence`: it must advance by more than half a sample
+time over the previous accepted one, else duplicate or out of order: rejected and counted); a
+step of more than 1.5 sample times, or ``gap_before``, breaks the lag history so that no
+regressor spans the gap.
+
+Structural change (:meth:`ArxIdentificationService.restart_at`): node 2 declares a change and
+its estimated first sample; the window is rebuilt from the recent samples from that stamp on
+(this service keeps one window of them), so the next models use post-change data only, and
+snapshots are valid from ``restart_min_fill`` on (smaller than ``min_window_fill``) so that a
+model of the new structure comes soon.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -33,6 +41,8 @@ import numpy as np
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.regressors import regressor_length
+from okid_ros.service.sample_buffer import SampleBuffer
+from okid_ros.service.sample_grid import StampSequence, StampStep
 
 __all__ = [
     "ArxIdentificationParams",
@@ -64,6 +74,10 @@ class ArxIdentificationParams:
     max_condition_number : condition number of the column-scaled normal equations above which
         the window is unexcited (snapshot invalid, last good fit kept).
     publish_period_s : period of :meth:`ArxIdentificationService.due` (offline processing).
+    restart_min_fill : after :meth:`ArxIdentificationService.restart_at`, snapshots are valid
+        from this window fill on (instead of ``min_window_fill``).
+    offsets : "remove" (the fit has an intercept: signals with non-zero means, as node 2 and
+        the batch ``identify`` remove them) or "none".
     """
 
     sample_time_s: float = 0.008
@@ -79,6 +93,8 @@ class ArxIdentificationParams:
     min_window_fill: float = 0.5
     max_condition_number: float = 1e12
     publish_period_s: float = 1.0
+    restart_min_fill: float = 0.25
+    offsets: str = "remove"
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> "ArxIdentificationParams":
@@ -97,22 +113,28 @@ class ArxIdentificationParams:
             min_window_fill=float(values["arx.min_window_fill"]),
             max_condition_number=float(values["arx.max_condition_number"]),
             publish_period_s=1.0 / float(values["publish_rate_hz"]),
+            restart_min_fill=float(values["arx.restart_min_fill"]),
+            offsets=str(values["offsets"]),
         )
 
     @property
     def n_params(self) -> int:
-        """d = m + q (p + m), coefficients per output."""
+        """D = m + q (p + m), coefficients per output."""
         return regressor_length(self.order, self.n_outputs, self.n_inputs)
 
 
 @dataclass
 class WindowCapture:
-    """A copy of the window's normal equations and counters at one instant."""
+    """A copy of the window's normal equations and counters at one instant.
+
+    ``window_rows`` is the row count and ``window_fill`` the fraction full, as in
+    :class:`ArxSnapshot`.
+    """
 
     normal: NormalEquations
     stamp_s: float
-    rows: int
-    fill: float
+    window_rows: int
+    window_fill: float
     samples_used: int
     samples_rejected: int
     params: ArxIdentificationParams
@@ -143,11 +165,14 @@ class ArxSnapshot:
     stamp_s : stamp of the newest sample in the window [s] (nan before the first sample).
     reason : why the snapshot is invalid ('' if valid).
     window_length : rows the window holds when full (0 with forgetting only).
-    window_rows : rows in the window now (effective number with forgetting).
-    window_fill : window_rows / window_length (with forgetting: of 1 / (1 - lambda)).
+    window_rows : rows in the window now (effective number with forgetting); the ``window_fill``
+        field of the ``ArxModel`` message carries this count.
+    window_fill : the fraction full, window_rows / window_length (with forgetting: of
+        1 / (1 - lambda)), as ``WindowStatus.window_fill`` of the core window.
     condition_number : condition number of the column-scaled normal equations of this window
         (nan when not solved). The regressor matrix's own 2-norm condition number is its root.
-    penalty : regularization penalty of ``fit``.
+    penalty : regularization penalty of ``fit`` (the ``regularization`` field of ``ArxModel``;
+        the kind of prior is ``ArxIdentificationParams.regularization``).
     samples_used, samples_rejected : since start or reset.
     solve_time_s : seconds the solve took.
     """
@@ -176,18 +201,19 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     """Solve a captured window (pure; safe to run on another thread)."""
     prm = capture.params
     t0 = time.perf_counter()
-    if capture.rows == 0:
+    if capture.window_rows == 0:
         return SolveResult(None, math.nan, "no regressor rows in the window yet", 0.0)
-    if capture.fill < prm.min_window_fill:
+    if capture.window_fill < prm.min_window_fill:
         return SolveResult(
             None, math.nan,
-            f"window fill {capture.fill:.2f} below arx.min_window_fill {prm.min_window_fill:.2f}", 0.0,
+            f"window fill {capture.window_fill:.2f} below arx.min_window_fill {prm.min_window_fill:.2f}", 0.0,
         )
     penalty: float | str = "gcv" if prm.penalty_by_gcv else prm.penalty
     decay: float | str = "gcv" if prm.penalty_by_gcv else prm.tc_decay
     try:
         fit = fit_from_normal_equations(
-            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay
+            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay,
+            center=prm.offsets == "remove",
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
@@ -213,6 +239,10 @@ class _Counters:
     rejected_duplicate: int = 0
     rejected_out_of_order: int = 0
     gaps: int = 0
+    window_restarts: int = 0
+    restarts_ignored: int = 0
+    restart_samples: int = 0
+    last_restart_stamp_s: float = math.nan
 
     @property
     def rejected(self) -> int:
@@ -248,17 +278,22 @@ class ArxIdentificationService:
         self._est = SlidingWindowArx(
             params.order, params.n_outputs, params.n_inputs, window=window,
             forgetting=1.0 if window else params.forgetting_factor,
-            penalty=0.0, max_condition_number=math.inf, block_size=128,
         )
+        # The samples a restart at a change point replays: one window (or ~3 memory lengths).
+        memory = params.window_length or int(min(3.0 / max(1.0 - params.forgetting_factor, 1e-6), 100_000))
+        self._recent = SampleBuffer(memory + params.order + 64, params.n_inputs, params.n_outputs)
+        self._stamps = StampSequence(params.sample_time_s)
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget the window, the counters, the last good fit; model ids restart at 0."""
         self._est.reset()
+        self._recent.clear()
+        self._restarted = False
         self._counters = _Counters()
         self._health = _Health()
-        self._last_stamp: float | None = None
+        self._stamps.reset()
         self._last_good: ArxFit | None = None
         self._last_good_penalty = math.nan
         self._model_id = 0
@@ -274,7 +309,7 @@ class ArxIdentificationService:
 
     @property
     def newest_stamp_s(self) -> float:
-        return math.nan if self._last_stamp is None else self._last_stamp
+        return self._stamps.newest_stamp_s
 
     # ------------------------------------------------------------------ samples
     def push(self, stamp_s: float, u, y, gap_before: bool = False) -> bool:
@@ -289,6 +324,7 @@ class ArxIdentificationService:
         """
         c = self._counters
         c.samples_seen += 1
+        gaps_before = c.gaps
         prm = self.params
         u = np.asarray(u, dtype=float).reshape(-1)
         y = np.asarray(y, dtype=float).reshape(-1)
@@ -299,26 +335,50 @@ class ArxIdentificationService:
         if not (math.isfinite(stamp_s) and np.isfinite(u).all() and np.isfinite(y).all()):
             c.rejected_nonfinite += 1
             return False
-        dt = prm.sample_time_s
-        last = self._last_stamp
-        if gap_before:
+        step = StampStep.GAP if gap_before else self._stamps.check(stamp_s)
+        if step is StampStep.OUT_OF_ORDER:
+            c.rejected_out_of_order += 1
+            return False
+        if step is StampStep.DUPLICATE:
+            c.rejected_duplicate += 1
+            return False
+        if step is StampStep.GAP:
             self._est.mark_gap()
             c.gaps += 1
-        elif last is not None:
-            step = stamp_s - last
-            if step < -0.5 * dt:
-                c.rejected_out_of_order += 1
-                return False
-            if step <= 0.5 * dt:
-                c.rejected_duplicate += 1
-                return False
-            if step > 1.5 * dt:
-                self._est.mark_gap()
-                c.gaps += 1
-        self._last_stamp = stamp_s
+        self._stamps.accept(stamp_s)
         self._est.push(u, y)
+        self._recent.append(stamp_s, u, y, int(c.gaps != gaps_before))
         c.samples_used += 1
         return True
+
+    def restart_at(self, change_stamp_s: float) -> int:
+        """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
+
+        A change at or before the last restart's (node 2 reports each change twice) is ignored.
+        Returns the number of samples put back into the window (-1 if ignored).
+        """
+        c = self._counters
+        change_stamp_s = float(change_stamp_s)
+        tol = 0.5 * self.params.sample_time_s
+        if not math.isfinite(change_stamp_s) or change_stamp_s <= c.last_restart_stamp_s + tol:
+            c.restarts_ignored += 1
+            return -1
+        first = self._recent.first_at_or_after(change_stamp_s, tol)
+        if first < 0:
+            first = self._recent.count  # nothing after the change yet: an empty window
+        _, u, y, gaps = self._recent.get(first, self._recent.count)
+        adapting = self._est.adaptation_enabled
+        self._est.reset()
+        self._est.adaptation_enabled = adapting
+        for k in range(u.shape[0]):
+            if gaps[k]:
+                self._est.mark_gap()
+            self._est.push(u[k], y[k])
+        self._restarted = True
+        c.window_restarts += 1
+        c.restart_samples = int(u.shape[0])
+        c.last_restart_stamp_s = change_stamp_s
+        return int(u.shape[0])
 
     def push_block(self, stamps_s, u, y) -> int:
         """Push samples one by one (same checks); return how many were accepted."""
@@ -332,11 +392,12 @@ class ArxIdentificationService:
         return WindowCapture(
             normal=normal,
             stamp_s=self.newest_stamp_s,
-            rows=int(status.rows_in_window),
-            fill=float(status.window_fill),
+            window_rows=int(status.rows_in_window),
+            window_fill=float(status.window_fill),
             samples_used=self._counters.samples_used,
             samples_rejected=self._counters.rejected,
-            params=self.params,
+            params=replace(self.params, min_window_fill=min(self.params.min_window_fill, self.params.restart_min_fill))
+            if self._restarted else self.params,
         )
 
     def accept(self, capture: WindowCapture, result: SolveResult) -> ArxSnapshot:
@@ -364,8 +425,8 @@ class ArxIdentificationService:
             n_inputs=prm.n_inputs,
             n_outputs=prm.n_outputs,
             window_length=max(prm.window_length, 0),
-            window_rows=capture.rows,
-            window_fill=capture.fill,
+            window_rows=capture.window_rows,
+            window_fill=capture.window_fill,
             forgetting_factor=prm.forgetting_factor if prm.window_length == 0 else 1.0,
             condition_number=result.condition_number,
             penalty=self._last_good_penalty if self._last_good is not None else math.nan,
@@ -412,6 +473,10 @@ class ArxIdentificationService:
             "rejected_duplicate": c.rejected_duplicate,
             "rejected_out_of_order": c.rejected_out_of_order,
             "gaps": c.gaps,
+            "window_restarts": c.window_restarts,
+            "window_restarts_ignored": c.restarts_ignored,
+            "last_restart_stamp_s": c.last_restart_stamp_s,
+            "last_restart_samples": c.restart_samples,
             "window_rows": int(st.rows_in_window),
             "window_fill": float(st.window_fill),
             "adaptation": bool(st.adapting),

@@ -188,10 +188,12 @@ def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
     return specs
 
 
-def sources_and_grid(values: dict):
+def sources_and_grid(values: dict, namespace: str | None = None):
     """Input sources and the sample grid described by node parameters (``inputs.*`` and dims).
 
     Shared by the nodes and ``okid-ros process`` so both assemble samples the same way.
+    Relative topic names are resolved in the rig namespace of ``namespace`` (the node's
+    namespace; None or ``/``: ``/okid``), see :mod:`okid_ros.service.topics`.
 
     Returns
     -------
@@ -201,14 +203,18 @@ def sources_and_grid(values: dict):
     ------
     okid_ros.errors.ParameterError naming ``inputs.sources`` when a source is invalid.
     """
+    from dataclasses import replace
+
     from okid_ros.errors import ParameterError
     from okid_ros.service.sample_grid import SampleGrid
+    from okid_ros.service.topics import resolve_topic
 
     m, p = int(values["n_inputs"]), int(values["n_outputs"])
     try:
         specs = parse_sources(values["inputs.sources"], m, p)
     except ValueError as exc:
         raise ParameterError(f"parameter inputs.sources: {exc}") from None
+    specs = [replace(spec, topic=resolve_topic(spec.topic, namespace)) for spec in specs]
     grid = SampleGrid(
         float(values["sample_time_s"]), m, p, [s.channels for s in specs],
         tolerance=float(values["inputs.stamp_tolerance"]),

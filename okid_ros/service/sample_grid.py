@@ -42,6 +42,14 @@ time jumps
     of the other sources still stamped before the jump are dropped (``late``) until each of them
     has jumped too. Forward jumps are ordinary gaps.
 
+Whole samples
+-------------
+A stream of samples that arrive already whole (``okid_ros.service.identification`` fed by a
+caller other than the grid) is checked by :class:`StampSequence` with the same rule in sample
+times (:func:`classify_step`): a step of at most half a sample time from the previous accepted
+stamp is a duplicate, a step back by more than that is out of order, a step of more than 1.5
+sample times is a gap. This module is the only place that policy is written.
+
 No rclpy: the nodes and the offline tools both use this module.
 """
 
@@ -49,17 +57,100 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
+from enum import Enum
 from typing import Sequence
 
 import numpy as np
 
-__all__ = ["GridSample", "GridCounters", "SampleGrid", "RESTART_SKIP"]
+__all__ = [
+    "GridSample",
+    "GridCounters",
+    "SampleGrid",
+    "RESTART_SKIP",
+    "StampStep",
+    "StampSequence",
+    "classify_step",
+]
 
 #: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
 RESTART_SKIP = -1
 
 #: Fraction of each accepted stamp's offset from its slot by which the grid phase follows it.
 PHASE_GAIN = 0.01
+
+
+class StampStep(Enum):
+    """How a stamp relates to the previous accepted stamp of the same stream."""
+
+    NEXT = "next"
+    GAP = "gap"
+    DUPLICATE = "duplicate"
+    OUT_OF_ORDER = "out_of_order"
+
+
+#: Largest step, in sample times, that is still the next sample; a longer step is a gap.
+GAP_STEP = 1.5
+
+
+def classify_step(step_samples: float) -> StampStep:
+    """The grid's rule for the step of a stream from its previous accepted stamp.
+
+    Parameters
+    ----------
+    step_samples : the step in sample times (a whole number of slots on the grid).
+
+    Returns
+    -------
+    StampStep
+        ``OUT_OF_ORDER`` below -1/2, ``DUPLICATE`` up to 1/2, ``GAP`` above ``GAP_STEP``,
+        else ``NEXT``.
+
+    Examples
+    --------
+    >>> [classify_step(s).value for s in (-3, 0.2, 1.0, 4.0)]
+    ['out_of_order', 'duplicate', 'next', 'gap']
+    """
+    if step_samples < -0.5:
+        return StampStep.OUT_OF_ORDER
+    if step_samples <= 0.5:
+        return StampStep.DUPLICATE
+    if step_samples > GAP_STEP:
+        return StampStep.GAP
+    return StampStep.NEXT
+
+
+class StampSequence:
+    """The stamp check of one stream of whole samples (:func:`classify_step` in sample times).
+
+    Parameters
+    ----------
+    sample_time_s : dt [s] > 0.
+    """
+
+    def __init__(self, sample_time_s: float) -> None:
+        if not (sample_time_s > 0 and math.isfinite(sample_time_s)):
+            raise ValueError(f"sample_time_s must be a positive number, got {sample_time_s}")
+        self.sample_time_s = float(sample_time_s)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last accepted stamp."""
+        self._last: float | None = None
+
+    @property
+    def newest_stamp_s(self) -> float:
+        """The last accepted stamp [s] (nan before the first)."""
+        return math.nan if self._last is None else self._last
+
+    def check(self, stamp_s: float) -> StampStep:
+        """Classify a stamp against the last accepted one (``NEXT`` for the first); no state change."""
+        if self._last is None:
+            return StampStep.NEXT
+        return classify_step((float(stamp_s) - self._last) / self.sample_time_s)
+
+    def accept(self, stamp_s: float) -> None:
+        """Make ``stamp_s`` the last accepted stamp."""
+        self._last = float(stamp_s)
 
 
 @dataclass
@@ -74,6 +165,7 @@ class GridSample:
     y : (p,) outputs.
     skipped : slots dropped or never seen between the previous emitted sample and this one.
     restart : True for the first sample after the start, a reset or a time jump.
+    time_jump : True for the first sample after a backward time jump (then ``restart`` too).
     """
 
     slot: int
@@ -82,6 +174,7 @@ class GridSample:
     y: np.ndarray
     skipped: int = 0
     restart: bool = False
+    time_jump: bool = False
 
     @property
     def gap_before(self) -> bool:
@@ -224,6 +317,7 @@ class SampleGrid:
         self._horizon: int | None = None  # newest slot emitted or dropped
         self._last_emitted: int | None = None
         self._restart = True
+        self._jumped = False
         self._off_grid_run = 0
 
     def source_counters(self, source: int) -> GridCounters:
@@ -287,11 +381,9 @@ class SampleGrid:
         # Follow slow drifts of the sensors' clock phase (an exponential average of the offsets).
         self._anchor += PHASE_GAIN * offset
         if src.last_slot is not None:
-            if k == src.last_slot:
-                self._count(src, "duplicate")
-                return out
-            if k < src.last_slot:
-                self._count(src, "out_of_order")
+            step = classify_step(k - src.last_slot)
+            if step in (StampStep.DUPLICATE, StampStep.OUT_OF_ORDER):
+                self._count(src, step.value)
                 return out
         src.last_slot = k
         if self._horizon is not None and k <= self._horizon:
@@ -319,6 +411,7 @@ class SampleGrid:
         self.counters.time_jumps += 1
         src.counters.time_jumps += 1
         self._clear_grid()
+        self._jumped = True
         self._anchor = stamp_s
         for s in self._sources:
             s.last_slot = None
@@ -372,8 +465,9 @@ class SampleGrid:
         m = self.n_inputs
         sample = GridSample(
             slot=k, stamp_s=slot.stamp_s, u=slot.values[:m].copy(), y=slot.values[m:].copy(),
-            skipped=skipped, restart=self._restart,
+            skipped=skipped, restart=self._restart, time_jump=self._jumped,
         )
         self._restart = False
+        self._jumped = False
         self.counters.samples_emitted += 1
         return sample

@@ -1,0 +1,173 @@
+"""ROS parameter files read as rcl reads them, and the names in them no node knows.
+
+A section of a parameter file applies to a node when its key matches the node's fully
+qualified name (``/okid_arx_identifier``, or ``/rig1/okid_arx_identifier`` in a namespace) the
+way rcl matches it: a key without a leading slash is in the root namespace, ``/*`` stands for
+one name token and ``/**`` for any number of them. So ``/**`` applies to every node,
+``/**/okid_arx_identifier`` to that node in every namespace, and a bare ``okid_arx_identifier``
+*only* in the root namespace (config/okid.yaml therefore keys its sections ``/**/NODE``).
+
+:func:`file_report` lists what a user most likely got wrong and rcl passes over in silence:
+parameters no node declares (``arx: {ordr: 50}``) and sections naming a node of this package
+that do not apply to it (a bare node name with a namespace). The nodes log it as warnings (or
+refuse to start with ``strict_parameters``), ``okid-ros process`` prints it (or refuses with
+``--strict-params``).
+
+No rclpy here.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from okid_ros.errors import ParameterError
+
+__all__ = [
+    "ROS_STANDARD_PARAMETERS",
+    "node_fqn",
+    "read_parameter_file",
+    "section_matches",
+    "flatten",
+    "node_values_from_tree",
+    "file_report",
+    "params_files_from_args",
+]
+
+#: Names (or prefixes ending in '.') every rclpy node accepts besides its own parameters.
+ROS_STANDARD_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
+
+
+def node_fqn(node: str, namespace: str | None = None) -> str:
+    """``/NAMESPACE/NODE`` (root namespace: ``/NODE``)."""
+    ns = (namespace or "/").rstrip("/")
+    return f"{ns}/{node}"
+
+
+def section_matches(key: str, fqn: str) -> bool:
+    """True when the parameter-file section ``key`` applies to the node ``fqn`` (rcl's rules)."""
+    key = str(key)
+    if not key.startswith("/"):
+        key = "/" + key
+    pattern = ""
+    for token in key.split("/")[1:]:
+        if token == "**":
+            pattern += r"(/[^/]+)*"
+        elif token == "*":
+            pattern += r"/[^/]+"
+        else:
+            pattern += "/" + re.escape(token)
+    return re.fullmatch(pattern, fqn) is not None
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested keys -> dotted names (``{arx: {order: 100}}`` -> ``{"arx.order": 100}``)."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def _sections(tree: Mapping) -> Iterable[tuple[str, dict[str, Any]]]:
+    for key, section in tree.items():
+        if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
+            yield str(key), flatten(section["ros__parameters"])
+
+
+def node_values_from_tree(tree: Mapping, fqn: str) -> dict[str, Any]:
+    """Every parameter the file sets for the node ``fqn``.
+
+    The matching sections, wildcard
+    sections first, then exact ones (a node-specific value overrides a shared one).
+    """
+    wildcard: dict[str, Any] = {}
+    exact: dict[str, Any] = {}
+    for key, values in _sections(tree):
+        if section_matches(key, fqn):
+            (wildcard if "*" in key else exact).update(values)
+    return {**wildcard, **exact}
+
+
+def _standard(name: str) -> bool:
+    return any(name == p or (p.endswith(".") and name.startswith(p)) for p in ROS_STANDARD_PARAMETERS)
+
+
+def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
+                namespace: str | None = None, for_node: str | None = None) -> list[str]:
+    """Problems of a parameter file that rcl would pass over silently, one sentence each.
+
+    Parameters
+    ----------
+    tree : the file's YAML tree.
+    label : the file's name, for the messages.
+    nodes : node name -> the parameter names it declares (the nodes that read the file).
+    namespace : the nodes' namespace (None: the root namespace).
+    for_node : report only sections that apply to this node or name it (a node reporting on
+        the files it was started with); None: every section.
+    """
+    known = {node: set(names) for node, names in nodes.items()}
+    fqns = {node: node_fqn(node, namespace) for node in known}
+    problems = []
+    for key, values in _sections(tree):
+        applies = [node for node, fqn in fqns.items() if section_matches(key, fqn)]
+        last = str(key).rstrip("/").split("/")[-1]
+        if for_node is not None and for_node not in applies and last != for_node:
+            continue
+        if not applies:
+            if last in known:
+                problems.append(
+                    f"{label}: section {key!r} does not apply to {fqns[last]} (a node name without "
+                    f"'/**/' is in the root namespace); key it '/**/{last}' to apply in every namespace"
+                )
+            continue
+        names = set().union(*(known[node] for node in applies))
+        unknown = sorted(n for n in values if n not in names and not _standard(n))
+        if unknown:
+            where = ", ".join(applies)
+            problems.append(f"{label}: section {key!r}: unknown parameter(s) {', '.join(unknown)} "
+                            f"(not declared by {where})")
+    return problems
+
+
+def params_files_from_args(args: Sequence[str]) -> list[str]:
+    """The ``--params-file FILE`` paths among ROS arguments (``--ros-args ... [--]``), in order."""
+    files: list[str] = []
+    in_ros = False
+    it = iter(args)
+    for arg in it:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--" and in_ros:
+            in_ros = False
+        elif in_ros and arg == "--params-file":
+            path = next(it, None)
+            if path is not None:
+                files.append(path)
+    return files
+
+
+def read_parameter_file(path: str | Path) -> Mapping:
+    """The YAML tree of a ROS parameter file (node sections at the top), or ParameterError."""
+    import yaml
+
+    path = Path(path)
+    try:
+        tree = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+    if not isinstance(tree, Mapping):
+        raise ParameterError(f"parameter file {path} has no node sections")
+    return tree
+
+
+def read_files(paths: Sequence[str | Path]) -> list[tuple[str, Mapping]]:
+    """(label, YAML tree) of each file; ParameterError when one cannot be read."""
+    return [(str(p), read_parameter_file(p)) for p in paths]

@@ -1,0 +1,114 @@
+"""Ring buffer of recent samples (stamp, u, y, skipped), indexed by an absolute sample counter.
+
+Node 2 keeps the samples of the ARX window in one (for the realization and the warm start of
+each model), node 1 the samples it may have to replay into its window after a structural
+change. Thread-safe: the per-sample path appends while a worker reads copies.
+
+``skipped`` is what :meth:`okid_ros.service.estimation.ModalEstimationService.step` receives:
+0 for a contiguous sample, ``k > 0`` after ``k`` missing slots, -1 after a restart.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+__all__ = ["SampleBuffer"]
+
+
+class SampleBuffer:
+    """Ring buffer of recent samples, indexed by an absolute sample counter; thread-safe."""
+
+    def __init__(self, capacity: int, m: int, p: int) -> None:
+        self.lock = threading.Lock()
+        self.m, self.p = m, p
+        self._alloc(max(int(capacity), 16))
+        self.count = 0
+
+    def _alloc(self, cap: int) -> None:
+        self.cap = cap
+        self.stamps = np.zeros(cap)
+        self.u = np.zeros((cap, self.m))
+        self.y = np.zeros((cap, self.p))
+        self.skipped = np.zeros(cap, dtype=np.int64)
+
+    def clear(self) -> None:
+        with self.lock:
+            self.count = 0
+
+    def resize(self, cap: int) -> None:
+        with self.lock:
+            if cap <= self.cap:
+                return
+            first = max(self.count - self.cap, 0)
+            idx = np.arange(first, self.count) % self.cap
+            old = (self.stamps[idx], self.u[idx], self.y[idx], self.skipped[idx])
+            self._alloc(cap)
+            new = np.arange(first, self.count) % cap
+            self.stamps[new], self.u[new], self.y[new], self.skipped[new] = old
+
+    def append(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> int:
+        with self.lock:
+            i = self.count % self.cap
+            self.stamps[i] = stamp_s
+            self.u[i] = u
+            self.y[i] = y
+            self.skipped[i] = skipped
+            self.count += 1
+            return self.count - 1
+
+    @property
+    def first(self) -> int:
+        return max(self.count - self.cap, 0)
+
+    def get(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of samples lo..hi-1 (absolute indices, clipped to what is stored)."""
+        with self.lock:
+            lo = max(lo, self.first)
+            hi = min(hi, self.count)
+            idx = np.arange(lo, max(hi, lo)) % self.cap
+            return self.stamps[idx].copy(), self.u[idx].copy(), self.y[idx].copy(), self.skipped[idx].copy()
+
+    def find_end(self, stamp_s: float, tol: float) -> tuple[int, float]:
+        """Newest stored sample with stamp <= stamp_s + tol (index, its stamp), or (-1, nan).
+
+        Searched within the newest contiguous timeline (after the last restart).
+        """
+        with self.lock:
+            lo, hi = self.first, self.count
+            if hi == lo:
+                return -1, math.nan
+            idx = np.arange(lo, hi) % self.cap
+            st = self.stamps[idx]
+            restarts = np.flatnonzero(self.skipped[idx] < 0)
+            start = int(restarts[-1]) if restarts.size else 0
+            ok = np.flatnonzero(st[start:] <= stamp_s + tol)
+            if ok.size == 0:
+                return -1, math.nan
+            k = start + int(ok[-1])
+            return lo + k, float(st[k])
+
+    def newest_stamp(self) -> float:
+        with self.lock:
+            return float(self.stamps[(self.count - 1) % self.cap]) if self.count else math.nan
+
+    def stamp_at(self, index: int) -> float:
+        """Stamp of the sample with absolute index ``index`` (nan if no longer stored)."""
+        with self.lock:
+            if not self.first <= index < self.count:
+                return math.nan
+            return float(self.stamps[index % self.cap])
+
+    def first_at_or_after(self, stamp_s: float, tol: float = 0.0) -> int:
+        """Oldest stored sample of the newest timeline with stamp >= ``stamp_s - tol``; -1 if none."""
+        with self.lock:
+            lo, hi = self.first, self.count
+            if hi == lo:
+                return -1
+            idx = np.arange(lo, hi) % self.cap
+            restarts = np.flatnonzero(self.skipped[idx] < 0)
+            start = int(restarts[-1]) if restarts.size else 0
+            ok = np.flatnonzero(self.stamps[idx][start:] >= stamp_s - tol)
+            return -1 if ok.size == 0 else lo + start + int(ok[0])
