@@ -27,7 +27,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "okid_ros.commands.replay",
     "okid_ros.commands.process",
     "okid_ros.commands.monitor",
+    "okid_ros.commands.record",
     "okid_ros.commands.plot",
+    "okid_ros.commands.export",
     "okid_ros.commands.demo",
     "okid_ros.commands.up",
 )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv"]
+__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv", "add_bag_arguments"]
 
 
 def positive_int(text: str) -> int:
@@ -34,3 +34,14 @@ def penalty_or_gcv(text: str) -> float | str:
     if not value >= 0.0:
         raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {value}")
     return value
+
+
+def add_bag_arguments(parser) -> None:
+    """``--params``, ``--param`` and ``--source`` for commands that read a bag like `process`."""
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="for a bag: the nodes' parameter YAML (input sources, sample time; default: the "
+                        "built-in defaults, equal to config/okid.yaml)")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="for a bag: override a parameter, as for `okid-ros process`")
+    parser.add_argument("--source", action="append", default=[], metavar="SPEC",
+                        help="for a bag: replace inputs.sources, one 'KIND TOPIC [FIELD=CHANNEL ...]' per option")

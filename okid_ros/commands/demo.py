@@ -1,5 +1,8 @@
-"""`okid-ros demo`: simulate an experiment, replay it live through both nodes while the monitor
-shows the modes, draw the figures and print identified against true modes (`make demo`)."""
+"""`okid-ros demo`: the main job, end to end.
+
+Simulate an experiment, replay it live through both nodes while the monitor
+shows the modes, draw the figures and print identified against true modes (`make demo`).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`okid-ros identify DATA --order Q [--states N|auto] [--ar-order R] --json OUT.json`.
+"""`okid-ros identify DATA [--order Q|auto] [--states N|auto] [--ar-order R] --json OUT.json`.
 
 Batch identification of one record (.npz or .csv, see :mod:`okid_ros.records`) with the core
 pipeline; writes the model in normalized modal form and its physical modes as JSON.
@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import positive_int, states_or_auto
+from okid_ros.commands._args import add_bag_arguments, positive_int, states_or_auto
+from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -20,8 +21,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "gain and write A, B, C, D, K (paper convention: predictor gain A K) in normalized modal "
         "form, the innovation covariance, the Hankel singular values and the physical modes.",
     )
-    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; or .csv (see docs)")
-    parser.add_argument("--order", type=positive_int, required=True, metavar="Q", help="ARX order q (paper: 100)")
+    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
+                        "(samples assembled as by the nodes, see --params, --source)")
+    parser.add_argument("--order", type=states_or_auto, default="auto", metavar="Q|auto",
+                        help="ARX order q (paper: 100), or auto: chosen by generalized cross-validation (default)")
     parser.add_argument("--states", type=states_or_auto, default="auto", metavar="N|auto",
                         help="model order n, or auto (lowest BIC; default)")
     parser.add_argument("--ar-order", type=positive_int, default=None, metavar="R",
@@ -30,27 +33,79 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="okid: robust chain (default); paper: the published method as is")
     parser.add_argument("--regularization", choices=("ridge", "tc", "none"), default=None,
                         help="ARX regularization (default: ridge for okid, none for paper)")
-    parser.add_argument("--gain", choices=("refit", "whitening"), default="refit",
-                        help="estimator gain: least-squares refit (default) or the paper's whitening")
+    parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
+                        help="estimator gain: refit (least squares where the predictor is stable by "
+                        "construction, else the Riccati gain; default), riccati (always the Kalman gain of "
+                        "the Riccati equation on the residual covariances) or whitening (the paper's)")
+    parser.add_argument("--offsets", choices=OFFSETS, default="remove",
+                        help="remove: subtract the record's means and keep them with the model (default); "
+                        "none: identify the raw signals")
     parser.add_argument("--no-refine", action="store_true",
                         help="skip the final prediction-error refinement (faster, less accurate)")
-    parser.add_argument("--max-states", type=positive_int, default=40, metavar="N",
-                        help="largest order tried by --states auto (default: %(default)s)")
+    parser.add_argument("--max-states", type=positive_int, default=RealizationOptions.max_states, metavar="N",
+                        help="largest order tried first by --states auto; the search goes on while the "
+                        "criterion is lowest there, up to %d (default: %%(default)s)"
+                        % RealizationOptions.max_states_limit)
     parser.add_argument("--json", required=True, metavar="OUT.json", help="where to write the model")
+    parser.add_argument("--plot-dir", default=None, metavar="DIR",
+                        help="also write frf.png, mac.png (and stabilization.png when the model has the data) here")
+    parser.add_argument("--reference", default=None, metavar="REF.json",
+                        help="modes to compare the shapes with in mac.png (an `identify --json` output)")
+    parser.add_argument("--frf-pairs", default=None, metavar="O:I,...",
+                        help="output:input pairs drawn in frf.png, 1-based, e.g. 1:1,2:1 (default: all, at most 16)")
+    parser.add_argument("--csv", default=None, metavar="MODES.csv",
+                        help="also write the modal table (frequency, damping, standard deviations, indicators)")
+    parser.add_argument("--uff", default=None, metavar="OUT.uff",
+                        help="also write the mode shapes (UFF dataset 55) and the FRFs, model and measured H1 "
+                        "(dataset 58), in Universal File Format")
+    add_bag_arguments(parser)
+    parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
     return parser
 
 
+def _outputs(args: argparse.Namespace) -> list:
+    """Every file this run will write (checked before the work: no output is replaced without --force)."""
+    from pathlib import Path
+
+    from okid_ros.tools.validation_plots import VALIDATION_FIGURES
+
+    paths = [Path(args.json)]
+    if args.csv:
+        paths.append(Path(args.csv))
+    if args.uff:
+        paths.append(Path(args.uff))
+    if args.plot_dir:
+        paths += [Path(args.plot_dir) / name for name in VALIDATION_FIGURES]
+    return paths
+
+
 def run(args: argparse.Namespace) -> int:
-    import json
+    import sys
     import time
     from pathlib import Path
 
     from okid_ros.core.pipeline import IdentificationError, identify
-    from okid_ros.errors import DataError
-    from okid_ros.records import load_record
+    from okid_ros.core.validation import prediction_fits
+    from okid_ros.errors import DataError, ParameterError
+    from okid_ros.jsonio import write_json
+    from okid_ros.tools.bag_record import load_any_record
+    from okid_ros.tools.bagio import prepare_output
 
-    record = load_record(args.data)
+    out = Path(args.json)
+    if not args.force:
+        for path in _outputs(args):
+            prepare_output(path, force=False, kind="output")  # refuse before the work, not after
+    reference = _load_reference(args.reference) if args.reference else None
+    record, source = load_any_record(args.data, args.params, args.param, args.source)
+    pairs = None
+    if args.frf_pairs:
+        from okid_ros.tools.validation_plots import parse_pairs
+
+        try:
+            pairs = parse_pairs(args.frf_pairs, record.y.shape[1], record.u.shape[1])
+        except ValueError as exc:
+            raise ParameterError(f"--frf-pairs: {exc}") from None
     started = time.perf_counter()
     try:
         model = identify(
@@ -64,23 +119,94 @@ def run(args: argparse.Namespace) -> int:
             gain=args.gain,
             ar_order=args.ar_order,
             max_states=args.max_states,
+            max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
             refine=not args.no_refine,
+            offsets=args.offsets,
         )
     except IdentificationError as exc:
         raise DataError(str(exc)) from None
+    uncertainty = model.uncertainty
     elapsed = time.perf_counter() - started
+    fits = prediction_fits(model, record.u, record.y)
     document = model.to_json_dict()
-    document["source"] = str(args.data)
+    document["uncertainty"] = {"computed": uncertainty.computed, "reason": uncertainty.reason or None,
+                               "method": "first-order propagation of the prediction-error covariance"}
+    document["fit_one_step_pct"] = fits["one_step_pct"]
+    document["fit_simulation_pct"] = fits["simulation_pct"]
+    document["fit_burn_in_samples"] = fits["burn_in_samples"]
+    document["source"] = source
     document["elapsed_s"] = elapsed
-    out = Path(args.json)
     try:
-        out.write_text(json.dumps(document, indent=1) + "\n")
+        write_json(out, document)
     except OSError as exc:
         raise DataError(f"cannot write {out}: {exc}") from None
-    print(f"identified n={model.n_states} states, {len(model.modes)} physical modes in {elapsed:.2f} s -> {out}")
+    for warning in model.warnings:
+        print(f"okid-ros identify: warning: {warning}", file=sys.stderr)
+    print(f"record: {source}")
+    print(
+        f"identified ARX order {model.arx.order}, n={model.n_states} states, {len(model.modes)} physical modes "
+        f"in {elapsed:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
+        f"{model.predictor_spectral_radius():.4f}) -> {out}"
+    )
     for mode in model.modes:
         print(
-            f"  mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
-            f"damping {100 * mode.damping_ratio:6.3f} %  MPC {mode.mpc:.3f}  MSV {mode.msv:.3f}"
+            f"  mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s "
+            f"{mode.frequency_hz:9.4f} Hz{_pm(mode.frequency_hz_std)} "
+            f"damping {100 * mode.damping_ratio:6.3f} %{_pm(100 * mode.damping_ratio_std)}  "
+            f"MPC {mode.mpc:.3f}  MSV {mode.msv:.3f}"
         )
+    if not uncertainty.computed:
+        print(f"  mode standard deviations {uncertainty.reason}")
+    print(_fit_line(fits))
+    if args.csv:
+        from okid_ros.tools.exports import write_modal_csv
+
+        write_modal_csv(args.csv, model.modes)
+        print(f"modal table -> {args.csv}")
+    if args.uff:
+        from okid_ros.core.validation import h1_frf, model_frf
+        from okid_ros.tools.exports import write_uff
+
+        freq, measured = h1_frf(record.u, record.y, record.sample_time_s)
+        modelled = model_frf(model.A, model.B, model.C, model.D, freq, record.sample_time_s)
+        count = write_uff(args.uff, model.modes, frequency_hz=freq, frfs={"model": modelled, "measured H1": measured})
+        print(f"UFF (datasets 55 and 58, {count} in all) -> {args.uff}")
+    if args.plot_dir:
+        from okid_ros.tools.validation_plots import ModelView, write_validation_figures
+
+        written = write_validation_figures(ModelView.of(model), record.u, record.y, args.plot_dir, force=args.force,
+                                           reference=reference, pairs=pairs)
+        print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
     return 0
+
+
+def _fit_line(fits: dict) -> str:
+    """One line with the fits per output (identification record, after the burn-in)."""
+    pred = ", ".join(f"{v:.1f}" for v in fits["one_step_pct"])
+    sim = ", ".join(f"{v:.1f}" for v in fits["simulation_pct"])
+    return (f"fit on the record (after {fits['burn_in_samples']} samples), per output: one-step prediction "
+            f"[{pred}] %, free-run simulation [{sim}] %")
+
+
+def _load_reference(path: str) -> list:
+    """The ``modes`` of an `identify --json` document (for MAC against a reference)."""
+    import json
+    from pathlib import Path
+
+    from okid_ros.errors import DataError
+
+    try:
+        document = json.loads(Path(path).read_text())
+        modes = document["modes"]
+        for mode in modes:
+            mode["shape_real"], mode["frequency_hz"]  # noqa: B018 - presence check
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(
+            f"--reference {path}: not an `okid-ros identify --json` output with mode shapes ({exc})"
+        ) from None
+    return modes
+
+
+def _pm(std: float) -> str:
+    """`` +- std`` (2 significant digits), or nothing when it is not known."""
+    return "" if std != std else f" +- {std:.2g}"

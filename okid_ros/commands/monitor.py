@@ -15,7 +15,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "amplitude of its modal coordinates over recent samples. On a terminal the table is redrawn in "
         "place; otherwise (pipe, file) a table is printed every --interval seconds.",
     )
-    parser.add_argument("--topic", default="/okid/modal_states", help="ModalStates topic (default: %(default)s)")
+    parser.add_argument("--topic", default=None,
+                        help="ModalStates topic (default: modal_states in the rig namespace, /okid/modal_states)")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="the rig's namespace (nodes started with --namespace NS): shows NS/modal_states")
     parser.add_argument("--once", action="store_true",
                         help="print one table after the first message and exit (waits up to --duration, "
                         "default 30 s; exit status 2 if nothing arrives)")
@@ -33,10 +36,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
+    from okid_ros.errors import OkidError
+    from okid_ros.service.topics import MODAL_STATES, resolve_topic, validate_namespace
     from okid_ros.tools.monitor import run_monitor
 
     try:
-        run_monitor(args.topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
+        namespace = None if args.namespace is None else validate_namespace(args.namespace)
+    except ValueError as exc:
+        raise OkidError(f"--namespace: {exc}") from None
+    topic = args.topic or resolve_topic(MODAL_STATES, namespace)
+    try:
+        run_monitor(topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
                     window_samples=args.window, trend_window_s=args.trend_window,
                     ansi=False if args.no_ansi else None)
     except KeyboardInterrupt:

@@ -13,9 +13,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description="Read a bag with /okid/arx_model, /okid/state_space_model and /okid/modal_states "
         "(the output of `okid-ros process`, or a live recording) and write PNG files: system Markov "
         "parameters (1,1), stochastic Markov parameters C A^i K (1,1), modal states, measured against "
-        "estimated output 1, and frequency and damping of each mode over time. The measured output and "
-        "the truth of a simulated experiment come from the input bag: --input, or for `process` output "
-        "the source bag recorded in its metadata.",
+        "estimated output 1, and frequency and damping of each mode over time; for the last model, mac.png, "
+        "frf.png (measured H1 against the model, from the input bag's record) and stabilization.png (when "
+        "`process` recorded the model's stabilization data). The measured output and the truth of a simulated "
+        "experiment come from the input bag: --input, or for `process` output the source bag recorded in its "
+        "metadata.",
     )
     parser.add_argument("bag", metavar="OUT", help="output bag of `okid-ros process` (or a live recording)")
     parser.add_argument("--out-dir", default=None, metavar="DIR",
@@ -29,6 +31,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="seconds of modal states and outputs shown, at the end of the bag (default: %(default)s)")
     parser.add_argument("--terms", type=int, default=100, metavar="N",
                         help="stochastic Markov parameters drawn (default: %(default)s)")
+    parser.add_argument("--frf-pairs", default=None, metavar="O:I,...",
+                        help="output:input pairs drawn in frf.png, 1-based, e.g. 1:1,2:1 (default: all, at most 16)")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="the rig namespace of the bag's topics (a bag of `okid-ros record --namespace NS` or "
+                        "`okid-ros process --namespace NS`; default: /okid/...)")
     parser.add_argument("--force", action="store_true", help="replace existing PNG files")
     parser.set_defaults(func=run)
     return parser
@@ -46,7 +53,14 @@ def run(args: argparse.Namespace) -> int:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
     bag_path = Path(args.bag)
     out_dir = Path(args.out_dir) if args.out_dir else bag_path.with_name(bag_path.name + "_figures")
-    data = read_plot_data(bag_path, window_s=args.window)
+    from okid_ros.errors import OkidError
+    from okid_ros.service.topics import validate_namespace
+
+    try:
+        namespace = None if args.namespace is None else validate_namespace(args.namespace)
+    except ValueError as exc:
+        raise OkidError(f"--namespace: {exc}") from None
+    data = read_plot_data(bag_path, window_s=args.window, namespace=namespace)
     info = data.process_info or {}
     input_bag = args.input
     if input_bag is None and info.get("source") and Path(info["source"]).exists():
@@ -54,18 +68,51 @@ def run(args: argparse.Namespace) -> int:
     note = ""
     if input_bag is not None:
         if args.params or "parameters" not in info:
-            est_values = load_node_parameters(args.params)[1]
+            est_values = load_node_parameters(args.params, namespace=namespace)[1]
         else:
             est_values = info["parameters"]["okid_modal_estimator"]
         if data.truth is None:
             with open_bag(input_bag) as bag:
                 data.truth = bag.custom_json(TRUTH_KEY)
-        matched = add_measured_outputs(data, input_bag, est_values)
+        matched = add_measured_outputs(data, input_bag, est_values, namespace=namespace)
         note = f"; measured outputs from {input_bag} ({matched} samples)"
     else:
         note = "; no input bag: measured output drawn as y_estimated + innovation"
+    from okid_ros.tools.plots import refuse_existing
+    from okid_ros.tools.validation_plots import VALIDATION_FIGURES, ModelView, parse_pairs, write_validation_figures
+
+    refuse_existing(out_dir, VALIDATION_FIGURES, args.force)
     written = write_figures(data, out_dir, force=args.force, n_stochastic=args.terms)
+    if data.state_space is not None:
+        view = ModelView.of(data.state_space)
+        view.stabilization = data.stabilization
+        u = y = None
+        if input_bag is not None:
+            from okid_ros.tools.bag_record import record_from_bag
+
+            from_bag = record_from_bag(input_bag, est_values)
+            u, y = from_bag.record.u, from_bag.record.y
+            note += f"; FRF from {from_bag.summary()}"
+        try:
+            pairs = parse_pairs(args.frf_pairs, view.C.shape[0], view.B.shape[1]) if args.frf_pairs else None
+        except ValueError as exc:
+            raise ToolParameterError(f"--frf-pairs: {exc}") from None
+        written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,
+                                            reference=_truth_modes(data.truth), reference_label="truth")
     print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
     for path in written:
         print(f"  {path}")
     return 0
+
+
+def _truth_modes(truth: dict | None) -> list | None:
+    """The true modes with their shapes, from the truth's A, B, C (a simulated experiment), or None."""
+    if not truth or not all(k in truth for k in ("A", "B", "C", "sample_time_s")):
+        return None
+    import numpy as np
+
+    from okid_ros.core.modal import identify_modes
+
+    modes, _ = identify_modes(np.asarray(truth["A"], float), np.asarray(truth["B"], float),
+                              np.asarray(truth["C"], float), float(truth["sample_time_s"]))
+    return [m for m in modes if m.stable]

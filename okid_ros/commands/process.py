@@ -33,6 +33,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--source", action="append", default=[], metavar="SPEC",
                         help="replace inputs.sources, one 'KIND TOPIC [FIELD=CHANNEL ...]' per option, e.g. "
                         "--source 'imu /accel/tip1/imu linear_acceleration.x=y0'")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="the rig's namespace, as `okid-ros up --namespace NS`: relative topic names are read "
+                        "and written under NS (NS/io_sample -> NS/modal_states) and the parameter file's sections "
+                        "apply as to nodes in NS (default: the root namespace, topics under /okid)")
+    parser.add_argument("--strict-params", action="store_true",
+                        help="refuse a parameter file that sets a name no node declares (default: a warning)")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="storage plugin of the output bag (default: %(default)s)")
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
@@ -45,12 +51,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
+    from okid_ros.errors import OkidError
+    from okid_ros.service.topics import validate_namespace
     from okid_ros.tools.process import load_node_parameters, process_bag
 
-    arx_values, est_values = load_node_parameters(args.params, args.param, args.source)
+    try:
+        namespace = None if args.namespace is None else validate_namespace(args.namespace)
+    except ValueError as exc:
+        raise OkidError(f"--namespace: {exc}") from None
+    arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
+                                                  strict=args.strict_params)
     summary = process_bag(args.bag, args.out, arx_values, est_values, jsonl_path=args.jsonl, force=args.force,
                           storage=args.storage, progress=args.progress,
-                          provenance={"params_files": args.params, "param_overrides": args.param})
+                          provenance={"params_files": args.params, "param_overrides": args.param,
+                                      "namespace": namespace or "/"},
+                          namespace=namespace)
     duration = summary.data_duration_s
     speed = duration / summary.elapsed_s if summary.elapsed_s > 0 else float("inf")
     print(f"processed {args.bag}: {summary.input_messages} messages, {summary.samples} samples "
@@ -58,12 +73,28 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {summary.arx_models} ArxModel ({summary.valid_arx_models} valid), "
           f"{summary.models} StateSpaceModel, {summary.modal_states} ModalStates"
           + (f"; {args.jsonl}: {len(summary.updates)} lines" if args.jsonl else ""))
+    for change in summary.changes:
+        if not change["modes_after"]:
+            print(f"structural change {change['change_id']} at {change['change_stamp_s']:.3f} s, declared at "
+                  f"{change['detection_stamp_s']:.3f} s "
+                  f"(statistic {change['statistic']:.1f} > {change['threshold']:.1f})")
     if summary.updates:
         print(f"modes of the last model ({summary.updates[-1]['model_id']}):")
         for mode in summary.final_modes:
-            print(f"  id {mode['id']:3d}: {mode['frequency_rad_s']:10.4f} rad/s {mode['frequency_hz']:9.4f} Hz  "
-                  f"damping {100 * mode['damping_ratio']:6.3f} %")
+            print(f"  id {mode['id']:3d}: {mode['frequency_rad_s']:10.4f} rad/s {mode['frequency_hz']:9.4f} Hz"
+                  f"{_pm(mode.get('frequency_hz_std'))}  damping {100 * mode['damping_ratio']:6.3f} %"
+                  f"{_pm(mode.get('damping_ratio_std'), 100.0)}")
+        last = summary.updates[-1]
+        if "fit_one_step_pct" in last:
+            pred = ", ".join(f"{v:.1f}" for v in last["fit_one_step_pct"])
+            sim = ", ".join(f"{v:.1f}" for v in last["fit_simulation_pct"])
+            print(f"  fit on its window, per output: one-step prediction [{pred}] %, free-run simulation [{sim}] %")
     else:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
         print("no model was identified" + (f": {reason}" if reason else ""))
     return 0
+
+
+def _pm(std: float | None, scale: float = 1.0) -> str:
+    """`` +- std`` (2 significant digits), or nothing when it is unknown."""
+    return "" if std is None else f" +- {scale * std:.2g}"

@@ -24,6 +24,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics (default: all)")
     parser.add_argument("--remap", nargs="+", action="append", default=[], metavar="FROM:=TO",
                         help="publish bag topic FROM on TO (repeatable)")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="publish the bag's topics of the default rig namespace /okid in NS instead "
+                        "(/okid/io_sample -> NS/io_sample), for nodes started with --namespace NS")
     parser.add_argument("--delay", type=float, default=0.5, metavar="S",
                         help="wait after creating the publishers so subscribers discover them "
                         "(default: %(default)s s)")
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         args.bag, rate=args.rate, loop=args.loop, topics=args.topics, remaps=remaps, delay_s=args.delay,
         duration_s=args.duration, queue_depth=args.queue_depth, clock=args.clock is not None,
         clock_hz=args.clock or 100.0, wait_for_subscribers=args.wait_for_subscribers,
+        namespace=args.namespace,
     )
     stats = player.run()
     print(f"replayed {stats.total} messages on {len(stats.published)} topics in {stats.wall_time_s:.1f} s "

@@ -9,7 +9,21 @@ samples, the identification pipeline of the core on the current window
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
      "arx_penalty": ..., "condition_number": ..., "rows": W, "elapsed_s": ...}
 
-``sample_index`` is the index in DATA of the newest sample used. The ARX fit of each update is
+``sample_index`` is the index in DATA of the newest sample used. Every line also carries
+``change_detected``: true on the update where a structural change is declared, with
+``change_sample_index`` (the estimated first sample of the new structure),
+``change_declared_index`` (the sample at which it was declared), ``change_statistic`` and
+``change_threshold`` [nats].
+
+Structural change (on unless ``--no-change-detection``): the innovations of a reference model
+(the first model, and after a change the first model of the new structure) are tested sample by
+sample with the calibrated CUSUM of :mod:`okid_ros.core.change_detection`, whose threshold
+follows from ``--false-alarm-samples``. When a change is declared, the window restarts at the
+change point: the next models use post-change data only, from ``--restart-min-fill`` of the
+window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
+grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline.
+
+The ARX fit of each update is
 the batch fit of the window's normal equations (same as `identify` on those samples, with the
 prior scaled by the window's data and the penalty by GCV unless ``--penalty`` fixes it); the
 window keeps the normal equations up to date in O(d^2) per sample. An update whose pipeline
@@ -20,7 +34,30 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import penalty_or_gcv, positive_int, states_or_auto
+from okid_ros.commands._args import add_bag_arguments, penalty_or_gcv, positive_int, states_or_auto
+from okid_ros.core.options import GAINS, RealizationOptions
+
+
+def _fraction(text: str) -> float:
+    """A number in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {value}")
+    return value
+
+
+def _samples(text: str) -> float:
+    """A number of samples > 1 (may be written 1e7)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of samples > 1, got {text!r}") from None
+    if not value > 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number of samples > 1, got {value}")
+    return value
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -32,23 +69,40 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "equations recursively, and every S samples (once the window is full) identify the model "
         "of the window and write its physical modes as one JSON line.",
     )
-    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; or .csv (see docs)")
-    parser.add_argument("--order", type=positive_int, required=True, metavar="Q", help="ARX order q")
+    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
+                        "(samples assembled as by the nodes, see --params, --source)")
+    parser.add_argument("--order", type=states_or_auto, default="auto", metavar="Q|auto",
+                        help="ARX order q, or auto: chosen by generalized cross-validation on the first "
+                        "window (default)")
     parser.add_argument("--window", type=positive_int, default=4000, metavar="W",
                         help="regressor rows in the window (default: %(default)s)")
     parser.add_argument("--every", type=positive_int, default=250, metavar="S",
                         help="samples between updates once the window is full (default: %(default)s)")
     parser.add_argument("--states", type=states_or_auto, default="auto", metavar="N|auto",
                         help="model order n, or auto (lowest BIC; default)")
-    parser.add_argument("--max-states", type=positive_int, default=40, metavar="N",
-                        help="largest order tried by --states auto (default: %(default)s)")
+    parser.add_argument("--max-states", type=positive_int, default=RealizationOptions.max_states, metavar="N",
+                        help="largest order tried first by --states auto; the search goes on while the "
+                        "criterion is lowest there (default: %(default)s)")
     parser.add_argument("--regularization", choices=("ridge", "tc", "none"), default="ridge",
                         help="ARX regularization of each window (default: %(default)s)")
     parser.add_argument("--penalty", type=penalty_or_gcv, default="gcv", metavar="gcv|X",
                         help="regularization penalty: chosen by GCV per update (default) or fixed")
-    parser.add_argument("--gain", choices=("refit", "whitening"), default="refit",
-                        help="estimator gain: least-squares refit (default) or the paper's whitening")
+    parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
+                        help="estimator gain: refit (default), riccati or whitening (see identify --help)")
+    from okid_ros.core.change_detection import DEFAULT_FALSE_ALARM_SAMPLES
+    from okid_ros.service.identification import ArxIdentificationParams
+
+    parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
+                        help="do not test for structural changes (the window only slides)")
+    parser.add_argument("--false-alarm-samples", type=_samples, default=DEFAULT_FALSE_ALARM_SAMPLES, metavar="N",
+                        help="expected samples between false alarms of the change test on a stationary "
+                        "structure (default: %(default)g)")
+    parser.add_argument("--restart-min-fill", type=_fraction, default=ArxIdentificationParams.restart_min_fill,
+                        metavar="F", help="after a change the window restarts at the change point; models "
+                        "come from this fraction of W rows on (default: %(default)g)")
     parser.add_argument("--jsonl", required=True, metavar="OUT.jsonl", help="where to write the updates")
+    add_bag_arguments(parser)
+    parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
@@ -73,23 +127,42 @@ def _progress(total: int, disable: bool):
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import time
     from pathlib import Path
 
     import numpy as np
 
-    from okid_ros.core.pipeline import IdentificationError, identify_from_arx
+    from okid_ros.core.arx import fit_from_normal_equations
+    from okid_ros.core.change_detection import StructuralChangeMonitor, predictor_spectral_radius
+    from okid_ros.core.pipeline import IdentificationError, choose_arx_order, identify_from_arx
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.core.regressors import regressor_length
+    from okid_ros.core.statespace import InnovationPredictor
     from okid_ros.errors import DataError, ParameterError
-    from okid_ros.records import load_record
+    from okid_ros.jsonio import dumps
+    from okid_ros.tools.bag_record import load_any_record
+    from okid_ros.tools.bagio import prepare_output
 
-    record = load_record(args.data)
+    out = Path(args.jsonl)
+    if not args.force:
+        prepare_output(out, force=False, kind="JSON lines file")
+    record, _ = load_any_record(args.data, args.params, args.param, args.source)
     u, y, dt = record.u, record.y, record.sample_time_s
     n_samples, m = u.shape
     p = y.shape[1]
-    q, window = args.order, args.window
+    window = args.window
+    options = RealizationOptions(
+        n_states=args.states, max_states=args.max_states,
+        max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
+    )
+    if args.order == "auto":
+        # Chosen once, on the first window, so every update uses the same regressors.
+        try:
+            q, _ = choose_arx_order(u[: window + 200], y[: window + 200], options=options)
+        except IdentificationError as exc:
+            raise DataError(str(exc)) from None
+    else:
+        q = args.order
     d = regressor_length(q, p, m)
     if q < 2:
         raise ParameterError(f"--order must be >= 2 for the identification pipeline, got {q}")
@@ -104,10 +177,12 @@ def run(args: argparse.Namespace) -> int:
             f"(window {window} rows plus {q} lags)"
         )
     estimator = SlidingWindowArx(q, p, m, window=window)
+    monitor = StructuralChangeMonitor(p, false_alarm_samples=args.false_alarm_samples)
+    restart_rows = max(int(np.ceil(args.restart_min_fill * window)), 1)
     # Update points: the window is first full at sample window + q - 1, then every S samples.
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
-    out = Path(args.jsonl)
+    changes: list = []
     try:
         handle = out.open("w")
     except OSError as exc:
@@ -119,24 +194,47 @@ def run(args: argparse.Namespace) -> int:
     with handle:
         fed = 0
         for k in points:
-            estimator.update(u[fed : k + 1], y[fed : k + 1])
+            alarm = monitor.process(u[fed : k + 1], y[fed : k + 1], fed) if monitor.armed else None
+            if alarm is None:
+                estimator.update(u[fed : k + 1], y[fed : k + 1])
+            else:  # restart the window at the change point
+                estimator.reset()
+                estimator.update(u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+                changes.append(alarm)
             bar.update(k + 1 - fed)
             fed = k + 1
             t0 = time.perf_counter()
+            rows = int(estimator.status.rows_in_window)
             entry = {
                 "sample_index": int(k),
-                "window_first_index": int(k - window - q + 1),
+                "window_first_index": int(k - rows - q + 1),
                 "time_s": float(k * dt),
-                "rows": int(estimator.status.rows_in_window),
+                "rows": rows,
+                "change_detected": alarm is not None,
             }
-            try:
-                fit = estimator.arx_fit(args.regularization, args.penalty)
-                u_w, y_w, _ = estimator.window_samples()
-                model = identify_from_arx(
-                    fit, u_w, y_w, dt, n_states=args.states, max_states=args.max_states, gain=args.gain,
+            if alarm is not None:
+                entry.update(
+                    change_sample_index=int(alarm.change_index), change_declared_index=int(alarm.alarm_index),
+                    change_statistic=float(alarm.statistic), change_threshold=float(alarm.threshold),
                 )
+            if rows < restart_rows:
+                entry.update(n_states=None, modes=[], waiting=(
+                    f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the "
+                    f"{restart_rows} rows needed"))
+                entry["elapsed_s"] = time.perf_counter() - t0
+                handle.write(dumps(entry) + "\n")
+                continue
+            try:
+                # With an intercept, as identify_from_arx removes the window's means (offsets).
+                fit = fit_from_normal_equations(
+                    estimator.normal_equations(), q, p, m, args.regularization, args.penalty, center=True
+                )
+                u_w, y_w, _ = estimator.window_samples()
+                model = identify_from_arx(fit, u_w, y_w, dt, options=options)
                 entry.update(
                     n_states=model.n_states,
+                    arx_order=int(q),
+                    max_states_reached=bool(model.max_states_reached),
                     arx_penalty=float(fit.penalty),
                     condition_number=float(fit.condition_number),
                     modes=[
@@ -145,14 +243,25 @@ def run(args: argparse.Namespace) -> int:
                     ],
                 )
                 last_modes = model.modes
+                if (args.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows)
+                        and predictor_spectral_radius(model) < 1.0):
+                    # The reference of the change test: the predictor's state after the window.
+                    warm = InnovationPredictor(model)
+                    warm.run(u_w, y_w)
+                    monitor.arm(model, warm.x, reference_rows=rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 failures += 1
-                entry.update(n_states=None, modes=[], error=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
-            handle.write(json.dumps(entry) + "\n")
+            handle.write(dumps(entry) + "\n")
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
+    for alarm in changes:
+        print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
+              f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); the window "
+              f"restarted there")
     print(
         f"tracked {n_samples} samples: {len(points)} updates ({failures} failed) of window {window}, "
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"

@@ -2,6 +2,7 @@
 
     okid-ros up --params config/okid.yaml
     okid-ros up --params config/okid.yaml --params my_overrides.yaml --use-sim-time
+    okid-ros up --params config/okid.yaml --namespace /rig1     # /rig1/io_sample, /rig1/modal_states, ...
 
 Starts ``python -m okid_ros.nodes.arx_identifier_node --ros-args --params-file FILE ...`` and
 the same for ``modal_estimator_node``, with this interpreter and environment; their output goes
@@ -42,6 +43,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--params", action="append", required=True, metavar="FILE",
                         help="ROS 2 parameter YAML keyed by node name; repeat to layer files "
                         "(later files win), e.g. config/okid.yaml")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="run both nodes in namespace NS (-r __ns:=NS): every topic and service of the rig "
+                        "moves there, e.g. /rig1/io_sample, /rig1/modal_states, /rig1/okid_arx_identifier/reset "
+                        "(default: the root namespace, topics under /okid)")
+    parser.add_argument("--strict-params", action="store_true",
+                        help="the nodes refuse to start when a parameter file sets a name they do not declare "
+                        "(strict_parameters:=true; default: a warning)")
+    parser.add_argument("--lifecycle", action="store_true",
+                        help="run both as managed (lifecycle) nodes, configured and activated at once")
+    parser.add_argument("--no-autostart", action="store_true",
+                        help="with --lifecycle: leave the nodes unconfigured for a lifecycle manager "
+                        "(ros2 lifecycle set NODE configure / activate)")
     parser.add_argument("--use-sim-time", action="store_true", help="run the nodes' timers on /clock")
     parser.add_argument("--log-level", default="info", choices=("debug", "info", "warn", "error"),
                         help="ROS log level of both nodes (default: %(default)s)")
@@ -61,13 +74,22 @@ def _die_with_parent() -> None:
         pass
 
 
-def node_command(module: str, params: list[str], use_sim_time: bool, log_level: str) -> list[str]:
+def node_command(module: str, params: list[str], use_sim_time: bool, log_level: str, *,
+                 namespace: str | None = None, strict_params: bool = False, lifecycle: bool = False,
+                 autostart: bool = True) -> list[str]:
     """The command line of one node process."""
-    cmd = [sys.executable, "-m", module, "--ros-args"]
+    cmd = [sys.executable, "-m", module]
+    if lifecycle:
+        cmd += ["--lifecycle"] + ([] if autostart else ["--no-autostart"])
+    cmd += ["--ros-args"]
     for path in params:
         cmd += ["--params-file", path]
     if use_sim_time:
         cmd += ["-p", "use_sim_time:=true"]
+    if strict_params:
+        cmd += ["-p", "strict_parameters:=true"]
+    if namespace is not None and namespace != "/":
+        cmd += ["-r", f"__ns:={namespace}"]
     return cmd + ["--log-level", log_level]
 
 
@@ -104,6 +126,16 @@ def run(args: argparse.Namespace) -> int:
         params.append(str(file.resolve()))
     if args.grace <= 0:
         raise OkidError(f"--grace must be > 0 seconds, got {args.grace}")
+    if args.no_autostart and not args.lifecycle:
+        raise OkidError("--no-autostart needs --lifecycle")
+    namespace = None
+    if args.namespace is not None:
+        from okid_ros.service.topics import validate_namespace
+
+        try:
+            namespace = validate_namespace(args.namespace)
+        except ValueError as exc:
+            raise OkidError(f"--namespace: {exc}") from None
 
     def on_signal(signum, frame):
         raise _Stop(signal.Signals(signum).name)
@@ -115,7 +147,9 @@ def run(args: argparse.Namespace) -> int:
         for name, module in NODE_MODULES.items():
             # Own session: a terminal's Ctrl-C reaches only `up`, which stops the nodes in order.
             processes[name] = subprocess.Popen(
-                node_command(module, params, args.use_sim_time, args.log_level),
+                node_command(module, params, args.use_sim_time, args.log_level,
+                             namespace=namespace, strict_params=args.strict_params,
+                             lifecycle=args.lifecycle, autostart=not args.no_autostart),
                 start_new_session=True, preexec_fn=_die_with_parent,
             )
         print(f"okid-ros up: started {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}; "

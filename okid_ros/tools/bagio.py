@@ -55,6 +55,8 @@ STORAGES = ("mcap", "sqlite3")
 TRUTH_KEY = "okid_ros.truth"
 #: custom_data key under which `process` records its source bag and parameters (JSON).
 PROCESS_KEY = "okid_ros.process"
+#: custom_data key under which `process` records the last model's stabilization data (JSON list).
+STABILIZATION_KEY = "okid_ros.stabilization"
 
 _REPO_MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 # Files a rosbag2 directory may hold; --force removes nothing else.
@@ -73,8 +75,10 @@ def message_definition_dir() -> Path:
     ones the rclpy classes were generated from; the repository's ``msg_defs/msg`` is the
     fallback for a source checkout without a build.
 
-    Raises:
-        BagReadError: no definitions anywhere.
+    Raises
+    ------
+    BagReadError
+        no definitions anywhere.
     """
     prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     prefixes.append(sys.prefix)
@@ -170,8 +174,10 @@ class BagReader:
     def require_topic(self, topic: str, msgtypes: Sequence[str]) -> str:
         """Check that ``topic`` exists with one of ``msgtypes``; return its type.
 
-        Raises:
-            BagReadError: the topic is missing or has another type.
+        Raises
+        ------
+        BagReadError
+            the topic is missing or has another type.
         """
         if topic not in self.topics:
             have = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics.items())) or "none"
@@ -257,11 +263,14 @@ class _OpenBag:
 def open_bag(path: str | os.PathLike) -> _OpenBag:
     """Open a bag for reading: ``with open_bag(path) as bag: ...``.
 
-    Args:
-        path: rosbag2 directory, ``.mcap`` or ``.db3`` file, or ROS 1 ``.bag``.
+    Parameters
+    ----------
+    path : rosbag2 directory, ``.mcap`` or ``.db3`` file, or ROS 1 ``.bag``.
 
-    Raises:
-        BagReadError: missing path or unreadable bag (one line, names the path).
+    Raises
+    ------
+    BagReadError
+        missing path or unreadable bag (one line, names the path).
     """
     return _OpenBag(Path(path))
 
@@ -286,17 +295,22 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
     rosbag2 directory (``metadata.yaml`` and storage files, nothing else) or empty; anything
     else is refused even with ``force``, so a typo cannot delete a folder of other work.
 
-    Args:
-        path: output path.
-        force: allow replacing an existing output.
-        kind: what the output is, for the message ("bag", "JSON lines file", ...).
+    Parameters
+    ----------
+    path : output path.
+    force : allow replacing an existing output.
+    kind : what the output is, for the message ("bag", "JSON lines file", ...).
 
-    Returns:
+    Returns
+    -------
         The path.
 
-    Raises:
-        OutputExistsError: it exists and may not be replaced.
-        BagWriteError: the parent folder cannot be created.
+    Raises
+    ------
+    OutputExistsError
+        it exists and may not be replaced.
+    BagWriteError
+        the parent folder cannot be created.
     """
     out = Path(path)
     if out.exists() or out.is_symlink():
@@ -319,14 +333,18 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
 class BagWriter:
     """A new rosbag2 (format version 9), used as a context manager.
 
-    Args:
-        path: the bag directory to create.
-        storage: "mcap" (default, `ros2 bag record`'s default since Iron) or "sqlite3".
-        force: replace an existing bag (see :func:`prepare_output`).
+    Parameters
+    ----------
+    path : the bag directory to create.
+    storage : "mcap" (default, `ros2 bag record`'s default since Iron) or "sqlite3".
+    force : replace an existing bag (see :func:`prepare_output`).
 
-    Raises:
-        OutputExistsError: ``path`` exists and ``force`` is false.
-        BagWriteError: the bag cannot be created or written.
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and ``force`` is false.
+    BagWriteError
+        the bag cannot be created or written.
 
     Example::
 

@@ -16,7 +16,6 @@ discovery stays on this machine unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` says ot
 from __future__ import annotations
 
 import fcntl
-import json
 import math
 import os
 import signal
@@ -29,6 +28,7 @@ from pathlib import Path
 from typing import IO, TextIO
 
 from okid_ros.errors import OkidError
+from okid_ros.jsonio import dumps
 
 __all__ = ["DemoResult", "run_demo", "default_params_file", "compare_modes"]
 
@@ -92,7 +92,8 @@ def compare_modes(true_modes: list[dict], identified: list[dict], tolerance: flo
             used.add(best[0])
             mode = identified[best[0]]
             row.update(identified=mode, frequency_error=(mode["frequency_rad_s"] - true["frequency_rad_s"])
-                       / true["frequency_rad_s"], damping_error_pp=100 * (mode["damping_ratio"] - true["damping_ratio"]))
+                       / true["frequency_rad_s"],
+                       damping_error_pp=100 * (mode["damping_ratio"] - true["damping_ratio"]))
         rows.append(row)
     return rows
 
@@ -168,7 +169,8 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
         ansi: redraw the monitor in place (default: when ``stream`` is a terminal).
         startup_timeout_s: how long the nodes may take to come up.
 
-    Raises:
+    Raises
+    ------
         OkidError: a step failed (message says which; logs are in the run folder).
     """
     import rclpy
@@ -176,13 +178,18 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
     from rclpy.serialization import deserialize_message
 
     from okid_msgs.msg import ModalStates
-    from okid_ros.tools.bagio import BagWriter, TRUTH_KEY, open_bag
+    from okid_ros.tools.bagio import TRUTH_KEY, BagWriter, open_bag
     from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
     from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
     from okid_ros.tools.process import load_node_parameters
     from okid_ros.tools.recorder import LiveRecorder
-    from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS, simulate_experiment, \
-        write_experiment_bag
+    from okid_ros.tools.simulate_bag import (
+        IMU_TOPICS,
+        IO_SAMPLE_TOPIC,
+        THRUSTER_TOPICS,
+        simulate_experiment,
+        write_experiment_bag,
+    )
 
     out = stream or sys.stdout
     started = time.monotonic()
@@ -250,7 +257,9 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
             if nodes.poll() is not None:
                 raise OkidError(f"the nodes exited with status {nodes.returncode}; see {run_dir / 'nodes.log'}")
             if time.monotonic() > deadline:
-                raise OkidError(f"the nodes did not come up within {startup_timeout_s:g} s; see {run_dir / 'nodes.log'}")
+                raise OkidError(
+                    f"the nodes did not come up within {startup_timeout_s:g} s; see {run_dir / 'nodes.log'}"
+                )
             executor.spin_once(timeout_sec=0.2)
 
         # 3. replay, record, monitor
@@ -272,7 +281,7 @@ def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: f
 
         live_bag = run_dir / "live"
         with BagWriter(live_bag) as writer:
-            writer.set_custom_data(TRUTH_KEY, json.dumps(experiment.truth))
+            writer.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
             LiveRecorder(node, writer, OUTPUT_TOPICS, on_message=on_output)
             replay_log = open(run_dir / "replay.log", "w")
             logs.append(replay_log)

@@ -1,5 +1,8 @@
-"""Errors of the bag tools. All are :class:`okid_ros.errors.OkidError`, so `okid-ros` prints
-them as one line (``okid-ros process: error: ...``) and exits with status 2."""
+"""Errors of the bag tools.
+
+All are :class:`okid_ros.errors.OkidError`, so `okid-ros` prints them as one line
+(``okid-ros process: error: ...``) and exits with status 2.
+"""
 
 from __future__ import annotations
 

@@ -9,6 +9,8 @@ column    meaning
 id        persistent mode id (kept across model updates by the estimator)
 f [Hz]    undamped natural frequency; ``w [rad/s]`` the same in rad/s
 zeta [%]  damping ratio in percent
++-f       standard deviations of frequency [Hz] and damping ratio [%] (``-``: not computed)
++-zeta
 trend     frequency now against ``trend_window_s`` ago (stamps): up, down or steady (relative
           change below ``trend_threshold``); ``new`` for a mode younger than the window
 EMAC MPC  accuracy indicators of the mode (1 = best); MSV its modal singular value;
@@ -37,6 +39,10 @@ from okid_ros.tools.errors import ToolParameterError
 __all__ = ["ModalStatesView", "TerminalMonitor", "run_monitor"]
 
 ANSI_HOME_CLEAR = "\x1b[H\x1b[J"
+#: Arrivals over this many seconds give the message rate.
+RATE_WINDOW_S = 2.0
+#: No message for this long: the stream is shown as stopped.
+STOPPED_AFTER_S = 1.0
 
 
 @dataclass
@@ -55,11 +61,12 @@ def _stamp_s(msg: Any) -> float:
 class ModalStatesView:
     """State of the monitor table, fed with ModalStates messages.
 
-    Args:
-        window_samples: samples in the RMS amplitude (> 0).
-        trend_window_s: look-back of the frequency trend [s] (> 0).
-        trend_threshold: relative frequency change shown as a trend (> 0).
-        arrows: characters for up, down, steady (default: Unicode arrows).
+    Parameters
+    ----------
+    window_samples : samples in the RMS amplitude (> 0).
+    trend_window_s : look-back of the frequency trend [s] (> 0).
+    trend_threshold : relative frequency change shown as a trend (> 0).
+    arrows : characters for up, down, steady (default: Unicode arrows).
     """
 
     def __init__(self, window_samples: int = 250, trend_window_s: float = 10.0, trend_threshold: float = 1e-3,
@@ -137,13 +144,32 @@ class ModalStatesView:
         values = self.tracks[mode_id].amplitude_sq
         return math.sqrt(sum(values) / len(values)) if values else math.nan
 
-    def message_rate_hz(self) -> float:
+    def message_rate_hz(self, now: float | None = None) -> float:
+        """Messages per second over the last :data:`RATE_WINDOW_S` (nan before two arrivals)."""
         if len(self._arrivals) < 2:
             return math.nan
-        span = self._arrivals[-1] - self._arrivals[0]
-        return (len(self._arrivals) - 1) / span if span > 0 else math.nan
+        now = time.monotonic() if now is None else now
+        recent = [t for t in self._arrivals if t >= now - RATE_WINDOW_S]
+        if len(recent) < 2:
+            return 0.0
+        span = recent[-1] - recent[0]
+        return (len(recent) - 1) / span if span > 0 else math.nan
 
-    def render(self, title: str = "okid-ros monitor") -> str:
+    def silent_s(self, now: float | None = None) -> float:
+        """Seconds since the last message (nan before the first)."""
+        if not self._arrivals:
+            return math.nan
+        return (time.monotonic() if now is None else now) - self._arrivals[-1]
+
+    def stream_state(self, now: float | None = None) -> str:
+        """'12.5 /s' while messages flow, 'stopped (no message for 6.2 s)', or 'starting'."""
+        silent = self.silent_s(now)
+        if silent > STOPPED_AFTER_S:
+            return f"stopped (no message for {silent:.1f} s)"
+        rate = self.message_rate_hz(now)
+        return "starting" if math.isnan(rate) else f"{rate:.1f} /s"
+
+    def render(self, title: str = "okid-ros monitor", now: float | None = None) -> str:
         """The table as text (no escape sequences)."""
         if not self.messages:
             return f"{title}: waiting for okid_msgs/ModalStates ...\n"
@@ -152,17 +178,20 @@ class ModalStatesView:
                           if self.innovation_sq else math.nan)
         lines = [
             f"{title}   stamp {stamp} UTC   model {self.model_id} ({self.model_changes} updates)   "
-            f"{self.messages} samples   {self.message_rate_hz():.1f} /s   innovation RMS {innovation_rms:.4g}",
-            f"{'id':>3} {'f [Hz]':>9} {'w [rad/s]':>10} {'zeta [%]':>9} {'trend':>5} {'EMAC':>6} {'MPC':>6} "
+            f"{self.messages} samples   {self.stream_state(now)}   innovation RMS {_fmt(innovation_rms, 3, 'e')}",
+            f"{'id':>3} {'f [Hz]':>9} {'w [rad/s]':>10} {'zeta [%]':>9} {'+-f [Hz]':>9} {'+-zeta [%]':>10} "
+            f"{'trend':>5} {'EMAC':>6} {'MPC':>6} "
             f"{'MSV':>8} {'MAC':>6} {'stable':>6} {'RMS amp':>9}",
         ]
         for mode_id in sorted(self.current_ids, key=lambda i: self.tracks[i].mode.frequency_hz):
             mode = self.tracks[mode_id].mode
             lines.append(
                 f"{mode_id:>3} {mode.frequency_hz:>9.4f} {mode.frequency_rad_s:>10.4f} "
-                f"{100 * mode.damping_ratio:>9.3f} {self.trend(mode_id):>5} {_fmt(mode.emac, 3):>6} "
-                f"{_fmt(mode.mpc, 3):>6} {_fmt(mode.msv, 4, 'g'):>8} {_fmt(mode.mac_previous, 3):>6} "
-                f"{'yes' if mode.stable else 'NO':>6} {_fmt(self.amplitude(mode_id), 4, 'g'):>9}"
+                f"{100 * mode.damping_ratio:>9.3f} {_fmt(getattr(mode, 'frequency_hz_std', math.nan), 2, 'e'):>9} "
+                f"{_fmt(100 * getattr(mode, 'damping_ratio_std', math.nan), 2, 'e'):>10} "
+                f"{self.trend(mode_id):>5} {_fmt(mode.emac, 3):>6} "
+                f"{_fmt(mode.mpc, 3):>6} {_fmt(mode.msv, 2, 'e'):>8} {_fmt(mode.mac_previous, 3):>6} "
+                f"{'yes' if mode.stable else 'NO':>6} {_fmt(self.amplitude(mode_id), 3, 'e'):>9}"
             )
         if not self.current_ids:
             lines.append("  (the current model has no physical modes)")
@@ -179,11 +208,12 @@ def _fmt(value: float, digits: int, kind: str = "f") -> str:
 class TerminalMonitor:
     """Draws a :class:`ModalStatesView` on a stream.
 
-    Args:
-        view: the view.
-        stream: where to draw (default stdout).
-        interval_s: time between draws (default 0.25 s on a terminal, 2 s otherwise).
-        ansi: redraw in place (default: when ``stream`` is a terminal).
+    Parameters
+    ----------
+    view : the view.
+    stream : where to draw (default stdout).
+    interval_s : time between draws (default 0.25 s on a terminal, 2 s otherwise).
+    ansi : redraw in place (default: when ``stream`` is a terminal).
     """
 
     def __init__(self, view: ModalStatesView, stream: TextIO | None = None, interval_s: float | None = None,
@@ -197,6 +227,7 @@ class TerminalMonitor:
         self.title = title
         self._last_draw = -math.inf
         self._drawn_messages = -1
+        self._drawn_stopped = False
         self.draws = 0
 
     def maybe_draw(self, now: float | None = None) -> bool:
@@ -204,7 +235,8 @@ class TerminalMonitor:
         now = time.monotonic() if now is None else now
         if now - self._last_draw < self.interval_s:
             return False
-        if not self.ansi and self.view.messages == self._drawn_messages:
+        stopped = self.view.silent_s(now) > STOPPED_AFTER_S
+        if not self.ansi and self.view.messages == self._drawn_messages and stopped == self._drawn_stopped:
             return False
         self.draw(now)
         return True
@@ -212,7 +244,8 @@ class TerminalMonitor:
     def draw(self, now: float | None = None) -> None:
         self._last_draw = time.monotonic() if now is None else now
         self._drawn_messages = self.view.messages
-        text = self.view.render(self.title)
+        self._drawn_stopped = self.view.silent_s(self._last_draw) > STOPPED_AFTER_S
+        text = self.view.render(self.title, self._last_draw)
         self.stream.write((ANSI_HOME_CLEAR + text) if self.ansi else (text + "\n"))
         self.stream.flush()
         self.draws += 1
@@ -223,9 +256,12 @@ def run_monitor(topic: str = "/okid/modal_states", once: bool = False, duration_
                 stream: TextIO | None = None, ansi: bool | None = None) -> ModalStatesView:
     """Subscribe to ``topic`` and draw until Ctrl-C, ``duration_s``, or (``once``) the first message.
 
-    Raises:
-        ReplayError: rclpy or okid_msgs cannot be imported.
-        DataError: ``once`` and no message within ``duration_s`` (default 30 s).
+    Raises
+    ------
+    ReplayError
+        rclpy or okid_msgs cannot be imported.
+    DataError
+        ``once`` and no message within ``duration_s`` (default 30 s).
     """
     from okid_ros.errors import DataError
     from okid_ros.tools.errors import ReplayError

@@ -10,7 +10,9 @@ Per node, exactly what the live node does with its topics, minus the middleware:
   :class:`ModalEstimationService` ``step`` per sample -> ``ModalStates`` (and
   ``StateSpaceModel`` on each accepted model); every valid ``ArxModel`` goes back in through
   the same message conversion the node uses (``arx_fit_from_msg``) and is realized at once
-  (``process_pending``), so it takes over at the next sample. Live, the realization runs on a
+  (``process_pending``), so it takes over at the next sample. A structural change declared by
+  the estimation service is written as ``StructuralChange`` and restarts the identification's
+  window at the change point, as node 1 does when it receives the message. Live, the realization runs on a
   worker thread while samples go on, and a model that arrives while one is being realized
   replaces the waiting one; offline every valid ArxModel is realized.
 
@@ -27,11 +29,9 @@ metadata, and ``okid_ros.process`` records the source and the resolved parameter
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -39,7 +39,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from okid_ros.errors import ParameterError
-from okid_ros.tools.bagio import PROCESS_KEY, TRUTH_KEY, BagWriter, open_bag, prepare_output
+from okid_ros.jsonio import dumps
+from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, BagWriter, open_bag, prepare_output
 from okid_ros.tools.errors import BagReadError, BagWriteError
 
 __all__ = [
@@ -52,47 +53,45 @@ __all__ = [
 ]
 
 
-def _deep_merge(base: dict, extra: dict) -> dict:
-    out = dict(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _deep_merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
-def _set_dotted(tree: dict, name: str, value: Any) -> None:
-    *parents, leaf = name.split(".")
-    for part in parents:
-        tree = tree.setdefault(part, {})
-    tree[leaf] = value
-
-
 def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequence[str] = (),
-                         sources: Sequence[str] = ()) -> tuple[dict, dict]:
+                         sources: Sequence[str] = (), *, namespace: str | None = None,
+                         strict: bool = False, report: Callable[[str], None] | None = None) -> tuple[dict, dict]:
     """Resolved parameters of both nodes, as the nodes would read them.
 
-    Args:
-        param_files: ROS parameter YAML files, later ones override earlier ones (as several
-            ``--params-file`` do); none: the defaults (equal to config/okid.yaml).
-        overrides: ``NAME=VALUE`` (dotted name, YAML value), applied to each node that has
-            the parameter, after the files.
-        sources: if given, replaces ``inputs.sources`` of both nodes.
+    Parameters
+    ----------
+    param_files : ROS parameter YAML files, later ones override earlier ones (as several
+        ``--params-file`` do); none: the defaults (equal to config/okid.yaml).
+    overrides : ``NAME=VALUE`` (dotted name, YAML value), applied to each node that has
+        the parameter, after the files.
+    sources : if given, replaces ``inputs.sources`` of both nodes.
+    namespace : the nodes' namespace (None: the root namespace); decides which sections of
+        the files apply, as for the live nodes.
+    strict : unknown parameter names (or sections naming a node that do not apply) in the
+        files are an error instead of a report.
+    report : called with each such problem when not ``strict`` (default: print to stderr).
 
-    Returns:
+    Returns
+    -------
         (identification node values, estimation node values), dotted names.
 
-    Raises:
-        ParameterError: unreadable file, bad value, or an override no node knows.
+    Raises
+    ------
+    ParameterError
+        unreadable file, bad value, an override no node knows, or (``strict``) an unknown
+        name in a file.
     """
     import yaml
 
-    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params, read_parameter_file
+    from okid_ros.service.param_files import file_report, node_fqn, node_values_from_tree
+    from okid_ros.service.params import (
+        ARX_NODE,
+        ESTIMATOR_NODE,
+        node_params,
+        read_parameter_file,
+        resolve_parameters,
+    )
 
-    tree: dict = {}
-    for path in param_files:
-        tree = _deep_merge(tree, dict(read_parameter_file(path)))
     names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
     layered: list[tuple[str, Any]] = []
     for item in overrides:
@@ -109,23 +108,27 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         layered.append((name, value))
     if sources:
         layered.append(("inputs.sources", list(sources)))
+    trees = [(str(path), read_parameter_file(path)) for path in param_files]
+    problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
+    if problems and strict:
+        raise ParameterError("; ".join(problems))
+    for problem in problems:
+        (report or (lambda text: print(f"warning: {text}", file=sys.stderr, flush=True)))(problem)
+    values = []
     for node in (ARX_NODE, ESTIMATOR_NODE):
-        keys = [k for k in (node, f"/{node}") if isinstance(tree.get(k), dict)] or [node]
-        for key in keys:
-            section = tree.setdefault(key, {}).setdefault("ros__parameters", {})
-            for name, value in layered:
-                if name in names[node]:
-                    _set_dotted(section, name, value)
-    with tempfile.TemporaryDirectory() as tmp:
-        merged = Path(tmp) / "params.yaml"
-        merged.write_text(yaml.safe_dump(tree))
-        label = ", ".join(str(p) for p in param_files) or "the defaults"
-        values = []
-        for node in (ARX_NODE, ESTIMATOR_NODE):
-            try:
-                values.append(load_parameters(merged, node))
-            except ParameterError as exc:
-                raise ParameterError(str(exc).replace(str(merged), label)) from None
+        merged: dict[str, Any] = {}
+        origin: dict[str, str] = {}
+        for label, tree in trees:
+            found = node_values_from_tree(tree, node_fqn(node, namespace))
+            merged.update(found)
+            origin.update({name: label for name in found})
+        merged.update((name, value) for name, value in layered if name in names[node])
+        merged = {k: v for k, v in merged.items() if k in names[node]}
+        try:
+            values.append(resolve_parameters(node, merged))
+        except ParameterError as exc:
+            label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
+            raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
     return values[0], values[1]
 
 
@@ -145,6 +148,8 @@ def mode_summary(mode: Any) -> dict:
         "msv": num(mode.msv),
         "mac_previous": num(mode.mac_previous),
         "stable": bool(mode.stable),
+        "frequency_hz_std": num(getattr(mode, "frequency_hz_std", math.nan)),
+        "damping_ratio_std": num(getattr(mode, "damping_ratio_std", math.nan)),
     }
 
 
@@ -162,6 +167,7 @@ class ProcessSummary:
     last_stamp_s: float = math.nan
     elapsed_s: float = 0.0
     updates: list = field(default_factory=list)  # the JSON lines
+    changes: list = field(default_factory=list)  # StructuralChange summaries, in order
     arx_diagnostics: dict = field(default_factory=dict)
     estimator_diagnostics: dict = field(default_factory=dict)
     grid_counters: dict = field(default_factory=dict)
@@ -178,11 +184,11 @@ class ProcessSummary:
 class NodeInputs:
     """One node's input sources and sample grid (what InputFrontend does, minus subscriptions)."""
 
-    def __init__(self, values: dict) -> None:
+    def __init__(self, values: dict, namespace: str | None = None) -> None:
         from okid_ros.service.inputs import sources_and_grid
 
         self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
-        self.specs, self.grid = sources_and_grid(values)
+        self.specs, self.grid = sources_and_grid(values, namespace)
         self.by_topic: dict[str, list[int]] = {}
         for i, spec in enumerate(self.specs):
             self.by_topic.setdefault(spec.topic, []).append(i)
@@ -200,31 +206,42 @@ class NodeInputs:
 class OfflineNodes:
     """Both nodes without ROS: feed input messages, get output messages.
 
-    Args:
-        arx_values, est_values: resolved parameters (:func:`load_node_parameters`).
-        types: message classes for the outputs (default: the rosbags typestore's).
+    Parameters
+    ----------
+    arx_values, est_values : resolved parameters (:func:`load_node_parameters`).
+    types : message classes for the outputs (default: the rosbags typestore's).
+    namespace : the rig namespace relative topic names resolve in (None: ``/okid``, as the
+        nodes in the root namespace; :mod:`okid_ros.service.topics`).
     """
 
-    def __init__(self, arx_values: dict, est_values: dict, types: Any = None) -> None:
+    def __init__(self, arx_values: dict, est_values: dict, types: Any = None, namespace: str | None = None) -> None:
         from okid_ros.nodes.conversions import MessageTypes
         from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
         from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
         from okid_ros.tools.bagio import okid_typestore
 
         self.types = types or MessageTypes.from_typestore(okid_typestore())
-        self.arx_inputs = NodeInputs(arx_values)
-        self.est_inputs = NodeInputs(est_values)
+        from okid_ros.service.topics import resolve_topic
+
+        self.arx_inputs = NodeInputs(arx_values, namespace)
+        self.est_inputs = NodeInputs(est_values, namespace)
         try:
             self.arx = ArxIdentificationService(ArxIdentificationParams.from_parameters(arx_values))
             self.est = ModalEstimationService(ModalEstimationParams.from_parameters(est_values))
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
-        self.arx_topic = str(arx_values["arx_model_topic"])
-        self.arx_input_topic = str(est_values["arx_model_topic"])
-        self.state_space_topic = str(est_values["state_space_model_topic"])
-        self.modal_states_topic = str(est_values["modal_states_topic"])
+        self.arx_topic = resolve_topic(arx_values["arx_model_topic"], namespace)
+        self.arx_input_topic = resolve_topic(est_values["arx_model_topic"], namespace)
+        self.state_space_topic = resolve_topic(est_values["state_space_model_topic"], namespace)
+        self.modal_states_topic = resolve_topic(est_values["modal_states_topic"], namespace)
+        self.structural_change_topic = resolve_topic(est_values["structural_change_topic"], namespace)
+        self.change_input_topic = resolve_topic(arx_values["structural_change_topic"], namespace)
+        self._change_since_update: dict | None = None
         self.summary = ProcessSummary()
         self._mode_msgs: list = []
+        self._fits: dict[int, dict] = {}  # id(model) -> prediction_fits on its window
+        self._reset_on_jump = (bool(arx_values["reset_on_time_jump"]), bool(est_values["reset_on_time_jump"]))
+        self.frame_ids = (str(arx_values["frame_id"]), str(est_values["frame_id"]))
 
     @property
     def input_topics(self) -> dict[str, str]:
@@ -241,6 +258,7 @@ class OfflineNodes:
             self.arx_topic: "okid_msgs/msg/ArxModel",
             self.state_space_topic: "okid_msgs/msg/StateSpaceModel",
             self.modal_states_topic: "okid_msgs/msg/ModalStates",
+            self.structural_change_topic: "okid_msgs/msg/StructuralChange",
         }
 
     def feed(self, topic: str, msg: Any, log_time_s: float) -> list[tuple[str, Any]]:
@@ -263,20 +281,34 @@ class OfflineNodes:
 
     def _estimate(self, samples: list) -> list[tuple[str, Any]]:
         """What the estimation node does with its samples (modal_estimator_node._on_sample)."""
-        from okid_ros.nodes.conversions import mode_msg, modal_states_msg, state_space_model_msg
+        from okid_ros.nodes.conversions import modal_states_msg, mode_msg, state_space_model_msg, structural_change_msg
         from okid_ros.service.sample_grid import RESTART_SKIP
 
         s = self.summary
         out: list[tuple[str, Any]] = []
         for sample in samples:
+            if sample.time_jump and self._reset_on_jump[1]:
+                self.est.reset()  # as the node does (reset_on_time_jump)
+                self._mode_msgs = []
             skipped = RESTART_SKIP if sample.restart else sample.skipped
             result = self.est.step(sample.stamp_s, sample.u, sample.y, skipped)
             if result is None:
                 continue
+            if result.change is not None:
+                change = result.change
+                out.append((self.structural_change_topic, structural_change_msg(change, sample.stamp_s, self.types,
+                                                                                  frame_id=self.frame_ids[1])))
+                if self.change_input_topic == self.structural_change_topic:
+                    self.arx.restart_at(change.change_stamp_s)  # what node 1 does with the message
+                line = _change_summary(change)
+                s.changes.append(line)
+                if not change.modes_after:
+                    self._change_since_update = line
             if result.update is not None:
                 update = result.update
                 self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
-                out.append((self.state_space_topic, state_space_model_msg(update, self.types)))
+                out.append((self.state_space_topic,
+                            state_space_model_msg(update, self.types, frame_id=self.frame_ids[1])))
                 s.models += 1
                 s.updates.append({
                     "stamp_s": float(update.stamp_s),
@@ -287,14 +319,43 @@ class OfflineNodes:
                     "window_samples": int(update.window_samples),
                     "realization_time_s": float(update.realization_time_s),
                     "modes": [mode_summary(m) for m in update.modes],
+                    **self._change_fields(),
                 })
-            out.append((self.modal_states_topic, modal_states_msg(result, self.types, mode_msgs=self._mode_msgs)))
+                fits = self._fits.pop(id(update.model), None)
+                if fits is not None:  # on the model's own window, after the ARX order's samples
+                    s.updates[-1].update(fit_one_step_pct=fits["one_step_pct"],
+                                         fit_simulation_pct=fits["simulation_pct"])
+            out.append((self.modal_states_topic, modal_states_msg(result, self.types, frame_id=self.frame_ids[1],
+                                                                  mode_msgs=self._mode_msgs)))
             s.modal_states += 1
         return out
 
+    def _realize_pending(self) -> None:
+        """``ModalEstimationService.process_pending``, keeping the fits of the new model on its window."""
+        from okid_ros.core.validation import prediction_fits
+
+        job = self.est.take_job()
+        if job is None:
+            return
+        outcome = self.est.run_job(job, follow=False)
+        if outcome.model is not None:
+            self._fits[id(outcome.model)] = prediction_fits(outcome.model, job.u, job.y)
+        self.est.deliver(outcome)
+
+    def _change_fields(self) -> dict:
+        """``change_detected`` (a change was declared since the previous update) and its details."""
+        change, self._change_since_update = self._change_since_update, None
+        if change is None:
+            return {"change_detected": False}
+        return {"change_detected": True, "change_stamp_s": change["change_stamp_s"],
+                "change_detection_stamp_s": change["detection_stamp_s"], "change_statistic": change["statistic"]}
+
     def _identify(self, samples: list) -> list[tuple[str, Any]]:
-        """What the identification node does (push, publish at its rate), and the estimation
-        node's handling of each ArxModel (modal_estimator_node._on_arx_model), realized at once."""
+        """What the identification node does, and the estimation node's handling of its models.
+
+        The identification node pushes and publishes at its rate; each ArxModel is handled as
+        the estimation node does (modal_estimator_node._on_arx_model), realized at once.
+        """
         from okid_ros.nodes.conversions import arx_fit_from_msg, arx_model_msg
 
         s = self.summary
@@ -304,10 +365,12 @@ class OfflineNodes:
             if math.isnan(s.first_stamp_s):
                 s.first_stamp_s = sample.stamp_s
             s.last_stamp_s = sample.stamp_s
+            if sample.time_jump and self._reset_on_jump[0]:
+                self.arx.reset()  # as the node does (reset_on_time_jump)
             self.arx.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
             if not self.arx.due(sample.stamp_s):
                 continue
-            arx_msg = arx_model_msg(self.arx.snapshot(), self.types)
+            arx_msg = arx_model_msg(self.arx.snapshot(), self.types, frame_id=self.frame_ids[0])
             out.append((self.arx_topic, arx_msg))
             s.arx_models += 1
             if self.arx_input_topic != self.arx_topic or not arx_msg.valid:
@@ -318,8 +381,24 @@ class OfflineNodes:
             except ValueError:
                 continue
             self.est.submit_arx(fit, stamp_s, int(arx_msg.model_id), rows)
-            self.est.process_pending()
+            self._realize_pending()
         return out
+
+
+def _change_summary(change: Any) -> dict:
+    """JSON-ready dict of a StructuralChangeEvent."""
+    return {
+        "change_id": int(change.change_id),
+        "change_stamp_s": float(change.change_stamp_s),
+        "detection_stamp_s": float(change.stamp_s),
+        "detection_delay_samples": int(change.detection_delay_samples),
+        "statistic": float(change.statistic),
+        "threshold": float(change.threshold),
+        "variance_ratio": float(change.variance_ratio),
+        "modes_before": [mode_summary(m) for m in change.modes_before],
+        "modes_after": [mode_summary(m) for m in change.modes_after],
+        "retired_ids": [int(i) for i in change.retired_ids],
+    }
 
 
 def process_bag(
@@ -334,28 +413,34 @@ def process_bag(
     progress_stream: TextIO | None = None,
     provenance: dict | None = None,
     on_update: Callable[[dict], None] | None = None,
+    namespace: str | None = None,
 ) -> ProcessSummary:
     """Run both nodes' logic over ``bag_path``; write ``out_path`` (and ``jsonl_path``).
 
-    Args:
-        bag_path: input bag (any rosbag2 / ROS 1 bag that AnyReader opens).
-        out_path: output bag to create (refused if it exists, unless ``force``).
-        arx_values, est_values: resolved node parameters.
-        jsonl_path: one JSON object per model update.
-        force: replace existing outputs.
-        storage: storage plugin of the output bag.
-        progress: progress bar on ``progress_stream`` (default stderr); None: only on a terminal.
-        provenance: extra JSON recorded under ``okid_ros.process`` in the output metadata.
-        on_update: called with each JSON line as it is produced.
+    Parameters
+    ----------
+    bag_path : input bag (any rosbag2 / ROS 1 bag that AnyReader opens).
+    out_path : output bag to create (refused if it exists, unless ``force``).
+    arx_values, est_values : resolved node parameters.
+    jsonl_path : one JSON object per model update.
+    force : replace existing outputs.
+    storage : storage plugin of the output bag.
+    progress : progress bar on ``progress_stream`` (default stderr); None: only on a terminal.
+    provenance : extra JSON recorded under ``okid_ros.process`` in the output metadata.
+    on_update : called with each JSON line as it is produced.
+    namespace : rig namespace of the topics (None: ``/okid``), as ``okid-ros up --namespace``.
 
-    Raises:
-        BagReadError: missing/corrupt input, a source topic missing or of another type.
-        OutputExistsError: an output exists and ``force`` is false.
+    Raises
+    ------
+    BagReadError
+        missing/corrupt input, a source topic missing or of another type.
+    OutputExistsError
+        an output exists and ``force`` is false.
     """
     bag_path, out_path = Path(bag_path), Path(out_path)
     if out_path.resolve() == bag_path.resolve():
         raise BagWriteError(f"{out_path}: the output bag cannot be the input bag")
-    nodes = OfflineNodes(arx_values, est_values)
+    nodes = OfflineNodes(arx_values, est_values, namespace=namespace)
     clash = sorted(set(nodes.input_topics) & set(nodes.output_topics))
     if clash:
         raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
@@ -399,7 +484,7 @@ def process_bag(
                         line = nodes.summary.updates[written_updates]
                         written_updates += 1
                         if jsonl is not None:
-                            jsonl.write(json.dumps(line) + "\n")
+                            jsonl.write(dumps(line) + "\n")
                             jsonl.flush()
                         if on_update is not None:
                             on_update(line)
@@ -416,10 +501,14 @@ def process_bag(
                         jsonl.close()
                 summary = nodes.summary
                 summary.elapsed_s = time.perf_counter() - started
-                writer.set_custom_data(PROCESS_KEY, json.dumps({
+                stabilization = getattr(nodes.est.current_model, "stabilization", None)
+                if stabilization:  # for `okid-ros plot`'s stabilization diagram of the last model
+                    writer.set_custom_data(STABILIZATION_KEY, dumps([entry.as_dict() for entry in stabilization]))
+                writer.set_custom_data(PROCESS_KEY, dumps({
                     "source": str(bag_path),
                     "input_topics": nodes.input_topics,
                     "samples": summary.samples,
+                    "first_stamp_s": summary.first_stamp_s,
                     "arx_models": summary.arx_models,
                     "models": summary.models,
                     "elapsed_s": summary.elapsed_s,

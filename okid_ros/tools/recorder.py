@@ -22,12 +22,13 @@ __all__ = ["LiveRecorder"]
 class LiveRecorder:
     """Subscribes ``topics`` on ``node`` and writes every message to ``writer``.
 
-    Args:
-        node: an rclpy node (spun by the caller).
-        writer: an open :class:`BagWriter`.
-        topics: topic -> message type ``pkg/msg/Name``.
-        on_message: optional ``on_message(topic, raw_bytes, receive_ns)`` after each write.
-        queue_depth: subscription history depth.
+    Parameters
+    ----------
+    node : an rclpy node (spun by the caller).
+    writer : an open :class:`BagWriter`.
+    topics : topic -> message type ``pkg/msg/Name``.
+    on_message : optional ``on_message(topic, raw_bytes, receive_ns)`` after each write.
+    queue_depth : subscription history depth.
     """
 
     def __init__(self, node: Any, writer: BagWriter, topics: dict[str, str],

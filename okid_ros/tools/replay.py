@@ -34,7 +34,8 @@ __all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class"]
 class ReplayStats:
     """What a replay did.
 
-    Attributes:
+    Attributes
+    ----------
         published: messages published per output topic.
         passes: passes over the bag started (> 1 with loop).
         max_lag_s: largest delay of a publication behind its schedule [s].
@@ -78,23 +79,25 @@ def message_class(msgtype: str) -> type:
 class BagPlayer:
     """Replays one bag; :meth:`run` blocks until the end (or ``stop()``, or the duration).
 
-    Args:
-        path: the bag.
-        rate: playback speed factor (> 0; 2.0 plays twice as fast).
-        loop: start again from the beginning at the end.
-        topics: topics to play (default: all).
-        remaps: output topic per bag topic.
-        delay_s: wait after creating the publishers (and after the subscribers, with
-            ``wait_for_subscribers``), before the first message (discovery).
-        wait_for_subscribers: before playing, wait until every publisher has a subscription.
-        duration_s: stop after this much wall time of playback (None: no limit).
-        queue_depth: depth of each publisher's history.
-        clock: publish the bag time on /clock.
-        clock_hz: rate of /clock messages in bag time.
-        node_name: name of the player's ROS node.
-        log: callable for progress lines (default: print to stderr).
+    Parameters
+    ----------
+    path : the bag.
+    rate : playback speed factor (> 0; 2.0 plays twice as fast).
+    loop : start again from the beginning at the end.
+    topics : topics to play (default: all).
+    remaps : output topic per bag topic.
+    delay_s : wait after creating the publishers (and after the subscribers, with
+        ``wait_for_subscribers``), before the first message (discovery).
+    wait_for_subscribers : before playing, wait until every publisher has a subscription.
+    duration_s : stop after this much wall time of playback (None: no limit).
+    queue_depth : depth of each publisher's history.
+    clock : publish the bag time on /clock.
+    clock_hz : rate of /clock messages in bag time.
+    node_name : name of the player's ROS node.
+    log : callable for progress lines (default: print to stderr).
 
-    Raises:
+    Raises
+    ------
         BagReadError, ToolParameterError, ReplayError (at construction or start).
     """
 
@@ -113,6 +116,7 @@ class BagPlayer:
         node_name: str = "okid_replay",
         log: Callable[[str], None] | None = None,
         wait_for_subscribers: bool = False,
+        namespace: str | None = None,
     ) -> None:
         if not rate > 0:
             raise ToolParameterError(f"--rate must be a positive factor, got {rate}")
@@ -149,6 +153,19 @@ class BagPlayer:
         if bad_remaps:
             raise ToolParameterError(f"--remap of {', '.join(bad_remaps)}: not a replayed topic "
                                      f"({', '.join(self.topics)})")
+        if namespace is not None:
+            # The bag's topics of the default rig namespace (/okid/io_sample, ...) go to the
+            # rig's namespace (/rig1/io_sample, ...); explicit --remap wins.
+            from okid_ros.service.topics import DEFAULT_NAMESPACE, resolve_topic, validate_namespace
+
+            try:
+                namespace = validate_namespace(namespace)
+            except ValueError as exc:
+                raise ToolParameterError(f"--namespace: {exc}") from None
+            prefix = DEFAULT_NAMESPACE + "/"
+            for topic in self.topics:
+                if topic.startswith(prefix) and topic not in self.remaps:
+                    self.remaps[topic] = resolve_topic(topic[len(prefix):], namespace)
         self.classes = {t: message_class(self.bag_topics[t]) for t in self.topics}
 
     def stop(self) -> None:

@@ -31,13 +31,13 @@ covariance, the input, the seed and the topic/channel map.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from okid_ros.jsonio import dumps
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
 from okid_ros.tools.errors import ToolParameterError
 
@@ -63,7 +63,8 @@ DEFAULT_CUTOFF_HZ = 15.0
 class Experiment:
     """A simulated record on the sample grid.
 
-    Attributes:
+    Attributes
+    ----------
         sample_time_s: sample period (0.008 s).
         start_ns: stamp of sample 0 [ns since the epoch].
         u: (N, 2) thruster forces [N].
@@ -97,18 +98,22 @@ def simulate_experiment(
 ) -> Experiment:
     """Simulate the paper-like experiment.
 
-    Args:
-        duration_s: record length [s] (> 0); N = round(duration_s / 0.008) samples.
-        seed: seed of the input and noise generators.
-        cutoff_hz: -3 dB cut-off of the thruster signals' low-pass [Hz], in (0, 62.5).
-        innovation_variance: ``r`` in ``Re = r I``.
-        start_ns: stamp of the first sample [ns]; default: now, on a whole second.
+    Parameters
+    ----------
+    duration_s : record length [s] (> 0); N = round(duration_s / 0.008) samples.
+    seed : seed of the input and noise generators.
+    cutoff_hz : -3 dB cut-off of the thruster signals' low-pass [Hz], in (0, 62.5).
+    innovation_variance : ``r`` in ``Re = r I``.
+    start_ns : stamp of the first sample [ns]; default: now, on a whole second.
 
-    Returns:
+    Returns
+    -------
         The experiment with its truth document.
 
-    Raises:
-        ToolParameterError: an argument out of range.
+    Raises
+    ------
+    ToolParameterError
+        an argument out of range.
     """
     from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
     from okid_ros.sim.paper_model import PAPER_PUBLISHED_MODES
@@ -168,17 +173,19 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
                          force: bool = False, progress=None) -> dict[str, int]:
     """Write ``experiment`` as a rosbag2 (see the module docstring for topics and fields).
 
-    Args:
-        path: bag directory to create (refused if it exists, unless ``force``).
-        storage: "mcap" or "sqlite3".
-        force: replace an existing bag.
-        progress: optional callable ``progress(n_done)`` called every 1000 samples.
+    Parameters
+    ----------
+    path : bag directory to create (refused if it exists, unless ``force``).
+    storage : "mcap" or "sqlite3".
+    force : replace an existing bag.
+    progress : optional callable ``progress(n_done)`` called every 1000 samples.
 
-    Returns:
+    Returns
+    -------
         Messages written per topic.
     """
     with BagWriter(path, storage=storage, force=force) as bag:
-        bag.set_custom_data(TRUTH_KEY, json.dumps(experiment.truth))
+        bag.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
         for topic in THRUSTER_TOPICS:
             bag.add_topic(topic, "geometry_msgs/msg/WrenchStamped")
         for topic in IMU_TOPICS:

@@ -1,0 +1,55 @@
+"""`okid-ros export BAG --npz OUT.npz [--params FILE] [--source SPEC]`: a bag's samples as a record.
+
+The samples are assembled from the bag's input topics exactly as the nodes and `process` do
+(:mod:`okid_ros.tools.bag_record`), and the longest contiguous run is written as the ``.npz``
+record that `identify` and `track` read (``u``, ``y``, ``sample_time_s``, plus ``stamp_s``), so
+batch and live analyses use the same data.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from okid_ros.commands._args import add_bag_arguments
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `export`."""
+    parser = subparsers.add_parser(
+        "export",
+        help="write a bag's input/output samples as an .npz record (for identify and track)",
+        description="Assemble the samples of a bag's input topics (inputs.sources of the parameter file, "
+        "or --source) on the sample grid as the nodes do, and write the longest contiguous run as an .npz "
+        "record: u (N, m), y (N, p), sample_time_s and the stamps stamp_s (N,).",
+    )
+    parser.add_argument("bag", help="input bag directory, .mcap, .db3 or ROS 1 .bag")
+    parser.add_argument("--npz", required=True, metavar="OUT.npz", help="the record to write")
+    add_bag_arguments(parser)
+    parser.add_argument("--force", action="store_true", help="replace an existing OUT.npz")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from okid_ros.errors import DataError
+    from okid_ros.records import save_record
+    from okid_ros.tools.bag_record import record_from_bag
+    from okid_ros.tools.bagio import prepare_output
+    from okid_ros.tools.process import load_node_parameters
+
+    out = Path(args.npz)
+    if out.suffix.lower() != ".npz":
+        raise DataError(f"--npz {out}: the record file must end in .npz")
+    prepare_output(out, force=args.force, kind="record")
+    est_values = load_node_parameters(args.params, args.param, args.source)[1]
+    from_bag = record_from_bag(args.bag, est_values)
+    record = from_bag.record
+    try:
+        save_record(out, record.u, record.y, record.sample_time_s, stamp_s=from_bag.stamp_s)
+    except OSError as exc:
+        raise DataError(f"cannot write {out}: {exc}") from None
+    print(f"exported {from_bag.summary()} ({record.u.shape[1]} inputs, {record.y.shape[1]} outputs) "
+          f"from {args.bag} -> {out}")
+    return 0

@@ -1,0 +1,91 @@
+"""`okid-ros record OUT [--namespace NS] [--inputs] [--duration S]`: the nodes' topics to a bag.
+
+Like ``ros2 bag record`` for one rig: subscribes the nodes' outputs (``arx_model``,
+``state_space_model``, ``modal_states`` in the rig namespace) and ``/diagnostics`` (and with
+``--inputs`` the rig's ``io_sample``) and writes every message as it arrived (serialized bytes,
+receive time as log time) to a new rosbag2 until Ctrl-C or ``--duration``. An existing output is
+never replaced without ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `record`."""
+    parser = subparsers.add_parser(
+        "record",
+        help="record the nodes' topics (models, modal states, diagnostics) to a new bag until Ctrl-C",
+        description="Subscribe the output topics of both nodes of one rig (NS/arx_model, NS/state_space_model, "
+        "NS/modal_states; NS is /okid by default) and /diagnostics, and write every message to a new rosbag2 "
+        "as received, like `ros2 bag record`. Stops on Ctrl-C or after --duration seconds. Never replaces an "
+        "existing output without --force.",
+    )
+    parser.add_argument("out", help="output bag directory to create")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="the rig's namespace (nodes started with --namespace NS; default: topics under /okid)")
+    parser.add_argument("--inputs", action="store_true", help="also record the rig's io_sample input topic")
+    parser.add_argument("--no-diagnostics", action="store_true", help="leave /diagnostics out")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="stop after S seconds (default: until Ctrl-C)")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                        help="storage plugin of the bag (default: %(default)s)")
+    parser.add_argument("--force", action="store_true", help="replace an existing bag")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def record_topics(namespace: str | None, *, inputs: bool, diagnostics: bool) -> dict[str, str]:
+    """Topic -> message type recorded for a rig in ``namespace`` (None: /okid)."""
+    from okid_ros.service.topics import IO_SAMPLE, output_topics, resolve_topic
+
+    topics = output_topics(namespace)
+    if inputs:
+        topics[resolve_topic(IO_SAMPLE, namespace)] = "okid_msgs/msg/IoSample"
+    if diagnostics:
+        topics["/diagnostics"] = "diagnostic_msgs/msg/DiagnosticArray"
+    return topics
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    from okid_ros.errors import OkidError
+    from okid_ros.service.topics import validate_namespace
+    from okid_ros.tools.bagio import BagWriter
+    from okid_ros.tools.recorder import LiveRecorder
+
+    if args.duration is not None and not args.duration > 0:
+        raise OkidError(f"--duration must be a positive number of seconds, got {args.duration}")
+    try:
+        namespace = None if args.namespace is None else validate_namespace(args.namespace)
+    except ValueError as exc:
+        raise OkidError(f"--namespace: {exc}") from None
+    topics = record_topics(namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)
+    context = rclpy.Context()
+    rclpy.init(context=context, args=[])
+    recorder = None
+    try:
+        with BagWriter(args.out, storage=args.storage, force=args.force) as writer:
+            node = rclpy.create_node("okid_record", context=context)
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            recorder = LiveRecorder(node, writer, topics)
+            print(f"okid-ros record: recording {', '.join(topics)} -> {args.out} (Ctrl-C stops)", flush=True)
+            end = None if args.duration is None else time.monotonic() + args.duration
+            try:
+                while end is None or time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.1)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass
+            executor.shutdown()
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    counts = recorder.counts if recorder else {}
+    print(f"okid-ros record: wrote {args.out}: " + ", ".join(f"{t}: {n}" for t, n in counts.items()), flush=True)
+    return 0

@@ -1,0 +1,54 @@
+"""Strict JSON for every file and line `okid-ros` writes: ``null``, never ``NaN`` or ``Infinity``.
+
+Python's ``json`` writes the non-standard tokens ``NaN``, ``Infinity`` and ``-Infinity`` for
+non-finite floats, which strict parsers (JavaScript's ``JSON.parse``, ``jq`` with some options,
+Go, Rust's serde_json) reject. Every output goes through :func:`dumps`, which turns non-finite
+numbers into ``null`` and numpy scalars and arrays into plain JSON, and refuses anything else
+that is not JSON (``allow_nan=False`` as a last guard).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["to_strict", "dumps", "write_json"]
+
+
+def to_strict(value: Any) -> Any:
+    """A copy of ``value`` that strict JSON can hold.
+
+    Non-finite floats become None; numpy scalars become Python numbers, numpy arrays nested
+    lists; tuples become lists; dict keys become strings. Other objects are returned as they are
+    (``json`` then raises on them, or applies the caller's ``default``).
+    """
+    if isinstance(value, dict):
+        return {str(k): to_strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_strict(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return to_strict(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+def dumps(value: Any, **kwargs: Any) -> str:
+    """``json.dumps`` of :func:`to_strict` ``(value)`` with ``allow_nan=False``."""
+    import json
+
+    kwargs.setdefault("allow_nan", False)
+    return json.dumps(to_strict(value), **kwargs)
+
+
+def write_json(path: str | Path, value: Any, *, indent: int | None = 1) -> None:
+    """Write one strict JSON document to ``path`` (callers check ``--force`` first)."""
+    Path(path).write_text(dumps(value, indent=indent) + "\n")
