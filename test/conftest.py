@@ -56,7 +56,7 @@ def _claim_domain_id() -> tuple[int, IO[str]]:
 
 @pytest.fixture(scope="session", autouse=True)
 def ros_domain_id() -> Iterator[int]:
-    """This session's ROS_DOMAIN_ID, also set in os.environ so in-process rclpy uses it."""
+    """The ROS_DOMAIN_ID of this session, also set in os.environ so in-process rclpy uses it."""
     domain_id, lock = _claim_domain_id()
     saved = {k: os.environ.get(k)
              for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", *ROS_VARS_REMOVED)}

@@ -1,6 +1,9 @@
-"""Bags without DDS: simulate -> process -> modes against the truth, the output bag read back by
-rosbags alone, a bag written by rosbags alone processed, the figures, and the one-line errors
-(existing outputs refused, missing topic, wrong type, corrupt file)."""
+"""Bags without DDS.
+
+Simulate -> process -> modes against the truth, the output bag read back by rosbags alone, a bag
+written by rosbags alone processed, the figures, and the one-line errors (existing outputs
+refused, missing topic, wrong type, corrupt file).
+"""
 
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from okid_ros.cli import main
 from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
 from okid_ros.tools.bagio import TRUTH_KEY, open_bag
-from okid_ros.tools.plots import add_measured_outputs, read_plot_data
+from okid_ros.tools.plots import add_measured_outputs, fit_percent, output_estimates, read_plot_data
 from okid_ros.tools.process import load_node_parameters
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
 
@@ -104,8 +107,19 @@ def test_simulated_bag_has_the_topics_on_the_grid_and_the_truth_in_its_metadata(
     assert TRUTH_KEY in (run["bag"] / "metadata.yaml").read_text()
 
 
+def _strict_loads(text: str):
+    """json.loads that refuses NaN and Infinity (strict JSON, as JavaScript's JSON.parse)."""
+    def refuse(token: str):
+        raise ValueError(f"non-standard JSON token {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
 def test_process_identifies_the_true_modes_and_writes_json_lines(run):
-    lines = [json.loads(line) for line in run["jsonl"].read_text().splitlines()]
+    lines = [_strict_loads(line) for line in run["jsonl"].read_text().splitlines()]
+    with open_bag(run["out"]) as bag:
+        _strict_loads(bag.custom_data["okid_ros.process"])
+        _strict_loads(bag.custom_data[TRUTH_KEY])
     assert len(lines) >= 2
     for line in lines:
         assert isinstance(line["stamp_s"], float) and line["stamp_s"] > START_S
@@ -114,6 +128,11 @@ def test_process_identifies_the_true_modes_and_writes_json_lines(run):
             assert mode["frequency_hz"] == pytest.approx(mode["frequency_rad_s"] / (2 * np.pi))
     assert [line["stamp_s"] for line in lines] == sorted(line["stamp_s"] for line in lines)
     assert_modes_match_truth(lines[-1]["modes"])
+    for line in lines:  # fits on the model's window: the prediction beats the free-run simulation
+        assert len(line["fit_one_step_pct"]) == len(line["fit_simulation_pct"]) == 2
+        assert all(80 < pred < 100 and sim < pred for pred, sim in zip(line["fit_one_step_pct"],
+                                                                        line["fit_simulation_pct"]))
+        assert all(mode["frequency_hz_std"] > 0 and mode["damping_ratio_std"] > 0 for mode in line["modes"])
 
 
 def test_output_bag_reads_back_with_rosbags_alone(run):
@@ -124,6 +143,7 @@ def test_output_bag_reads_back_with_rosbags_alone(run):
             "/okid/arx_model": "okid_msgs/msg/ArxModel",
             "/okid/state_space_model": "okid_msgs/msg/StateSpaceModel",
             "/okid/modal_states": "okid_msgs/msg/ModalStates",
+            "/okid/structural_change": "okid_msgs/msg/StructuralChange",
         }
         last_model = last_states = None
         for connection, log_ns, raw in reader.messages():
@@ -138,6 +158,8 @@ def test_output_bag_reads_back_with_rosbags_alone(run):
     assert counts["/okid/arx_model"] == 6  # one per 4 s of the 25 s record
     assert counts["/okid/state_space_model"] == len(lines)
     assert counts["/okid/modal_states"] == 624  # from the first model (ArxModel at 20 s) on
+    assert counts.get("/okid/structural_change", 0) == 0  # a stationary structure
+    assert not any(line["change_detected"] for line in lines)
     n = last_model.n_states
     assert len(last_model.a) == n * n and len(last_model.k) == n * 2
     assert [m.id for m in last_states.modes] == [m["id"] for m in lines[-1]["modes"]]
@@ -156,6 +178,22 @@ def test_fig5_measured_output_is_the_input_bags_output_at_the_same_stamp(run):
     for stamp_ns, measured in zip(data.modal_stamp_ns, data.measured):
         assert np.array_equal(measured, y[stamp_ns])
     assert data.truth is not None and data.process_info["source"] == str(run["bag"])
+    # Fig. 5 shows the one-step prediction y - innovation; without the input bag the same curve
+    # comes from the message alone (y_estimated - C K innovation)
+    with_input = output_estimates(data, 0)
+    np.testing.assert_allclose(with_input["one_step"],
+                               [m[0] - e[0] for m, e in zip(data.measured, data.innovation)])
+    alone = output_estimates(read_plot_data(run["out"], window_s=2.0), 0)
+    np.testing.assert_allclose(alone["one_step"], with_input["one_step"], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(alone["measured"], with_input["measured"], rtol=1e-9, atol=1e-9)
+    assert fit_percent(with_input["measured"], with_input["one_step"]) < fit_percent(
+        with_input["measured"], with_input["filtered"]) < 100
+    # time from the start of the experiment: the last 2 s of a 25 s record
+    t = np.asarray(data.modal_t) + data.time_shift_s()
+    assert t[0] == pytest.approx(23.0, abs=0.01) and t[-1] == pytest.approx(24.992, abs=0.01)
+    # the modes over time carry standard deviations
+    for rows in data.mode_history.values():
+        assert all(0 < row[3] < 0.05 * row[1] and 0 < row[4] < 0.05 for row in rows)
 
 
 def test_sensor_topics_give_the_same_models_as_io_sample(run, capsys):
@@ -170,7 +208,8 @@ def test_sensor_topics_give_the_same_models_as_io_sample(run, capsys):
     io = [json.loads(line) for line in run["jsonl"].read_text().splitlines()]
     assert len(sensors) == len(io)
     for a, b in zip(sensors, io):
-        assert [m["frequency_rad_s"] for m in a["modes"]] == pytest.approx([m["frequency_rad_s"] for m in b["modes"]], rel=1e-9)
+        frequencies_b = [m["frequency_rad_s"] for m in b["modes"]]
+        assert [m["frequency_rad_s"] for m in a["modes"]] == pytest.approx(frequencies_b, rel=1e-9)
 
 
 def _okid_typestore_from_scratch():
@@ -184,8 +223,11 @@ def _okid_typestore_from_scratch():
 
 
 def test_a_bag_written_by_the_rosbags_writer_alone_is_processed(tmp_path, capsys):
-    """sqlite3, format version 8, other topic names, receive-time log stamps with jitter,
-    and an unrelated topic."""
+    """A bag as other writers make it.
+
+    sqlite3, format version 8, other topic names, receive-time log stamps with jitter, and an
+    unrelated topic.
+    """
     store = _okid_typestore_from_scratch()
     model = paper_model()
     n = int(25 / model.sample_time_s)
@@ -202,7 +244,8 @@ def test_a_bag_written_by_the_rosbags_writer_alone_is_processed(tmp_path, capsys
             stamp_ns = 1_600_000_000 * 10**9 + k * 8_000_000
             msg = IoSample(header=Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="rig"),
                            u=u[k].copy(), y=y[k].copy())
-            writer.write(io, stamp_ns + int(rng.uniform(0.2e6, 3e6)), store.serialize_cdr(msg, "okid_msgs/msg/IoSample"))
+            received_ns = stamp_ns + int(rng.uniform(0.2e6, 3e6))
+            writer.write(io, received_ns, store.serialize_cdr(msg, "okid_msgs/msg/IoSample"))
             if k % 125 == 0:
                 writer.write(chatter, stamp_ns, store.serialize_cdr(String(data="hello"), "std_msgs/msg/String"))
     out, jsonl = tmp_path / "out", tmp_path / "models.jsonl"
@@ -224,7 +267,9 @@ def test_figures_are_written_and_not_overwritten(run, capsys):
     assert f"measured outputs from {run['bag']} (624 samples)" in stdout
     names = sorted(p.name for p in figures.iterdir())
     assert names == sorted(["fig2_system_markov.png", "fig3_stochastic_markov.png", "fig4_modal_states.png",
-                            "fig5_output_estimate.png", "modes_over_time.png"])
+                            "fig5_output_estimate.png", "modes_over_time.png", "frf.png", "mac.png",
+                            "stabilization.png"])
+    assert "FRF from 3125 samples" in stdout
     for path in figures.iterdir():
         data = path.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
@@ -354,3 +399,55 @@ def test_a_ros1_bag_is_read_and_its_messages_come_out_as_cdr(tmp_path):
     again = [store.deserialize_cdr(raw, "okid_msgs/msg/IoSample") for raw in cdr]  # what replay publishes
     assert [list(m.y) for m in again] == [[2.0 * k, 0.5] for k in range(10)]
     assert again[3].header.stamp.nanosec == 24_000_000 and again[3].header.frame_id == "rig"
+
+
+def test_plot_draws_the_stabilization_diagram_that_process_recorded(run, capsys):
+    out, figures = run["root"] / "out_stab", run["root"] / "figures_stab"
+    assert run_cli(capsys, "process", run["bag"], "--params", CONFIG, "--out", out, "--no-progress", *FAST)[0] == 0
+    with open_bag(out) as bag:
+        stabilization = bag.custom_json("okid_ros.stabilization")
+    # The orders the last realization tried, increasing, each with its marked poles.
+    orders = [entry["n_states"] for entry in stabilization]
+    assert orders == sorted(orders) and len(orders) >= 3
+    assert any(pole["stable_frequency"] for entry in stabilization for pole in entry["poles"])
+    code, stdout, err = run_cli(capsys, "plot", out, "--out-dir", figures, "--frf-pairs", "1:1")
+    assert code == 0, err
+    assert {"stabilization.png", "frf.png", "mac.png"} <= {p.name for p in figures.iterdir()}
+def test_process_in_a_namespace_reads_and_writes_the_rigs_topics(small_bag, tmp_path, capsys):
+    """--namespace: relative topics under the rig's namespace, absolute ones as they are.
+
+    A parameter file's unknown names are warnings, or an error with --strict-params.
+    """
+    out = tmp_path / "rig1"
+    code, _, err = run_cli(capsys, "process", small_bag, "--namespace", "/rig1", "--out", out, "--no-progress")
+    assert_one_line_error(code, err, "/rig1/io_sample")  # the bag has /okid/io_sample only
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("/**/okid_modal_estimator:\n  ros__parameters:\n    tracking: {min_mak: 0.8}\n")
+    code, _, err = run_cli(capsys, "process", small_bag, "--namespace", "/rig1",
+                           "--source", "io_sample /okid/io_sample",
+                           "--params", CONFIG, "--params", typo, "--out", out, "--no-progress")
+    assert code == 0, err
+    assert "warning:" in err and "tracking.min_mak" in err
+    with open_bag(out) as bag:
+        assert set(bag.topics) == {"/rig1/arx_model", "/rig1/state_space_model", "/rig1/modal_states",
+                                    "/rig1/structural_change"}
+    code, _, err = run_cli(capsys, "process", small_bag, "--source", "io_sample /okid/io_sample", "--params", typo,
+                           "--strict-params", "--out", tmp_path / "strict", "--no-progress")
+    assert_one_line_error(code, err, "unknown parameter(s) tracking.min_mak")
+
+
+def test_plot_reads_a_namespaced_output(run, tmp_path, capsys):
+    """The output of `process --namespace /rig1` plots with `plot --namespace /rig1`.
+
+    Such a bag is what `record --namespace /rig1` writes; without it the /okid topics are missing.
+    """
+    out = tmp_path / "rig1"
+    code, _, err = run_cli(capsys, "process", run["bag"], "--namespace", "/rig1",
+                           "--source", "io_sample /okid/io_sample",
+                           "--params", CONFIG, "--out", out, "--no-progress", *FAST)
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "plot", out, "--out-dir", tmp_path / "none")
+    assert_one_line_error(code, err, "none of /okid/arx_model")
+    code, stdout, err = run_cli(capsys, "plot", out, "--namespace", "/rig1", "--out-dir", tmp_path / "figs")
+    assert code == 0, err
+    assert len(list((tmp_path / "figs").glob("*.png"))) >= 4

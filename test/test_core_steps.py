@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import linalg
@@ -13,8 +15,9 @@ from okid_ros.core.markov import markov_from_arx, markov_from_state_space
 from okid_ros.core.modal import identify_modes, mac, match_modes, modal_form, mpc
 from okid_ros.core.regressors import arx_regressors, regressor_at, regressor_length
 from okid_ros.core.statespace import simulate
+from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model
-from okid_ros.sim.systems import simulate_innovation, white_input
+from okid_ros.sim.simulators import simulate_innovation
 
 
 def _random_stable_system(n: int, m: int, p: int, seed: int):
@@ -108,8 +111,10 @@ def test_era_recovers_poles_and_markov_parameters_with_and_without_weighting():
     M = rng.standard_normal((40, 40))
     for weight in (None, linalg.cholesky(M @ M.T + np.eye(40), lower=True)):
         real = era(blocks, 6, n_rows=20, n_cols=20, right_weight=weight)
-        np.testing.assert_allclose(np.sort_complex(linalg.eigvals(real.A)), np.sort_complex(linalg.eigvals(A)), atol=1e-8)
-        rebuilt = markov_from_state_space(real.A, real.G, real.C, D, 10)
+        np.testing.assert_allclose(
+            np.sort_complex(linalg.eigvals(real.A)), np.sort_complex(linalg.eigvals(A)), atol=1e-8
+        )
+        rebuilt = markov_from_state_space(real.A, real.B, real.C, D, 10)
         np.testing.assert_allclose(rebuilt, markov_from_state_space(A, B, C, D, 10), atol=1e-8)
 
 
@@ -143,12 +148,36 @@ def test_shape_indicators():
     assert mac(np.array([1.0, 0.0]), np.array([0.0, 1.0])) == pytest.approx(0.0)
 
 
+def _shifted(mode, frequency_factor: float, shape_noise: float, rng) -> object:
+    """A copy of ``mode`` at ``frequency_factor`` times its frequency with a perturbed shape."""
+    size = mode.shape.size
+    shape = mode.shape + shape_noise * (rng.standard_normal(size) + 1j * rng.standard_normal(size))
+    return dataclasses.replace(
+        mode,
+        frequency_rad_s=mode.frequency_rad_s * frequency_factor,
+        frequency_hz=mode.frequency_hz * frequency_factor,
+        shape=shape / np.linalg.norm(shape),
+    )
+
+
 def test_match_modes_by_frequency_and_mac():
     truth = paper_model()
     modes, _ = identify_modes(truth.A, truth.B, truth.C, truth.sample_time_s)
-    shifted = [m for m in modes]
-    matches = match_modes(modes, list(reversed(shifted)))
-    assert matches == [2, 1, 0]
+    assert len(modes) == 3
+    rng = np.random.default_rng(3)
+    # Every mode moved by 1-3 % with its shape perturbed (MAC still > 0.9), listed in reverse.
+    shifted = [_shifted(m, f, 0.1, rng) for m, f in zip(modes, (1.02, 0.97, 1.01))]
+    assert all(0.9 < mac(a.shape, b.shape) < 1.0 for a, b in zip(modes, shifted))
+    assert match_modes(modes, list(reversed(shifted))) == [2, 1, 0]
+    # The two close modes (37 and 46 rad/s) swap frequencies: MAC decides, not the frequency.
+    close = [dataclasses.replace(modes[0], frequency_rad_s=modes[1].frequency_rad_s * 0.99),
+             dataclasses.replace(modes[1], frequency_rad_s=modes[0].frequency_rad_s * 1.01)]
+    assert match_modes(modes, close, max_frequency_change=0.3) == [0, 1]
+    # Too far in frequency, or a shape that is another mode's: new modes.
+    far = _shifted(modes[0], 1.08, 0.0, rng)
+    other_shape = dataclasses.replace(modes[0], shape=np.array([modes[0].shape[1].conj(), -modes[0].shape[0].conj()]))
+    assert mac(other_shape.shape, modes[0].shape) < 0.7
+    assert match_modes(modes, [far, other_shape, shifted[2]]) == [None, None, 2]
     assert match_modes(modes[:1], modes[1:]) == [None, None]
 
 

@@ -20,14 +20,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import RosProcess, subprocess_env
-
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import RosProcess, subprocess_env
 
-MESSAGE_TYPES = ("IoSample", "Mode", "ModalStates", "ArxModel", "StateSpaceModel")
+MESSAGE_TYPES = ("IoSample", "Mode", "ModalStates", "ArxModel", "StateSpaceModel", "StructuralChange")
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 TIMEOUT_S = 30.0
 
@@ -58,6 +57,13 @@ REQUIRED_FIELDS: dict[str, dict[str, str]] = {
         "b": "sequence<double>", "c": "sequence<double>", "d": "sequence<double>",
         "k": "sequence<double>", "innovation_covariance": "sequence<double>",
         "hankel_singular_values": "sequence<double>", "modes": "sequence<okid_msgs/Mode>",
+    },
+    "StructuralChange": {
+        "header": "std_msgs/Header", "change_id": "uint32", "change_stamp": "builtin_interfaces/Time",
+        "detection_stamp": "builtin_interfaces/Time", "detection_delay_samples": "uint32",
+        "statistic": "double", "threshold": "double", "variance_ratio": "double", "identified": "boolean",
+        "modes_before": "sequence<okid_msgs/Mode>", "modes_after": "sequence<okid_msgs/Mode>",
+        "retired_ids": "sequence<uint32>",
     },
 }
 

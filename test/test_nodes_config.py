@@ -1,5 +1,7 @@
-"""The shipped parameter files and the launch file agree with the nodes' declarations
-(okid_ros/service/params.py), without starting ROS."""
+"""The shipped parameter files and the launch file agree with the nodes' declarations.
+
+The declarations are those of okid_ros/service/params.py; no ROS is started.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import yaml
 
 from okid_ros.service.inputs import parse_sources
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
+from okid_ros.service.topics import resolve_topic
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config" / "okid.yaml"
@@ -30,19 +33,25 @@ def flatten(tree: dict, prefix: str = "") -> dict:
 @pytest.mark.parametrize("node", [ARX_NODE, ESTIMATOR_NODE])
 def test_okid_yaml_lists_every_parameter_with_its_default(node):
     tree = yaml.safe_load(CONFIG.read_text())
-    listed = {**flatten(tree["/**"]["ros__parameters"]), **flatten(tree[node]["ros__parameters"])}
+    listed = {**flatten(tree["/**"]["ros__parameters"]), **flatten(tree[f"/**/{node}"]["ros__parameters"])}
     specs = {spec.name: spec for spec in node_params(node)}
     assert set(listed) == set(specs), "config/okid.yaml and params.py list different parameters"
     for name, spec in specs.items():
         assert listed[name] == spec.default, f"{name}: YAML {listed[name]!r}, declared default {spec.default!r}"
     values = load_parameters(CONFIG, node)
     assert values["sample_time_s"] == 0.008 and values["n_inputs"] == values["n_outputs"] == 2
+    # Topic names are relative: /okid/... in the root namespace, NAMESPACE/... otherwise.
     if node == ARX_NODE:
-        assert values["arx.order"] == 100 and values["arx_model_topic"] == "/okid/arx_model"
+        assert values["arx.order"] == 100
+        assert resolve_topic(values["arx_model_topic"]) == "/okid/arx_model"
+        assert resolve_topic(values["arx_model_topic"], "/rig1") == "/rig1/arx_model"
     else:
-        assert values["modal_states_topic"] == "/okid/modal_states"
-        assert values["state_space_model_topic"] == "/okid/state_space_model"
-    assert values["inputs.sources"] == ["io_sample /okid/io_sample"]
+        assert resolve_topic(values["modal_states_topic"]) == "/okid/modal_states"
+        assert resolve_topic(values["state_space_model_topic"]) == "/okid/state_space_model"
+        assert resolve_topic(values["modal_states_topic"], "/plant/rig2") == "/plant/rig2/modal_states"
+    assert values["inputs.sources"] == ["io_sample io_sample"]
+    # The sections are keyed /**/NODE: the same values apply to the node in a namespace.
+    assert load_parameters(CONFIG, node, namespace="/rig1") == values
 
 
 def test_every_parameter_in_okid_yaml_is_commented_with_its_default():
@@ -57,7 +66,9 @@ def test_every_parameter_in_okid_yaml_is_commented_with_its_default():
         while j >= 0 and lines[j].strip().startswith("#"):
             comment.insert(0, lines[j])
             j -= 1
-        assert "Default" in " ".join(comment), f"config/okid.yaml line {i + 1} ({match.group(1)}) has no comment with its default"
+        assert "Default" in " ".join(comment), (
+            f"config/okid.yaml line {i + 1} ({match.group(1)}) has no comment with its default"
+        )
 
 
 def test_the_sensor_example_maps_every_channel_once():

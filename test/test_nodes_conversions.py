@@ -1,5 +1,8 @@
-"""Message <-> numpy conversions, duck-typed: plain namespaces stand in for rclpy or rosbags
-message classes (okid_ros/nodes/conversions.py imports no ROS package)."""
+"""Message <-> numpy conversions, duck-typed.
+
+Plain namespaces stand in for rclpy or rosbags message classes (okid_ros/nodes/conversions.py
+imports no ROS package).
+"""
 
 from __future__ import annotations
 
@@ -28,7 +31,8 @@ def vec(x, y, z):
 
 def test_source_values_of_every_kind():
     imu = stamped(12.5, linear_acceleration=vec(1.0, 2.0, 3.0), angular_velocity=vec(4.0, 5.0, 6.0))
-    stamp, values = cv.source_values(imu, parse_source("imu /a linear_acceleration.z=y1 angular_velocity.x=y0", 2, 2), 2, 2)
+    source = parse_source("imu /a linear_acceleration.z=y1 angular_velocity.x=y0", 2, 2)
+    stamp, values = cv.source_values(imu, source, 2, 2)
     assert stamp == pytest.approx(12.5) and values.tolist() == [3.0, 4.0]
     wrench = stamped(1.0, wrench=NS(force=vec(7.0, 8.0, 9.0), torque=vec(0.1, 0.2, 0.3)))
     _, values = cv.source_values(wrench, parse_source("wrench /w force.y=u0 torque.z=u1", 2, 2), 2, 2)

@@ -100,3 +100,17 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     assert msgs_file.startswith(str(install / "okid_msgs")), result.stdout
     assert ros_file.startswith(str(install / "okid_ros")), result.stdout
     assert version_line == f"okid-ros {okid_ros.__version__}"
+
+
+def _pins(name: str) -> set[str]:
+    lines = (ROOT / "requirements" / name).read_text().splitlines()
+    return {line.split("==")[0].strip().lower() for line in lines if line.strip() and not line.startswith("#")}
+
+
+def test_runtime_requirements_leave_tests_and_benchmarks_out() -> None:
+    runtime, test = _pins("python.txt"), _pins("test.txt")
+    assert {"numpy", "scipy", "filterpy", "pyyaml", "rosbags"} <= runtime
+    assert {"pytest", "ruff", "control", "sippy-unipi", "nfoursid", "pandas"} <= test
+    assert not runtime & test
+    lock = _pins("lock.txt")
+    assert runtime | test <= lock  # every pin has its transitive dependencies locked

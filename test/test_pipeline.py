@@ -11,8 +11,9 @@ from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.pipeline import IdentificationError, identify
 from okid_ros.core.statespace import one_step_prediction
+from okid_ros.sim.inputs import lowpass_input, white_input
 from okid_ros.sim.paper_model import paper_model
-from okid_ros.sim.systems import lowpass_input, simulate_innovation, white_input
+from okid_ros.sim.simulators import simulate_innovation
 
 DT = 0.008
 PAPER_MODES = [(37.097, 0.002763), (46.1325, 0.028684)]  # computed from the published A
@@ -85,24 +86,26 @@ def test_estimator_reproduces_the_innovation_form_predictor_and_modal_coordinate
     model = identify(u, y, DT, order=100)
     estimator = ModalStateEstimator.from_model(model)
     out = estimator.run(u, y)
-    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y)
+    # The model applies to the signals less the offsets it removed (the record's means).
+    u0, y0 = u - model.input_offset, y - model.output_offset
+    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u0, y0)
     np.testing.assert_allclose(out.innovations, e, atol=1e-9 * np.abs(y).max())
     assert out.modal_coordinates.shape == (3750, len(model.modes), 2)
     # Filtered outputs are closer to the measurements than the one-step predictions.
     assert np.mean((y - out.y_estimated) ** 2) < np.mean(e**2)
     # Physical states reproduce most of the output (the modal coordinates are in output units).
     y_modes = out.states[:, : model.n_physical_states] @ model.C[:, : model.n_physical_states].T
-    assert np.var(y - y_modes) < 0.1 * np.var(y)
+    assert np.var(y0 - y_modes) < 0.1 * np.var(y)
 
 
 def test_estimator_start_up_gain_converges_to_the_steady_gain():
     truth = paper_model()
-    est = ModalStateEstimator(truth.A, truth.B, truth.C, truth.D, truth.K, 6, truth.innovation_covariance, initial_covariance=100.0)
+    est = ModalStateEstimator(truth, n_physical_states=6, initial_covariance=100.0)
     u = white_input(3000, 2, seed=6)
     y, _ = simulate_innovation(truth, u, seed=7)
     out = est.run(u, y)
     np.testing.assert_allclose(est.kf.K, truth.K)
-    steady = ModalStateEstimator(truth.A, truth.B, truth.C, truth.D, truth.K, 6)
+    steady = ModalStateEstimator(truth, n_physical_states=6)
     out_steady = steady.run(u, y)
     # The start-up filter is no worse early on and identical once converged.
     assert np.mean(out.innovations[:200] ** 2) <= np.mean(out_steady.innovations[:200] ** 2) * 1.05
@@ -138,7 +141,9 @@ def test_identify_command_writes_the_json_contract(tmp_path, capsys):
     out = tmp_path / "model.json"
     assert okid_ros_main(["identify", str(data), "--order", "100", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
-    for key in ("sample_time_s", "n_states", "A", "B", "C", "D", "K", "innovation_covariance", "hankel_singular_values", "modes"):
+    keys = ("sample_time_s", "n_states", "A", "B", "C", "D", "K", "innovation_covariance",
+            "hankel_singular_values", "modes")
+    for key in keys:
         assert key in doc
     n = doc["n_states"]
     assert np.array(doc["A"]).shape == (n, n) and np.array(doc["K"]).shape == (n, 2)
@@ -178,3 +183,53 @@ def test_identify_reads_csv(tmp_path):
     out = tmp_path / "m.json"
     assert okid_ros_main(["identify", str(path), "--order", "40", "--json", str(out)]) == 0
     assert json.loads(out.read_text())["sample_time_s"] == DT
+
+
+def test_arx_order_is_chosen_by_gcv_when_not_given():
+    truth, u, y, _, _ = _paper_record(3750, 15.0, seed=21)
+    model = identify(u, y, DT)
+    scores = model.arx_order_scores
+    assert model.arx.order == min(scores, key=scores.get)
+    # At least what the Hankel matrix of max_states (40) needs with 2 outputs: 2 * 20 + 1 lags.
+    assert min(scores) >= 41
+    assert len(scores) >= 2
+    assert model.stability_problem() == ""
+
+
+def test_offsets_are_removed_kept_and_reported():
+    truth, u, y, _, _ = _paper_record(3750, 15.0, seed=22)
+    plain = identify(u, y, DT, order=60, n_states=6)
+    shifted = identify(u + [5.0, -3.0], y + [40.0, 2.0], DT, order=60, n_states=6)
+    np.testing.assert_allclose(shifted.input_offset - plain.input_offset, [5.0, -3.0], atol=1e-9)
+    np.testing.assert_allclose(shifted.output_offset - plain.output_offset, [40.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose([m.frequency_hz for m in shifted.modes], [m.frequency_hz for m in plain.modes],
+                               rtol=1e-6)
+    assert any("large offsets removed" in w and "input 0" in w for w in shifted.warnings)
+    assert not any("offsets" in w for w in plain.warnings)
+    raw = identify(u + [5.0, -3.0], y + [40.0, 2.0], DT, order=60, n_states=6, offsets="none")
+    assert any("NOT removed" in w for w in raw.warnings)
+    with pytest.raises(IdentificationError, match="offsets"):
+        identify(u, y, DT, order=60, offsets="mean")
+
+
+def test_order_search_goes_past_max_states_and_says_when_it_cannot():
+    truth, u, y, _, _ = _paper_record(3750, 15.0, seed=23)
+    grown = identify(u, y, DT, order=60, max_states=2)  # BIC is lowest at the cap: the search goes on
+    assert grown.n_states >= 6 and not grown.max_states_reached
+    capped = identify(u, y, DT, order=60, max_states=2, max_states_limit=4)
+    assert capped.max_states_reached and capped.n_states == 4
+    assert any("largest model order" in w for w in capped.warnings)
+    assert json.loads(json.dumps(capped.to_json_dict()))["max_states_reached"] is True
+
+
+def test_every_model_handed_out_has_a_stable_a_and_predictor():
+    """Each benchmark system, automatic orders, both completions."""
+    from okid_ros.sim import benchmark_cases, simulate
+
+    for case in benchmark_cases():
+        u = case.make_input(3000, 31)
+        y = simulate(case.system, u, 32)
+        for completion in ("predictor", "states"):
+            model = identify(u, y, case.sample_time_s, completion=completion, refine=False)
+            assert model.spectral_radius() < 1.0, (case.name, completion)
+            assert model.predictor_spectral_radius() < 1.0, (case.name, completion)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from okid_ros.service.inputs import parse_source, parse_sources
-from okid_ros.service.sample_grid import SampleGrid
+from okid_ros.service.sample_grid import SampleGrid, StampSequence, StampStep, classify_step
 
 DT = 0.01
 T0 = 100.0
 
 
 def three_sources(**kwargs) -> SampleGrid:
-    """m = 1, p = 2: source 0 gives u0, source 1 gives y0, source 2 gives y1."""
+    """M = 1, p = 2: source 0 gives u0, source 1 gives y0, source 2 gives y1."""
     return SampleGrid(DT, 1, 2, [[0], [1], [2]], **kwargs)
 
 
@@ -74,6 +74,27 @@ def test_duplicates_and_out_of_order_stamps_are_rejected_keeping_the_first_value
     c = grid.counters
     assert (c.duplicate, c.out_of_order) == (1, 1)
     assert grid.source_counters(0).duplicate == 1 and grid.source_counters(1).duplicate == 0
+
+
+def test_whole_sample_stream_uses_the_grid_rule():
+    """StampSequence (the identification service's check) classifies steps as the grid does."""
+    assert [classify_step(k) for k in (-2, -1, 0, 1, 2)] == [
+        StampStep.OUT_OF_ORDER, StampStep.OUT_OF_ORDER, StampStep.DUPLICATE, StampStep.NEXT, StampStep.GAP,
+    ]
+    seq = StampSequence(DT)
+    assert math.isnan(seq.newest_stamp_s) and seq.check(T0) is StampStep.NEXT
+    seq.accept(T0)
+    steps = {0.2: StampStep.DUPLICATE, -0.4: StampStep.DUPLICATE, -0.7: StampStep.OUT_OF_ORDER,
+             0.7: StampStep.NEXT, 1.4: StampStep.NEXT, 1.6: StampStep.GAP, 6.0: StampStep.GAP}
+    for step, expected in steps.items():
+        assert seq.check(T0 + step * DT) is expected, step
+    assert seq.newest_stamp_s == T0  # check does not advance
+    seq.accept(T0 + DT)
+    assert seq.check(T0 + 1.2 * DT) is StampStep.DUPLICATE
+    seq.reset()
+    assert seq.check(T0 - 100.0) is StampStep.NEXT
+    with pytest.raises(ValueError, match="sample_time_s"):
+        StampSequence(0.0)
 
 
 def test_bad_values_and_off_grid_stamps_are_rejected():

@@ -36,7 +36,8 @@ def test_snapshot_equals_the_batch_fit_on_the_window(record):
     snap = service.snapshot()
     assert snap.valid and snap.window_rows == W and snap.window_fill == 1.0
     assert snap.stamp_s == pytest.approx(10.0 + (n - 1) * dt)
-    batch = fit_arx(u[n - W - Q : n], y[n - W - Q : n], Q, "ridge", "gcv")
+    # Node 1 fits an intercept by default (offsets: "remove"), so the batch fit does too.
+    batch = fit_arx(u[n - W - Q : n], y[n - W - Q : n], Q, "ridge", "gcv", center=True)
     # Same rows, same prior; the GCV penalty comes from a bounded scalar search (tolerance ~1e-5).
     assert snap.penalty == pytest.approx(batch.penalty, rel=1e-3)
     np.testing.assert_allclose(snap.fit.theta, batch.theta, atol=1e-5 * np.abs(batch.theta).max())
@@ -57,7 +58,8 @@ def test_bad_samples_are_counted_and_never_enter_the_window(record):
             assert not dirty.push(t + dt, [math.nan, 0.0], y[k])
             assert not dirty.push(t + dt, u[k], y[k][:1])  # wrong size
     d = dirty.diagnostics()
-    assert (d["rejected_duplicate"], d["rejected_out_of_order"], d["rejected_nonfinite"], d["rejected_wrong_size"]) == (1, 1, 1, 1)
+    rejected = ("rejected_duplicate", "rejected_out_of_order", "rejected_nonfinite", "rejected_wrong_size")
+    assert [d[name] for name in rejected] == [1, 1, 1, 1]
     assert d["samples_rejected"] == 4 and d["samples_used"] == n
     np.testing.assert_array_equal(dirty.snapshot().fit.theta, clean.snapshot().fit.theta)
 
@@ -73,7 +75,7 @@ def test_a_gap_breaks_the_lag_history(record):
     assert service.diagnostics()["gaps"] == 1
     # Rows: 600 - 3 samples, minus q lags at the start and q again after the gap.
     assert snap.window_rows == 600 - 3 - 2 * Q
-    batch = fit_arx(u[:600], y[:600], Q, "ridge", "gcv", valid=keep)
+    batch = fit_arx(u[:600], y[:600], Q, "ridge", "gcv", valid=keep, center=True)
     np.testing.assert_allclose(snap.fit.theta, batch.theta, atol=1e-5 * np.abs(batch.theta).max())
 
 

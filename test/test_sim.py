@@ -14,6 +14,10 @@ try:
 except ImportError:  # running from a checkout without installing
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from okid_ros.core.statespace import InnovationModel
+from okid_ros.sim.cases import benchmark_cases
+from okid_ros.sim.inputs import lowpass_input, white_input
+from okid_ros.sim.models import NoisyStateSpace, as_noisy_state_space, modal_structure
 from okid_ros.sim.oracle import kalman_predictor, one_step_predictions
 from okid_ros.sim.paper_model import PAPER_A, PAPER_B, PAPER_K, paper_model, paper_modes
 from okid_ros.sim.peers import PEERS, peer_identify
@@ -24,18 +28,7 @@ from okid_ros.sim.scoring import (
     prediction_error_ratio,
     stochastic_markov_error,
 )
-from okid_ros.sim.systems import (
-    InnovationModel,
-    NoisyStateSpace,
-    _propagate_loop,
-    benchmark_cases,
-    lowpass_input,
-    modal_structure,
-    propagate_states,
-    simulate_innovation,
-    simulate_noisy,
-    white_input,
-)
+from okid_ros.sim.simulators import _propagate_loop, propagate_states, simulate_innovation, simulate_noisy
 
 
 def _autocorr_max(e: np.ndarray, lags: int) -> float:
@@ -151,7 +144,7 @@ def test_oracle_returns_the_innovation_models_own_gain():
     K, Re = kalman_predictor(m)
     np.testing.assert_array_equal(K, m.K)
     # the same process written with correlated process / measurement noise
-    K2, Re2 = kalman_predictor(m.to_noisy_state_space())
+    K2, Re2 = kalman_predictor(as_noisy_state_space(m))
     np.testing.assert_allclose(K2, m.K, atol=1e-8)
     np.testing.assert_allclose(Re2, 2.0 * np.eye(2), atol=1e-8)
 

@@ -1,12 +1,15 @@
-"""`okid-ros demo`, the job behind `make demo`, end to end on a short experiment: simulate,
-both nodes live, replay, recording, monitor tables, figures, identified against true modes."""
+"""`okid-ros demo`, the job behind `make demo`, end to end on a short experiment.
+
+Simulate, both nodes live, replay, recording, monitor tables, figures, identified against true
+modes.
+"""
 
 from __future__ import annotations
 
 import sys
 
-from rosbags.highlevel import AnyReader
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from rosbags.highlevel import AnyReader
 
 # A window of 1000 rows is valid from about 5 s of data; models twice a second.
 FAST_PARAMS = """

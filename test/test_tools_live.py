@@ -1,6 +1,9 @@
-"""Replay over real DDS: every message with its recorded stamps and spacing on (remapped) topics;
-a looped replay (stamps jump back) through both live nodes, which keep running and keep
-publishing modal states. ROS_DOMAIN_ID is this session's (conftest.py)."""
+"""Replay over real DDS.
+
+Every message with its recorded stamps and spacing on (remapped) topics; a looped replay (stamps
+jump back) through both live nodes, which keep running and keep publishing modal states.
+ROS_DOMAIN_ID is this session's (conftest.py).
+"""
 
 from __future__ import annotations
 
@@ -15,10 +18,10 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from sensor_msgs.msg import Imu
 
 from okid_msgs.msg import IoSample, ModalStates
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
-from sensor_msgs.msg import Imu
 
 START_NS = 1_700_000_000 * 1_000_000_000
 DT_NS = 8_000_000
@@ -133,11 +136,15 @@ def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
 
 
 def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domain_id, tmp_path):
-    """Pass 1 brings the first models; the loop sends the stamps 16 s back; the nodes go on."""
+    """Pass 1 brings the first models; the loop sends the stamps 16 s back.
+
+    With reset_on_time_jump false the nodes go on with their models (the default restart at a
+    jump: test_nodes_time_jump.py).
+    """
     bag = tmp_path / "loop"
     write_experiment_bag(bag, simulate_experiment(16.0, start_ns=START_NS))
     fast = tmp_path / "fast.yaml"
-    fast.write_text(FAST_PARAMS)
+    fast.write_text(FAST_PARAMS + "/**:\n  ros__parameters:\n    reset_on_time_jump: false\n")
     env = subprocess_env(ros_domain_id)
     nodes = {
         module: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", "--ros-args", "--params-file",

@@ -1,5 +1,8 @@
-"""The monitor: the table's contents from ModalStates (trend, amplitude, indicators, a time jump),
-its drawing on a terminal and on a pipe, and `okid-ros monitor` over DDS."""
+"""The monitor.
+
+The table's contents from ModalStates (trend, amplitude, indicators, a time jump), its drawing
+on a terminal and on a pipe, and `okid-ros monitor` over DDS.
+"""
 
 from __future__ import annotations
 
@@ -21,8 +24,11 @@ ARROWS = ("UP", "DOWN", "FLAT")
 
 
 def own_lines(output: str) -> list[str]:
-    """The process's own lines: without Fast DDS's log lines (colored, they start with ESC),
-    which it prints when, e.g., another process holds a shared-memory port lock."""
+    """The process's own lines, without Fast DDS's log lines.
+
+    Fast DDS's lines are colored (they start with ESC); it prints them when, e.g., another
+    process holds a shared-memory port lock.
+    """
     return [line for line in output.splitlines() if line.strip() and not line.startswith("\x1b")]
 
 
@@ -50,14 +56,45 @@ def test_view_shows_trend_amplitude_and_model_updates():
     table = view.render("t")
     rows = [line.split() for line in table.splitlines()[2:]]
     assert [r[0] for r in rows] == ["0", "1"]
-    assert rows[0][4] == "UP" and rows[0][-1] == "5" and rows[1][-1] == "2"
+    assert rows[0][6] == "UP" and rows[0][-1] == "5.000e+00" and rows[1][-1] == "2.000e+00"
     assert rows[0][3] == "1.000"  # damping in percent
+    assert rows[0][4:6] == ["-", "-"]  # standard deviations not known
     # a falling mode, a new one, and a lost one
     for k in range(30):
         t = 104.0 + 0.1 * k
         view.update(states(t, [mode(0, 5.0 * (1 - 0.01 * (t - 104))), mode(7, 9.0)], [1.0, 0.0, 0.0, 1.0]))
     assert view.trend(0) == "DOWN" and view.trend(7) == "FLAT"
     assert view.current_ids == [0, 7] and " 7 " in view.render()
+
+
+def test_view_shows_the_standard_deviations_of_frequency_and_damping():
+    view = ModalStatesView(arrows=ARROWS)
+    known = SimpleNamespace(**vars(mode(0, 5.0)), frequency_hz_std=0.0123, damping_ratio_std=0.00045)
+    view.update(states(1.0, [known], [1.0, 0.0]))
+    header, row = view.render("t").splitlines()[1:3]
+    assert "+-f [Hz]" in header and "+-zeta [%]" in header
+    assert row.split()[4:6] == ["1.23e-02", "4.50e-02"]
+def test_rate_is_never_nan_the_stream_shows_when_it_stopped_and_columns_keep_one_format():
+    view = ModalStatesView(arrows=ARROWS)
+    tty = io.StringIO()
+    monitor = TerminalMonitor(view, tty, interval_s=0.5, ansi=False)
+    view.update(states(1.0, [mode(0, 5.0), mode(1, 7.0)], [1.0, 0.0, 1e-4, 0.0]), received_s=10.0)
+    first = view.render("t", now=10.0)
+    assert "nan" not in first and "starting" in first
+    for k in range(1, 100):
+        view.update(states(1.0 + 0.01 * k, [mode(0, 5.0), mode(1, 7.0, zeta=0.5)], [1.0, 0.0, 1e-4, 0.0]),
+                    received_s=10.0 + 0.01 * k)
+    assert "100.0 /s" in view.render("t", now=11.0)
+    assert monitor.maybe_draw(now=11.0)
+    # The replay ended: six seconds without a message.
+    assert "stopped (no message for 6.0 s)" in view.render("t", now=16.99)
+    assert monitor.maybe_draw(now=17.0), "a pipe must get a table when the stream stops"
+    assert "stopped" in [line for line in tty.getvalue().splitlines() if "samples" in line][-1]
+    assert not monitor.maybe_draw(now=20.0)  # nothing new since
+    # One number format per column, whatever the magnitudes (MSV and RMS amplitude in e-notation).
+    rows = [line.split() for line in view.render("t", now=11.0).splitlines()[2:]]
+    assert rows[0][-1] == "1.000e+00" and rows[1][-1] == "1.000e-04"
+    assert rows[0][9] == rows[1][9] == "5.00e-01"
 
 
 def test_a_time_jump_restarts_the_trends():
@@ -117,12 +154,13 @@ def test_monitor_once_prints_the_modes_arriving_over_dds(ros_domain_id):
     lines = own_lines(proc.output())
     row = next(line for line in lines if line.split()[:1] == ["4"])
     assert row.split()[1:4] == ["5.9042", "37.0973", "0.280"]
-    assert row.split()[-1] == "5" and "model 3" in lines[0] and not any("\x1b" in line for line in lines)
+    assert row.split()[-1] == "5.000e+00" and "model 3" in lines[0] and not any("\x1b" in line for line in lines)
 
 
 def test_monitor_once_without_messages_is_a_one_line_error(ros_domain_id):
     proc = RosProcess([sys.executable, "-m", "okid_ros.cli", "monitor", "--once", "--duration", "1",
                        "--topic", "/test/silent"], subprocess_env(ros_domain_id), REPO_ROOT)
     assert proc.proc.wait(timeout=60) == 2
-    assert own_lines(proc.output()) == ["okid-ros monitor: error: no okid_msgs/ModalStates on /test/silent within 1 s"], \
+    expected = ["okid-ros monitor: error: no okid_msgs/ModalStates on /test/silent within 1 s"]
+    assert own_lines(proc.output()) == expected, \
         proc.output()

@@ -11,8 +11,9 @@ from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.records import save_record
+from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model
-from okid_ros.sim.systems import simulate_innovation, white_input
+from okid_ros.sim.simulators import simulate_innovation
 
 DT = 0.008
 

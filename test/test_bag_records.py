@@ -1,0 +1,72 @@
+"""Bags and records meet: `export BAG --npz`, and `identify` / `track` reading a bag directly."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from okid_ros.cli import main
+from okid_ros.records import load_record
+from okid_ros.tools.bagio import open_bag
+from okid_ros.tools.simulate_bag import IO_SAMPLE_TOPIC
+
+START_S = 1_700_000_000
+SENSORS = ["--source", "wrench /thruster1/wrench force.x=u0", "--source", "wrench /thruster2/wrench force.x=u1",
+           "--source", "imu /accel/tip1/imu linear_acceleration.x=y0",
+           "--source", "imu /accel/tip2/imu linear_acceleration.x=y1"]
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bagrec") / "experiment"
+    assert main(["simulate", "--out", str(path), "--duration", "12", "--start-time", str(START_S)]) == 0
+    return path
+
+
+def test_export_writes_the_bags_samples_and_refuses_to_overwrite(bag, tmp_path, capsys):
+    out = tmp_path / "run.npz"
+    assert main(["export", str(bag), "--npz", str(out)]) == 0
+    record = load_record(out)
+    with open_bag(bag) as reader:
+        io = [(np.array(m.u), np.array(m.y)) for _, _, m in reader.messages([IO_SAMPLE_TOPIC])]
+    assert record.sample_time_s == 0.008 and record.u.shape == (1500, 2)
+    np.testing.assert_array_equal(record.u, [u for u, _ in io])
+    np.testing.assert_array_equal(record.y, [y for _, y in io])
+    with np.load(out) as data:
+        assert data["stamp_s"][0] == pytest.approx(START_S)
+        assert np.allclose(np.diff(data["stamp_s"]), 0.008, rtol=0, atol=1e-6)
+    # the sensor topics give the same record
+    sensors = tmp_path / "sensors.npz"
+    assert main(["export", str(bag), "--npz", str(sensors), *SENSORS]) == 0
+    np.testing.assert_array_equal(load_record(sensors).y, record.y)
+    before = out.read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(bag), "--npz", str(out)]) == 2
+    assert "exists already" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["export", str(bag), "--npz", str(out), "--force"]) == 0
+
+
+def test_identify_and_track_read_a_bag_like_its_exported_record(bag, tmp_path):
+    npz = tmp_path / "run.npz"
+    assert main(["export", str(bag), "--npz", str(npz)]) == 0
+    common = ["--order", "20", "--states", "6"]
+    assert main(["identify", str(bag), *common, "--json", str(tmp_path / "bag.json"), *SENSORS]) == 0
+    assert main(["identify", str(npz), *common, "--json", str(tmp_path / "npz.json")]) == 0
+    from_bag, from_npz = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("bag", "npz"))
+    assert from_bag["modes"] == from_npz["modes"] and "bag: 1500 samples" in from_bag["source"]
+    track = ["--order", "20", "--window", "800", "--every", "300", "--states", "6", "--no-progress"]
+    assert main(["track", str(bag), *track, "--jsonl", str(tmp_path / "bag.jsonl")]) == 0
+    assert main(["track", str(npz), *track, "--jsonl", str(tmp_path / "npz.jsonl")]) == 0
+    lines = [[json.loads(x) for x in (tmp_path / f"{n}.jsonl").read_text().splitlines()] for n in ("bag", "npz")]
+    assert len(lines[0]) >= 2
+    assert [line["modes"] for line in lines[0]] == [line["modes"] for line in lines[1]]
+
+
+def test_a_bag_without_the_source_topic_is_a_one_line_error(bag, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["identify", str(bag), "--order", "20", "--json", str(tmp_path / "x.json"),
+                 "--source", "io_sample /nowhere"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/nowhere" in err

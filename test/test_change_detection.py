@@ -1,0 +1,159 @@
+"""okid_ros/core/change_detection.py: whitening, the CUSUM threshold, change and divergence tests.
+
+Systems of okid_ros/sim at 250 Hz; models identified by the core from a 3000-sample record.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from okid_ros.core.arx import fit_arx
+from okid_ros.core.change_detection import (
+    ChangeDetector,
+    DivergenceMonitor,
+    InnovationPredictor,
+    StructuralChangeMonitor,
+    cusum_average_run_length,
+    cusum_threshold,
+    predictor_spectral_radius,
+    whitening_matrix,
+)
+from okid_ros.core.pipeline import identify_from_arx
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.switching import added_mass_structure, simulate_switched
+
+DT = 1.0 / 250.0
+FIT = 3000  # samples the model is identified from
+
+
+def test_whitening_matrix_gives_unit_covariance_and_refuses_bad_covariances():
+    cov = np.array([[4.0, 1.0], [1.0, 2.0]])
+    W = whitening_matrix(cov)
+    np.testing.assert_allclose(W @ cov @ W.T, np.eye(2), atol=1e-12)
+    with pytest.raises(ValueError, match="positive definite"):
+        whitening_matrix(np.array([[1.0, 2.0], [2.0, 1.0]]))
+    with pytest.raises(ValueError, match="NaN"):
+        whitening_matrix(np.array([[np.nan]]))
+
+
+def test_cusum_threshold_gives_the_requested_false_alarm_rate():
+    # Run lengths of the CUSUM on white unit-covariance innovations against the Markov-chain ARL.
+    p, target = 2, 400.0
+    h = cusum_threshold(target, p, 1.5)
+    assert cusum_average_run_length(h, p, 1.5) == pytest.approx(target, rel=1e-3)
+    assert cusum_threshold(1e7, p, 1.5) > h  # rarer false alarms need a higher threshold
+    rng = np.random.default_rng(0)
+    runs = []
+    for _ in range(300):
+        det = ChangeDetector(p, false_alarm_samples=target, reference_samples=20)
+        det.mean, det.rewhiten = np.zeros(p), np.eye(p)  # calibrated to the truth
+        index = 0
+        while True:
+            alarm = det.process(rng.standard_normal((500, p)), index)
+            if alarm is not None:
+                runs.append(alarm.alarm_index + 1)
+                break
+            index += 500
+    # 300 run lengths, roughly exponential: standard error of the mean about 6 %.
+    assert np.mean(runs) == pytest.approx(target, rel=0.2)
+
+
+@pytest.fixture(scope="module")
+def identified():
+    """A 2-mode structure, its model and records without and with a change.
+
+    6 and 21 Hz, the model from the first 3000 samples, and records
+    without and with a change of the frequencies by `factor` at sample 3000 + 5000.
+    """
+    before, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
+    n = FIT + 110_000
+    u = lowpass_input(n, 2, 40.0, DT, seed=1)
+    y = simulate_switched([before], [], u, seed=2)
+    model = identify_from_arx(fit_arx(u[:FIT], y[:FIT], 40, "ridge", "gcv"), u[:FIT], y[:FIT], DT,
+                              n_states="auto", max_states=12)
+    return before, model, u, y
+
+
+def _armed(model, u, y, **options) -> StructuralChangeMonitor:
+    warm = InnovationPredictor(model)
+    warm.run(u[:FIT], y[:FIT])  # the predictor's state at the end of the model's own window
+    monitor = StructuralChangeMonitor(2, **options)
+    monitor.arm(model, warm.x, reference_rows=FIT)
+    return monitor
+
+
+def test_no_alarm_on_1e5_stationary_samples_of_an_identified_model(identified):
+    _, model, u, y = identified
+    monitor = _armed(model, u, y)
+    assert monitor.state == "calibrating"
+    alarm = monitor.process(u[FIT:], y[FIT:], FIT)
+    assert alarm is None, alarm
+    assert monitor.state == "monitoring" and 0.0 <= monitor.statistic < monitor.threshold
+
+
+@pytest.mark.parametrize("factor, max_delay", [(0.94, 100), (0.98, 500)])
+def test_a_step_change_of_the_frequencies_is_detected_at_once(identified, factor, max_delay):
+    before, model, u, _ = identified
+    _, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=factor, seed=1)
+    change = FIT + 5000
+    n = change + 3000
+    y = simulate_switched([before, after], change, u[:n], seed=2)
+    monitor = _armed(model, u, y)
+    alarm = monitor.process(u[FIT:n], y[FIT:n], FIT)
+    assert alarm is not None
+    assert change <= alarm.alarm_index <= change + max_delay, alarm
+    assert abs(alarm.change_index - change) <= max_delay, alarm  # change point estimate
+    assert alarm.statistic > alarm.threshold and alarm.variance_ratio > 1.2
+    assert monitor.state == "disarmed"  # waits for the model of the new structure
+
+
+def test_a_wrongly_calibrated_detector_does_alarm(identified):
+    # The same stationary data with a reference calibrated on 20 % smaller innovations: the
+    # test must be able to fail.
+    _, model, u, y = identified
+    monitor = _armed(model, u, y)
+    monitor.process(u[FIT:FIT + 1000], y[FIT:FIT + 1000], FIT)
+    assert monitor.state == "monitoring"
+    monitor.detector.rewhiten = monitor.detector.rewhiten / 0.8
+    assert monitor.process(u[FIT + 1000:FIT + 20_000], y[FIT + 1000:FIT + 20_000], FIT + 1000) is not None
+
+
+def test_divergence_monitor_flags_non_finite_and_huge_innovations():
+    mon = DivergenceMonitor(2, window_samples=10, nis_ratio=100.0)
+    rng = np.random.default_rng(1)
+    assert not any(mon.check(z) for z in rng.standard_normal((200, 2)))
+    assert mon.check(np.array([np.nan, 0.0])) and not mon.sustained
+    mon.restart()
+    flags = [mon.check(z) for z in 1e3 * rng.standard_normal((10, 2))]
+    assert all(flags) and mon.sustained
+    mon.restart()
+    assert not mon.sustained and not mon.check(np.ones(2))
+
+
+def test_predictor_spectral_radius(identified):
+    _, model, _, _ = identified
+    assert 0.0 < predictor_spectral_radius(model) < 1.0
+    unstable = dataclasses.replace(model, K=np.zeros_like(model.K), A=1.01 * model.A)
+    assert predictor_spectral_radius(unstable) > 1.0
+
+
+def test_the_per_sample_path_gives_the_alarm_of_the_block_path(identified):
+    before, model, u, _ = identified
+    _, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.98, seed=1)
+    change, n = FIT + 3000, FIT + 6000
+    y = simulate_switched([before, after], change, u[:n], seed=2)
+    block = _armed(model, u, y).process(u[FIT:n], y[FIT:n], FIT)
+    monitor = _armed(model, u, y)
+    single = None
+    for k in range(FIT, n):
+        single = monitor.step(u[k], y[k], k)
+        if single is not None:
+            break
+    assert block is not None and single is not None
+    assert (single.alarm_index, single.change_index) == (block.alarm_index, block.change_index)
+    assert single.statistic == pytest.approx(block.statistic, rel=1e-9)
+    assert single.variance_ratio == pytest.approx(block.variance_ratio, rel=1e-9)
+

@@ -1,0 +1,71 @@
+"""core.stabilization: poles across model orders, and the physical modes it admits."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from okid_ros.core.modal import Mode
+from okid_ros.core.options import ModeCriteria
+from okid_ros.core.pipeline import identify
+from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole, stable_fraction
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+SHAPE = np.array([1.0, 0.5j])
+
+
+def _mode(frequency_hz: float, damping_ratio: float = 0.002) -> Mode:
+    return Mode(2 * np.pi * frequency_hz, frequency_hz, damping_ratio, 0.9 + 0.1j, SHAPE, 1.0, 1.0, 1.0, True, True)
+
+
+def _diagram(frequencies_by_order: dict[int, list[float]], damping_ratio: float = 0.002) -> list[StabilizationOrder]:
+    return [StabilizationOrder(n, [StabilizationPole(f, damping_ratio, SHAPE) for f in freqs])
+            for n, freqs in sorted(frequencies_by_order.items())]
+
+
+def test_stable_fraction_counts_the_neighbouring_orders_that_hold_the_pole():
+    criteria = ModeCriteria(stability_frequency=0.01)
+    diagram = _diagram({2: [], 4: [10.05], 6: [9.97], 8: [10.0], 10: [10.2], 12: [10.01]})
+    # Chosen order 8: neighbours 2, 4, 6 below and 10, 12 above; 10.2 Hz is 2 % off.
+    assert stable_fraction(_mode(10.0), diagram, 8, criteria) == 3 / 5
+    assert stable_fraction(_mode(30.0), diagram, 8, criteria) == 0.0
+    # A more damped mode is judged within its damping ratio (its frequency scatters more) ...
+    damped = _diagram({2: [], 4: [10.05], 6: [9.97], 8: [10.0], 10: [10.2], 12: [10.01]}, damping_ratio=0.025)
+    assert stable_fraction(_mode(10.0, damping_ratio=0.03), damped, 8, criteria) == 4 / 5
+    # ... but a heavily damped pole is not the lightly damped mode next to it,
+    assert stable_fraction(_mode(10.0, damping_ratio=0.03), diagram, 8, criteria) == 0.0
+    # nor does a pole beyond max_damping in the neighbours count.
+    beyond = _diagram({4: [10.0], 6: [10.0], 8: [10.0], 10: [10.0]}, damping_ratio=0.12)
+    assert stable_fraction(_mode(10.0, damping_ratio=0.095), beyond, 8, criteria) == 0.0
+    assert math.isnan(stable_fraction(_mode(10.0), _diagram({8: [10.0]}), 8, criteria))
+
+
+def test_paper_model_stabilization_data_and_modes():
+    """The paper's experiment: the diagram and the listed modes.
+
+    Every order tried is in the diagram, each true mode is stable
+    in frequency from the order that resolves it on, and only stable modes are listed.
+    """
+    truth = paper_model()
+    u = lowpass_input(3750, 2, 15.0, truth.sample_time_s, seed=3)
+    y, _ = simulate_innovation(truth, u, seed=4)
+    model = identify(u, y, truth.sample_time_s, order=100)
+    orders = [entry.n_states for entry in model.stabilization]
+    assert orders == sorted(model.order_scores)
+    true_hz = [37.097 / (2 * np.pi), 46.1325 / (2 * np.pi)]
+    for f_true in true_hz:
+        flags = [any(abs(p.frequency_hz - f_true) < 0.01 * f_true and p.stable_frequency for p in entry.poles)
+                 for entry in model.stabilization if entry.n_states >= 8]
+        assert sum(flags) >= 0.8 * len(flags), (f_true, flags)
+    assert 3 <= len(model.modes) <= 4
+    for mode in model.modes:
+        assert mode.stability >= ModeCriteria().min_stable_fraction
+    document = json.loads(json.dumps(model.to_json_dict()))
+    first = document["stabilization"][-1]
+    assert set(first) == {"n_states", "poles"}
+    assert set(first["poles"][0]) == {"frequency_hz", "damping_ratio", "stable_frequency", "stable_damping",
+                                      "stable_shape"}

@@ -1,0 +1,189 @@
+"""Structural change over real DDS: both nodes as processes, a structure whose frequencies drop.
+
+The test process publishes IoSample of a 2-mode structure (6 and 21 Hz, 250 Hz sampling,
+okid_ros.sim.switching) whose frequencies drop by 6 % at sample 5000, with synthetic stamps at
+1000 samples/s. Node 2 must declare the change on /okid/structural_change (StructuralChange),
+node 1 must restart its window at the change point on that message (its diagnostics and its
+ArxModel window fill show it), and node 2 must publish the change again with the modes of the
+new structure once its first model is accepted.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+
+from okid_msgs.msg import ArxModel, IoSample, StructuralChange
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.switching import added_mass_structure, simulate_switched
+
+DT = 0.004
+T0 = 500.0
+CHANGE, N = 5000, 8500
+PARAMS = """
+/**:
+  ros__parameters:
+    sample_time_s: 0.004
+    diagnostics_rate_hz: 5.0
+okid_arx_identifier:
+  ros__parameters:
+    publish_rate_hz: 4.0
+    arx:
+      order: 40
+      window_length: 2000
+      restart_min_fill: 0.5
+okid_modal_estimator:
+  ros__parameters:
+    realization:
+      n_states: 4
+      refine: false
+"""
+SENSOR_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def stamp_s(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+class Probe:
+    """Publishes the samples; records StructuralChange, ArxModel fills and diagnostics."""
+
+    def __init__(self) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node("okid_change_probe", context=self.context)
+        self.lock = threading.Lock()
+        self.changes: list[StructuralChange] = []
+        self.arx: list[tuple[float, int, bool]] = []
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.io = self.node.create_publisher(IoSample, "/okid/io_sample", SENSOR_QOS)
+        self.node.create_subscription(StructuralChange, "/okid/structural_change", self._on_change, RELIABLE)
+        self.node.create_subscription(ArxModel, "/okid/arx_model", self._on_arx, RELIABLE)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def _on_change(self, msg) -> None:
+        with self.lock:
+            self.changes.append(msg)
+
+    def _on_arx(self, msg) -> None:
+        with self.lock:
+            self.arx.append((stamp_s(msg.header.stamp), int(msg.window_fill), bool(msg.valid)))
+
+    def _on_diagnostics(self, msg) -> None:
+        with self.lock:
+            for status in msg.status:
+                self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                if predicate():
+                    return
+            time.sleep(0.05)
+        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+    def close(self) -> None:
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=10)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture(scope="module")
+def run(ros_domain_id, tmp_path_factory):
+    params = tmp_path_factory.mktemp("change") / "params.yaml"
+    params.write_text(PARAMS)
+    env = subprocess_env(ros_domain_id)
+    args = ["--ros-args", "--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)]
+    procs = {name: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", *args], env, REPO_ROOT)
+             for name, module in (("arx", "arx_identifier_node"), ("est", "modal_estimator_node"))}
+    probe = Probe()
+    try:
+        for proc in procs.values():
+            proc.wait_for_output(r"ready:", timeout_s=30)
+        probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
+        before, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
+        u = lowpass_input(N, 2, 40.0, DT, seed=3)
+        y = simulate_switched([before, after], CHANGE, u, seed=4)
+        start = time.monotonic()
+        for k in range(N):
+            msg = IoSample()
+            ns = int(round((T0 + k * DT) * 1e9))
+            msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+            msg.u, msg.y = [float(v) for v in u[k]], [float(v) for v in y[k]]
+            probe.io.publish(msg)
+            wait = start + (k + 1) / 1000.0 - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+        probe.wait_until("the change with the modes of the new structure",
+                         lambda: any(m.identified for m in probe.changes), 30)
+        probe.wait_until("node 1's diagnostics after the restart",
+                         lambda: probe.diagnostics.get("okid_arx_identifier: identification", {})
+                         .get("window_restarts") == "1", 10)
+        with probe.lock:
+            yield list(probe.changes), list(probe.arx), dict(probe.diagnostics), procs
+    finally:
+        probe.close()
+        for proc in procs.values():
+            proc.stop()
+
+
+def test_node2_declares_the_change_over_dds(run):
+    changes, _, diagnostics, procs = run
+    declared = [m for m in changes if not m.identified]
+    assert len(declared) == 1, [(m.change_id, m.identified) for m in changes]
+    msg = declared[0]
+    assert msg.change_id == 1 and msg.statistic > msg.threshold > 0
+    change_s = T0 + CHANGE * DT
+    assert abs(stamp_s(msg.change_stamp) - change_s) <= 100 * DT
+    assert change_s <= stamp_s(msg.detection_stamp) <= change_s + 250 * DT
+    assert len(msg.modes_before) == 2 and not msg.modes_after
+    est = diagnostics["okid_modal_estimator: estimation"]
+    assert est["changes_detected"] == "1"
+    assert "structural change 1" in procs["est"].output()
+
+
+def test_node1_restarts_its_window_at_the_change_point(run):
+    changes, arx, diagnostics, procs = run
+    ident = diagnostics["okid_arx_identifier: identification"]
+    assert ident["window_restarts"] == "1" and ident["window_restarts_ignored"] == "1"  # 2nd report ignored
+    change_s = stamp_s(changes[0].change_stamp)
+    assert abs(float(ident["last_restart_stamp_s"]) - change_s) < 1e-6
+    # The window fill drops at the restart: after it, no ArxModel window reaches back before the change.
+    after = [(t, fill) for t, fill, _ in arx if t > stamp_s(changes[0].detection_stamp) + 0.5]
+    assert after and min(fill for _, fill in after) < 2000
+    for t, fill in after:
+        assert t - (fill + 40) * DT >= change_s - 2 * DT, (t, fill, change_s)
+    assert "window restarted" in procs["arx"].output()
+
+
+def test_node2_reports_the_modes_of_the_new_structure(run):
+    changes, _, _, _ = run
+    identified = [m for m in changes if m.identified]
+    assert len(identified) == 1 and identified[0].change_id == 1
+    msg = identified[0]
+    after = sorted(m.frequency_hz for m in msg.modes_after)
+    np.testing.assert_allclose(after, [0.94 * 6.0, 0.94 * 21.0], rtol=0.01)
+    assert sorted(msg.retired_ids) == sorted(m.id for m in msg.modes_before)  # 6 % > the 5 % id tolerance

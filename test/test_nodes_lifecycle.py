@@ -1,0 +1,182 @@
+"""Both nodes as managed nodes (`okid-ros up --lifecycle --no-autostart`).
+
+Driven through the
+standard lifecycle services over DDS: unconfigured -> configure -> inactive (no identification,
+no publishing) -> activate -> active -> deactivate -> cleanup -> shutdown.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+
+from okid_msgs.msg import ArxModel, IoSample
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+NS = "/lc"
+NODES = (f"{NS}/okid_arx_identifier", f"{NS}/okid_modal_estimator")
+SMALL = """
+/**:
+  ros__parameters:
+    diagnostics_rate_hz: 5.0
+/**/okid_arx_identifier:
+  ros__parameters:
+    publish_rate_hz: 5.0
+    arx: {order: 10, window_length: 400}
+"""
+DT = 0.008
+
+
+class Probe:
+    """A client node with the lifecycle service clients of both nodes."""
+
+    def __init__(self) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node("okid_lifecycle_probe", context=self.context)
+        self.lock = threading.Lock()
+        self.arx: list[ArxModel] = []
+        self.diagnostics: list[str] = []
+        self.io = self.node.create_publisher(IoSample, f"{NS}/io_sample",
+                                             QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(ArxModel, f"{NS}/arx_model", self._on_arx, reliable)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, reliable)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+        self.stamp = 100.0
+        u = lowpass_input(2000, 2, 50.0, DT, seed=2)
+        self.u, (self.y, _) = u, simulate_innovation(paper_model(), u, seed=3)
+        self.k = 0
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def _on_arx(self, msg: ArxModel) -> None:
+        with self.lock:
+            self.arx.append(msg)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        with self.lock:
+            self.diagnostics += [s.name for s in msg.status]
+
+    def publish(self, n: int, rate_hz: float = 500.0) -> None:
+        for _ in range(n):
+            msg = IoSample()
+            ns = int(round(self.stamp * 1e9))
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+            msg.u = [float(v) for v in self.u[self.k % 2000]]
+            msg.y = [float(v) for v in self.y[self.k % 2000]]
+            self.io.publish(msg)
+            self.stamp += DT
+            self.k += 1
+            time.sleep(1.0 / rate_hz)
+
+    def call(self, srv_type, name: str, request):
+        client = self.node.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=60), name
+        future = client.call_async(request)
+        deadline = time.monotonic() + 60  # a transition on a loaded machine may take seconds
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert future.done(), name
+        return future.result()
+
+    def state(self, node: str) -> int:
+        return self.call(GetState, f"{node}/get_state", GetState.Request()).current_state.id
+
+    def transition(self, node: str, transition_id: int) -> None:
+        answer = self.call(ChangeState, f"{node}/change_state",
+                           ChangeState.Request(transition=Transition(id=transition_id)))
+        assert answer.success, (node, transition_id)
+
+    def counts(self) -> tuple[int, int]:
+        with self.lock:
+            est = sum(1 for name in self.diagnostics if name.startswith("lc/okid_modal_estimator"))
+            return len(self.arx), est
+
+    def close(self) -> None:
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=10)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture
+def probe(ros_domain_id):
+    p = Probe()
+    yield p
+    p.close()
+
+
+def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
+    params = tmp_path / "small.yaml"
+    params.write_text(SMALL)
+    up = RosProcess([sys.executable, "-m", "okid_ros.cli", "up", "--lifecycle", "--no-autostart", "--namespace", NS,
+                     "--params", str(REPO_ROOT / "config" / "okid.yaml"), "--params", str(params)],
+                    subprocess_env(ros_domain_id))
+    try:
+        for node in NODES:
+            assert probe.state(node) == State.PRIMARY_STATE_UNCONFIGURED
+        assert probe.node.count_publishers(f"{NS}/arx_model") == 0  # nothing built yet
+        for node in NODES:
+            probe.transition(node, Transition.TRANSITION_CONFIGURE)
+            assert probe.state(node) == State.PRIMARY_STATE_INACTIVE
+        deadline = time.monotonic() + 10
+        while probe.io.get_subscription_count() < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert probe.io.get_subscription_count() == 2 and probe.node.count_publishers(f"{NS}/arx_model") == 1
+        # Inactive: samples arrive, nothing is identified or published (diagnostics neither).
+        probe.publish(500)
+        time.sleep(1.0)
+        assert probe.counts() == (0, 0)
+        for node in NODES:
+            probe.transition(node, Transition.TRANSITION_ACTIVATE)
+            assert probe.state(node) == State.PRIMARY_STATE_ACTIVE
+        probe.publish(600)
+        time.sleep(1.0)
+        with probe.lock:
+            used = [m.samples_used for m in probe.arx]
+        assert used and max(used) >= 400, used  # identified from the samples after activate only
+        assert max(used) <= 600, used
+        assert probe.counts()[1] > 0
+        for node in NODES:
+            probe.transition(node, Transition.TRANSITION_DEACTIVATE)
+            assert probe.state(node) == State.PRIMARY_STATE_INACTIVE
+        time.sleep(0.5)
+        before = probe.counts()
+        probe.publish(300)
+        time.sleep(1.0)
+        assert probe.counts() == before  # inactive again: silence
+        for node in NODES:
+            probe.transition(node, Transition.TRANSITION_CLEANUP)
+            assert probe.state(node) == State.PRIMARY_STATE_UNCONFIGURED
+        time.sleep(0.5)
+        assert probe.node.count_publishers(f"{NS}/arx_model") == 0
+        assert probe.io.get_subscription_count() == 0
+        # Configure again after a cleanup, then shut down.
+        probe.transition(NODES[0], Transition.TRANSITION_CONFIGURE)
+        assert probe.state(NODES[0]) == State.PRIMARY_STATE_INACTIVE
+        for node, transition in ((NODES[0], Transition.TRANSITION_INACTIVE_SHUTDOWN),
+                                 (NODES[1], Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)):
+            probe.transition(node, transition)
+            assert probe.state(node) == State.PRIMARY_STATE_FINALIZED
+        assert "Traceback" not in up.output(), up.output()
+    finally:
+        up.stop()

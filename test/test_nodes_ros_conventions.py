@@ -1,0 +1,269 @@
+"""ROS conventions over real DDS.
+
+Two namespaced rigs in one domain, run-time parameters through
+the standard parameter services, unknown names in parameter files.
+
+The rigs get a small ARX problem (order 10, window 400 rows, ArxModel at 4 Hz, 6 states) so that
+four nodes stay light on a shared machine; what is checked is where the messages go, not the
+identification (test_nodes_integration.py checks that).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from std_srvs.srv import Trigger
+
+from okid_msgs.msg import ArxModel, IoSample, ModalStates
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+DT = 0.008
+RIGS = {"/rig1": 1000.0, "/rig2": 5000.0}  # namespace -> first stamp of its samples [s]
+SMALL = """
+/**:
+  ros__parameters:
+    diagnostics_rate_hz: 5.0
+/**/okid_arx_identifier:
+  ros__parameters:
+    publish_rate_hz: 4.0
+    arx: {order: 10, window_length: 400}
+/**/okid_modal_estimator:
+  ros__parameters:
+    realization: {n_states: 6, refine: false, worker: thread}
+"""
+SENSOR_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def stamp_s(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class RigProbe:
+    """Publishes IoSample to each rig and keeps what each rig's nodes publish."""
+
+    def __init__(self) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node("okid_rigs_probe", context=self.context)
+        self.lock = threading.Lock()
+        self.arx: dict[str, list[ArxModel]] = {ns: [] for ns in RIGS}
+        self.states: dict[str, list[ModalStates]] = {ns: [] for ns in RIGS}
+        self.default_ns_messages = 0
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.io = {ns: self.node.create_publisher(IoSample, f"{ns}/io_sample", SENSOR_QOS) for ns in RIGS}
+        for ns in RIGS:
+            self.node.create_subscription(ArxModel, f"{ns}/arx_model", self._keep(self.arx[ns]), RELIABLE)
+            self.node.create_subscription(ModalStates, f"{ns}/modal_states", self._keep(self.states[ns]), RELIABLE)
+        self.node.create_subscription(ArxModel, "/okid/arx_model", self._count_default, RELIABLE)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def _keep(self, store: list):
+        def callback(msg) -> None:
+            with self.lock:
+                store.append(msg)
+        return callback
+
+    def _count_default(self, msg) -> None:
+        with self.lock:
+            self.default_ns_messages += 1
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        with self.lock:
+            for status in msg.status:
+                self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                if predicate():
+                    return
+            time.sleep(0.05)
+        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+    def call(self, srv_type, name: str, request, timeout_s: float = 15.0):
+        client = self.node.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=timeout_s), f"no service {name}"
+        future = client.call_async(request)
+        self.wait_until(f"the answer of {name}", future.done, timeout_s)
+        return future.result()
+
+    def close(self) -> None:
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=10)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+def value(kind: str, v) -> ParameterValue:
+    if kind == "double":
+        return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(v))
+    if kind == "integer":
+        return ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=int(v))
+    if kind == "string":
+        return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(v))
+    return ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=bool(v))
+
+
+@pytest.fixture(scope="module")
+def small_params(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rigs") / "small.yaml"
+    path.write_text(SMALL)
+    return path
+
+
+@pytest.fixture(scope="module")
+def rigs(ros_domain_id, small_params):
+    """rig1 through `okid-ros up --namespace /rig1`, rig2 as two nodes with -r __ns:=/rig2."""
+    env = subprocess_env(ros_domain_id)
+    config = str(REPO_ROOT / "config" / "okid.yaml")
+    procs = [RosProcess([sys.executable, "-m", "okid_ros.cli", "up", "--namespace", "/rig1",
+                         "--params", config, "--params", str(small_params)], env)]
+    for module in ("arx_identifier_node", "modal_estimator_node"):
+        procs.append(RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", "--ros-args",
+                                 "--params-file", config, "--params-file", str(small_params),
+                                 "-r", "__ns:=/rig2"], env))
+    try:
+        procs[0].wait_for_output(
+            r"\[rig1\.okid_arx_identifier\]: ready: .*inputs /rig1/io_sample .*publishing /rig1/arx_model", 60)
+        procs[0].wait_for_output(r"\[rig1\.okid_modal_estimator\]: ready: .*publishing /rig1/modal_states", 60)
+        procs[1].wait_for_output(r"ready: .*inputs /rig2/io_sample .*publishing /rig2/arx_model", 60)
+        procs[2].wait_for_output(r"ready: .*publishing /rig2/modal_states and /rig2/state_space_model", 60)
+        yield procs
+    finally:
+        for proc in procs:
+            proc.stop()
+
+
+@pytest.fixture(scope="module")
+def probe(ros_domain_id):
+    p = RigProbe()
+    yield p
+    p.close()
+
+
+def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
+    probe.wait_until("both rigs to subscribe their io_sample",
+                     lambda: all(pub.get_subscription_count() >= 2 for pub in probe.io.values()), 30)
+    n = {"/rig1": 1500, "/rig2": 1100}  # different counts: each rig must count only its own
+    u, y = lowpass_input(1500, 2, 50.0, DT, seed=4), None
+    y, _ = simulate_innovation(paper_model(), u, seed=5)
+    start = time.monotonic()
+    for k in range(max(n.values())):
+        for ns, t0 in RIGS.items():
+            if k < n[ns]:
+                msg = IoSample()
+                ns_stamp = int(round((t0 + k * DT) * 1e9))
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns_stamp, 1_000_000_000)
+                msg.u = [float(v) for v in u[k]]
+                msg.y = [float(v) for v in y[k]]
+                probe.io[ns].publish(msg)
+        wait = start + (k + 1) / 400.0 - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+    def window_seen(ns: str) -> bool:
+        return any(m.samples_used >= 0.9 * n[ns] for m in probe.arx[ns])
+
+    for ns in RIGS:
+        probe.wait_until(f"{ns}'s ArxModel over its samples", lambda ns=ns: window_seen(ns), 30)
+        probe.wait_until(f"{ns}'s modal states", lambda ns=ns: len(probe.states[ns]) > 0, 60)
+    time.sleep(1.0)
+    with probe.lock:
+        for ns, t0 in RIGS.items():
+            end = t0 + (n[ns] - 1) * DT + 1e-6
+            stamped = [stamp_s(m) for m in probe.arx[ns] if m.samples_used > 0]
+            assert stamped and all(t0 <= s <= end for s in stamped), (ns, min(stamped), max(stamped))
+            assert max(m.samples_used for m in probe.arx[ns]) <= n[ns]
+            assert all(t0 <= stamp_s(m) <= end for m in probe.states[ns])
+            for node in ("okid_arx_identifier", "okid_modal_estimator"):
+                # Diagnostics carry the namespace in their names, and each rig counts its own input.
+                inputs = probe.diagnostics[f"{ns[1:]}/{node}: inputs"]
+                assert 0.8 * n[ns] <= int(inputs[f"{ns}/io_sample messages"]) <= n[ns], (ns, node, inputs)
+        assert probe.default_ns_messages == 0, "a rig published on /okid/arx_model"
+    # Services moved with the namespace: resetting rig1's node 1 leaves rig2's alone.
+    answer = probe.call(Trigger, "/rig1/okid_arx_identifier/reset", Trigger.Request())
+    assert answer.success
+    with probe.lock:
+        n1, n2 = len(probe.arx["/rig1"]), len(probe.arx["/rig2"])
+    probe.wait_until("ArxModels after the reset",
+                     lambda: len(probe.arx["/rig1"]) > n1 + 1 and len(probe.arx["/rig2"]) > n2 + 1, 10)
+    with probe.lock:
+        assert probe.arx["/rig1"][-1].samples_used == 0  # forgotten
+        assert probe.arx["/rig2"][-1].samples_used >= 0.9 * n["/rig2"]  # untouched
+
+
+def set_params(probe: RigProbe, node: str, **values) -> list:
+    params = [Parameter(name=name.replace("__", "."), value=value(*v)) for name, v in values.items()]
+    return probe.call(SetParameters, f"{node}/set_parameters", SetParameters.Request(parameters=params)).results
+
+
+def get_param(probe: RigProbe, node: str, name: str) -> ParameterValue:
+    return probe.call(GetParameters, f"{node}/get_parameters", GetParameters.Request(names=[name])).values[0]
+
+
+def test_tunables_change_at_run_time_with_the_start_checks_and_structure_stays(probe, rigs):
+    est, arx = "/rig2/okid_modal_estimator", "/rig2/okid_arx_identifier"
+    [ok] = set_params(probe, est, tracking__min_mac=("double", 0.8))
+    assert ok.successful, ok.reason
+    assert get_param(probe, est, "tracking.min_mac").double_value == 0.8
+    [bad] = set_params(probe, est, tracking__min_mac=("double", 1.5))
+    assert not bad.successful and "tracking.min_mac" in bad.reason
+    assert get_param(probe, est, "tracking.min_mac").double_value == 0.8
+    [bad] = set_params(probe, est, realization__gain=("string", "kalman"))
+    assert not bad.successful and "refit, riccati, whitening" in bad.reason
+    [bad] = set_params(probe, arx, arx__order=("integer", 50))
+    assert not bad.successful and "read-only" in bad.reason
+    assert get_param(probe, arx, "arx.order").integer_value == 10
+    [desc] = probe.call(DescribeParameters, f"{arx}/describe_parameters",
+                        DescribeParameters.Request(names=["arx.order"])).descriptors
+    assert desc.read_only and "structural" in desc.description
+    # The publish rate changes the ArxModel rate: 4 Hz -> 20 Hz.
+    results = set_params(probe, arx, publish_rate_hz=("double", 20.0), frame_id=("string", "rig2_truss"))
+    assert all(r.successful for r in results), [r.reason for r in results]
+    time.sleep(0.5)
+    with probe.lock:
+        count = len(probe.arx["/rig2"])
+    time.sleep(2.0)
+    with probe.lock:
+        recent = probe.arx["/rig2"][count:]
+    assert len(recent) >= 20, len(recent)  # 40 expected at 20 Hz; 8 at the old 4 Hz
+    assert all(m.header.frame_id == "rig2_truss" for m in recent)
+    [ok] = set_params(probe, arx, publish_rate_hz=("double", 4.0))
+    assert ok.successful
+
+
+def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros, tmp_path):
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {ordr: 50}\n")
+    config = str(REPO_ROOT / "config" / "okid.yaml")
+    node = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "--params-file", config,
+                     "--params-file", str(typo), "-r", "__ns:=/rig9")
+    node.wait_for_output(r"WARN.*typo\.yaml: section '/\*\*/okid_arx_identifier': unknown parameter\(s\) arx\.ordr", 30)
+    node.wait_for_output(r"ready:", 30)
+    strict = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "--params-file", config,
+                       "--params-file", str(typo), "-p", "strict_parameters:=true")
+    assert strict.proc.wait(timeout=30) == 2
+    strict.wait_for_output(r"unknown parameter\(s\) arx\.ordr .*strict_parameters", 5)

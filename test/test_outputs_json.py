@@ -1,0 +1,95 @@
+"""Strict JSON in every output (null, never NaN/Infinity) and no silent overwrite by identify/track."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from okid_ros.cli import main
+from okid_ros.jsonio import dumps, to_strict
+from okid_ros.records import save_record
+from okid_ros.sim.inputs import white_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+DT = 0.008
+
+
+def strict_loads(text: str):
+    """``json.loads`` that fails on NaN, Infinity and -Infinity, like JavaScript's JSON.parse."""
+    def refuse(token: str):
+        raise ValueError(f"non-standard JSON token {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_strict_loads_refuses_what_plain_json_writes():
+    with pytest.raises(ValueError, match="NaN"):
+        strict_loads(json.dumps({"emac": float("nan")}))
+
+
+def test_to_strict_turns_non_finite_numbers_into_null():
+    value = {"a": float("nan"), "b": [np.inf, -np.inf, np.float64(1.5)], 3: np.array([np.nan, 2.0]),
+             "c": (np.int64(4), np.bool_(True))}
+    assert to_strict(value) == {"a": None, "b": [None, None, 1.5], "3": [None, 2.0], "c": [4, True]}
+    assert strict_loads(dumps(value)) == {"a": None, "b": [None, None, 1.5], "3": [None, 2.0], "c": [4, True]}
+
+
+@pytest.fixture(scope="module")
+def record(tmp_path_factory):
+    u = white_input(2600, 2, seed=3)
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    path = tmp_path_factory.mktemp("json") / "paper.npz"
+    save_record(path, u, y, DT)
+    return path
+
+
+@pytest.fixture
+def nan_emac(monkeypatch):
+    """Every identified model gets a mode whose EMAC could not be computed (NaN)."""
+    import okid_ros.core.pipeline as pipeline
+
+    for name in ("identify", "identify_from_arx"):
+        original = getattr(pipeline, name)
+
+        def wrapped(*args, _original=original, **kwargs):
+            model = _original(*args, **kwargs)
+            model.modes[0].emac = math.nan
+            return model
+
+        monkeypatch.setattr(pipeline, name, wrapped)
+
+
+def test_identify_json_is_strict_and_not_overwritten_without_force(record, tmp_path, capsys, nan_emac):
+    out = tmp_path / "model.json"
+    argv = ["identify", str(record), "--order", "20", "--states", "6", "--json", str(out)]
+    assert main(argv) == 0
+    document = strict_loads(out.read_text())
+    assert document["modes"][0]["emac"] is None
+    out.write_text("keep me")
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "exists already" in err and "--force" in err and err.count("\n") == 1
+    assert out.read_text() == "keep me"
+    assert main([*argv, "--force"]) == 0
+    assert strict_loads(out.read_text())["n_states"] == 6
+
+
+def test_track_jsonl_is_strict_and_not_overwritten_without_force(record, tmp_path, capsys, nan_emac):
+    out = tmp_path / "track.jsonl"
+    argv = ["track", str(record), "--order", "20", "--window", "1500", "--every", "600", "--states", "6",
+            "--jsonl", str(out), "--no-progress"]
+    assert main(argv) == 0
+    lines = [strict_loads(line) for line in out.read_text().splitlines()]
+    assert lines and all(line["modes"][0]["emac"] is None for line in lines)
+    out.write_text("keep me")
+    capsys.readouterr()
+    assert main(argv) == 2
+    assert "exists already" in capsys.readouterr().err
+    assert out.read_text() == "keep me"
+    assert main([*argv, "--force"]) == 0
+    assert len(out.read_text().splitlines()) == len(lines)

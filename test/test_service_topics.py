@@ -1,0 +1,97 @@
+"""Topic names in the rig namespace, and parameter files read as rcl reads them (no ROS)."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from okid_ros.errors import ParameterError
+from okid_ros.service.param_files import file_report, params_files_from_args, section_matches
+from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
+from okid_ros.service.topics import output_topics, resolve_topic, rig_namespace, validate_namespace
+from okid_ros.tools.process import load_node_parameters
+
+
+def test_relative_names_resolve_in_the_rig_namespace_and_absolute_ones_stay():
+    assert resolve_topic("io_sample") == "/okid/io_sample"
+    assert resolve_topic("io_sample", "/") == "/okid/io_sample"
+    assert resolve_topic("io_sample", "/rig1") == "/rig1/io_sample"
+    assert resolve_topic("sensors/imu", "/plant/rig2/") == "/plant/rig2/sensors/imu"
+    assert resolve_topic("/my/imu", "/rig1") == "/my/imu"
+    assert rig_namespace("rig3") == "/rig3"
+    assert set(output_topics("/rig1")) == {"/rig1/arx_model", "/rig1/state_space_model", "/rig1/modal_states",
+                                          "/rig1/structural_change"}
+    for bad in ("/rig 1", "/1rig", "//rig", "/rig-1"):
+        with pytest.raises(ValueError, match="namespace"):
+            validate_namespace(bad)
+
+
+@pytest.mark.parametrize("key, fqn, matches", [
+    ("/**", "/rig1/okid_arx_identifier", True),
+    ("/**/okid_arx_identifier", "/okid_arx_identifier", True),
+    ("/**/okid_arx_identifier", "/a/b/okid_arx_identifier", True),
+    ("okid_arx_identifier", "/okid_arx_identifier", True),
+    ("okid_arx_identifier", "/rig1/okid_arx_identifier", False),
+    ("/rig1/okid_arx_identifier", "/rig1/okid_arx_identifier", True),
+    ("/rig1/okid_arx_identifier", "/rig2/okid_arx_identifier", False),
+    ("/*/okid_arx_identifier", "/rig2/okid_arx_identifier", True),
+    ("/*/okid_arx_identifier", "/okid_arx_identifier", False),
+    ("/**/okid_modal_estimator", "/okid_arx_identifier", False),
+])
+def test_sections_match_nodes_as_rcl_does(key, fqn, matches):
+    assert section_matches(key, fqn) is matches
+
+
+def test_unknown_names_and_sections_that_do_not_apply_are_reported(tmp_path):
+    tree = yaml.safe_load("""
+/**:
+  ros__parameters:
+    sample_time_s: 0.01
+    use_sim_time: true
+    qos_overrides:
+      /okid/io_sample:
+        subscription: {depth: 10}
+    publish_rate_hz: 2.0          # node 1 only, fine in the shared section
+    sampel_time_s: 0.01           # typo
+okid_arx_identifier:
+  ros__parameters:
+    arx: {ordr: 50}
+/**/okid_modal_estimator:
+  ros__parameters:
+    tracking: {min_mac: 0.8}
+""")
+    names = {n: [s.name for s in node_params(n)] for n in (ARX_NODE, ESTIMATOR_NODE)}
+    root = file_report(tree, "f.yaml", names)
+    assert len(root) == 2
+    assert "sampel_time_s" in root[0] and "publish_rate_hz" not in root[0] and "use_sim_time" not in root[0]
+    assert "arx.ordr" in root[1]
+    in_ns = file_report(tree, "f.yaml", names, "/rig1")
+    assert any("'okid_arx_identifier' does not apply to /rig1/okid_arx_identifier" in p for p in in_ns)
+    only_est = file_report(tree, "f.yaml", names, for_node=ESTIMATOR_NODE)
+    assert len(only_est) == 1 and "sampel_time_s" in only_est[0]
+
+    path = tmp_path / "typo.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    reported: list[str] = []
+    arx, est = load_node_parameters([path], report=reported.append)
+    assert arx["sample_time_s"] == 0.01 and est["tracking.min_mac"] == 0.8 and len(reported) == 2
+    with pytest.raises(ParameterError, match="arx.ordr"):
+        load_node_parameters([path], strict=True)
+    arx_ns, _ = load_node_parameters([path], namespace="/rig1", report=reported.append)
+    assert arx_ns["publish_rate_hz"] == 2.0
+
+
+def test_params_files_are_found_among_ros_arguments():
+    argv = ["node", "--ros-args", "--params-file", "a.yaml", "-r", "__ns:=/x", "--params-file", "b.yaml",
+            "--", "--params-file", "not_ros.yaml"]
+    assert params_files_from_args(argv) == ["a.yaml", "b.yaml"]
+    assert params_files_from_args(["node", "--params-file", "x.yaml"]) == []
+
+
+def test_namespaced_parameter_file_sections(tmp_path):
+    path = tmp_path / "rigs.yaml"
+    path.write_text("/rig1/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 20}\n"
+                    "/rig2/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 30}\n")
+    assert load_parameters(path, ARX_NODE, namespace="/rig1")["arx.order"] == 20
+    assert load_parameters(path, ARX_NODE, namespace="/rig2")["arx.order"] == 30
+    assert load_parameters(path, ARX_NODE)["arx.order"] == 100
