@@ -20,6 +20,10 @@ What it does:
    thread named okid_arx_solve; the rest is the executor thread and DDS).
 
 Prints a markdown table; docs/benchmarks-nodes.md has the numbers of this machine.
+
+``--compare`` runs the bare rclpy echo node (``--control``) and then the two nodes, one after
+the other with the same options, prints both tables and last the line
+``p99_ms=<nodes> control_p99_ms=<echo> ratio=<nodes/echo> drops=<nodes' dropped samples>``.
 """
 
 from __future__ import annotations
@@ -47,11 +51,15 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--window", type=int, default=4000, help="ARX window rows (default 4000)")
     parser.add_argument("--publish-rate", type=float, default=1.0, help="ArxModel rate [Hz] (default 1)")
     parser.add_argument("--states", type=int, default=0, help="realization order, 0 = auto (default)")
-    parser.add_argument("--worker", default="process", choices=("process", "thread"), help="realization.worker (default process)")
+    parser.add_argument("--worker", default="process", choices=("process", "thread"),
+                        help="realization.worker (default process)")
     parser.add_argument("--domain", type=int, default=57, help="ROS_DOMAIN_ID (default 57)")
     parser.add_argument("--control", action="store_true",
                         help="instead of the two nodes, a bare rclpy echo node (IoSample in, ModalStates out): "
                         "the floor of rclpy + Fast DDS + scheduling on this machine")
+    parser.add_argument("--compare", action="store_true",
+                        help="run --control, then the nodes, and print last a line "
+                        "p99_ms=<nodes> control_p99_ms=<echo> ratio=<nodes/echo>")
     parser.add_argument("--role", default="bench", choices=("bench", "receiver", "echo"), help=argparse.SUPPRESS)
     parser.add_argument("--out", default="", help=argparse.SUPPRESS)
     return parser.parse_args()
@@ -62,10 +70,11 @@ def receiver(out: str) -> None:
     """Subscribe /okid/modal_states; on SIGINT write (stamp ns, arrival ns, model id) as JSON."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from okid_msgs.msg import ModalStates
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from okid_msgs.msg import ModalStates
 
     rclpy.init()
     node = Node("okid_bench_receiver")
@@ -105,18 +114,23 @@ def receiver(out: str) -> None:
 
 # ------------------------------------------------------------------------------ control node
 def echo() -> None:
-    """The floor: a bare rclpy node that republishes each IoSample as an empty ModalStates with
-    the same stamp (same QoS as the estimator node), no identification at all."""
+    """The floor: a bare rclpy node that echoes each IoSample, no identification at all.
+
+    It republishes each IoSample as an empty ModalStates with the same stamp (same QoS as the
+    estimator node).
+    """
     import rclpy
-    from okid_msgs.msg import IoSample, ModalStates
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+    from okid_msgs.msg import IoSample, ModalStates
+
     rclpy.init()
     node = Node("okid_bench_echo")
     out = ModalStates()
-    publisher = node.create_publisher(ModalStates, "/okid/modal_states", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    publisher = node.create_publisher(ModalStates, "/okid/modal_states", qos)
 
     def on_sample(msg: IoSample) -> None:
         out.header = msg.header
@@ -146,8 +160,11 @@ def _children(pid: int) -> list[int]:
 
 
 def cpu_seconds(pid: int, children: bool = True) -> dict[str, float]:
-    """CPU seconds (user + system) of a process and its child processes: 'total' and per thread
-    name (a child process's threads count under their names too)."""
+    """CPU seconds (user + system) of a process and its child processes.
+
+    Returns 'total' and the seconds per thread name (a child process's threads count under
+    their names too).
+    """
     out: dict[str, float] = {"total": 0.0}
     for proc in [pid, *(_children(pid) if children else [])]:
         try:
@@ -166,16 +183,41 @@ def cpu_seconds(pid: int, children: bool = True) -> dict[str, float]:
     return out
 
 
-def cpu_share(before: dict[str, float], after: dict[str, float], wall: float, worker: str) -> tuple[float, float, float]:
+def cpu_share(
+    before: dict[str, float], after: dict[str, float], wall: float, worker: str
+) -> tuple[float, float, float]:
     """(whole process, the named worker thread, everything else) in cores."""
     total = (after["total"] - before["total"]) / wall
     work = (after.get(worker, 0.0) - before.get(worker, 0.0)) / wall
     return total, work, total - work
 
 
+# ------------------------------------------------------------------------------ compare
+def compare(args: argparse.Namespace) -> int:
+    """The echo floor, then the nodes, each in a process of its own; the summary line last."""
+    passed = [a for a in sys.argv[1:] if a != "--compare"]
+    results = {}
+    for label, extra in (("control", ["--control"]), ("nodes", [])):
+        run = subprocess.run([sys.executable, __file__, *passed, *extra], capture_output=True, text=True)
+        sys.stdout.write(run.stdout)
+        sys.stderr.write(run.stderr)
+        p99 = re.search(r"\| latency p99 \[ms\] \| ([0-9.]+) \|", run.stdout)
+        drops = re.search(r"\| dropped samples \| (\d+) ", run.stdout)
+        if run.returncode != 0 or p99 is None:
+            print(f"the {label} run failed (status {run.returncode})", file=sys.stderr)
+            return 1
+        results[label] = (float(p99.group(1)), int(drops.group(1)) if drops else -1)
+    nodes, control = results["nodes"][0], results["control"][0]
+    print(f"p99_ms={nodes:.3f} control_p99_ms={control:.3f} ratio={nodes / control:.2f} "
+          f"drops={results['nodes'][1]}")
+    return 0
+
+
 # ------------------------------------------------------------------------------ bench
 def main() -> int:
     args = parse_args()
+    if args.compare and args.role == "bench":
+        return compare(args)
     if args.role == "receiver":
         receiver(args.out)
         return 0
@@ -191,9 +233,10 @@ def main() -> int:
 
     import numpy as np
     import rclpy
-    from okid_msgs.msg import IoSample
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from okid_msgs.msg import IoSample
 
     sys.path.insert(0, str(REPO))
     from okid_ros.sim import lowpass_input, modal_structure, simulate
@@ -247,7 +290,8 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
 
     rclpy.init()
     node = Node("okid_bench_publisher")
-    publisher = node.create_publisher(IoSample, "/okid/io_sample", QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    publisher = node.create_publisher(IoSample, "/okid/io_sample", qos)
     deadline = time.monotonic() + 30.0
     while publisher.get_subscription_count() < (1 if args.control else 2):  # the nodes
         if time.monotonic() > deadline:
@@ -268,7 +312,8 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
     published = np.zeros(n, dtype=np.int64)
     cpu_before = cpu_after = None
     measure_from = None
-    print(f"publishing {n} samples at {args.rate:g} Hz ({n * dt:.0f} s; measuring the last {args.duration:g} s)", flush=True)
+    print(f"publishing {n} samples at {args.rate:g} Hz ({n * dt:.0f} s; "
+          f"measuring the last {args.duration:g} s)", flush=True)
     start = time.monotonic_ns()
     clock = time.monotonic_ns
     for k in range(n):
@@ -280,12 +325,14 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
         if measure_from is None and k * dt >= warmup_s:
             measure_from = k
             cpu_before = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
-            harness_before = sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid))
+            harness_pids = (os.getpid(), procs["receiver"].pid)
+            harness_before = sum(cpu_seconds(pid, children=False)["total"] for pid in harness_pids)
             load_before = os.getloadavg()[0]
             wall_before = time.monotonic()
     wall = time.monotonic() - wall_before
     cpu_after = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
-    harness = (sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid)) - harness_before) / wall
+    harness_after = sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid))
+    harness = (harness_after - harness_before) / wall
     load_after = os.getloadavg()[0]
     time.sleep(2.0)
     node.destroy_node()
@@ -329,8 +376,10 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
     print(f"| ModalStates received | {received} |")
     print(f"| dropped samples | {expected - received} ({100 * (expected - received) / max(expected, 1):.3f} %) |")
     print(f"| CPU okid_arx_identifier [cores] | {arx_total:.3f} (solve thread {arx_solve:.3f}, rest {arx_rest:.3f}) |")
-    print(f"| CPU okid_modal_estimator [cores] | {est_total:.3f} (realization worker {est_real:.3f}, rest {est_rest:.3f}) |")
-    print(f"| models in use during the run | {len(models)} (ids {models[0] if models else '-'}..{models[-1] if models else '-'}) |")
+    print(f"| CPU okid_modal_estimator [cores] | {est_total:.3f} "
+          f"(realization worker {est_real:.3f}, rest {est_rest:.3f}) |")
+    first_id, last_id = (models[0], models[-1]) if models else ("-", "-")
+    print(f"| models in use during the run | {len(models)} (ids {first_id}..{last_id}) |")
     for name, series in sorted(rx.get("callbacks", {}).items()):
         recent = series[-max(int(wall), 1):]  # about one diagnostics message per second measured
         if recent:
@@ -340,7 +389,8 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
     print(f"| load average (1 min) at start / end of the measurement | {load_before:.2f} / {load_after:.2f} "
           f"({os.cpu_count()} cores) |")
     if realize:
-        print(f"| realization time [s] | median {np.median(realize):.2f}, max {max(realize):.2f} ({len(realize)} models) |")
+        print(f"| realization time [s] | median {np.median(realize):.2f}, max {max(realize):.2f} "
+              f"({len(realize)} models) |")
     print(f"\nlogs and per-sample latencies (latency.npz) in {tmp}")
     if not lat_ms.size:
         print("no ModalStates received", file=sys.stderr)

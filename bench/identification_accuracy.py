@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Identification accuracy against known truth: our pipeline and peers on the same data.
 
-For each named test system (``okid_ros.sim.systems.benchmark_cases``), each data length and
+For each named test system (``okid_ros.sim.cases.benchmark_cases``), each data length and
 each noise seed, one identification record and one held-out validation record are simulated,
 every method identifies a model from the record **given the true state dimension** (and the
 case's ARX order where the method has one), and the models are scored against the truth:
@@ -24,9 +24,13 @@ Usage::
     python bench/identification_accuracy.py --cases paper-lp15,paper-lp50 --lengths 3750 --seeds 3
     python bench/identification_accuracy.py --out docs/benchmarks-accuracy.md --json raw.json
 
-Methods: ``okid`` (``okid_ros.core.pipeline.identify``, default options), ``paper``
-(``identify(method="paper")``), ``okid-auto`` (``n_states="auto"``, not run by default) and the
-peers of ``okid_ros.sim.peers``.  If ``okid_ros.core.pipeline`` cannot be imported, the bench
+Methods: ``okid-default`` (``okid_ros.core.pipeline.identify`` with the product's defaults: ARX
+order by GCV, model order by BIC; it is not given the true order), ``okid`` (the case's ARX
+order and the true model order), ``okid-auto`` (the case's ARX order, model order by BIC),
+``okid-ls`` (as okid-auto without the refinement), ``okid-riccati`` (as okid-auto with the
+Riccati gain), ``paper`` (``identify(method="paper")``; a model it returns unstable is refused
+and counted as failed) and the peers of ``okid_ros.sim.peers``.  If ``okid_ros.core.pipeline``
+cannot be imported, the bench
 runs the peers alone.  BLAS threads default to 1 (``--threads``) so timings are comparable and
 the machine stays usable.
 """
@@ -63,6 +67,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from okid_ros.sim.cases import BenchmarkCase, benchmark_cases  # noqa: E402
 from okid_ros.sim.peers import PEERS, available_peers, peer_identify  # noqa: E402
 from okid_ros.sim.scoring import (  # noqa: E402
     match_modes,
@@ -71,7 +76,7 @@ from okid_ros.sim.scoring import (  # noqa: E402
     prediction_error_ratio,
     stochastic_markov_error,
 )
-from okid_ros.sim.systems import BenchmarkCase, benchmark_cases, simulate  # noqa: E402
+from okid_ros.sim.simulators import simulate  # noqa: E402
 
 QUICK_CASES = ("paper-lp15", "paper-lp50", "close-pair")
 MODE_TOL = 0.05
@@ -100,7 +105,14 @@ def _our_methods() -> tuple[dict[str, Method], str]:
     def okid_ls(u, y, dt, n, q):
         return identify(u, y, dt, order=q, n_states="auto", refine=False)
 
-    return {"okid": okid, "paper": paper, "okid-auto": okid_auto, "okid-ls": okid_ls}, ""
+    def okid_default(u, y, dt, n, q):
+        return identify(u, y, dt)  # the product's defaults: ARX order by GCV, states by BIC
+
+    def okid_riccati(u, y, dt, n, q):
+        return identify(u, y, dt, order=q, n_states="auto", gain="riccati")
+
+    return {"okid": okid, "paper": paper, "okid-auto": okid_auto, "okid-ls": okid_ls,
+            "okid-default": okid_default, "okid-riccati": okid_riccati}, ""
 
 
 def _peer_method(name: str) -> Method:
@@ -121,7 +133,8 @@ def all_methods() -> tuple[dict[str, Method], str]:
     return methods, note
 
 
-DEFAULT_METHODS = ("okid-auto", "okid", "okid-ls", "paper", "control-era", "sippy-n4sid", "sippy-moesp", "sippy-cva",
+DEFAULT_METHODS = ("okid-default", "okid-auto", "okid", "okid-ls", "okid-riccati", "paper", "control-era",
+                   "sippy-n4sid", "sippy-moesp", "sippy-cva",
                    "nfoursid")
 
 
@@ -132,6 +145,8 @@ DEFAULT_METHODS = ("okid-auto", "okid", "okid-ls", "paper", "control-era", "sipp
 
 @dataclass
 class RunResult:
+    """One method's run on one case, seed and data length, with its scores."""
+
     method: str
     seed: int
     ok: bool

@@ -7,16 +7,19 @@ before numpy is imported; ``--threads 2`` to compare). Prints markdown tables:
 
 1. microseconds per sample at d = 402 (p = m = 2, q = 100) and d = 162 (q = 40), window
    W = 4000 rows, once the window is full (every sample adds one row and removes one):
-   - ``push``: the windowed estimator fed one sample per call (prediction error included);
-   - ``update(100)``: the same fed blocks of 100 samples;
+   - ``push``: the window fed one sample per call (as the identification service feeds it);
+   - ``update(100)``: the same fed blocks of 100 samples (as ``okid-ros track`` feeds it);
    - refactorization (recompute of G from the window every ``refactor_every`` rows), amortized;
-   - a solve (Cholesky) and the per-sample cost when solving every 250 samples;
+   - a fixed-penalty solve of the window's normal equations (``arx.solve_fixed_penalty``,
+     Cholesky) and the per-sample cost when solving every 250 samples;
+   - the service's fit of the window (``arx.fit_from_normal_equations``, ridge prior, penalty by
+     GCV: what node 1 runs at its publish rate);
    - classic RLS: the per-sample covariance update ``P <- (P - g phi^T P) / lambda``, O(d^2);
    - ``numpy.linalg.lstsq`` of the whole window at each sample: timed on a few windows and
      reported per sample as the time of one solve (each new sample needs one): extrapolated.
 2. a scaling curve over the number of outputs p in (2, 4, 8, 16, 32) at m = 2, q = 40.
 
-The last line is ``d=402 us_per_sample=<push figure>`` for the windowed estimator.
+The last line is ``d=402 us_per_sample=<push figure>`` for the window.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import numpy as np  # noqa: E402
 from scipy.linalg import blas  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from okid_ros.core.arx import fit_from_normal_equations, solve_fixed_penalty  # noqa: E402
 from okid_ros.core.recursive import SlidingWindowArx  # noqa: E402
 from okid_ros.core.regressors import arx_regressors, regressor_length  # noqa: E402
 
@@ -58,9 +62,9 @@ def make_data(n: int, p: int, m: int, seed: int = 0) -> tuple[np.ndarray, np.nda
 
 
 def filled(q: int, p: int, m: int, u: np.ndarray, y: np.ndarray) -> SlidingWindowArx:
-    est = SlidingWindowArx(q, p, m, window=WINDOW, penalty=1e-3)
+    est = SlidingWindowArx(q, p, m, window=WINDOW)
     est.update(u[: WINDOW + q], y[: WINDOW + q])
-    est.coefficients()
+    est.normal_equations()
     return est
 
 
@@ -71,8 +75,11 @@ def segments(n: int, repeats: int) -> list[slice]:
 
 
 def time_push(est: SlidingWindowArx, u: np.ndarray, y: np.ndarray, repeats: int = 5) -> tuple[float, float]:
-    """Best and median us/sample over ``repeats`` segments (the machine is shared: min is the
-    figure least disturbed by other processes, the median shows the spread)."""
+    """Best and median us/sample over ``repeats`` segments.
+
+    The machine is shared: the minimum is the figure least disturbed by other processes, the
+    median shows the spread.
+    """
     push, per = est.push, []
     for seg in segments(u.shape[0], repeats):
         us, ys = u[seg], y[seg]
@@ -84,7 +91,9 @@ def time_push(est: SlidingWindowArx, u: np.ndarray, y: np.ndarray, repeats: int 
     return min(per), float(np.median(per))
 
 
-def time_update(est: SlidingWindowArx, u: np.ndarray, y: np.ndarray, block: int = 100, repeats: int = 5) -> tuple[float, float]:
+def time_update(
+    est: SlidingWindowArx, u: np.ndarray, y: np.ndarray, block: int = 100, repeats: int = 5
+) -> tuple[float, float]:
     per = []
     for seg in segments(u.shape[0], repeats):
         us, ys = u[seg], y[seg]
@@ -97,12 +106,22 @@ def time_update(est: SlidingWindowArx, u: np.ndarray, y: np.ndarray, block: int 
 
 
 def time_solve(est: SlidingWindowArx, repeats: int = 5) -> float:
-    """Best of ``repeats`` solves, ms."""
+    """Best of ``repeats`` fixed-penalty solves of the window's normal equations, ms."""
+    precision = np.eye(est.n_params)
     times = []
     for _ in range(repeats):
-        est._dirty = True
         t0 = time.perf_counter()
-        est.solve()
+        solve_fixed_penalty(est.normal_equations(), precision, 1e-3)
+        times.append(time.perf_counter() - t0)
+    return min(times) * 1e3
+
+
+def time_service_fit(est: SlidingWindowArx, repeats: int = 3) -> float:
+    """Best of ``repeats`` fits as the identification service runs them (ridge, GCV), ms."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fit_from_normal_equations(est.normal_equations(), est.order, est.n_outputs, est.n_inputs, "ridge", "gcv")
         times.append(time.perf_counter() - t0)
     return min(times) * 1e3
 
@@ -162,9 +181,9 @@ def main() -> None:
     print(f"# recursive ARX window speed (W = {WINDOW} rows, BLAS threads = {_args.threads})\n")
     print("Times are the best of 5 segments, the median in parentheses (the machine is shared).\n")
     print("| d | p | m | q | push (us/sample) | update(100) (us/sample) | refactor (ms; amortized us/sample) "
-          "| solve (ms) | push + solve every 250 (us/sample) | classic RLS (us/sample) "
+          "| solve (ms) | push + solve every 250 (us/sample) | service fit, ridge GCV (ms) | classic RLS (us/sample) "
           "| lstsq of window per sample (us/sample, extrapolated) | dsyrk bound (us/sample) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     push_402 = None
     for q in (100, 40):
         p, m = 2, 2
@@ -178,6 +197,7 @@ def main() -> None:
         refactor_ms = time_refactor(est)
         amortized = refactor_ms * 1e3 / est.refactor_every
         solve_ms = time_solve(est)
+        fit_ms = time_service_fit(est, 2 if quick else 3)
         phi, targets, _ = arx_regressors(u[: WINDOW + 400], y[: WINDOW + 400], q)
         rls_us = time_classic_rls(phi[: 600 if quick else 2000], targets[: 600 if quick else 2000])
         lstsq_us = time_lstsq(phi, targets, 3 if quick else 5)
@@ -186,7 +206,7 @@ def main() -> None:
         bound_us = 2 * D * D / (gflops * 1e9) * 1e6  # one row in, one row out
         print(f"| {d} | {p} | {m} | {q} | {push_us:.1f} ({push_med:.1f}) | {update_us:.1f} ({update_med:.1f}) "
               f"| {refactor_ms:.1f}; {amortized:.2f} "
-              f"| {solve_ms:.2f} | {push_us + amortized + solve_ms * 1e3 / 250:.1f} | {rls_us:.0f} "
+              f"| {solve_ms:.2f} | {push_us + amortized + solve_ms * 1e3 / 250:.1f} | {fit_ms:.0f} | {rls_us:.0f} "
               f"| {lstsq_us:.0f} | {bound_us:.1f} ({gflops:.0f} GFlop/s) |")
         if d == 402:
             push_402 = push_us + amortized
@@ -204,7 +224,8 @@ def main() -> None:
         push_us, push_med = time_push(est, u[WINDOW + q : WINDOW + q + n_scale], y[WINDOW + q : WINDOW + q + n_scale])
         update_us, update_med = time_update(est, u[WINDOW + q + n_scale :], y[WINDOW + q + n_scale :])
         bound_us = 2 * D * D / (syrk_gflops(D) * 1e9) * 1e6
-        print(f"| {p} | {d} | {D} | {push_us:.1f} ({push_med:.1f}) | {update_us:.1f} ({update_med:.1f}) | {bound_us:.1f} |")
+        print(f"| {p} | {d} | {D} | {push_us:.1f} ({push_med:.1f}) | {update_us:.1f} ({update_med:.1f}) "
+              f"| {bound_us:.1f} |")
     print()
     print(f"d=402 us_per_sample={push_402:.1f}")
 

@@ -107,11 +107,14 @@ make_venv() {
 
 install_wheels() {
     local h
-    h="$(hash_of requirements/bootstrap.txt requirements/ros-jazzy.txt requirements/python.txt requirements/lock.txt)"
+    h="$(hash_of requirements/bootstrap.txt requirements/ros-jazzy.txt requirements/python.txt \
+        requirements/test.txt requirements/lock.txt)"
     stage_done wheels "$h" && return 0
     log "installing pinned wheels from PyPI (requirements/*.txt)"
     "$VENV/bin/python" -m pip install -q -r "$REQ/bootstrap.txt"
-    "$VENV/bin/python" -m pip install -q -r "$REQ/ros-jazzy.txt" -r "$REQ/python.txt" -c "$REQ/lock.txt"
+    # Runtime (python.txt) and test/benchmark (test.txt) dependencies: `make test` needs both.
+    "$VENV/bin/python" -m pip install -q -r "$REQ/ros-jazzy.txt" -r "$REQ/python.txt" -r "$REQ/test.txt" \
+        -c "$REQ/lock.txt"
     fix_cmake_paths
     mark_done wheels "$h"
 }

@@ -1,0 +1,174 @@
+#!/usr/bin/env python3
+"""Calibration of the modes' standard deviations (okid_ros.core.uncertainty) against known truth.
+
+For each case and seed, one record is simulated, identified with the default chain
+(``okid_ros.core.pipeline.identify``, the case's ARX order, automatic model order), and
+:func:`okid_ros.core.uncertainty.attach_mode_uncertainty` gives every mode a frequency and a
+damping standard deviation. Each true mode is matched to the nearest identified mode (within 5 %
+in frequency). Per true mode the table gives:
+
+* ``found``: records where the mode was identified (out of the seeds);
+* ``f in 2 std``, ``zeta in 2 std``: fraction of those with ``|estimate - truth| <= 2 std``
+  (a calibrated Gaussian estimate gives 95 %; the goal is 88-99 %), and the same within 1 std
+  (68 % expected);
+* ``RMS error / RMS std``: 1 when the standard deviations have the size of the actual errors;
+* median standard deviations, and the median time of the identification and of the
+  uncertainty step (the live node allows the uncertainty 25 % of the realization time).
+
+Usage::
+
+    python bench/mode_uncertainty.py                                  # both cases, 50 seeds
+    python bench/mode_uncertainty.py --seeds 100 --out docs/benchmarks-uncertainty.md
+    python bench/mode_uncertainty.py --cases close-pair --seeds 10 --length 15000
+
+BLAS threads default to 1 (``--threads``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def _early_threads(argv: list[str]) -> None:
+    threads = "1"
+    for i, a in enumerate(argv):
+        if a == "--threads" and i + 1 < len(argv):
+            threads = argv[i + 1]
+        elif a.startswith("--threads="):
+            threads = a.split("=", 1)[1]
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, threads)
+
+
+_early_threads(sys.argv[1:])
+
+import json  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
+from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
+from okid_ros.sim.cases import benchmark_case  # noqa: E402
+from okid_ros.sim.scoring import modes_of  # noqa: E402
+from okid_ros.sim.simulators import simulate  # noqa: E402
+
+DEFAULT_CASES = ("paper-lp15", "close-pair")
+MATCH_TOL = 0.05
+INPUT_SEED_OFFSET = 0
+NOISE_SEED_OFFSET = 10_000
+
+
+def run_case(name: str, seeds: int, length: int, first_seed: int = 0) -> dict:
+    """Per true mode: errors and standard deviations of every seed where it was found."""
+    case = benchmark_case(name)
+    truth = modes_of(case.system.A, case.sample_time_s)
+    rows = [{"frequency_hz": t.frequency_hz, "damping_ratio": t.damping_ratio, "f_err": [], "f_std": [],
+             "z_err": [], "z_std": []} for t in truth]
+    times_identify, times_uncertainty, failures, not_computed = [], [], 0, []
+    for seed in range(first_seed, first_seed + seeds):
+        u = case.make_input(length, INPUT_SEED_OFFSET + seed)
+        y = simulate(case.system, u, seed=NOISE_SEED_OFFSET + seed)
+        t0 = time.perf_counter()
+        try:
+            model = identify(u, y, case.sample_time_s, order=case.arx_order)
+        except IdentificationError:
+            failures += 1
+            continue
+        t1 = time.perf_counter()
+        result = attach_mode_uncertainty(model, u, y)
+        t2 = time.perf_counter()
+        times_identify.append(t1 - t0)
+        times_uncertainty.append(t2 - t1)
+        if not result.computed:
+            not_computed.append(result.reason)
+            continue
+        for true, row in zip(truth, rows):
+            if not model.modes:
+                break
+            mode = min(model.modes, key=lambda md: abs(md.frequency_hz - true.frequency_hz))
+            if abs(mode.frequency_hz / true.frequency_hz - 1) > MATCH_TOL:
+                continue
+            row["f_err"].append(mode.frequency_hz - true.frequency_hz)
+            row["f_std"].append(mode.frequency_hz_std)
+            row["z_err"].append(mode.damping_ratio - true.damping_ratio)
+            row["z_std"].append(mode.damping_ratio_std)
+    return {"case": name, "description": case.description, "seeds": seeds, "length": length, "modes": rows,
+            "failures": failures, "not_computed": not_computed, "time_identify_s": times_identify,
+            "time_uncertainty_s": times_uncertainty}
+
+
+def _coverage(err: list, std: list, k: float) -> float:
+    e, s = np.abs(np.asarray(err)), np.asarray(std)
+    return float(np.mean(e <= k * s)) if e.size else float("nan")
+
+
+def _ratio(err: list, std: list) -> float:
+    e, s = np.asarray(err), np.asarray(std)
+    return float(np.sqrt(np.mean(e**2) / np.mean(s**2))) if e.size else float("nan")
+
+
+def table(results: list[dict]) -> str:
+    lines = [
+        "| case | true f [Hz] | true zeta [%] | found | f in 2 std | zeta in 2 std | f in 1 std | zeta in 1 std "
+        "| RMS err / RMS std (f, zeta) | median std f [Hz] | median std zeta [%] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for res in results:
+        for row in res["modes"]:
+            n = len(row["f_err"])
+            lines.append(
+                f"| {res['case']} | {row['frequency_hz']:.3f} | {100 * row['damping_ratio']:.2f} | {n}/{res['seeds']} "
+                f"| {100 * _coverage(row['f_err'], row['f_std'], 2):.0f} % "
+                f"| {100 * _coverage(row['z_err'], row['z_std'], 2):.0f} % "
+                f"| {100 * _coverage(row['f_err'], row['f_std'], 1):.0f} % "
+                f"| {100 * _coverage(row['z_err'], row['z_std'], 1):.0f} % "
+                f"| {_ratio(row['f_err'], row['f_std']):.2f}, {_ratio(row['z_err'], row['z_std']):.2f} "
+                f"| {np.median(row['f_std']) if n else float('nan'):.2e} "
+                f"| {100 * np.median(row['z_std']) if n else float('nan'):.3f} |"
+            )
+    lines += ["", "| case | length | seeds | failed | std not computed | median identify [s] "
+              "| median uncertainty [s] | ratio |",
+              "|---|---|---|---|---|---|---|---|"]
+    for res in results:
+        ti, tu = np.median(res["time_identify_s"]), np.median(res["time_uncertainty_s"])
+        lines.append(f"| {res['case']} | {res['length']} | {res['seeds']} | {res['failures']} | "
+                     f"{len(res['not_computed'])} | {ti:.3f} | {tu:.4f} | {100 * tu / ti:.1f} % |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", default=",".join(DEFAULT_CASES), help="comma-separated case names")
+    parser.add_argument("--seeds", type=int, default=50, help="records per case (default: %(default)s)")
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--length", type=int, default=3750, help="samples per record (default: %(default)s)")
+    parser.add_argument("--out", default=None, help="also write the table (markdown) here")
+    parser.add_argument("--json", default=None, help="also write the raw errors and stds here")
+    parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
+    args = parser.parse_args(argv)
+    results = []
+    started = time.perf_counter()
+    for name in args.cases.split(","):
+        results.append(run_case(name.strip(), args.seeds, args.length, args.first_seed))
+        print(f"{name}: done after {time.perf_counter() - started:.0f} s", file=sys.stderr)
+    text = table(results)
+    header = (f"`python bench/mode_uncertainty.py --cases {args.cases} --seeds {args.seeds} --length {args.length}` "
+              f"({platform.machine()}, Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}, "
+              f"{time.perf_counter() - started:.0f} s)\n\n")
+    print(header + text)
+    if args.out:
+        Path(args.out).write_text(header + text + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
