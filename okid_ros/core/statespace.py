@@ -15,6 +15,8 @@ import numpy as np
 
 __all__ = [
     "InnovationModel",
+    "StateSpaceDimensions",
+    "as_matrix",
     "InnovationPredictor",
     "free_parameters",
     "one_step_prediction",
@@ -24,11 +26,40 @@ __all__ = [
 ]
 
 
-def _as2d(x, name: str) -> np.ndarray:
+def as_matrix(x, name: str) -> np.ndarray:
+    """``x`` as a 2-D float array (a scalar or vector becomes one row), or ValueError naming it."""
     a = np.atleast_2d(np.asarray(x, dtype=float))
     if a.ndim != 2:
         raise ValueError(f"{name} must be a 2-D array, got shape {a.shape}")
     return a
+
+
+class StateSpaceDimensions:
+    """Dimensions of a model with ``A`` (n, n), ``B`` (n, m), ``C`` (p, n), and its shape check.
+
+    The base of :class:`InnovationModel` and of the simulators' noisy state space.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+
+    @property
+    def n_states(self) -> int:
+        return int(self.A.shape[0])
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.B.shape[1])
+
+    @property
+    def n_outputs(self) -> int:
+        return int(self.C.shape[0])
+
+    def _check_shapes(self, arrays: tuple[tuple[str, np.ndarray, tuple[int, int]], ...]) -> None:
+        for name, arr, shape in arrays:
+            if arr.shape != shape:
+                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
 
 
 def free_parameters(n_states: int, n_outputs: int, n_inputs: int, *, initial_state: bool = False) -> int:
@@ -42,7 +73,7 @@ def free_parameters(n_states: int, n_outputs: int, n_inputs: int, *, initial_sta
 
 
 @dataclass
-class InnovationModel:
+class InnovationModel(StateSpaceDimensions):
     """Innovation-form model in the paper's convention (Eqs. 30-31; predictor gain ``A K``).
 
     Equations::
@@ -73,36 +104,22 @@ class InnovationModel:
     sample_time_s: float = float("nan")
 
     def __post_init__(self) -> None:
-        self.A = _as2d(self.A, "A")
-        self.B = _as2d(self.B, "B")
-        self.C = _as2d(self.C, "C")
-        self.D = _as2d(self.D, "D")
-        self.K = _as2d(self.K, "K")
-        self.innovation_covariance = _as2d(self.innovation_covariance, "innovation_covariance")
+        self.A = as_matrix(self.A, "A")
+        self.B = as_matrix(self.B, "B")
+        self.C = as_matrix(self.C, "C")
+        self.D = as_matrix(self.D, "D")
+        self.K = as_matrix(self.K, "K")
+        self.innovation_covariance = as_matrix(self.innovation_covariance, "innovation_covariance")
         n, m, p = self.n_states, self.n_inputs, self.n_outputs
-        for name, arr, shape in (
+        self._check_shapes((
             ("A", self.A, (n, n)),
             ("B", self.B, (n, m)),
             ("C", self.C, (p, n)),
             ("D", self.D, (p, m)),
             ("K", self.K, (n, p)),
             ("innovation_covariance", self.innovation_covariance, (p, p)),
-        ):
-            if arr.shape != shape:
-                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
+        ))
         self.sample_time_s = float(self.sample_time_s)
-
-    @property
-    def n_states(self) -> int:
-        return int(self.A.shape[0])
-
-    @property
-    def n_inputs(self) -> int:
-        return int(self.B.shape[1])
-
-    @property
-    def n_outputs(self) -> int:
-        return int(self.C.shape[0])
 
     @property
     def predictor_gain(self) -> np.ndarray:

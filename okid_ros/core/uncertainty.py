@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, signal
 
+from okid_ros.core.regressors import check_io_arrays
+
 __all__ = ["UncertaintyResult", "attach_mode_uncertainty", "DEFAULT_MAX_FLOPS"]
 
 #: Budget for forming H and M (2 N p P^2 flops); 1e9 is ~0.1-0.3 s here.
@@ -196,12 +198,7 @@ def attach_mode_uncertainty(
     :class:`UncertaintyResult`; when not computed, both standard deviations are NaN.
     """
     modes = list(model.modes)
-    u = np.asarray(u, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if u.ndim == 1:
-        u = u[:, None]
-    if y.ndim == 1:
-        y = y[:, None]
+    u, y = check_io_arrays(u, y)
     A, B, C, D, K = (np.asarray(getattr(model, k), dtype=float) for k in ("A", "B", "C", "D", "K"))
     n, p, m = A.shape[0], C.shape[0], B.shape[1]
     dt = float(model.sample_time_s)

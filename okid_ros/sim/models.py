@@ -31,41 +31,9 @@ import numpy as np
 import scipy.linalg
 
 from okid_ros.core.kalman_gain import riccati_predictor_gain
-from okid_ros.core.statespace import InnovationModel
+from okid_ros.core.statespace import InnovationModel, StateSpaceDimensions, as_matrix
 
 __all__ = ["InnovationModel", "NoisyStateSpace", "TrueSystem", "as_noisy_state_space", "modal_structure"]
-
-
-def _as2d(x, name: str) -> np.ndarray:
-    a = np.atleast_2d(np.asarray(x, dtype=float))
-    if a.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D array, got shape {a.shape}")
-    return a
-
-
-class _Dimensions:
-    """Dimensions of a model with ``A`` (n, n), ``B`` (n, m), ``C`` (p, n), and a shape check."""
-
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray
-
-    @property
-    def n_states(self) -> int:
-        return self.A.shape[0]
-
-    @property
-    def n_inputs(self) -> int:
-        return self.B.shape[1]
-
-    @property
-    def n_outputs(self) -> int:
-        return self.C.shape[0]
-
-    def _check_shapes(self, arrays: tuple[tuple[str, np.ndarray, tuple[int, int]], ...]) -> None:
-        for name, arr, shape in arrays:
-            if arr.shape != shape:
-                raise ValueError(f"{name} has shape {arr.shape}, expected {shape}")
 
 
 def as_noisy_state_space(model: InnovationModel) -> "NoisyStateSpace":
@@ -86,7 +54,7 @@ def as_noisy_state_space(model: InnovationModel) -> "NoisyStateSpace":
 
 
 @dataclass
-class NoisyStateSpace(_Dimensions):
+class NoisyStateSpace(StateSpaceDimensions):
     """State space with process noise ``w`` and measurement noise ``v``.
 
     Equations::
@@ -116,16 +84,16 @@ class NoisyStateSpace(_Dimensions):
     cross_covariance: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
-        self.A = _as2d(self.A, "A")
-        self.B = _as2d(self.B, "B")
-        self.C = _as2d(self.C, "C")
-        self.D = _as2d(self.D, "D")
-        self.process_noise_covariance = _as2d(self.process_noise_covariance, "Q")
-        self.measurement_noise_covariance = _as2d(self.measurement_noise_covariance, "R")
+        self.A = as_matrix(self.A, "A")
+        self.B = as_matrix(self.B, "B")
+        self.C = as_matrix(self.C, "C")
+        self.D = as_matrix(self.D, "D")
+        self.process_noise_covariance = as_matrix(self.process_noise_covariance, "Q")
+        self.measurement_noise_covariance = as_matrix(self.measurement_noise_covariance, "R")
         n, m, p = self.n_states, self.n_inputs, self.n_outputs
         if self.cross_covariance is None:
             self.cross_covariance = np.zeros((n, p))
-        self.cross_covariance = _as2d(self.cross_covariance, "S")
+        self.cross_covariance = as_matrix(self.cross_covariance, "S")
         self._check_shapes((
             ("A", self.A, (n, n)),
             ("B", self.B, (n, m)),
