@@ -97,3 +97,66 @@ class RosProcess:
         self.proc.wait()
         self._reader.join(timeout=timeout_s)
         return self.proc.returncode
+
+
+class ProbeNode:
+    """A test's own rclpy node, in a context of its own, spun on a daemon thread.
+
+    Subclasses create their publishers and subscriptions on ``self.node`` and then call
+    :meth:`start`; callbacks take ``self.lock`` around what the test thread reads.
+    """
+
+    def __init__(self, name: str) -> None:
+        import rclpy
+        from rclpy.node import Node
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node(name, context=self.context)
+        self.lock = threading.Lock()
+        self.executor = None
+        self.thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Spin the node on a daemon thread until :meth:`close`."""
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def keep(self, store: list):
+        """A subscription callback appending each message to ``store`` (under the lock)."""
+        def callback(msg) -> None:
+            with self.lock:
+                store.append(msg)
+        return callback
+
+    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
+        """Wait until ``predicate()`` (called under the lock) holds; fail the test on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                if predicate():
+                    return
+            time.sleep(0.05)
+        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+    def close(self) -> None:
+        import rclpy
+
+        rclpy.try_shutdown(context=self.context)  # ends the spin
+        if self.thread is not None:
+            self.thread.join(timeout=10)
+        if self.executor is not None:
+            self.executor.shutdown()
+        self.node.destroy_node()

@@ -11,17 +11,13 @@ new structure once its first model is accepted.
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
 from okid_ros.sim.inputs import lowpass_input
@@ -56,14 +52,11 @@ def stamp_s(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-class Probe:
+class Probe(ProbeNode):
     """Publishes the samples; records StructuralChange, ArxModel fills and diagnostics."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node("okid_change_probe", context=self.context)
-        self.lock = threading.Lock()
+        super().__init__("okid_change_probe")
         self.changes: list[StructuralChange] = []
         self.arx: list[tuple[float, int, bool]] = []
         self.diagnostics: dict[str, dict[str, str]] = {}
@@ -71,16 +64,7 @@ class Probe:
         self.node.create_subscription(StructuralChange, "/okid/structural_change", self._on_change, RELIABLE)
         self.node.create_subscription(ArxModel, "/okid/arx_model", self._on_arx, RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
+        self.start()
 
     def _on_change(self, msg) -> None:
         with self.lock:
@@ -95,20 +79,6 @@ class Probe:
             for status in msg.status:
                 self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
-    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            with self.lock:
-                if predicate():
-                    return
-            time.sleep(0.05)
-        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=10)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 @pytest.fixture(scope="module")

@@ -25,19 +25,15 @@ import math
 import os
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
@@ -87,14 +83,11 @@ def stamp_s(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-class Probe:
+class Probe(ProbeNode):
     """The test's own node: publishes inputs, records every output (on a spin thread)."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node("okid_test_probe", context=self.context)
-        self.lock = threading.Lock()
+        super().__init__("okid_test_probe")
         self.states: list[ModalStates] = []
         self.models: list[StateSpaceModel] = []
         self.arx: list[ArxModel] = []
@@ -104,26 +97,11 @@ class Probe:
         self.io = n.create_publisher(IoSample, "/okid/io_sample", SENSOR_QOS)
         self.wrench = [n.create_publisher(WrenchStamped, f"/thruster{i}/wrench", SENSOR_QOS) for i in (1, 2)]
         self.imu = [n.create_publisher(Imu, f"/accel/tip{i}/imu", SENSOR_QOS) for i in (1, 2)]
-        n.create_subscription(ModalStates, "/okid/modal_states", self._keep(self.states), RELIABLE)
-        n.create_subscription(StateSpaceModel, "/okid/state_space_model", self._keep(self.models), RELIABLE)
-        n.create_subscription(ArxModel, "/okid/arx_model", self._keep(self.arx), RELIABLE)
+        n.create_subscription(ModalStates, "/okid/modal_states", self.keep(self.states), RELIABLE)
+        n.create_subscription(StateSpaceModel, "/okid/state_space_model", self.keep(self.models), RELIABLE)
+        n.create_subscription(ArxModel, "/okid/arx_model", self.keep(self.arx), RELIABLE)
         n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    def _keep(self, store: list):
-        def callback(msg) -> None:
-            with self.lock:
-                store.append(msg)
-        return callback
+        self.start()
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         with self.lock:
@@ -140,15 +118,6 @@ class Probe:
             self.states.clear()
             self.models.clear()
             self.arx.clear()
-
-    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            with self.lock:
-                if predicate():
-                    return
-            time.sleep(0.05)
-        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
 
     def wait_for_subscribers(self, publishers, count: int = 2, timeout_s: float = 20.0) -> None:
         self.wait_until("the nodes to subscribe the inputs",
@@ -175,11 +144,6 @@ class Probe:
             msg.linear_acceleration.x = float(y[i])
             pub.publish(msg)
 
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.context)  # ends the spin
-        self.thread.join(timeout=10)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 def paced(n: int, rate_hz: float):

@@ -8,18 +8,14 @@ no publishing) -> activate -> active -> deactivate -> cleanup -> shutdown.
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
 from okid_msgs.msg import ArxModel, IoSample
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -38,14 +34,11 @@ SMALL = """
 DT = 0.008
 
 
-class Probe:
+class Probe(ProbeNode):
     """A client node with the lifecycle service clients of both nodes."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node("okid_lifecycle_probe", context=self.context)
-        self.lock = threading.Lock()
+        super().__init__("okid_lifecycle_probe")
         self.arx: list[ArxModel] = []
         self.diagnostics: list[str] = []
         self.io = self.node.create_publisher(IoSample, f"{NS}/io_sample",
@@ -53,20 +46,11 @@ class Probe:
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(ArxModel, f"{NS}/arx_model", self._on_arx, reliable)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, reliable)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.start()
         self.stamp = 100.0
         u = lowpass_input(2000, 2, 50.0, DT, seed=2)
         self.u, (self.y, _) = u, simulate_innovation(paper_model(), u, seed=3)
         self.k = 0
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
 
     def _on_arx(self, msg: ArxModel) -> None:
         with self.lock:
@@ -111,11 +95,6 @@ class Probe:
             est = sum(1 for name in self.diagnostics if name.startswith("lc/okid_modal_estimator"))
             return len(self.arx), est
 
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=10)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 @pytest.fixture

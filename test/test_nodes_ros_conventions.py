@@ -11,18 +11,14 @@ identification (test_nodes_integration.py checks that).
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 from std_srvs.srv import Trigger
 
 from okid_msgs.msg import ArxModel, IoSample, ModalStates
@@ -50,40 +46,22 @@ def stamp_s(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-class RigProbe:
+class RigProbe(ProbeNode):
     """Publishes IoSample to each rig and keeps what each rig's nodes publish."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node("okid_rigs_probe", context=self.context)
-        self.lock = threading.Lock()
+        super().__init__("okid_rigs_probe")
         self.arx: dict[str, list[ArxModel]] = {ns: [] for ns in RIGS}
         self.states: dict[str, list[ModalStates]] = {ns: [] for ns in RIGS}
         self.default_ns_messages = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.io = {ns: self.node.create_publisher(IoSample, f"{ns}/io_sample", SENSOR_QOS) for ns in RIGS}
         for ns in RIGS:
-            self.node.create_subscription(ArxModel, f"{ns}/arx_model", self._keep(self.arx[ns]), RELIABLE)
-            self.node.create_subscription(ModalStates, f"{ns}/modal_states", self._keep(self.states[ns]), RELIABLE)
+            self.node.create_subscription(ArxModel, f"{ns}/arx_model", self.keep(self.arx[ns]), RELIABLE)
+            self.node.create_subscription(ModalStates, f"{ns}/modal_states", self.keep(self.states[ns]), RELIABLE)
         self.node.create_subscription(ArxModel, "/okid/arx_model", self._count_default, RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    def _keep(self, store: list):
-        def callback(msg) -> None:
-            with self.lock:
-                store.append(msg)
-        return callback
+        self.start()
 
     def _count_default(self, msg) -> None:
         with self.lock:
@@ -94,15 +72,6 @@ class RigProbe:
             for status in msg.status:
                 self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
-    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            with self.lock:
-                if predicate():
-                    return
-            time.sleep(0.05)
-        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-
     def call(self, srv_type, name: str, request, timeout_s: float = 15.0):
         client = self.node.create_client(srv_type, name)
         assert client.wait_for_service(timeout_sec=timeout_s), f"no service {name}"
@@ -110,11 +79,6 @@ class RigProbe:
         self.wait_until(f"the answer of {name}", future.done, timeout_s)
         return future.result()
 
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=10)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 def value(kind: str, v) -> ParameterValue:

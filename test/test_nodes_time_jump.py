@@ -16,14 +16,10 @@ from __future__ import annotations
 
 import re
 import sys
-import threading
 import time
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
 from okid_msgs.msg import ArxModel, IoSample, StateSpaceModel
 
@@ -44,14 +40,11 @@ def stamp_s(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-class LoopProbe:
+class LoopProbe(ProbeNode):
     """Notes the wall time of each pass's first sample and of every StateSpaceModel."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = Node("okid_loop_probe", context=self.context)
-        self.lock = threading.Lock()
+        super().__init__("okid_loop_probe")
         self.pass_starts: list[tuple[float, float]] = []  # (wall time, stamp) of each pass's first sample
         self.models: list[tuple[float, float, int]] = []  # (wall time, stamp, model id)
         self.arx: list[tuple[float, int, int]] = []  # (stamp, samples used, model id)
@@ -62,16 +55,7 @@ class LoopProbe:
                                       QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
         self.node.create_subscription(ArxModel, "/okid/arx_model", self._on_arx,
                                       QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
+        self.start()
 
     def _on_sample(self, msg: IoSample) -> None:
         stamp = stamp_s(msg)
@@ -88,11 +72,6 @@ class LoopProbe:
         with self.lock:
             self.arx.append((stamp_s(msg), int(msg.samples_used), int(msg.model_id)))
 
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=10)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
