@@ -179,6 +179,23 @@ def test_unstable_models_are_never_used(monkeypatch):
     assert est.model_id == model_id and "unstable" in d["last_reason"]
 
 
+def test_a_model_with_an_unstable_predictor_is_refused_with_its_reason(monkeypatch):
+    est, results, ident = run_pipeline(n_samples=2600)
+    model_id = est.model_id
+    good = est.current_model
+    # A stays stable; a gain 5 times too large makes A - A K C unstable.
+    bad = dataclasses.replace(good, K=5.0 * good.K)
+    assert bad.spectral_radius() < 1 and bad.predictor_spectral_radius() > 1
+    monkeypatch.setattr(estimation, "identify_from_arx", lambda *args, **kwargs: bad)
+    snap = ident.snapshot()
+    est.submit_arx(snap.fit, snap.stamp_s, 99, snap.window_rows)
+    assert est.process_pending()
+    est.step(results[-1].stamp_s + 0.008, [0.0, 0.0], [0.0, 0.0])
+    d = est.diagnostics()
+    assert est.model_id == model_id and est.current_model is good
+    assert "predictor" in d["last_reason"], d["last_reason"]
+
+
 def test_requests_wait_for_the_window_end_and_are_checked(pipeline):
     est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
     _, _, ident = pipeline
