@@ -46,7 +46,7 @@ from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
-from okid_ros.core.statespace import InnovationModel
+from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import attach_mode_uncertainty
 
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
@@ -236,7 +236,15 @@ def _identify_paper(
         if not 1 <= n <= decomposition.max_states:
             raise IdentificationError(f"{n} states exceed the Hankel rank {decomposition.max_states}")
     real = decomposition.realize(n)
-    white = gain_by_whitening(real.A, real.B, real.C, arx.D, u, y, ar_order=options.ar_order or arx.order)
+    rho = spectral_radius(real.A)
+    if not rho < 1.0:
+        # The whitening filter runs on the free-run residuals, which an unstable A makes diverge.
+        raise IdentificationError(f"refused: unstable model: spectral radius of A {rho:.6f} >= 1 "
+                                  "(the paper's method has no stability guarantee; the okid method has)")
+    try:
+        white = gain_by_whitening(real.A, real.B, real.C, arx.D, u, y, ar_order=options.ar_order or arx.order)
+    except (ValueError, np.linalg.LinAlgError, linalg.LinAlgError) as exc:
+        raise IdentificationError(f"the paper's gain identification failed: {exc}") from None
     model = InnovationModel(real.A, real.B, real.C, arx.D, white.K, white.innovation_covariance)
     return _package(
         model, np.zeros(n), sample_time_s, arx, system_markov[1:], options,
