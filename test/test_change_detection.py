@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_detection import (
@@ -48,7 +49,9 @@ def test_cusum_threshold_gives_the_requested_false_alarm_rate():
     rng = np.random.default_rng(0)
     runs = []
     for _ in range(300):
-        det = ChangeDetector(p, false_alarm_samples=target, reference_samples=20)
+        # The chi-square CUSUM alone: no tracked mean, no correlation factor.
+        det = ChangeDetector(p, false_alarm_samples=target, reference_samples=20, mean_tracking_samples=0,
+                             batch_samples=0)
         det.mean, det.rewhiten = np.zeros(p), np.eye(p)  # calibrated to the truth
         index = 0
         while True:
@@ -59,6 +62,45 @@ def test_cusum_threshold_gives_the_requested_false_alarm_rate():
             index += 500
     # 300 run lengths, roughly exponential: standard error of the mean about 6 %.
     assert np.mean(runs) == pytest.approx(target, rel=0.2)
+
+
+def _bursty_innovations(rng, n_samples: int, p: int) -> np.ndarray:
+    """Innovations as measured data give them, with no structural change in them.
+
+    Their power varies by about 30 % over ~50 samples and their mean drifts over ~1000 samples.
+    """
+    a, b = np.exp(-1 / 50), np.exp(-1 / 1000)
+    level = signal.lfilter([np.sqrt(1 - a * a)], [1, -a], rng.standard_normal(n_samples))
+    drift = signal.lfilter([np.sqrt(1 - b * b)], [1, -b], rng.standard_normal((n_samples, p)), axis=0)
+    return np.exp(0.3 * level)[:, None] * rng.standard_normal((n_samples, p)) + 0.3 * drift
+
+
+def test_correlated_and_drifting_innovations_keep_the_false_alarm_rate():
+    # The plain chi-square CUSUM alarms within a few hundred samples on such innovations; the
+    # tracked mean and the correlation factor bring the run lengths back near the target.
+    p, target, n = 4, 2000.0, 20000
+    rng = np.random.default_rng(1)
+    plain, robust, factors = [], [], []
+    for _ in range(12):
+        z = _bursty_innovations(rng, n, p)
+        det = ChangeDetector(p, false_alarm_samples=target, mean_tracking_samples=0, batch_samples=0)
+        alarm = det.process(z, 0)
+        plain.append(n if alarm is None else alarm.alarm_index - det.reference_samples)
+        det = ChangeDetector(p, false_alarm_samples=target)
+        alarm = det.process(z, 0)
+        robust.append(n if alarm is None else alarm.alarm_index - det.reference_samples)
+        factors.append(det.correlation_factor)
+    assert np.median(plain) < target / 4, plain
+    assert np.mean(robust) > target / 2, robust
+    assert min(factors) > 1.5, factors  # the correlation was measured, and raised the threshold
+
+
+def test_white_innovations_give_a_correlation_factor_near_one():
+    rng = np.random.default_rng(2)
+    det = ChangeDetector(3, false_alarm_samples=1e7)
+    assert det.process(rng.standard_normal((1000, 3)), 0) is None
+    assert det.calibrated and 1.0 <= det.correlation_factor < 1.6
+    assert det.threshold == pytest.approx(det.correlation_factor * det.base_threshold)
 
 
 @pytest.fixture(scope="module")
