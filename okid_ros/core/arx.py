@@ -23,6 +23,7 @@ normal equations alone so that the recursive window, which keeps only ``R``, ``r
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -183,7 +184,11 @@ def _gcv_curve(s: np.ndarray, g2: np.ndarray, yy_trace: float, n_rows: int, p: i
         # Null directions (s = 0) with no penalty contribute nothing to the fit.
         denom = s + penalty
         inv = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
-        rss = yy_trace - 2.0 * np.sum(g2 * inv) + np.sum(s * g2 * inv**2)
+        with np.errstate(over="ignore", invalid="ignore"):
+            # s inv <= 1; a vanishing penalty on an unexcited window can still overflow g2 inv.
+            rss = yy_trace - float(np.sum(g2 * inv * (2.0 - s * inv)))
+        if not np.isfinite(rss):
+            return math.inf, math.inf, math.nan  # this penalty is unusable: GCV looks elsewhere
         dof = float(np.sum(s * inv))
         rss = max(rss, 0.0)
         return n_rows * rss / max(n_rows - dof, 1.0) ** 2, rss, dof
