@@ -27,28 +27,13 @@ BLAS threads default to 1 (``--threads``).
 from __future__ import annotations
 
 import argparse
-import os
+import json
+import platform
 import sys
+import time
+from pathlib import Path
 
-
-def _early_threads(argv: list[str]) -> None:
-    threads = "1"
-    for i, a in enumerate(argv):
-        if a == "--threads" and i + 1 < len(argv):
-            threads = argv[i + 1]
-        elif a.startswith("--threads="):
-            threads = a.split("=", 1)[1]
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, threads)
-
-
-_early_threads(sys.argv[1:])
-
-import json  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
+import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
