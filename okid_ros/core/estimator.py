@@ -10,6 +10,9 @@ is run as a Kalman filter with ``F = A``, ``B``, ``H = C`` and the gain ``K``:
     xpost_k  = xhat_k + K e_k                        (update_steadystate on y_k - D u_k)
     xhat_k+1 = A xpost_k + B u_k                     (predict_steadystate)
 
+(the two steady-state steps are written out on the filter's arrays with filterpy's operations,
+without the copies of z and P its methods make at every sample)
+
 which is ``xhat_{k+1} = A xhat_k + B u_k + A K e_k``. The published modal state is the filtered
 ``xpost_k`` in the normalized modal form (two coordinates per physical mode); the estimated
 output is ``C xpost_k + D u_k``.
@@ -30,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
+from numpy import dot
 
 from okid_ros.core.statespace import InnovationModel
 
@@ -141,12 +145,17 @@ class ModalStateEstimator:
         y = np.asarray(y, dtype=float).reshape(self.n_outputs) - self.output_offset
         if self._start_up:
             self._start_up_gain()
+        kf = self.kf
         du = self.D @ u
-        self.kf.update_steadystate(y - du)
-        innovation = self.kf.y[:, 0].copy()
-        x_post = self.kf.x[:, 0].copy()
-        y_est = self.kf.H @ x_post + du + self.output_offset
-        self.kf.predict_steadystate(u.reshape(self.n_inputs, 1))
+        # KalmanFilter.update_steadystate and predict_steadystate, written out with the same
+        # operations on the filter's arrays: the methods also copy z, P (twice) and x at every
+        # step, bookkeeping this estimator never reads, which cost as much as the step itself.
+        kf.y = (y - du).reshape(self.n_outputs, 1) - dot(kf.H, kf.x)
+        kf.x = kf.x + dot(kf.K, kf.y)
+        innovation = kf.y[:, 0].copy()
+        x_post = kf.x[:, 0].copy()
+        y_est = kf.H @ x_post + du + self.output_offset
+        kf.x = dot(kf.F, kf.x) + dot(kf.B, u.reshape(self.n_inputs, 1))
         return x_post, y_est, innovation
 
     def run(self, u: np.ndarray, y: np.ndarray) -> EstimatorOutput:
