@@ -35,7 +35,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.base import OkidNode, run_node
-from okid_ros.nodes.common import make_status, name_thread, reliable_qos
+from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import arx_model_msg, ros_message_types, stamp_to_seconds
 from okid_ros.service.identification import (
     ArxIdentificationParams,
@@ -98,7 +98,7 @@ class ArxIdentifierNode(OkidNode):
         """Restart the window at the change point (node 2 reports each change twice: once)."""
         if not self.active:
             return
-        with self._lock:
+        with self.state_lock, self._lock:  # the window is the input thread's too
             replayed = self.service.restart_at(stamp_to_seconds(msg.change_stamp))
             if replayed >= 0:
                 self._generation += 1  # a solve of the old window still running is not published
@@ -115,7 +115,8 @@ class ArxIdentifierNode(OkidNode):
         if self._solving:
             self._skipped_publishes += 1  # the previous solve is still running
             return
-        capture = self.service.capture()
+        with self.state_lock:  # the input thread pushes into the window being copied
+            capture = self.service.capture()
         self._solving = True  # before submit: the worker clears it when done
         self._pool.submit(self._solve, self._generation, capture)
 
@@ -186,8 +187,21 @@ class ArxIdentifierNode(OkidNode):
             pool.shutdown(wait=False, cancel_futures=True)
 
 
+#: Nice value of this node's threads (Linux): see :func:`main`.
+NICE = 5
+
+
 def main(args: list[str] | None = None) -> int:
-    """Console script ``arx_identifier``."""
+    """Console script ``arx_identifier``.
+
+    The node runs at nice :data:`NICE`: it has no per-sample output, so its samples can wait in
+    their queue (1 s at 1 kHz) while the estimator's sample path, whose latency counts, takes
+    the core. Both wake for every sample; on 2 cores a scheduler trace of
+    ``bench/dds_latency.py`` put most of the estimator's waits for a core on this node's
+    sample thread (its window update every 128 samples) and solve thread. Set before the
+    node starts its threads, so that they inherit it.
+    """
+    lower_priority(NICE)
     return run_node(ArxIdentifierNode, NODE_NAME, args)
 
 
