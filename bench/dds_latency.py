@@ -17,13 +17,16 @@ What it does:
    latency from the publish call to the arrival of the ModalStates that carries it (matched by
    stamp), the samples without ModalStates (dropped), and the CPU time of each node with its
    worker (node 2's realization runs in a child process named okid_realize, node 1's solve on a
-   thread named okid_arx_solve; the rest is the executor thread and DDS).
+   thread named okid_arx_solve), its input thread (okid_samples, which takes the samples) and
+   the rest (executor, DDS threads), and how long the input threads waited for a core
+   (run-queue delay from /proc/PID/task/TID/schedstat).
 
 Prints a markdown table; docs/benchmarks-nodes.md has the numbers of this machine.
 
 ``--compare`` runs the bare rclpy echo node (``--control``) and then the two nodes, one after
 the other with the same options, prints both tables and last the line
-``p99_ms=<nodes> control_p99_ms=<echo> ratio=<nodes/echo> drops=<nodes' dropped samples>``.
+``p99_ms=<nodes> control_p99_ms=<echo> ratio=<nodes/echo> drops=<nodes' dropped samples>
+load_1min=<at the start of the echo run>..<at the end of the nodes' run>``.
 """
 
 from __future__ import annotations
@@ -183,13 +186,30 @@ def cpu_seconds(pid: int, children: bool = True) -> dict[str, float]:
     return out
 
 
+def wait_seconds(pid: int) -> dict[str, float]:
+    """Seconds each thread of a process (by name) waited on a run queue for a core (schedstat)."""
+    out: dict[str, float] = {}
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return out
+    for task in tasks:
+        try:
+            delay_ns = int((task / "schedstat").read_text().split()[1])
+            name = (task / "comm").read_text().strip()
+        except (OSError, ValueError, IndexError):
+            continue
+        out[name] = out.get(name, 0.0) + delay_ns * 1e-9
+    return out
+
+
 def cpu_share(
-    before: dict[str, float], after: dict[str, float], wall: float, worker: str
-) -> tuple[float, float, float]:
-    """(whole process, the named worker thread, everything else) in cores."""
+    before: dict[str, float], after: dict[str, float], wall: float, *threads: str
+) -> tuple[float, ...]:
+    """(whole process, each named thread, everything else) in cores."""
     total = (after["total"] - before["total"]) / wall
-    work = (after.get(worker, 0.0) - before.get(worker, 0.0)) / wall
-    return total, work, total - work
+    named = [(after.get(name, 0.0) - before.get(name, 0.0)) / wall for name in threads]
+    return (total, *named, total - sum(named))
 
 
 # ------------------------------------------------------------------------------ compare
@@ -206,10 +226,13 @@ def compare(args: argparse.Namespace) -> int:
         if run.returncode != 0 or p99 is None:
             print(f"the {label} run failed (status {run.returncode})", file=sys.stderr)
             return 1
-        results[label] = (float(p99.group(1)), int(drops.group(1)) if drops else -1)
+        load = re.search(r"\| load average \(1 min\) at start / end of the measurement \| ([0-9.]+) / ([0-9.]+)",
+                         run.stdout)
+        results[label] = (float(p99.group(1)), int(drops.group(1)) if drops else -1,
+                          load.groups() if load else ("?", "?"))
     nodes, control = results["nodes"][0], results["control"][0]
     print(f"p99_ms={nodes:.3f} control_p99_ms={control:.3f} ratio={nodes / control:.2f} "
-          f"drops={results['nodes'][1]}")
+          f"drops={results['nodes'][1]} load_1min={results['control'][2][0]}..{results['nodes'][2][1]}")
     return 0
 
 
@@ -224,12 +247,12 @@ def main() -> int:
     if args.role == "echo":
         echo()
         return 0
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")  # one BLAS thread, in the nodes too (set before the copy)
     env = dict(os.environ)
     env.update(ROS_DOMAIN_ID=str(args.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
     env.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
 
     import numpy as np
     import rclpy
@@ -325,12 +348,14 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
         if measure_from is None and k * dt >= warmup_s:
             measure_from = k
             cpu_before = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
+            wait_before = {name: wait_seconds(procs[name].pid) for name in ("arx", "est")}
             harness_pids = (os.getpid(), procs["receiver"].pid)
             harness_before = sum(cpu_seconds(pid, children=False)["total"] for pid in harness_pids)
             load_before = os.getloadavg()[0]
             wall_before = time.monotonic()
     wall = time.monotonic() - wall_before
     cpu_after = {name: cpu_seconds(procs[name].pid) for name in ("arx", "est")}
+    wait_after = {name: wait_seconds(procs[name].pid) for name in ("arx", "est")}
     harness_after = sum(cpu_seconds(pid, children=False)["total"] for pid in (os.getpid(), procs["receiver"].pid))
     harness = (harness_after - harness_before) / wall
     load_after = os.getloadavg()[0]
@@ -348,8 +373,12 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
     expected = n - measure_from
     received = int(np.unique(index[keep]).size)
     models = sorted(set(rx["models"]))
-    arx_total, arx_solve, arx_rest = cpu_share(cpu_before["arx"], cpu_after["arx"], wall, "okid_arx_solve")
-    est_total, est_real, est_rest = cpu_share(cpu_before["est"], cpu_after["est"], wall, "okid_realize")
+    arx_total, arx_solve, arx_input, arx_rest = cpu_share(cpu_before["arx"], cpu_after["arx"], wall,
+                                                          "okid_arx_solve", "okid_samples")
+    est_total, est_real, est_input, est_rest = cpu_share(cpu_before["est"], cpu_after["est"], wall,
+                                                         "okid_realize", "okid_samples")
+    input_wait = {name: 1e3 * (wait_after[name].get("okid_samples", 0.0) - wait_before[name].get("okid_samples", 0.0))
+                  / wall for name in ("arx", "est")}
     est_log = (tmp / "est.log").read_text()
     realize = [float(x) for x in re.findall(r"realized in ([0-9.]+) s", est_log)]
     np.savez(tmp / "latency.npz", index=index[keep], latency_ms=lat_ms, published_ns=published, t0_ns=t0_ns)
@@ -375,9 +404,13 @@ def run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, Relia
     print(f"| samples published (measured) | {expected} |")
     print(f"| ModalStates received | {received} |")
     print(f"| dropped samples | {expected - received} ({100 * (expected - received) / max(expected, 1):.3f} %) |")
-    print(f"| CPU okid_arx_identifier [cores] | {arx_total:.3f} (solve thread {arx_solve:.3f}, rest {arx_rest:.3f}) |")
+    print(f"| CPU okid_arx_identifier [cores] | {arx_total:.3f} (solve thread {arx_solve:.3f}, "
+          f"input thread {arx_input:.3f}, rest {arx_rest:.3f}) |")
     print(f"| CPU okid_modal_estimator [cores] | {est_total:.3f} "
-          f"(realization worker {est_real:.3f}, rest {est_rest:.3f}) |")
+          f"(realization worker {est_real:.3f}, input thread {est_input:.3f}, rest {est_rest:.3f}) |")
+    if not args.control:
+        print(f"| input threads waiting for a core [ms per s] | okid_arx_identifier {input_wait['arx']:.1f}, "
+              f"okid_modal_estimator {input_wait['est']:.1f} |")
     first_id, last_id = (models[0], models[-1]) if models else ("-", "-")
     print(f"| models in use during the run | {len(models)} (ids {first_id}..{last_id}) |")
     for name, series in sorted(rx.get("callbacks", {}).items()):
