@@ -262,6 +262,7 @@ class InnovationPredictor:
     """
 
     def __init__(self, model: InnovationModel, state: np.ndarray | None = None) -> None:
+        self._chunk_powers: tuple[list[np.ndarray], np.ndarray] | None = None  # made by advance()
         self.A, self.B, self.C, self.D = model.A, model.B, model.C, model.D
         self.F, self.Gu, self.Gy = model.predictor()
         m, p = model.n_inputs, model.n_outputs
@@ -318,11 +319,38 @@ class InnovationPredictor:
         self.x = x
         return e
 
-    def run_with_gaps(self, u: np.ndarray, y: np.ndarray, skipped: np.ndarray, u_held: np.ndarray | None,
-                      max_gap: int) -> np.ndarray | None:
-        """:meth:`run` over samples that follow ``skipped[k]`` missing slots each (bridged).
+    def advance(self, u: np.ndarray, y: np.ndarray) -> None:
+        """Advance the state over samples ``u`` (N, m), ``y`` (N, p), a chunk per matrix product.
 
-        Returns the last input seen (to hold over the next gap).
+        ``x_{k+1} = F x_k + f_k`` over c samples is ``x_c = F^c x_0 + sum_j F^(c-1-j) f_j``: the
+        state of :meth:`run` to rounding, without its Python step per sample (a fraction of a
+        millisecond instead of 3-10 ms per 1000 samples), for callers that need no innovations.
+        """
+        n = self.F.shape[0]
+        chunk = int(min(64, 2e6 // max(n, 1) ** 3))  # the powers of F cost chunk n^3 flops
+        if chunk < 4:
+            self.run(u, y)
+            return
+        if self._chunk_powers is None:
+            powers = [np.eye(n)]
+            for _ in range(chunk):
+                powers.append(self.F @ powers[-1])
+            # F^(c-1) .. F^0, transposed and stacked: the forcing of a chunk in one product.
+            self._chunk_powers = (powers, np.concatenate([p.T for p in powers[chunk - 1::-1]]))
+        powers, stack = self._chunk_powers
+        forcing = ((np.asarray(u, dtype=float) - self.input_offset) @ self.Gu.T
+                   + (np.asarray(y, dtype=float) - self.output_offset) @ self.Gy.T)
+        x = self.x
+        for k in range(0, forcing.shape[0], chunk):
+            c = min(chunk, forcing.shape[0] - k)
+            x = powers[c] @ x + forcing[k:k + c].reshape(-1) @ stack[(chunk - c) * n:]
+        self.x = x
+
+    def run_with_gaps(self, u: np.ndarray, y: np.ndarray, skipped: np.ndarray, u_held: np.ndarray | None,
+                      max_gap: int, *, chunked: bool = False) -> np.ndarray | None:
+        """:meth:`run` (``chunked``: :meth:`advance`) over samples with gaps bridged.
+
+        Sample k follows ``skipped[k]`` missing slots. Returns the last input seen (to hold over the next gap).
         """
         starts = np.flatnonzero(np.asarray(skipped) != 0)
         bounds = [0, *starts.tolist(), u.shape[0]]
@@ -331,6 +359,9 @@ class InnovationPredictor:
                 continue
             if skipped[lo]:
                 self.bridge(u_held, int(skipped[lo]), max_gap)
-            self.run(u[lo:hi], y[lo:hi])
+            if chunked:
+                self.advance(u[lo:hi], y[lo:hi])
+            else:
+                self.run(u[lo:hi], y[lo:hi])
             u_held = u[hi - 1]
         return u_held

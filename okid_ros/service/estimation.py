@@ -313,37 +313,13 @@ def _fast_forward(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.nd
                   max_gap: int) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`_run_predictor` a chunk of samples per matrix product (the same state to rounding).
 
-    ``x_{k+1} = F x_k + f_k`` over c samples is ``x_c = F^c x_0 + sum_j F^(c-1-j) f_j``: one
-    product per chunk instead of a Python step per sample. For the catch-up of a new model over
-    the samples that arrived during its realization (:meth:`ModalEstimationService.follow`, in
-    the node's interpreter next to the sample path) and the restart after a divergence (on the
-    sample path): a fraction of a millisecond instead of 3-10 ms per 1000 samples, during which
-    the samples waited for the interpreter.
+    For the catch-up of a new model over the samples that arrived during its realization
+    (:meth:`ModalEstimationService.follow`, in the node's interpreter next to the sample path)
+    and the restart after a divergence (on the sample path), where a Python step per sample
+    made the samples wait for the interpreter.
     """
     predictor = InnovationPredictor(model, x)
-    F = predictor.F
-    n = F.shape[0]
-    chunk = int(min(64, 2e6 // max(n, 1) ** 3))  # the powers of F cost chunk n^3 flops
-    if chunk < 4:
-        return _run_predictor(model, x, u, y, skipped, u_prev, max_gap)
-    powers = [np.eye(n)]
-    for _ in range(chunk):
-        powers.append(F @ powers[-1])
-    stack = np.concatenate([power.T for power in powers[chunk - 1::-1]])  # F^(c-1) .. F^0, transposed
-    forcing = (u - predictor.input_offset) @ predictor.Gu.T + (y - predictor.output_offset) @ predictor.Gy.T
-    starts = np.flatnonzero(np.asarray(skipped) != 0)
-    bounds = [0, *starts.tolist(), u.shape[0]]
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
-        if hi <= lo:
-            continue
-        if skipped[lo]:
-            predictor.bridge(u_prev, int(skipped[lo]), max_gap)
-        xk = predictor.x
-        for k in range(lo, hi, chunk):
-            c = min(chunk, hi - k)
-            xk = powers[c] @ xk + forcing[k:k + c].reshape(-1) @ stack[(chunk - c) * n:]
-        predictor.x = xk
-        u_prev = u[hi - 1]
+    u_prev = predictor.run_with_gaps(u, y, skipped, u_prev, max_gap, chunked=True)
     return predictor.x, u_prev
 
 
