@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ros_helpers import rosbags_typestore
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 RECORD_DIR = REPO_ROOT.parent / "shared" / "data" / "real" / "daisy-steel-subframe"
@@ -45,18 +46,6 @@ def sample_index(stamp_s: float, sample_time_s: float, n_samples: int, start_s: 
     """Index into the record of a stamp [s] of a bag written by :func:`write_record_bag` (any pass)."""
     k = int(round((stamp_s - start_s) / sample_time_s))
     return k % n_samples
-
-
-def rosbags_typestore():
-    """The rosbags Jazzy typestore plus okid_msgs from the repository's .msg files (no project code)."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.ROS2_JAZZY)
-    types = {}
-    for path in sorted((REPO_ROOT / "msg_defs" / "msg").glob("*.msg")):
-        types.update(get_types_from_msg(path.read_text(), f"okid_msgs/msg/{path.stem}"))
-    store.register(types)
-    return store
 
 
 def write_record_bag(path: Path, u: np.ndarray, y: np.ndarray, sample_time_s: float, passes: int = 1) -> int:

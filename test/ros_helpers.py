@@ -160,3 +160,15 @@ class ProbeNode:
         if self.executor is not None:
             self.executor.shutdown()
         self.node.destroy_node()
+
+
+def rosbags_typestore():
+    """The rosbags Jazzy typestore plus okid_msgs from the repository's .msg files (no project code)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for path in sorted((REPO_ROOT / "msg_defs" / "msg").glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(), f"okid_msgs/msg/{path.stem}"))
+    store.register(types)
+    return store

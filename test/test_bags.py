@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ros_helpers import rosbags_typestore
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from okid_ros.cli import main
 from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
@@ -212,23 +212,13 @@ def test_sensor_topics_give_the_same_models_as_io_sample(run, capsys):
         assert [m["frequency_rad_s"] for m in a["modes"]] == pytest.approx(frequencies_b, rel=1e-9)
 
 
-def _okid_typestore_from_scratch():
-    """The rosbags Jazzy typestore plus okid_msgs, registered here without project code."""
-    store = get_typestore(Stores.ROS2_JAZZY)
-    types = {}
-    for path in sorted((REPO_ROOT / "msg_defs" / "msg").glob("*.msg")):
-        types.update(get_types_from_msg(path.read_text(), f"okid_msgs/msg/{path.stem}"))
-    store.register(types)
-    return store
-
-
 def test_a_bag_written_by_the_rosbags_writer_alone_is_processed(tmp_path, capsys):
     """A bag as other writers make it.
 
     sqlite3, format version 8, other topic names, receive-time log stamps with jitter, and an
     unrelated topic.
     """
-    store = _okid_typestore_from_scratch()
+    store = rosbags_typestore()
     model = paper_model()
     n = int(25 / model.sample_time_s)
     u = lowpass_input(n, 2, 15.0, model.sample_time_s, seed=7)
@@ -380,7 +370,7 @@ def test_force_on_a_bag_replaces_it(small_bag, tmp_path):
 def test_a_ros1_bag_is_read_and_its_messages_come_out_as_cdr(tmp_path):
     from rosbags.rosbag1 import Writer as Ros1Writer
 
-    store = _okid_typestore_from_scratch()
+    store = rosbags_typestore()
     T = store.types
     bag = tmp_path / "old.bag"
     with Ros1Writer(bag) as writer:

@@ -31,11 +31,11 @@ from real_helpers import (
     matched_errors,
     node_parameters,
     normalized_innovation_rms,
-    rosbags_typestore,
     sample_index,
     stamp_ns,
     write_record_bag,
 )
+from ros_helpers import rosbags_typestore
 from rosbags.highlevel import AnyReader
 
 from okid_ros.cli import main
