@@ -27,6 +27,8 @@ setup(
     # numpy, scipy, filterpy, rosbags: from rosdep (package.xml) on ROS installs, from
     # requirements/python.txt on the pip route; not repeated here so colcon never resolves them.
     install_requires=["setuptools"],
+    # `okid-ros batch --scheduler ADDRESS`: bags as tasks on a Dask distributed cluster
+    extras_require={"dask": ["dask[distributed]"]},
     zip_safe=False,
     entry_points={
         "console_scripts": [
