@@ -30,7 +30,7 @@ from typing import IO, TextIO
 from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
 
-__all__ = ["DemoResult", "run_demo", "default_params_file", "compare_modes"]
+__all__ = ["DemoOptions", "DemoResult", "run_demo", "default_params_file", "compare_modes"]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 OUTPUT_TOPICS = {
@@ -152,202 +152,259 @@ def _stop_process(proc: subprocess.Popen, grace_s: float) -> None:
             continue
 
 
-def run_demo(out_dir: str | Path = "out/demo", duration_s: float = 60.0, rate: float = 1.0,
-             params: list[str | Path] | None = None, sensors: bool = False, seed: int = 1,
-             stream: TextIO | None = None, ansi: bool | None = None, startup_timeout_s: float = 90.0) -> DemoResult:
-    """Run the demo (see the module docstring); returns when everything is stopped.
+@dataclass(frozen=True)
+class DemoOptions:
+    """What ``okid-ros demo`` runs (see :func:`run_demo`)."""
 
-    Args:
-        out_dir: parent of the run folders.
-        duration_s: length of the simulated experiment [s] (the replay takes duration_s / rate).
-        rate: replay speed factor.
-        params: the nodes' parameter files, later ones override (default config/okid.yaml;
-            with ``sensors`` config/okid_imu_wrench.yaml).
-        sensors: feed the nodes the Imu and WrenchStamped topics instead of IoSample.
-        seed: seed of the simulation.
-        stream: where the monitor and the report go (default stdout).
-        ansi: redraw the monitor in place (default: when ``stream`` is a terminal).
-        startup_timeout_s: how long the nodes may take to come up.
+    duration_s: float = 60.0
+    rate: float = 1.0
+    params: tuple[Path, ...] = ()
+    sensors: bool = False
+    seed: int = 1
+    ansi: bool | None = None
+    startup_timeout_s: float = 90.0
 
-    Raises
-    ------
-        OkidError: a step failed (message says which; logs are in the run folder).
-    """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.serialization import deserialize_message
+    @property
+    def param_files(self) -> list[Path]:
+        """The parameter files given, else the default one for the input topics."""
+        return list(self.params) or [default_params_file("okid_imu_wrench.yaml" if self.sensors else "okid.yaml")]
 
-    from okid_msgs.msg import ModalStates
-    from okid_ros.tools.bagio import TRUTH_KEY, BagWriter, open_bag
-    from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
-    from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
-    from okid_ros.tools.process import load_node_parameters
-    from okid_ros.tools.recorder import LiveRecorder
-    from okid_ros.tools.simulate_bag import (
-        IMU_TOPICS,
-        IO_SAMPLE_TOPIC,
-        THRUSTER_TOPICS,
-        simulate_experiment,
-        write_experiment_bag,
-    )
 
-    out = stream or sys.stdout
-    started = time.monotonic()
-
-    def say(text: str) -> None:
-        out.write(text + "\n")
-        out.flush()
-
-    param_files = [Path(p) for p in params] if params else [
-        default_params_file("okid_imu_wrench.yaml" if sensors else "okid.yaml")]
-    for path in param_files:
-        if not path.is_file():
-            raise OkidError(f"parameter file {path} does not exist")
-    run_dir = Path(out_dir) / time.strftime("%Y%m%d-%H%M%S")
+def _new_run_dir(out_dir: Path) -> Path:
+    """A new ``OUT_DIR/YYYYmmdd-HHMMSS``, with ``OUT_DIR/latest`` pointing to it."""
+    run_dir = out_dir / time.strftime("%Y%m%d-%H%M%S")
     if run_dir.exists():
         raise OkidError(f"{run_dir} exists already; wait a second and run again")
     run_dir.mkdir(parents=True)
-    latest = Path(out_dir) / "latest"
+    latest = out_dir / "latest"
     if latest.is_symlink() or not latest.exists():
         if latest.is_symlink():
             latest.unlink()
         latest.symlink_to(run_dir.name)
+    return run_dir
 
-    domain_id, domain_lock = _claim_domain_id()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    saved_env = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-    say(f"okid-ros demo: run folder {run_dir} (ROS_DOMAIN_ID={domain_id}; watch from another shell with "
-        f"ROS_DOMAIN_ID={domain_id} okid-ros monitor)")
 
-    processes: list[subprocess.Popen] = []
-    logs: list[IO[str]] = []
-    context = None
-    try:
-        # 1. the experiment
-        experiment_bag = run_dir / "experiment"
-        experiment = simulate_experiment(duration_s, seed=seed)
-        write_experiment_bag(experiment_bag, experiment)
-        truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"
-                               for m in experiment.truth["modes"])
-        say(f"[1/5] simulated {experiment.n_samples * experiment.sample_time_s:g} s of the paper's experiment "
-            f"-> {experiment_bag} (true modes: {truth_text})")
+class _DemoRun:
+    """One demo run: its folder, ROS domain, processes and log files (all released by ``close``)."""
 
-        # 2. the nodes
-        cli = [sys.executable, "-m", "okid_ros.cli"]
-        nodes_log = open(run_dir / "nodes.log", "w")
-        logs.append(nodes_log)
-        up_args = [arg for path in param_files for arg in ("--params", str(path))]
-        nodes = subprocess.Popen(cli + ["up", *up_args], env=env, stdout=nodes_log,
-                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
-        processes.append(nodes)
-        say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run_dir / 'nodes.log'})")
+    def __init__(self, out_dir: Path, options: DemoOptions, stream: TextIO) -> None:
+        self.options = options
+        self.out = stream
+        self.param_files = options.param_files
+        for path in self.param_files:
+            if not path.is_file():
+                raise OkidError(f"parameter file {path} does not exist")
+        self.run_dir = _new_run_dir(out_dir)
+        self.domain_id, self._domain_lock = _claim_domain_id()
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1")
+        self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        self._saved_env = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+        for key in self._saved_env:  # the in-process recorder joins the same domain
+            os.environ[key] = self.env[key]
+        self.processes: list[subprocess.Popen] = []
+        self._logs: list[IO[str]] = []
+        self.context = None
+        self.node = None  # the recorder's node and executor, made by _start_nodes
+        self.executor = None
+        self.last_model_id: object = "?"
 
-        context = rclpy.Context()
-        rclpy.init(context=context, args=[])
-        node = rclpy.create_node("okid_demo", context=context)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        input_topics = list(THRUSTER_TOPICS) + list(IMU_TOPICS) if sensors else [IO_SAMPLE_TOPIC]
-        deadline = time.monotonic() + startup_timeout_s
-        while not (all(node.count_subscribers(t) >= 2 for t in input_topics)
-                   and all(node.count_publishers(t) >= 1 for t in OUTPUT_TOPICS)):
-            if nodes.poll() is not None:
-                raise OkidError(f"the nodes exited with status {nodes.returncode}; see {run_dir / 'nodes.log'}")
-            if time.monotonic() > deadline:
-                raise OkidError(
-                    f"the nodes did not come up within {startup_timeout_s:g} s; see {run_dir / 'nodes.log'}"
-                )
-            executor.spin_once(timeout_sec=0.2)
+    def say(self, text: str) -> None:
+        self.out.write(text + "\n")
+        self.out.flush()
 
-        # 3. replay, record, monitor
-        arrows = ("\u2191", "\u2193", "\u2192") if "utf" in (getattr(out, "encoding", None) or "utf-8").lower() \
-            else ("^", "v", "=")
-        view = ModalStatesView(arrows=arrows)
-        monitor = TerminalMonitor(view, out, None if ansi is not False and out.isatty() else 5.0,
-                                  ansi=ansi, title="okid-ros demo (live)")
-        counts = {"models": 0, "states": 0}
-        last_output = [time.monotonic()]
+    def start(self, args: list[str], log_name: str) -> subprocess.Popen:
+        """``okid-ros ARGS`` in this run's domain, its output in ``log_name`` of the run folder."""
+        log = open(self.run_dir / log_name, "w")
+        self._logs.append(log)
+        proc = subprocess.Popen([sys.executable, "-m", "okid_ros.cli", *args], env=self.env, stdout=log,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        self.processes.append(proc)
+        return proc
 
-        def on_output(topic: str, data: bytes, receive_ns: int) -> None:
-            last_output[0] = time.monotonic()
-            if topic == "/okid/modal_states":
-                counts["states"] += 1
-                view.update(deserialize_message(data, ModalStates))
-            elif topic == "/okid/state_space_model":
-                counts["models"] += 1
-
-        live_bag = run_dir / "live"
-        with BagWriter(live_bag) as writer:
-            writer.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
-            LiveRecorder(node, writer, OUTPUT_TOPICS, on_message=on_output)
-            replay_log = open(run_dir / "replay.log", "w")
-            logs.append(replay_log)
-            replay = subprocess.Popen(
-                cli + ["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers", "--delay", "0.5",
-                       "--topics", *input_topics],
-                env=env, stdout=replay_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
-            processes.append(replay)
-            say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
-                f"({duration_s / rate:.0f} s); recording the nodes' outputs -> {live_bag}")
-            if monitor.ansi:
-                say("")
-            while replay.poll() is None:
-                executor.spin_once(timeout_sec=0.05)
-                monitor.maybe_draw()
-                if nodes.poll() is not None:
-                    raise OkidError(f"the nodes exited with status {nodes.returncode} during the replay; "
-                                    f"see {run_dir / 'nodes.log'}")
-            if replay.returncode != 0:
-                raise OkidError(f"the replay failed with status {replay.returncode}; see {run_dir / 'replay.log'}")
-            # let the last outputs arrive
-            settle = time.monotonic() + 5.0
-            while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
-                executor.spin_once(timeout_sec=0.05)
-            monitor.draw()
-        say(f"recorded {counts['models']} StateSpaceModel and {counts['states']} ModalStates messages")
-        _stop_process(nodes, grace_s=15.0)
-
-        # 4. figures
-        data = read_plot_data(live_bag, window_s=5.0)
-        add_measured_outputs(data, experiment_bag, load_node_parameters(param_files)[1])
-        figures = write_figures(data, run_dir / "figures")
-        say(f"[4/5] {len(figures)} figures -> {run_dir / 'figures'}: {', '.join(p.name for p in figures)}")
-
-        # 5. identified against true
-        identified: list[dict] = []
-        with open_bag(live_bag) as bag:
-            if "/okid/state_space_model" in bag.topics:
-                for _topic, _ns, msg in bag.messages(["/okid/state_space_model"]):
-                    identified = [{"id": int(m.id), "frequency_rad_s": float(m.frequency_rad_s),
-                                   "frequency_hz": float(m.frequency_hz), "damping_ratio": float(m.damping_ratio)}
-                                  for m in msg.modes]
-        rows = compare_modes(experiment.truth["modes"], identified)
-        matched = {id(r["identified"]) for r in rows if r["identified"] is not None}
-        extra = [m for m in identified if id(m) not in matched]
-        if identified:
-            say(f"[5/5] modes of the last live model ({data.state_space['model_id'] if data.state_space else '?'}) "
-                f"against the truth:")
-            say(format_comparison(rows, extra))
-        else:
-            say("[5/5] no model was identified live; see nodes.log")
-        wall = time.monotonic() - started
-        say(f"okid-ros demo: done in {wall:.0f} s; outputs in {run_dir}")
-        return DemoResult(run_dir, counts["models"], counts["states"], rows, figures, wall)
-    finally:
-        for proc in reversed(processes):
+    def close(self) -> None:
+        for proc in reversed(self.processes):
             _stop_process(proc, grace_s=15.0)
-        if context is not None:
-            context.try_shutdown()
-        for log in logs:
+        if self.context is not None:
+            self.context.try_shutdown()
+        for log in self._logs:
             log.close()
-        for key, value in saved_env.items():
+        for key, value in self._saved_env.items():
             if value is None:
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
-        if domain_lock is not None:
-            domain_lock.close()
+        if self._domain_lock is not None:
+            self._domain_lock.close()
 
+
+def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, **options) -> DemoResult:
+    """Run the demo (see the module docstring); returns when everything is stopped.
+
+    Parameters
+    ----------
+    out_dir : parent of the run folders.
+    stream : where the monitor and the report go (default stdout).
+    **options : the fields of :class:`DemoOptions`: ``duration_s`` (length of the simulated
+        experiment [s]; the replay takes duration_s / rate), ``rate`` (replay speed factor),
+        ``params`` (the nodes' parameter files, later ones override; default config/okid.yaml,
+        with ``sensors`` config/okid_imu_wrench.yaml), ``sensors`` (feed the nodes the Imu and
+        WrenchStamped topics instead of IoSample), ``seed``, ``ansi`` (redraw the monitor in
+        place; default: when ``stream`` is a terminal), ``startup_timeout_s``.
+
+    Raises
+    ------
+    OkidError
+        a step failed (the message says which; logs are in the run folder).
+    """
+    options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
+    started = time.monotonic()
+    run = _DemoRun(Path(out_dir), options, stream or sys.stdout)
+    run.say(f"okid-ros demo: run folder {run.run_dir} (ROS_DOMAIN_ID={run.domain_id}; watch from another shell "
+            f"with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
+    try:
+        experiment_bag, truth = _simulate(run)
+        nodes = _start_nodes(run)
+        counts, live_bag = _replay_and_record(run, nodes, experiment_bag, truth)
+        _stop_process(nodes, grace_s=15.0)
+        figures = _draw_figures(run, live_bag, experiment_bag)
+        rows = _compare_with_truth(run, live_bag, truth)
+        wall = time.monotonic() - started
+        run.say(f"okid-ros demo: done in {wall:.0f} s; outputs in {run.run_dir}")
+        return DemoResult(run.run_dir, counts["models"], counts["states"], rows, figures, wall)
+    finally:
+        run.close()
+
+
+def _input_topics(sensors: bool) -> list[str]:
+    from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
+
+    return list(THRUSTER_TOPICS) + list(IMU_TOPICS) if sensors else [IO_SAMPLE_TOPIC]
+
+
+def _simulate(run: _DemoRun) -> tuple[Path, dict]:
+    """Step 1: the simulated experiment as a bag; returns the bag and the truth."""
+    from okid_ros.tools.simulate_bag import simulate_experiment, write_experiment_bag
+
+    experiment_bag = run.run_dir / "experiment"
+    experiment = simulate_experiment(run.options.duration_s, seed=run.options.seed)
+    write_experiment_bag(experiment_bag, experiment)
+    truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"
+                           for m in experiment.truth["modes"])
+    run.say(f"[1/5] simulated {experiment.n_samples * experiment.sample_time_s:g} s of the paper's experiment "
+            f"-> {experiment_bag} (true modes: {truth_text})")
+    return experiment_bag, experiment.truth
+
+
+def _start_nodes(run: _DemoRun) -> subprocess.Popen:
+    """Step 2: both nodes (``okid-ros up``) and this process's recorder node, once they see each other."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    up_args = [arg for path in run.param_files for arg in ("--params", str(path))]
+    nodes = run.start(["up", *up_args], "nodes.log")
+    run.say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run.run_dir / 'nodes.log'})")
+    run.context = rclpy.Context()
+    rclpy.init(context=run.context, args=[])
+    run.node = rclpy.create_node("okid_demo", context=run.context)
+    run.executor = SingleThreadedExecutor(context=run.context)
+    run.executor.add_node(run.node)
+    input_topics = _input_topics(run.options.sensors)
+    deadline = time.monotonic() + run.options.startup_timeout_s
+    while not (all(run.node.count_subscribers(t) >= 2 for t in input_topics)
+               and all(run.node.count_publishers(t) >= 1 for t in OUTPUT_TOPICS)):
+        if nodes.poll() is not None:
+            raise OkidError(f"the nodes exited with status {nodes.returncode}; see {run.run_dir / 'nodes.log'}")
+        if time.monotonic() > deadline:
+            raise OkidError(f"the nodes did not come up within {run.options.startup_timeout_s:g} s; "
+                            f"see {run.run_dir / 'nodes.log'}")
+        run.executor.spin_once(timeout_sec=0.2)
+    return nodes
+
+
+def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: Path,
+                       truth: dict) -> tuple[dict, Path]:
+    """Step 3: replay the experiment live, record the nodes' outputs and show the modes."""
+    from rclpy.serialization import deserialize_message
+
+    from okid_msgs.msg import ModalStates
+    from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
+    from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
+    from okid_ros.tools.recorder import LiveRecorder
+
+    unicode = "utf" in (getattr(run.out, "encoding", None) or "utf-8").lower()
+    view = ModalStatesView(arrows=("\u2191", "\u2193", "\u2192") if unicode else ("^", "v", "="))
+    ansi = run.options.ansi
+    monitor = TerminalMonitor(view, run.out, None if ansi is not False and run.out.isatty() else 5.0,
+                              ansi=ansi, title="okid-ros demo (live)")
+    counts = {"models": 0, "states": 0}
+    last_output = [time.monotonic()]
+
+    def on_output(topic: str, data: bytes, receive_ns: int) -> None:
+        last_output[0] = time.monotonic()
+        if topic == "/okid/modal_states":
+            counts["states"] += 1
+            view.update(deserialize_message(data, ModalStates))
+        elif topic == "/okid/state_space_model":
+            counts["models"] += 1
+
+    live_bag = run.run_dir / "live"
+    input_topics = _input_topics(run.options.sensors)
+    rate = run.options.rate
+    with BagWriter(live_bag) as writer:
+        writer.set_custom_data(TRUTH_KEY, dumps(truth))
+        LiveRecorder(run.node, writer, OUTPUT_TOPICS, on_message=on_output)
+        replay = run.start(["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers",
+                            "--delay", "0.5", "--topics", *input_topics], "replay.log")
+        run.say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
+                f"({run.options.duration_s / rate:.0f} s); recording the nodes' outputs -> {live_bag}")
+        if monitor.ansi:
+            run.say("")
+        while replay.poll() is None:
+            run.executor.spin_once(timeout_sec=0.05)
+            monitor.maybe_draw()
+            if nodes.poll() is not None:
+                raise OkidError(f"the nodes exited with status {nodes.returncode} during the replay; "
+                                f"see {run.run_dir / 'nodes.log'}")
+        if replay.returncode != 0:
+            raise OkidError(f"the replay failed with status {replay.returncode}; see {run.run_dir / 'replay.log'}")
+        settle = time.monotonic() + 5.0  # let the last outputs arrive
+        while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
+            run.executor.spin_once(timeout_sec=0.05)
+        monitor.draw()
+    run.say(f"recorded {counts['models']} StateSpaceModel and {counts['states']} ModalStates messages")
+    return counts, live_bag
+
+
+def _draw_figures(run: _DemoRun, live_bag: Path, experiment_bag: Path) -> list:
+    """Step 4: the figures of the recording."""
+    from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
+    from okid_ros.tools.process import load_node_parameters
+
+    data = read_plot_data(live_bag, window_s=5.0)
+    add_measured_outputs(data, experiment_bag, load_node_parameters(run.param_files)[1])
+    figures = write_figures(data, run.run_dir / "figures")
+    run.say(f"[4/5] {len(figures)} figures -> {run.run_dir / 'figures'}: {', '.join(p.name for p in figures)}")
+    run.last_model_id = data.state_space["model_id"] if data.state_space else "?"
+    return figures
+
+
+def _compare_with_truth(run: _DemoRun, live_bag: Path, truth: dict) -> list[dict]:
+    """Step 5: the modes of the last live model against the true ones."""
+    from okid_ros.tools.bagio import open_bag
+
+    identified: list[dict] = []
+    with open_bag(live_bag) as bag:
+        if "/okid/state_space_model" in bag.topics:
+            for _topic, _ns, msg in bag.messages(["/okid/state_space_model"]):
+                identified = [{"id": int(m.id), "frequency_rad_s": float(m.frequency_rad_s),
+                               "frequency_hz": float(m.frequency_hz), "damping_ratio": float(m.damping_ratio)}
+                              for m in msg.modes]
+    rows = compare_modes(truth["modes"], identified)
+    matched = {id(r["identified"]) for r in rows if r["identified"] is not None}
+    extra = [m for m in identified if id(m) not in matched]
+    if identified:
+        run.say(f"[5/5] modes of the last live model ({run.last_model_id}) against the truth:")
+        run.say(format_comparison(rows, extra))
+    else:
+        run.say("[5/5] no model was identified live; see nodes.log")
+    return rows
