@@ -251,7 +251,7 @@ class TerminalMonitor:
         self.draws += 1
 
 
-def run_monitor(topic: str = "/okid/modal_states", once: bool = False, duration_s: float | None = None,
+def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, duration_s: float | None = None,
                 interval_s: float | None = None, window_samples: int = 250, trend_window_s: float = 10.0,
                 stream: TextIO | None = None, ansi: bool | None = None) -> ModalStatesView:
     """Subscribe to ``topic`` and draw until Ctrl-C, ``duration_s``, or (``once``) the first message.

@@ -104,6 +104,7 @@ class BagPlayer:
     def __init__(
         self,
         path: str | Path,
+        *,
         rate: float = 1.0,
         loop: bool = False,
         topics: Sequence[str] | None = None,
@@ -184,13 +185,59 @@ class BagPlayer:
             limit = remaining if wall_end is None else min(remaining, wall_end - now)
             self._stop.wait(min(limit, 0.05))
 
+    def _publishers(self, node) -> tuple[dict, object]:
+        """One publisher per replayed topic (remapped), and the /clock publisher if asked."""
+        from rclpy.exceptions import InvalidTopicNameException
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
+                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        publishers = {}
+        for topic in self.topics:
+            name = self.remaps.get(topic, topic)
+            try:
+                publishers[topic] = node.create_publisher(self.classes[topic], name, qos)
+            except (InvalidTopicNameException, ValueError) as exc:
+                raise ToolParameterError(f"cannot publish on {name!r}: {' '.join(str(exc).split())}") from None
+        clock_pub = None
+        if self.clock:
+            from rosgraph_msgs.msg import Clock
+
+            clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        return publishers, clock_pub
+
+    def _play_pass(self, publishers: dict, clock_pub, stats: ReplayStats, wall_end: float | None) -> bool:
+        """One pass over the bag at ``rate``; True when it reached the end of a non-empty bag."""
+        from rclpy.serialization import deserialize_message
+
+        clock_step_ns = int(1e9 / self.clock_hz)
+        pass_start = time.monotonic()
+        first_ns = None
+        next_clock_ns = None
+        if clock_pub is not None:
+            from rosgraph_msgs.msg import Clock
+
+            clock_msg = Clock()
+        with open_bag(self.path) as bag:
+            for topic, _msgtype, stamp_ns, raw in bag.raw_messages(self.topics):
+                if first_ns is None:
+                    first_ns = stamp_ns
+                due = pass_start + (stamp_ns - first_ns) * 1e-9 / self.rate
+                if not self._sleep_until(due, wall_end):
+                    return False
+                stats.max_lag_s = max(stats.max_lag_s, time.monotonic() - due)
+                if clock_pub is not None and (next_clock_ns is None or stamp_ns >= next_clock_ns):
+                    clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
+                    clock_pub.publish(clock_msg)
+                    next_clock_ns = stamp_ns + clock_step_ns
+                publishers[topic].publish(deserialize_message(bytes(raw), self.classes[topic]))
+                stats.published[self.remaps.get(topic, topic)] += 1
+        return first_ns is not None
+
     def run(self, context=None) -> ReplayStats:
         """Play the bag (blocks). ``context``: an initialized rclpy Context, else one is made."""
         try:
             import rclpy
-            from rclpy.exceptions import InvalidTopicNameException
-            from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-            from rclpy.serialization import deserialize_message
         except ImportError as exc:
             raise ReplayError(f"ROS 2 (rclpy) is not available ({exc}); run `make setup` or source ROS") from None
 
@@ -201,21 +248,7 @@ class BagPlayer:
         stats = ReplayStats(published={self.remaps.get(t, t): 0 for t in self.topics})
         node = rclpy.create_node(self.node_name, context=context)
         try:
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
-                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-            publishers = {}
-            for topic in self.topics:
-                name = self.remaps.get(topic, topic)
-                try:
-                    publishers[topic] = node.create_publisher(self.classes[topic], name, qos)
-                except (InvalidTopicNameException, ValueError) as exc:
-                    raise ToolParameterError(f"cannot publish on {name!r}: {' '.join(str(exc).split())}") from None
-            clock_pub = None
-            if self.clock:
-                from rosgraph_msgs.msg import Clock
-
-                clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
-                clock_msg = Clock()
+            publishers, clock_pub = self._publishers(node)
             self.log(f"replay {self.path}: {self.message_count} messages on {len(self.topics)} topics, "
                      f"{self.duration_bag_s:.1f} s at rate {self.rate:g}{' (loop)' if self.loop else ''}")
             if self.wait_for_subscribers:
@@ -229,33 +262,12 @@ class BagPlayer:
                 self._sleep_until(time.monotonic() + self.delay_s, None)
             started = time.monotonic()
             wall_end = None if self.duration_s is None else started + self.duration_s
-            clock_step_ns = int(1e9 / self.clock_hz)
             while not self._stop.is_set():
                 stats.passes += 1
                 if stats.passes > 1:
                     self.log(f"replay: pass {stats.passes} (stamps jump back to the start of the bag)")
-                pass_start = time.monotonic()
-                first_ns = None
-                next_clock_ns = None
-                with open_bag(self.path) as bag:
-                    for topic, _msgtype, stamp_ns, raw in bag.raw_messages(self.topics):
-                        if first_ns is None:
-                            first_ns = stamp_ns
-                        due = pass_start + (stamp_ns - first_ns) * 1e-9 / self.rate
-                        if not self._sleep_until(due, wall_end):
-                            break
-                        stats.max_lag_s = max(stats.max_lag_s, time.monotonic() - due)
-                        if clock_pub is not None and (next_clock_ns is None or stamp_ns >= next_clock_ns):
-                            clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
-                            clock_pub.publish(clock_msg)
-                            next_clock_ns = stamp_ns + clock_step_ns
-                        publishers[topic].publish(deserialize_message(bytes(raw), self.classes[topic]))
-                        stats.published[self.remaps.get(topic, topic)] += 1
-                    else:
-                        if self.loop and first_ns is not None:
-                            continue
-                        break
-                break
+                if not (self._play_pass(publishers, clock_pub, stats, wall_end) and self.loop):
+                    break
             stats.wall_time_s = time.monotonic() - started
             # Reliable subscribers may not have acknowledged the last messages yet; destroying
             # the publishers now would drop them.
