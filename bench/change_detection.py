@@ -2,7 +2,7 @@
 
 Run:  python bench/change_detection.py [--part track delay stationary] [--seeds 0] [--threads 1]
 
-Systems: ``okid_ros.sim.changes`` (250 Hz, 2 inputs, 3 accelerometers, 5 % sensor noise,
+Systems: ``okid_bench.changes`` (250 Hz, 2 inputs, 3 accelerometers, 5 % sensor noise,
 disturbance forces): a 4-mode structure whose frequencies drop by 6 % or 2 % or whose damping
 doubles, and a 4-storey shear frame whose second storey loses 20 % of its stiffness.
 
@@ -60,13 +60,13 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from okid_bench.changes import change_case  # noqa: E402
+from okid_bench.switching import settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
 from okid_ros.core.change_detection import InnovationPredictor, StructuralChangeMonitor  # noqa: E402
 from okid_ros.core.pipeline import identify_from_arx  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402
-from okid_ros.sim.changes import change_case  # noqa: E402
-from okid_ros.sim.switching import settling  # noqa: E402
 
 # Rejected trial steps of the refinement may overflow; they are part of its normal work.
 warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"okid_ros\.core\.refine")

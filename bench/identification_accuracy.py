@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Identification accuracy against known truth: our pipeline and peers on the same data.
 
-For each named test system (``okid_ros.sim.cases.benchmark_cases``), each data length and
+For each named test system (``okid_bench.cases.benchmark_cases``), each data length and
 each noise seed, one identification record and one held-out validation record are simulated,
 every method identifies a model from the record **given the true state dimension** (and the
 case's ARX order where the method has one), and the models are scored against the truth:
@@ -29,7 +29,7 @@ order by GCV, model order by BIC; it is not given the true order), ``okid`` (the
 order and the true model order), ``okid-auto`` (the case's ARX order, model order by BIC),
 ``okid-ls`` (as okid-auto without the refinement), ``okid-riccati`` (as okid-auto with the
 Riccati gain), ``paper`` (``identify(method="paper")``; a model it returns unstable is refused
-and counted as failed) and the peers of ``okid_ros.sim.peers``.  If ``okid_ros.core.pipeline``
+and counted as failed) and the peers of ``okid_bench.peers``.  If ``okid_ros.core.pipeline``
 cannot be imported, the bench
 runs the peers alone.  BLAS threads default to 1 (``--threads``) so timings are comparable and
 the machine stays usable.
@@ -53,9 +53,9 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from okid_ros.sim.cases import BenchmarkCase, benchmark_cases  # noqa: E402
-from okid_ros.sim.peers import PEERS, available_peers, peer_identify  # noqa: E402
-from okid_ros.sim.scoring import (  # noqa: E402
+from okid_bench.cases import BenchmarkCase, benchmark_cases  # noqa: E402
+from okid_bench.peers import PEERS, available_peers, peer_identify  # noqa: E402
+from okid_bench.scoring import (  # noqa: E402
     match_modes,
     modes_of,
     physical_modes,

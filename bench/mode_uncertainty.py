@@ -38,10 +38,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from okid_bench.cases import benchmark_case  # noqa: E402
+from okid_bench.scoring import modes_of  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
-from okid_ros.sim.cases import benchmark_case  # noqa: E402
-from okid_ros.sim.scoring import modes_of  # noqa: E402
 from okid_ros.sim.simulators import simulate  # noqa: E402
 
 DEFAULT_CASES = ("paper-lp15", "close-pair")

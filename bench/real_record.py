@@ -14,9 +14,9 @@ on the held-out samples 6000-8522:
   0), mean over outputs of ``||y_sim - y|| / ||y - mean(y)||`` on 6000+;
 * spectral radius of ``A`` and of the predictor ``A - L C`` (``L = A K`` in the paper's
   convention ``x_{k+1} = A x + B u + A K e``; SIPPY's ``K`` is ``L`` itself, see
-  ``okid_ros.sim.peers``);
+  ``okid_bench.peers``);
 * listed modes: okid_ros's own list (``model.modes``: its physical-mode filter); for the peers,
-  the stable eigenvalue pairs of ``A`` with damping below 10 % (``okid_ros.sim.scoring``);
+  the stable eigenvalue pairs of ``A`` with damping below 10 % (``okid_bench.scoring``);
 * reference modes matched: one-to-one (Hungarian) within 0.5 % in frequency.
 
 Everyone gets the same data: the means of samples 0-5999 are removed from ``u`` and ``y``
@@ -57,9 +57,9 @@ _spec.loader.exec_module(accuracy)
 
 import numpy as np  # noqa: E402
 
+from okid_bench.peers import PEERS, peer_identify  # noqa: E402
+from okid_bench.scoring import Mode, match_modes, model_matrices, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.statespace import simulate, spectral_radius  # noqa: E402
-from okid_ros.sim.peers import PEERS, peer_identify  # noqa: E402
-from okid_ros.sim.scoring import Mode, match_modes, model_matrices, modes_of, physical_modes  # noqa: E402
 
 TRAIN_SAMPLES = 6000
 MATCH_TOL = 0.005
@@ -96,11 +96,11 @@ def _peer(name: str, n_states: int, horizon: int):
 
 
 def all_methods(n_states: int = PEER_STATES, horizon: int = PEER_HORIZON) -> dict:
-    """Method name -> (description, callable(u, y, dt) -> model); peers of ``okid_ros.sim.peers``."""
+    """Method name -> (description, callable(u, y, dt) -> model); peers of ``okid_bench.peers``."""
     methods = _okid_methods()
     for name in PEERS:
         if name.startswith("sippy-") or name == "nfoursid":
-            methods[name] = (f"okid_ros.sim.peers {name}, n = {n_states}, horizon {horizon}",
+            methods[name] = (f"okid_bench.peers {name}, n = {n_states}, horizon {horizon}",
                              _peer(name, n_states, horizon))
     return methods
 

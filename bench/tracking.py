@@ -2,7 +2,7 @@
 
 Run:  python bench/tracking.py [--seeds 0 1 2] [--offset 1] [--threads N]
 
-The structure (``okid_ros.sim.switching.added_mass_case``): modes at 1.8, 4.2, 7.9 Hz drop by
+The structure (``okid_bench.switching.added_mass_case``): modes at 1.8, 4.2, 7.9 Hz drop by
 6 % in the middle of the record; 2 inputs, 3 accelerometers, 25 Hz. For each noise seed the
 record is written to a temporary .npz and run through the `okid-ros track` command
 (``--order 40 --window 4000 --every 250``, everything else at its defaults: ridge/GCV ARX, BIC
@@ -49,9 +49,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from okid_bench.switching import added_mass_case, settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402
-from okid_ros.sim.switching import added_mass_case, settling  # noqa: E402
 
 WINDOW, EVERY, TOLERANCE = 4000, 250, 0.005
 

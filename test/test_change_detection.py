@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_detection import (
     ChangeDetector,
@@ -24,7 +25,6 @@ from okid_ros.core.change_detection import (
 )
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
 
 DT = 1.0 / 250.0
 FIT = 3000  # samples the model is identified from

@@ -57,7 +57,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_no_import_cycles():
     graph = _graph()
     assert "okid_ros.sim.models" in graph and "okid_ros.core.recursive" in graph
-    # A package imports its submodules (okid_ros.sim -> okid_ros.sim.cases) without forming a cycle.
+    # A package imports its submodules (okid_ros.sim -> okid_bench.cases) without forming a cycle.
     cycles = [c for c in _cycles(graph) if not any(a.startswith(b + ".") for a, b in zip(c[1:], c))]
     assert cycles == []
 

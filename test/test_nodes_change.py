@@ -1,7 +1,7 @@
 """Structural change over real DDS: both nodes as processes, a structure whose frequencies drop.
 
 The test process publishes IoSample of a 2-mode structure (6 and 21 Hz, 250 Hz sampling,
-okid_ros.sim.switching) whose frequencies drop by 6 % at sample 5000, with synthetic stamps at
+okid_bench.switching) whose frequencies drop by 6 % at sample 5000, with synthetic stamps at
 1000 samples/s. Node 2 must declare the change on /okid/structural_change (StructuralChange),
 node 1 must restart its window at the change point on that message (its diagnostics and its
 ArxModel window fill show it), and node 2 must publish the change again with the modes of the
@@ -19,9 +19,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
 
 DT = 0.004
 T0 = 500.0

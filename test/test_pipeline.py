@@ -224,7 +224,8 @@ def test_order_search_goes_past_max_states_and_says_when_it_cannot():
 
 def test_every_model_handed_out_has_a_stable_a_and_predictor():
     """Each benchmark system, automatic orders, both completions."""
-    from okid_ros.sim import benchmark_cases, simulate
+    from okid_bench.cases import benchmark_cases
+    from okid_ros.sim import simulate
 
     for case in benchmark_cases():
         u = case.make_input(3000, 31)

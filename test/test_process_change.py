@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_ros.nodes.conversions import io_sample_msg, structural_change_from_msg
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
 from okid_ros.tools.process import OfflineNodes, load_node_parameters
 
 DT, CHANGE, N, T0 = 0.004, 5000, 8000, 100.0

@@ -3,7 +3,7 @@
 Node 2 declares it from the innovations,
 node 1 restarts its window at the change point, the next model is of the new structure only.
 
-A 2-mode structure (6 and 21 Hz, 250 Hz sampling, okid_ros.sim.switching) whose frequencies
+A 2-mode structure (6 and 21 Hz, 250 Hz sampling, okid_bench.switching) whose frequencies
 drop by 6 % at sample 5000; ARX order 40, window 2000 rows, a model every 250 samples.
 """
 
@@ -14,10 +14,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
 
 DT, Q, W, EVERY = 1.0 / 250.0, 40, 2000, 250
 FREQS, DAMPING = [6.0, 21.0], [0.01, 0.015]

@@ -14,20 +14,20 @@ try:
 except ImportError:  # running from a checkout without installing
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from okid_ros.core.statespace import InnovationModel
-from okid_ros.sim.cases import benchmark_cases
-from okid_ros.sim.inputs import lowpass_input, white_input
-from okid_ros.sim.models import NoisyStateSpace, as_noisy_state_space, modal_structure
-from okid_ros.sim.oracle import kalman_predictor, one_step_predictions
-from okid_ros.sim.paper_model import PAPER_A, PAPER_B, PAPER_K, paper_model, paper_modes
-from okid_ros.sim.peers import PEERS, peer_identify
-from okid_ros.sim.scoring import (
+from okid_bench.cases import benchmark_cases
+from okid_bench.oracle import kalman_predictor, one_step_predictions
+from okid_bench.peers import PEERS, peer_identify
+from okid_bench.scoring import (
     match_modes,
     modes_of,
     physical_modes,
     prediction_error_ratio,
     stochastic_markov_error,
 )
+from okid_ros.core.statespace import InnovationModel
+from okid_ros.sim.inputs import lowpass_input, white_input
+from okid_ros.sim.models import NoisyStateSpace, as_noisy_state_space, modal_structure
+from okid_ros.sim.paper_model import PAPER_A, PAPER_B, PAPER_K, paper_model, paper_modes
 from okid_ros.sim.simulators import _propagate_loop, propagate_states, simulate_innovation, simulate_noisy
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from okid_bench.changes import SAMPLE_TIME_S, change_case
 from okid_ros.core.modal import mac
-from okid_ros.sim.changes import SAMPLE_TIME_S, change_case
 
 
 def _discrete_modes(system) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,7 +1,7 @@
 """`okid-ros track` with structural change detection: the flag in every line, the window restart.
 
 A 2-mode structure (6 and 21 Hz, 250 Hz sampling) whose frequencies drop by 6 % at sample
-4000; ARX order 40, window 2000, an update every 250 samples (`okid_ros.sim.switching`).
+4000; ARX order 40, window 2000, an update every 250 samples (`okid_bench.switching`).
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import json
 import numpy as np
 import pytest
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.records import save_record
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
 
 DT, Q, WINDOW, EVERY = 1.0 / 250.0, 40, 2000, 250
 CHANGE, N = 4000, 7000

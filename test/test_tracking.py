@@ -1,6 +1,6 @@
 """Tracking a sudden 6 % frequency drop with `okid-ros track` (issue 4 item 4).
 
-Also the piecewise-constant simulator it runs on (okid_ros.sim.switching).
+Also the piecewise-constant simulator it runs on (okid_bench.switching).
 
 The full experiment over several seeds is ``bench/tracking.py`` (docs/benchmarks-tracking.md);
 the test runs one seed on a shorter record (~20 updates, 30-60 s on the shared 2-core machine).
@@ -13,12 +13,12 @@ import json
 import numpy as np
 import pytest
 
+from okid_bench.switching import added_mass_case, added_mass_structure, settling, simulate_switched
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.records import save_record
 from okid_ros.sim.inputs import white_input
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
 from okid_ros.sim.simulators import simulate_noisy
-from okid_ros.sim.switching import added_mass_case, added_mass_structure, settling, simulate_switched
 
 WINDOW, EVERY, TOLERANCE = 4000, 250, 0.005
 

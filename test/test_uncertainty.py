@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from scipy import linalg
 
+from okid_bench.cases import benchmark_case
+from okid_bench.scoring import modes_of
 from okid_ros.core import uncertainty as unc
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import identify
 from okid_ros.core.uncertainty import attach_mode_uncertainty
-from okid_ros.sim.cases import benchmark_case
-from okid_ros.sim.scoring import modes_of
 from okid_ros.sim.simulators import simulate
 
 

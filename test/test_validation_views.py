@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy import linalg
 
+from okid_bench.cases import benchmark_case
 from okid_ros.cli import main
 from okid_ros.core.pipeline import identify
 from okid_ros.core.validation import fit_percent, h1_frf, mac_matrix, model_frf, prediction_fits
 from okid_ros.records import save_record
-from okid_ros.sim.cases import benchmark_case
 from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model
 from okid_ros.sim.simulators import simulate, simulate_innovation

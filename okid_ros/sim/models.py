@@ -131,7 +131,8 @@ class NoisyStateSpace(StateSpaceDimensions):
 TrueSystem = Union[InnovationModel, NoisyStateSpace]
 
 
-def _zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def zero_order_hold(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of ``dx/dt = Ac x + Bc u`` sampled every ``dt`` seconds with the input held constant."""
     n, m = Bc.shape
     M = np.zeros((n + m, n + m))
     M[:n, :n] = Ac
@@ -226,7 +227,7 @@ def modal_structure(frequencies_hz: Sequence[float], damping_ratios: Sequence[fl
             Cq[:, 2 * i + 1] = -phi_out[:, i] * 2 * z[i] * w[i]
         D = phi_out @ phi_in
         Dw = phi_out @ phi_w
-    A, BB = _zoh(Ac, np.hstack([Bc, Bwc]), sample_time_s)
+    A, BB = zero_order_hold(Ac, np.hstack([Bc, Bwc]), sample_time_s)
     B, Bw = BB[:, :n_inputs], BB[:, n_inputs:]
     s2 = float(disturbance_std) ** 2
     Q = s2 * Bw @ Bw.T

@@ -81,7 +81,7 @@ def propagate_states(F: np.ndarray, W: np.ndarray, x0: Optional[np.ndarray] = No
     return X
 
 
-def _sqrt_psd(M: np.ndarray) -> np.ndarray:
+def sqrt_psd(M: np.ndarray) -> np.ndarray:
     """Square root ``T`` with ``T T^T = M`` for a symmetric positive semi-definite ``M``."""
     M = 0.5 * (M + M.T)
     w, V = np.linalg.eigh(M)
@@ -97,7 +97,8 @@ def _stationary_state_covariance(A: np.ndarray, Qd: np.ndarray) -> Optional[np.n
     return 0.5 * (P + P.T)
 
 
-def _initial_state(A, Qd, x0, rng) -> np.ndarray:
+def initial_state(A, Qd, x0, rng) -> np.ndarray:
+    """The first state: zero, a draw from the stationary distribution of ``x+ = A x + w`` (``Qd``), or ``x0``."""
     n = A.shape[0]
     if x0 is None or (isinstance(x0, str) and x0 == "zero"):
         return np.zeros(n)
@@ -107,7 +108,7 @@ def _initial_state(A, Qd, x0, rng) -> np.ndarray:
         P = _stationary_state_covariance(A, Qd)
         if P is None:
             return np.zeros(n)
-        return _sqrt_psd(P) @ rng.standard_normal(n)
+        return sqrt_psd(P) @ rng.standard_normal(n)
     return np.asarray(x0, dtype=float).reshape(n)
 
 
@@ -139,9 +140,9 @@ def simulate_innovation(model: InnovationModel, u: np.ndarray, seed: Optional[in
     rng = np.random.default_rng(seed)
     N, p = u.shape[0], model.n_outputs
     Re = model.innovation_covariance
-    e = rng.standard_normal((N, p)) @ _sqrt_psd(Re).T
+    e = rng.standard_normal((N, p)) @ sqrt_psd(Re).T
     L = model.predictor_gain
-    xi = _initial_state(model.A, L @ Re @ L.T, x0, rng)
+    xi = initial_state(model.A, L @ Re @ L.T, x0, rng)
     X = propagate_states(model.A, u @ model.B.T + e @ L.T, xi)
     y = X @ model.C.T + u @ model.D.T + e
     return y, e
@@ -172,9 +173,9 @@ def simulate_noisy(system: NoisyStateSpace, u: np.ndarray, seed: Optional[int] =
         raise ValueError(f"u has {u.shape[1]} columns, system has {system.n_inputs} inputs")
     rng = np.random.default_rng(seed)
     N, n, p = u.shape[0], system.n_states, system.n_outputs
-    wv = rng.standard_normal((N, n + p)) @ _sqrt_psd(system.joint_noise_covariance()).T
+    wv = rng.standard_normal((N, n + p)) @ sqrt_psd(system.joint_noise_covariance()).T
     w, v = wv[:, :n], wv[:, n:]
-    xi = _initial_state(system.A, system.process_noise_covariance, x0, rng)
+    xi = initial_state(system.A, system.process_noise_covariance, x0, rng)
     X = propagate_states(system.A, u @ system.B.T + w, xi)
     y = X @ system.C.T + u @ system.D.T + v
     if return_noise_free:

@@ -35,7 +35,7 @@ import numpy as np
 
 from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
-from okid_ros.sim.simulators import _initial_state, _sqrt_psd, propagate_states
+from okid_ros.sim.simulators import initial_state, propagate_states, sqrt_psd
 
 __all__ = [
     "SwitchedCase",
@@ -152,11 +152,11 @@ def simulate_switched(
         raise ValueError(f"u has {u.shape[1]} columns, the systems have {m} inputs")
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((N, n + p))
-    x = _initial_state(first.A, first.process_noise_covariance, x0, rng)
+    x = initial_state(first.A, first.process_noise_covariance, x0, rng)
     X = np.empty((N, n))
     y = np.empty((N, p))
     for s, lo, hi in zip(systems, bounds[:-1], bounds[1:]):
-        wv = white[lo:hi] @ _sqrt_psd(s.joint_noise_covariance()).T
+        wv = white[lo:hi] @ sqrt_psd(s.joint_noise_covariance()).T
         w, v = wv[:, :n], wv[:, n:]
         forcing = u[lo:hi] @ s.B.T + w
         X[lo:hi] = propagate_states(s.A, forcing, x)
@@ -183,7 +183,7 @@ class SwitchedCase:
     damping_ratios : (n_modes,) true damping ratios (unchanged).
     make_input : ``make_input(n_samples, seed) -> u`` (n_samples, m).
     arx_order : ARX order q for tracking (covers the true predictor's memory, see
-        :func:`~okid_ros.sim.cases.suggested_arx_order`).
+        :func:`~okid_bench.cases.suggested_arx_order`).
     """
 
     name: str

@@ -1,11 +1,11 @@
 """Structural changes with known truth at 250 Hz, for the change-detection benchmark.
 
 Every case is a pair of :class:`~okid_ros.sim.models.NoisyStateSpace` systems in the same
-state coordinates (the state carries over the change, :func:`~okid_ros.sim.switching.simulate_switched`):
+state coordinates (the state carries over the change, :func:`~okid_bench.switching.simulate_switched`):
 
 - ``frequency`` (:func:`truss_frequency_case`): a 4-mode structure (5.2, 14.1, 24.8, 37.5 Hz,
   1.5-2.5 % damping) whose frequencies all drop by the same fraction (a distributed added mass,
-  :func:`~okid_ros.sim.switching.added_mass_structure`; shapes unchanged);
+  :func:`~okid_bench.switching.added_mass_structure`; shapes unchanged);
 - ``damping`` (:func:`truss_damping_case`): the same structure with every damping ratio
   multiplied by a factor (frequencies and shapes unchanged);
 - ``stiffness`` (:func:`chain_stiffness_case`): a 4-storey shear frame (lumped masses and storey
@@ -25,9 +25,9 @@ from typing import Callable
 import numpy as np
 import scipy.linalg
 
+from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_ros.sim.inputs import lowpass_input
-from okid_ros.sim.models import NoisyStateSpace, _zoh, modal_structure
-from okid_ros.sim.switching import added_mass_structure, simulate_switched
+from okid_ros.sim.models import NoisyStateSpace, modal_structure, zero_order_hold
 
 __all__ = [
     "ChangeCase",
@@ -168,7 +168,7 @@ def _frame_system(M, K, Cd, sensor_noise_std: np.ndarray | None) -> tuple[NoisyS
     C = S_out @ Ac[n:, :]
     D = S_out @ Minv @ F_in
     Dw = S_out @ Minv @ F_w
-    A, BB = _zoh(Ac, np.hstack([Bc, Bwc]), SAMPLE_TIME_S)
+    A, BB = zero_order_hold(Ac, np.hstack([Bc, Bwc]), SAMPLE_TIME_S)
     B, Bw = BB[:, :2], BB[:, 2:]
     s2 = 0.3**2
     if sensor_noise_std is None:  # 5 % of each output's std under unit white input

@@ -11,9 +11,9 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from okid_bench.oracle import kalman_predictor
 from okid_ros.sim.inputs import lowpass_input, white_input
 from okid_ros.sim.models import TrueSystem, modal_structure
-from okid_ros.sim.oracle import kalman_predictor
 from okid_ros.sim.paper_model import paper_model
 
 __all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case"]

@@ -20,9 +20,9 @@ from typing import Any, Mapping, Optional, Union
 import numpy as np
 import scipy.optimize
 
+from okid_bench.oracle import kalman_predictor, one_step_predictions
 from okid_ros.core.statespace import InnovationModel
 from okid_ros.sim.models import NoisyStateSpace
-from okid_ros.sim.oracle import kalman_predictor, one_step_predictions
 
 __all__ = [
     "Mode",
