@@ -4,4 +4,4 @@ Importing the package is cheap and never imports rclpy: the numerical core and m
 commands work without ROS.
 """
 
-__version__ = "0.1.0"  # kept equal to package.xml by test/test_cli.py
+__version__ = "0.1.0"  # kept equal to package.xml by test/commands/test_cli.py

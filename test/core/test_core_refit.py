@@ -2,7 +2,7 @@
 
 ``refit_predictor`` is given the true predictor poles ``Abar = A - A K C`` and ``C`` of a known
 innovation model and must return its matrices. (The completion from a state sequence has its
-own module and tests: ``core/state_completion.py``, ``test/test_core_state_completion.py``.)
+own module and tests: ``core/state_completion.py``, ``test/core/test_core_state_completion.py``.)
 """
 
 from __future__ import annotations

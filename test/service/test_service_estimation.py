@@ -130,7 +130,7 @@ def test_the_jump_measure_detects_a_cold_start(monkeypatch):
 def test_keeps_the_last_good_model_when_modes_are_lost(pipeline):
     est, results, _ = pipeline
     # The lost-mode rule alone: with the change test on, this change would be declared and the
-    # first model of the new structure accepted at once (test/test_service_change.py).
+    # first model of the new structure accepted at once (test/service/test_service_change.py).
     est.params = dataclasses.replace(est.params, change_detection=False)
     dt = paper_model().sample_time_s
     # The structure changes to another one (modes at 2, 9 and 20 Hz): its models lose every

@@ -3,16 +3,9 @@
 from __future__ import annotations
 
 import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-try:
-    import okid_ros.sim  # noqa: F401
-except ImportError:  # running from a checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from okid_bench.cases import benchmark_cases
 from okid_bench.oracle import kalman_predictor, one_step_predictions

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ros_helpers import rosbags_typestore
+from ros_helpers import REPO_ROOT, rosbags_typestore
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -24,7 +24,6 @@ from okid_ros.tools.plots import add_measured_outputs, fit_percent, output_estim
 from okid_ros.tools.process import load_node_parameters
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG = REPO_ROOT / "config" / "okid.yaml"
 START_S = 1_700_000_000
 # ArxModel every 4 s of data: with the default window (4000 rows, valid from half full, about

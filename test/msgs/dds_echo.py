@@ -1,6 +1,6 @@
 """Echo node for test_msgs_dds.py: republishes every message it receives, in its own process.
 
-    python test/dds_echo.py okid_msgs/msg/IoSample:io okid_msgs/msg/ArxModel:arx ...
+    python test/msgs/dds_echo.py okid_msgs/msg/IoSample:io okid_msgs/msg/ArxModel:arx ...
 
 For each argument TYPE:TAG it subscribes /okid_test/TAG/ping and publishes what arrives,
 unchanged, on /okid_test/TAG/pong. Prints "ready" once all endpoints exist; stops on SIGINT.

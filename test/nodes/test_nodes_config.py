@@ -7,17 +7,16 @@ from __future__ import annotations
 
 import ast
 import re
-from pathlib import Path
 
 import pytest
 import yaml
+from ros_helpers import REPO_ROOT
 
 from okid_ros.service.inputs import parse_sources
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, load_parameters, node_params
 from okid_ros.service.topics import resolve_topic
 
-REPO = Path(__file__).resolve().parent.parent
-CONFIG = REPO / "config" / "okid.yaml"
+CONFIG = REPO_ROOT / "config" / "okid.yaml"
 
 
 def flatten(tree: dict, prefix: str = "") -> dict:
@@ -72,20 +71,20 @@ def test_every_parameter_in_okid_yaml_is_commented_with_its_default():
 
 
 def test_the_sensor_example_maps_every_channel_once():
-    values = load_parameters(REPO / "config" / "okid_imu_wrench.yaml", ESTIMATOR_NODE)
+    values = load_parameters(REPO_ROOT / "config" / "okid_imu_wrench.yaml", ESTIMATOR_NODE)
     specs = parse_sources(values["inputs.sources"], values["n_inputs"], values["n_outputs"])
     assert sorted(s.kind for s in specs) == ["imu", "imu", "wrench", "wrench"]
 
 
 def test_launch_file_starts_both_console_scripts_under_their_node_names():
-    tree = ast.parse((REPO / "launch" / "okid.launch.py").read_text())
+    tree = ast.parse((REPO_ROOT / "launch" / "okid.launch.py").read_text())
     nodes = {}
     for call in ast.walk(tree):
         if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node":
             kw = {k.arg: k.value.value for k in call.keywords if isinstance(k.value, ast.Constant)}
             nodes[kw["name"]] = kw["executable"]
     assert nodes == {ARX_NODE: "arx_identifier", ESTIMATOR_NODE: "modal_estimator"}
-    setup = (REPO / "setup.py").read_text()
+    setup = (REPO_ROOT / "setup.py").read_text()
     for executable, module in (("arx_identifier", "arx_identifier_node"), ("modal_estimator", "modal_estimator_node")):
         assert f'"{executable} = okid_ros.nodes.{module}:main"' in setup
-    assert "params_file" in (REPO / "launch" / "okid.launch.py").read_text()
+    assert "params_file" in (REPO_ROOT / "launch" / "okid.launch.py").read_text()

@@ -3,7 +3,7 @@
 Publishes simulated IoSample and counts the
 ModalStates that come back, then prints one JSON line and exits (0: modal states received).
 
-    python test/netns_probe.py SAMPLES RATE_HZ TIMEOUT_S
+    python test/nodes/netns_probe.py SAMPLES RATE_HZ TIMEOUT_S
 """
 
 from __future__ import annotations

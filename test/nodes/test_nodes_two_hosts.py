@@ -102,7 +102,7 @@ def test_nodes_on_one_host_serve_a_probe_on_another(two_hosts, tmp_path, discove
         nodes.wait_for_output(r"\[okid_modal_estimator\]: ready", 60)
         nodes.wait_for_output(r"\[okid_arx_identifier\]: ready", 60)
         probe = subprocess.run(["ip", "netns", "exec", two_hosts["a"], sys.executable,
-                                str(REPO_ROOT / "test" / "netns_probe.py"), "4000", "500", "90"],
+                                str(REPO_ROOT / "test" / "nodes" / "netns_probe.py"), "4000", "500", "90"],
                                env=env_a, cwd=REPO_ROOT, capture_output=True, text=True, timeout=180)
         lines = [line for line in probe.stdout.splitlines() if line.startswith("{")]
         assert lines, (probe.stdout, probe.stderr, nodes.output())
