@@ -71,6 +71,7 @@ def gain_by_whitening(
     D: np.ndarray,
     u: np.ndarray,
     y: np.ndarray,
+    *,
     ar_order: int,
     n_markov: int | None = None,
     x0: np.ndarray | None = None,

@@ -25,7 +25,7 @@ def white_input(n_samples: int, n_inputs: int, seed: Optional[int] = None) -> np
 
 
 def lowpass_input(n_samples: int, n_inputs: int, cutoff_hz: float, sample_time_s: float,
-                  seed: Optional[int] = None, order: int = 4, oversample: int = 2,
+                  seed: Optional[int] = None, *, order: int = 4, oversample: int = 2,
                   normalize: bool = True) -> np.ndarray:
     """Gaussian white noise through a Butterworth low-pass filter, unit variance per channel.
 

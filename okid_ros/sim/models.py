@@ -142,7 +142,7 @@ def zero_order_hold(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarr
 
 
 def modal_structure(frequencies_hz: Sequence[float], damping_ratios: Sequence[float] | float,
-                    n_inputs: int, n_outputs: int, sample_time_s: float, seed: int = 0,
+                    n_inputs: int, n_outputs: int, sample_time_s: float, *, seed: int = 0,
                     output: str = "acceleration", disturbance_std: float = 0.3,
                     n_disturbances: Optional[int] = None,
                     measurement_noise_ratio: float = 0.05) -> NoisyStateSpace:
