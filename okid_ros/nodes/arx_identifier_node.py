@@ -24,7 +24,6 @@ The solve runs on a worker thread, which also publishes the result; a lock keeps
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -151,13 +150,8 @@ class ArxIdentifierNode(OkidNode):
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
         # The solve reads the parameters from each capture: the next solve uses the new ones.
-        new = ArxIdentificationParams.from_parameters(values)
         with self._lock:
-            self.service.params = dataclasses.replace(self.service.params, **{
-                f.name: getattr(new, f.name) for f in dataclasses.fields(new)
-                if f.name not in ("order", "window_length", "forgetting_factor", "n_inputs", "n_outputs",
-                                  "sample_time_s")
-            })
+            self.service.set_params(ArxIdentificationParams.from_parameters(values))
         if "publish_rate_hz" in changed:
             self._publish_timer.timer_period_ns = int(1e9 / float(values["publish_rate_hz"]))
 

@@ -35,7 +35,6 @@ each sample arrives; the ArxModel subscription, services and timers by the execu
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing
 import sys
 import threading
@@ -69,8 +68,6 @@ from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
-#: Fields of ModalEstimationParams fixed at the start (they size the buffer).
-_STRUCTURAL = ("sample_time_s", "n_inputs", "n_outputs", "buffer_length")
 
 
 class ModalEstimatorNode(OkidNode):
@@ -211,16 +208,11 @@ class ModalEstimatorNode(OkidNode):
         return f"model updates {'on' if on else 'off (current model frozen)'}"
 
     def check_parameters(self, values: dict[str, Any]) -> None:
-        new = ModalEstimationParams.from_parameters(values)
-        if new.gain not in ("refit", "whitening"):
-            raise ValueError(f"realization.gain must be refit or whitening, got {new.gain!r}")
+        ModalEstimationParams.from_parameters(values).realization_options()  # ValueError with the reason
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
-        # Jobs carry the parameters they were taken with: the next realization uses the new ones.
-        new = ModalEstimationParams.from_parameters(values)
-        self.service.params = dataclasses.replace(self.service.params, **{
-            f.name: getattr(new, f.name) for f in dataclasses.fields(new) if f.name not in _STRUCTURAL
-        })
+        # The service hands each option to the part that uses it: at once.
+        self.service.set_params(ModalEstimationParams.from_parameters(values))
         if "frame_id" in changed:
             self._states_msg.header.frame_id = self.frame_id
 

@@ -71,16 +71,13 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import (
-    DEFAULT_FALSE_ALARM_SAMPLES,
-    DEFAULT_REFERENCE_SAMPLES,
-    DEFAULT_VARIANCE_RATIO,
     DivergenceMonitor,
     StructuralChangeMonitor,
     predictor_spectral_radius,
@@ -88,10 +85,10 @@ from okid_ros.core.change_detection import (
 )
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.modal import Mode
-from okid_ros.core.options import AUTO, ModeCriteria, RealizationOptions
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.mode_registry import ModeRegistry
+from okid_ros.service.options import ModalEstimationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
 
 __all__ = [
@@ -105,90 +102,6 @@ __all__ = [
     "StructuralChangeEvent",
 ]
 
-
-
-_REALIZATION = RealizationOptions()  # the core's defaults, defined there once
-
-
-@dataclass
-class ModalEstimationParams:
-    """Settings of the realization, mode tracking and estimator (ROS names in params.py)."""
-
-    sample_time_s: float = 0.008
-    n_inputs: int = 2
-    n_outputs: int = 2
-    n_states: int = 0  # 0: automatic (BIC)
-    max_states: int = _REALIZATION.max_states
-    max_states_limit: int = _REALIZATION.max_states_limit
-    gain: str = _REALIZATION.gain
-    refine: bool = _REALIZATION.refine
-    max_damping: float = _REALIZATION.modes.max_damping
-    min_msv: float = _REALIZATION.modes.min_msv
-    max_nyquist_fraction: float = _REALIZATION.modes.max_nyquist_fraction
-    min_mpc: float = _REALIZATION.modes.min_mpc
-    min_stable_fraction: float = _REALIZATION.modes.min_stable_fraction
-    offsets: str = "remove"
-    max_frequency_change: float = 0.05
-    min_mac: float = 0.7
-    min_matched_fraction: float = 0.5
-    max_consecutive_rejections: int = 3
-    mode_memory: int = 10
-    buffer_length: int = 0  # 0: sized from the ARX window
-    max_gap_samples: int = 10
-    handover_samples: int = 4
-    change_detection: bool = True
-    change_false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES
-    change_variance_ratio: float = DEFAULT_VARIANCE_RATIO
-    change_reference_samples: int = DEFAULT_REFERENCE_SAMPLES
-    divergence_window_samples: int = 25
-    divergence_nis_ratio: float = 100.0
-
-    @classmethod
-    def from_parameters(cls, values: Mapping[str, Any]) -> "ModalEstimationParams":
-        """From the resolved node parameters (dotted names)."""
-        return cls(
-            sample_time_s=float(values["sample_time_s"]),
-            n_inputs=int(values["n_inputs"]),
-            n_outputs=int(values["n_outputs"]),
-            n_states=int(values["realization.n_states"]),
-            max_states=int(values["realization.max_states"]),
-            max_states_limit=int(values["realization.max_states_limit"]),
-            gain=str(values["realization.gain"]),
-            refine=bool(values["realization.refine"]),
-            max_damping=float(values["modes.max_damping"]),
-            min_msv=float(values["modes.min_msv"]),
-            max_nyquist_fraction=float(values["modes.max_nyquist_fraction"]),
-            min_mpc=float(values["modes.min_mpc"]),
-            min_stable_fraction=float(values["modes.min_stable_fraction"]),
-            offsets=str(values["offsets"]),
-            max_frequency_change=float(values["tracking.max_frequency_change"]),
-            min_mac=float(values["tracking.min_mac"]),
-            min_matched_fraction=float(values["tracking.min_matched_fraction"]),
-            max_consecutive_rejections=int(values["tracking.max_consecutive_rejections"]),
-            mode_memory=int(values["tracking.mode_memory"]),
-            buffer_length=int(values["estimator.buffer_length"]),
-            max_gap_samples=int(values["estimator.max_gap_samples"]),
-            change_detection=bool(values["change.enabled"]),
-            change_false_alarm_samples=float(values["change.false_alarm_samples"]),
-            change_variance_ratio=float(values["change.variance_ratio"]),
-            change_reference_samples=int(values["change.reference_samples"]),
-            divergence_window_samples=int(values["estimator.divergence_window_samples"]),
-            divergence_nis_ratio=float(values["estimator.divergence_nis_ratio"]),
-        )
-
-    def realization_options(self) -> RealizationOptions:
-        """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`)."""
-        return RealizationOptions(
-            n_states=self.n_states if self.n_states > 0 else AUTO,
-            max_states=self.max_states,
-            max_states_limit=max(self.max_states, self.max_states_limit),
-            gain=self.gain,
-            refine=self.refine,
-            modes=ModeCriteria(
-                max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
-                min_msv=self.min_msv, min_mpc=self.min_mpc, min_stable_fraction=self.min_stable_fraction,
-            ),
-        )
 
 
 @dataclass
@@ -458,6 +371,28 @@ class ModalEstimationService:
             self._accepted_change: StructuralChangeEvent | None = None
             self._diverged: list[int] = []  # buffer indices of diverged samples since the last restart
             self._restart_failed = False  # no good sample since the last divergence restart
+
+    def set_params(self, params: ModalEstimationParams) -> list[str]:
+        """Take new options at once; returns the changed fields.
+
+        The next realization uses them (jobs carry their options), the mode registry, the
+        divergence watchdog and the change test take theirs now. Raises ValueError if an
+        option that is not ``runtime`` in the parameter table changes (it sizes the buffer).
+        """
+        with self._lock:
+            changed = check_runtime_change(self.params, params)
+            self.params = params
+            self._configure_parts()
+        return changed
+
+    def _configure_parts(self) -> None:
+        """Hand the options to the parts that hold their own copy."""
+        prm = self.params
+        self._registry.configure(max_frequency_change=prm.max_frequency_change, min_mac=prm.min_mac,
+                                 mode_memory=prm.mode_memory)
+        self._divergence.nis_ratio = float(prm.divergence_nis_ratio)
+        self._monitor.detector.retune(false_alarm_samples=prm.change_false_alarm_samples,
+                                      variance_ratio=prm.change_variance_ratio)
 
     def set_enabled(self, on: bool) -> None:
         """When disabled, ARX fits are ignored and the current model is kept (states still run)."""
