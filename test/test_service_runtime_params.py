@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from okid_ros.core.change_detection import cusum_threshold
-from okid_ros.service import estimation
+from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -139,13 +139,13 @@ def test_the_change_test_takes_a_new_tuning_at_once(running):
 
 def test_the_next_realization_uses_a_gain_changed_at_run_time(running, monkeypatch):
     gains = []
-    realize = estimation.identify_from_arx
+    realize = realization.identify_from_arx
 
     def spy(*args, options, **kwargs):
         gains.append(options.gain)
         return realize(*args, options=options, **kwargs)
 
-    monkeypatch.setattr(estimation, "identify_from_arx", spy)
+    monkeypatch.setattr(realization, "identify_from_arx", spy)
     running.change(gain="riccati")
     running.next_update()
     assert gains[-1] == "riccati"
