@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.statespace import InnovationPredictor
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import dumps
+    from okid_ros.service.records import mode_record
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -237,10 +238,7 @@ def run(args: argparse.Namespace) -> int:
                     max_states_reached=bool(model.max_states_reached),
                     arx_penalty=float(fit.penalty),
                     condition_number=float(fit.condition_number),
-                    modes=[
-                        {key: value for key, value in mode.as_dict().items() if not key.startswith("shape")}
-                        for mode in model.modes
-                    ],
+                    modes=[mode_record(mode) for mode in model.modes],
                 )
                 last_modes = model.modes
                 if (args.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows)

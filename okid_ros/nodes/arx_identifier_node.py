@@ -45,6 +45,7 @@ from okid_ros.service.identification import (
 )
 from okid_ros.service.params import ARX_NODE
 from okid_ros.service.sample_grid import GridSample
+from okid_ros.service.windowed import identification_step
 
 NODE_NAME = ARX_NODE
 
@@ -91,7 +92,7 @@ class ArxIdentifierNode(OkidNode):
 
     # ------------------------------------------------------------------ samples
     def on_sample(self, sample: GridSample) -> None:
-        self.service.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
+        identification_step(self.service, sample)
 
     def _on_structural_change(self, msg) -> None:
         """Restart the window at the change point (node 2 reports each change twice: once)."""

@@ -64,7 +64,8 @@ from okid_ros.service.estimation import (
     realize,
 )
 from okid_ros.service.params import ESTIMATOR_NODE
-from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
+from okid_ros.service.sample_grid import GridSample
+from okid_ros.service.windowed import estimation_step
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
@@ -142,8 +143,7 @@ class ModalEstimatorNode(OkidNode):
 
     # ------------------------------------------------------------------ samples
     def on_sample(self, sample: GridSample) -> None:
-        skipped = RESTART_SKIP if sample.restart else sample.skipped
-        result = self.service.step(sample.stamp_s, sample.u, sample.y, skipped)
+        result = estimation_step(self.service, sample)
         if result is not None:
             if result.update is not None:
                 update = result.update
