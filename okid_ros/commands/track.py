@@ -133,14 +133,16 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from okid_ros.core.arx import fit_from_normal_equations
-    from okid_ros.core.change_detection import StructuralChangeMonitor, predictor_spectral_radius
+    from okid_ros.core.change_detection import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError, choose_arx_order, identify_from_arx
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.core.regressors import regressor_length
     from okid_ros.core.statespace import InnovationPredictor
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import dumps
+    from okid_ros.service.identification import restart_window
     from okid_ros.service.records import mode_record
+    from okid_ros.service.watch import is_new_reference
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -198,9 +200,8 @@ def run(args: argparse.Namespace) -> int:
             alarm = monitor.process(u[fed : k + 1], y[fed : k + 1], fed) if monitor.armed else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
-            else:  # restart the window at the change point
-                estimator.reset()
-                estimator.update(u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+            else:  # restart the window at the change point, as node 1 does
+                restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
                 changes.append(alarm)
             bar.update(k + 1 - fed)
             fed = k + 1
@@ -241,8 +242,7 @@ def run(args: argparse.Namespace) -> int:
                     modes=[mode_record(mode) for mode in model.modes],
                 )
                 last_modes = model.modes
-                if (args.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows)
-                        and predictor_spectral_radius(model) < 1.0):
+                if args.change_detection and is_new_reference(monitor, rows) and not model.stability_problem():
                     # The reference of the change test: the predictor's state after the window.
                     warm = InnovationPredictor(model)
                     warm.run(u_w, y_w)

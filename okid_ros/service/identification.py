@@ -50,6 +50,7 @@ __all__ = [
     "ArxSnapshot",
     "WindowCapture",
     "SolveResult",
+    "restart_window",
     "solve_capture",
 ]
 
@@ -159,6 +160,26 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     if not np.all(np.isfinite(fit.theta)):
         return SolveResult(None, cond, "solution not finite", elapsed)
     return SolveResult(fit, cond, "", elapsed)
+
+
+def restart_window(window: SlidingWindowArx, u: np.ndarray, y: np.ndarray, gaps: np.ndarray | None = None) -> None:
+    """Restart a sliding ARX window at a structural change with the samples from the change point on.
+
+    ``u`` (N, m), ``y`` (N, p): the samples from the change point to the newest; ``gaps`` (N,):
+    non-zero where the lag history breaks before a sample (None: none, the samples go in as
+    one block). Adaptation on or off is kept. (Node 1 at a StructuralChange, ``okid-ros track``
+    at a change it declares.)
+    """
+    adapting = window.adaptation_enabled
+    window.reset()
+    window.adaptation_enabled = adapting
+    if gaps is None:
+        window.update(u, y)
+        return
+    for k in range(u.shape[0]):
+        if gaps[k]:
+            window.mark_gap()
+        window.push(u[k], y[k])
 
 
 @dataclass
@@ -307,13 +328,7 @@ class ArxIdentificationService:
         if first < 0:
             first = self._recent.count  # nothing after the change yet: an empty window
         _, u, y, gaps = self._recent.get(first, self._recent.count)
-        adapting = self._est.adaptation_enabled
-        self._est.reset()
-        self._est.adaptation_enabled = adapting
-        for k in range(u.shape[0]):
-            if gaps[k]:
-                self._est.mark_gap()
-            self._est.push(u[k], y[k])
+        restart_window(self._est, u, y, gaps)
         self._restarted = True
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])

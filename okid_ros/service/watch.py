@@ -28,7 +28,16 @@ from okid_ros.service.realization import advance_state, bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["InnovationWatch"]
+__all__ = ["InnovationWatch", "is_new_reference"]
+
+
+def is_new_reference(monitor: StructuralChangeMonitor, rows: int) -> bool:
+    """Whether a model from a window of ``rows`` regressor rows becomes the change test's reference.
+
+    The first model (of a structure: the monitor is disarmed after a change), then models of
+    windows at least twice as long as the reference's. (Node 2, and ``okid-ros track``.)
+    """
+    return not monitor.armed or rows >= 2 * monitor.reference_rows
 
 
 class InnovationWatch:
@@ -130,13 +139,11 @@ class InnovationWatch:
     def new_model(self, model: IdentifiedModel, state: np.ndarray, rows: int) -> None:
         """A model was accepted (``state``: its state for the next sample; ``rows``: its window's rows).
 
-        The reference of the change test: the first model (of a structure), then models of
-        windows at least twice as long as the reference's.
+        It becomes the change test's reference by :func:`is_new_reference`.
         """
         self.divergence.restart()
-        monitor = self.monitor
-        if self.params.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows):
-            monitor.arm(model, state, reference_rows=rows)
+        if self.params.change_detection and is_new_reference(self.monitor, rows):
+            self.monitor.arm(model, state, reference_rows=rows)
 
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
