@@ -33,9 +33,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.base import OkidNode
 from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import arx_model_msg, ros_message_types, stamp_to_seconds
+from okid_ros.nodes.runner import run_node
 from okid_ros.service.identification import (
     ArxIdentificationParams,
     ArxIdentificationService,

@@ -28,7 +28,7 @@ millisecond) runs here, on the pool's thread. With ``realization.worker: thread`
 thread, and Python's thread switch interval is lowered to 0.2 ms so that the per-sample path
 gets the interpreter quickly while the worker runs Python code.
 
-The samples are served by the node's input thread (:class:`okid_ros.nodes.base.InputThread`),
+The samples are served by the node's input thread (:class:`okid_ros.nodes.input_thread.InputThread`),
 which asks Linux for a short time slice (``input_slice_s``) so that it gets a core soon after
 each sample arrives; the ArxModel subscription, services and timers by the executor.
 """
@@ -46,7 +46,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.base import OkidNode
 from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
@@ -56,6 +56,7 @@ from okid_ros.nodes.conversions import (
     state_space_model_msg,
     structural_change_msg,
 )
+from okid_ros.nodes.runner import run_node
 from okid_ros.service.estimation import (
     ModalEstimationParams,
     ModalEstimationService,
