@@ -224,20 +224,14 @@ class ChangeDetector:
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
-        """Take a new false-alarm rate and tuned covariance increase from the next sample on.
-
-        The calibration (mean, re-whitening, correlation factor) and the statistic are kept:
-        only the threshold and the increments of the CUSUM change.
-        """
+        """New false-alarm rate and tuned increase from the next sample on (calibration and statistic kept)."""
         if not variance_ratio > 1.0:
             raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
-        p = self.n_outputs
-        self.variance_ratio = float(variance_ratio)
-        self.false_alarm_samples = float(false_alarm_samples)
-        self.base_threshold = cusum_threshold(self.false_alarm_samples, p, self.variance_ratio)
+        self.variance_ratio, self.false_alarm_samples = float(variance_ratio), float(false_alarm_samples)
+        self.base_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio)
         self.threshold = self.correlation_factor * self.base_threshold
         self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
-        self._b = 0.5 * p * math.log(self.variance_ratio)
+        self._b = 0.5 * self.n_outputs * math.log(self.variance_ratio)
 
     def restart(self) -> None:
         """Forget the calibration and the statistic: the next samples calibrate again."""

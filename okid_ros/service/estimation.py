@@ -50,22 +50,11 @@ over the buffered samples (not from zero), and the normalized modal form of
 matched modes continue smoothly. The size of the step at each switch relative to the modes'
 RMS amplitude is measured and reported (``last_switch_jump``).
 
-Divergence watchdog: each innovation is whitened by the model's innovation covariance
-(:class:`okid_ros.core.change_detection.DivergenceMonitor`); a diverged sample (non-finite, or
-the moving mean of the normalized innovation squared far above p) is not published (its model
-update or change event goes out with the next good sample), and sustained divergence restarts
-the estimator from the buffered samples (warm start with the model's predictor, diverged
-samples predicted over).
-
-Structural change: every sample also goes to a
-:class:`okid_ros.core.change_detection.StructuralChangeMonitor` armed with a reference model
-(the first model of a structure, then models of windows twice as long). On an alarm
-:class:`StructuralChangeEvent` is reported with the sample (``ModalStatesResult.change``);
-until a model identified from post-change data only is accepted, ARX windows that start before
-the change point are refused; that model is matched against the modes before the change only
-(modes not matched are retired, :class:`okid_ros.service.mode_registry.ModeRegistry`) and the
-event is reported again with the modes after. A divergence that comes back right after a
-restart is declared a change too.
+Divergence watchdog and structural change (:mod:`okid_ros.service.watch`): a diverged sample
+is not published (its model update or change event goes out with the next good sample);
+sustained divergence restarts the estimator from the buffer; a change declared waits for a
+model identified from post-change data only (windows that span it are refused), which is
+matched against the modes before the change (:mod:`okid_ros.service.model_switch`).
 
 Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
 predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a

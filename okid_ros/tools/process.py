@@ -98,28 +98,13 @@ def process_bag(
         an output exists and ``force`` is false.
     """
     bag_path, out_path = Path(bag_path), Path(out_path)
-    if out_path.resolve() == bag_path.resolve():
-        raise BagWriteError(f"{out_path}: the output bag cannot be the input bag")
     nodes = OfflineNodes(arx_values, est_values, namespace=namespace)
-    clash = sorted(set(nodes.input_topics) & set(nodes.output_topics))
-    if clash:
-        raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
-    if jsonl_path is not None:
-        jsonl_path = Path(jsonl_path)
-        if jsonl_path.exists() and not force:
-            prepare_output(jsonl_path, force=False, kind="JSON lines file")
-    if out_path.exists() and not force:
-        prepare_output(out_path, force=False)
+    jsonl_path = _check_outputs(bag_path, out_path, jsonl_path, nodes, force)
     started = time.perf_counter()
     created: list[Path] = []
     try:
         with open_bag(bag_path) as bag:
-            for topic, msgtype in nodes.input_topics.items():
-                bag.require_topic(topic, [msgtype])
-            total = bag.message_count(nodes.input_topics)
-            if total == 0:
-                raise BagReadError(f"{bag_path}: the input topics {', '.join(nodes.input_topics)} have no messages")
-            truth = bag.custom_data.get(TRUTH_KEY)
+            total, truth = _check_input(bag, bag_path, nodes)
             # Outputs are created only once the input is known to be usable.
             jsonl = None
             if jsonl_path is not None:
@@ -130,51 +115,20 @@ def process_bag(
             created.append(out_path)
             bar = _Progress(total, progress, progress_stream)
             with writer:
-                if truth is not None:
-                    writer.set_custom_data(TRUTH_KEY, truth)
-                for topic, msgtype in nodes.output_topics.items():
-                    writer.add_topic(topic, msgtype)
-                written_updates = 0
-
-                def emit(outputs: list, log_ns: int) -> None:
-                    nonlocal written_updates
-                    for out_topic, out_msg in outputs:
-                        writer.write(out_topic, _log_time_ns(nodes.summary.last_stamp_s, log_ns), out_msg)
-                    while written_updates < len(nodes.summary.updates):
-                        line = nodes.summary.updates[written_updates]
-                        written_updates += 1
-                        if jsonl is not None:
-                            jsonl.write(dumps(line) + "\n")
-                            jsonl.flush()
-                        if on_update is not None:
-                            on_update(line)
-
+                emit = _Emitter(writer, nodes, jsonl, on_update, truth)
                 try:
-                    log_ns = 0
-                    for topic, log_ns, msg in bag.messages(nodes.input_topics):
-                        emit(nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
-                        bar.update()
-                    emit(nodes.finish(), log_ns)
+                    emit.run(bag, bar)
                 finally:
                     bar.close()
                     if jsonl is not None:
                         jsonl.close()
                 summary = nodes.summary
                 summary.elapsed_s = time.perf_counter() - started
-                stabilization = getattr(nodes.est.current_model, "stabilization", None)
-                if stabilization:  # for `okid-ros plot`'s stabilization diagram of the last model
-                    writer.set_custom_data(STABILIZATION_KEY, dumps([entry.as_dict() for entry in stabilization]))
-                writer.set_custom_data(PROCESS_KEY, dumps({
+                _write_metadata(writer, nodes, {
                     "source": str(bag_path),
-                    "input_topics": nodes.input_topics,
-                    "samples": summary.samples,
-                    "first_stamp_s": summary.first_stamp_s,
-                    "arx_models": summary.arx_models,
-                    "models": summary.models,
-                    "elapsed_s": summary.elapsed_s,
                     "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
                     **(provenance or {}),
-                }, default=str))
+                })
     except KeyboardInterrupt:
         raise  # what was written stays, closed and readable
     except BaseException:
@@ -185,6 +139,85 @@ def process_bag(
                 path.unlink()
         raise
     return summary
+
+
+def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None, nodes: OfflineNodes,
+                   force: bool) -> Path | None:
+    """Refuse outputs that exist (unless ``force``), the input as output, overlapping topics."""
+    if out_path.resolve() == bag_path.resolve():
+        raise BagWriteError(f"{out_path}: the output bag cannot be the input bag")
+    clash = sorted(set(nodes.input_topics) & set(nodes.output_topics))
+    if clash:
+        raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
+    if jsonl_path is not None:
+        jsonl_path = Path(jsonl_path)
+        if jsonl_path.exists() and not force:
+            prepare_output(jsonl_path, force=False, kind="JSON lines file")
+    if out_path.exists() and not force:
+        prepare_output(out_path, force=False)
+    return jsonl_path
+
+
+def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes) -> tuple[int, Any]:
+    """The number of input messages and the simulation truth of the bag; BagReadError if unusable."""
+    for topic, msgtype in nodes.input_topics.items():
+        bag.require_topic(topic, [msgtype])
+    total = bag.message_count(nodes.input_topics)
+    if total == 0:
+        raise BagReadError(f"{bag_path}: the input topics {', '.join(nodes.input_topics)} have no messages")
+    return total, bag.custom_data.get(TRUTH_KEY)
+
+
+class _Emitter:
+    """Writes what the offline nodes put out: messages to the bag, JSON lines, the callback."""
+
+    def __init__(self, writer: BagWriter, nodes: OfflineNodes, jsonl: TextIO | None,
+                 on_update: Callable[[dict], None] | None, truth: Any) -> None:
+        self.writer, self.nodes, self.jsonl, self.on_update = writer, nodes, jsonl, on_update
+        self.written_updates = 0
+        if truth is not None:  # the simulation's truth goes with the outputs
+            writer.set_custom_data(TRUTH_KEY, truth)
+        for topic, msgtype in nodes.output_topics.items():
+            writer.add_topic(topic, msgtype)
+
+    def run(self, bag: Any, bar: "_Progress") -> None:
+        """Every input message of the bag through the nodes, then the end of the record."""
+        log_ns = 0
+        for topic, log_ns, msg in bag.messages(self.nodes.input_topics):
+            self(self.nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
+            bar.update()
+        self(self.nodes.finish(), log_ns)
+
+    def __call__(self, outputs: list, log_ns: int) -> None:
+        summary = self.nodes.summary
+        for out_topic, out_msg in outputs:
+            self.writer.write(out_topic, _log_time_ns(summary.last_stamp_s, log_ns), out_msg)
+        while self.written_updates < len(summary.updates):
+            line = summary.updates[self.written_updates]
+            self.written_updates += 1
+            if self.jsonl is not None:
+                self.jsonl.write(dumps(line) + "\n")
+                self.jsonl.flush()
+            if self.on_update is not None:
+                self.on_update(line)
+
+
+def _write_metadata(writer: BagWriter, nodes: OfflineNodes, extra: dict) -> None:
+    """The output bag's metadata: the last model's stabilization data and what was processed how."""
+    summary = nodes.summary
+    stabilization = getattr(nodes.est.current_model, "stabilization", None)
+    if stabilization:  # for `okid-ros plot`'s stabilization diagram of the last model
+        writer.set_custom_data(STABILIZATION_KEY, dumps([entry.as_dict() for entry in stabilization]))
+    writer.set_custom_data(PROCESS_KEY, dumps({
+        "source": extra["source"],
+        "input_topics": nodes.input_topics,
+        "samples": summary.samples,
+        "first_stamp_s": summary.first_stamp_s,
+        "arx_models": summary.arx_models,
+        "models": summary.models,
+        "elapsed_s": summary.elapsed_s,
+        **{key: value for key, value in extra.items() if key != "source"},
+    }, default=str))
 
 
 def _log_time_ns(sample_stamp_s: float, log_ns: int) -> int:
