@@ -128,26 +128,18 @@ def _progress(total: int, disable: bool):
 
 def run(args: argparse.Namespace) -> int:
     import time
-    from pathlib import Path
 
     import numpy as np
 
-    from okid_ros.core.arx import fit_from_normal_equations
-    from okid_ros.core.change_detection import StructuralChangeMonitor, predictor_spectral_radius
-    from okid_ros.core.pipeline import IdentificationError, choose_arx_order, identify_from_arx
+    from okid_ros.core.change_detection import StructuralChangeMonitor
+    from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
-    from okid_ros.core.regressors import regressor_length
-    from okid_ros.core.statespace import InnovationPredictor
-    from okid_ros.errors import DataError, ParameterError
+    from okid_ros.errors import DataError
     from okid_ros.jsonio import dumps
-    from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.bagio import prepare_output
+    from okid_ros.service.identification import restart_window
+    from okid_ros.service.watch import is_new_reference
 
-    out = Path(args.jsonl)
-    if not args.force:
-        prepare_output(out, force=False, kind="JSON lines file")
-    record, _ = load_any_record(args.data, args.params, args.param, args.source)
-    u, y, dt = record.u, record.y, record.sample_time_s
+    out, (u, y, dt) = _output_and_record(args)
     n_samples, m = u.shape
     p = y.shape[1]
     window = args.window
@@ -155,27 +147,7 @@ def run(args: argparse.Namespace) -> int:
         n_states=args.states, max_states=args.max_states,
         max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
     )
-    if args.order == "auto":
-        # Chosen once, on the first window, so every update uses the same regressors.
-        try:
-            q, _ = choose_arx_order(u[: window + 200], y[: window + 200], options=options)
-        except IdentificationError as exc:
-            raise DataError(str(exc)) from None
-    else:
-        q = args.order
-    d = regressor_length(q, p, m)
-    if q < 2:
-        raise ParameterError(f"--order must be >= 2 for the identification pipeline, got {q}")
-    if args.regularization == "none" and window < d:
-        raise ParameterError(
-            f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
-            f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
-        )
-    if n_samples < window + q:
-        raise DataError(
-            f"too few samples for one window: {n_samples} given, at least {window + q} needed "
-            f"(window {window} rows plus {q} lags)"
-        )
+    q = _arx_order(args, u, y, options)
     estimator = SlidingWindowArx(q, p, m, window=window)
     monitor = StructuralChangeMonitor(p, false_alarm_samples=args.false_alarm_samples)
     restart_rows = max(int(np.ceil(args.restart_min_fill * window)), 1)
@@ -197,26 +169,14 @@ def run(args: argparse.Namespace) -> int:
             alarm = monitor.process(u[fed : k + 1], y[fed : k + 1], fed) if monitor.armed else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
-            else:  # restart the window at the change point
-                estimator.reset()
-                estimator.update(u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+            else:  # restart the window at the change point, as node 1 does
+                restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
                 changes.append(alarm)
             bar.update(k + 1 - fed)
             fed = k + 1
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
-            entry = {
-                "sample_index": int(k),
-                "window_first_index": int(k - rows - q + 1),
-                "time_s": float(k * dt),
-                "rows": rows,
-                "change_detected": alarm is not None,
-            }
-            if alarm is not None:
-                entry.update(
-                    change_sample_index=int(alarm.change_index), change_declared_index=int(alarm.alarm_index),
-                    change_statistic=float(alarm.statistic), change_threshold=float(alarm.threshold),
-                )
+            entry = _line_head(k, rows, q, dt, alarm)
             if rows < restart_rows:
                 entry.update(n_states=None, modes=[], waiting=(
                     f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the "
@@ -225,30 +185,11 @@ def run(args: argparse.Namespace) -> int:
                 handle.write(dumps(entry) + "\n")
                 continue
             try:
-                # With an intercept, as identify_from_arx removes the window's means (offsets).
-                fit = fit_from_normal_equations(
-                    estimator.normal_equations(), q, p, m, args.regularization, args.penalty, center=True
-                )
-                u_w, y_w, _ = estimator.window_samples()
-                model = identify_from_arx(fit, u_w, y_w, dt, options=options)
-                entry.update(
-                    n_states=model.n_states,
-                    arx_order=int(q),
-                    max_states_reached=bool(model.max_states_reached),
-                    arx_penalty=float(fit.penalty),
-                    condition_number=float(fit.condition_number),
-                    modes=[
-                        {key: value for key, value in mode.as_dict().items() if not key.startswith("shape")}
-                        for mode in model.modes
-                    ],
-                )
+                fields, model, u_w, y_w = _window_model(estimator, q, dt, args, options)
+                entry.update(fields)
                 last_modes = model.modes
-                if (args.change_detection and (not monitor.armed or rows >= 2 * monitor.reference_rows)
-                        and predictor_spectral_radius(model) < 1.0):
-                    # The reference of the change test: the predictor's state after the window.
-                    warm = InnovationPredictor(model)
-                    warm.run(u_w, y_w)
-                    monitor.arm(model, warm.x, reference_rows=rows)
+                if args.change_detection and is_new_reference(monitor, rows) and not model.stability_problem():
+                    _arm_reference(monitor, model, u_w, y_w, rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 failures += 1
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -258,17 +199,116 @@ def run(args: argparse.Namespace) -> int:
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
-    for alarm in changes:
-        print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
-              f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); the window "
-              f"restarted there")
+    _print_summary(changes, dt, last_modes)
     print(
         f"tracked {n_samples} samples: {len(points)} updates ({failures} failed) of window {window}, "
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
     )
+    return 0
+
+
+def _output_and_record(args: argparse.Namespace) -> tuple:
+    """The JSON lines path (refused if it exists, unless --force) and the record: u (N, m), y (N, p), dt."""
+    from pathlib import Path
+
+    from okid_ros.tools.bag_record import load_any_record
+    from okid_ros.tools.bagio import prepare_output
+
+    out = Path(args.jsonl)
+    if not args.force:
+        prepare_output(out, force=False, kind="JSON lines file")
+    record, _ = load_any_record(args.data, args.params, args.param, args.source)
+    return out, (record.u, record.y, record.sample_time_s)
+
+
+def _arx_order(args: argparse.Namespace, u, y, options) -> int:
+    """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
+    from okid_ros.core.pipeline import IdentificationError, choose_arx_order
+    from okid_ros.core.regressors import regressor_length
+    from okid_ros.errors import DataError, ParameterError
+
+    window, (n_samples, m), p = args.window, u.shape, y.shape[1]
+    if args.order == "auto":
+        # Chosen once, on the first window, so every update uses the same regressors.
+        try:
+            q, _ = choose_arx_order(u[: window + 200], y[: window + 200], options=options)
+        except IdentificationError as exc:
+            raise DataError(str(exc)) from None
+    else:
+        q = args.order
+    d = regressor_length(q, p, m)
+    if q < 2:
+        raise ParameterError(f"--order must be >= 2 for the identification pipeline, got {q}")
+    if args.regularization == "none" and window < d:
+        raise ParameterError(
+            f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
+            f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
+        )
+    if n_samples < window + q:
+        raise DataError(
+            f"too few samples for one window: {n_samples} given, at least {window + q} needed "
+            f"(window {window} rows plus {q} lags)"
+        )
+    return q
+
+
+def _line_head(k: int, rows: int, q: int, dt: float, alarm) -> dict:
+    """The first fields of the JSON line of the update at sample ``k`` (and of a change declared there)."""
+    entry = {
+        "sample_index": int(k),
+        "window_first_index": int(k - rows - q + 1),
+        "time_s": float(k * dt),
+        "rows": rows,
+        "change_detected": alarm is not None,
+    }
+    if alarm is not None:
+        entry.update(
+            change_sample_index=int(alarm.change_index), change_declared_index=int(alarm.alarm_index),
+            change_statistic=float(alarm.statistic), change_threshold=float(alarm.threshold),
+        )
+    return entry
+
+
+def _arm_reference(monitor, model, u_window, y_window, rows: int) -> None:
+    """Make ``model`` the change test's reference, with its predictor's state after its window."""
+    from okid_ros.core.statespace import InnovationPredictor
+
+    warm = InnovationPredictor(model)
+    warm.run(u_window, y_window)
+    monitor.arm(model, warm.x, reference_rows=rows)
+
+
+def _window_model(estimator, q: int, dt: float, args: argparse.Namespace, options) -> tuple:
+    """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
+    from okid_ros.core.arx import fit_from_normal_equations
+    from okid_ros.core.pipeline import identify_from_arx
+    from okid_ros.service.records import mode_record
+
+    p, m = estimator.n_outputs, estimator.n_inputs
+    # With an intercept, as identify_from_arx removes the window's means (offsets).
+    fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
+                                    center=True)
+    u_w, y_w, _ = estimator.window_samples()
+    model = identify_from_arx(fit, u_w, y_w, dt, options=options)
+    fields = dict(
+        n_states=model.n_states,
+        arx_order=int(q),
+        max_states_reached=bool(model.max_states_reached),
+        arx_penalty=float(fit.penalty),
+        condition_number=float(fit.condition_number),
+        modes=[mode_record(mode) for mode in model.modes],
+    )
+    return fields, model, u_w, y_w
+
+
+def _print_summary(changes: list, dt: float, last_modes: list) -> None:
+    """The changes found and the last update's modes, on stdout."""
+    for alarm in changes:
+        print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
+              f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); the window "
+              f"restarted there")
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
             f"damping {100 * mode.damping_ratio:6.3f} %"
         )
-    return 0

@@ -214,17 +214,24 @@ class ChangeDetector:
             raise ValueError(f"reference_samples must be >= {10 * n_outputs}, got {reference_samples}")
         if int(mean_tracking_samples) < 0 or int(batch_samples) < 0:
             raise ValueError("mean_tracking_samples and batch_samples must be >= 0")
-        self.n_outputs = p = int(n_outputs)
-        self.variance_ratio = float(variance_ratio)
-        self.false_alarm_samples = float(false_alarm_samples)
+        self.n_outputs = int(n_outputs)
         self.reference_samples = int(reference_samples)
         self.mean_tracking_samples = int(mean_tracking_samples)
         # At least 8 batches in the calibration, else the estimate of r is too rough to use.
         self.batch_samples = int(batch_samples) if int(batch_samples) * 8 <= self.reference_samples else 0
-        self.base_threshold = cusum_threshold(self.false_alarm_samples, p, self.variance_ratio)
-        self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
-        self._b = 0.5 * p * math.log(self.variance_ratio)
+        self.correlation_factor = 1.0
+        self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.restart()
+
+    def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
+        """New false-alarm rate and tuned increase from the next sample on (calibration and statistic kept)."""
+        if not variance_ratio > 1.0:
+            raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
+        self.variance_ratio, self.false_alarm_samples = float(variance_ratio), float(false_alarm_samples)
+        self.base_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio)
+        self.threshold = self.correlation_factor * self.base_threshold
+        self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
+        self._b = 0.5 * self.n_outputs * math.log(self.variance_ratio)
 
     def restart(self) -> None:
         """Forget the calibration and the statistic: the next samples calibrate again."""

@@ -24,7 +24,6 @@ The solve runs on a worker thread, which also publishes the result; a lock keeps
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -34,9 +33,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.base import OkidNode
 from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import arx_model_msg, ros_message_types, stamp_to_seconds
+from okid_ros.nodes.runner import run_node
 from okid_ros.service.identification import (
     ArxIdentificationParams,
     ArxIdentificationService,
@@ -46,6 +46,7 @@ from okid_ros.service.identification import (
 )
 from okid_ros.service.params import ARX_NODE
 from okid_ros.service.sample_grid import GridSample
+from okid_ros.service.windowed import identification_step
 
 NODE_NAME = ARX_NODE
 
@@ -92,7 +93,7 @@ class ArxIdentifierNode(OkidNode):
 
     # ------------------------------------------------------------------ samples
     def on_sample(self, sample: GridSample) -> None:
-        self.service.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
+        identification_step(self.service, sample)
 
     def _on_structural_change(self, msg) -> None:
         """Restart the window at the change point (node 2 reports each change twice: once)."""
@@ -151,13 +152,8 @@ class ArxIdentifierNode(OkidNode):
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
         # The solve reads the parameters from each capture: the next solve uses the new ones.
-        new = ArxIdentificationParams.from_parameters(values)
         with self._lock:
-            self.service.params = dataclasses.replace(self.service.params, **{
-                f.name: getattr(new, f.name) for f in dataclasses.fields(new)
-                if f.name not in ("order", "window_length", "forgetting_factor", "n_inputs", "n_outputs",
-                                  "sample_time_s")
-            })
+            self.service.set_params(ArxIdentificationParams.from_parameters(values))
         if "publish_rate_hz" in changed:
             self._publish_timer.timer_period_ns = int(1e9 / float(values["publish_rate_hz"]))
 

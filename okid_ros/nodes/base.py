@@ -19,13 +19,17 @@ A node subclasses :class:`OkidNode` and implements the hooks:
 - ``close()``: stop workers.
 
 Unmanaged (the default), ``build`` runs in the constructor and the node is active at once.
-Managed (``managed=True``, :func:`managed_node_class`; ``--lifecycle`` on the command line) the
+Managed (``managed=True``, :func:`okid_ros.nodes.lifecycle.managed_node_class`; ``--lifecycle`` on the command line) the
 node is an ``rclpy.lifecycle`` node: the constructor declares the parameters only, *configure*
 builds, *activate* starts the identification and the publishing, *deactivate* stops both
 (samples are dropped, nothing is published, the services still answer), *cleanup* destroys
 what configure built, *shutdown* does the same from any state.
 
-Threads: :func:`run_node` serves the input subscriptions on a thread of their own
+Split by concern: this module is the node base; :mod:`okid_ros.nodes.lifecycle` its managed
+variant, :mod:`okid_ros.nodes.input_thread` the thread that serves its inputs,
+:mod:`okid_ros.nodes.runner` the entry point :func:`~okid_ros.nodes.runner.run_node`.
+
+Threads: :func:`~okid_ros.nodes.runner.run_node` serves the input subscriptions on a thread of their own
 (:class:`InputThread`, ``okid_samples``) and everything else (timers, services, parameters,
 lifecycle, other subscriptions) on the executor in the main thread; the node's
 :attr:`OkidNode.state_lock` keeps the two apart.
@@ -33,19 +37,12 @@ lifecycle, other subscriptions) on the executor in the main thread; the node's
 
 from __future__ import annotations
 
-import gc
-import sys
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import ExitStack
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.exceptions import InvalidHandle
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.guard_condition import GuardCondition
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_srvs.srv import SetBool, Trigger
@@ -57,13 +54,12 @@ from okid_ros.nodes.common import (
     check_parameter_files,
     declare_parameters,
     name_thread,
-    request_short_slice,
 )
 from okid_ros.service.params import node_params, read_only_reason, validate_value
 from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.topics import resolve_topic
 
-__all__ = ["InputThread", "OkidNode", "managed_node_class", "run_node"]
+__all__ = ["OkidNode"]
 
 
 class OkidNode(Node):
@@ -100,7 +96,7 @@ class OkidNode(Node):
         # the node's state (services, parameters, lifecycle, the nodes' own subscriptions and
         # timers): with the inputs on a thread of their own they would otherwise interleave.
         self.state_lock = threading.RLock()
-        self.input_thread: InputThread | None = None
+        self.input_thread: Any = None  # its InputThread (okid_ros.nodes.input_thread), once one serves it
         self.add_on_set_parameters_callback(self._on_set_parameters)
         if not self.managed:
             self.configure()
@@ -324,253 +320,3 @@ class OkidNode(Node):
 
     def close(self) -> None:
         """Stop workers (called at shutdown)."""
-
-
-def managed_node_class(cls: type[OkidNode]) -> type:
-    """The managed (rclpy.lifecycle) variant of a node class: see the module docstring."""
-    from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
-
-    class Managed(LifecycleNodeMixin, cls):
-        def __init__(self, **kwargs: Any) -> None:
-            cls.__init__(self, managed=True, **kwargs)
-            LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
-
-        def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-            try:
-                self.configure()
-            except (ParameterError, ValueError) as exc:
-                self.get_logger().error(f"configure failed: {exc}")
-                self.teardown()
-                return TransitionCallbackReturn.FAILURE
-            self.get_logger().info("configured (inactive: no identification, no publishing)")
-            return TransitionCallbackReturn.SUCCESS
-
-        def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-            with self.state_lock:
-                self.reset_state("activate")  # start from the data that comes from now on
-                if self.inputs is not None:
-                    self.inputs.reset()
-                self.active = True
-            self.get_logger().info("active")
-            return TransitionCallbackReturn.SUCCESS
-
-        def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-            with self.state_lock:  # after a sample being handled, none is handled or published
-                self.active = False
-            self.get_logger().info("inactive: no identification, no publishing")
-            return TransitionCallbackReturn.SUCCESS
-
-        def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-            self.teardown()
-            self.get_logger().info("cleaned up (unconfigured)")
-            return TransitionCallbackReturn.SUCCESS
-
-        def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-            self.teardown()
-            return TransitionCallbackReturn.SUCCESS
-
-        def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-            self.teardown()
-            return TransitionCallbackReturn.SUCCESS
-
-    Managed.__name__ = Managed.__qualname__ = f"Managed{cls.__name__}"
-    return Managed
-
-
-class _ExecutorWithoutInputs(SingleThreadedExecutor):
-    """The executor of all but the node's input subscriptions and their event handlers.
-
-    Those are :class:`InputThread`'s: an event handler of an input subscription left in this
-    executor's wait set would wake it at every message of the subscription.
-    """
-
-    def __init__(self, node: OkidNode) -> None:
-        super().__init__()
-        self._okid_node = node
-
-    def can_execute(self, entity: Any) -> bool:
-        inputs = self._okid_node.inputs
-        if inputs is not None and any(entity is sub or any(entity is h for h in sub.event_handlers)
-                                      for sub in inputs.subscriptions):
-            return False
-        return super().can_execute(entity)
-
-
-class InputThread:
-    """Serves a node's input subscriptions on a thread of their own, ``okid_samples``.
-
-    rclpy's executor builds a new wait set over every entity of the node (services, timers,
-    the event handlers of each publisher and subscription, ...) at each wake: 0.2-0.3 ms of
-    CPU per message on a 2-core machine, at 1 kHz more than the node's own work per sample,
-    and what makes the samples queue when the cores are busy. This thread waits on the input
-    subscriptions (and their QoS event handlers) only, with one wait set kept from wait to
-    wait (as ``rclpy.wait_for_message`` does; about 0.06 ms per message), and hands what is
-    queued to :meth:`~okid_ros.nodes.common.InputFrontend.take_all` under
-    :attr:`OkidNode.state_lock`. The executor of :meth:`executor` serves the rest and leaves
-    the inputs out.
-
-    Parameters
-    ----------
-    node : the node; its ``inputs`` may come and go (lifecycle configure and cleanup).
-    timeout_s : longest wait before the thread looks at the node's inputs again.
-    """
-
-    def __init__(self, node: OkidNode, timeout_s: float = 0.1) -> None:
-        from rclpy.impl.implementation_singleton import rclpy_implementation
-
-        self._rclpy = rclpy_implementation
-        self.node = node
-        self.timeout_ns = int(timeout_s * 1e9)
-        self.error: Exception | None = None  # what ended the thread, re-raised by run_node
-        self._stop = False
-        self._wake = GuardCondition(None, None, context=node.context)
-        self._thread = threading.Thread(target=self._run, name="okid_samples", daemon=True)
-        node.input_thread = self
-
-    @staticmethod
-    def supported() -> bool:
-        """Whether this rclpy has the wait-set API the thread needs (else the executor serves the inputs)."""
-        try:
-            from rclpy.impl.implementation_singleton import rclpy_implementation
-        except ImportError:
-            return False
-        return all(hasattr(rclpy_implementation.WaitSet, name) for name in (
-            "clear_entities", "add_subscription", "add_guard_condition", "wait", "get_ready_entities"))
-
-    def executor(self) -> SingleThreadedExecutor:
-        """An executor for the node that leaves its inputs to this thread."""
-        return _ExecutorWithoutInputs(self.node)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def wake(self) -> None:
-        """End the current wait (the inputs changed, or the thread is to stop)."""
-        try:
-            self._wake.trigger()
-        except InvalidHandle:
-            pass
-
-    def stop(self) -> None:
-        """Stop the thread and wait for it (a batch of samples being handled is finished first)."""
-        self._stop = True
-        self.wake()
-        if self._thread.is_alive() and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
-        self.node.input_thread = None
-        self._wake.destroy()
-
-    def _run(self) -> None:
-        name_thread("okid_samples")
-        if self.node.input_slice_s:
-            request_short_slice(self.node.input_slice_s)
-        node, context = self.node, self.node.context
-        subs: tuple = ()
-        events: list = []
-        wait_set = None
-        try:
-            while not self._stop and context.ok():
-                frontend = node.inputs
-                current = tuple(frontend.subscriptions) if frontend is not None else ()
-                if wait_set is None or len(current) != len(subs) or any(a is not b for a, b in zip(current, subs)):
-                    subs = current
-                    events = [handler for sub in subs for handler in sub.event_handlers]
-                    wait_set = self._rclpy.WaitSet(len(subs), 1, 0, 0, 0, len(events), context.handle)
-                try:
-                    samples, ready_events = self._wait(wait_set, subs, events)
-                except InvalidHandle:
-                    with node.state_lock:  # a cleanup is destroying the inputs: let it finish
-                        pass
-                    continue
-                for handler, data in ready_events:
-                    handler.callback(data)  # QoS events of the inputs (default: a warning in the log)
-                if samples and not self._stop:
-                    with node.state_lock:
-                        if node.inputs is frontend:
-                            frontend.take_all()
-        except Exception as exc:  # reported by run_node, as an exception in a callback would be
-            if context.ok() and not self._stop:
-                self.error = exc
-                rclpy.try_shutdown(context=context)  # ends the executor's spin
-
-    def _wait(self, wait_set: Any, subs: tuple, events: list) -> tuple[bool, list]:
-        """Wait for messages on ``subs`` or a QoS event (or a wake).
-
-        Returns whether a message is ready, and the (handler, event data) of the events taken.
-        """
-        with ExitStack() as in_use:  # a handle in use is not destroyed under the wait
-            for entity in (*(sub.handle for sub in subs), *events, self._wake.handle):
-                in_use.enter_context(entity)
-            wait_set.clear_entities()
-            for sub in subs:
-                wait_set.add_subscription(sub.handle)
-            for handler in events:
-                handler.add_to_wait_set(wait_set)
-            wait_set.add_guard_condition(self._wake.handle)
-            wait_set.wait(self.timeout_ns)
-            taken = [(h, h.take_data()) for h in events if h.is_ready(wait_set)]
-            return bool(wait_set.get_ready_entities("subscription")), [(h, d) for h, d in taken if d]
-
-
-def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None = None) -> int:
-    """Create the node, spin until Ctrl-C / SIGTERM / shutdown; 2 if the parameters are invalid.
-
-    Options before ``--ros-args``: ``--lifecycle`` runs the node as a managed node
-    (:func:`managed_node_class`), configured and activated at once unless
-    ``--no-autostart`` is given too (then a lifecycle manager or ``ros2 lifecycle set`` does it).
-    """
-    from rclpy.lifecycle import TransitionCallbackReturn
-    from rclpy.utilities import remove_ros_args
-
-    argv = list(sys.argv if args is None else args)
-    # A launch argument may carry several options in one string, or none ("").
-    own = [word for arg in remove_ros_args(argv)[1:] for word in arg.split()]
-    unknown = [a for a in own if a not in ("--lifecycle", "--no-autostart")]
-    if unknown:
-        print(f"[{name}] error: unknown option(s) {' '.join(unknown)}; options: --lifecycle [--no-autostart] "
-              "before --ros-args", file=sys.stderr, flush=True)
-        return 2
-    managed = "--lifecycle" in own
-    autostart = "--no-autostart" not in own
-    rclpy.init(args=argv)
-    node = None
-    input_thread: InputThread | None = None
-    try:
-        if managed:
-            node = managed_node_class(factory)()
-            if autostart:
-                if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                    raise ParameterError("configure failed (see the log above)")
-                node.trigger_activate()
-        else:
-            node = factory()
-        # Everything allocated so far (modules, the node) is permanent: keep it out of the
-        # cyclic collector, whose full passes over it otherwise stall the sample path by
-        # 10-20 ms now and then.
-        gc.freeze()
-        if InputThread.supported():
-            input_thread = InputThread(node)
-            executor = input_thread.executor()
-        else:
-            executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        if input_thread is not None:
-            input_thread.start()
-        executor.spin()
-        return 0
-    except ParameterError as exc:
-        print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        if input_thread is not None and input_thread.error is not None:
-            raise input_thread.error from None  # the input thread failed: as if in a callback
-        return 0  # Ctrl-C or SIGTERM, also while starting
-    finally:
-        if input_thread is not None:
-            input_thread.stop()
-        if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            node.destroy_node()
-        rclpy.try_shutdown()

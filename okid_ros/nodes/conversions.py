@@ -26,6 +26,7 @@ from okid_ros.core.modal import Mode
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.identification import ArxSnapshot
 from okid_ros.service.inputs import SourceSpec
+from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
 
 __all__ = [
     "MessageTypes",
@@ -220,22 +221,11 @@ def arx_fit_from_msg(msg: Any) -> tuple[ArxFit, float, int]:
 
 # ---------------------------------------------------------------------------------- modes
 def mode_msg(mode: Mode, types: MessageTypes) -> Any:
-    """``okid_msgs/Mode`` of a core Mode (NaN for indicators that could not be computed)."""
-    return types.Mode(
-        id=int(mode.id),
-        frequency_hz=float(mode.frequency_hz),
-        frequency_rad_s=float(mode.frequency_rad_s),
-        damping_ratio=float(mode.damping_ratio),
-        emac=float(mode.emac),
-        mpc=float(mode.mpc),
-        msv=float(mode.msv),
-        mac_previous=float(mode.mac_previous),
-        stable=bool(mode.stable),
-        frequency_hz_std=float(getattr(mode, "frequency_hz_std", math.nan)),
-        damping_ratio_std=float(getattr(mode, "damping_ratio_std", math.nan)),
-        shape_real=_f64(np.real(mode.shape)),
-        shape_imag=_f64(np.imag(mode.shape)),
-    )
+    """``okid_msgs/Mode`` of a core Mode (:func:`~okid_ros.service.records.mode_record`; NaN where unknown)."""
+    record = mode_record(mode)
+    shape_real, shape_imag = mode_shape(mode)
+    fields = {name: math.nan if record[name] is None else record[name] for name in MESSAGE_MODE_FIELDS}
+    return types.Mode(**fields, shape_real=_f64(shape_real), shape_imag=_f64(shape_imag))
 
 
 def mode_from_msg(msg: Any) -> dict[str, Any]:

@@ -28,14 +28,13 @@ millisecond) runs here, on the pool's thread. With ``realization.worker: thread`
 thread, and Python's thread switch interval is lowered to 0.2 ms so that the per-sample path
 gets the interpreter quickly while the worker runs Python code.
 
-The samples are served by the node's input thread (:class:`okid_ros.nodes.base.InputThread`),
+The samples are served by the node's input thread (:class:`okid_ros.nodes.input_thread.InputThread`),
 which asks Linux for a short time slice (``input_slice_s``) so that it gets a core soon after
 each sample arrives; the ArxModel subscription, services and timers by the executor.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing
 import sys
 import threading
@@ -47,7 +46,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
-from okid_ros.nodes.base import OkidNode, run_node
+from okid_ros.nodes.base import OkidNode
 from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
@@ -57,6 +56,7 @@ from okid_ros.nodes.conversions import (
     state_space_model_msg,
     structural_change_msg,
 )
+from okid_ros.nodes.runner import run_node
 from okid_ros.service.estimation import (
     ModalEstimationParams,
     ModalEstimationService,
@@ -65,12 +65,11 @@ from okid_ros.service.estimation import (
     realize,
 )
 from okid_ros.service.params import ESTIMATOR_NODE
-from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
+from okid_ros.service.sample_grid import GridSample
+from okid_ros.service.windowed import estimation_step
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
-#: Fields of ModalEstimationParams fixed at the start (they size the buffer).
-_STRUCTURAL = ("sample_time_s", "n_inputs", "n_outputs", "buffer_length")
 
 
 class ModalEstimatorNode(OkidNode):
@@ -145,8 +144,7 @@ class ModalEstimatorNode(OkidNode):
 
     # ------------------------------------------------------------------ samples
     def on_sample(self, sample: GridSample) -> None:
-        skipped = RESTART_SKIP if sample.restart else sample.skipped
-        result = self.service.step(sample.stamp_s, sample.u, sample.y, skipped)
+        result = estimation_step(self.service, sample)
         if result is not None:
             if result.update is not None:
                 update = result.update
@@ -211,16 +209,11 @@ class ModalEstimatorNode(OkidNode):
         return f"model updates {'on' if on else 'off (current model frozen)'}"
 
     def check_parameters(self, values: dict[str, Any]) -> None:
-        new = ModalEstimationParams.from_parameters(values)
-        if new.gain not in ("refit", "whitening"):
-            raise ValueError(f"realization.gain must be refit or whitening, got {new.gain!r}")
+        ModalEstimationParams.from_parameters(values).realization_options()  # ValueError with the reason
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
-        # Jobs carry the parameters they were taken with: the next realization uses the new ones.
-        new = ModalEstimationParams.from_parameters(values)
-        self.service.params = dataclasses.replace(self.service.params, **{
-            f.name: getattr(new, f.name) for f in dataclasses.fields(new) if f.name not in _STRUCTURAL
-        })
+        # The service hands each option to the part that uses it: at once.
+        self.service.set_params(ModalEstimationParams.from_parameters(values))
         if "frame_id" in changed:
             self._states_msg.header.frame_id = self.frame_id
 

@@ -2,9 +2,15 @@
 
 - :mod:`.sample_grid`: synchronized samples from per-topic channel updates (`SampleGrid`);
 - :mod:`.inputs`: the input source specifications of the parameters (`parse_source`);
-- :mod:`.params`: parameter declarations of both nodes (names, defaults, ranges, units) and
-  the YAML loader the offline tools use;
+- :mod:`.params`: the parameter table of both nodes (names, defaults, ranges, units, the
+  service option each sets, whether it may change at run time) and the YAML loader the
+  offline tools use; :mod:`.options`: the services' options derived from it;
 - :mod:`.identification`: node 1, windowed ARX identification (`ArxIdentificationService`);
-- :mod:`.estimation`: node 2, realization, mode tracking and the modal state estimator
-  (`ModalEstimationService`).
+- :mod:`.estimation`: node 2, the modal estimation service (`ModalEstimationService`), on its
+  parts: :mod:`.realization` (realization and its checks), :mod:`.model_switch` (model
+  switching, mode ids with :mod:`.mode_registry`), :mod:`.watch` (divergence and change
+  watch), :mod:`.results` (what it hands out);
+- :mod:`.windowed`: each node's step per sample, and both nodes in step offline
+  (`WindowedPipeline`, ``okid-ros process``);
+- :mod:`.records`: the one serialized shape of a mode, a change and a model update.
 """

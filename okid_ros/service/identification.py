@@ -34,13 +34,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.recursive import SlidingWindowArx
-from okid_ros.core.regressors import regressor_length
+from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
 
@@ -50,77 +50,9 @@ __all__ = [
     "ArxSnapshot",
     "WindowCapture",
     "SolveResult",
+    "restart_window",
     "solve_capture",
 ]
-
-
-@dataclass
-class ArxIdentificationParams:
-    """Settings of the identification (see ``okid_ros/service/params.py`` for the ROS names).
-
-    Attributes
-    ----------
-    sample_time_s : dt [s].
-    order : ARX order q.
-    n_inputs, n_outputs : m and p.
-    window_length : regressor rows in the sliding window; 0 for infinite history with
-        ``forgetting_factor``.
-    forgetting_factor : lambda in (0, 1] (only with ``window_length`` 0).
-    regularization : "none", "ridge" or "tc".
-    penalty_by_gcv : choose the penalty (and TC decay) by GCV at every solve.
-    penalty : fixed penalty otherwise.
-    tc_decay : fixed TC decay otherwise.
-    min_window_fill : snapshots of a window filled less than this are invalid.
-    max_condition_number : condition number of the column-scaled normal equations above which
-        the window is unexcited (snapshot invalid, last good fit kept).
-    publish_period_s : period of :meth:`ArxIdentificationService.due` (offline processing).
-    restart_min_fill : after :meth:`ArxIdentificationService.restart_at`, snapshots are valid
-        from this window fill on (instead of ``min_window_fill``).
-    offsets : "remove" (the fit has an intercept: signals with non-zero means, as node 2 and
-        the batch ``identify`` remove them) or "none".
-    """
-
-    sample_time_s: float = 0.008
-    order: int = 100
-    n_inputs: int = 2
-    n_outputs: int = 2
-    window_length: int = 4000
-    forgetting_factor: float = 1.0
-    regularization: str = "ridge"
-    penalty_by_gcv: bool = True
-    penalty: float = 1.0
-    tc_decay: float = 0.95
-    min_window_fill: float = 0.5
-    max_condition_number: float = 1e12
-    publish_period_s: float = 1.0
-    restart_min_fill: float = 0.25
-    offsets: str = "remove"
-
-    @classmethod
-    def from_parameters(cls, values: Mapping[str, Any]) -> "ArxIdentificationParams":
-        """From the resolved node parameters (dotted names, :func:`okid_ros.service.params.resolve_parameters`)."""
-        return cls(
-            sample_time_s=float(values["sample_time_s"]),
-            order=int(values["arx.order"]),
-            n_inputs=int(values["n_inputs"]),
-            n_outputs=int(values["n_outputs"]),
-            window_length=int(values["arx.window_length"]),
-            forgetting_factor=float(values["arx.forgetting_factor"]),
-            regularization=str(values["arx.regularization"]),
-            penalty_by_gcv=bool(values["arx.penalty_by_gcv"]),
-            penalty=float(values["arx.penalty"]),
-            tc_decay=float(values["arx.tc_decay"]),
-            min_window_fill=float(values["arx.min_window_fill"]),
-            max_condition_number=float(values["arx.max_condition_number"]),
-            publish_period_s=1.0 / float(values["publish_rate_hz"]),
-            restart_min_fill=float(values["arx.restart_min_fill"]),
-            offsets=str(values["offsets"]),
-        )
-
-    @property
-    def n_params(self) -> int:
-        """D = m + q (p + m), coefficients per output."""
-        return regressor_length(self.order, self.n_outputs, self.n_inputs)
 
 
 @dataclass
@@ -230,6 +162,26 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     return SolveResult(fit, cond, "", elapsed)
 
 
+def restart_window(window: SlidingWindowArx, u: np.ndarray, y: np.ndarray, gaps: np.ndarray | None = None) -> None:
+    """Restart a sliding ARX window at a structural change with the samples from the change point on.
+
+    ``u`` (N, m), ``y`` (N, p): the samples from the change point to the newest; ``gaps`` (N,):
+    non-zero where the lag history breaks before a sample (None: none, the samples go in as
+    one block). Adaptation on or off is kept. (Node 1 at a StructuralChange, ``okid-ros track``
+    at a change it declares.)
+    """
+    adapting = window.adaptation_enabled
+    window.reset()
+    window.adaptation_enabled = adapting
+    if gaps is None:
+        window.update(u, y)
+        return
+    for k in range(u.shape[0]):
+        if gaps[k]:
+            window.mark_gap()
+        window.push(u[k], y[k])
+
+
 @dataclass
 class _Counters:
     samples_seen: int = 0
@@ -299,6 +251,15 @@ class ArxIdentificationService:
         self._model_id = 0
         self._due_stamp: float | None = None
 
+    def set_params(self, params: ArxIdentificationParams) -> list[str]:
+        """Take new options at once (the next solve and restart use them); returns the changed fields.
+
+        Raises ValueError if an option that sizes the window changes (``runtime`` in the table).
+        """
+        changed = check_runtime_change(self.params, params)
+        self.params = params
+        return changed
+
     @property
     def adaptation_enabled(self) -> bool:
         return self._est.adaptation_enabled
@@ -367,13 +328,7 @@ class ArxIdentificationService:
         if first < 0:
             first = self._recent.count  # nothing after the change yet: an empty window
         _, u, y, gaps = self._recent.get(first, self._recent.count)
-        adapting = self._est.adaptation_enabled
-        self._est.reset()
-        self._est.adaptation_enabled = adapting
-        for k in range(u.shape[0]):
-            if gaps[k]:
-                self._est.mark_gap()
-            self._est.push(u[k], y[k])
+        restart_window(self._est, u, y, gaps)
         self._restarted = True
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])

@@ -33,10 +33,14 @@ class ModeRegistry:
     """
 
     def __init__(self, *, max_frequency_change: float, min_mac: float, mode_memory: int) -> None:
+        self.configure(max_frequency_change=max_frequency_change, min_mac=min_mac, mode_memory=mode_memory)
+        self.reset()
+
+    def configure(self, *, max_frequency_change: float, min_mac: float, mode_memory: int) -> None:
+        """New matching criteria, used from the next :meth:`match` on (ids and memory are kept)."""
         self.max_frequency_change = float(max_frequency_change)
         self.min_mac = float(min_mac)
         self.mode_memory = int(mode_memory)
-        self.reset()
 
     def reset(self) -> None:
         """Forget every mode; ids restart at 0."""

@@ -249,6 +249,7 @@ class SampleGrid:
         n_inputs: int,
         n_outputs: int,
         sources: Sequence[Sequence[int]],
+        *,
         tolerance: float = 0.25,
         latency_samples: int = 5,
         time_jump_s: float = 1.0,

@@ -21,6 +21,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from okid_ros.service.records import mode_record, mode_shape
+
 __all__ = ["MODAL_CSV_COLUMNS", "write_modal_csv", "write_uff"]
 
 MODAL_CSV_COLUMNS = ("id", "frequency_hz", "frequency_hz_std", "frequency_rad_s", "damping_ratio",
@@ -45,9 +47,10 @@ def write_modal_csv(path: str | Path, modes: Sequence[Any]) -> None:
         writer = csv.writer(handle)
         writer.writerow(header)
         for mode in modes:
-            shape = np.asarray(mode.shape, complex)
-            row = [_cell(getattr(mode, name, math.nan)) for name in MODAL_CSV_COLUMNS]
-            row += [_cell(v) for v in shape.real] + [_cell(v) for v in shape.imag]
+            record = mode_record(mode)  # the one serialized shape of a mode
+            shape_real, shape_imag = mode_shape(mode)
+            row = [_cell(math.nan if record[name] is None else record[name]) for name in MODAL_CSV_COLUMNS]
+            row += [_cell(v) for v in shape_real] + [_cell(v) for v in shape_imag]
             writer.writerow(row)
 
 

@@ -106,7 +106,7 @@ def test_without_the_restart_the_old_modes_stay_much_longer():
 
 def test_a_model_with_an_unstable_predictor_is_refused_with_the_check_named(monkeypatch):
     from okid_ros.core.change_detection import predictor_spectral_radius
-    from okid_ros.service import estimation
+    from okid_ros.service import realization
 
     est, ident, results, _ = run(change=False, n=3010)  # 10 samples after the last model request
     good = est.current_model
@@ -118,7 +118,7 @@ def test_a_model_with_an_unstable_predictor_is_refused_with_the_check_named(monk
         assert predictor_spectral_radius(bad) > 1.0
         return bad
 
-    monkeypatch.setattr(estimation, "identify_from_arx", unstable_predictor)
+    monkeypatch.setattr(realization, "identify_from_arx", unstable_predictor)
     snap = ident.snapshot()
     est.submit_arx(snap.fit, snap.stamp_s, 99, snap.window_rows)
     assert est.process_pending()

@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from okid_ros.service import estimation
+from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.sim import lowpass_input, modal_structure, paper_model, paper_modes, simulate, simulate_innovation
@@ -118,10 +118,10 @@ def test_model_switch_without_a_jump_in_the_modal_states(pipeline):
 
 
 def test_the_jump_measure_detects_a_cold_start(monkeypatch):
-    def cold(model, x, u, y, skipped, u_prev, max_gap):
+    def cold(model, x, u, y, skipped, u_prev, *, max_gap, chunked=False):
         return np.zeros_like(x), (u[-1] if len(u) else u_prev)
 
-    monkeypatch.setattr(estimation, "_run_predictor", cold)
+    monkeypatch.setattr(realization, "advance_state", cold)
     est, results, _ = run_pipeline(n_samples=3300)
     assert max(switch_jump_ratios(results)) > 4.0
     assert est.diagnostics()["max_switch_jump"] > 0.8
@@ -170,7 +170,7 @@ def test_unstable_models_are_never_used(monkeypatch):
     def unstable(*args, **kwargs):
         return dataclasses.replace(good, A=1.05 * good.A)
 
-    monkeypatch.setattr(estimation, "identify_from_arx", unstable)
+    monkeypatch.setattr(realization, "identify_from_arx", unstable)
     snap = ident.snapshot()
     est.submit_arx(snap.fit, snap.stamp_s, 99, snap.window_rows)
     assert est.process_pending()
@@ -186,7 +186,7 @@ def test_a_model_with_an_unstable_predictor_is_refused_with_its_reason(monkeypat
     # A stays stable; a gain 5 times too large makes A - A K C unstable.
     bad = dataclasses.replace(good, K=5.0 * good.K)
     assert bad.spectral_radius() < 1 and bad.predictor_spectral_radius() > 1
-    monkeypatch.setattr(estimation, "identify_from_arx", lambda *args, **kwargs: bad)
+    monkeypatch.setattr(realization, "identify_from_arx", lambda *args, **kwargs: bad)
     snap = ident.snapshot()
     est.submit_arx(snap.fit, snap.stamp_s, 99, snap.window_rows)
     assert est.process_pending()

@@ -1,0 +1,66 @@
+"""The managed (``rclpy.lifecycle``) variant of a node: see :mod:`okid_ros.nodes.base`.
+
+*configure* builds, *activate* starts the identification and the publishing, *deactivate*
+stops both (samples are dropped, nothing is published, the services still answer), *cleanup*
+destroys what configure built, *shutdown* does the same from any state.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from okid_ros.errors import ParameterError
+from okid_ros.nodes.base import OkidNode
+
+__all__ = ["managed_node_class"]
+
+
+def managed_node_class(cls: type[OkidNode]) -> type:
+    """The managed (rclpy.lifecycle) variant of a node class: see the module docstring."""
+    from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
+
+    class Managed(LifecycleNodeMixin, cls):
+        def __init__(self, **kwargs: Any) -> None:
+            cls.__init__(self, managed=True, **kwargs)
+            LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
+
+        def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+            try:
+                self.configure()
+            except (ParameterError, ValueError) as exc:
+                self.get_logger().error(f"configure failed: {exc}")
+                self.teardown()
+                return TransitionCallbackReturn.FAILURE
+            self.get_logger().info("configured (inactive: no identification, no publishing)")
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+            with self.state_lock:
+                self.reset_state("activate")  # start from the data that comes from now on
+                if self.inputs is not None:
+                    self.inputs.reset()
+                self.active = True
+            self.get_logger().info("active")
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+            with self.state_lock:  # after a sample being handled, none is handled or published
+                self.active = False
+            self.get_logger().info("inactive: no identification, no publishing")
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+            self.teardown()
+            self.get_logger().info("cleaned up (unconfigured)")
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+            self.teardown()
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+            self.teardown()
+            return TransitionCallbackReturn.SUCCESS
+
+    Managed.__name__ = Managed.__qualname__ = f"Managed{cls.__name__}"
+    return Managed

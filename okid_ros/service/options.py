@@ -1,0 +1,175 @@
+"""The services' options, derived from the parameter table (:mod:`okid_ros.service.params`).
+
+Each :class:`~okid_ros.service.params.ParamSpec` names the option field that takes its value
+(``field``) and whether it may change while a node runs (``runtime``). From that table come,
+here, the defaults of :class:`ArxIdentificationParams` (node 1) and
+:class:`ModalEstimationParams` (node 2), their ``from_parameters``, and
+:func:`check_runtime_change`, the one rule of which option may change on a running service;
+the defaults the core defines are read from the core by the table.
+
+>>> ModalEstimationParams().min_mac == option_specs(ESTIMATOR_NODE)["min_mac"].default
+True
+>>> from okid_ros.service.params import resolve_parameters
+>>> ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"publish_rate_hz": 4.0})).publish_period_s
+0.25
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+from okid_ros.core.options import AUTO, ModeCriteria, RealizationOptions
+from okid_ros.core.regressors import regressor_length
+from okid_ros.service.params import (
+    ARX_NODE,
+    ESTIMATOR_NODE,
+    option_specs,
+    option_values,
+    runtime_fields,
+)
+
+__all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_change", "HANDOVER_SAMPLES"]
+
+#: Samples :meth:`~okid_ros.service.estimation.ModalEstimationService.follow` leaves to the
+#: switch on the sample path (not a parameter).
+HANDOVER_SAMPLES = 4
+
+
+def _default(node: str, option: str) -> Any:
+    """The table's default of the parameter that sets ``option``, as the option holds it."""
+    spec = option_specs(node)[option]
+    return spec.field_value(spec.default)
+
+
+def _arx(option: str) -> Any:
+    return _default(ARX_NODE, option)
+
+
+def _est(option: str) -> Any:
+    return _default(ESTIMATOR_NODE, option)
+
+
+@dataclass
+class ArxIdentificationParams:
+    """Settings of the identification (the ROS names and meanings: ``okid_ros/service/params.py``).
+
+    Attributes
+    ----------
+    sample_time_s : dt [s].
+    order : ARX order q.
+    n_inputs, n_outputs : m and p.
+    window_length : regressor rows in the sliding window; 0 for infinite history with
+        ``forgetting_factor``.
+    forgetting_factor : lambda in (0, 1] (only with ``window_length`` 0).
+    regularization : "none", "ridge" or "tc".
+    penalty_by_gcv : choose the penalty (and TC decay) by GCV at every solve.
+    penalty : fixed penalty otherwise.
+    tc_decay : fixed TC decay otherwise.
+    min_window_fill : snapshots of a window filled less than this are invalid.
+    max_condition_number : condition number of the column-scaled normal equations above which
+        the window is unexcited (snapshot invalid, last good fit kept).
+    publish_period_s : period of the snapshots by sample time (offline processing), 1 /
+        ``publish_rate_hz``.
+    restart_min_fill : after a restart at a structural change, snapshots are valid from this
+        window fill on (instead of ``min_window_fill``).
+    offsets : "remove" (the fit has an intercept: signals with non-zero means, as node 2 and
+        the batch ``identify`` remove them) or "none".
+    """
+
+    sample_time_s: float = _arx("sample_time_s")
+    order: int = _arx("order")
+    n_inputs: int = _arx("n_inputs")
+    n_outputs: int = _arx("n_outputs")
+    window_length: int = _arx("window_length")
+    forgetting_factor: float = _arx("forgetting_factor")
+    regularization: str = _arx("regularization")
+    penalty_by_gcv: bool = _arx("penalty_by_gcv")
+    penalty: float = _arx("penalty")
+    tc_decay: float = _arx("tc_decay")
+    min_window_fill: float = _arx("min_window_fill")
+    max_condition_number: float = _arx("max_condition_number")
+    publish_period_s: float = _arx("publish_period_s")
+    restart_min_fill: float = _arx("restart_min_fill")
+    offsets: str = _arx("offsets")
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> "ArxIdentificationParams":
+        """From the resolved node parameters (dotted names, :func:`okid_ros.service.params.resolve_parameters`)."""
+        return cls(**option_values(ARX_NODE, values))
+
+    @property
+    def n_params(self) -> int:
+        """D = m + q (p + m), coefficients per output."""
+        return regressor_length(self.order, self.n_outputs, self.n_inputs)
+
+
+@dataclass
+class ModalEstimationParams:
+    """Settings of the realization, mode tracking and estimator (ROS names in params.py)."""
+
+    sample_time_s: float = _est("sample_time_s")
+    n_inputs: int = _est("n_inputs")
+    n_outputs: int = _est("n_outputs")
+    n_states: int = _est("n_states")  # 0: automatic (BIC)
+    max_states: int = _est("max_states")
+    max_states_limit: int = _est("max_states_limit")
+    gain: str = _est("gain")
+    refine: bool = _est("refine")
+    max_damping: float = _est("max_damping")
+    min_msv: float = _est("min_msv")
+    max_nyquist_fraction: float = _est("max_nyquist_fraction")
+    min_mpc: float = _est("min_mpc")
+    min_stable_fraction: float = _est("min_stable_fraction")
+    offsets: str = _est("offsets")
+    max_frequency_change: float = _est("max_frequency_change")
+    min_mac: float = _est("min_mac")
+    min_matched_fraction: float = _est("min_matched_fraction")
+    max_consecutive_rejections: int = _est("max_consecutive_rejections")
+    mode_memory: int = _est("mode_memory")
+    buffer_length: int = _est("buffer_length")  # 0: sized from the ARX window
+    max_gap_samples: int = _est("max_gap_samples")
+    handover_samples: int = HANDOVER_SAMPLES
+    change_detection: bool = _est("change_detection")
+    change_false_alarm_samples: float = _est("change_false_alarm_samples")
+    change_variance_ratio: float = _est("change_variance_ratio")
+    change_reference_samples: int = _est("change_reference_samples")
+    divergence_window_samples: int = _est("divergence_window_samples")
+    divergence_nis_ratio: float = _est("divergence_nis_ratio")
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> "ModalEstimationParams":
+        """From the resolved node parameters (dotted names)."""
+        return cls(**option_values(ESTIMATOR_NODE, values))
+
+    def realization_options(self) -> RealizationOptions:
+        """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`)."""
+        return RealizationOptions(
+            n_states=self.n_states if self.n_states > 0 else AUTO,
+            max_states=self.max_states,
+            max_states_limit=max(self.max_states, self.max_states_limit),
+            gain=self.gain,
+            refine=self.refine,
+            modes=ModeCriteria(
+                max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
+                min_msv=self.min_msv, min_mpc=self.min_mpc, min_stable_fraction=self.min_stable_fraction,
+            ),
+        )
+
+
+_NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}
+
+
+def check_runtime_change(old: Any, new: Any) -> list[str]:
+    """The option fields that differ between ``old`` and ``new``; ValueError if one may not change.
+
+    What may change on a running service is what the parameter table declares ``runtime``.
+    """
+    allowed = runtime_fields(_NODES[type(old)])
+    changed = [f.name for f in fields(old) if getattr(old, f.name) != getattr(new, f.name)]
+    fixed = [name for name in changed if name not in allowed]
+    if fixed:
+        raise ValueError(f"{', '.join(fixed)} cannot change while the service runs (structural); reset it "
+                         "with the new options instead")
+    return changed
+

@@ -1,0 +1,79 @@
+"""The realization of a model update and its checks (node 2, off the sample path).
+
+:func:`realize` turns a :class:`~okid_ros.service.results.RealizationJob` (an ARX fit and a
+copy of its window's samples) into a :class:`~okid_ros.service.results.RealizationOutcome`:
+the core's realization (:func:`okid_ros.core.pipeline.identify_from_arx`: weighted ERA,
+refit, order selection, refinement), the checks every model handed out passes (stable ``A``
+and stable predictor, :meth:`okid_ros.core.statespace.InnovationModel.stability_problem`; a
+positive definite innovation covariance; a physical mode) and the warm start of the new
+model's predictor over the window. Pure: runs on any thread or in a worker process.
+
+:func:`advance_state` and :func:`bridge_state` move a model's predicted state over samples
+and gaps, as the estimator would (same state to rounding): the warm start, the catch-up of a
+new model over the samples that arrived during its realization, the restart after divergence.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from okid_ros.core.change_detection import whitening_matrix
+from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
+from okid_ros.core.statespace import InnovationPredictor
+from okid_ros.service.results import RealizationJob, RealizationOutcome
+
+__all__ = ["advance_state", "bridge_state", "realize"]
+
+
+def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
+                  u_prev: np.ndarray | None, *, max_gap: int,
+                  chunked: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """The predicted state after samples ``u`` (N, m), ``y`` (N, p), gaps ``skipped`` (N,) bridged.
+
+    ``chunked``: a chunk of samples per matrix product (the same state to rounding), for the
+    catch-up next to the sample path, where a Python step per sample made the samples wait
+    for the interpreter. Returns the state (n,) and the last input (m,) (``u_prev`` if none).
+    """
+    predictor = InnovationPredictor(model, x)
+    u_prev = predictor.run_with_gaps(u, y, skipped, u_prev, max_gap, chunked=chunked)
+    return predictor.x, u_prev
+
+
+def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | None, skipped: int,
+                 max_gap: int) -> np.ndarray:
+    """State over ``skipped`` missing samples: open-loop prediction, or zero after a long gap."""
+    predictor = InnovationPredictor(model, x)
+    predictor.bridge(u_prev, skipped, max_gap)
+    return predictor.x
+
+
+def realize(job: RealizationJob) -> RealizationOutcome:
+    """Realize the model of a job, check it, warm-start its predictor over the job's window.
+
+    Pure (reads only the job) and picklable: runs on any thread or in another process. The
+    expensive part of a model update: weighted ERA, refit, order selection, refinement.
+    """
+    prm = job.params
+    t0 = time.perf_counter()
+    try:
+        model = identify_from_arx(
+            job.fit, job.u, job.y, prm.sample_time_s,
+            options=prm.realization_options(), offsets=prm.offsets,
+        )
+    except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+        return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
+    elapsed = time.perf_counter() - t0
+    problem = model.stability_problem()
+    if problem:
+        return RealizationOutcome(job, None, f"check failed: {problem}", realization_time_s=elapsed)
+    try:
+        whiten = whitening_matrix(model.innovation_covariance)
+    except ValueError as exc:
+        return RealizationOutcome(job, None, f"check: innovation covariance: {exc}", realization_time_s=elapsed)
+    if not model.modes:
+        return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
+    x, u_prev = advance_state(model, np.zeros(model.n_states), job.u, job.y,
+                              np.zeros(job.u.shape[0], dtype=np.int64), None, max_gap=prm.max_gap_samples)
+    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0], whiten)

@@ -1,0 +1,186 @@
+"""What the modal estimation service hands out and passes between its parts (node 2).
+
+:class:`ModalStatesResult` per sample (with a :class:`ModelUpdate` when a model was accepted
+at it and a :class:`StructuralChangeEvent` when a change was declared or re-identified), and
+the :class:`RealizationJob` / :class:`RealizationOutcome` of a model update, which cross to a
+worker thread or process. The serialized shapes of these (JSON lines, messages, CSV):
+:mod:`okid_ros.service.records`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.modal import Mode
+from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.service.options import ModalEstimationParams
+
+__all__ = [
+    "ActiveModel",
+    "EstimationStats",
+    "ModalStatesResult",
+    "ModelUpdate",
+    "RealizationJob",
+    "RealizationOutcome",
+    "StructuralChangeEvent",
+]
+
+
+@dataclass
+class ModelUpdate:
+    """An accepted model, as ``StateSpaceModel`` carries it."""
+
+    model: IdentifiedModel
+    model_id: int
+    arx_model_id: int
+    stamp_s: float  # newest sample of the window it was identified from
+    modes: list[Mode]  # physical modes with persistent ids, in state order
+    realization_time_s: float
+    window_samples: int
+
+
+@dataclass
+class StructuralChangeEvent:
+    """A structural change declared by the innovation monitor, as ``StructuralChange`` carries it.
+
+    Reported twice: when it is declared (``modes_after`` empty) and when the first model
+    identified from post-change data only is accepted (``modes_after`` set).
+
+    Attributes
+    ----------
+    change_id : 1 for the first change since start or reset, then 2, ...
+    stamp_s : stamp of the sample at which the change was declared [s].
+    change_stamp_s : estimated stamp of the first sample of the new structure [s].
+    statistic, threshold : the CUSUM statistic at the declaration and its threshold [nats].
+    variance_ratio : mean normalized innovation power since the change point (1: no change).
+    modes_before : the modes of the model in use when the change was declared.
+    modes_after : the modes of the first model of the new structure (empty until accepted).
+    retired_ids : ids of the modes before that no mode after matched (retired).
+    detection_delay_samples : samples from the change point to the declaration.
+    """
+
+    change_id: int
+    stamp_s: float
+    change_stamp_s: float
+    statistic: float
+    threshold: float
+    variance_ratio: float
+    modes_before: list[Mode]
+    modes_after: list[Mode] = field(default_factory=list)
+    retired_ids: list[int] = field(default_factory=list)
+    detection_delay_samples: int = 0
+    change_index: int = -1  # buffer index of the change point (internal)
+
+
+@dataclass
+class ModalStatesResult:
+    """The estimate for one sample, as ``ModalStates`` carries it.
+
+    Attributes
+    ----------
+    stamp_s : the sample's stamp [s].
+    model_id : id of the model that produced it.
+    modes : the model's physical modes (persistent ids), in the order of ``coordinates``.
+    coordinates : (n_modes, 2) normalized modal states.
+    y_estimated : (p,) ``C x + D u`` (filtered).
+    innovation : (p,) ``y - C xhat - D u`` (one-step prediction error).
+    update : the model accepted at this sample, if any (publish it before the states).
+    change : a structural change declared or re-identified at this sample, if any.
+    """
+
+    stamp_s: float
+    model_id: int
+    modes: list[Mode]
+    coordinates: np.ndarray
+    y_estimated: np.ndarray
+    innovation: np.ndarray
+    update: ModelUpdate | None = None
+    change: StructuralChangeEvent | None = None
+
+
+@dataclass
+class RealizationJob:
+    """Everything :meth:`ModalEstimationService.run_job` needs (a copy; thread-safe)."""
+
+    fit: ArxFit
+    arx_model_id: int
+    stamp_end_s: float
+    u: np.ndarray
+    y: np.ndarray
+    end_index: int  # absolute buffer index of the window's last sample
+    params: ModalEstimationParams
+    generation: int = 0  # outcomes of jobs taken before a reset are dropped
+
+
+@dataclass
+class RealizationOutcome:
+    """Result of :meth:`ModalEstimationService.run_job`.
+
+    ``model`` is None when the realization failed its checks (``reason``); otherwise
+    ``state`` is the new model's predicted state for the sample after ``last_index``.
+    ``whiten`` (from the realization's check) and ``estimator`` (made by :meth:`follow`) are
+    the parts of the switch that need only the model, prepared off the sample path.
+    """
+
+    job: RealizationJob
+    model: IdentifiedModel | None
+    reason: str = ""
+    state: np.ndarray | None = None
+    last_index: int = -1
+    last_input: np.ndarray | None = None
+    realization_time_s: float = 0.0
+    warm_start_samples: int = 0
+    whiten: np.ndarray | None = None
+    estimator: ModalStateEstimator | None = None
+
+
+@dataclass
+class ActiveModel:
+    """The model in use, its estimator and its modes with their ids."""
+
+    model: IdentifiedModel
+    estimator: ModalStateEstimator
+    model_id: int
+    modes: list[Mode]
+    n_modes: int
+    whiten: np.ndarray  # (p, p) inverse Cholesky factor of the innovation covariance
+    window_samples: int
+
+
+@dataclass
+class EstimationStats:
+    """Counters of the estimation service (its diagnostics)."""
+
+    samples: int = 0
+    rejected_samples: int = 0
+    arx_received: int = 0
+    arx_replaced: int = 0
+    arx_refused: int = 0
+    arx_unchanged: int = 0
+    realizations: int = 0
+    models_accepted: int = 0
+    models_rejected: int = 0
+    consecutive_rejections: int = 0
+    forced_accepts: int = 0
+    estimator_restarts: int = 0
+    gaps_bridged: int = 0
+    last_reason: str = ""
+    last_accepted: bool = False
+    last_realization_time_s: float = math.nan
+    last_window_samples: int = 0
+    last_switch_jump: float = math.nan
+    max_switch_jump: float = 0.0
+    switches_measured: int = 0
+    diverged_samples: int = 0
+    divergence_restarts: int = 0
+    changes_detected: int = 0
+    windows_refused_for_change: int = 0
+    last_change_stamp_s: float = math.nan
+    last_change_statistic: float = math.nan
+    last_change_delay_samples: int = 0
+    modes_retired: int = 0

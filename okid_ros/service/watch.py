@@ -1,0 +1,190 @@
+"""Divergence and structural-change watch of the model in use (node 2, on the sample path).
+
+Divergence watchdog: each innovation is whitened by the model's innovation covariance
+(:class:`okid_ros.core.change_detection.DivergenceMonitor`); a diverged sample (non-finite, or
+the moving mean of the normalized innovation squared far above p) is not published, and
+sustained divergence restarts the estimator from the buffered samples (warm start with the
+model's predictor, diverged samples predicted over).
+
+Structural change: every sample also goes to a
+:class:`okid_ros.core.change_detection.StructuralChangeMonitor` armed with a reference model
+(the first model of a structure, then models of windows twice as long). An alarm, or a
+divergence that comes back right after a restart, declares a
+:class:`~okid_ros.service.results.StructuralChangeEvent`, which waits (:attr:`InnovationWatch.change`)
+until a model of post-change data is accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from okid_ros.core.change_detection import DivergenceMonitor, StructuralChangeMonitor
+from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.service.options import ModalEstimationParams
+from okid_ros.service.realization import advance_state, bridge_state
+from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
+from okid_ros.service.sample_buffer import SampleBuffer
+
+__all__ = ["InnovationWatch", "is_new_reference"]
+
+
+def is_new_reference(monitor: StructuralChangeMonitor, rows: int) -> bool:
+    """Whether a model from a window of ``rows`` regressor rows becomes the change test's reference.
+
+    The first model (of a structure: the monitor is disarmed after a change), then models of
+    windows at least twice as long as the reference's. (Node 2, and ``okid-ros track``.)
+    """
+    return not monitor.armed or rows >= 2 * monitor.reference_rows
+
+
+class InnovationWatch:
+    """The divergence watchdog and the change test, with the change waiting for its model.
+
+    Parameters
+    ----------
+    params : the service's options (read at each call: :meth:`configure` takes new ones).
+    buffer : the service's sample buffer (stamps of change points, restarts from it).
+    stats : the service's counters (divergence and change counts are kept there).
+    """
+
+    def __init__(self, params: ModalEstimationParams, buffer: SampleBuffer, stats: EstimationStats) -> None:
+        p = params.n_outputs
+        self.params = params
+        self._buffer = buffer
+        self._stats = stats
+        self.divergence = DivergenceMonitor(p, window_samples=params.divergence_window_samples,
+                                            nis_ratio=params.divergence_nis_ratio)
+        self.monitor = StructuralChangeMonitor(
+            p, false_alarm_samples=params.change_false_alarm_samples,
+            variance_ratio=params.change_variance_ratio, reference_samples=params.change_reference_samples,
+        )
+        self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
+        self.changes = 0
+        self.diverged: list[int] = []  # buffer indices of diverged samples since the last restart
+        self.restart_failed = False  # no good sample since the last divergence restart
+
+    def configure(self, params: ModalEstimationParams) -> None:
+        """Take run-time options at once: the divergence ratio and the change test's tuning."""
+        self.params = params
+        self.divergence.nis_ratio = float(params.divergence_nis_ratio)
+        self.monitor.detector.retune(false_alarm_samples=params.change_false_alarm_samples,
+                                     variance_ratio=params.change_variance_ratio)
+
+    # ------------------------------------------------------------------ per sample
+    def gap(self, u_prev: np.ndarray | None, skipped: int) -> None:
+        """Samples missing before the next one (or time restarted): the change test's predictor bridges them."""
+        if self.params.change_detection:
+            self.monitor.gap(u_prev, int(skipped), self.params.max_gap_samples)
+
+    def observe(self, active: ActiveModel, stamp_s: float, index: int, u: np.ndarray, y: np.ndarray,
+                innovation: np.ndarray) -> tuple[bool, StructuralChangeEvent | None, np.ndarray | None]:
+        """One sample's innovation under the model in use.
+
+        Returns whether the sample diverged (not to be published), the change declared at it
+        (or None) and, after a restart from the buffer, the last buffered input (else None).
+        """
+        prm = self.params
+        diverged = self.divergence.check(active.whiten @ innovation)
+        change = None
+        if prm.change_detection:
+            alarm = self.monitor.step(u, y, index, test=not diverged)
+            if alarm is not None:
+                change = self.declare(active, stamp_s, index, alarm.change_index, statistic=alarm.statistic,
+                                      threshold=alarm.threshold, variance_ratio=alarm.variance_ratio)
+        if not diverged:
+            self.restart_failed = False
+            return False, change, None
+        self._stats.diverged_samples += 1
+        self.diverged.append(index)
+        if len(self.diverged) > self._buffer.cap:
+            del self.diverged[0]
+        u_prev = None
+        if self.divergence.sustained:
+            if self.restart_failed and prm.change_detection and self.change is None:
+                # Diverged again right after a restart: the model no longer fits at all.
+                ratio = self.divergence.nis_ratio_now
+                change = self.declare(active, stamp_s, index, self.diverged[0], statistic=self.monitor.statistic,
+                                      threshold=self.monitor.threshold,
+                                      variance_ratio=ratio if math.isfinite(ratio) else 0.0) or change
+            u_prev = self._restart_from_buffer(active, index)
+            self.restart_failed = True
+        return True, change, u_prev
+
+    def declare(self, active: ActiveModel, stamp_s: float, index: int, change_index: int, *, statistic: float,
+                threshold: float, variance_ratio: float) -> StructuralChangeEvent:
+        """A structural change at buffer index ``change_index``, declared at sample ``index``."""
+        self.monitor.disarm()
+        self.changes += 1
+        change_stamp = self._buffer.stamp_at(change_index)
+        event = StructuralChangeEvent(
+            change_id=self.changes, stamp_s=float(stamp_s),
+            change_stamp_s=change_stamp if math.isfinite(change_stamp) else float(stamp_s),
+            statistic=float(statistic), threshold=float(threshold),
+            variance_ratio=float(variance_ratio), modes_before=[replace(m) for m in active.modes],
+            detection_delay_samples=int(index - change_index),
+            change_index=int(change_index),
+        )
+        self.change = event
+        st = self._stats
+        st.changes_detected += 1
+        st.last_change_stamp_s = event.change_stamp_s
+        st.last_change_statistic = event.statistic
+        st.last_change_delay_samples = event.detection_delay_samples
+        return event
+
+    # ------------------------------------------------------------------ models
+    def new_model(self, model: IdentifiedModel, state: np.ndarray, rows: int) -> None:
+        """A model was accepted (``state``: its state for the next sample; ``rows``: its window's rows).
+
+        It becomes the change test's reference by :func:`is_new_reference`.
+        """
+        self.divergence.restart()
+        if self.params.change_detection and is_new_reference(self.monitor, rows):
+            self.monitor.arm(model, state, reference_rows=rows)
+
+    def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """A model's predicted state after the buffered samples up to ``index``, from zero.
+
+        Diverged samples may hold what made it diverge (a spike): predicted over, not used.
+        """
+        buffer, max_gap = self._buffer, self.params.max_gap_samples
+        first = buffer.first
+        _, u, y, skipped = buffer.get(first, index + 1)
+        x, u_prev = np.zeros(model.n_states), None
+        lo = 0
+        for k in sorted(i - first for i in self.diverged if first <= i <= index) + [u.shape[0]]:
+            if k > lo:
+                x, u_prev = advance_state(model, x, u[lo:k], y[lo:k], skipped[lo:k], u_prev, max_gap=max_gap,
+                                          chunked=True)
+            if k < u.shape[0]:
+                if skipped[k]:
+                    x = bridge_state(model, x, u_prev, int(skipped[k]), max_gap)
+                x = bridge_state(model, x, u[k], 1, 1)  # the diverged sample predicted over, open loop
+                u_prev = u[k]
+            lo = k + 1
+        if not np.all(np.isfinite(x)):
+            x = np.zeros(model.n_states)
+        return x, u_prev
+
+    def _restart_from_buffer(self, active: ActiveModel, index: int) -> np.ndarray | None:
+        """Restart the estimator after sustained divergence, warm-started over the buffer up to ``index``."""
+        x, u_prev = self.warm_state(active.model, index)
+        if self.monitor.armed:  # the change test's predictor saw the same samples
+            self.monitor.set_state(self.warm_state(self.monitor.model, index)[0])
+        self.diverged.clear()
+        active.estimator.set_state(x)
+        self.divergence.restart()
+        self._stats.divergence_restarts += 1
+        return u_prev
+
+    def diagnostics(self) -> dict:
+        """The change test's part of the service's diagnostics."""
+        return {
+            "change_monitor": self.monitor.state if self.params.change_detection else "off",
+            "change_statistic": float(self.monitor.statistic),
+            "change_threshold": float(self.monitor.threshold),
+            "change_waiting_for_model": self.change is not None,
+        }

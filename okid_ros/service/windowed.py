@@ -1,0 +1,132 @@
+"""The windowed pipeline of both nodes on one sample stream, written once.
+
+Per sample, what each node does with an assembled
+:class:`~okid_ros.service.sample_grid.GridSample` (:func:`identification_step` for node 1,
+:func:`estimation_step` for node 2; the live nodes call these), and, in
+:class:`WindowedPipeline`, the two services in step without a middleware, as ``okid-ros
+process`` runs them over a bag:
+
+- node 1: the sample goes into the ARX window; a snapshot is due every ``publish_period_s``
+  of *sample* time (the live node: its timer on the node clock);
+- node 2: the sample steps the estimator; a valid snapshot handed back (:meth:`WindowedPipeline.realize_now`)
+  is realized at once and takes over at the next sample (live: in a worker while samples go on);
+- a structural change declared by node 2 restarts node 1's window at the change point (live:
+  through the ``StructuralChange`` message);
+- a time jump resets a node when its ``reset_on_time_jump`` says so, as the live node does.
+
+Each model update and each change is also kept as its JSON record (:mod:`okid_ros.service.records`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.validation import prediction_fits
+from okid_ros.service.estimation import ModalEstimationService, ModalStatesResult
+from okid_ros.service.identification import ArxIdentificationService, ArxSnapshot
+from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
+from okid_ros.service.records import change_record, update_record
+from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
+
+__all__ = ["WindowedPipeline", "PipelineSettings", "estimation_step", "identification_step"]
+
+
+def identification_step(service: ArxIdentificationService, sample: GridSample) -> bool:
+    """Node 1 with one sample: into the window (a gap breaks the lag history); accepted or not."""
+    return service.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
+
+
+def estimation_step(service: ModalEstimationService, sample: GridSample) -> ModalStatesResult | None:
+    """Node 2 with one sample: the estimator's step (a restart of the grid restarts it too)."""
+    skipped = RESTART_SKIP if sample.restart else sample.skipped
+    return service.step(sample.stamp_s, sample.u, sample.y, skipped)
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """What links the two nodes offline (the live nodes: their parameters and topics).
+
+    Attributes
+    ----------
+    reset_arx_on_time_jump, reset_estimator_on_time_jump : each node's ``reset_on_time_jump``.
+    restart_on_change : node 1 listens to node 2's structural changes (the topics match).
+    validation_fits : record each update's one-step and simulation fit on its own window.
+    """
+
+    reset_arx_on_time_jump: bool = True
+    reset_estimator_on_time_jump: bool = True
+    restart_on_change: bool = True
+    validation_fits: bool = True
+
+
+class WindowedPipeline:
+    """Both nodes' services on one sample stream, synchronously (see the module docstring).
+
+    Parameters
+    ----------
+    arx_params, est_params : the services' options.
+    settings : :class:`PipelineSettings`.
+
+    Raises
+    ------
+    ValueError on options that do not fit together (from the services).
+    """
+
+    def __init__(self, arx_params: ArxIdentificationParams, est_params: ModalEstimationParams,
+                 settings: PipelineSettings = PipelineSettings()) -> None:
+        self.arx = ArxIdentificationService(arx_params)
+        self.est = ModalEstimationService(est_params)
+        self.settings = settings
+        self.updates: list[dict] = []  # update_record of every accepted model, in order
+        self.changes: list[dict] = []  # change_record of every change declared or re-identified
+        self._change_since_update: dict | None = None
+        self._fits: dict[int, dict] = {}  # id(model) -> prediction fits on its window
+
+    def estimate(self, sample: GridSample) -> ModalStatesResult | None:
+        """Node 2 with one of its samples; the model update or change at it is recorded."""
+        if sample.time_jump and self.settings.reset_estimator_on_time_jump:
+            self.est.reset()
+        result = estimation_step(self.est, sample)
+        if result is None:
+            return None
+        if result.change is not None:
+            if self.settings.restart_on_change:
+                self.arx.restart_at(result.change.change_stamp_s)  # what node 1 does with the message
+            record = change_record(result.change)
+            self.changes.append(record)
+            if not result.change.modes_after:
+                self._change_since_update = record
+        if result.update is not None:
+            line = update_record(result.update, sample.stamp_s, self._change_since_update)
+            self._change_since_update = None
+            fits = self._fits.pop(id(result.update.model), None)
+            if fits is not None:  # on the model's own window, after the ARX order's samples
+                line.update(fit_one_step_pct=fits["one_step_pct"], fit_simulation_pct=fits["simulation_pct"])
+            self.updates.append(line)
+        return result
+
+    def identify(self, sample: GridSample) -> ArxSnapshot | None:
+        """Node 1 with one of its samples; the snapshot when one is due by sample time."""
+        if sample.time_jump and self.settings.reset_arx_on_time_jump:
+            self.arx.reset()
+        identification_step(self.arx, sample)
+        if not self.arx.due(sample.stamp_s):
+            return None
+        return self.arx.snapshot()
+
+    def realize_now(self, fit: ArxFit, stamp_end_s: float, arx_model_id: int, window_rows: int) -> Any:
+        """Node 2 with an ARX fit: realized at once, taken over at the next sample.
+
+        Returns the outcome (None if no job was due: refused, or waiting for samples).
+        """
+        self.est.submit_arx(fit, stamp_end_s, arx_model_id, window_rows)
+        job = self.est.take_job()
+        if job is None:
+            return None
+        outcome = self.est.run_job(job, follow=False)
+        if outcome.model is not None and self.settings.validation_fits:
+            self._fits[id(outcome.model)] = prediction_fits(outcome.model, job.u, job.y)
+        self.est.deliver(outcome)
+        return outcome

@@ -1,0 +1,91 @@
+"""The resolved parameters of both nodes, read as the nodes read them (``okid-ros process``, ``track``, ...)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from okid_ros.errors import ParameterError
+
+__all__ = ["load_node_parameters"]
+
+
+def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequence[str] = (),
+                         sources: Sequence[str] = (), *, namespace: str | None = None,
+                         strict: bool = False, report: Callable[[str], None] | None = None) -> tuple[dict, dict]:
+    """Resolved parameters of both nodes, as the nodes would read them.
+
+    Parameters
+    ----------
+    param_files : ROS parameter YAML files, later ones override earlier ones (as several
+        ``--params-file`` do); none: the defaults (equal to config/okid.yaml).
+    overrides : ``NAME=VALUE`` (dotted name, YAML value), applied to each node that has
+        the parameter, after the files.
+    sources : if given, replaces ``inputs.sources`` of both nodes.
+    namespace : the nodes' namespace (None: the root namespace); decides which sections of
+        the files apply, as for the live nodes.
+    strict : unknown parameter names (or sections naming a node that do not apply) in the
+        files are an error instead of a report.
+    report : called with each such problem when not ``strict`` (default: print to stderr).
+
+    Returns
+    -------
+        (identification node values, estimation node values), dotted names.
+
+    Raises
+    ------
+    ParameterError
+        unreadable file, bad value, an override no node knows, or (``strict``) an unknown
+        name in a file.
+    """
+    import yaml
+
+    from okid_ros.service.param_files import file_report, node_fqn, node_values_from_tree
+    from okid_ros.service.params import (
+        ARX_NODE,
+        ESTIMATOR_NODE,
+        node_params,
+        read_parameter_file,
+        resolve_parameters,
+    )
+
+    names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
+    layered: list[tuple[str, Any]] = []
+    for item in overrides:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
+        if not any(name in known for known in names.values()):
+            raise ParameterError(f"--param {name}: no such parameter of {ARX_NODE} or {ESTIMATOR_NODE}")
+        layered.append((name, value))
+    if sources:
+        layered.append(("inputs.sources", list(sources)))
+    trees = [(str(path), read_parameter_file(path)) for path in param_files]
+    problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
+    if problems and strict:
+        raise ParameterError("; ".join(problems))
+    for problem in problems:
+        (report or (lambda text: print(f"warning: {text}", file=sys.stderr, flush=True)))(problem)
+    values = []
+    for node in (ARX_NODE, ESTIMATOR_NODE):
+        merged: dict[str, Any] = {}
+        origin: dict[str, str] = {}
+        for label, tree in trees:
+            found = node_values_from_tree(tree, node_fqn(node, namespace))
+            merged.update(found)
+            origin.update({name: label for name in found})
+        merged.update((name, value) for name, value in layered if name in names[node])
+        merged = {k: v for k, v in merged.items() if k in names[node]}
+        try:
+            values.append(resolve_parameters(node, merged))
+        except ParameterError as exc:
+            label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
+            raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
+    return values[0], values[1]

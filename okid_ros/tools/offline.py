@@ -1,0 +1,207 @@
+"""Both nodes without ROS, fed input messages one by one (``okid-ros process``).
+
+Per node, exactly what the live node does with its topics, minus the middleware: each node's
+own sample grid (:class:`NodeInputs`, what the nodes' input frontend does), then the one
+windowed pipeline of the service layer (:class:`okid_ros.service.windowed.WindowedPipeline`:
+node 1's window and its snapshots by sample time, node 2's estimator and realizations, the
+window restart at a structural change). Here only the messages are built and read: every
+output with :mod:`okid_ros.nodes.conversions`, and every valid ``ArxModel`` goes back into
+node 2 through the same conversion the node uses (``arx_fit_from_msg``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from okid_ros.errors import ParameterError
+
+__all__ = ["NodeInputs", "OfflineNodes", "ProcessSummary"]
+
+
+@dataclass
+class ProcessSummary:
+    """What :func:`process_bag` did."""
+
+    input_messages: int = 0
+    samples: int = 0
+    arx_models: int = 0
+    valid_arx_models: int = 0
+    models: int = 0
+    modal_states: int = 0
+    first_stamp_s: float = math.nan
+    last_stamp_s: float = math.nan
+    elapsed_s: float = 0.0
+    updates: list = field(default_factory=list)  # the JSON lines
+    changes: list = field(default_factory=list)  # StructuralChange summaries, in order
+    arx_diagnostics: dict = field(default_factory=dict)
+    estimator_diagnostics: dict = field(default_factory=dict)
+    grid_counters: dict = field(default_factory=dict)
+
+    @property
+    def data_duration_s(self) -> float:
+        return 0.0 if math.isnan(self.first_stamp_s) else self.last_stamp_s - self.first_stamp_s
+
+    @property
+    def final_modes(self) -> list[dict]:
+        return self.updates[-1]["modes"] if self.updates else []
+
+
+class NodeInputs:
+    """One node's input sources and sample grid (what InputFrontend does, minus subscriptions)."""
+
+    def __init__(self, values: dict, namespace: str | None = None) -> None:
+        from okid_ros.service.inputs import sources_and_grid
+
+        self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
+        self.specs, self.grid = sources_and_grid(values, namespace)
+        self.by_topic: dict[str, list[int]] = {}
+        for i, spec in enumerate(self.specs):
+            self.by_topic.setdefault(spec.topic, []).append(i)
+
+    def add(self, topic: str, msg: Any, arrival_s: float) -> list:
+        from okid_ros.nodes.conversions import source_values
+
+        samples = []
+        for i in self.by_topic.get(topic, ()):
+            stamp, values = source_values(msg, self.specs[i], self.m, self.p)
+            samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
+        return samples
+
+
+class OfflineNodes:
+    """Both nodes without ROS: feed input messages, get output messages.
+
+    Parameters
+    ----------
+    arx_values, est_values : resolved parameters (:func:`load_node_parameters`).
+    types : message classes for the outputs (default: the rosbags typestore's).
+    namespace : the rig namespace relative topic names resolve in (None: ``/okid``, as the
+        nodes in the root namespace; :mod:`okid_ros.service.topics`).
+    """
+
+    def __init__(self, arx_values: dict, est_values: dict, types: Any = None, namespace: str | None = None) -> None:
+        from okid_ros.nodes.conversions import MessageTypes
+        from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
+        from okid_ros.service.topics import resolve_topic
+        from okid_ros.service.windowed import PipelineSettings, WindowedPipeline
+        from okid_ros.tools.bagio import okid_typestore
+
+        self.types = types or MessageTypes.from_typestore(okid_typestore())
+        self.arx_inputs = NodeInputs(arx_values, namespace)
+        self.est_inputs = NodeInputs(est_values, namespace)
+        self.arx_topic = resolve_topic(arx_values["arx_model_topic"], namespace)
+        self.arx_input_topic = resolve_topic(est_values["arx_model_topic"], namespace)
+        self.state_space_topic = resolve_topic(est_values["state_space_model_topic"], namespace)
+        self.modal_states_topic = resolve_topic(est_values["modal_states_topic"], namespace)
+        self.structural_change_topic = resolve_topic(est_values["structural_change_topic"], namespace)
+        self.change_input_topic = resolve_topic(arx_values["structural_change_topic"], namespace)
+        settings = PipelineSettings(
+            reset_arx_on_time_jump=bool(arx_values["reset_on_time_jump"]),
+            reset_estimator_on_time_jump=bool(est_values["reset_on_time_jump"]),
+            restart_on_change=self.change_input_topic == self.structural_change_topic,
+        )
+        try:
+            self.pipeline = WindowedPipeline(ArxIdentificationParams.from_parameters(arx_values),
+                                             ModalEstimationParams.from_parameters(est_values), settings)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self.arx, self.est = self.pipeline.arx, self.pipeline.est
+        # The JSON lines and change records are the pipeline's (one serializer).
+        self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes)
+        self._mode_msgs: list = []
+        self.frame_ids = (str(arx_values["frame_id"]), str(est_values["frame_id"]))
+
+    @property
+    def input_topics(self) -> dict[str, str]:
+        """Topic -> message type of every input source of either node."""
+        out = {}
+        for inputs in (self.arx_inputs, self.est_inputs):
+            for spec in inputs.specs:
+                out[spec.topic] = spec.msg_type
+        return out
+
+    @property
+    def output_topics(self) -> dict[str, str]:
+        return {
+            self.arx_topic: "okid_msgs/msg/ArxModel",
+            self.state_space_topic: "okid_msgs/msg/StateSpaceModel",
+            self.modal_states_topic: "okid_msgs/msg/ModalStates",
+            self.structural_change_topic: "okid_msgs/msg/StructuralChange",
+        }
+
+    def feed(self, topic: str, msg: Any, log_time_s: float) -> list[tuple[str, Any]]:
+        """One input message (rosbags or rclpy); returns the ``(topic, message)`` outputs in order."""
+        self.summary.input_messages += 1
+        # node 2 first: a model realized from the previous ArxModel takes over at this sample
+        out = self._estimate(self.est_inputs.add(topic, msg, log_time_s))
+        out += self._identify(self.arx_inputs.add(topic, msg, log_time_s))
+        return out
+
+    def finish(self) -> list[tuple[str, Any]]:
+        """End of the record: complete samples still pending in the grids are processed too."""
+        out = self._estimate(self.est_inputs.grid.flush())
+        out += self._identify(self.arx_inputs.grid.flush())
+        s = self.summary
+        s.arx_diagnostics = self.arx.diagnostics()
+        s.estimator_diagnostics = self.est.diagnostics()
+        s.grid_counters = self.arx_inputs.grid.counters.as_dict()
+        return out
+
+    def _estimate(self, samples: list) -> list[tuple[str, Any]]:
+        """Node 2's samples through the pipeline; its messages."""
+        from okid_ros.nodes.conversions import modal_states_msg, mode_msg, state_space_model_msg, structural_change_msg
+
+        s = self.summary
+        out: list[tuple[str, Any]] = []
+        for sample in samples:
+            if sample.time_jump and self.pipeline.settings.reset_estimator_on_time_jump:
+                self._mode_msgs = []  # as the node does (reset_on_time_jump)
+            result = self.pipeline.estimate(sample)
+            if result is None:
+                continue
+            frame_id = self.frame_ids[1]
+            if result.change is not None:
+                out.append((self.structural_change_topic,
+                            structural_change_msg(result.change, sample.stamp_s, self.types, frame_id=frame_id)))
+            if result.update is not None:
+                self._mode_msgs = [mode_msg(m, self.types) for m in result.update.modes]
+                out.append((self.state_space_topic,
+                            state_space_model_msg(result.update, self.types, frame_id=frame_id)))
+                s.models += 1
+            out.append((self.modal_states_topic, modal_states_msg(result, self.types, frame_id=frame_id,
+                                                                  mode_msgs=self._mode_msgs)))
+            s.modal_states += 1
+        return out
+
+    def _identify(self, samples: list) -> list[tuple[str, Any]]:
+        """Node 1's samples through the pipeline; its ArxModel, each handed to node 2 as the node does.
+
+        Node 2 takes a valid ArxModel through the message conversion the node uses
+        (modal_estimator_node._on_arx_model) and realizes it at once.
+        """
+        from okid_ros.nodes.conversions import arx_fit_from_msg, arx_model_msg
+
+        s = self.summary
+        out: list[tuple[str, Any]] = []
+        for sample in samples:
+            s.samples += 1
+            if math.isnan(s.first_stamp_s):
+                s.first_stamp_s = sample.stamp_s
+            s.last_stamp_s = sample.stamp_s
+            snapshot = self.pipeline.identify(sample)
+            if snapshot is None:
+                continue
+            arx_msg = arx_model_msg(snapshot, self.types, frame_id=self.frame_ids[0])
+            out.append((self.arx_topic, arx_msg))
+            s.arx_models += 1
+            if self.arx_input_topic != self.arx_topic or not arx_msg.valid:
+                continue  # the estimator listens elsewhere, or ignores invalid models (as live)
+            s.valid_arx_models += 1
+            try:
+                fit, stamp_s, rows = arx_fit_from_msg(arx_msg)
+            except ValueError:
+                continue
+            self.pipeline.realize_now(fit, stamp_s, int(arx_msg.model_id), rows)
+        return out

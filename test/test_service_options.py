@@ -1,0 +1,81 @@
+"""okid_ros/service/options.py and the parameter table: one default and one run-time rule each."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from okid_ros.core.change_detection import DEFAULT_FALSE_ALARM_SAMPLES, DivergenceMonitor
+from okid_ros.core.options import RealizationOptions
+from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams, check_runtime_change
+from okid_ros.service.params import (
+    ARX_NODE,
+    ESTIMATOR_NODE,
+    RUNTIME_PARAMS,
+    load_parameters,
+    node_params,
+    option_specs,
+    read_only_reason,
+    resolve_parameters,
+)
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "okid.yaml"
+OPTIONS = {ARX_NODE: ArxIdentificationParams, ESTIMATOR_NODE: ModalEstimationParams}
+
+
+@pytest.mark.parametrize("node", [ARX_NODE, ESTIMATOR_NODE])
+def test_every_default_is_the_same_in_the_table_the_options_and_okid_yaml(node):
+    # Every parameter is listed in okid.yaml (test_nodes_config.py); the values it gives:
+    listed = load_parameters(CONFIG, node)
+    options = OPTIONS[node]()
+    specs = option_specs(node)
+    for spec in node_params(node):
+        assert listed[spec.name] == spec.default, f"{spec.name}: okid.yaml {listed[spec.name]!r}"
+        if spec.field:
+            value = getattr(options, spec.field)
+            assert value == spec.field_value(spec.default), f"{spec.name}: option {spec.field} = {value!r}"
+            assert type(value) is type(spec.field_value(spec.default))
+    # Every option field but the internal hand-over count comes from a parameter.
+    assert {f.name for f in dataclasses.fields(options)} - set(specs) <= {"handover_samples"}
+    # The options built from the file's values are the default options.
+    assert OPTIONS[node].from_parameters(resolve_parameters(node, {})) == options
+
+
+def test_defaults_the_core_defines_are_the_cores():
+    est = ModalEstimationParams()
+    core = RealizationOptions()
+    assert (est.max_states, est.gain, est.min_msv) == (core.max_states, core.gain, core.modes.min_msv)
+    assert est.change_false_alarm_samples == DEFAULT_FALSE_ALARM_SAMPLES
+    import inspect
+
+    signature = inspect.signature(DivergenceMonitor).parameters
+    assert est.divergence_nis_ratio == signature["nis_ratio"].default
+    assert est.divergence_window_samples == signature["window_samples"].default
+
+
+def test_the_runtime_list_and_the_read_only_reasons_come_from_the_table():
+    for node in (ARX_NODE, ESTIMATOR_NODE):
+        for spec in node_params(node):
+            assert (spec.name in RUNTIME_PARAMS) == spec.runtime
+            assert bool(read_only_reason(spec.name)) == (not spec.runtime), spec.name
+    assert "structural" in read_only_reason("arx.order")
+    assert "subscriptions" in read_only_reason("inputs.sources")
+    assert "worker" in read_only_reason("realization.worker")
+    # The six that used to wait for a reset, and the gain that used to be refused.
+    for name in ("tracking.max_frequency_change", "tracking.min_mac", "tracking.mode_memory",
+                 "change.false_alarm_samples", "change.variance_ratio", "estimator.divergence_nis_ratio",
+                 "realization.gain"):
+        assert name in RUNTIME_PARAMS
+
+
+def test_a_structural_option_may_not_change_on_a_running_service():
+    old = ModalEstimationParams()
+    assert check_runtime_change(old, dataclasses.replace(old, min_mac=0.9, gain="riccati")) == ["gain", "min_mac"]
+    with pytest.raises(ValueError, match="buffer_length"):
+        check_runtime_change(old, dataclasses.replace(old, buffer_length=100))
+    arx = ArxIdentificationParams()
+    with pytest.raises(ValueError, match="order"):
+        check_runtime_change(arx, dataclasses.replace(arx, order=10))
+    assert check_runtime_change(arx, dataclasses.replace(arx, publish_period_s=0.5)) == ["publish_period_s"]
