@@ -326,6 +326,12 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
                                coefficients_rows=3, coefficients_cols=2, coefficients=[1.0] * 6)
                 arx.header.stamp.sec = int(f.last_stamp)
                 malformed.publish(arx)
+            if i == 50:  # well formed but claiming 4e9 rows in its window: not a buffer of that size
+                arx = ArxModel(model_id=999, valid=True, sample_time_s=DT, order=20, n_inputs=2, n_outputs=2,
+                               coefficients_rows=82, coefficients_cols=2, coefficients=[0.0] * 164,
+                               window_length=4_000_000_000, window_fill=4_000_000_000)
+                arx.header.stamp.sec = int(f.last_stamp) - 1
+                malformed.publish(arx)
             time.sleep(0.02)
         rate_during = f.states_rate_hz(1.0)
         after = {name: counters(f, name) for name in MODULES}
@@ -344,9 +350,10 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
                                  r"of another type .*/okid_fault_wrong_type \(std_msgs/msg/Float64MultiArray\)", 10)
             assert int(inputs["/okid/io_sample wrong_type_publishers"]) == 1, inputs
         malformed_count = int(est_after["arx_models_malformed"]) - int(est_before["arx_models_malformed"])
-        figures("bad publishers estimator", malformed_arx_sent=4, malformed_arx_counted=malformed_count,
+        figures("bad publishers estimator", malformed_arx_sent=5, malformed_arx_counted=malformed_count,
                 states_hz_during=rate_during)
-        assert malformed_count >= 3, (est_before, est_after)
+        assert malformed_count >= 4, (est_before, est_after)
+        rig.nodes["okid_modal_estimator"].wait_for_output(r"ArxModel 999 ignored: .*window", 5)
         rig.nodes["okid_modal_estimator"].wait_for_output(r"ArxModel 9\d\d ignored: ArxModel coefficients", 5)
         assert rate_during == pytest.approx(RATE_HZ, rel=0.15), rate_during  # data flow continues
     finally:

@@ -179,7 +179,13 @@ class ModalEstimatorNode(OkidNode):
             self.get_logger().warning(f"ArxModel {msg.model_id} ignored: {exc}")
             return
         with self.state_lock:  # the input thread may be starting a job too
-            self.service.submit_arx(fit, stamp_s, int(msg.model_id), rows)
+            try:
+                self.service.submit_arx(fit, stamp_s, int(msg.model_id), rows)
+            except MemoryError:  # a window too large for this machine: refused, the node goes on
+                self._arx_malformed += 1
+                self.get_logger().warning(f"ArxModel {msg.model_id} ignored: a window of {rows} rows does "
+                                          "not fit in memory")
+                return
             if self._job is None:
                 self._start_job()
 
