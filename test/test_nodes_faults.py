@@ -39,8 +39,6 @@ SMALL = """
 /**:
   ros__parameters:
     diagnostics_rate_hz: 4.0
-    inputs:
-      stale_timeout_s: 0.5
 /**/okid_arx_identifier:
   ros__parameters:
     publish_rate_hz: 2.0
@@ -95,6 +93,7 @@ class Feeder(ProbeNode):
         self.u, self.y = u, y
         self.flood = 1
         self.stamp_offset_s = 0.0
+        self.paused = False
         self.k = 0  # next sample of the record
         self.published = 0  # IoSample messages published
         self.last_stamp = 0.0
@@ -152,6 +151,11 @@ class Feeder(ProbeNode):
     def _publish_loop(self) -> None:
         start = time.monotonic()
         while not self._stop.is_set():
+            if self.paused:
+                paused_at = time.monotonic()
+                while self.paused and not self._stop.is_set():
+                    time.sleep(0.005)
+                start += time.monotonic() - paused_at  # no catch-up burst after a pause
             k, flood, offset = self.k, self.flood, self.stamp_offset_s
             for j in range(flood):
                 msg = IoSample()
@@ -250,6 +254,16 @@ def figures(name: str, **values) -> None:
     print(f"\nFIGURES {name}: {text}", flush=True)
 
 
+def snapshot(feeder: Feeder) -> tuple[int, dict[str, dict[str, int]]]:
+    """Messages published and both nodes' input counters, the feeder paused meanwhile (<= 0.5 s)."""
+    feeder.paused = True
+    try:
+        time.sleep(0.05)  # what is on its way arrives
+        return feeder.published, {name: counters(feeder, name) for name in MODULES}
+    finally:
+        feeder.paused = False
+
+
 def counters(feeder: Feeder, node: str) -> dict[str, int]:
     d = feeder.fresh_diag(f"{node}: inputs")
     return {k.removeprefix("grid "): int(v) for k, v in d.items()
@@ -262,8 +276,8 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
     pids = {name: proc.proc.pid for name, proc in rig.nodes.items()}
     rate_before = f.states_rate_hz(2.0)
     rss_before = {name: rss_mb(pid) for name, pid in pids.items()}
-    before = {name: counters(f, name) for name in MODULES}
-    published, k0 = f.published, f.k
+    published, before = snapshot(f)
+    k0 = f.k
     rss_peak = dict(rss_before)
     f.flood = 10
     flood_start = time.monotonic()
@@ -276,21 +290,21 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
     time.sleep(1.0)  # what was queued is served
     rate_after = f.states_rate_hz(3.0)
     lag_after = f.lag_s()
-    after = {name: counters(f, name) for name in MODULES}
+    published_after, after = snapshot(f)
     rss_after = {name: rss_mb(pid) for name, pid in pids.items()}
     rig.alive()
     for name in MODULES:
         d = {key: after[name][key] - before[name][key] for key in after[name]}
         received = d["/okid/io_sample messages"]
         rejected = d["duplicate"] + d["off_grid"] + d["out_of_order"] + d["late"]
-        figures(f"flood {name}", published=f.published - published, flood_messages=flood_messages,
-                received=received, dds_lost=f.published - published - received, rejected=rejected,
+        figures(f"flood {name}", published=published_after - published, flood_messages=flood_messages,
+                received=received, dds_lost=published_after - published - received, rejected=rejected,
                 duplicate=d["duplicate"], off_grid=d["off_grid"], missing=d["missing"], reanchors=d["reanchors"],
                 emitted=d["samples_emitted"], rss_before_mb=rss_before[name], rss_peak_mb=rss_peak[name],
                 rss_after_mb=rss_after[name])
         # Every extra message is refused and counted: at most one sample per sample time.
-        assert received >= 0.8 * (f.published - published), (name, d)
-        assert d["samples_emitted"] <= (f.published - published - flood_messages) + flood_slots + 5, (name, d)
+        assert received >= 0.8 * (published_after - published), (name, d)
+        assert d["samples_emitted"] <= (published_after - published - flood_messages) + flood_slots + 5, (name, d)
         assert rejected >= 0.8 * (received - d["samples_emitted"]), (name, d)
         assert d["reanchors"] == 0 and d["time_jumps"] == 0, (name, d)
         # Memory flat: the queues are bounded (KEEP_LAST, inputs.queue_depth), nothing piles up.

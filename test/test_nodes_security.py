@@ -210,3 +210,29 @@ def test_discovery_range_decides_who_sees_the_nodes_from_another_host(two_hosts,
             assert '"seen": true' in local.stdout, (local.stdout, local.stderr)
     finally:
         node.stop()
+
+
+# ---------------------------------------------------------------------------------- DDS security
+@pytest.mark.parametrize("keystore", ["no_enclave", "dummy_keys"])
+def test_enforced_security_that_cannot_be_had_stops_the_node_in_one_line(spawn_ros, ros_env, tmp_path, keystore):
+    """ROS_SECURITY_STRATEGY=Enforce: a node never runs unsecured, and says why in one line.
+
+    no_enclave: the keystore lacks the node's enclave. dummy_keys: the enclave's files are
+    there but are no keys; on the pip route the Fast DDS wheel, built without DDS security,
+    refuses any keystore ("doesn't have the security libraries"), on the system route the
+    security plugins refuse the files.
+    """
+    enclave = tmp_path / "keys" / "enclaves" / "okid" / "arx_identifier"
+    if keystore == "dummy_keys":
+        enclave.mkdir(parents=True)
+        for name in ("identity_ca.cert.pem", "cert.pem", "key.pem", "permissions_ca.cert.pem",
+                     "governance.p7s", "permissions.p7s"):
+            (enclave / name).write_text("not a key\n")
+    env = dict(ros_env, ROS_SECURITY_ENABLE="true", ROS_SECURITY_STRATEGY="Enforce",
+               ROS_SECURITY_KEYSTORE=str(tmp_path / "keys"))
+    node = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "--enclave", "/okid/arx_identifier",
+                     env=env)
+    assert node.proc.wait(timeout=60) == 2, node.output()
+    line = node.wait_for_output(r"\[okid_arx_identifier\] error: cannot start: .*", 5).group(0)
+    assert "SECURITY" in line.upper(), line
+    assert "Traceback" not in node.output() and "ready:" not in node.output(), node.output()
