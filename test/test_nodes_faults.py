@@ -271,7 +271,12 @@ def counters(feeder: Feeder, node: str) -> dict[str, int]:
 
 
 def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
-    """IoSample at 1250 Hz for 10 s, each message stamped at its own instant, then 125 Hz again."""
+    """IoSample at 1250 Hz for 10 s, each message stamped at its own instant, then 125 Hz again.
+
+    Node 1 is stopped (SIGSTOP) for 2 s of the flood, so that 2500 messages pile up against its
+    bounded input queue (inputs.queue_depth 1000); what is lost there is counted as missing
+    samples, and the node catches up once continued.
+    """
     f = rig.feeder
     pids = {name: proc.proc.pid for name, proc in rig.nodes.items()}
     rate_before = f.states_rate_hz(2.0)
@@ -281,10 +286,17 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
     rss_peak = dict(rss_before)
     f.flood = 10
     flood_start = time.monotonic()
+    stopped = pids["okid_arx_identifier"]
     while time.monotonic() - flood_start < 10.0:
         time.sleep(0.5)
         for name, pid in pids.items():
             rss_peak[name] = max(rss_peak[name], rss_mb(pid))
+        elapsed = time.monotonic() - flood_start
+        if stopped and 4.0 <= elapsed:
+            os.kill(stopped, signal.SIGSTOP)
+            time.sleep(2.0)
+            os.kill(stopped, signal.SIGCONT)
+            stopped = 0
     f.flood = 1
     flood_messages, flood_slots = f.published - published, f.k - k0
     time.sleep(1.0)  # what was queued is served
@@ -292,6 +304,8 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
     lag_after = f.lag_s()
     published_after, after = snapshot(f)
     rss_after = {name: rss_mb(pid) for name, pid in pids.items()}
+    time.sleep(2.0)
+    published_later, later = snapshot(f)
     rig.alive()
     for name in MODULES:
         d = {key: after[name][key] - before[name][key] for key in after[name]}
@@ -301,7 +315,9 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
                 received=received, dds_lost=published_after - published - received, rejected=rejected,
                 duplicate=d["duplicate"], off_grid=d["off_grid"], missing=d["missing"], reanchors=d["reanchors"],
                 emitted=d["samples_emitted"], rss_before_mb=rss_before[name], rss_peak_mb=rss_peak[name],
-                rss_after_mb=rss_after[name])
+                rss_after_mb=rss_after[name],
+                emitted_after=later[name]["samples_emitted"] - after[name]["samples_emitted"],
+                published_after=published_later - published_after)
         # Every extra message is refused and counted: at most one sample per sample time.
         assert received >= 0.8 * (published_after - published), (name, d)
         assert d["samples_emitted"] <= (published_after - published - flood_messages) + flood_slots + 5, (name, d)
@@ -310,6 +326,9 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
         # Memory flat: the queues are bounded (KEEP_LAST, inputs.queue_depth), nothing piles up.
         assert rss_peak[name] - rss_before[name] < 30.0, (name, rss_before, rss_peak)
         assert rss_after[name] - rss_before[name] < 30.0, (name, rss_before, rss_after)
+        # Each node takes every sample again, one per sample time (node 1 caught up after its stop).
+        emitted = later[name]["samples_emitted"] - after[name]["samples_emitted"]
+        assert abs(emitted - (published_later - published_after)) <= 3, (name, emitted, published_later)
     figures("flood estimator output", states_hz_before=rate_before, states_hz_after=rate_after, lag_after_s=lag_after)
     # The sample rate is kept: one ModalStates per sample time, no backlog.
     assert rate_after == pytest.approx(RATE_HZ, rel=0.1), rate_after
