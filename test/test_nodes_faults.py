@@ -8,7 +8,7 @@ FIGURES line (collected in docs/robustness-live.md):
 The nodes run as processes (``python -m okid_ros.nodes.*``) with the shipped
 config/okid.yaml and a small ARX problem on top (order 20, window 800 rows, a model once 200
 rows are in, twice a second; 6 states without refinement), so that a model comes within a few
-seconds on a loaded 2-core machine. A :class:`Feeder` thread publishes the simulated
+seconds on a loaded 2-core machine. A :class:`fault_rig.Feeder` thread publishes the simulated
 structure as IoSample at its rate, 125 Hz (one sample time of wall clock per sample, stamps on
 the 0.008 s grid), for the whole module; each test injects its fault into that flow and
 watches the outputs and the nodes' diagnostics.
@@ -18,222 +18,31 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
-import threading
 import time
-from pathlib import Path
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
+from fault_rig import (
+    DT,
+    MODULES,
+    N_RECORD,
+    RATE_HZ,
+    RELIABLE,
+    SENSOR_QOS,
+    SMALL,
+    Rig,
+    counters,
+    figures,
+    first_after,
+    gone,
+    kill_node,
+    rss_mb,
+    snapshot,
+    states_after,
+)
+from ros_helpers import ProbeNode, subprocess_env
 from std_msgs.msg import Float64MultiArray
 
-from okid_msgs.msg import ArxModel, IoSample, ModalStates, StateSpaceModel
-from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
-
-DT = 0.008
-RATE_HZ = 1.0 / DT
-T0 = 1000.0
-SMALL = """
-/**:
-  ros__parameters:
-    diagnostics_rate_hz: 4.0
-/**/okid_arx_identifier:
-  ros__parameters:
-    publish_rate_hz: 2.0
-    arx: {order: 20, window_length: 800, min_window_fill: 0.25}
-/**/okid_modal_estimator:
-  ros__parameters:
-    realization: {n_states: 6, refine: false}
-    change: {enabled: false}  # the faults splice the record: no structural change by design
-"""
-SENSOR_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
-RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-MODULES = {"okid_arx_identifier": "arx_identifier_node", "okid_modal_estimator": "modal_estimator_node"}
-N_RECORD = 40000  # 320 s of the simulated structure (the module uses about half)
-
-
-def stamp_s(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def rss_mb(pid: int) -> float:
-    """Resident set size of a process and its children (the realization worker) [MB]."""
-    total = 0
-    for p in [pid, *_children(pid)]:
-        try:
-            with open(f"/proc/{p}/status") as f:
-                total += next(int(line.split()[1]) for line in f if line.startswith("VmRSS:"))
-        except (OSError, StopIteration):
-            pass
-    return total / 1024.0
-
-
-def _children(pid: int) -> list[int]:
-    try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            return [int(c) for c in f.read().split()]
-    except OSError:
-        return []
-
-
-class Feeder(ProbeNode):
-    """Publishes the structure's samples at 125 Hz on a thread; records the outputs.
-
-    Faults are switched by attributes the test sets: ``flood`` (messages per sample time, each
-    stamped at its own instant, as a sensor configured to 10x its rate would), ``stamp_offset_s``
-    (added to every stamp: a clock that jumped).
-    """
-
-    def __init__(self) -> None:
-        super().__init__("okid_fault_feeder")
-        u = lowpass_input(N_RECORD, 2, 50.0, DT, seed=1)
-        y, _ = simulate_innovation(paper_model(), u, seed=2)
-        self.u, self.y = u, y
-        self.flood = 1
-        self.stamp_offset_s = 0.0
-        self.paused = False
-        self.k = 0  # next sample of the record
-        self.published = 0  # IoSample messages published
-        self.last_stamp = 0.0
-        self.states: list[tuple[float, float, int]] = []  # (wall time, stamp, model id)
-        self.models: list[tuple[float, int, int]] = []  # (wall time, model id, arx model id)
-        self.arx: list[tuple[float, int, bool]] = []  # (wall time, model id, valid)
-        self.diagnostics: dict[str, dict[str, str]] = {}
-        n = self.node
-        self.io = n.create_publisher(IoSample, "/okid/io_sample", SENSOR_QOS)
-        n.create_subscription(ModalStates, "/okid/modal_states", self._on_states, RELIABLE)
-        n.create_subscription(StateSpaceModel, "/okid/state_space_model", self._on_model, RELIABLE)
-        n.create_subscription(ArxModel, "/okid/arx_model", self._on_arx, RELIABLE)
-        n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE)
-        self._stop = threading.Event()
-        self._publisher_thread = threading.Thread(target=self._publish_loop, daemon=True)
-        self.start()
-
-    # -------------------------------------------------------------- outputs
-    def _on_states(self, msg: ModalStates) -> None:
-        with self.lock:
-            self.states.append((time.monotonic(), stamp_s(msg), int(msg.model_id)))
-
-    def _on_model(self, msg: StateSpaceModel) -> None:
-        with self.lock:
-            self.models.append((time.monotonic(), int(msg.model_id), int(msg.arx_model_id)))
-
-    def _on_arx(self, msg: ArxModel) -> None:
-        with self.lock:
-            self.arx.append((time.monotonic(), int(msg.model_id), bool(msg.valid)))
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        with self.lock:
-            for status in msg.status:
-                values = {kv.key: kv.value for kv in status.values}
-                values["_message"] = status.message
-                values["_wall"] = str(time.monotonic())
-                self.diagnostics[status.name] = values
-
-    def diag(self, name: str) -> dict[str, str]:
-        with self.lock:
-            return dict(self.diagnostics.get(name, {}))
-
-    def fresh_diag(self, name: str, timeout_s: float = 5.0) -> dict[str, str]:
-        """The first diagnostics of ``name`` published after now."""
-        since = time.monotonic()
-        self.wait_until(f"diagnostics of {name}", lambda: float(
-            self.diagnostics.get(name, {}).get("_wall", "0")) > since + 0.05, timeout_s)
-        return self.diag(name)
-
-    # -------------------------------------------------------------- inputs
-    def start_publishing(self) -> None:
-        self.wait_until("both nodes to subscribe /okid/io_sample", lambda: self.io.get_subscription_count() >= 2, 30)
-        self._publisher_thread.start()
-
-    def _publish_loop(self) -> None:
-        start = time.monotonic()
-        while not self._stop.is_set():
-            if self.paused:
-                paused_at = time.monotonic()
-                while self.paused and not self._stop.is_set():
-                    time.sleep(0.005)
-                start += time.monotonic() - paused_at  # no catch-up burst after a pause
-            k, flood, offset = self.k, self.flood, self.stamp_offset_s
-            for j in range(flood):
-                msg = IoSample()
-                stamp = T0 + (k + j / flood) * DT + offset
-                ns = int(round(stamp * 1e9))
-                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
-                # The sensor's value at its own instant: the record's sample of the nearest slot.
-                i = (k + round(j / flood)) % N_RECORD
-                msg.u = [float(v) for v in self.u[i]]
-                msg.y = [float(v) for v in self.y[i]]
-                self.io.publish(msg)
-                self.published += 1
-                self.last_stamp = stamp
-                due = start + (k + (j + 1) / flood) * DT
-                if flood > 1 and (wait := due - time.monotonic()) > 0:
-                    time.sleep(wait)
-            self.k = k + 1
-            wait = start + self.k * DT - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-            elif wait < -0.5:
-                start -= wait  # fell behind (a loaded machine): keep the rate, not the catch-up
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._publisher_thread.is_alive():
-            self._publisher_thread.join(timeout=5)
-        super().close()
-
-    # -------------------------------------------------------------- measures
-    def states_rate_hz(self, span_s: float) -> float:
-        """ModalStates per second over the last ``span_s`` seconds, measured by stamp span."""
-        time.sleep(span_s)
-        now = time.monotonic()
-        with self.lock:
-            recent = [s for w, s, _ in self.states if w >= now - span_s]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / span_s
-
-    def lag_s(self) -> float:
-        """Stamp of the newest sample published minus that of the newest ModalStates."""
-        with self.lock:
-            newest = self.states[-1][1] if self.states else float("nan")
-        return self.last_stamp - newest
-
-
-def start_node(name: str, env: dict[str, str], params: Path) -> RosProcess:
-    proc = RosProcess([sys.executable, "-m", f"okid_ros.nodes.{MODULES[name]}", "--ros-args",
-                       "--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)],
-                      env, REPO_ROOT)
-    proc.wait_for_output(r"ready:", timeout_s=60)
-    return proc
-
-
-class Rig:
-    """Both nodes and the feeder; nodes can be killed and restarted by the tests."""
-
-    def __init__(self, env: dict[str, str], params: Path) -> None:
-        self.env, self.params = env, params
-        self.nodes = {name: start_node(name, env, params) for name in MODULES}
-        self.old: list[RosProcess] = []
-        self.feeder = Feeder()
-
-    def restart(self, name: str) -> RosProcess:
-        self.old.append(self.nodes[name])
-        self.nodes[name] = start_node(name, self.env, self.params)
-        return self.nodes[name]
-
-    def alive(self) -> None:
-        for name, proc in self.nodes.items():
-            assert proc.proc.poll() is None, f"{name} exited with {proc.proc.returncode}:\n{proc.output()[-3000:]}"
-            assert "Traceback" not in proc.output(), f"{name}:\n{proc.output()[-3000:]}"
-
-    def close(self) -> None:
-        self.feeder.close()
-        for proc in [*self.nodes.values(), *self.old]:
-            proc.stop()
+from okid_msgs.msg import ArxModel, IoSample
 
 
 @pytest.fixture(scope="module")
@@ -249,33 +58,13 @@ def rig(ros_domain_id, tmp_path_factory):
         r.close()
 
 
-def figures(name: str, **values) -> None:
-    text = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
-    print(f"\nFIGURES {name}: {text}", flush=True)
-
-
-def snapshot(feeder: Feeder) -> tuple[int, dict[str, dict[str, int]]]:
-    """Messages published and both nodes' input counters, the feeder paused meanwhile (<= 0.5 s)."""
-    feeder.paused = True
-    try:
-        time.sleep(0.05)  # what is on its way arrives
-        return feeder.published, {name: counters(feeder, name) for name in MODULES}
-    finally:
-        feeder.paused = False
-
-
-def counters(feeder: Feeder, node: str) -> dict[str, int]:
-    d = feeder.fresh_diag(f"{node}: inputs")
-    return {k.removeprefix("grid "): int(v) for k, v in d.items()
-            if k.startswith("grid ") or k == "/okid/io_sample messages"}
-
-
 def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
     """IoSample at 1250 Hz for 10 s, each message stamped at its own instant, then 125 Hz again.
 
-    Node 1 is stopped (SIGSTOP) for 2 s of the flood, so that 2500 messages pile up against its
-    bounded input queue (inputs.queue_depth 1000); what is lost there is counted as missing
-    samples, and the node catches up once continued.
+    Node 1 is stopped (SIGSTOP) for 0.8 s of the flood, so that 1000 messages pile up against its
+    bounded input queues; what is lost there is counted as missing samples, and the node
+    catches up once continued. (Stopped for longer than Fast DDS's shared-memory health check,
+    1 s, the node may never receive that publisher again: docs/robustness-live.md.)
     """
     f = rig.feeder
     pids = {name: proc.proc.pid for name, proc in rig.nodes.items()}
@@ -294,7 +83,7 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
         elapsed = time.monotonic() - flood_start
         if stopped and 4.0 <= elapsed:
             os.kill(stopped, signal.SIGSTOP)
-            time.sleep(2.0)
+            time.sleep(0.8)
             os.kill(stopped, signal.SIGCONT)
             stopped = 0
     f.flood = 1
@@ -322,7 +111,13 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
         assert received >= 0.8 * (published_after - published), (name, d)
         assert d["samples_emitted"] <= (published_after - published - flood_messages) + flood_slots + 5, (name, d)
         assert rejected >= 0.8 * (received - d["samples_emitted"]), (name, d)
-        assert d["reanchors"] == 0 and d["time_jumps"] == 0, (name, d)
+        assert d["time_jumps"] == 0, (name, d)
+        # Every sample time is accounted for: taken, or counted missing (the samples lost at the
+        # stopped node's queue; its grid may re-anchor on what arrives after the loss).
+        slots = (published_after - published - flood_messages) + flood_slots
+        assert 0.95 * slots - 5 <= d["samples_emitted"] + d["missing"] <= 1.05 * slots + 5, (name, slots, d)
+        if name != "okid_arx_identifier":
+            assert d["reanchors"] == 0, (name, d)
         # Memory flat: the queues are bounded (KEEP_LAST, inputs.queue_depth), nothing piles up.
         assert rss_peak[name] - rss_before[name] < 30.0, (name, rss_before, rss_peak)
         assert rss_after[name] - rss_before[name] < 30.0, (name, rss_before, rss_after)
@@ -393,50 +188,17 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
         bad.close()
 
 
-def _first_after(feeder: Feeder, series: str, since: float, timeout_s: float, what: str, accept=lambda e: True):
-    """Wall time of the first entry of feeder.<series> after ``since`` (waits for it)."""
-    store = getattr(feeder, series)
-    feeder.wait_until(what, lambda: any(e[0] > since and accept(e) for e in store), timeout_s)
-    with feeder.lock:
-        return next(e[0] for e in store if e[0] > since and accept(e))
-
-
-def _kill(proc: RosProcess) -> list[int]:
-    """SIGKILL the node's process (not its group: as a crash would); return its children."""
-    children = _children(proc.proc.pid)
-    os.kill(proc.proc.pid, signal.SIGKILL)
-    proc.proc.wait(timeout=10)
-    return children
-
-
-def _gone(pids: list[int], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if not any(os.path.exists(f"/proc/{p}") and _state(p) != "Z" for p in pids):
-            return True
-        time.sleep(0.1)
-    return False
-
-
-def _state(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return "Z"
-
-
 def test_a_node_killed_and_restarted_while_data_flows(rig):
     f = rig.feeder
     # Node 1 dies: node 2 keeps its model and its modal states flow on.
     killed = time.monotonic()
-    _kill(rig.nodes["okid_arx_identifier"])
+    kill_node(rig.nodes["okid_arx_identifier"])
     rate_without_node1 = f.states_rate_hz(2.0)
     restarted = time.monotonic()
     rig.restart("okid_arx_identifier")
     ready = time.monotonic()
-    first_arx = _first_after(f, "arx", restarted, 30, "an ArxModel of the restarted node 1", lambda e: e[2])
-    first_model = _first_after(f, "models", restarted, 40, "a model of node 2 from the restarted node 1")
+    first_arx = first_after(f, "arx", restarted, 30, "an ArxModel of the restarted node 1", lambda e: e[2])
+    first_model = first_after(f, "models", restarted, 40, "a model of node 2 from the restarted node 1")
     figures("SIGKILL node 1", states_hz_while_down=rate_without_node1, down_s=restarted - killed,
             restart_to_ready_s=ready - restarted, restart_to_valid_arx_s=first_arx - restarted,
             restart_to_new_model_s=first_model - restarted)
@@ -445,11 +207,11 @@ def test_a_node_killed_and_restarted_while_data_flows(rig):
     with f.lock:
         n_arx = len(f.arx)
     killed = time.monotonic()
-    workers = _kill(rig.nodes["okid_modal_estimator"])
+    workers = kill_node(rig.nodes["okid_modal_estimator"])
     time.sleep(1.5)
     with f.lock:
         arx_while_down = len(f.arx) - n_arx
-    workers_gone = _gone(workers, 10.0)
+    workers_gone = gone(workers, 10.0)
     for pid in workers if not workers_gone else ():  # not left behind on the machine
         try:
             os.kill(pid, signal.SIGKILL)
@@ -458,8 +220,8 @@ def test_a_node_killed_and_restarted_while_data_flows(rig):
     restarted = time.monotonic()
     rig.restart("okid_modal_estimator")
     ready = time.monotonic()
-    first_model = _first_after(f, "models", restarted, 40, "a model of the restarted node 2")
-    first_states = _first_after(f, "states", restarted, 10, "modal states of the restarted node 2")
+    first_model = first_after(f, "models", restarted, 40, "a model of the restarted node 2")
+    first_states = first_after(f, "states", restarted, 10, "modal states of the restarted node 2")
     rate_after = f.states_rate_hz(2.0)
     figures("SIGKILL node 2", arx_models_while_down=arx_while_down, worker_exited=workers_gone,
             restart_to_ready_s=ready - restarted, restart_to_model_s=first_model - restarted,
@@ -471,33 +233,26 @@ def test_a_node_killed_and_restarted_while_data_flows(rig):
     rig.alive()
 
 
-def _states_after(feeder: Feeder, stamps: tuple[float, float], since: float, timeout_s: float, what: str) -> float:
-    """Wall time of the first ModalStates after ``since`` stamped in [stamps[0], stamps[1])."""
-    return _first_after(feeder, "states", since, timeout_s, what, lambda e: stamps[0] - 1e-6 <= e[1] < stamps[1])
+def resets(feeder) -> dict[str, int]:
+    """time_jump_resets of both nodes, from their next diagnostics."""
+    return {name: int(feeder.fresh_diag(f"{name}: {kind}").get("time_jump_resets", 0))
+            for name, kind in (("okid_arx_identifier", "identification"), ("okid_modal_estimator", "estimation"))}
 
 
-def test_the_clock_of_the_input_jumping_forward(rig):
-    """The stamps step 60 s ahead and stay there (a clock set forward).
-
-    Then one message alone stamped 60 s ahead of its neighbours (a glitch), the clock unchanged.
-    """
+def test_the_clock_of_the_input_stepping_forward(rig):
+    """The stamps step 60 s ahead and stay there (a clock set forward)."""
     f = rig.feeder
     jump_s = 60.0
-    resets_before = {name: int(f.fresh_diag(f"{name}: {kind}").get("time_jump_resets", 0))
-                     for name, kind in (("okid_arx_identifier", "identification"),
-                                        ("okid_modal_estimator", "estimation"))}
+    resets_before = resets(f)
     before = {name: counters(f, name) for name in MODULES}
     published, stepped = f.published, time.monotonic()
     first_stamp = f.last_stamp + jump_s  # the stream's stamps from the step on are later
     f.stamp_offset_s += jump_s
-    resumed = _states_after(f, (first_stamp, first_stamp + 30.0), stepped, 30, "modal states after the forward step")
-    dropped_step = round((resumed - stepped) * RATE_HZ)
-    new_model = _first_after(f, "models", stepped, 40, "a model after the forward step")
-    resets_step = {name: int(f.fresh_diag(f"{name}: {kind}").get("time_jump_resets", 0))
-                   for name, kind in (("okid_arx_identifier", "identification"),
-                                      ("okid_modal_estimator", "estimation"))}
+    resumed = states_after(f, (first_stamp, first_stamp + 30.0), stepped, 30, "modal states after the forward step")
+    new_model = first_after(f, "models", stepped, 40, "a model after the forward step")
+    resets_step = resets(f)
     after = {name: counters(f, name) for name in MODULES}
-    figures("forward clock step", jump_s=jump_s, samples_without_states=dropped_step,
+    figures("forward clock step", jump_s=jump_s, samples_without_states=round((resumed - stepped) * RATE_HZ),
             grid_gap_slots=max(after[n]["missing"] - before[n]["missing"] for n in MODULES),
             grid_time_jumps=max(after[n]["time_jumps"] - before[n]["time_jumps"] for n in MODULES),
             published=f.published - published, time_to_states_s=resumed - stepped,
@@ -506,36 +261,40 @@ def test_the_clock_of_the_input_jumping_forward(rig):
     # A forward step is a gap, not a restart: the model stays and is used across it.
     assert resets_step == resets_before, (resets_before, resets_step)
     assert resumed - stepped < 5.0
-    # The glitch: one stamp 60 s ahead; the stream goes on at its own clock.
+    rig.alive()
+
+
+def test_one_stamp_far_ahead_of_the_input_clock(rig):
+    """One message alone stamped 60 s ahead of its neighbours (a glitch), the clock unchanged."""
+    f = rig.feeder
     glitch = IoSample()
-    t_glitch = f.last_stamp + jump_s
+    t_glitch = f.last_stamp + 60.0
     glitch.header.stamp.sec, glitch.header.stamp.nanosec = divmod(int(round(t_glitch * 1e9)), 1_000_000_000)
     i = f.k % N_RECORD
     glitch.u, glitch.y = [float(v) for v in f.u[i]], [float(v) for v in f.y[i]]
+    resets_before = resets(f)
     before = {name: counters(f, name) for name in MODULES}
     glitched = time.monotonic()
     f.io.publish(glitch)
     after_glitch = f.last_stamp + DT  # the stream's next sample
-    resumed = _states_after(f, (after_glitch, t_glitch - 1.0), glitched, 30, "modal states after the glitch")
+    resumed = states_after(f, (after_glitch, t_glitch - 1.0), glitched, 30, "modal states after the glitch")
     with f.lock:
         states_between = [s for w, s, _ in f.states if glitched < w < resumed and s < t_glitch - 1.0]
-    resets_glitch = {name: int(f.fresh_diag(f"{name}: {kind}").get("time_jump_resets", 0))
-                     for name, kind in (("okid_arx_identifier", "identification"),
-                                        ("okid_modal_estimator", "estimation"))}
+    resets_glitch = resets(f)
     # After a restart node 2's model ids start again at 1 (a model in flight before may come first).
-    restarted = resets_glitch["okid_modal_estimator"] > resets_step["okid_modal_estimator"]
-    new_model = _first_after(f, "models", glitched, 40, "a model after the glitch",
-                             lambda e: e[1] == 1 or not restarted)
+    restarted = resets_glitch["okid_modal_estimator"] > resets_before["okid_modal_estimator"]
+    new_model = first_after(f, "models", glitched, 40, "a model after the glitch",
+                            lambda e: e[1] == 1 or not restarted)
     after = {name: counters(f, name) for name in MODULES}
+    time_jumps = max(after[n]["time_jumps"] - before[n]["time_jumps"] for n in MODULES)
     figures("one stamp 60 s ahead", samples_without_states=round((resumed - glitched) * RATE_HZ),
             states_between=len(states_between), time_to_states_s=resumed - glitched,
             grid_missing=max(after[n]["missing"] - before[n]["missing"] for n in MODULES),
-            grid_time_jumps=max(after[n]["time_jumps"] - before[n]["time_jumps"] for n in MODULES),
-            time_to_next_model_s=new_model - glitched,
-            resets=sum(resets_glitch.values()) - sum(resets_step.values()))
+            grid_time_jumps=time_jumps, time_to_next_model_s=new_model - glitched,
+            resets=sum(resets_glitch.values()) - sum(resets_before.values()))
     # Each node restarts once at most (the stream's next stamp is a jump back from the glitch),
     # and the models come back.
-    assert sum(resets_glitch.values()) - sum(resets_step.values()) <= 2
-    assert max(after[n]["time_jumps"] - before[n]["time_jumps"] for n in MODULES) <= 1
+    assert sum(resets_glitch.values()) - sum(resets_before.values()) <= 2
+    assert time_jumps <= 1
     assert resumed - glitched < 30.0
     rig.alive()
