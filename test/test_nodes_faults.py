@@ -133,10 +133,10 @@ def test_flood_at_ten_times_the_rate_is_counted_and_bounded(rig):
 def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
     f = rig.feeder
     bad = ProbeNode("okid_fault_wrong_type")  # a participant of its own: another type on the same topic
+    wrong_size = f.node.create_publisher(IoSample, "/okid/io_sample", SENSOR_QOS)
+    malformed = f.node.create_publisher(ArxModel, "/okid/arx_model", RELIABLE)
     try:
         wrong_type = bad.node.create_publisher(Float64MultiArray, "/okid/io_sample", SENSOR_QOS)
-        wrong_size = f.node.create_publisher(IoSample, "/okid/io_sample", SENSOR_QOS)
-        malformed = f.node.create_publisher(ArxModel, "/okid/arx_model", RELIABLE)
         before = {name: counters(f, name) for name in MODULES}
         est_before = f.fresh_diag("okid_modal_estimator: estimation")
         with f.lock:
@@ -186,6 +186,8 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
         assert rate_during == pytest.approx(RATE_HZ, rel=0.15), rate_during  # data flow continues
     finally:
         bad.close()
+        for publisher in (wrong_size, malformed):
+            f.node.destroy_publisher(publisher)
 
 
 def test_a_node_killed_and_restarted_while_data_flows(rig):
@@ -297,4 +299,22 @@ def test_one_stamp_far_ahead_of_the_input_clock(rig):
     assert sum(resets_glitch.values()) - sum(resets_before.values()) <= 2
     assert time_jumps <= 1
     assert resumed - glitched < 30.0
+    rig.alive()
+
+
+def test_a_silent_input_is_reported_stale_with_its_publishers(rig):
+    """The publisher stays but sends nothing for 2 s: each node warns, naming the publishers left.
+
+    The same line is what a node shows after Fast DDS lost it a publisher (docs/robustness-live.md).
+    """
+    f = rig.feeder
+    f.paused = True
+    try:
+        for proc in rig.nodes.values():
+            proc.wait_for_output(r"input /okid/io_sample is stale: no message for more than 1 s, though \d+ "
+                                 r"publisher\(s\) of it are in the graph", 10)
+    finally:
+        f.paused = False
+    for proc in rig.nodes.values():
+        proc.wait_for_output(r"input /okid/io_sample is receiving again", 10)
     rig.alive()

@@ -284,12 +284,24 @@ class InputFrontend:
             if stale != self.stale[i]:
                 if stale:
                     changes.append((f"input {spec.topic} is stale: no message for more than "
-                                    f"{self.stale_timeout_ns * 1e-9:g} s", True))
+                                    f"{self.stale_timeout_ns * 1e-9:g} s{self._publishers_note(spec.topic)}", True))
                 else:
                     changes.append((f"input {spec.topic} is receiving again", False))
             self.stale[i] = stale
             changes += self._check_types(i, spec)
         return changes
+
+    def _publishers_note(self, topic: str) -> str:
+        """For a stale input: the publishers still in the graph (a stall can lose them for good)."""
+        try:
+            count = self.node.count_publishers(topic)
+        except Exception:  # graph not available (shutting down)
+            return ""
+        if not count:
+            return ""
+        return (f", though {count} publisher(s) of it are in the graph: if they still publish, this node "
+                "lost them (Fast DDS shared memory after a stall of this process over 1 s; restart the "
+                "node, see docs/robustness-live.md)")
 
     def _check_types(self, index: int, spec: Any) -> list[tuple[str, bool]]:
         """Warn when publishers of another type appear on (or leave) input topic ``spec.topic``."""
