@@ -48,6 +48,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import SetBool, Trigger
 
 from okid_ros.errors import ParameterError
+from okid_ros.nodes.audit import log_calls
 from okid_ros.nodes.common import (
     DiagnosticsPublisher,
     InputFrontend,
@@ -98,6 +99,9 @@ class OkidNode(Node):
         self.state_lock = threading.RLock()
         self.input_thread: Any = None  # its InputThread (okid_ros.nodes.input_thread), once one serves it
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        for service in self.services:  # rclpy's parameter services: changes are logged with the caller
+            if service.srv_name.endswith(("/set_parameters", "/set_parameters_atomically")):
+                log_calls(self, service)
         if not self.managed:
             self.configure()
             self.active = True
@@ -176,8 +180,8 @@ class OkidNode(Node):
         self.inputs = InputFrontend(self, self.values, self._on_grid_sample)
         self._diagnostics_timer = self.create_timer(
             1.0 / float(self.values["diagnostics_rate_hz"]), self._on_diagnostics_timer)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SetBool, "~/enable", self._on_enable)
+        log_calls(self, self.create_service(Trigger, "~/reset", self._on_reset))
+        log_calls(self, self.create_service(SetBool, "~/enable", self._on_enable))
 
     def input_summary(self) -> str:
         return ", ".join(f"{s.topic} ({s.kind})" for s in self.inputs.specs) if self.inputs else ""
@@ -240,7 +244,7 @@ class OkidNode(Node):
             self.check_parameters(values)
         except (ValueError, ParameterError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.values = values
+        old_values, self.values = self.values, values
         if self._built_entities is None:
             return SetParametersResult(successful=True)  # unconfigured: taken at configure
         if "diagnostics_rate_hz" in changed and self._diagnostics_timer is not None:
@@ -248,7 +252,8 @@ class OkidNode(Node):
         if self.inputs is not None:
             self.inputs.apply_parameters(values)
         self.apply_parameters(values, changed)
-        self.get_logger().info("parameters set: " + ", ".join(f"{k}={v!r}" for k, v in changed.items()))
+        self.get_logger().info("parameters set: " + ", ".join(
+            f"{k}: {old_values[k]!r} -> {v!r}" for k, v in changed.items()))
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ diagnostics

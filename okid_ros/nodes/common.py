@@ -191,6 +191,9 @@ class InputFrontend:
         self._counts = [0] * n
         self._rate_mark = (self._clock.now().nanoseconds, [0] * n)
         self.rates_hz = [0.0] * n
+        # Publishers of another message type on an input topic: DDS never matches them (their
+        # messages never arrive) and Fast DDS reports no event for it, so the graph is asked.
+        self.wrong_type_publishers: list[tuple[str, ...]] = [()] * n
         self._busy_s = 0.0  # time spent in the input callbacks since the last diagnostics
         self._busy_max_s = 0.0
         self.callback_stats = (0.0, 0.0)  # (mean us per message, max ms) of the last period
@@ -281,11 +284,40 @@ class InputFrontend:
             if stale != self.stale[i]:
                 if stale:
                     changes.append((f"input {spec.topic} is stale: no message for more than "
-                                    f"{self.stale_timeout_ns * 1e-9:g} s", True))
+                                    f"{self.stale_timeout_ns * 1e-9:g} s{self._publishers_note(spec.topic)}", True))
                 else:
                     changes.append((f"input {spec.topic} is receiving again", False))
             self.stale[i] = stale
+            changes += self._check_types(i, spec)
         return changes
+
+    def _publishers_note(self, topic: str) -> str:
+        """For a stale input: the publishers still in the graph (a stall can lose them for good)."""
+        try:
+            count = self.node.count_publishers(topic)
+        except Exception:  # graph not available (shutting down)
+            return ""
+        if not count:
+            return ""
+        return (f", though {count} publisher(s) of it are in the graph: if they still publish, this node "
+                "lost them (Fast DDS shared memory after a stall of this process over 1 s; restart the "
+                "node, see docs/robustness-live.md)")
+
+    def _check_types(self, index: int, spec: Any) -> list[tuple[str, bool]]:
+        """Warn when publishers of another type appear on (or leave) input topic ``spec.topic``."""
+        try:
+            infos = self.node.get_publishers_info_by_topic(spec.topic)
+        except Exception:  # graph not available (shutting down)
+            return []
+        wrong = tuple(sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name} ({i.topic_type})"
+                             for i in infos if i.topic_type != spec.msg_type))
+        if wrong == self.wrong_type_publishers[index]:
+            return []
+        self.wrong_type_publishers[index] = wrong
+        if not wrong:
+            return [(f"input {spec.topic}: no publisher of another type any more", False)]
+        return [(f"input {spec.topic} expects {spec.msg_type}; ignored publisher(s) of another type "
+                 f"(their messages never arrive): {', '.join(wrong)}", True)]
 
     def status(self, node_name: str) -> DiagnosticStatus:
         """Diagnostics of the inputs: per topic rate, staleness, messages and rejections."""
@@ -297,6 +329,7 @@ class InputFrontend:
             values[f"{spec.topic} stale"] = self.stale[i]
             values[f"{spec.topic} messages"] = c.messages
             values[f"{spec.topic} rejected"] = c.rejected_messages
+            values[f"{spec.topic} wrong_type_publishers"] = len(self.wrong_type_publishers[i])
         for key, value in self.grid.counters.as_dict().items():
             values[f"grid {key}"] = value
         values["input callback mean_us"] = round(self.callback_stats[0], 1)

@@ -26,6 +26,7 @@ from okid_ros.core.modal import Mode
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.identification import ArxSnapshot
 from okid_ros.service.inputs import SourceSpec
+from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
 
 __all__ = [
@@ -200,6 +201,14 @@ def arx_fit_from_msg(msg: Any) -> tuple[ArxFit, float, int]:
     ValueError when the coefficient array does not match its declared shape.
     """
     m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
+    # Limits of node 1's own parameters: a message beyond them (from anyone on the domain) would
+    # size node 2's sample buffer (4e9 rows: a 33 GB allocation that ended the node).
+    limits = {spec.name: spec.high for spec in ARX_PARAMS if spec.name in ("arx.order", "arx.window_length")}
+    if not 1 <= q <= limits["arx.order"]:
+        raise ValueError(f"ArxModel order {q} is outside arx.order's range [1, {limits['arx.order']}]")
+    if int(msg.window_fill) > limits["arx.window_length"]:
+        raise ValueError(f"ArxModel window of {int(msg.window_fill)} rows exceeds arx.window_length's limit "
+                         f"{limits['arx.window_length']}")
     d = m + q * (p + m)
     rows, cols = int(msg.coefficients_rows), int(msg.coefficients_cols)
     theta = np.asarray(msg.coefficients, dtype=float)

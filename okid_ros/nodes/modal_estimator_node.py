@@ -36,6 +36,7 @@ each sample arrives; the ArxModel subscription, services and timers by the execu
 from __future__ import annotations
 
 import multiprocessing
+import os
 import sys
 import threading
 from collections import deque
@@ -116,7 +117,7 @@ class ModalEstimatorNode(OkidNode):
             # A process of its own: the realization never holds this interpreter's lock.
             self._pool = ProcessPoolExecutor(
                 max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                initializer=_worker_init, initargs=("okid_realize",),
+                initializer=_worker_init, initargs=("okid_realize", os.getpid()),
             )
             self._pool.submit(_worker_warm_up)  # start it (and its imports) now, not at the first model
         else:
@@ -176,7 +177,13 @@ class ModalEstimatorNode(OkidNode):
             self.get_logger().warning(f"ArxModel {msg.model_id} ignored: {exc}")
             return
         with self.state_lock:  # the input thread may be starting a job too
-            self.service.submit_arx(fit, stamp_s, int(msg.model_id), rows)
+            try:
+                self.service.submit_arx(fit, stamp_s, int(msg.model_id), rows)
+            except MemoryError:  # a window too large for this machine: refused, the node goes on
+                self._arx_malformed += 1
+                self.get_logger().warning(f"ArxModel {msg.model_id} ignored: a window of {rows} rows does "
+                                          "not fit in memory")
+                return
             if self._job is None:
                 self._start_job()
 
@@ -273,16 +280,26 @@ class ModalEstimatorNode(OkidNode):
             pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _worker_init(name: str) -> None:
+def _worker_init(name: str, node_pid: int | None = None) -> None:
     """Set up the realization worker process.
 
-    A name for top/ps, Ctrl-C left to the node, lower priority so that the per-sample paths win
-    when the cores are busy.
+    A name for top/ps, Ctrl-C left to the node, an end with the node's process, lower priority
+    so that the per-sample paths win when the cores are busy.
     """
     import signal
     import warnings
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A node killed (SIGKILL, the OOM killer) cannot stop its pool: without this the worker and
+    # multiprocessing's resource tracker lived on, orphaned, one pair per crash (Linux only).
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if node_pid is not None and os.getppid() != node_pid:
+        os._exit(0)  # the node died before the line above took effect
     name_thread(name)
     # Numerical warnings of the realization (ill-conditioned refits of candidate orders) are
     # part of its normal work; a model that fails its checks is reported in the diagnostics.

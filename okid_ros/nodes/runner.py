@@ -37,10 +37,12 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
         return 2
     managed = "--lifecycle" in own
     autostart = "--no-autostart" not in own
-    rclpy.init(args=argv)
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
     node = None
     input_thread: InputThread | None = None
     try:
+        rclpy.init(args=argv)
         if managed:
             node = managed_node_class(factory)()
             if autostart:
@@ -65,6 +67,13 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
         return 0
     except ParameterError as exc:
         print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except rclpy_implementation.RCLError as exc:
+        if node is not None:
+            raise
+        # ROS refused to start (e.g. ROS_SECURITY_STRATEGY=Enforce without the enclave's keys,
+        # or a Fast DDS without security): one line, not a traceback.
+        print(f"[{name}] error: cannot start: {' '.join(str(exc).split())}", file=sys.stderr, flush=True)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         if input_thread is not None and input_thread.error is not None:

@@ -372,6 +372,8 @@ class SampleGrid:
                 return out
             # Only off-grid stamps for a while: the sensors' clock phase moved. Re-anchor here.
             out += self._drop_all_pending()
+            if self._horizon is not None:  # the slots up to this stamp are lost too: count them
+                self.counters.missing += max(0, math.floor((stamp_s - self._anchor) / dt) - self._horizon)
             self._clear_grid()
             self._anchor = stamp_s
             for s in self._sources:
