@@ -25,6 +25,8 @@ from rcl_interfaces.srv import SetParameters
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess
 from std_srvs.srv import SetBool, Trigger
 
+GRAPH_PROBE = REPO_ROOT / "test" / "nodes" / "netns_graph_probe.py"
+
 POLICY = REPO_ROOT / "config" / "sros2" / "policy.xml"
 NODE_MODULES = {"okid_arx_identifier": "arx_identifier_node", "okid_modal_estimator": "modal_estimator_node"}
 
@@ -195,7 +197,7 @@ def test_discovery_range_decides_who_sees_the_nodes_from_another_host(two_hosts,
     try:
         node.wait_for_output(r"ready:", 60)
         probe = subprocess.run(["ip", "netns", "exec", two_hosts["a"], sys.executable,
-                                str(REPO_ROOT / "test" / "nodes" / "netns_graph_probe.py"), "okid_arx_identifier", "10"],
+                                str(GRAPH_PROBE), "okid_arx_identifier", "10"],
                                env=env_a, cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
         lines = [line for line in probe.stdout.splitlines() if line.startswith("{")]
         assert lines, (probe.stdout, probe.stderr)
@@ -205,7 +207,7 @@ def test_discovery_range_decides_who_sees_the_nodes_from_another_host(two_hosts,
         if discovery == "LOCALHOST":
             # ... while a process on its own host sees it (the range is not OFF).
             local = subprocess.run(["ip", "netns", "exec", two_hosts["b"], sys.executable,
-                                    str(REPO_ROOT / "test" / "nodes" / "netns_graph_probe.py"), "okid_arx_identifier", "10"],
+                                    str(GRAPH_PROBE), "okid_arx_identifier", "10"],
                                    env=env_b, cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
             assert '"seen": true' in local.stdout, (local.stdout, local.stderr)
     finally:

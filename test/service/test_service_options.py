@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import pytest
+from ros_helpers import REPO_ROOT
 
 from okid_ros.core.change_detection import DEFAULT_FALSE_ALARM_SAMPLES, DivergenceMonitor
 from okid_ros.core.options import RealizationOptions
@@ -21,7 +21,7 @@ from okid_ros.service.params import (
     resolve_parameters,
 )
 
-CONFIG = Path(__file__).resolve().parent.parent / "config" / "okid.yaml"
+CONFIG = REPO_ROOT / "config" / "okid.yaml"
 OPTIONS = {ARX_NODE: ArxIdentificationParams, ESTIMATOR_NODE: ModalEstimationParams}
 
 
