@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.statespace import InnovationPredictor
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import dumps
+    from okid_ros.records import require_inputs
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -147,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
     record, _ = load_any_record(args.data, args.params, args.param, args.source)
+    require_inputs(record, args.data, "track")
     u, y, dt = record.u, record.y, record.sample_time_s
     n_samples, m = u.shape
     p = y.shape[1]
