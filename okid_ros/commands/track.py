@@ -134,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
 
     from okid_ros.core.arx import fit_from_normal_equations
     from okid_ros.core.change_detection import StructuralChangeMonitor, predictor_spectral_radius
+    from okid_ros.core.channels import group_scales
     from okid_ros.core.pipeline import IdentificationError, choose_arx_order, identify_from_arx
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.core.regressors import regressor_length
@@ -149,7 +150,10 @@ def run(args: argparse.Namespace) -> int:
         prepare_output(out, force=False, kind="JSON lines file")
     record, _ = load_any_record(args.data, args.params, args.param, args.source)
     require_inputs(record, args.data, "track")
-    u, y, dt = record.u, record.y, record.sample_time_s
+    # Inputs and outputs each divided by a power of two (exact: the same fits): values near
+    # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
+    u, y = group_scales(record.u, record.y).scale(record.u, record.y)
+    dt = record.sample_time_s
     n_samples, m = u.shape
     p = y.shape[1]
     window = args.window
@@ -234,6 +238,7 @@ def run(args: argparse.Namespace) -> int:
                 u_w, y_w, _ = estimator.window_samples()
                 model = identify_from_arx(fit, u_w, y_w, dt, options=options)
                 entry.update(
+                    warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
                     n_states=model.n_states,
                     arx_order=int(q),
                     max_states_reached=bool(model.max_states_reached),
