@@ -35,9 +35,8 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations, select_arx_order
-from okid_ros.core.channels import channel_scales, channel_std
+from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
-from okid_ros.core.excitation import LiveInputs, excitation_warnings, input_excitation
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
@@ -47,7 +46,7 @@ from okid_ros.core.order_search import Completer, choose_completion, search_orde
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
-from okid_ros.core.scaling import restore_model
+from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
 from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import attach_mode_uncertainty
@@ -178,17 +177,9 @@ def identify_from_arx(
         u, y = check_io_arrays(u, y)
     except (TypeError, ValueError) as exc:
         raise IdentificationError(str(exc)) from None
-    excitation = excitation_warnings(u)  # dead input channels named; none excited: refused
-    if not input_excitation(u).excited:
-        raise IdentificationError(excitation[0])
-    live, u_all = LiveInputs.of(u), u  # realized from the live inputs, dead ones re-enter with zero B, D
-    u, arx = live.select(u), live.select_arx(arx)
-    # Realized on channels of unit spread, restored to the record's units (core/scaling.py).
-    scales, physical = channel_scales(u, y), (u, y)
-    u, y = scales.scale(u, y)
-    arx = scales.inverse().restore_arx(arx)
+    frame = IdentificationFrame.of(u, y)  # live inputs, unit spread; back at the end (core/scaling.py)
+    (u, y), arx = frame.enter(u, y), frame.enter_arx(arx)
     u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
-    warnings += excitation
     blocks = arx.observer_markov  # (q, p, p + m): C Abar^{i-1} [L, Bbar]
     rows, cols = default_hankel_size(blocks.shape[0] - 1)
     hankel_rows = options.hankel_rows or rows
@@ -227,12 +218,11 @@ def identify_from_arx(
         order_scores={n: fit.bic() for n, fit in search.fits.items()}, stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined is not None,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
-        warnings=warnings,
+        warnings=warnings + frame.warnings,
     )
     # Step 7b: standard deviations of every mode's frequency and damping (on the offset-free data).
     identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
-    identified = restore_model(identified, scales, offset_warnings=_remove_offsets(*physical, offsets)[4])
-    return live.restore(identified, u_all, offsets)
+    return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
 def _identify_paper(
@@ -342,14 +332,11 @@ def identify(
     m, p = u.shape[1], y.shape[1]
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
-    # Dead inputs are left out and re-enter with zero B, D at the end; none live: refused below.
-    live, u_all = LiveInputs.of(u), u
-    u = live.select(u) if live.keep else u
+    # Identified from the live inputs, each channel of unit spread, returned to the record's units
+    # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
+    frame = IdentificationFrame.of(u, y, refuse_unexcited=False)  # refused below, after the size checks
+    u, y = frame.enter(u, y)
     m = u.shape[1]
-    # Identified on channels of unit spread, restored to physical units: the modes do not depend
-    # on the channels' units, and 1e+-150 neither overflows nor underflows (core/scaling.py).
-    scales, physical = channel_scales(u, y), (u, y)
-    u, y = scales.scale(u, y)
     # The ARX fit takes the offsets as an intercept and identify_from_arx removes the record's
     # means before the completion, exactly as the live window does: same samples, same model.
     center = offsets == "remove"
@@ -366,8 +353,8 @@ def identify(
             f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {u.shape[0]} "
             f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
         )
-    if not live.keep:
-        raise IdentificationError(excitation_warnings(u_all)[0])
+    if not frame.excited:
+        raise IdentificationError(frame.warnings[0])
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
     phi, targets, _ = arx_regressors(u, y, order)
@@ -381,6 +368,5 @@ def identify(
     else:
         model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
     model.arx_order_scores = arx_scores
-    model.warnings += excitation_warnings(u_all)
-    model = restore_model(model, scales, offset_warnings=_remove_offsets(*physical, offsets)[4])
-    return live.restore(model, u_all, offsets)
+    model.warnings += frame.warnings  # the dead inputs (identify_from_arx saw only the live ones)
+    return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])

@@ -23,15 +23,17 @@ indicators MPC, MSV and EMAC (so they do not depend on the choice of units eithe
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from okid_ros.core.channels import ChannelScales
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.channels import ChannelScales, channel_scales
+from okid_ros.core.excitation import LiveInputs, excitation_warnings
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.modal import _reference_row
 
-__all__ = ["restore_model"]
+__all__ = ["IdentificationFrame", "restore_model"]
 
 
 def restore_model(model: IdentifiedModel, scales: ChannelScales, *,
@@ -102,3 +104,56 @@ def _normalize_mode_blocks(model: IdentifiedModel) -> IdentifiedModel:
         model, A=inverse @ model.A @ transform, B=inverse @ model.B, C=model.C @ transform, K=inverse @ model.K,
         x0=None if model.x0 is None else inverse @ model.x0, modes=modes,
     )
+
+
+@dataclass
+class IdentificationFrame:
+    """The frame a record is identified in: live inputs only, each channel of unit spread.
+
+    ``enter`` takes the record (and an ARX fit of it) into the frame, ``leave`` brings the model
+    back: to the record's units (:func:`restore_model`) and to all its inputs (dead ones with
+    zero ``B``, ``D``; :class:`~okid_ros.core.excitation.LiveInputs`).
+
+    Attributes
+    ----------
+    live : the live inputs; scales : the channel scales of the live record;
+    u_all : (N, m) the record's inputs; physical : (u, y) of the live record in its units;
+    warnings : the dead inputs named, with what to do.
+    excited : whether some input varies (False only with ``refuse_unexcited=False``).
+    """
+
+    live: LiveInputs
+    scales: ChannelScales
+    u_all: np.ndarray
+    physical: tuple[np.ndarray, np.ndarray]
+    warnings: list[str]
+    excited: bool = True
+
+    @classmethod
+    def of(cls, u: np.ndarray, y: np.ndarray, *, refuse_unexcited: bool = True) -> IdentificationFrame:
+        """The frame of ``u`` (N, m), ``y`` (N, p); IdentificationError when no input varies.
+
+        With ``refuse_unexcited=False`` a record without excitation keeps all its inputs (the
+        caller refuses it after its own checks, :attr:`excited`).
+        """
+        live, warnings = LiveInputs.of(u), excitation_warnings(u)
+        excited = bool(live.keep)
+        if not excited:
+            if refuse_unexcited:
+                raise IdentificationError(warnings[0])
+            live = LiveInputs(tuple(range(u.shape[1])), u.shape[1])
+        u_live = live.select(u)
+        return cls(live, channel_scales(u_live, y), u, (u_live, y), warnings, excited)
+
+    def enter(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``u`` (N, m), ``y`` (N, p) in the frame: live inputs, unit spread."""
+        return self.scales.scale(self.live.select(u), y)
+
+    def enter_arx(self, arx: ArxFit) -> ArxFit:
+        """An ARX fit of the record, in the frame."""
+        return self.scales.inverse().restore_arx(self.live.select_arx(arx))
+
+    def leave(self, model: IdentifiedModel, offsets: str, *, offset_warnings: list[str]) -> IdentifiedModel:
+        """``model`` identified in the frame, for the record: its units, all its inputs."""
+        model = restore_model(model, self.scales, offset_warnings=offset_warnings)
+        return self.live.restore(model, self.u_all, offsets)
