@@ -10,7 +10,7 @@ import warnings
 from collections.abc import Callable, Sequence
 
 from okid_ros import __version__
-from okid_ros.errors import OkidError
+from okid_ros.errors import DataError, OkidError, OutputError
 
 PROG = "okid-ros"
 
@@ -83,10 +83,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
-    return run_command(args.command, lambda: int(args.func(args)))
+    # The file a command reads (identify/track DATA, process/export/replay/plot BAG): named in its
+    # data errors (below), so no command has to repeat it.
+    source = getattr(args, "data", None) or getattr(args, "bag", None)
+    return run_command(args.command, lambda: int(args.func(args)), source=source)
 
 
-def run_command(command: str, work: Callable[[], int]) -> int:
+def run_command(command: str, work: Callable[[], int], *, source: str | None = None) -> int:
     """Run one subcommand's ``work`` and turn every failure into one line on stderr.
 
     The one place where failures become exit statuses, for every command: an
@@ -95,6 +98,7 @@ def run_command(command: str, work: Callable[[], int]) -> int:
     machine) also 2; any other exception is a bug in okid-ros: one line asking to report it,
     status 70 (EX_SOFTWARE), the traceback only with ``OKID_ROS_TRACEBACK=1``. Python warnings
     (numpy's floating-point warnings among them) are printed as one line each, naming the command.
+    A data error that does not name ``source`` (the file the command reads) is prefixed with it.
     """
     with warnings.catch_warnings():
         warnings.showwarning = _one_line_warning(command)
@@ -102,7 +106,7 @@ def run_command(command: str, work: Callable[[], int]) -> int:
             return work()
         except OkidError as exc:
             # Expected failures are one line, like argparse's own usage errors, never a traceback.
-            print(f"{PROG} {command}: error: {exc}", file=sys.stderr)
+            print(f"{PROG} {command}: error: {_naming_source(exc, source)}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             return 130
@@ -117,6 +121,14 @@ def run_command(command: str, work: Callable[[], int]) -> int:
                   f"({type(exc).__name__}: {' '.join(str(exc).split())}; set OKID_ROS_TRACEBACK=1 "
                   f"for the traceback)", file=sys.stderr)
             return 70
+
+
+def _naming_source(exc: OkidError, source: str | None) -> str:
+    """The message of ``exc``, prefixed with ``source`` when it is about the data and does not name it."""
+    text = " ".join(str(exc).split())
+    if source and isinstance(exc, DataError) and not isinstance(exc, OutputError) and str(source) not in text:
+        return f"{source}: {text}"
+    return text
 
 
 def _one_line_warning(command: str) -> Callable[..., None]:

@@ -22,6 +22,10 @@ class DataError(OkidError):
     """Input data is missing, unreadable or inconsistent (files, bags, topics, array sizes)."""
 
 
+class OutputError(DataError):
+    """An output cannot be written or may not be replaced; the message names the output."""
+
+
 class ParameterError(OkidError):
     """A parameter or option value is invalid; the message names it and its valid range."""
 

@@ -54,6 +54,21 @@ def _finite_numbers(value, where: str = "") -> None:
             assert math.isfinite(value), where
 
 
+def _run_on_record(tmp_path_factory, capsys, arrays: dict, command: str, out_name: str,
+                   options: list[str]) -> Path | None:
+    """Run ``command RECORD OPTION OUT ...`` on the arrays; the output path, or None after a one-line error."""
+    tmp = tmp_path_factory.mktemp(command)
+    record, out = tmp / "r.npz", tmp / out_name
+    np.savez(record, **arrays)
+    status, err = _run([command, str(record), options[0], str(out), *options[1:]], capsys)
+    assert status in (0, 2), err
+    _assert_one_line_messages(err, command)
+    if status == 2:
+        assert not out.exists() and err.count("error:") == 1 and str(record) in err
+        return None
+    return out
+
+
 @st.composite
 def records(draw):
     n = draw(st.sampled_from([40, 700, 900]))
@@ -84,15 +99,9 @@ def records(draw):
 @SLOW
 @given(arrays=records())
 def test_identify_on_any_record_is_a_model_or_one_line(tmp_path_factory, capsys, arrays) -> None:
-    tmp = tmp_path_factory.mktemp("identify")
-    np.savez(tmp / "r.npz", **arrays)
-    out = tmp / "m.json"
-    status, err = _run(["identify", str(tmp / "r.npz"), "--json", str(out), "--order", "8", "--no-refine",
-                        "--max-states", "6"], capsys)
-    assert status in (0, 2), err
-    _assert_one_line_messages(err, "identify")
-    if status == 2:
-        assert not out.exists() and err.count("error:") == 1 and str(tmp / "r.npz") in err
+    out = _run_on_record(tmp_path_factory, capsys, arrays, "identify", "m.json",
+                         ["--json", "--order", "8", "--no-refine", "--max-states", "6"])
+    if out is None:
         return
     document = json.loads(out.read_text())
     _finite_numbers({key: document[key] for key in ("A", "B", "C", "D", "K", "innovation_covariance")})
@@ -103,15 +112,10 @@ def test_identify_on_any_record_is_a_model_or_one_line(tmp_path_factory, capsys,
 @SLOW
 @given(arrays=records())
 def test_track_on_any_record_is_updates_or_one_line(tmp_path_factory, capsys, arrays) -> None:
-    tmp = tmp_path_factory.mktemp("track")
-    np.savez(tmp / "r.npz", **arrays)
-    out = tmp / "t.jsonl"
-    status, err = _run(["track", str(tmp / "r.npz"), "--jsonl", str(out), "--order", "6", "--window", "300",
-                        "--every", "250", "--states", "4", "--no-progress"], capsys)
-    assert status in (0, 2), err
-    _assert_one_line_messages(err, "track")
-    if status == 2:
-        assert not out.exists() and err.count("error:") == 1
+    out = _run_on_record(tmp_path_factory, capsys, arrays, "track", "t.jsonl",
+                         ["--jsonl", "--order", "6", "--window", "300", "--every", "250", "--states", "4",
+                          "--no-progress"])
+    if out is None:
         return
     for line in out.read_text().splitlines():
         entry = json.loads(line)

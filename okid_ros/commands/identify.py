@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
             offsets=args.offsets,
         )
     except IdentificationError as exc:
-        raise DataError(f"{args.data}: {exc}") from None
+        raise DataError(str(exc)) from None
     uncertainty = model.uncertainty
     elapsed = time.perf_counter() - started
     fits = prediction_fits(model, record.u, record.y)

@@ -130,10 +130,12 @@ class LiveInputs:
         """``arx`` without the coefficient rows of the dead inputs (layout of ArxFit.theta)."""
         if self.all_live:
             return arx
-        m, p = self.n_inputs, arx.n_outputs
-        live = np.isin(np.arange(m), self.keep)
-        rows = np.concatenate([live, np.tile(np.concatenate([np.ones(p, bool), live]), arx.order)])
-        return replace(arx, theta=arx.theta[rows], n_inputs=len(self.keep))
+        return replace(arx, theta=arx.theta[self._rows(arx)], n_inputs=len(self.keep))
+
+    def _rows(self, arx: ArxFit) -> np.ndarray:
+        """(m + q (p + m),) bool: the coefficient rows of the live inputs and of all outputs."""
+        live = np.isin(np.arange(self.n_inputs), self.keep)
+        return np.concatenate([live, np.tile(np.concatenate([np.ones(arx.n_outputs, bool), live]), arx.order)])
 
     def restore(self, model: IdentifiedModel, u: np.ndarray, offsets: str) -> IdentifiedModel:
         """``model`` of the live inputs with all ``m`` inputs: zero B, D (and Markov) columns for dead ones.
@@ -156,8 +158,7 @@ class LiveInputs:
             offset[keep] = model.input_offset
         arx = model.arx
         if arx is not None:
-            live = np.isin(np.arange(m), keep)
-            rows = np.concatenate([live, np.tile(np.concatenate([np.ones(arx.n_outputs, bool), live]), arx.order)])
+            rows = self._rows(arx)
             theta = np.zeros((rows.size, arx.theta.shape[1]))
             theta[rows] = arx.theta
             arx = replace(arx, theta=theta, n_inputs=m)
