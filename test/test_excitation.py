@@ -110,3 +110,28 @@ def test_identify_and_track_report_dead_inputs_in_json(tmp_path, one_input_recor
     entries = [json.loads(line) for line in (tmp_path / "t.jsonl").read_text().splitlines()]
     assert any("input 1" in w for w in entries[0]["warnings"]) and entries[0]["n_states"]
     assert "no input carries excitation" in entries[-1]["error"] and entries[-1]["n_states"] is None
+
+
+def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_record) -> None:
+    """The ARX service refuses an unexcited window (condition number) and says which input and why."""
+    from okid_ros.core.arx import normal_equations
+    from okid_ros.core.excitation import window_excitation_warnings
+    from okid_ros.core.regressors import arx_regressors
+    from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+
+    u, y = one_input_record
+    u = u.copy()
+    u[:, 1] = 2.5
+    service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
+    assert service.push_block(DT * np.arange(900), u[:900], y[:900]) == 900
+    snap = service.snapshot()
+    assert not snap.valid
+    assert "unexcited window" in snap.reason and "no excitation on input 1 (constant 2.5)" in snap.reason
+    # The same from the normal equations directly, and nothing for a well-excited window.
+    phi, targets, _ = arx_regressors(*one_input_record, 10)
+    assert "input 1 (all zeros)" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
+    live = lowpass_input(900, 2, 15.0, DT, seed=3)
+    phi, targets, _ = arx_regressors(live, y[:900], 10)
+    assert window_excitation_warnings(normal_equations(phi, targets), 2) == []
+    phi, targets, _ = arx_regressors(np.zeros((900, 2)), y[:900], 10)
+    assert "no input carries excitation" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]

@@ -19,12 +19,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from okid_ros.core.arx import ArxFit
+from okid_ros.core.arx import ArxFit, NormalEquations
 from okid_ros.core.channels import channel_std
 from okid_ros.core.identified_model import IdentifiedModel
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "input_excitation", "excitation_warnings",
-           "unexcited_reason"]
+           "unexcited_reason", "window_excitation_warnings"]
 
 #: A standard deviation at most this fraction of the channel's peak is no excitation (below the
 #: resolution of a 24-bit converter around that level).
@@ -86,9 +86,7 @@ def excitation_warnings(u: np.ndarray) -> list[str]:
     report = input_excitation(u)
     if not report.dead or not report.excited:
         return [] if not report.dead else [unexcited_reason(report)]
-    listed = ", ".join(report.channel_text(i) for i in report.dead)
-    return [f"no excitation on {listed} in this window: the model cannot learn "
-            f"{'its' if len(report.dead) == 1 else 'their'} effect; {_WHAT_TO_DO}"]
+    return excitation_warnings_of(report)
 
 
 def unexcited_reason(report: Excitation) -> str:
@@ -164,3 +162,29 @@ class LiveInputs:
             arx = replace(arx, theta=theta, n_inputs=m)
         return replace(model, B=widen(model.B), D=widen(model.D), system_markov=widen(model.system_markov),
                        input_offset=offset, arx=arx)
+
+
+def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[str]:
+    """:func:`excitation_warnings` of a window known only by its normal equations (the live service).
+
+    The first ``m`` regressor columns are ``u_k``: their centered mean squares (from ``R`` and
+    the column sums) and the mean magnitudes give each input's spread and level in the window.
+    """
+    n = max(normal.n_rows, 1)
+    square = np.diag(normal.R)[:n_inputs] / n
+    mean = normal.phi_sum[:n_inputs] / n if normal.phi_sum is not None else np.zeros(n_inputs)
+    variance = np.maximum(square - mean**2, 0.0)
+    # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no excitation.
+    dead = (square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * square)
+    report = Excitation(np.sqrt(variance), np.sqrt(square), [int(i) for i in np.flatnonzero(dead)],
+                        {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
+    if not report.dead:
+        return []
+    return [unexcited_reason(report)] if not report.excited else excitation_warnings_of(report)
+
+
+def excitation_warnings_of(report: Excitation) -> list[str]:
+    """The warning of :func:`excitation_warnings` for a report of some dead inputs."""
+    listed = ", ".join(report.channel_text(i) for i in report.dead)
+    return [f"no excitation on {listed} in this window: the model cannot learn "
+            f"{'its' if len(report.dead) == 1 else 'their'} effect; {_WHAT_TO_DO}"]
