@@ -6,10 +6,11 @@ import argparse
 import importlib
 import os
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 
 from okid_ros import __version__
-from okid_ros.errors import OkidError
+from okid_ros.errors import DataError, OkidError, OutputError
 
 PROG = "okid-ros"
 
@@ -82,15 +83,63 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
-    try:
-        return int(args.func(args))
-    except OkidError as exc:
-        # Expected failures are one line, like argparse's own usage errors, never a traceback.
-        print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    # The file a command reads (identify/track DATA, process/export/replay/plot BAG): named in its
+    # data errors (below), so no command has to repeat it.
+    source = getattr(args, "data", None) or getattr(args, "bag", None)
+    return run_command(args.command, lambda: int(args.func(args)), source=source)
 
+
+def run_command(command: str, work: Callable[[], int], *, source: str | None = None) -> int:
+    """Run one subcommand's ``work`` and turn every failure into one line on stderr.
+
+    The one place where failures become exit statuses, for every command: an
+    :class:`~okid_ros.errors.OkidError` (bad input or option, the message names the file and
+    what is wrong) gives status 2; running out of memory (a record or option too large for this
+    machine) also 2; any other exception is a bug in okid-ros: one line asking to report it,
+    status 70 (EX_SOFTWARE), the traceback only with ``OKID_ROS_TRACEBACK=1``. Python warnings
+    (numpy's floating-point warnings among them) are printed as one line each, naming the command.
+    A data error that does not name ``source`` (the file the command reads) is prefixed with it.
+    """
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning(command)
+        try:
+            return work()
+        except OkidError as exc:
+            # Expected failures are one line, like argparse's own usage errors, never a traceback.
+            print(f"{PROG} {command}: error: {_naming_source(exc, source)}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            return 130
+        except MemoryError:
+            print(f"{PROG} {command}: error: out of memory (the data or the options need more memory than "
+                  f"this machine has; try a shorter record or smaller orders)", file=sys.stderr)
+            return 2
+        except Exception as exc:  # noqa: BLE001 - the last guard: a bug still prints one line
+            if os.environ.get("OKID_ROS_TRACEBACK"):
+                raise
+            print(f"{PROG} {command}: error: internal error, please report it with the command line "
+                  f"({type(exc).__name__}: {' '.join(str(exc).split())}; set OKID_ROS_TRACEBACK=1 "
+                  f"for the traceback)", file=sys.stderr)
+            return 70
+
+
+def _naming_source(exc: OkidError, source: str | None) -> str:
+    """The message of ``exc``, prefixed with ``source`` when it is about the data and does not name it."""
+    text = " ".join(str(exc).split())
+    if source and isinstance(exc, DataError) and not isinstance(exc, OutputError) and str(source) not in text:
+        return f"{source}: {text}"
+    return text
+
+
+def _one_line_warning(command: str) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints ``okid-ros COMMAND: warning: ...`` on one line."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        where = f"{os.path.basename(filename)}:{lineno}"
+        print(f"{PROG} {command}: warning: {' '.join(str(message).split())} ({category.__name__} at {where})",
+              file=sys.stderr if file is None else file)
+
+    return show
 
 if __name__ == "__main__":
     sys.exit(main())

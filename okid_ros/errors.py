@@ -1,4 +1,17 @@
-"""Expected failures: raised by commands, printed by the CLI as one line without a traceback."""
+"""Expected failures: raised by commands, printed by the CLI as one line without a traceback.
+
+Also :func:`write_atomically`, so that a command failing half-way leaves no half-written output.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO
+
+_PART_NUMBERS = itertools.count()
 
 
 class OkidError(Exception):
@@ -9,5 +22,27 @@ class DataError(OkidError):
     """Input data is missing, unreadable or inconsistent (files, bags, topics, array sizes)."""
 
 
+class OutputError(DataError):
+    """An output cannot be written or may not be replaced; the message names the output."""
+
+
 class ParameterError(OkidError):
     """A parameter or option value is invalid; the message names it and its valid range."""
+
+
+def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) -> None:
+    """Call ``write(stream)`` on a temporary file beside ``path``, then rename it to ``path``.
+
+    On any failure the temporary file is removed and ``path`` is left as it was: readers never
+    see a truncated output, and a failed command leaves nothing half-written behind.
+    """
+    target = Path(path)
+    # open(..., "x") rather than mkstemp: the file gets the usual permissions (umask), not 0600.
+    temporary = target.with_name(f".{target.name}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
+    try:
+        with open(temporary, "xb") as stream:
+            write(stream)
+        os.replace(temporary, target)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise

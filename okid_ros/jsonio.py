@@ -50,5 +50,11 @@ def dumps(value: Any, **kwargs: Any) -> str:
 
 
 def write_json(path: str | Path, value: Any, *, indent: int | None = 1) -> None:
-    """Write one strict JSON document to ``path`` (callers check ``--force`` first)."""
-    Path(path).write_text(dumps(value, indent=indent) + "\n")
+    """Write one strict JSON document to ``path`` (callers check ``--force`` first).
+
+    The document is made first and written atomically: a failure leaves no truncated file.
+    """
+    from okid_ros.errors import write_atomically
+
+    text = (dumps(value, indent=indent) + "\n").encode()
+    write_atomically(path, lambda stream: stream.write(text))

@@ -2,13 +2,16 @@
 
 .npz
     Arrays ``u`` (N, m), ``y`` (N, p) and a scalar ``sample_time_s``. One-dimensional ``u`` or
-    ``y`` are read as a single channel.
+    ``y`` are read as a single channel. Without ``u`` the record has no inputs (``u`` (N, 0),
+    for output-only identification). Arrays must be real numbers (bool, integer or float);
+    pickled objects are never loaded.
 
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
-    appear; other columns are ignored. The sample time comes from a first comment line
-    ``# sample_time_s=0.008`` or, failing that, from a ``time_s`` column with uniform steps::
+    appear (no ``u`` column: a record without inputs); other columns are ignored. The sample
+    time comes from a first comment line ``# sample_time_s=0.008`` or, failing that, from a
+    ``time_s`` column with uniform steps::
 
         # sample_time_s=0.008
         u1,u2,y1,y2
@@ -24,105 +27,181 @@ from pathlib import Path
 
 import numpy as np
 
-from okid_ros.errors import DataError
+from okid_ros.errors import DataError, write_atomically
 
-__all__ = ["Record", "load_record", "save_record"]
+__all__ = ["Record", "load_record", "require_inputs", "save_record"]
+
+
+#: numpy dtype kinds a record array may have: bool, signed/unsigned integer, real float.
+_REAL_KINDS = "biuf"
+
+
+def _as_real_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float64 array, or DataError saying why it is not a real numeric array."""
+    arr = np.asarray(value)
+    if arr.dtype.kind not in _REAL_KINDS:
+        kinds = {"c": "complex", "O": "object", "U": "string", "S": "bytes", "V": "structured",
+                 "M": "datetime", "m": "timedelta"}
+        raise DataError(f"{name} must hold real numbers, got a {kinds.get(arr.dtype.kind, str(arr.dtype))} "
+                        f"array (dtype {arr.dtype})")
+    with np.errstate(over="ignore"):  # float128 beyond float64's range becomes inf, reported below
+        return arr.astype(float)
 
 
 @dataclass
 class Record:
-    """A uniformly sampled input/output record: ``u`` (N, m), ``y`` (N, p), seconds per sample."""
+    """A uniformly sampled record: ``u`` (N, m), ``y`` (N, p), seconds per sample.
+
+    ``m = 0`` (``u`` of shape (N, 0)) is a record without inputs, for output-only identification;
+    commands that need inputs call :func:`require_inputs`.
+    """
 
     u: np.ndarray
     y: np.ndarray
     sample_time_s: float
 
+    @property
+    def has_inputs(self) -> bool:
+        """Whether the record has at least one input channel."""
+        return np.ndim(self.u) == 2 and np.shape(self.u)[1] > 0
+
     def validate(self) -> "Record":
-        """Check shapes, lengths, finiteness and the sample time; raise DataError with the reason."""
-        u = np.asarray(self.u, dtype=float)
-        y = np.asarray(self.y, dtype=float)
+        """Check types, shapes, lengths, finiteness and the sample time; raise DataError with the reason."""
+        u = _as_real_array("u", self.u)
+        y = _as_real_array("y", self.y)
         u = u[:, None] if u.ndim == 1 else u
         y = y[:, None] if y.ndim == 1 else y
         if u.ndim != 2 or y.ndim != 2:
             raise DataError(f"u and y must be 2-D arrays (N, channels); got u{u.shape}, y{y.shape}")
         if u.shape[0] != y.shape[0]:
             raise DataError(f"length mismatch: u has {u.shape[0]} samples, y has {y.shape[0]}")
-        if u.shape[1] == 0 or y.shape[1] == 0:
-            raise DataError(f"need at least one input and one output channel; got u{u.shape}, y{y.shape}")
+        if y.shape[0] == 0:
+            raise DataError("the record has no samples")
+        if y.shape[1] == 0:
+            raise DataError(f"need at least one output channel; got y{y.shape}")
         for name, arr in (("u", u), ("y", y)):
             bad = ~np.isfinite(arr)
             if bad.any():
                 k, c = np.argwhere(bad)[0]
-                raise DataError(f"{name} holds {int(bad.sum())} NaN/Inf values (first at sample {k}, channel {c})")
-        dt = float(self.sample_time_s)
-        if not np.isfinite(dt) or dt <= 0:
-            raise DataError(f"sample_time_s must be a positive number of seconds, got {self.sample_time_s}")
+                raise DataError(f"{name} holds {int(bad.sum())} NaN/Inf values (first at sample {k}, channel {c}; "
+                                f"values beyond +-1.8e308 read as Inf)")
+        dt = _sample_time(self.sample_time_s)
         return Record(u, y, dt)
+
+
+def _sample_time(value: object) -> float:
+    """The sample time as a positive finite float, or DataError."""
+    arr = np.asarray(value)
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        raise DataError(f"sample_time_s must be one positive number of seconds, got {arr.dtype} of shape {arr.shape}")
+    dt = float(arr.reshape(()))
+    if not np.isfinite(dt) or dt <= 0:
+        raise DataError(f"sample_time_s must be a positive number of seconds, got {dt}")
+    return dt
+
+
+def require_inputs(record: Record, source: str | Path, command: str = "this command") -> Record:
+    """Return ``record`` if it has input channels, else DataError pointing to output-only identification.
+
+    Parameters
+    ----------
+    record : a validated record; source : the file it came from (for the message);
+    command : what needs the inputs, e.g. "identify".
+    """
+    if not record.has_inputs:
+        raise DataError(f"{source}: the record has no input channels (no 'u'); {command} needs the measured "
+                        f"inputs. For a record of outputs only use output-only identification "
+                        f"(identify --output-only)")
+    return record
 
 
 def _load_npz(path: Path) -> Record:
     try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in ("u", "y", "sample_time_s") if k not in data.files]
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):  # a bare .npy renamed .npz
+            raise DataError(f"{path}: a single array, not an .npz archive with y and sample_time_s")
+        with data:
+            missing = [k for k in ("y", "sample_time_s") if k not in data.files]
             if missing:
                 raise DataError(f"{path}: missing key(s) {', '.join(missing)} (has {', '.join(data.files) or 'none'})")
-            dt = np.asarray(data["sample_time_s"])
-            if dt.size != 1:
-                raise DataError(f"{path}: sample_time_s must be a scalar, got shape {dt.shape}")
-            return Record(data["u"], data["y"], float(dt.reshape(())))
+            y = data["y"]
+            u = data["u"] if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
+            return Record(u, y, data["sample_time_s"])
     except DataError:
         raise
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: not a readable .npz file ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - a damaged archive raises zipfile, zlib, EOF, OS, value errors
+        reason = " ".join(str(exc).split())
+        raise DataError(f"{path}: not a readable .npz file ({type(exc).__name__}: {reason})") from None
 
 
-def _load_csv(path: Path) -> Record:
+def _csv_sample_time(path: Path, comment: str) -> float:
+    """The value of a ``# sample_time_s=...`` comment line."""
+    value = comment.lstrip("#").partition("=")[2]
     try:
-        lines = path.read_text().splitlines()
+        return float(value)
+    except ValueError:
+        raise DataError(f"{path}: bad sample_time_s comment {comment!r}") from None
+
+
+def _csv_rows(path: Path) -> tuple[float | None, list[str], np.ndarray]:
+    """The sample time of the comment (or None), the header and the (N, columns) values."""
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read ({exc})") from None
+        raise DataError(f"{path}: cannot read as UTF-8 text ({exc})") from None
     dt = None
     body = []
     for line in lines:
         stripped = line.strip()
         if stripped.startswith("#"):
-            key, _, value = stripped.lstrip("#").partition("=")
-            if key.strip() == "sample_time_s":
-                try:
-                    dt = float(value)
-                except ValueError:
-                    raise DataError(f"{path}: bad sample_time_s comment {stripped!r}") from None
+            if stripped.lstrip("#").partition("=")[0].strip() == "sample_time_s":
+                dt = _csv_sample_time(path, stripped)
         elif stripped:
             body.append(line)
     if not body:
         raise DataError(f"{path}: no header line")
-    header = [h.strip() for h in next(csv.reader([body[0]]))]
+    rows = list(csv.reader(body))
+    header = [h.strip() for h in rows[0]]
+    for number, row in enumerate(rows[1:], start=1):
+        if len(row) != len(header):
+            raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}")
     try:
-        values = np.array([[float(x) for x in row] for row in csv.reader(body[1:])], dtype=float)
+        values = np.array([[float(x) for x in row] for row in rows[1:]], dtype=float).reshape(-1, len(header))
     except ValueError as exc:
         raise DataError(f"{path}: non-numeric value ({exc})") from None
-    if values.ndim != 2 or values.shape[1] != len(header):
-        raise DataError(f"{path}: every row must have {len(header)} values like the header")
+    return dt, header, values
+
+
+def _load_csv(path: Path) -> Record:
+    dt, header, values = _csv_rows(path)
     u_cols = [i for i, h in enumerate(header) if h.lower().startswith("u")]
     y_cols = [i for i, h in enumerate(header) if h.lower().startswith("y")]
-    if not u_cols or not y_cols:
-        raise DataError(f"{path}: header needs input columns 'u...' and output columns 'y...', got {header}")
+    if not y_cols:
+        raise DataError(f"{path}: header needs output columns 'y...' (inputs 'u...' optional), got {header}")
     if dt is None:
         if "time_s" not in header:
             raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
-        t = values[:, header.index("time_s")]
-        steps = np.diff(t)
-        if steps.size == 0 or np.any(steps <= 0) or np.ptp(steps) > 1e-6 * np.mean(steps):
+        steps = np.diff(values[:, header.index("time_s")])
+        if steps.size == 0 or not np.all(np.isfinite(steps)) or np.any(steps <= 0) \
+                or np.ptp(steps) > 1e-6 * np.mean(steps):
             raise DataError(f"{path}: time_s is not uniformly increasing")
         dt = float(np.mean(steps))
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 
 def load_record(path: str | Path) -> Record:
-    """Read and validate a record from .npz or .csv (see module docstring)."""
+    """Read and validate a record from .npz or .csv (see module docstring).
+
+    Raises
+    ------
+    DataError
+        one line naming the file and what is wrong with it.
+    """
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no such file")
+    if path.is_dir():
+        raise DataError(f"{path}: a folder, not a record file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         record = _load_npz(path)
@@ -130,9 +209,16 @@ def load_record(path: str | Path) -> Record:
         record = _load_csv(path)
     else:
         raise DataError(f"{path}: unknown format {suffix!r}; expected .npz or .csv")
-    return record.validate()
+    try:
+        return record.validate()
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from None
 
 
 def save_record(path: str | Path, u: np.ndarray, y: np.ndarray, sample_time_s: float, **extra) -> None:
-    """Write a record as .npz (``extra`` arrays are stored beside ``u``, ``y``, ``sample_time_s``)."""
-    np.savez(path, u=np.asarray(u, float), y=np.asarray(y, float), sample_time_s=float(sample_time_s), **extra)
+    """Write a record as .npz (``extra`` arrays are stored beside ``u``, ``y``, ``sample_time_s``).
+
+    Written to a temporary file beside ``path`` and renamed: a failed write leaves nothing.
+    """
+    write_atomically(path, lambda stream: np.savez(stream, u=np.asarray(u, float), y=np.asarray(y, float),
+                                                   sample_time_s=float(sample_time_s), **extra))

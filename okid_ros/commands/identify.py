@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import write_json
+    from okid_ros.records import require_inputs
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -98,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
             prepare_output(path, force=False, kind="output")  # refuse before the work, not after
     reference = _load_reference(args.reference) if args.reference else None
     record, source = load_any_record(args.data, args.params, args.param, args.source)
+    if not getattr(args, "output_only", False):
+        require_inputs(record, args.data, "identify")
     pairs = None
     if args.frf_pairs:
         from okid_ros.tools.validation_plots import parse_pairs

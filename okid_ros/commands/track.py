@@ -211,6 +211,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     """The JSON lines path (refused if it exists, unless --force) and the record: u (N, m), y (N, p), dt."""
     from pathlib import Path
 
+    from okid_ros.core.channels import group_scales
+    from okid_ros.records import require_inputs
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -218,7 +220,11 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
     record, _ = load_any_record(args.data, args.params, args.param, args.source)
-    return out, (record.u, record.y, record.sample_time_s)
+    require_inputs(record, args.data, "track")
+    # Inputs and outputs each divided by a power of two (exact: the same fits): values near
+    # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
+    u, y = group_scales(record.u, record.y).scale(record.u, record.y)
+    return out, (u, y, record.sample_time_s)
 
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
@@ -291,6 +297,7 @@ def _window_model(estimator, q: int, dt: float, args: argparse.Namespace, option
     u_w, y_w, _ = estimator.window_samples()
     model = identify_from_arx(fit, u_w, y_w, dt, options=options)
     fields = dict(
+        warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,
         arx_order=int(q),
         max_states_reached=bool(model.max_states_reached),

@@ -35,6 +35,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations, select_arx_order
+from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
@@ -45,6 +46,7 @@ from okid_ros.core.order_search import Completer, choose_completion, search_orde
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
+from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
 from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import attach_mode_uncertainty
@@ -88,7 +90,7 @@ def _remove_offsets(
     u_mean, y_mean = u.mean(axis=0), y.mean(axis=0)
     warnings = []
     for name, mean, data in (("input", u_mean, u), ("output", y_mean, y)):
-        std = data.std(axis=0)
+        std = channel_std(data)  # np.std squares: overflows for values beyond 1e154
         large = np.flatnonzero(np.abs(mean) > LARGE_OFFSET_FRACTION * np.maximum(std, np.finfo(float).tiny))
         if large.size:
             listed = ", ".join(
@@ -175,6 +177,8 @@ def identify_from_arx(
         u, y = check_io_arrays(u, y)
     except (TypeError, ValueError) as exc:
         raise IdentificationError(str(exc)) from None
+    frame = IdentificationFrame.of(u, y)  # live inputs, unit spread; back at the end (core/scaling.py)
+    (u, y), arx = frame.enter(u, y), frame.enter_arx(arx)
     u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
     blocks = arx.observer_markov  # (q, p, p + m): C Abar^{i-1} [L, Bbar]
     rows, cols = default_hankel_size(blocks.shape[0] - 1)
@@ -214,11 +218,11 @@ def identify_from_arx(
         order_scores={n: fit.bic() for n, fit in search.fits.items()}, stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined is not None,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
-        warnings=warnings,
+        warnings=warnings + frame.warnings,
     )
     # Step 7b: standard deviations of every mode's frequency and damping (on the offset-free data).
     identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
-    return identified
+    return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
 def _identify_paper(
@@ -328,6 +332,11 @@ def identify(
     m, p = u.shape[1], y.shape[1]
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    # Identified from the live inputs, each channel of unit spread, returned to the record's units
+    # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
+    frame = IdentificationFrame.of(u, y, refuse_unexcited=False)  # refused below, after the size checks
+    u, y = frame.enter(u, y)
+    m = u.shape[1]
     # The ARX fit takes the offsets as an intercept and identify_from_arx removes the record's
     # means before the completion, exactly as the live window does: same samples, same model.
     center = offsets == "remove"
@@ -344,6 +353,8 @@ def identify(
             f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {u.shape[0]} "
             f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
         )
+    if not frame.excited:
+        raise IdentificationError(frame.warnings[0])
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
     phi, targets, _ = arx_regressors(u, y, order)
@@ -357,4 +368,5 @@ def identify(
     else:
         model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
     model.arx_order_scores = arx_scores
-    return model
+    model.warnings += frame.warnings  # the dead inputs (identify_from_arx saw only the live ones)
+    return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])

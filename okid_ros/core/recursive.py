@@ -35,7 +35,9 @@ gap), with 2-4 times that allocated for amortized compaction, plus ``G``, O(D^2)
 
 Bad samples and gaps
 --------------------
-A sample with NaN/Inf is rejected and counted, and breaks the lag history: the next ``q``
+A sample with NaN/Inf, or with a value beyond ``MAX_SAMPLE_MAGNITUDE`` (1e150: its square,
+summed over the window, would overflow the normal equations), is rejected and counted
+(``rejected_nonfinite``, ``rejected_magnitude``), and breaks the lag history: the next ``q``
 accepted samples only refill it and give no regressor row, so no row ever contains data from
 both sides of a break (as :func:`okid_ros.core.regressors.arx_regressors` with ``valid``). The
 same happens on :meth:`SlidingWindowArx.mark_gap`, which the caller invokes where samples are
@@ -44,43 +46,22 @@ missing (the sample grid says where).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.linalg import blas
 
 from okid_ros.core.arx import NormalEquations
 from okid_ros.core.regressors import regressor_length
+from okid_ros.core.window_samples import (
+    MAX_SAMPLE_MAGNITUDE,
+    MAX_SQUARED_NORM,
+    WindowStatus,
+    accepted_samples,
+    block_arrays,
+    count_rejection,
+)
 
-__all__ = ["SlidingWindowArx", "WindowStatus"]
-
-
-@dataclass
-class WindowStatus:
-    """Counters and health of a :class:`SlidingWindowArx`.
-
-    Attributes
-    ----------
-    samples_seen : samples offered to ``push``/``update`` (accepted or not).
-    samples_accepted : samples stored (finite).
-    rows_in_window : regressor rows currently in the window (pending blocks included).
-    window_fill : fraction of the full window, ``rows_in_window / window`` (1.0 once full; for
-        infinite history the effective number of rows ``sum lambda^i`` over ``1 / (1 - lambda)``).
-    rejected_nonfinite : samples rejected for NaN/Inf in u or y.
-    gaps : times the lag history was broken (NaN samples, ``mark_gap``).
-    refactorizations : times ``G`` was recomputed from the stored window.
-    adapting : whether new rows enter the window.
-    """
-
-    samples_seen: int = 0
-    samples_accepted: int = 0
-    rows_in_window: int = 0
-    window_fill: float = 0.0
-    rejected_nonfinite: int = 0
-    gaps: int = 0
-    refactorizations: int = 0
-    adapting: bool = True
+__all__ = ["MAX_SAMPLE_MAGNITUDE", "SlidingWindowArx", "WindowStatus"]
 
 
 class SlidingWindowArx:
@@ -201,22 +182,6 @@ class SlidingWindowArx:
             self._status.gaps += 1
         self._run = 0
 
-    def _as_block(self, u_block, y_block) -> tuple[np.ndarray, np.ndarray]:
-        m, p = self.n_inputs, self.n_outputs
-        u = np.asarray(u_block, dtype=float)
-        y = np.asarray(y_block, dtype=float)
-        if u.ndim == 1 and m == 1:
-            u = u[:, None]
-        if y.ndim == 1 and p == 1:
-            y = y[:, None]
-        if u.ndim != 2 or u.shape[1] != m:
-            raise ValueError(f"u block must have shape (N, {m}) (m = {m} inputs); got {u.shape}")
-        if y.ndim != 2 or y.shape[1] != p:
-            raise ValueError(f"y block must have shape (N, {p}) (p = {p} outputs); got {y.shape}")
-        if u.shape[0] != y.shape[0]:
-            raise ValueError(f"u and y blocks have different lengths: {u.shape[0]} and {y.shape[0]}")
-        return u, y
-
     # ------------------------------------------------------------------ samples in
     def push(self, u_k, y_k) -> bool:
         """Offer one sample; return whether it was accepted (False: NaN/Inf, counted, a gap).
@@ -246,10 +211,10 @@ class SlidingWindowArx:
         row = self._buf[n]
         row[: self.n_outputs] = y
         row[self.n_outputs :] = u
-        # One sum catches NaN/Inf; only if it is not finite (or overflows) look closer. The
-        # slot is only taken (n advanced) once the sample is accepted.
-        if not np.isfinite(row.sum()) and not np.isfinite(row).all():
-            st.rejected_nonfinite += 1
+        # One dot product catches NaN/Inf and huge values (NaN <= x is False); only then look
+        # closer. The slot is only taken (n advanced) once the sample is accepted.
+        if not row @ row <= MAX_SQUARED_NORM:
+            count_rejection(row, st)
             self.mark_gap()
             return False
         self._n = n + 1
@@ -273,14 +238,13 @@ class SlidingWindowArx:
         u_block : (N, m) inputs (or (N,) if m == 1).
         y_block : (N, p) outputs (or (N,) if p == 1).
         """
-        u, y = self._as_block(u_block, y_block)
+        u, y = block_arrays(u_block, y_block, self.n_inputs, self.n_outputs)
         n_in = u.shape[0]
         st = self._status
         st.samples_seen += n_in
         if n_in == 0:
             return 0
-        accepted = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
-        st.rejected_nonfinite += int(np.count_nonzero(~accepted))
+        accepted = accepted_samples(u, y, st)
         run_after = self._runs_after(accepted)
         acc_idx = np.flatnonzero(accepted)
         if acc_idx.size == 0:

@@ -22,6 +22,7 @@ import math
 import numpy as np
 from scipy import linalg, signal
 
+from okid_ros.core.channels import channel_scales
 from okid_ros.core.statespace import one_step_prediction, simulate
 
 __all__ = [
@@ -130,6 +131,9 @@ def h1_frf(u: np.ndarray, y: np.ndarray, sample_time_s: float, *, segment_sample
     frequency_hz : (F,); H : (F, p, m) complex [output unit / input unit].
     """
     u, y = np.asarray(u, float), np.asarray(y, float)
+    # Spectra of channels of unit spread (no overflow, S_uu not ill-conditioned by the units).
+    scales = channel_scales(u, y)
+    u, y = scales.scale(u, y)
     nperseg = segment_samples or default_segment_samples(u.shape[0])
     freq, S_yu = _cross_spectra(u, y, sample_time_s, nperseg)
     _, S_uu = _cross_spectra(u, u, sample_time_s, nperseg)
@@ -139,7 +143,7 @@ def h1_frf(u: np.ndarray, y: np.ndarray, sample_time_s: float, *, segment_sample
             H[k] = linalg.solve(S_uu[k].T, S_yu[k].T).T  # S_yu S_uu^-1
         except (linalg.LinAlgError, ValueError):
             continue
-    return freq, H
+    return freq, H * scales.output[None, :, None] / scales.input[None, None, :]
 
 
 def model_frf(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, frequency_hz: np.ndarray,

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
+from okid_ros.core.excitation import window_excitation_warnings
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -152,9 +153,11 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     cond = float(fit.condition_number)
     elapsed = time.perf_counter() - t0
     if not cond <= prm.max_condition_number:
+        dead = window_excitation_warnings(capture.normal, prm.n_inputs)  # names the dead inputs, says what to do
         return SolveResult(
             None, cond,
-            f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}",
+            f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}"
+            + (f"; {dead[0]}" if dead else ""),
             elapsed,
         )
     if not np.all(np.isfinite(fit.theta)):

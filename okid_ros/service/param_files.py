@@ -158,13 +158,18 @@ def read_parameter_file(path: str | Path) -> Mapping:
 
     path = Path(path)
     try:
-        tree = yaml.safe_load(path.read_text())
+        tree = yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"parameter file {path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except RecursionError:
+        raise ParameterError(f"parameter file {path} is nested too deeply") from None
     except yaml.YAMLError as exc:
         raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(tree, Mapping):
-        raise ParameterError(f"parameter file {path} has no node sections")
+        raise ParameterError(f"parameter file {path} has no node sections (expected a mapping "
+                             f"'NODE: {{ros__parameters: {{...}}}}', got {type(tree).__name__})")
     return tree
 
 

@@ -364,6 +364,9 @@ class SampleGrid:
             src.before_jump = False
         elif stamp_s < self._newest_stamp - self.time_jump_s:
             out += self._time_jump(src, stamp_s)
+        if not math.isfinite((stamp_s - self._anchor) / dt):
+            self._count(src, "nonfinite")  # a stamp so far ahead its slot number is not a number
+            return out
         k, offset = self._slot_of(stamp_s)
         if abs(offset) > self.tolerance * dt:
             self._off_grid_run += 1

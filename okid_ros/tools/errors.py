@@ -6,7 +6,7 @@ All are :class:`okid_ros.errors.OkidError`, so `okid-ros` prints them as one lin
 
 from __future__ import annotations
 
-from okid_ros.errors import DataError, OkidError, ParameterError
+from okid_ros.errors import DataError, OkidError, OutputError, ParameterError
 
 __all__ = ["BagReadError", "BagWriteError", "OutputExistsError", "ReplayError", "ToolParameterError"]
 
@@ -15,7 +15,7 @@ class BagReadError(DataError):
     """A bag is missing, corrupt, or lacks a topic or type; the message names path and topic."""
 
 
-class BagWriteError(DataError):
+class BagWriteError(OutputError):
     """A bag (or another output file) cannot be written."""
 
 

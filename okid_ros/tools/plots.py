@@ -413,9 +413,11 @@ def refuse_existing(out_dir: Path, names, force: bool) -> None:
 
 def save_figure(plt, fig, path: Path, dpi: int = 110) -> Path:
     """Lay out (unless the figure has its own layout engine), write and close one figure."""
-    if fig.get_layout_engine() is None:
-        fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    # matplotlib's log-axis tick arithmetic overflows (harmlessly) for magnitudes near 1e+-300.
+    with np.errstate(over="ignore", under="ignore"):
+        if fig.get_layout_engine() is None:
+            fig.tight_layout()
+        fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 

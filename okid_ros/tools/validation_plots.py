@@ -150,6 +150,32 @@ def frf_data(view: ModelView, u: np.ndarray, y: np.ndarray, *, pairs: Sequence[t
     return FrfData(freq, H1, Hm, dense, model_frf(view.A, view.B, view.C, view.D, dense, dt), mode_f, at_modes, pairs)
 
 
+def _decade_shift(*magnitudes: np.ndarray) -> int:
+    """A power of ten that brings magnitudes near the float64 limits to where log axes work.
+
+    matplotlib's log-axis ticks overflow beyond about 1e+-290; 0 for ordinary magnitudes.
+    """
+    values = np.concatenate([m[np.isfinite(m) & (m > 0)] for m in magnitudes])
+    if not values.size or (values.max() < 1e200 and values.min() > 1e-200):
+        return 0
+    return int(np.round(np.log10(values.max()) / 2 + np.log10(values.min()) / 2))
+
+
+def _shift_label(shift: int) -> str:
+    """`` x 1e+300`` for an axis whose values were divided by 10**shift (nothing for 0)."""
+    return f" x 1e{shift:+d}" if shift else ""
+
+
+def _log_limits(ax, *magnitudes: np.ndarray) -> None:
+    """Log-axis limits set from the data: matplotlib's own margins overflow beyond 1e+-300."""
+    values = np.concatenate([m[np.isfinite(m) & (m > 0)] for m in magnitudes])
+    if values.size:
+        low, high = values.min(), values.max()
+        # The pending autoscale runs once more inside set_ylim (its overflow is then discarded).
+        with np.errstate(over="ignore", under="ignore"):
+            ax.set_ylim(max(low / 2, np.finfo(float).tiny), min(high * 2, np.finfo(float).max / 10))
+
+
 def plot_frf(data: FrfData, *, fig=None):
     """Magnitude (log) and phase of each pair: measured H1 against the model."""
     from okid_ros.tools.plots import pyplot
@@ -164,15 +190,18 @@ def plot_frf(data: FrfData, *, fig=None):
     axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
     for k, (i, j) in enumerate(data.pairs):
         ax_m, ax_p = axes[2 * (k // cols), k % cols], axes[2 * (k // cols) + 1, k % cols]
-        ax_m.semilogy(data.frequency_hz, np.abs(data.measured[:, i, j]), lw=0.8, label="measured H1")
-        ax_m.semilogy(data.dense_frequency_hz, np.abs(data.dense_model[:, i, j]), "--", lw=0.8, label="model")
+        measured, model = np.abs(data.measured[:, i, j]), np.abs(data.dense_model[:, i, j])
+        shift = _decade_shift(measured, model)
+        ax_m.semilogy(data.frequency_hz, measured / 10.0**shift, lw=0.8, label="measured H1")
+        ax_m.semilogy(data.dense_frequency_hz, model / 10.0**shift, "--", lw=0.8, label="model")
+        _log_limits(ax_m, measured / 10.0**shift, model / 10.0**shift)
         ax_p.plot(data.frequency_hz, np.degrees(np.angle(data.measured[:, i, j])), lw=0.8)
         ax_p.plot(data.dense_frequency_hz, np.degrees(np.angle(data.dense_model[:, i, j])), "--", lw=0.8)
         for f in data.mode_frequency_hz:
             ax_m.axvline(f, color="0.6", lw=0.5, ls=":")
             ax_p.axvline(f, color="0.6", lw=0.5, ls=":")
         ax_m.set_title(f"output {i + 1} / input {j + 1}", fontsize=9)
-        ax_m.set_ylabel("|H| [output unit / input unit]", fontsize=7)
+        ax_m.set_ylabel(f"|H| [output unit / input unit]{_shift_label(shift)}", fontsize=7)
         ax_p.set_ylabel("phase [deg]", fontsize=7)
         ax_p.set_ylim(-190, 190)
         ax_p.set_xlabel("frequency [Hz]", fontsize=8)
@@ -314,10 +343,13 @@ def plot_stabilization(stabilization: Sequence[dict], modes: Sequence[Any], *, u
     if y is not None and sample_time_s is not None:
         freq, sv = output_singular_values(y, sample_time_s)
         spec = ax.twinx()
+        shift = _decade_shift(sv.ravel())
+        sv = sv / 10.0**shift
         for k in range(sv.shape[1]):
             spec.semilogy(freq, sv[:, k], lw=0.7, color="0.3", alpha=0.8 if k == 0 else 0.35,
                           label="CMIF: singular values of the output spectrum" if k == 0 else None)
-        spec.set_ylabel("singular value of S_yy [output unit^2 / Hz]", fontsize=8)
+        _log_limits(spec, sv.ravel())
+        spec.set_ylabel(f"singular value of S_yy [output unit^2 / Hz]{_shift_label(shift)}", fontsize=8)
         spec.legend(loc="upper right", fontsize=7)
         ax.set_zorder(spec.get_zorder() + 1)
         ax.patch.set_visible(False)

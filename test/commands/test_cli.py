@@ -72,8 +72,14 @@ def test_okid_error_is_one_line_and_status_2(fake_command: types.ModuleType, err
     assert captured.out == ""
 
 
-def test_other_exceptions_are_not_hidden(fake_command: types.ModuleType) -> None:
+def test_other_exceptions_are_not_hidden(fake_command: types.ModuleType, monkeypatch: pytest.MonkeyPatch,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    # A bug is one line naming the exception (status 70), its traceback on request.
     fake_command.error = ZeroDivisionError("a bug")
+    monkeypatch.delenv("OKID_ROS_TRACEBACK", raising=False)
+    assert cli.main(["fake"]) == 70
+    assert "ZeroDivisionError: a bug" in capsys.readouterr().err
+    monkeypatch.setenv("OKID_ROS_TRACEBACK", "1")
     with pytest.raises(ZeroDivisionError):
         cli.main(["fake"])
 

@@ -1,0 +1,102 @@
+"""Choice of the ARX order by generalized cross-validation (split from :mod:`okid_ros.core.arx`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from okid_ros.core.least_squares import (
+    center_normal_equations,
+    channel_mean_square,
+    normal_equations,
+    prior_precision,
+    solve_normal_equations,
+)
+from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
+
+__all__ = ["ArxOrderChoice", "select_arx_order"]
+
+
+@dataclass
+class ArxOrderChoice:
+    """Result of :func:`select_arx_order`.
+
+    Attributes
+    ----------
+    order : the chosen ARX order q.
+    scores : GCV score per row of each order tried (q -> score; lower is better).
+    limited_by : why larger orders were not tried ("" if the candidates ran out or the
+        score rose), e.g. the record length or the cost limit.
+    """
+
+    order: int
+    scores: dict[int, float]
+    limited_by: str = ""
+
+
+def select_arx_order(
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    candidates: tuple[int, ...],
+    min_order: int = 2,
+    max_coefficients: int = 2500,
+    min_rows_per_coefficient: float = 2.0,
+    patience: int = 2,
+    center: bool = False,
+) -> ArxOrderChoice:
+    """Choose the ARX order by generalized cross-validation of the ridge fit.
+
+    The GCV score ``n rss / (n - dof)^2`` of the ridge fit (penalty itself chosen by GCV)
+    estimates the one-step prediction error on new data, so it compares orders fairly. The
+    candidates at or above ``min_order`` are tried in increasing order while the regressor
+    length ``d = m + q (p + m)`` stays within ``max_coefficients`` and the record gives at
+    least ``min_rows_per_coefficient`` rows per coefficient; the search stops ``patience``
+    candidates after the best one.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) one contiguous record.
+    candidates : ARX orders to try.
+    min_order : smallest order allowed (e.g. what the realization's Hankel matrix needs).
+    center : score the fits with an intercept (signals with offsets).
+
+    Raises
+    ------
+    ValueError
+        If no candidate fits the record.
+    """
+    u, y = check_io_arrays(u, y)
+    m, p = u.shape[1], y.shape[1]
+    tried = {max(int(q), 1) for q in candidates if q >= min_order}
+    tried = sorted(tried | ({min_order} if min_order > max(candidates) else set()))
+    scores: dict[int, float] = {}
+    limited_by = ""
+    best_q, best_score, since_best = 0, np.inf, 0
+    for q in tried:
+        d = regressor_length(q, p, m)
+        if d > max_coefficients:
+            limited_by = f"cost: ARX order {q} has {d} coefficients per output (limit {max_coefficients})"
+            break
+        if u.shape[0] - q < min_rows_per_coefficient * d:
+            limited_by = f"record length: ARX order {q} needs {int(min_rows_per_coefficient * d) + q} samples"
+            break
+        phi, targets, _ = arx_regressors(u, y, q)
+        normal = normal_equations(phi, targets)
+        if center:
+            normal = center_normal_equations(normal)
+        precision = prior_precision(q, p, m, channel_mean_square(normal, p, m, q), "ridge")
+        _, _, dof, gcv = solve_normal_equations(normal, precision, "gcv")
+        scores[q] = float(gcv) / normal.n_rows  # per row: orders differ in row count
+        if scores[q] < best_score:
+            best_q, best_score, since_best = q, scores[q], 0
+        else:
+            since_best += 1
+            if since_best >= patience:
+                break
+    if not scores:
+        raise ValueError(
+            f"no ARX order can be fitted to {u.shape[0]} samples with {m} inputs and {p} outputs ({limited_by})"
+        )
+    return ArxOrderChoice(best_q, scores, limited_by if best_q == max(scores) else "")

@@ -1,0 +1,90 @@
+"""Per-channel scales of a record: the spread of each channel, without overflow or underflow.
+
+The batch identification (:mod:`okid_ros.core.scaling`) and the ARX fit of a record
+(:func:`okid_ros.core.arx.fit_arx`) work on channels divided by their spread, so that values
+near the float64 limits neither overflow nor underflow the squares of the normal equations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ChannelScales", "channel_scales", "channel_spread", "channel_std", "group_scales"]
+
+
+def channel_std(x: np.ndarray) -> np.ndarray:
+    """Per-column standard deviation of ``x`` (N, c) without overflow or underflow: (c,).
+
+    Computed on each column divided by its largest magnitude, so values near the float64
+    limits (1e+-300) neither overflow nor lose precision (``np.std`` squares them).
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape[0] == 0:
+        return np.zeros(x.shape[1])
+    peak = np.max(np.abs(x), axis=0)
+    safe_peak = np.where(peak > 0, peak, 1.0)
+    return (x / safe_peak).std(axis=0) * safe_peak
+
+
+def channel_spread(x: np.ndarray) -> np.ndarray:
+    """Per-column spread of ``x`` (N, c): (c,) positive, the scale a channel is divided by.
+
+    The standard deviation (:func:`channel_std`); for a constant column its absolute value; for
+    an all-zero column (or no samples) 1.
+    """
+    x = np.asarray(x, dtype=float)
+    spread = channel_std(x)
+    constant = ~(spread > 0)
+    if x.shape[0]:
+        spread[constant] = np.max(np.abs(x), axis=0)[constant]
+    spread[~(spread > 0)] = 1.0
+    return spread
+
+
+@dataclass(frozen=True)
+class ChannelScales:
+    """Per-channel scales: ``input`` (m,) and ``output`` (p,) positive, in the channels' units."""
+
+    input: np.ndarray
+    output: np.ndarray
+
+    def scale(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``u`` (N, m) and ``y`` (N, p) divided channel by channel by the scales."""
+        return u / self.input, y / self.output
+
+    def inverse(self) -> ChannelScales:
+        """The reciprocal scales: ``inverse().restore_arx`` takes a fit to the scaled units."""
+        return ChannelScales(1.0 / self.input, 1.0 / self.output)
+
+    def restore_arx(self, arx: Any) -> Any:
+        """An :class:`~okid_ros.core.arx.ArxFit` of scaled data, in physical units (coefficients, covariance)."""
+        su, sy = self.input, self.output
+        # Regressor rows: u_k (m), then per lag [y (p), u (m)] (see ArxFit.observer_markov).
+        regressor = np.concatenate([su, np.tile(np.concatenate([sy, su]), arx.order)])
+        theta = arx.theta * sy[None, :] / regressor[:, None]
+        return replace(arx, theta=theta, residual_covariance=arx.residual_covariance * np.outer(sy, sy))
+
+
+def channel_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
+    """The spread of each input (N, m) and output (N, p) channel (see :func:`channel_spread`)."""
+    return ChannelScales(channel_spread(u), channel_spread(y))
+
+
+def group_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
+    """One power of two for all inputs (N, m) and one for all outputs (N, p).
+
+    Each is the geometric mean of the group's channel peaks, rounded to a power of two: channels
+    of 1e150 and 1e-150 in one group both keep squares within float64. Dividing by a power of
+    two is exact, and the ridge/TC prior (per channel) and the GCV score (summed over outputs)
+    are unchanged by one common factor per group: the ARX fit of the scaled record is the fit of
+    the record itself, restored, yet values near 1e+-150 neither overflow nor underflow.
+    """
+    def power(x: np.ndarray) -> float:
+        peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
+        peaks = peaks[peaks > 0]
+        return float(2.0 ** np.round(np.mean(np.log2(peaks)))) if peaks.size else 1.0
+
+    return ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))

@@ -1,0 +1,190 @@
+"""Does the input excite the system? Dead input channels named, unexcited windows refused.
+
+OKID learns how the inputs drive the outputs; an input channel without variance in the window
+(all zeros, a constant, a sensor or actuator that stopped) tells it nothing, and a window where
+no input varies has nothing to identify from: the ARX fit then explains the outputs by their own
+past only and the model's input paths are noise. This module says which channels those are and
+what to do; the identification (:mod:`okid_ros.core.pipeline`) warns about dead channels and
+refuses a window without excitation, the service's diagnostics can call
+:func:`input_excitation` on the window's samples.
+
+A channel is *dead* when its standard deviation is at most :data:`NEGLIGIBLE_RELATIVE_SPREAD`
+of its largest magnitude (a constant, or a constant plus rounding) or it is all zeros. The test
+is relative to the channel's own level because the units of each channel are unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit, NormalEquations
+from okid_ros.core.channels import channel_std
+from okid_ros.core.identified_model import IdentifiedModel
+
+__all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "input_excitation", "excitation_warnings",
+           "unexcited_reason", "window_excitation_warnings"]
+
+#: A standard deviation at most this fraction of the channel's peak is no excitation (below the
+#: resolution of a 24-bit converter around that level).
+NEGLIGIBLE_RELATIVE_SPREAD = 1e-7
+
+_WHAT_TO_DO = ("check the sensor or actuator and its topic/column mapping, or, if the input is not "
+               "measured, use output-only identification (identify --output-only)")
+
+
+@dataclass
+class Excitation:
+    """The excitation of each input channel of a window.
+
+    Attributes
+    ----------
+    std : (m,) standard deviation of each input channel.
+    level : (m,) largest magnitude of each input channel.
+    dead : indices of the channels without (or with negligible) variance.
+    constant_value : value of each dead channel (its mean), by index.
+    """
+
+    std: np.ndarray
+    level: np.ndarray
+    dead: list[int] = field(default_factory=list)
+    constant_value: dict[int, float] = field(default_factory=dict)
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.std.size)
+
+    @property
+    def excited(self) -> bool:
+        """Whether at least one input varies (there are inputs and not all are dead)."""
+        return self.n_inputs > 0 and len(self.dead) < self.n_inputs
+
+    def channel_text(self, index: int) -> str:
+        value = self.constant_value.get(index, 0.0)
+        return f"input {index} ({'all zeros' if value == 0.0 else f'constant {value:.6g}'})"
+
+
+def input_excitation(u: np.ndarray) -> Excitation:
+    """Which input channels of ``u`` (N, m) carry no excitation (see the module docstring)."""
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1:
+        u = u[:, None]
+    if u.shape[0] == 0:
+        return Excitation(np.zeros(u.shape[1]), np.zeros(u.shape[1]), list(range(u.shape[1])),
+                          dict.fromkeys(range(u.shape[1]), 0.0))
+    std = channel_std(u)
+    level = np.max(np.abs(u), axis=0)
+    dead_mask = (level == 0) | (std <= NEGLIGIBLE_RELATIVE_SPREAD * level)
+    dead = [int(i) for i in np.flatnonzero(dead_mask)]
+    values = {i: float(np.mean(u[:, i] / level[i]) * level[i]) if level[i] > 0 else 0.0 for i in dead}
+    return Excitation(std, level, dead, values)
+
+
+def excitation_warnings(u: np.ndarray) -> list[str]:
+    """One warning naming the dead input channels of ``u`` (N, m) and what to do; [] if none."""
+    report = input_excitation(u)
+    if not report.dead or not report.excited:
+        return [] if not report.dead else [unexcited_reason(report)]
+    return excitation_warnings_of(report)
+
+
+def unexcited_reason(report: Excitation) -> str:
+    """Why a window whose inputs are all dead is not identified, with what to do."""
+    listed = ", ".join(report.channel_text(i) for i in report.dead)
+    return f"not identified: no input carries excitation in this window ({listed}); {_WHAT_TO_DO}"
+
+
+@dataclass(frozen=True)
+class LiveInputs:
+    """The excited input channels: identification runs on them, dead ones re-enter with zero effect.
+
+    A dead channel's ARX coefficients are ratios of rounding noise (its centered column is
+    ~1e-16 of its level), which the Markov recursion then amplifies; without it the fit is the
+    fit of the live inputs, and the model gets zero columns of ``B`` and ``D`` for it.
+
+    Attributes
+    ----------
+    keep : indices of the live inputs, increasing; n_inputs : m, all inputs.
+    """
+
+    keep: tuple[int, ...]
+    n_inputs: int
+
+    @classmethod
+    def of(cls, u: np.ndarray) -> LiveInputs:
+        report = input_excitation(u)
+        return cls(tuple(i for i in range(report.n_inputs) if i not in report.dead), report.n_inputs)
+
+    @property
+    def all_live(self) -> bool:
+        return len(self.keep) == self.n_inputs
+
+    def select(self, u: np.ndarray) -> np.ndarray:
+        """The live columns of ``u`` (N, m)."""
+        return u if self.all_live else u[:, list(self.keep)]
+
+    def select_arx(self, arx: ArxFit) -> ArxFit:
+        """``arx`` without the coefficient rows of the dead inputs (layout of ArxFit.theta)."""
+        if self.all_live:
+            return arx
+        return replace(arx, theta=arx.theta[self._rows(arx)], n_inputs=len(self.keep))
+
+    def _rows(self, arx: ArxFit) -> np.ndarray:
+        """(m + q (p + m),) bool: the coefficient rows of the live inputs and of all outputs."""
+        live = np.isin(np.arange(self.n_inputs), self.keep)
+        return np.concatenate([live, np.tile(np.concatenate([np.ones(arx.n_outputs, bool), live]), arx.order)])
+
+    def restore(self, model: IdentifiedModel, u: np.ndarray, offsets: str) -> IdentifiedModel:
+        """``model`` of the live inputs with all ``m`` inputs: zero B, D (and Markov) columns for dead ones.
+
+        ``u`` (N, m) is the full input; a dead input's offset is its mean when offsets are removed.
+        """
+        if self.all_live:
+            return model
+        keep, m = list(self.keep), self.n_inputs
+
+        def widen(matrix: np.ndarray | None) -> np.ndarray | None:
+            if matrix is None:
+                return None
+            full = np.zeros(matrix.shape[:-1] + (m,))
+            full[..., keep] = matrix
+            return full
+
+        offset = np.mean(u, axis=0) if offsets == "remove" else np.zeros(m)
+        if model.input_offset is not None:
+            offset[keep] = model.input_offset
+        arx = model.arx
+        if arx is not None:
+            rows = self._rows(arx)
+            theta = np.zeros((rows.size, arx.theta.shape[1]))
+            theta[rows] = arx.theta
+            arx = replace(arx, theta=theta, n_inputs=m)
+        return replace(model, B=widen(model.B), D=widen(model.D), system_markov=widen(model.system_markov),
+                       input_offset=offset, arx=arx)
+
+
+def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[str]:
+    """:func:`excitation_warnings` of a window known only by its normal equations (the live service).
+
+    The first ``m`` regressor columns are ``u_k``: their centered mean squares (from ``R`` and
+    the column sums) and the mean magnitudes give each input's spread and level in the window.
+    """
+    n = max(normal.n_rows, 1)
+    square = np.diag(normal.R)[:n_inputs] / n
+    mean = normal.phi_sum[:n_inputs] / n if normal.phi_sum is not None else np.zeros(n_inputs)
+    variance = np.maximum(square - mean**2, 0.0)
+    # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no excitation.
+    dead = (square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * square)
+    report = Excitation(np.sqrt(variance), np.sqrt(square), [int(i) for i in np.flatnonzero(dead)],
+                        {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
+    if not report.dead:
+        return []
+    return [unexcited_reason(report)] if not report.excited else excitation_warnings_of(report)
+
+
+def excitation_warnings_of(report: Excitation) -> list[str]:
+    """The warning of :func:`excitation_warnings` for a report of some dead inputs."""
+    listed = ", ".join(report.channel_text(i) for i in report.dead)
+    return [f"no excitation on {listed} in this window: the model cannot learn "
+            f"{'its' if len(report.dead) == 1 else 'their'} effect; {_WHAT_TO_DO}"]

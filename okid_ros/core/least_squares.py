@@ -1,0 +1,250 @@
+"""Regularized least squares from normal equations: the solver behind the ARX fits (paper Eq. 23).
+
+The window's sufficient statistics (:class:`NormalEquations`), the prior precision of the
+coefficients (ridge or tuned/correlated kernel), the GCV choice of the penalty and the fixed-penalty
+solve used by the recursive window. See :mod:`okid_ros.core.arx` for the model and its conventions;
+split from it so each module keeps to one concern.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, optimize
+
+from okid_ros.core.regressors import regressor_length
+
+__all__ = [
+    "NormalEquations",
+    "center_normal_equations",
+    "channel_mean_square",
+    "normal_equations",
+    "prior_precision",
+    "residual_covariance",
+    "scaled_condition_number",
+    "solve_fixed_penalty",
+    "solve_normal_equations",
+]
+
+
+@dataclass
+class NormalEquations:
+    """Sufficient statistics of a least-squares window.
+
+    Attributes
+    ----------
+    R : (d, d) ``Phi^T Phi``.
+    r : (d, p) ``Phi^T Y``.
+    yy : (p, p) ``Y^T Y``.
+    n_rows : number of regressor rows summed.
+    phi_sum : (d,) ``Phi^T 1``, the column sums of the regressor rows (None if not kept).
+    y_sum : (p,) ``Y^T 1``, the column sums of the targets (None if not kept).
+        With both, :func:`center_normal_equations` gives the fit with an intercept (offsets).
+    """
+
+    R: np.ndarray
+    r: np.ndarray
+    yy: np.ndarray
+    n_rows: int
+    phi_sum: np.ndarray | None = None
+    y_sum: np.ndarray | None = None
+
+
+def normal_equations(phi: np.ndarray, targets: np.ndarray) -> NormalEquations:
+    """Form ``Phi^T Phi``, ``Phi^T Y`` and ``Y^T Y`` of a block of regressor rows."""
+    return NormalEquations(
+        phi.T @ phi, phi.T @ targets, targets.T @ targets, phi.shape[0], phi.sum(axis=0), targets.sum(axis=0)
+    )
+
+
+def prior_precision(
+    order: int,
+    n_outputs: int,
+    n_inputs: int,
+    channel_mean_square: np.ndarray,
+    kind: str = "ridge",
+    decay: float = 0.95,
+) -> np.ndarray:
+    """Inverse prior covariance ``P^{-1}`` (d, d) of the ARX coefficients.
+
+    Parameters
+    ----------
+    channel_mean_square : (p + m,) mean square of each channel of ``v = [y; u]``; used to make the
+        penalty independent of the channels' units.
+    kind : "ridge" (diagonal) or "tc" (tuned/correlated kernel with ``decay`` alpha in (0, 1)).
+    """
+    p, m, q = n_outputs, n_inputs, order
+    ms = np.maximum(np.asarray(channel_mean_square, dtype=float), np.finfo(float).tiny)
+    d = regressor_length(q, p, m)
+    w = p + m
+    if kind == "ridge":
+        diag = np.concatenate([ms[p:], np.tile(ms, q)])
+        return np.diag(diag)
+    if kind != "tc":
+        raise ValueError(f"unknown prior kind {kind!r}; expected 'ridge' or 'tc'")
+    if not 0.0 < decay < 1.0:
+        raise ValueError(f"TC decay must be in (0, 1), got {decay}")
+    precision = np.zeros((d, d))
+    # The feedthrough D has no lag: an independent prior of unit (scaled) variance.
+    precision[:m, :m] = np.diag(ms[p:])
+    lags = np.arange(1, q + 1)
+    tc = decay ** np.maximum.outer(lags, lags)
+    tc_inv = linalg.inv(tc)
+    tc_inv = 0.5 * (tc_inv + tc_inv.T)
+    for c in range(w):
+        idx = m + (lags - 1) * w + c
+        precision[np.ix_(idx, idx)] = tc_inv * ms[c]
+    return precision
+
+
+def _gcv_curve(s: np.ndarray, g2: np.ndarray, yy_trace: float, n_rows: int, p: int):
+    """GCV score and its parts as functions of the penalty, in the whitened coordinates."""
+
+    def parts(penalty: float) -> tuple[float, float, float]:
+        # Null directions (s = 0) with no penalty contribute nothing to the fit.
+        denom = s + penalty
+        inv = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            # s inv <= 1; a vanishing penalty on an unexcited window can still overflow g2 inv.
+            rss = yy_trace - float(np.sum(g2 * inv * (2.0 - s * inv)))
+        if not np.isfinite(rss):
+            return math.inf, math.inf, math.nan  # this penalty is unusable: GCV looks elsewhere
+        dof = float(np.sum(s * inv))
+        rss = max(rss, 0.0)
+        return n_rows * rss / max(n_rows - dof, 1.0) ** 2, rss, dof
+
+    return parts
+
+
+def solve_normal_equations(
+    normal: NormalEquations,
+    precision: np.ndarray | None,
+    penalty: float | str = "gcv",
+) -> tuple[np.ndarray, float, float, float]:
+    """Solve ``(R + penalty P^{-1}) Theta = r``, with the penalty chosen by GCV if asked.
+
+    Returns
+    -------
+    theta : (d, p)
+    penalty : the penalty used
+    dof : effective number of parameters per output (trace of the hat matrix)
+    gcv : the GCV score at that penalty (residual sum of squares scaled by (n - dof)^-2)
+    """
+    R, r, n_rows = normal.R, normal.r, normal.n_rows
+    d, p = r.shape
+    if precision is None:
+        precision = np.diag(np.maximum(np.diag(R), np.finfo(float).tiny) / max(n_rows, 1))
+    # Whiten with the Cholesky factor of the precision: P^{-1} = L L^T.
+    chol = linalg.cholesky(precision, lower=True)
+    r_t = linalg.solve_triangular(chol, r, lower=True)
+    R_t = linalg.solve_triangular(chol, linalg.solve_triangular(chol, R, lower=True).T, lower=True)
+    R_t = 0.5 * (R_t + R_t.T)
+    s, V = linalg.eigh(R_t)
+    s = np.maximum(s, 0.0)
+    g = V.T @ r_t  # (d, p)
+    g2 = np.sum(g * g, axis=1)
+    parts = _gcv_curve(s, g2, float(np.trace(normal.yy)), n_rows, p)
+    if isinstance(penalty, str):
+        if penalty != "gcv":
+            raise ValueError(f"penalty must be a number or 'gcv', got {penalty!r}")
+        scale = max(float(np.mean(s)), np.finfo(float).tiny)
+        grid = scale * np.logspace(-12, 2, 29)
+        scores = [parts(lam)[0] for lam in grid]
+        best = int(np.argmin(scores))
+        lo = np.log(grid[max(best - 1, 0)])
+        hi = np.log(grid[min(best + 1, grid.size - 1)])
+        res = optimize.minimize_scalar(lambda t: parts(np.exp(t))[0], bounds=(lo, hi), method="bounded")
+        lam = float(np.exp(res.x)) if res.fun <= scores[best] else float(grid[best])
+    else:
+        lam = float(penalty)
+        if lam < 0:
+            raise ValueError(f"penalty must be >= 0, got {lam}")
+    gcv, _, dof = parts(lam)
+    denom = s + lam
+    if lam == 0.0:
+        # Unregularized: a pseudo-inverse that drops numerically null directions.
+        keep = s > s.max() * d * np.finfo(float).eps
+        denom = np.where(keep, s, np.inf)
+    theta_t = V @ (g / denom[:, None])
+    theta = linalg.solve_triangular(chol.T, theta_t, lower=False)
+    return theta, lam, dof, gcv
+
+
+def scaled_condition_number(R: np.ndarray) -> float:
+    """Condition number of ``R`` after scaling its columns to unit diagonal."""
+    diag = np.sqrt(np.maximum(np.diag(R), np.finfo(float).tiny))
+    eig = linalg.eigvalsh(R / np.outer(diag, diag))
+    if eig[0] <= 0:
+        return float("inf")
+    return float(eig[-1] / eig[0])
+
+
+def residual_covariance(normal: NormalEquations, theta: np.ndarray, dof: float) -> np.ndarray:
+    """(p, p) residual covariance ``(Y - Phi Theta)^T (Y - Phi Theta) / (n - dof)``."""
+    rt = theta.T @ normal.r
+    cov = normal.yy - rt - rt.T + theta.T @ normal.R @ theta
+    cov = 0.5 * (cov + cov.T)
+    return cov / max(normal.n_rows - dof, 1.0)
+
+
+def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, order: int) -> np.ndarray:
+    """Mean square of each channel of ``v = [y; u]`` read from the diagonal of ``R``."""
+    m, w = n_inputs, n_outputs + n_inputs
+    diag = np.diag(normal.R)[m:].reshape(order, w)
+    return np.maximum(diag.mean(axis=0) / max(normal.n_rows, 1), np.finfo(float).tiny)
+
+
+def center_normal_equations(normal: NormalEquations) -> NormalEquations:
+    """The normal equations of the column-centered rows: the fit with an intercept.
+
+    Least squares with a constant term equals least squares on regressors and targets with
+    their column means removed: ``R - s s^T / n``, ``r - s t^T / n``, ``Y^T Y - t t^T / n``
+    with the column sums ``s`` of ``Phi`` and ``t`` of ``Y``. Used to identify records and
+    live inputs with offsets (non-zero means).
+
+    Raises
+    ------
+    ValueError
+        If the normal equations do not carry the column sums.
+    """
+    if normal.phi_sum is None or normal.y_sum is None:
+        raise ValueError("these normal equations keep no column sums: cannot remove offsets")
+    n = max(normal.n_rows, 1)
+    s, t = normal.phi_sum, normal.y_sum
+    return NormalEquations(
+        normal.R - np.outer(s, s) / n,
+        normal.r - np.outer(s, t) / n,
+        normal.yy - np.outer(t, t) / n,
+        normal.n_rows,
+        np.zeros_like(s),
+        np.zeros_like(t),
+    )
+
+
+def solve_fixed_penalty(
+    normal: NormalEquations, precision: np.ndarray, penalty: float
+) -> np.ndarray:
+    """Solve ``(R + penalty P^{-1}) Theta = r`` for a fixed penalty by a Cholesky factorization.
+
+    The same solution as :func:`solve_normal_equations` with a numeric penalty > 0, at a fraction
+    of its cost (one Cholesky instead of a symmetric eigendecomposition), for callers such as the
+    recursive window that solve often with a fixed prior. ``precision`` is ``P^{-1}`` (d, d).
+
+    Returns
+    -------
+    theta : (d, p)
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If ``R + penalty P^{-1}`` is not numerically positive definite (e.g. penalty 0 on a
+        rank-deficient window).
+    """
+    lam = float(penalty)
+    if lam < 0:
+        raise ValueError(f"penalty must be >= 0, got {lam}")
+    system = normal.R + lam * precision if lam > 0.0 else normal.R
+    factor = linalg.cho_factor(system, lower=False, check_finite=False)
+    return linalg.cho_solve(factor, normal.r, check_finite=False)

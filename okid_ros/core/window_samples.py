@@ -1,0 +1,84 @@
+"""Which samples the sliding ARX window accepts, and its counters (split from :mod:`.recursive`).
+
+A sample with NaN/Inf or a value beyond :data:`MAX_SAMPLE_MAGNITUDE` is rejected and counted in
+:class:`WindowStatus`; the window then breaks its lag history (see :mod:`okid_ros.core.recursive`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection"]
+
+#: Largest |value| a sample may hold: W (p + m) squares of it still fit in float64 (1.8e308) for
+#: windows up to 1e7 rows. Records in such units are identified in batch after scaling
+#: (okid_ros/core/scaling.py); the window keeps the raw sums the service solves.
+MAX_SAMPLE_MAGNITUDE = 1e150
+MAX_SQUARED_NORM = MAX_SAMPLE_MAGNITUDE**2
+
+
+@dataclass
+class WindowStatus:
+    """Counters and health of a :class:`~okid_ros.core.recursive.SlidingWindowArx`.
+
+    Attributes
+    ----------
+    samples_seen : samples offered to ``push``/``update`` (accepted or not).
+    samples_accepted : samples stored (finite).
+    rows_in_window : regressor rows currently in the window (pending blocks included).
+    window_fill : fraction of the full window, ``rows_in_window / window`` (1.0 once full; for
+        infinite history the effective number of rows ``sum lambda^i`` over ``1 / (1 - lambda)``).
+    rejected_nonfinite : samples rejected for NaN/Inf in u or y.
+    rejected_magnitude : samples rejected for a value beyond ``MAX_SAMPLE_MAGNITUDE`` (units
+        too small for the normal equations' squares: rescale the channel).
+    gaps : times the lag history was broken (NaN samples, ``mark_gap``).
+    refactorizations : times ``G`` was recomputed from the stored window.
+    adapting : whether new rows enter the window.
+    """
+
+    samples_seen: int = 0
+    samples_accepted: int = 0
+    rows_in_window: int = 0
+    window_fill: float = 0.0
+    rejected_nonfinite: int = 0
+    gaps: int = 0
+    rejected_magnitude: int = 0
+    refactorizations: int = 0
+    adapting: bool = True
+
+
+def block_arrays(u_block, y_block, m: int, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """A block of samples as float arrays u (N, m), y (N, p), or ValueError naming the wrong size."""
+    u = np.asarray(u_block, dtype=float)
+    y = np.asarray(y_block, dtype=float)
+    if u.ndim == 1 and m == 1:
+        u = u[:, None]
+    if y.ndim == 1 and p == 1:
+        y = y[:, None]
+    if u.ndim != 2 or u.shape[1] != m:
+        raise ValueError(f"u block must have shape (N, {m}) (m = {m} inputs); got {u.shape}")
+    if y.ndim != 2 or y.shape[1] != p:
+        raise ValueError(f"y block must have shape (N, {p}) (p = {p} outputs); got {y.shape}")
+    if u.shape[0] != y.shape[0]:
+        raise ValueError(f"u and y blocks have different lengths: {u.shape[0]} and {y.shape[0]}")
+    return u, y
+
+
+def accepted_samples(u: np.ndarray, y: np.ndarray, status: WindowStatus) -> np.ndarray:
+    """(N,) bool: the samples of a block the window may use; the rejections counted in ``status``."""
+    finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        accepted = finite & (np.einsum("ij,ij->i", u, u) + np.einsum("ij,ij->i", y, y) <= MAX_SQUARED_NORM)
+    status.rejected_nonfinite += int(np.count_nonzero(~finite))
+    status.rejected_magnitude += int(np.count_nonzero(finite & ~accepted))
+    return accepted
+
+
+def count_rejection(sample: np.ndarray, status: WindowStatus) -> None:
+    """Count one rejected sample ``[y; u]`` in ``status`` by its reason (NaN/Inf or magnitude)."""
+    if np.isfinite(sample).all():
+        status.rejected_magnitude += 1
+    else:
+        status.rejected_nonfinite += 1

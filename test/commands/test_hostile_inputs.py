@@ -1,0 +1,198 @@
+"""Damaged, truncated, empty, wrongly typed and extreme records: one line, exit 2, nothing written.
+
+Each case is a file a user could hand to `okid-ros identify` (or `track`); the expected outcome is
+the one-line error ``okid-ros COMMAND: error: FILE: reason`` with status 2 and no output file.
+The property-based versions (random bytes, cuts, dtypes) are in test_property_records.py.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from okid_ros import cli
+from okid_ros.errors import DataError, write_atomically
+from okid_ros.records import Record, load_record, require_inputs, save_record
+
+N = 400
+
+
+def _good_arrays() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal((N, 1))
+    return u, np.column_stack([u[:, 0] + 0.1 * rng.standard_normal(N), rng.standard_normal(N)])
+
+
+def _npz_bytes(tmp_path: Path) -> bytes:
+    u, y = _good_arrays()
+    path = tmp_path / "source.npz"
+    np.savez(path, u=u, y=y, sample_time_s=0.01)
+    return path.read_bytes()
+
+
+def _write_case(tmp_path: Path, case: str) -> Path:
+    """The hostile file `case` (see HOSTILE_CASES) in tmp_path."""
+    u, y = _good_arrays()
+    good = _npz_bytes(tmp_path)
+    path = tmp_path / f"{case}.npz"
+    writers = {
+        "truncated": lambda: path.write_bytes(good[: len(good) // 2]),
+        "header_only": lambda: path.write_bytes(good[:30]),
+        "empty": lambda: path.write_bytes(b""),
+        "crc": lambda: path.write_bytes(good[:200] + bytes(64) + good[264:]),
+        "random": lambda: path.write_bytes(np.random.default_rng(0).bytes(500)),
+        "complex": lambda: np.savez(path, u=u + 1j, y=y, sample_time_s=0.01),
+        "object": lambda: np.savez(path, u=np.array([None] * N, dtype=object), y=y, sample_time_s=0.01),
+        "strings": lambda: np.savez(path, u=np.array(["1.0"] * N), y=y, sample_time_s=0.01),
+        "cube": lambda: np.savez(path, u=u[:, :, None], y=y, sample_time_s=0.01),
+        "structured": lambda: np.savez(path, u=np.zeros(N, dtype=[("a", float)]), y=y, sample_time_s=0.01),
+        "complex_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=0.01 + 1j),
+        "string_dt": lambda: np.savez(path, u=u, y=y, sample_time_s="fast"),
+        "vector_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=[0.01, 0.02]),
+        "no_samples": lambda: np.savez(path, u=np.zeros((0, 1)), y=np.zeros((0, 2)), sample_time_s=0.01),
+        "no_y": lambda: np.savez(path, u=u, sample_time_s=0.01),
+        "beyond_float64": lambda: np.savez(path, u=u.astype(np.longdouble) * np.longdouble(10) ** 400, y=y,
+                                           sample_time_s=0.01),
+        "nan": lambda: np.savez(path, u=np.where(np.arange(N)[:, None] == 7, np.nan, u), y=y, sample_time_s=0.01),
+        "length": lambda: np.savez(path, u=u[:-1], y=y, sample_time_s=0.01),
+        "a_npy": lambda: np.save(open(path, "wb"), u),
+    }
+    writers[case]()
+    return path
+
+
+HOSTILE_CASES = {
+    "truncated": "not a readable .npz", "header_only": "not a readable .npz", "empty": "not a readable .npz",
+    "crc": "not a readable .npz", "random": "not a readable .npz", "complex": "complex",
+    "object": "not a readable .npz", "strings": "string", "cube": "2-D", "structured": "structured",
+    "complex_dt": "sample_time_s", "string_dt": "sample_time_s", "vector_dt": "sample_time_s",
+    "no_samples": "no samples", "no_y": "missing key(s) y", "beyond_float64": "NaN/Inf",
+    "nan": "first at sample 7", "length": "length mismatch", "a_npy": "single array",
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE_CASES))
+def test_hostile_npz_is_one_line_naming_the_file(tmp_path: Path, case: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write_case(tmp_path, case)
+    with pytest.raises(DataError) as raised:
+        load_record(path)
+    assert str(path) in str(raised.value) and HOSTILE_CASES[case] in str(raised.value)
+    out = tmp_path / "model.json"
+    assert cli.main(["identify", str(path), "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"okid-ros identify: error: {path}: ")
+    assert HOSTILE_CASES[case] in err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == sorted(["source.npz", path.name])
+
+
+CSV_CASES = {
+    "empty": ("", "no header line"),
+    "header_only": ("# sample_time_s=0.01\nu1,y1\n", "no samples"),
+    "ragged": ("# sample_time_s=0.01\nu1,y1\n1,2\n3\n", "data row 2 has 1 values"),
+    "text": ("# sample_time_s=0.01\nu1,y1\n1,abc\n", "non-numeric"),
+    "overflow": ("# sample_time_s=0.01\nu1,y1\n1e400,2\n3,4\n", "NaN/Inf"),
+    "nan_dt": ("# sample_time_s=nan\nu1,y1\n1,2\n3,4\n", "sample_time_s"),
+    "bad_dt": ("# sample_time_s=fast\nu1,y1\n1,2\n", "bad sample_time_s"),
+    "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
+    "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CSV_CASES))
+def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    text, reason = CSV_CASES[case]
+    path = tmp_path / f"{case}.csv"
+    path.write_text(text)
+    out = tmp_path / "track.jsonl"
+    assert cli.main(["track", str(path), "--jsonl", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"okid-ros track: error: {path}: ") and reason in err, err
+    assert not out.exists()
+
+
+def test_binary_csv_and_yaml_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    noise = np.random.default_rng(3).bytes(400) + b"\xff\xfe"
+    csv_path = tmp_path / "noise.csv"
+    csv_path.write_bytes(noise)
+    yaml_path = tmp_path / "noise.yaml"
+    yaml_path.write_bytes(noise)
+    assert cli.main(["identify", str(csv_path), "--json", str(tmp_path / "m.json")]) == 2
+    assert "cannot read as UTF-8" in capsys.readouterr().err
+    assert cli.main(["export", str(tmp_path / "no_bag"), "--npz", str(tmp_path / "x.npz"),
+                     "--params", str(yaml_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(yaml_path) in err and "not UTF-8" in err
+
+
+def test_record_without_inputs_loads_with_zero_input_channels(tmp_path: Path) -> None:
+    _, y = _good_arrays()
+    np.savez(tmp_path / "y_only.npz", y=y, sample_time_s=0.01)
+    (tmp_path / "y_only.csv").write_text("# sample_time_s=0.01\ny1,y2\n" + "\n".join(f"{a},{b}" for a, b in y))
+    for name in ("y_only.npz", "y_only.csv"):
+        record = load_record(tmp_path / name)
+        assert record.u.shape == (N, 0) and record.y.shape == (N, 2) and not record.has_inputs
+        np.testing.assert_allclose(record.y, y)
+        with pytest.raises(DataError, match="output-only identification"):
+            require_inputs(record, tmp_path / name, "identify")
+    assert Record(np.zeros((N, 0)), y, 0.01).validate().u.shape == (N, 0)
+
+
+def test_identify_without_inputs_suggests_output_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _, y = _good_arrays()
+    np.savez(tmp_path / "y_only.npz", y=y, sample_time_s=0.01)
+    assert cli.main(["identify", str(tmp_path / "y_only.npz"), "--json", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no input channels" in err and "--output-only" in err
+
+
+def test_bool_and_integer_arrays_are_numbers(tmp_path: Path) -> None:
+    u, y = _good_arrays()
+    np.savez(tmp_path / "ints.npz", u=u > 0, y=(1000 * y).astype(np.int32), sample_time_s=np.int64(1))
+    record = load_record(tmp_path / "ints.npz")
+    assert record.u.dtype == float and set(np.unique(record.u)) == {0.0, 1.0} and record.sample_time_s == 1.0
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+
+    def fail(stream) -> None:
+        stream.write(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError):
+        write_atomically(target, fail)
+    assert target.read_bytes() == b"old" and os.listdir(tmp_path) == ["out.bin"]
+    u, y = _good_arrays()
+    save_record(tmp_path / "r.npz", u, y, 0.01)
+    np.testing.assert_array_equal(load_record(tmp_path / "r.npz").u, u)
+
+
+def test_unexpected_exception_is_one_line_with_status_70(monkeypatch: pytest.MonkeyPatch,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    def boom() -> int:
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.delenv("OKID_ROS_TRACEBACK", raising=False)
+    assert cli.run_command("identify", boom) == 70
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "internal error" in err and "ZeroDivisionError: a bug" in err
+    monkeypatch.setenv("OKID_ROS_TRACEBACK", "1")
+    with pytest.raises(ZeroDivisionError):
+        cli.run_command("identify", boom)
+
+
+def test_warnings_are_one_line_naming_the_command(capsys: pytest.CaptureFixture[str]) -> None:
+    def warn() -> int:
+        with np.errstate(over="warn"):
+            np.float64(1e300) * np.float64(1e300)
+        return 0
+
+    assert cli.run_command("track", warn) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("okid-ros track: warning: overflow")

@@ -1,0 +1,157 @@
+"""Property-based tests of the `okid-ros` entry points on generated records and files.
+
+Whatever the record (channel units from 1e-150 to 1e150, dead or constant inputs, NaN, too short,
+damaged bytes), `identify` and `track` end with status 0 or 2 and print only lines starting with
+``okid-ros COMMAND:`` on stderr (no traceback, no bare warning); a success writes JSON without NaN
+or null in the model, a failure writes nothing. Bag commands on random bytes fail in one line.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _hypothesis_profiles import SLOW
+from hypothesis import given
+from hypothesis import strategies as st
+
+from okid_ros import cli
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    capsys.readouterr()
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        status = exc.code
+    err = capsys.readouterr().err
+    return status, err
+
+
+def _assert_one_line_messages(err: str, command: str) -> None:
+    for line in err.splitlines():
+        assert line.startswith(f"okid-ros {command}: "), line
+    assert "Traceback" not in err and "internal error" not in err
+
+
+def _finite_numbers(value, where: str = "") -> None:
+    """No NaN, no Inf, no null anywhere in a JSON value."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if key in {"uncertainty", "reason", "error", "waiting", "source", "decay"} or key.endswith("_std"):
+                continue  # documented nulls: not computed, not applicable
+            _finite_numbers(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for item in value:
+            _finite_numbers(item, where)
+    else:
+        assert value is not None or where.endswith(("offset", "arx_penalty", "mac_previous", "stability",
+                                                      "emac", "condition_number")), where
+        if isinstance(value, float):
+            assert math.isfinite(value), where
+
+
+def _run_on_record(tmp_path_factory, capsys, arrays: dict, command: str, out_name: str,
+                   options: list[str]) -> Path | None:
+    """Run ``command RECORD OPTION OUT ...`` on the arrays; the output path, or None after a one-line error."""
+    tmp = tmp_path_factory.mktemp(command)
+    record, out = tmp / "r.npz", tmp / out_name
+    np.savez(record, **arrays)
+    status, err = _run([command, str(record), options[0], str(out), *options[1:]], capsys)
+    assert status in (0, 2), err
+    _assert_one_line_messages(err, command)
+    if status == 2:
+        assert not out.exists() and err.count("error:") == 1 and str(record) in err
+        return None
+    return out
+
+
+@st.composite
+def records(draw):
+    n = draw(st.sampled_from([40, 700, 900]))
+    m, p = draw(st.integers(1, 2)), draw(st.integers(1, 2))
+    seed = draw(st.integers(0, 2**16))
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((n, m))
+    y = np.zeros((n, p))
+    for k in range(2, n):
+        y[k] = 1.6 * y[k - 1] - 0.9 * y[k - 2] + u[k - 1].sum() + 0.05 * rng.standard_normal(p)
+    u *= draw(st.lists(st.sampled_from([1.0, 1e-150, 1e150, 3e-7]), min_size=m, max_size=m))
+    y *= draw(st.lists(st.sampled_from([1.0, 1e-150, 1e150, 2e5]), min_size=p, max_size=p))
+    fault = draw(st.sampled_from(["none", "none", "dead", "constant", "all_dead", "nan", "no_u"]))
+    if fault == "dead":
+        u[:, -1] = 0.0
+    elif fault == "constant":
+        u[:, 0] = 4.25
+    elif fault == "all_dead":
+        u[:] = 1.5
+    elif fault == "nan":
+        y[draw(st.integers(0, n - 1)), 0] = np.nan
+    arrays = {"y": y, "sample_time_s": 0.01}
+    if fault != "no_u":
+        arrays["u"] = u
+    return arrays
+
+
+@SLOW
+@given(arrays=records())
+def test_identify_on_any_record_is_a_model_or_one_line(tmp_path_factory, capsys, arrays) -> None:
+    out = _run_on_record(tmp_path_factory, capsys, arrays, "identify", "m.json",
+                         ["--json", "--order", "8", "--no-refine", "--max-states", "6"])
+    if out is None:
+        return
+    document = json.loads(out.read_text())
+    _finite_numbers({key: document[key] for key in ("A", "B", "C", "D", "K", "innovation_covariance")})
+    for mode in document["modes"]:
+        assert math.isfinite(mode["frequency_rad_s"]) and math.isfinite(mode["damping_ratio"])
+
+
+@SLOW
+@given(arrays=records())
+def test_track_on_any_record_is_updates_or_one_line(tmp_path_factory, capsys, arrays) -> None:
+    out = _run_on_record(tmp_path_factory, capsys, arrays, "track", "t.jsonl",
+                         ["--jsonl", "--order", "6", "--window", "300", "--every", "250", "--states", "4",
+                          "--no-progress"])
+    if out is None:
+        return
+    for line in out.read_text().splitlines():
+        entry = json.loads(line)
+        assert entry["n_states"] is not None or entry.get("error") or entry.get("waiting")
+        for mode in entry["modes"]:
+            assert math.isfinite(mode["frequency_rad_s"]) and math.isfinite(mode["damping_ratio"])
+
+
+@given(payload=st.binary(max_size=600), command=st.sampled_from(["process", "export", "identify"]),
+       suffix=st.sampled_from([".mcap", ".db3", ".bag", ""]))
+def test_bag_commands_on_random_bytes_fail_in_one_line(tmp_path_factory, capsys, payload, command, suffix) -> None:
+    tmp = tmp_path_factory.mktemp("bag")
+    bag = tmp / f"b{suffix}"
+    if suffix:
+        bag.write_bytes(payload)
+    else:
+        bag.mkdir()
+        (bag / "metadata.yaml").write_bytes(payload)
+    argv = {"process": ["process", str(bag), "--out", str(tmp / "o")],
+            "export": ["export", str(bag), "--npz", str(tmp / "o.npz")],
+            "identify": ["identify", str(bag), "--json", str(tmp / "o.json")]}[command]
+    status, err = _run(argv, capsys)
+    assert status == 2 and err.count("\n") == 1 and err.startswith(f"okid-ros {command}: error: "), err
+    assert sorted(p.name for p in tmp.iterdir()) == [bag.name]
+
+
+def test_the_record_strategy_reaches_success_and_failure(tmp_path: Path, capsys) -> None:
+    """The properties above are not vacuous: a clean record succeeds, a NaN one fails."""
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal((700, 1))
+    y = np.convolve(u[:, 0], [0, 1, 0.5], "same")[:, None] + 0.01 * rng.standard_normal((700, 1))
+    np.savez(tmp_path / "ok.npz", u=u, y=y, sample_time_s=0.01)
+    status, err = _run(["identify", str(tmp_path / "ok.npz"), "--json", str(tmp_path / "m.json"), "--order", "8",
+                        "--no-refine"], capsys)
+    assert status == 0, err
+    y[5] = np.nan
+    np.savez(tmp_path / "bad.npz", u=u, y=y, sample_time_s=0.01)
+    status, err = _run(["identify", str(tmp_path / "bad.npz"), "--json", str(tmp_path / "n.json")], capsys)
+    assert status == 2 and "first at sample 5" in err

@@ -1,0 +1,137 @@
+"""Inputs without excitation: dead channels named with what to do, unexcited windows refused.
+
+Truth: the paper's two-mode model driven on both inputs; a dead second input (zeros or a
+constant) must still give the modes from the live input, with a warning naming the dead channel;
+a record or window where no input varies is refused with the reason.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from okid_ros.cli import main as okid_ros_main
+from okid_ros.core.arx import fit_arx
+from okid_ros.core.excitation import LiveInputs, excitation_warnings, input_excitation
+from okid_ros.core.pipeline import IdentificationError, identify, identify_from_arx
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+DT = 0.008
+PAPER_MODES = [37.097, 46.1325]
+
+
+@pytest.fixture(scope="module")
+def one_input_record() -> tuple[np.ndarray, np.ndarray]:
+    """The paper model driven on input 0 only (input 1 at zero)."""
+    u = lowpass_input(3000, 2, 15.0, DT, seed=7)
+    u[:, 1] = 0.0
+    y, _ = simulate_innovation(paper_model(), u, seed=1007)
+    return u, y
+
+
+def test_dead_channels_are_found_relative_to_their_own_level() -> None:
+    rng = np.random.default_rng(0)
+    u = np.column_stack([rng.standard_normal(500), np.zeros(500), np.full(500, 3.5),
+                         3.5 + 1e-12 * rng.standard_normal(500), 1e-200 * rng.standard_normal(500)])
+    report = input_excitation(u)
+    assert report.dead == [1, 2, 3] and report.excited  # the 1e-200 channel varies: it is alive
+    assert report.constant_value[2] == pytest.approx(3.5)
+    text = excitation_warnings(u)
+    assert len(text) == 1 and "input 1 (all zeros)" in text[0] and "input 2 (constant 3.5)" in text[0]
+    assert "output-only identification" in text[0] and "check the sensor" in text[0]
+    assert excitation_warnings(rng.standard_normal((100, 2))) == []
+    assert not input_excitation(np.zeros((100, 2))).excited
+
+
+@pytest.mark.parametrize("dead_value", [0.0, 3.5])
+def test_a_dead_input_is_named_and_the_modes_come_from_the_live_one(one_input_record, dead_value) -> None:
+    u, y = one_input_record
+    u = u.copy()
+    u[:, 1] = dead_value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        model = identify(u, y, DT, order=60)
+    assert any("no excitation on input 1" in w for w in model.warnings)
+    assert model.B.shape == (model.n_states, 2) and np.all(model.B[:, 1] == 0) and np.all(model.D[:, 1] == 0)
+    assert model.input_offset[1] == pytest.approx(dead_value)
+    for truth in PAPER_MODES:
+        closest = min(model.modes, key=lambda mode: abs(mode.frequency_rad_s - truth))
+        assert abs(closest.frequency_rad_s / truth - 1) < 0.02
+    assert not model.stability_problem()
+
+
+def test_no_excitation_is_refused_with_the_reason(one_input_record) -> None:
+    _, y = one_input_record
+    for u in (np.zeros((y.shape[0], 2)), np.full((y.shape[0], 2), [1.0, -2.0])):
+        with pytest.raises(IdentificationError, match="no input carries excitation"):
+            identify(u, y, DT, order=40)
+
+
+def test_an_unexcited_window_is_refused_like_other_refusals(one_input_record) -> None:
+    u, y = one_input_record
+    u_w, y_w = np.zeros_like(u[:1200]), y[:1200]
+    arx = fit_arx(u_w, y_w, 20, "ridge", "gcv")
+    with pytest.raises(IdentificationError, match="no input carries excitation"):
+        identify_from_arx(arx, u_w, y_w, DT)
+
+
+def test_live_inputs_round_trip_the_arx_layout(one_input_record) -> None:
+    u, y = one_input_record
+    live = LiveInputs.of(u)
+    assert live.keep == (0,) and not live.all_live
+    arx = fit_arx(u[:, :1], y, 10, "ridge", 0.1)
+    widened = fit_arx(u, y, 10, "ridge", 0.1)
+    # The full fit's live rows, selected, have the live fit's layout (same shape, input 0's rows).
+    assert live.select_arx(widened).theta.shape == arx.theta.shape
+    np.testing.assert_array_equal(live.select_arx(widened).observer_markov[:, :, :2],
+                                  widened.observer_markov[:, :, :2])
+
+
+def test_identify_and_track_report_dead_inputs_in_json(tmp_path, one_input_record, capsys) -> None:
+    u, y = one_input_record
+    path = tmp_path / "dead.npz"
+    np.savez(path, u=u, y=y, sample_time_s=DT)
+    assert okid_ros_main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--order", "40",
+                          "--no-refine"]) == 0
+    err = capsys.readouterr().err
+    assert "okid-ros identify: warning: no excitation on input 1 (all zeros)" in err
+    document = json.loads((tmp_path / "m.json").read_text())
+    assert any("input 1" in w for w in document["warnings"])
+    u_dead = u.copy()
+    u_dead[1200:, 0] = 0.0  # the last windows see no input at all
+    np.savez(path, u=u_dead, y=y, sample_time_s=DT)
+    assert okid_ros_main(["track", str(path), "--jsonl", str(tmp_path / "t.jsonl"), "--order", "20",
+                          "--window", "800", "--every", "400", "--no-progress", "--force"]) == 0
+    entries = [json.loads(line) for line in (tmp_path / "t.jsonl").read_text().splitlines()]
+    assert any("input 1" in w for w in entries[0]["warnings"]) and entries[0]["n_states"]
+    assert "no input carries excitation" in entries[-1]["error"] and entries[-1]["n_states"] is None
+
+
+def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_record) -> None:
+    """The ARX service refuses an unexcited window (condition number) and says which input and why."""
+    from okid_ros.core.arx import normal_equations
+    from okid_ros.core.excitation import window_excitation_warnings
+    from okid_ros.core.regressors import arx_regressors
+    from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+
+    u, y = one_input_record
+    u = u.copy()
+    u[:, 1] = 2.5
+    service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
+    assert service.push_block(DT * np.arange(900), u[:900], y[:900]) == 900
+    snap = service.snapshot()
+    assert not snap.valid
+    assert "unexcited window" in snap.reason and "no excitation on input 1 (constant 2.5)" in snap.reason
+    # The same from the normal equations directly, and nothing for a well-excited window.
+    phi, targets, _ = arx_regressors(*one_input_record, 10)
+    assert "input 1 (all zeros)" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
+    live = lowpass_input(900, 2, 15.0, DT, seed=3)
+    phi, targets, _ = arx_regressors(live, y[:900], 10)
+    assert window_excitation_warnings(normal_equations(phi, targets), 2) == []
+    phi, targets, _ = arx_regressors(np.zeros((900, 2)), y[:900], 10)
+    assert "no input carries excitation" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]

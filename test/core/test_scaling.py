@@ -1,0 +1,98 @@
+"""Units of each channel: identification on a record times 1e+-150 per channel gives the same modes.
+
+Truth: the paper's two-mode model (okid_ros/sim/paper_model.py). The scaled record is identified
+without any RuntimeWarning (overflow, underflow, invalid) and gives the frequencies and damping
+ratios of the unscaled record within rounding, and a model that predicts the scaled outputs as
+well as the unscaled model predicts the unscaled ones.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from okid_ros.core.arx import fit_arx
+from okid_ros.core.channels import channel_scales, channel_spread, channel_std
+from okid_ros.core.pipeline import IdentificationError, identify
+from okid_ros.core.statespace import one_step_prediction
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+DT = 0.008
+# Per channel, different: inputs (1e150, 1e-150), outputs (1e-150, 1e150) and a mixed set.
+UNITS = [
+    (np.array([1e150, 1e-150]), np.array([1e-150, 1e150])),
+    (np.array([3.7e-150, 1.0]), np.array([2.0e150, 1e-3])),
+]
+
+
+@pytest.fixture(scope="module")
+def paper_record() -> tuple[np.ndarray, np.ndarray]:
+    u = lowpass_input(2500, 2, 15.0, DT, seed=4)
+    y, _ = simulate_innovation(paper_model(), u, seed=1004)
+    return u, y
+
+
+def _modes(model) -> np.ndarray:
+    return np.array([[m.frequency_rad_s, m.damping_ratio] for m in model.modes])
+
+
+@pytest.mark.parametrize("units", range(len(UNITS)))
+def test_modes_do_not_depend_on_the_units_of_each_channel(paper_record, units: int) -> None:
+    u, y = paper_record
+    input_units, output_units = UNITS[units]
+    reference = identify(u, y, DT, order=60, refine=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        scaled = identify(u * input_units, y * output_units, DT, order=60, refine=False)
+    assert len(reference.modes) >= 2 and _modes(scaled).shape == _modes(reference).shape
+    np.testing.assert_allclose(_modes(scaled), _modes(reference), rtol=1e-8)
+    # The model is in the record's units: D, B, C, K, covariance and offsets scale as the channels.
+    np.testing.assert_allclose(scaled.D, reference.D * output_units[:, None] / input_units[None, :], rtol=1e-6)
+    np.testing.assert_allclose(np.diag(scaled.innovation_covariance),
+                               np.diag(reference.innovation_covariance) * output_units**2, rtol=1e-6)
+    np.testing.assert_allclose(scaled.output_offset, reference.output_offset * output_units, rtol=1e-6)
+    for a, b in zip(scaled.modes, reference.modes):  # shapes: unit norm in the record's units
+        assert abs(np.linalg.norm(a.shape) - 1) < 1e-12
+        expected = b.shape * output_units / np.linalg.norm(b.shape * output_units)
+        assert abs(abs(np.vdot(a.shape, expected)) - 1) < 1e-6
+    _, e_ref = one_step_prediction(reference.A, reference.B, reference.C, reference.D, reference.K,
+                                   u - reference.input_offset, y - reference.output_offset)
+    _, e = one_step_prediction(scaled.A, scaled.B, scaled.C, scaled.D, scaled.K,
+                               u * input_units - scaled.input_offset, y * output_units - scaled.output_offset)
+    np.testing.assert_allclose(e / output_units, e_ref, rtol=1e-5, atol=1e-8 * np.abs(e_ref).max())
+    assert scaled.stability_problem() is None or scaled.stability_problem() == ""
+
+
+def test_beyond_the_float64_range_is_a_clear_refusal(paper_record) -> None:
+    u, y = paper_record
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(IdentificationError, match="beyond the float64 range"):
+            identify(u, y * 1e200, DT, order=40, refine=False)
+
+
+def test_arx_fit_of_extreme_units_has_no_overflow(paper_record) -> None:
+    u, y = paper_record
+    reference = fit_arx(u, y, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        scaled = fit_arx(u * 1e150, y * 1e-150, 20)
+    assert np.isfinite(scaled.theta).all()
+    # One-step predictions agree once the units are taken out (the fit is of the same system).
+    np.testing.assert_allclose(scaled.D * 1e300, reference.D, rtol=1e-3, atol=1e-6 * np.abs(reference.D).max())
+
+
+def test_channel_spread_handles_extremes_and_dead_channels() -> None:
+    x = np.column_stack([np.linspace(-1, 1, 101) * 1e300, np.full(101, -5e-300), np.zeros(101)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        spread, std = channel_spread(x), channel_std(x)
+    np.testing.assert_allclose(spread, [np.linspace(-1, 1, 101).std() * 1e300, 5e-300, 1.0])
+    np.testing.assert_allclose(std, [np.linspace(-1, 1, 101).std() * 1e300, 0.0, 0.0])
+    scales = channel_scales(x[:, :2], x[:, 2:])
+    u_s, y_s = scales.scale(x[:, :2], x[:, 2:])
+    assert np.isfinite(u_s).all() and np.abs(u_s).max() < 2
