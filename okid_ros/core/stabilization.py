@@ -77,9 +77,10 @@ class StabilizationOrder:
         return {"n_states": int(self.n_states), "poles": [pole.as_dict() for pole in self.poles]}
 
 
-def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria) -> list[StabilizationPole]:
+def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria,
+           eigen: tuple[np.ndarray, np.ndarray] | None = None) -> list[StabilizationPole]:
     """Stable complex pole pairs below the Nyquist limit of the criteria, by frequency."""
-    modes, _ = identify_modes(model.A, model.B, model.C, sample_time_s)
+    modes, _ = identify_modes(model.A, model.B, model.C, sample_time_s, eigen=eigen)
     nyquist_hz = 0.5 / sample_time_s
     return [
         StabilizationPole(m.frequency_hz, m.damping_ratio, m.shape)
@@ -106,7 +107,11 @@ def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tup
 
 
 def stabilization_diagram(
-    models: dict[int, InnovationModel], sample_time_s: float, criteria: ModeCriteria
+    models: dict[int, InnovationModel],
+    sample_time_s: float,
+    criteria: ModeCriteria,
+    *,
+    eigen: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> list[StabilizationOrder]:
     """The poles of every order's model, marked against the previous order tried.
 
@@ -115,6 +120,8 @@ def stabilization_diagram(
     models : completed model of each order tried (order -> model).
     sample_time_s : sample time [s].
     criteria : tolerances of the three criteria.
+    eigen : optional eigendecomposition ``(lambda, V)`` of some orders' ``A`` already computed
+        (by the order search), used where that order's model has the same ``A``.
 
     Returns
     -------
@@ -123,7 +130,10 @@ def stabilization_diagram(
     diagram: list[StabilizationOrder] = []
     previous: list[StabilizationPole] = []
     for n in sorted(models):
-        poles = _poles(models[n], sample_time_s, criteria)
+        known = (eigen or {}).get(n)
+        if known is not None and known[1].shape[0] != models[n].A.shape[0]:
+            known = None
+        poles = _poles(models[n], sample_time_s, criteria, known)
         for pole in poles:
             pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, previous, criteria)
         diagram.append(StabilizationOrder(n, poles))
