@@ -201,11 +201,10 @@ def _screen_orders(completer: Completer, options: RealizationOptions, search: Or
 
 
 def _refit_near(completer: Completer, options: RealizationOptions, search: OrderSearch) -> None:
-    """The least-squares refit (a pass over the data per order) only near the screened winner.
+    """The least-squares refit (a pass over the data per order) only up to the screened winner.
 
-    Starts at the order the Gram screening prefers and its neighbours in the list of orders,
-    and widens the window on the side where the refitted BIC is lowest at its edge. On the
-    paper case the refitted and screened BIC minima were at most one order step apart.
+    Refits the orders up to two steps above the order the Gram screening prefers, and goes on
+    upwards while the refitted BIC is lowest at the largest order refitted.
     """
     orders = sorted(search.screened)
     if options.automatic_order and not orders:
@@ -215,7 +214,11 @@ def _refit_near(completer: Completer, options: RealizationOptions, search: Order
         chosen = sorted({fixed} | {n for n in orders if abs(n - fixed) <= _order_step(fixed)})
     else:
         start = orders.index(min(orders, key=lambda n: (search.screened[n].bic(), n)))
-        chosen = orders[max(start - 1, 0) : start + 2]
+        # Every order up to two steps above the screened winner: the screening's BIC keeps
+        # improving past the refit's minimum (its states see the whole ARX window), so the
+        # refit's minimum lay below it on every benchmark case (6 to 10 orders less), never
+        # above; the refit cost grows with n^2, so the low orders are cheap.
+        chosen = orders[: start + 3]
 
     def run(n: int) -> None:
         if n in search.fits or n in search.failed:
