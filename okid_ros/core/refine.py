@@ -82,28 +82,6 @@ class _Predictor:
         D = take(p * m).reshape(p, m)
         return pairs, reals, D
 
-    def gauge_free(self, theta: np.ndarray) -> np.ndarray:
-        """Indices of the parameters the optimizer moves: all but one output entry per pole.
-
-        ``(g alpha, c / alpha)`` predicts exactly what ``(g, c)`` does, so each pole's scale is
-        not determined (a singular direction of ``J^T J``); steps along it left the invariant
-        manifold at second order and were rejected, and the optimizer crawled. The largest
-        entry of each pole's ``c`` is held fixed instead (the step keeps the gauge).
-        """
-        pairs, reals, _ = self.unpack(theta)
-        w, p = self.w, self.p
-        fixed, col = [], 0
-        for _, _, c in pairs:
-            k = int(np.argmax(np.abs(c)))
-            start = col + 2 + 2 * w
-            fixed += [start + k, start + p + k]
-            col = start + 2 * p
-        for _, _, c in reals:
-            start = col + 1 + w
-            fixed.append(start + int(np.argmax(np.abs(c))))
-            col = start + p
-        return np.setdiff1d(np.arange(theta.size), fixed)
-
     def jacobian(self, theta: np.ndarray, v: np.ndarray, u: np.ndarray, burn_in: int) -> np.ndarray:
         """D yhat / d theta, (N' p, len(theta)), rows ordered like ``yhat[burn_in:].ravel()``.
 
@@ -159,22 +137,20 @@ class _Predictor:
 
 
 def _levenberg_marquardt(
-    residuals, jacobian, theta: np.ndarray, max_evaluations: int, *, on_accept=None, free=None
+    residuals, jacobian, theta: np.ndarray, max_evaluations: int, *, on_accept=None
 ) -> tuple[np.ndarray, float]:
     """Minimize ``||residuals(theta)||^2`` by Levenberg-Marquardt with Marquardt's diagonal scaling.
 
     Solves the small normal equations ``(J^T J + mu diag(J^T J)) dx = -J^T r`` instead of an SVD
     of the tall Jacobian: the parameters are tens, the residuals thousands. ``on_accept(theta)``
-    is called after every accepted step; ``free`` (indices) restricts the steps to those
-    parameters (default: all).
+    is called after every accepted step.
     """
-    free = np.arange(theta.size) if free is None else np.asarray(free)
     r = residuals(theta)
     cost = float(r @ r)
-    mu, growth = 1e-3, 2.0
+    mu = 1e-3
     evaluations = 1
     while evaluations < max_evaluations:
-        J = jacobian(theta)[:, free]
+        J = jacobian(theta)
         with np.errstate(all="ignore"):
             g = J.T @ r
             H = J.T @ J
@@ -195,26 +171,18 @@ def _levenberg_marquardt(
                 if mu > 1e8:
                     return theta, cost
                 continue
-            trial = theta.copy()
-            trial[free] += step
+            trial = theta + step
             r_trial = residuals(trial)
             evaluations += 1
             cost_trial = float(r_trial @ r_trial)
-            # Damping by the gain ratio of actual to predicted decrease (trust-region rule):
-            # the fixed /3, x4 rule kept mu near 1e-3 of diag(J^T J), which crawls along the
-            # ill-conditioned directions: 40 evaluations still short of the optimum.
-            predicted = -(2.0 * g @ step + step @ H @ step)
             if cost_trial < cost:
                 improved = cost - cost_trial > 1e-10 * cost
-                ratio = (cost - cost_trial) / predicted if predicted > 0 else 1.0
                 theta, r, cost = trial, r_trial, cost_trial
                 if on_accept is not None:
                     on_accept(theta)
-                mu = max(mu * (0.1 if ratio > 0.75 else 2.0 if ratio < 0.25 else 1.0), 1e-12)
-                growth = 2.0
+                mu = max(mu / 3.0, 1e-9)
                 break
-            mu *= growth
-            growth *= 2.0
+            mu *= 4.0
             if mu > 1e8:
                 return theta, cost
         if not improved:
@@ -269,8 +237,7 @@ def refine_prediction_error(
     if split < y.shape[0]:
         theta = _early_stopped(objective, theta0, max_evaluations)
     else:
-        theta, cost = _levenberg_marquardt(objective.residuals, objective.jacobian, theta0, max_evaluations,
-                                           free=predictor.gauge_free(theta0))
+        theta, cost = _levenberg_marquardt(objective.residuals, objective.jacobian, theta0, max_evaluations)
         if not cost < objective.cost(theta0):
             theta = None
     if theta is None or not np.all(np.isfinite(theta)):
@@ -358,8 +325,7 @@ def _early_stopped(objective: _Objective, theta0: np.ndarray, max_evaluations: i
         if cost < best[1]:
             best[0], best[1] = theta.copy(), cost
 
-    _levenberg_marquardt(objective.residuals, objective.jacobian, theta0, max_evaluations, on_accept=on_accept,
-                         free=objective.predictor.gauge_free(theta0))
+    _levenberg_marquardt(objective.residuals, objective.jacobian, theta0, max_evaluations, on_accept=on_accept)
     return best[0] if best[1] < start_cost else None
 
 

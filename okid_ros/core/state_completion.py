@@ -163,15 +163,19 @@ def fit_from_states(
     return InnovationModel(A, B, C, D, gain_from_predictor(A, L), Re)
 
 
-def _evaluate(model: InnovationModel, u: np.ndarray, y: np.ndarray, burn_in: int) -> PredictorFit | None:
-    """The model's one-step prediction errors on the record (after ``burn_in``) as a fit."""
+def _evaluate(model: InnovationModel, u: np.ndarray, y: np.ndarray, burn_in: int
+              ) -> tuple[PredictorFit | None, np.ndarray]:
+    """The model's one-step prediction errors on the record (after ``burn_in``) as a fit.
+
+    Also returns its predicted states (N, n), which the next re-estimation pass starts from.
+    """
     states, innovations = predictor_states(model, u, y)
     used = innovations[burn_in:]
     if not np.all(np.isfinite(used)):
-        return None
+        return None, states
     model.innovation_covariance = innovation_covariance(used)
     n, p, m = model.n_states, model.n_outputs, model.n_inputs
-    return PredictorFit(model, np.zeros(n), used, free_parameters(n, p, m))
+    return PredictorFit(model, np.zeros(n), used, free_parameters(n, p, m)), states
 
 
 def complete_from_states(
@@ -209,25 +213,24 @@ def complete_from_states(
     """
     burn_in = int(min(max(burn_in, 0), u.shape[0] // 4))
     first = fit_from_states(states, u, y, max_radius=max_radius) if first is None else first
-    best = _evaluate(first, u, y, burn_in)
+    best, own_states = _evaluate(first, u, y, burn_in)
     if best is None:
         raise ValueError("the completed predictor does not give finite predictions")
     best_cost = np.linalg.slogdet(best.model.innovation_covariance)[1]
     for _ in range(passes):
-        own_states, _ = predictor_states(best.model, u, y)
         try:
             candidate = fit_from_states(
                 own_states[burn_in:], u[burn_in:], y[burn_in:], max_radius=max_radius
             )
         except (ValueError, np.linalg.LinAlgError):
             break
-        fit = _evaluate(candidate, u, y, burn_in)
+        fit, candidate_states = _evaluate(candidate, u, y, burn_in)
         if fit is None:
             break
         cost = np.linalg.slogdet(fit.model.innovation_covariance)[1]
         if not cost < best_cost - 1e-9 * abs(best_cost):
             break
-        best, best_cost = fit, cost
+        best, best_cost, own_states = fit, cost, candidate_states
     return best
 
 
