@@ -77,7 +77,7 @@ class Completer:
     """
 
     def __init__(self, decomposition: HankelDecomposition, gram: StateGram,
-                 u: np.ndarray, y: np.ndarray, completion: str, options: RealizationOptions, burn_in: int):
+                 u: np.ndarray, y: np.ndarray, completion: str, *, options: RealizationOptions, burn_in: int):
         self.decomposition = decomposition
         self.u, self.y = u, y
         self.completion = completion

@@ -41,7 +41,7 @@ from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
-from okid_ros.core.order_search import Completer, choose_completion, search_orders
+from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
@@ -124,6 +124,29 @@ def _package(
     return identified
 
 
+def _complete_chosen(search: OrderSearch, completer: Completer, options: RealizationOptions
+                     ) -> tuple[int, PredictorFit]:
+    """The chosen order and its completed fit (gain, re-estimation passes where screened)."""
+    n_best = search.best_order() if options.automatic_order else int(options.n_states)
+    best = search.fits[n_best]
+    if completer.completion == "states" or (options.state_passes and n_best in completer.via_states):
+        try:
+            best = completer.complete(n_best, passes=options.state_passes)
+        except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
+            raise IdentificationError(f"order {n_best} could not be completed: {exc}") from None
+    return n_best, best
+
+
+def _diagram(search: OrderSearch, completer: Completer, sample_time_s: float, options: RealizationOptions) -> list:
+    """The stabilization diagram of every order searched (screened or completed).
+
+    The screening's eigendecompositions serve the orders whose model is the screened one.
+    """
+    eigen = {n: e for n, e in completer.eigen.items()
+             if search.fits.get(n, search.screened.get(n)) is search.screened.get(n)}
+    return stabilization_diagram(search.diagram_models(), sample_time_s, options.modes, eigen=eigen)
+
+
 def identify_from_arx(
     arx: ArxFit,
     u: np.ndarray,
@@ -168,16 +191,9 @@ def identify_from_arx(
     decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, gram.past_weight())
     search_top = options.max_states if options.automatic_order else int(options.n_states)
     completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
-    completer = Completer(decomposition, gram, u, y, completion, options, burn_in=arx.order)
+    completer = Completer(decomposition, gram, u, y, completion, options=options, burn_in=arx.order)
     search = search_orders(completer, options)
-    n_best = search.best_order() if options.automatic_order else int(options.n_states)
-    best = search.fits[n_best]
-    if completion == "states" or (options.state_passes and n_best in completer.via_states):
-        # The search screened the orders; complete the chosen one (gain, re-estimation passes).
-        try:
-            best = completer.complete(n_best, passes=options.state_passes)
-        except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
-            raise IdentificationError(f"order {n_best} could not be completed: {exc}") from None
+    n_best, best = _complete_chosen(search, completer, options)
     refined = _refine(best, u, y, arx, options)
     if refined is not None:
         best = refined
@@ -189,13 +205,11 @@ def identify_from_arx(
         model = InnovationModel(model.A, model.B, model.C, model.D, white.K, white.innovation_covariance)
     if search.max_states_reached:
         warnings.append(
-            f"BIC is lowest at the largest model order the search could try ({max(search.fits)} states, "
+            f"BIC is lowest at the largest model order the search could try ({max(search.screened or search.fits)} "
+            f"states, "
             f"limited by {search.limit_reason}); the model may need more states"
         )
-    # The screening's eigendecompositions serve the diagram where its model is the screened one.
-    eigen = {n: e for n, e in completer.eigen.items()
-             if search.fits.get(n, search.screened.get(n)) is search.screened.get(n)}
-    diagram = stabilization_diagram(search.diagram_models(), sample_time_s, options.modes, eigen=eigen)
+    diagram = _diagram(search, completer, sample_time_s, options)
     system_markov = markov_from_arx(arx)
     identified = _package(
         model, best.x0, sample_time_s, arx, system_markov[1:], options,

@@ -41,7 +41,7 @@ class GramRegression:
     n_samples : rows of the window.
     """
 
-    def __init__(self, A, B, C, D, eigen, covariances, n_samples):
+    def __init__(self, A, B, C, D, *, eigen, covariances, n_samples):
         self.A, self.B, self.C, self.D = A, B, C, D
         self.eigenvalues, self.eigenvectors = eigen
         q_pair, self.output_covariance, self._S = covariances
@@ -193,5 +193,5 @@ class StateGram:
             pair_r = v_coef.T @ g @ v_coef  # R of the pairs, as noise_covariances(w, v[:-1])
             q_cov, s_cov = (q_cov, pair_r), s_cov
         r_cov = 0.5 * (r_cov + r_cov.T)
-        return GramRegression(A, B, C, D, eigen, (q_cov, r_cov, s_cov), self.n_samples)
+        return GramRegression(A, B, C, D, eigen=eigen, covariances=(q_cov, r_cov, s_cov), n_samples=self.n_samples)
 
