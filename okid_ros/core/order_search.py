@@ -20,6 +20,7 @@ from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.kalman_gain import kalman_gain_from_covariances
 from okid_ros.core.options import AUTO, RealizationOptions
 from okid_ros.core.refit import PredictorFit, gain_from_predictor, refit_predictor
+from okid_ros.core.stabilization import NEIGHBOURS
 from okid_ros.core.state_completion import complete_from_states
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, free_parameters, predictor_states
@@ -203,15 +204,18 @@ def _screen_orders(completer: Completer, options: RealizationOptions, search: Or
 def _refit_near(completer: Completer, options: RealizationOptions, search: OrderSearch) -> None:
     """The least-squares refit (a pass over the data per order) only up to the screened winner.
 
-    Refits the orders up to two steps above the order the Gram screening prefers, and goes on
-    upwards while the refitted BIC is lowest at the largest order refitted.
+    Refits the orders up to two steps above the order the Gram screening prefers, goes on
+    upwards while the refitted BIC is lowest at the largest order refitted, and refits the
+    winner's ``NEIGHBOURS`` orders above it (the stabilization diagram judges its modes there).
     """
     orders = sorted(search.screened)
     if options.automatic_order and not orders:
         return
     if not options.automatic_order:
-        fixed = int(options.n_states)
-        chosen = sorted({fixed} | {n for n in orders if abs(n - fixed) <= _order_step(fixed)})
+        # The order and all its neighbours, as before: the stabilization of its modes is judged
+        # on them, and the screened models' poles judged a 2 Hz mode of a 2000-sample window
+        # unstable where the refitted ones kept it (test_service_estimation).
+        chosen = sorted({int(options.n_states)} | set(orders))
     else:
         start = orders.index(min(orders, key=lambda n: (search.screened[n].bic(), n)))
         # Every order up to two steps above the screened winner: the screening's BIC keeps
@@ -243,6 +247,17 @@ def _refit_near(completer: Completer, options: RealizationOptions, search: Order
             break
         if orders.index(search.best_order()) == best:
             break
+    while options.automatic_order and search.fits:
+        # The winner's neighbours above are refitted too: the stability of its modes is judged
+        # on the NEIGHBOURS orders each side (stable_fraction), as when every order was refitted.
+        search.repaired = completer.repaired
+        best = orders.index(search.best_order())
+        above = orders[best + 1 : best + 1 + NEIGHBOURS]
+        missing = [n for n in above if n not in search.fits and n not in search.failed]
+        if not missing:
+            break
+        for n in missing:
+            run(n)
     search.repaired = completer.repaired
 
 
