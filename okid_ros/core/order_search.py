@@ -282,6 +282,9 @@ def search_orders(completer: Completer, options: RealizationOptions) -> OrderSea
         search.repaired = completer.repaired
     else:
         _refit_near(completer, options, search)
+        if search.max_states_reached and search.fits and search.best_order() < max(search.screened):
+            # The screening's BIC was lowest at the limit, the refitted one is not: no warning.
+            search.max_states_reached, search.limit_reason = False, ""
     if not options.automatic_order and int(options.n_states) not in search.fits:
         raise IdentificationError(
             f"order {options.n_states} gave no usable model: " + "; ".join(search.reasons[:3])
