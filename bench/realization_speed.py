@@ -7,9 +7,11 @@ low-passed at 15 Hz, 3750 samples, ``--order 100``) and the steel subframe's sam
 case and each code version the command runs in a fresh worker process with one BLAS thread
 (``python bench/realization_speed.py --worker``, with ``PYTHONPATH`` at that version's tree);
 the worker times ``okid_ros.cli.main(["identify", ...])`` in-process (interpreter start and
-imports excluded, one untimed warm-up run) and, in the same process, one SVD of the case's
-weighted Hankel matrix (``scipy.linalg.svd`` of the size ``identify`` factors). Old and new
-workers alternate, round after round; the table gives medians over all timed runs.
+imports excluded, one untimed warm-up run), then ``identify_from_arx`` alone on the record's ARX
+fit (the realization: everything after the ARX fit, no JSON) and, in the same process, one SVD
+of the case's weighted Hankel matrix (``scipy.linalg.svd`` of the size ``identify`` factors). Old and new
+workers alternate, round after round; the table gives medians over all timed runs (the SVD's
+pooled over the old and new workers of the case).
 
 The old code is a checkout of the base commit (default ``main``'s merge base with this
 branch), unpacked with ``git archive`` into a temporary directory, so it need not stay in the
@@ -103,8 +105,28 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
             times.append(elapsed)
     model = json.loads(out.read_text())
     svd_s, shape = _hankel_svd_seconds(data_path, order, runs)
-    return {"identify_s": times, "svd_s": svd_s, "hankel_shape": list(shape), "n_states": model["n_states"],
-            "modes": len(model["modes"])}
+    return {"identify_s": times, "realization_s": _realization_seconds(data_path, order, runs), "svd_s": svd_s,
+            "hankel_shape": list(shape), "n_states": model["n_states"], "modes": len(model["modes"])}
+
+
+def _realization_seconds(data_path: Path, order: int, runs: int) -> list[float]:
+    """Times of ``identify_from_arx`` alone (the realization, without the ARX fit and the JSON)."""
+    from okid_ros.core.arx import fit_from_normal_equations, normal_equations
+    from okid_ros.core.pipeline import identify_from_arx
+    from okid_ros.core.regressors import arx_regressors
+
+    data = np.load(data_path)
+    u, y, dt = data["u"], data["y"], float(data["sample_time_s"])
+    phi, targets, _ = arx_regressors(u, y, order)
+    arx = fit_from_normal_equations(normal_equations(phi, targets), order, y.shape[1], u.shape[1], "ridge",
+                                    center=True)
+    times = []
+    for i in range(runs + 1):
+        start = time.perf_counter()
+        identify_from_arx(arx, u, y, dt)
+        if i:
+            times.append(time.perf_counter() - start)
+    return times
 
 
 def _old_tree(ref: str) -> Path:
@@ -127,18 +149,21 @@ def _run_worker(tree: Path, data_path: Path, order: int, runs: int) -> dict:
 def _table(results: dict) -> str:
     lines = [
         "| case | Hankel | code | states | modes | identify s (median) | one Hankel SVD s | identify / SVD "
-        "| speed-up |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| speed-up | realization s | realization / SVD | speed-up |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, (label, order) in CASES.items():
-        old, new = results[name]["old"], results[name]["new"]
+    for name, runs in results.items():
+        label, order = CASES[name]
+        old, new = runs["old"], runs["new"]
         old_t, new_t = np.median(old["identify_s"]), np.median(new["identify_s"])
-        for code, res, t in (("old", old, old_t), ("new", new, new_t)):
-            svd = np.median(res["svd_s"])
+        old_r, new_r = np.median(old["realization_s"]), np.median(new["realization_s"])
+        svd = np.median(old["svd_s"] + new["svd_s"])  # the same matrix: pooled over all workers
+        for code, res, t, r in (("old", old, old_t, old_r), ("new", new, new_t, new_r)):
             shape = "x".join(str(s) for s in res["hankel_shape"][0])
             speed = "" if code == "old" else f"{old_t / t:.1f}x"
+            speed_r = "" if code == "old" else f"{old_r / r:.1f}x"
             lines.append(f"| {label}, --order {order} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
-                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} |")
+                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} |")
     return "\n".join(lines)
 
 
@@ -168,6 +193,7 @@ def main() -> None:
                 res = _run_worker(tree, data_path, order, args.runs)
                 slot = runs[code]
                 slot.setdefault("identify_s", []).extend(res["identify_s"])
+                slot.setdefault("realization_s", []).extend(res["realization_s"])
                 slot.setdefault("svd_s", []).append(res["svd_s"])
                 for key in ("hankel_shape", "n_states", "modes"):
                     slot.setdefault(key, []).append(res[key])
