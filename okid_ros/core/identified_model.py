@@ -38,7 +38,11 @@ class IdentifiedModel(InnovationModel):
     hankel_singular_values : singular values of the weighted Hankel matrix.
     modes : the physical modes, in state order.
     arx : the ARX fit it was realized from.
-    order_scores : BIC of each model order tried.
+    order_scores : BIC of each model order tried: of the completed model for the orders in
+        ``completed_orders``, else of the screening from the window's Gram (output-equation
+        residuals of the ERA states, :mod:`okid_ros.core.state_gram`). The order is chosen
+        among the completed ones.
+    completed_orders : the orders completed (refitted) during the search.
     stabilization : the poles of each order tried, marked by the stabilization criteria.
     x0 : (n,) the predicted state at the first sample of the record (modal coordinates).
     input_offset, output_offset : (m,), (p,) the means removed before identification.
@@ -53,6 +57,7 @@ class IdentifiedModel(InnovationModel):
     method: str = "okid"
     gain_method: str = "refit"
     order_scores: dict = field(default_factory=dict)
+    completed_orders: list = field(default_factory=list)
     stabilization: list[StabilizationOrder] = field(default_factory=list)
     x0: np.ndarray | None = None
     system_markov: np.ndarray | None = None
@@ -103,6 +108,7 @@ class IdentifiedModel(InnovationModel):
             "output_offset": None if self.output_offset is None else self.output_offset.tolist(),
             "hankel_singular_values": [float(s) for s in self.hankel_singular_values],
             "order_scores": {str(k): float(v) for k, v in self.order_scores.items()},
+            "completed_orders": [int(n) for n in self.completed_orders],
             "max_states_reached": bool(self.max_states_reached),
             "warnings": list(self.warnings),
             "modes": [m.as_dict() for m in self.modes],

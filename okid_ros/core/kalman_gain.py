@@ -23,7 +23,10 @@ import warnings
 import numpy as np
 from scipy import linalg
 
-__all__ = ["riccati_covariance", "riccati_predictor_gain", "noise_covariances", "kalman_gain_from_residuals"]
+__all__ = [
+    "riccati_covariance", "riccati_residual", "riccati_predictor_gain", "noise_covariances",
+    "kalman_gain_from_residuals", "kalman_gain_from_covariances",
+]
 
 
 def riccati_covariance(
@@ -42,8 +45,71 @@ def riccati_covariance(
     """
     n, p = A.shape[0], C.shape[0]
     S = np.zeros((n, p)) if S is None else np.asarray(S, dtype=float)
-    P = linalg.solve_discrete_are(A.T, C.T, Q, R, s=S)
+    P = _doubling(A, C, Q, R, S)
+    if P is None:
+        P = linalg.solve_discrete_are(A.T, C.T, Q, R, s=S)
     return 0.5 * (P + P.T)
+
+
+# Relative residual of the Riccati equation below which the doubling solution is taken.
+DOUBLING_TOLERANCE = 1e-9
+DOUBLING_MAX_STEPS = 60
+
+
+def riccati_residual(A, C, Q, R, S, P) -> float:
+    """Relative residual ``||P - rhs(P)|| / max(||P||, ||Q||)`` of the filtering Riccati equation."""
+    gain_term = A @ P @ C.T + S
+    rhs = A @ P @ A.T + Q - gain_term @ linalg.solve(C @ P @ C.T + R, gain_term.T, assume_a="pos")
+    return float(np.linalg.norm(P - rhs) / max(np.linalg.norm(P), np.linalg.norm(Q), np.finfo(float).tiny))
+
+
+def _doubling(A, C, Q, R, S) -> np.ndarray | None:
+    """Stabilizing ``P`` by the structured doubling algorithm, or None (then scipy's QZ solver).
+
+    Written by hand because scipy has no doubling solver and its ``solve_discrete_are`` (an
+    ordered QZ of a 2n pencil) took 0.2 s at n = 116 where the doubling takes about a tenth:
+    it needs only n x n products and solves, converges quadratically (Chu, Fan & Lin 2005,
+    SDA-1 with the cross covariance folded into ``A`` and ``Q``). The answer is kept only
+    when its residual is at the rounding level and the predictor is stable.
+    """
+    n = A.shape[0]
+    try:
+        r_inv_c = linalg.solve(R, C, assume_a="pos")  # R^-1 C
+        r_inv_st = linalg.solve(R, S.T, assume_a="pos")  # R^-1 S^T
+    except (linalg.LinAlgError, ValueError):
+        return None
+    a_k = (A - S @ r_inv_c).T  # control form of the filter equation
+    g_k = C.T @ r_inv_c
+    h_k = Q - S @ r_inv_st
+    h_k = 0.5 * (h_k + h_k.T)
+    eye = np.eye(n)
+    with np.errstate(all="ignore"):
+        for _ in range(DOUBLING_MAX_STEPS):
+            try:
+                lu = linalg.lu_factor(eye + g_k @ h_k, check_finite=False)
+            except (linalg.LinAlgError, ValueError):
+                return None
+            w_a = linalg.lu_solve(lu, a_k, check_finite=False)  # (I + G H)^-1 A
+            w_g = linalg.lu_solve(lu, g_k, check_finite=False)  # (I + G H)^-1 G
+            h_next = h_k + a_k.T @ h_k @ w_a
+            g_k = g_k + a_k @ w_g @ a_k.T
+            a_k = a_k @ w_a
+            g_k, h_next = 0.5 * (g_k + g_k.T), 0.5 * (h_next + h_next.T)
+            if not np.all(np.isfinite(h_next)):
+                return None
+            change = np.linalg.norm(h_next - h_k) / max(np.linalg.norm(h_next), np.finfo(float).tiny)
+            h_k = h_next
+            if change < 1e-14:
+                break
+    try:
+        if riccati_residual(A, C, Q, R, S, h_k) > DOUBLING_TOLERANCE:
+            return None
+        gain = linalg.solve(C @ h_k @ C.T + R, (A @ h_k @ C.T + S).T, assume_a="pos").T
+    except (linalg.LinAlgError, ValueError):
+        return None
+    if not np.max(np.abs(linalg.eigvals(A - gain @ C))) < 1.0:
+        return None
+    return h_k
 
 
 def riccati_predictor_gain(
@@ -105,6 +171,13 @@ def kalman_gain_from_residuals(
         When the Riccati equation has no stabilizing solution for these covariances.
     """
     Q, R, S = noise_covariances(process_residuals, output_residuals)
+    return kalman_gain_from_covariances(A, C, Q, R, S)
+
+
+def kalman_gain_from_covariances(
+    A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, S: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`kalman_gain_from_residuals`, from ``Q`` (n, n), ``R`` (p, p), ``S`` (n, p)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", linalg.LinAlgWarning)

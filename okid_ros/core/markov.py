@@ -65,8 +65,9 @@ def markov_from_arx(arx: ArxFit, n_terms: int | None = None, extend_noise_free: 
         acc = np.zeros((p, m))
         if j < q:
             acc += b_coef[j] + a_coef[j] @ d
-        for i in range(1, min(j, q) + 1):
-            acc += a_coef[i - 1] @ markov[j - i + 1]
+        k = min(j, q)
+        if k:  # sum_{i=1..k} A_i Y_{j-i+1}, one contraction instead of k small products
+            acc += np.tensordot(a_coef[:k], markov[j - k + 1 : j + 1][::-1], axes=([0, 2], [0, 1]))
         markov[j + 1] = acc
     return markov
 

@@ -190,6 +190,7 @@ def identify_modes(
     reference_markov: np.ndarray | None = None,
     *,
     criteria: ModeCriteria | None = None,
+    eigen: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[list[Mode], np.ndarray]:
     """All complex-pair modes of ``A``, with indicators and a physical flag.
 
@@ -205,6 +206,7 @@ def identify_modes(
     A : (n, n); B : (n, m); C : (p, n).
     reference_markov : optional (J, p, m) ``Y_j = C A^{j-1} B`` for EMAC (``Y_0 = D`` excluded).
     criteria : the physical-mode criteria (default: :class:`ModeCriteria` defaults).
+    eigen : optional ``(eigenvalues (n,), eigenvectors (n, n))`` of ``A`` already computed.
 
     Returns
     -------
@@ -214,7 +216,7 @@ def identify_modes(
     """
     criteria = ModeCriteria() if criteria is None else criteria
     check_mpc = C.shape[0] >= MIN_OUTPUTS_FOR_MPC
-    z, psi = linalg.eig(A)
+    z, psi = linalg.eig(A) if eigen is None else eigen
     chi = linalg.inv(psi)
     s = continuous_poles(z, sample_time_s)
     nyquist_rad_s = np.pi / sample_time_s

@@ -42,12 +42,13 @@ from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
-from okid_ros.core.order_search import Completer, choose_completion, search_orders
+from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
 from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
+from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import attach_mode_uncertainty
 
@@ -61,24 +62,6 @@ MAX_REFINE_PARAMETERS = 400
 MAX_REFINE_FLOPS_PER_ITERATION = 2e9
 # An offset this large against the channel's standard deviation is worth a warning.
 LARGE_OFFSET_FRACTION = 0.1
-
-
-def _past_data(
-    u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Past-data vectors ``z_k = [v_{k-1}; ...; v_{k-c}]`` and a square root of their covariance.
-
-    Returns
-    -------
-    z : (M, (p + m) c) one row per usable sample; rows : (M,) their sample indices;
-    weight : lower Cholesky factor of ``z^T z / M``.
-    """
-    m = u.shape[1]
-    phi, _, rows = arx_regressors(u, y, n_cols, valid)
-    z = phi[:, m:]
-    cov = z.T @ z / max(z.shape[0], 1)
-    jitter = 1e-10 * max(np.trace(cov) / cov.shape[0], np.finfo(float).tiny)
-    return z, rows, linalg.cholesky(cov + jitter * np.eye(cov.shape[0]), lower=True)
 
 
 def _remove_offsets(
@@ -143,6 +126,29 @@ def _package(
     return identified
 
 
+def _complete_chosen(search: OrderSearch, completer: Completer, options: RealizationOptions
+                     ) -> tuple[int, PredictorFit]:
+    """The chosen order and its completed fit (gain, re-estimation passes where screened)."""
+    n_best = search.best_order() if options.automatic_order else int(options.n_states)
+    best = search.fits[n_best]
+    if completer.completion == "states" or (options.state_passes and n_best in completer.via_states):
+        try:
+            best = completer.complete(n_best, passes=options.state_passes)
+        except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
+            raise IdentificationError(f"order {n_best} could not be completed: {exc}") from None
+    return n_best, best
+
+
+def _diagram(search: OrderSearch, completer: Completer, sample_time_s: float, options: RealizationOptions) -> list:
+    """The stabilization diagram of every order searched (screened or completed).
+
+    The screening's eigendecompositions serve the orders whose model is the screened one.
+    """
+    eigen = {n: e for n, e in completer.eigen.items()
+             if search.fits.get(n, search.screened.get(n)) is search.screened.get(n)}
+    return stabilization_diagram(search.diagram_models(), sample_time_s, options.modes, eigen=eigen)
+
+
 def identify_from_arx(
     arx: ArxFit,
     u: np.ndarray,
@@ -184,17 +190,14 @@ def identify_from_arx(
     rows, cols = default_hankel_size(blocks.shape[0] - 1)
     hankel_rows = options.hankel_rows or rows
     hankel_cols = options.hankel_cols or cols
-    z, z_rows, weight = _past_data(u, y, hankel_cols, valid)
-    decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, weight)
+    # One Gram of the window's past data: the ERA weighting and every order's state regressions.
+    gram = StateGram(u, y, hankel_cols, valid)
+    decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, gram.past_weight())
     search_top = options.max_states if options.automatic_order else int(options.n_states)
     completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
-    completer = Completer(decomposition, z, z_rows, u, y, completion, options, burn_in=arx.order)
+    completer = Completer(decomposition, gram, u, y, completion, options=options, burn_in=arx.order)
     search = search_orders(completer, options)
-    n_best = search.best_order() if options.automatic_order else int(options.n_states)
-    best = search.fits[n_best]
-    if completion == "states" or (options.state_passes and n_best in completer.via_states):
-        # The search screened the orders; complete the chosen one (gain, re-estimation passes).
-        best = completer.complete(n_best, passes=options.state_passes)
+    n_best, best = _complete_chosen(search, completer, options)
     refined = _refine(best, u, y, arx, options)
     if refined is not None:
         best = refined
@@ -206,16 +209,18 @@ def identify_from_arx(
         model = InnovationModel(model.A, model.B, model.C, model.D, white.K, white.innovation_covariance)
     if search.max_states_reached:
         warnings.append(
-            f"BIC is lowest at the largest model order the search could try ({max(search.fits)} states, "
+            f"BIC is lowest at the largest model order the search could try ({max(search.screened or search.fits)} "
+            f"states, "
             f"limited by {search.limit_reason}); the model may need more states"
         )
-    diagram = stabilization_diagram({n: fit.model for n, fit in search.fits.items()}, sample_time_s, options.modes)
+    diagram = _diagram(search, completer, sample_time_s, options)
     system_markov = markov_from_arx(arx)
     identified = _package(
         model, best.x0, sample_time_s, arx, system_markov[1:], options,
         stability=lambda mode: stable_fraction(mode, diagram, n_best, options.modes),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
-        order_scores={n: fit.bic() for n, fit in search.fits.items()}, stabilization=diagram,
+        order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
+        completed_orders=sorted(search.fits), stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined is not None,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
         warnings=warnings + frame.warnings,

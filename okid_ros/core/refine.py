@@ -92,41 +92,36 @@ class _Predictor:
         pairs, reals, _ = self.unpack(theta)
         p, m, w = self.p, self.m, self.w
         n_rows = v.shape[0] - burn_in
-        columns: list[np.ndarray] = []  # each (N', p)
-
+        # Filled in place, block by block (a column at a time through np.outer was 4x slower).
+        jac = np.zeros((n_rows, p, theta.size))
+        outputs = np.arange(p)
+        col = 0
         for lam, g, c in pairs:
             f = signal.lfilter([0.0, 1.0], [1.0, -lam], v, axis=0)[burn_in:]  # (N', w)
-            drive = v @ g
-            dxi = signal.lfilter([0.0, 0.0, 1.0], [1.0, -2.0 * lam, lam * lam], drive)[burn_in:]
+            dxi = signal.lfilter([0.0, 0.0, 1.0], [1.0, -2.0 * lam, lam * lam], v @ g)[burn_in:]
             xi = f @ g
-            cd = np.outer(dxi, c)
-            columns += [2.0 * cd.real, -2.0 * cd.imag]
-            for j in range(w):
-                columns.append(2.0 * np.outer(f[:, j], c).real)
-            for j in range(w):
-                columns.append(-2.0 * np.outer(f[:, j], c).imag)
-            eye = np.eye(p)
-            for k in range(p):
-                columns.append(2.0 * np.outer(xi.real, eye[k]))
-            for k in range(p):
-                columns.append(-2.0 * np.outer(xi.imag, eye[k]))
+            cd = dxi[:, None] * c[None, :]
+            jac[:, :, col], jac[:, :, col + 1] = 2.0 * cd.real, -2.0 * cd.imag
+            fc = f[:, None, :] * c[None, :, None]  # (N', p, w)
+            jac[:, :, col + 2 : col + 2 + w] = 2.0 * fc.real
+            jac[:, :, col + 2 + w : col + 2 + 2 * w] = -2.0 * fc.imag
+            start = col + 2 + 2 * w
+            jac[:, outputs, start + outputs] = 2.0 * xi.real[:, None]
+            jac[:, outputs, start + p + outputs] = -2.0 * xi.imag[:, None]
+            col = start + 2 * p
         for lam, g, c in reals:
             f = signal.lfilter([0.0, 1.0], [1.0, -lam], v, axis=0)[burn_in:]
             dxi = signal.lfilter([0.0, 0.0, 1.0], [1.0, -2.0 * lam, lam * lam], v @ g)[burn_in:]
             xi = f @ g
-            columns.append(np.outer(dxi, c))
-            for j in range(w):
-                columns.append(np.outer(f[:, j], c))
-            eye = np.eye(p)
-            for k in range(p):
-                columns.append(np.outer(xi, eye[k]))
+            jac[:, :, col] = dxi[:, None] * c[None, :]
+            jac[:, :, col + 1 : col + 1 + w] = f[:, None, :] * c[None, :, None]
+            start = col + 1 + w
+            jac[:, outputs, start + outputs] = xi[:, None]
+            col = start + p
         u_used = u[burn_in:]
         for k in range(p):
-            for j in range(m):
-                col = np.zeros((n_rows, p))
-                col[:, k] = u_used[:, j]
-                columns.append(col)
-        return np.column_stack([col.ravel() for col in columns])
+            jac[:, k, col + k * m : col + (k + 1) * m] = u_used
+        return jac.reshape(n_rows * p, theta.size)
 
     def predict(self, theta: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
         pairs, reals, D = self.unpack(theta)

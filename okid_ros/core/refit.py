@@ -39,18 +39,21 @@ class PredictorFit:
     ----------
     model : the innovation form ``x+ = A x + B u + A K e``, ``y = C x + D u + e``.
     x0 : (n,) initial predictor state of the fitted record.
-    innovations : (N, p) the one-step prediction errors on the fitted record.
+    innovations : (N, p) the one-step prediction errors on the fitted record, or None for a
+        fit screened from the window's Gram (:mod:`.state_gram`), which has only their count.
     n_parameters : free parameters of the predictor (for information criteria).
+    n_samples : number of innovations when ``innovations`` is None.
     """
 
     model: InnovationModel
     x0: np.ndarray
-    innovations: np.ndarray
+    innovations: np.ndarray | None
     n_parameters: int
+    n_samples: int = 0
 
     def bic(self) -> float:
         """Bayesian information criterion ``N log det(Re) + n_par log N`` (lower is better)."""
-        n_samples = self.innovations.shape[0]
+        n_samples = self.innovations.shape[0] if self.innovations is not None else self.n_samples
         sign, logdet = np.linalg.slogdet(self.model.innovation_covariance)
         if sign <= 0 or not np.isfinite(logdet):
             return float("inf")

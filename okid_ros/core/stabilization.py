@@ -27,8 +27,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 
-from okid_ros.core.modal import Mode, identify_modes, mac
+from okid_ros.core.modal import Mode, continuous_poles, mac
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.statespace import InnovationModel
 
@@ -77,15 +78,29 @@ class StabilizationOrder:
         return {"n_states": int(self.n_states), "poles": [pole.as_dict() for pole in self.poles]}
 
 
-def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria) -> list[StabilizationPole]:
-    """Stable complex pole pairs below the Nyquist limit of the criteria, by frequency."""
-    modes, _ = identify_modes(model.A, model.B, model.C, sample_time_s)
+def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria,
+           eigen: tuple[np.ndarray, np.ndarray] | None = None) -> list[StabilizationPole]:
+    """Stable complex pole pairs below the Nyquist limit of the criteria, by frequency.
+
+    Only what the diagram compares: frequency, damping and the output shape ``C psi`` (MAC
+    ignores its scale), from one eigendecomposition of ``A`` (given, or computed here); the
+    indicators of :func:`identify_modes` (MSV, MPC, EMAC need ``inv(psi)``) are not needed.
+    """
+    z, psi = linalg.eig(model.A) if eigen is None else eigen
+    upper = np.flatnonzero(z.imag > 1e-12 * max(1.0, np.abs(z).max()))
+    s = continuous_poles(z[upper], sample_time_s)
+    omega = np.abs(s)
+    zeta = np.where(omega > 0, -s.real / np.where(omega > 0, omega, 1.0), 1.0)
+    frequency_hz = omega / (2 * np.pi)
     nyquist_hz = 0.5 / sample_time_s
-    return [
-        StabilizationPole(m.frequency_hz, m.damping_ratio, m.shape)
-        for m in modes
-        if m.stable and 0.0 <= m.damping_ratio < 1.0 and m.frequency_hz < criteria.max_nyquist_fraction * nyquist_hz
-    ]
+    below_nyquist = frequency_hz < criteria.max_nyquist_fraction * nyquist_hz
+    keep = (np.abs(z[upper]) < 1.0) & (zeta >= 0.0) & (zeta < 1.0) & below_nyquist
+    shapes = model.C @ psi[:, upper[keep]]
+    norms = np.linalg.norm(shapes, axis=0)
+    shapes = shapes / np.where(norms > 0, norms, 1.0)
+    poles = [StabilizationPole(float(f), float(d), shapes[:, i])
+             for i, (f, d) in enumerate(zip(frequency_hz[keep], zeta[keep]))]
+    return sorted(poles, key=lambda pole: pole.frequency_hz)
 
 
 def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tuple[bool, bool, bool]:
@@ -106,7 +121,11 @@ def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tup
 
 
 def stabilization_diagram(
-    models: dict[int, InnovationModel], sample_time_s: float, criteria: ModeCriteria
+    models: dict[int, InnovationModel],
+    sample_time_s: float,
+    criteria: ModeCriteria,
+    *,
+    eigen: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> list[StabilizationOrder]:
     """The poles of every order's model, marked against the previous order tried.
 
@@ -115,6 +134,8 @@ def stabilization_diagram(
     models : completed model of each order tried (order -> model).
     sample_time_s : sample time [s].
     criteria : tolerances of the three criteria.
+    eigen : optional eigendecomposition ``(lambda, V)`` of some orders' ``A`` already computed
+        (by the order search), used where that order's model has the same ``A``.
 
     Returns
     -------
@@ -123,7 +144,10 @@ def stabilization_diagram(
     diagram: list[StabilizationOrder] = []
     previous: list[StabilizationPole] = []
     for n in sorted(models):
-        poles = _poles(models[n], sample_time_s, criteria)
+        known = (eigen or {}).get(n)
+        if known is not None and known[1].shape[0] != models[n].A.shape[0]:
+            known = None
+        poles = _poles(models[n], sample_time_s, criteria, known)
         for pole in poles:
             pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, previous, criteria)
         diagram.append(StabilizationOrder(n, poles))

@@ -35,6 +35,7 @@ from okid_ros.core.statespace import InnovationModel, free_parameters, predictor
 
 __all__ = [
     "stabilize_state_matrix",
+    "stabilize_with_eigen",
     "regress_state_equations",
     "fit_from_states",
     "complete_from_states",
@@ -58,18 +59,31 @@ def stabilize_state_matrix(A: np.ndarray, *, max_radius: float = 0.9999) -> tupl
         ``min(1 / |lambda|, max_radius)`` (a reflection for unstable ones).
     n_moved : how many eigenvalues were moved.
     """
+    A_stable, n_moved, _ = stabilize_with_eigen(A, max_radius=max_radius)
+    return A_stable, n_moved
+
+
+def stabilize_with_eigen(
+    A: np.ndarray, *, max_radius: float = 0.9999
+) -> tuple[np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
+    """:func:`stabilize_state_matrix` and the eigendecomposition of the result.
+
+    Returns ``(A_stable, n_moved, (lambda (n,), V (n, n)))`` from one ``eig`` (shared with the
+    stabilization diagram).
+    """
     lam, V = linalg.eig(A)
     moved = np.abs(lam) >= 1.0 - 1e-12
     if not moved.any():
-        return A, 0
+        return A, 0, (lam, V)
     if np.linalg.cond(V) > 1e10:
         # Defective or nearly so: no eigenbasis to work in; shrink the whole matrix instead.
-        return A * (max_radius / np.max(np.abs(lam))), int(moved.sum())
+        factor = max_radius / np.max(np.abs(lam))
+        return A * factor, int(moved.sum()), (lam * factor, V)
     new = lam.copy()
     mod = np.abs(lam[moved])
     new[moved] = lam[moved] / mod * np.minimum(1.0 / mod, max_radius)
     A_stable = (V * new) @ linalg.inv(V)
-    return np.real(A_stable), int(moved.sum())
+    return np.real(A_stable), int(moved.sum()), (new, V)
 
 
 def _lstsq(regressor: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -149,15 +163,19 @@ def fit_from_states(
     return InnovationModel(A, B, C, D, gain_from_predictor(A, L), Re)
 
 
-def _evaluate(model: InnovationModel, u: np.ndarray, y: np.ndarray, burn_in: int) -> PredictorFit | None:
-    """The model's one-step prediction errors on the record (after ``burn_in``) as a fit."""
+def _evaluate(model: InnovationModel, u: np.ndarray, y: np.ndarray, burn_in: int
+              ) -> tuple[PredictorFit | None, np.ndarray]:
+    """The model's one-step prediction errors on the record (after ``burn_in``) as a fit.
+
+    Also returns its predicted states (N, n), which the next re-estimation pass starts from.
+    """
     states, innovations = predictor_states(model, u, y)
     used = innovations[burn_in:]
     if not np.all(np.isfinite(used)):
-        return None
+        return None, states
     model.innovation_covariance = innovation_covariance(used)
     n, p, m = model.n_states, model.n_outputs, model.n_inputs
-    return PredictorFit(model, np.zeros(n), used, free_parameters(n, p, m))
+    return PredictorFit(model, np.zeros(n), used, free_parameters(n, p, m)), states
 
 
 def complete_from_states(
@@ -168,6 +186,7 @@ def complete_from_states(
     passes: int = 2,
     burn_in: int = 0,
     max_radius: float = 0.9999,
+    first: InnovationModel | None = None,
 ) -> PredictorFit:
     """:func:`fit_from_states`, then re-estimate the states with the model's own predictor.
 
@@ -179,6 +198,8 @@ def complete_from_states(
     burn_in : samples at the start left out of the comparison and of the regressions of a
         re-estimation (the predictor starts from zero there).
     max_radius : see :func:`fit_from_states`.
+    first : the model of :func:`fit_from_states` on ``states`` when already known (from the
+        window's Gram, :mod:`.state_gram`); ``states`` are then not regressed again.
 
     Returns
     -------
@@ -191,25 +212,25 @@ def complete_from_states(
         As :func:`fit_from_states`, or if the first model's predictions are not finite.
     """
     burn_in = int(min(max(burn_in, 0), u.shape[0] // 4))
-    best = _evaluate(fit_from_states(states, u, y, max_radius=max_radius), u, y, burn_in)
+    first = fit_from_states(states, u, y, max_radius=max_radius) if first is None else first
+    best, own_states = _evaluate(first, u, y, burn_in)
     if best is None:
         raise ValueError("the completed predictor does not give finite predictions")
     best_cost = np.linalg.slogdet(best.model.innovation_covariance)[1]
     for _ in range(passes):
-        own_states, _ = predictor_states(best.model, u, y)
         try:
             candidate = fit_from_states(
                 own_states[burn_in:], u[burn_in:], y[burn_in:], max_radius=max_radius
             )
         except (ValueError, np.linalg.LinAlgError):
             break
-        fit = _evaluate(candidate, u, y, burn_in)
+        fit, candidate_states = _evaluate(candidate, u, y, burn_in)
         if fit is None:
             break
         cost = np.linalg.slogdet(fit.model.innovation_covariance)[1]
         if not cost < best_cost - 1e-9 * abs(best_cost):
             break
-        best, best_cost = fit, cost
+        best, best_cost, own_states = fit, cost, candidate_states
     return best
 
 
