@@ -13,11 +13,13 @@ Steps (one module each):
    ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
    parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
-4. the model at the lowest order holding every mode; its innovation model by the stochastic
-   Riccati equation (ssi-cov) or read from the VAR (var);
-5. modes' standard deviations by the jackknife over the record's segments (the mode
-   re-identified at the model order with each segment left out), ``method="ssi-cov"``; the
-   spread of the cluster across orders otherwise.
+4. (ssi-cov) each candidate mode re-identified with each segment of the record left out
+   (jackknife): a mode whose frequency scatters by more than its half-power half-width
+   ``zeta f`` or whose damping scatters by more than itself is noise and dropped; the
+   jackknife's standard deviations are the modes' (the spread of the cluster across orders for
+   ``var``);
+5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
+   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var).
 """
 
 from __future__ import annotations
@@ -32,17 +34,13 @@ from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
 from okid_ros.core.output_only_modes import (
     ModeCluster,
+    PoleSet,
     cluster_modes,
     collect_poles,
     lowest_complete_order,
     mark_stable,
 )
-from okid_ros.core.output_only_support import (
-    jackknife_std,
-    match_clusters,
-    output_only_diagram,
-    prepare_outputs,
-)
+from okid_ros.core.output_only_support import Jackknife, match_clusters, output_only_diagram, prepare_outputs
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
@@ -65,6 +63,10 @@ MAX_DAMPING = 0.1
 N_SEGMENTS = 8
 #: The VAR of route (a) keeps at most this many coefficients per output (and N / 10).
 MAX_VAR_COEFFICIENTS = 1500
+#: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
+#: std this times ``zeta`` (structural modes: 0.03-0.5 on the simulated cases; noise poles: 2-20).
+MAX_FREQUENCY_STD_PER_WIDTH = 1.0
+MAX_DAMPING_CV = 1.0
 
 
 def identify_output_only(
@@ -75,7 +77,6 @@ def identify_output_only(
     max_states: int | None = None,
     block_rows: int | None = None,
     offsets: str = "remove",
-    uncertainty: bool = True,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -87,9 +88,8 @@ def identify_output_only(
         OKID recursion, the paper's route).
     max_states : highest model order tried (default :data:`DEFAULT_MAX_STATES`, less when the
         Hankel is smaller).
-    block_rows : Hankel block rows (default from the data: several periods of the slowest mode).
+    block_rows : Hankel block rows (default from the data: a period of the slowest mode).
     offsets : "remove" (default, the means are kept with the model) or "none".
-    uncertainty : compute the modes' standard deviations.
 
     Returns
     -------
@@ -108,8 +108,8 @@ def identify_output_only(
     if block_rows is None:
         block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
     block_rows = int(block_rows)
-    if 2 * block_rows + 1 > n_samples // 4:
-        raise IdentificationError(f"too few samples ({n_samples}) for {block_rows} Hankel block rows")
+    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
+        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
     r_mean = correlations.mean
     var = None
@@ -117,7 +117,7 @@ def identify_output_only(
         decomposition = covariance_decomposition(r_mean, references, block_rows)
     else:
         var, decomposition = _var_decomposition(y, block_rows, p)
-    top = int(min(top, decomposition.max_states, references.size * block_rows if var is None else top))
+    top = int(min(top, decomposition.max_states))
     top -= top % 2
     if top < 2:
         raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
@@ -126,23 +126,63 @@ def identify_output_only(
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s)
     mark_stable(poles)
     modes, _ = cluster_modes(poles)
+    jackknife = None
+    if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
+        jackknife = Jackknife(correlations, references, block_rows, top)
+        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s)
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
-    A, C, gamma = realizer.realize(n_model)
+    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
     if var is None:
-        L, Re = _covariance_innovation(A, C, gamma, r_mean, block_rows)
+        L, Re, gain_method = _covariance_innovation(A, C, gamma, r_mean, block_rows, y)
     else:
-        L, Re = gain_from_markov(A, C, var[1]), var[0].residual_covariance
-    model = _package(A, C, L, Re, poles, modes, n_model, sample_time_s, offset, warnings,
-                     method=method, arx=None if var is None else var[0], diagram=output_only_diagram(poles),
-                     singular_values=decomposition.s)
-    if uncertainty and method == "ssi-cov" and correlations.segments.shape[0] >= 3:
-        jackknife_std(model, correlations, references, block_rows, n_model)
+        L, Re, gain_method = gain_from_markov(A, C, var[1]), var[0].residual_covariance, "var-markov"
+    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
+                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
+                     diagram=output_only_diagram(poles), singular_values=decomposition.s)
+    model.output_offset, model.warnings = offset, warnings
+    if jackknife is not None:
+        targets = np.array([mode.eigenvalue for mode in model.modes])
+        f_std, z_std = jackknife.std(targets, n_model, sample_time_s)
+        for mode, fs, zs in zip(model.modes, f_std, z_std):
+            mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
         model.uncertainty = UncertaintyResult(True, "", 0, int(correlations.segments.shape[0]))
     else:
         model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
     return model
+
+
+def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float
+                      ) -> list[ModeCluster]:
+    """The candidate modes whose jackknife scatter says they are structural (step 4 of the module).
+
+    Each candidate is judged at its own median order (a mode's pole is best resolved where its
+    cluster lives, not at an order chosen for all of them).
+    """
+    kept = []
+    for mode in modes:
+        orders = sorted(mode.members)
+        n_home = orders[len(orders) // 2]
+        target = poles.eigenvalue[mode.members[n_home]]
+        f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
+        width = mode.damping_ratio * mode.frequency_hz
+        if f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio:
+            kept.append(mode)
+    return kept
+
+
+def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, C, Gamma)`` restricted to the invariant subspace of the poles inside the unit circle.
+
+    A realized order can hold a pole on or outside the unit circle that is no selected mode (a
+    drift, a noise pole); the ordered real Schur form (``scipy.linalg.schur(sort="iuc")``) keeps
+    the rest exactly: ``A Z_1 = Z_1 T_11``.
+    """
+    T, Z, k = linalg.schur(A, output="real", sort="iuc")
+    if k == A.shape[0]:
+        return A, C, gamma
+    return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
 
 
 def _var_decomposition(y: np.ndarray, block_rows: int, p: int):
@@ -154,46 +194,59 @@ def _var_decomposition(y: np.ndarray, block_rows: int, p: int):
     return (var, markov), decompose_hankel(markov, block_rows, block_rows)
 
 
-def _covariance_innovation(A, C, gamma, correlations, block_rows):
-    """``L``, ``Re`` of the forward innovation model of the covariance model at this order."""
+def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
+    """``L``, ``Re`` of the forward innovation model at this order, and how they were obtained.
+
+    The stochastic Riccati equation when the covariance model is positive real; otherwise (a
+    truncated model often is not: its spectrum dips below zero somewhere) the gain fitted to the
+    stochastic Markov parameters of a VAR of the record with ``A`` and ``C`` fixed, if its
+    predictor is stable, else the Riccati gain with white noise added to ``R_0``.
+    """
     p = C.shape[0]
     stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
     G = linalg.lstsq(gamma, stacked)[0]
     solved = forward_innovation(A, C, G, correlations[0])
-    if solved is None:
-        # Not positive real (a pole of the model fits the correlations' noise): the gain that
-        # best reproduces the correlations' free decay, still checked for a stable predictor.
-        raise IdentificationError("the covariance model is not positive real: no forward innovation model")
-    return solved
+    if solved is not None:
+        return solved[0], solved[1], "riccati"
+    (var, markov), _ = _var_decomposition(y, block_rows, p)
+    L = gain_from_markov(A, C, markov)
+    if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
+        return L, var.residual_covariance, "var-markov"
+    # Last resort: white noise added to R_0 until the model is positive real (a suboptimal but
+    # stable predictor; the innovation covariance is then that of the VAR).
+    scale = np.trace(correlations[0]) / p
+    for inflation in np.logspace(-4, 0, 9):
+        solved = forward_innovation(A, C, G, correlations[0] + inflation * scale * np.eye(p))
+        if solved is not None:
+            return solved[0], var.residual_covariance, "riccati-inflated"
+    raise IdentificationError("no stable innovation model: the covariance model is far from positive real")
 
 
-def _package(A, C, L, Re, poles, modes: list[ModeCluster], n_model, sample_time_s, offset, warnings, *,
-             method, arx, diagram, singular_values) -> IdentifiedModel:
-    """Modal form of the model at ``n_model``, its physical modes those matched to a cluster."""
+def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time_s: float, *,
+             method, gain_method, arx, diagram, singular_values) -> IdentifiedModel:
+    """Modal form of the model, its physical modes those matched to a selected cluster."""
     n, p = A.shape[0], C.shape[0]
     K = linalg.solve(A, L)
-    chosen = match_clusters(modes, poles, n_model)
     criteria = ModeCriteria(max_damping=MAX_DAMPING, min_msv=0.0, min_mpc=0.0)
 
-    def selected(mode) -> float:
-        return 1.0 if any(abs(mode.eigenvalue - ev) < 1e-9 for ev, _ in chosen) else 0.0
+    def cluster_of(mode) -> ModeCluster | None:
+        return next((c for ev, c in chosen if abs(mode.eigenvalue - ev) < 1e-9), None)
 
     # The stochastic input (L) stands for B in the modal indicators: it is what excites the modes.
-    form = modal_form(A, L, C, K, sample_time_s, None, criteria=criteria, stability=selected)
+    form = modal_form(A, L, C, K, sample_time_s, None, criteria=criteria,
+                      stability=lambda mode: 0.0 if cluster_of(mode) is None else 1.0)
     for i, mode in enumerate(form.modes):
+        cluster = cluster_of(mode)
         mode.id = i
-        cluster = next(c for ev, c in chosen if abs(mode.eigenvalue - ev) < 1e-9)
-        mode.frequency_hz_std = cluster.frequency_hz_spread
-        mode.damping_ratio_std = cluster.damping_ratio_spread
+        mode.stability = len(cluster.members) / max(len(diagram), 1)
+        mode.frequency_hz_std, mode.damping_ratio_std = cluster.frequency_hz_spread, cluster.damping_ratio_spread
         mode.extras = {"orders": len(cluster.members), "cluster_frequency_hz": cluster.frequency_hz,
                        "cluster_damping_ratio": cluster.damping_ratio}
     model = IdentifiedModel(
         A=form.A, B=np.zeros((n, 0)), C=form.C, D=np.zeros((p, 0)), K=form.K, innovation_covariance=Re,
-        sample_time_s=sample_time_s, modes=form.modes, arx=arx, method=method,
-        gain_method="riccati" if method == "ssi-cov" else "var", completion="output-only",
-        hankel_singular_values=singular_values, stabilization=diagram, x0=np.zeros(n),
-        input_offset=np.zeros(0), output_offset=offset, warnings=warnings,
-        order_scores={}, max_states_reached=False,
+        sample_time_s=sample_time_s, modes=form.modes, arx=arx, method=method, gain_method=gain_method,
+        completion="output-only", hankel_singular_values=singular_values, stabilization=diagram,
+        x0=np.zeros(n), input_offset=np.zeros(0),
     )
     problem = model.stability_problem()
     if problem:

@@ -12,8 +12,12 @@ The stabilization diagram without clicks:
    ``CLUSTER_DISTANCE`` (:func:`cluster_modes`);
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
-   ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole) and, with 3 or
-   more outputs, its median MPC is at least ``MIN_MPC``.
+   ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
+   more outputs its median MPC is at least ``MIN_MPC``, its median share of the correlations'
+   energy (modal singular value relative to the order's strongest pole) is at least
+   ``MIN_ENERGY`` (poles that fit the noise floor carry almost none), and its frequency scatters
+   across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
+   bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
 
 Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
 the lowest at which every mode has its pole.
@@ -40,6 +44,8 @@ MIN_TOTAL_FRACTION = 0.3
 MIN_ORDERS = 5
 MIN_DAMPING = 5e-4
 MIN_MPC = 0.5
+MIN_ENERGY = 0.0
+MAX_FREQUENCY_SPREAD_PER_DAMPING = 0.5
 MIN_OUTPUTS_FOR_MPC = 3
 
 
@@ -59,7 +65,9 @@ class PoleSet:
     damping_ratio: np.ndarray
     eigenvalue: np.ndarray
     shape: np.ndarray
+    energy: np.ndarray
     stable: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    unstable_orders: set = field(default_factory=set)
 
     def __len__(self) -> int:
         return int(self.order.size)
@@ -75,6 +83,7 @@ class ModeCluster:
     frequency_hz_spread: float
     damping_ratio_spread: float
     mpc: float
+    energy: float
 
 
 def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float) -> PoleSet:
@@ -87,12 +96,19 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
     max_damping : poles with a larger damping ratio are left out; max_frequency_hz : so are
         poles at or above this frequency.
     """
-    parts: dict[str, list] = {"order": [], "f": [], "z": [], "ev": [], "shape": []}
+    parts: dict[str, list] = {"order": [], "f": [], "z": [], "ev": [], "shape": [], "energy": []}
+    unstable = set()
     for n in orders:
-        A, C = realize(n)[:2]
+        A, C, _, G = realize(n)
         ev, vec = np.linalg.eig(A)
+        if np.max(np.abs(ev)) >= 1.0:
+            unstable.add(int(n))
+        # Modal share of the correlations (the MSV): |C psi| |chi G| / sqrt(1 - |z|^2), relative.
+        gains = np.linalg.norm(C @ vec, axis=0) * np.linalg.norm(np.linalg.solve(vec, G), axis=1)
+        energy = gains / np.sqrt(np.maximum(1.0 - np.abs(ev) ** 2, 1e-12))
+        energy = energy / max(float(np.max(energy[np.abs(ev) < 1.0], initial=0.0)), np.finfo(float).tiny)
         keep = (ev.imag > 0) & (np.abs(ev) < 1.0)
-        ev, vec = ev[keep], vec[:, keep]
+        ev, vec, energy = ev[keep], vec[:, keep], energy[keep]
         s = np.log(ev) / sample_time_s
         w = np.abs(s)
         zeta = -s.real / w
@@ -105,11 +121,12 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
         parts["z"].append(zeta[ok])
         parts["ev"].append(ev[ok])
         parts["shape"].append(shapes)
+        parts["energy"].append(energy[ok])
     p = parts["shape"][0].shape[1] if parts["shape"] else 0
     cat = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in parts.items() if k != "shape"}
     shapes = np.vstack(parts["shape"]) if parts["shape"] else np.zeros((0, p), complex)
     return PoleSet(cat["order"].astype(int), cat["f"], cat["z"], cat["ev"].astype(complex), shapes,
-                   np.zeros(cat["order"].size, bool))
+                   cat["energy"], np.zeros(cat["order"].size, bool), unstable)
 
 
 def _mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -159,6 +176,7 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
         frequency_hz_spread=_robust_spread(poles.frequency_hz[chosen]),
         damping_ratio_spread=_robust_spread(poles.damping_ratio[chosen]),
         mpc=float(np.median(shapes_mpc)),
+        energy=float(np.median(poles.energy[chosen])),
     )
 
 
@@ -187,17 +205,19 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
         available = int(np.sum(orders >= first))
         count = len(cluster.members)
         ok = (count >= max(MIN_ORDERS, MIN_TOTAL_FRACTION * orders.size) and count >= MIN_ORDER_FRACTION * available
-              and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC)
+              and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC and cluster.energy >= MIN_ENERGY
+              and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
+              * cluster.frequency_hz)
         (accepted if ok else rejected).append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
 
 
-def lowest_complete_order(modes: list[ModeCluster]) -> int | None:
-    """The lowest order at which every mode has a pole (or the one where most have), None if none."""
-    if not modes:
+def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset()) -> int | None:
+    """The lowest order (not in ``unstable_orders``) where the most modes have a pole (usually all); None if none."""
+    orders = sorted({n for mode in modes for n in mode.members} - set(unstable_orders))
+    if not orders:
         return None
-    orders = sorted({n for mode in modes for n in mode.members})
     counts = [sum(n in mode.members for mode in modes) for n in orders]
     best = max(counts)
     return next(n for n, c in zip(orders, counts) if c == best)

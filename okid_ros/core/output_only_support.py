@@ -10,9 +10,9 @@ from okid_ros.core.options import OFFSETS
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
-from okid_ros.core.stochastic_realization import covariance_decomposition
+from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
 
-__all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "jackknife_std"]
+__all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife"]
 
 #: Fewest samples per output channel and per Hankel lag worth identifying from.
 MIN_SAMPLES = 200
@@ -84,29 +84,39 @@ def _modes_of(A: np.ndarray, targets: np.ndarray, sample_time_s: float) -> tuple
     return np.abs(s) / (2 * np.pi), -s.real / np.abs(s)
 
 
-def jackknife_std(model, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
-                  n_model: int) -> None:
-    """Set each mode's ``frequency_hz_std`` and ``damping_ratio_std`` by the delete-one jackknife.
+class Jackknife:
+    """Delete-one jackknife over the record's segments: the model realized with each segment left out.
 
-    Each segment of the record is left out in turn, the model of order ``n_model`` is realized
-    from the other segments' correlations and each mode's nearest pole read off; the jackknife
-    variance is ``(S - 1) / S sum_j (theta_j - mean)^2`` over the S segments.
+    Each left-out set of correlations is decomposed once; :meth:`std` then realizes any order
+    from them and reads off, for each target pole, its nearest pole. The jackknife variance is
+    ``(S - 1) / S sum_j (theta_j - mean)^2`` over the S segments.
+
+    Parameters
+    ----------
+    correlations, references, block_rows : as the model was identified.
+    max_states : the highest order :meth:`std` will be asked for.
     """
-    if not model.modes:
-        return
-    targets = np.array([mode.eigenvalue for mode in model.modes])
-    n_seg = correlations.segments.shape[0]
-    freqs = np.empty((n_seg, targets.size))
-    damps = np.empty((n_seg, targets.size))
-    for j in range(n_seg):
-        decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows)
-        U, s = decomposition.U[:, :n_model], decomposition.s[:n_model]
-        sq = np.sqrt(s)
-        A = (U.T @ decomposition.h1w @ decomposition.Vt[:n_model].T) / np.outer(sq, sq)
-        freqs[j], damps[j] = _modes_of(A, targets, model.sample_time_s)
-    factor = (n_seg - 1) / n_seg
-    f_std = np.sqrt(factor * np.sum((freqs - freqs.mean(axis=0)) ** 2, axis=0))
-    z_std = np.sqrt(factor * np.sum((damps - damps.mean(axis=0)) ** 2, axis=0))
-    for mode, fs, zs in zip(model.modes, f_std, z_std):
-        mode.frequency_hz_std = float(fs)
-        mode.damping_ratio_std = float(zs)
+
+    def __init__(self, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
+                 max_states: int) -> None:
+        self.realizers = []
+        for j in range(correlations.segments.shape[0]):
+            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows)
+            self.realizers.append(OrderRealizer(decomposition, min(max_states, decomposition.max_states)))
+
+    def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Standard deviations ``(frequency_hz_std, damping_ratio_std)``, (M,) each.
+
+        ``targets`` (M,) are poles of the model of order ``n_model``.
+        """
+        targets = np.asarray(targets, dtype=complex)
+        n_seg = len(self.realizers)
+        freqs = np.empty((n_seg, targets.size))
+        damps = np.empty((n_seg, targets.size))
+        for j, realizer in enumerate(self.realizers):
+            A = realizer.realize(min(n_model, realizer.max_states))[0]
+            freqs[j], damps[j] = _modes_of(A, targets, sample_time_s)
+        factor = (n_seg - 1) / n_seg
+        f_std = np.sqrt(factor * np.sum((freqs - freqs.mean(axis=0)) ** 2, axis=0))
+        z_std = np.sqrt(factor * np.sum((damps - damps.mean(axis=0)) ** 2, axis=0))
+        return f_std, z_std

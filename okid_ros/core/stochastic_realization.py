@@ -57,12 +57,14 @@ class OrderRealizer:
         self._sq = np.sqrt(d.s[:n])
         self._projected = d.U[:, :n].T @ d.h1w @ d.Vt[:n].T  # (n, n), A of every order is a corner
 
-    def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``A`` (n, n), ``C`` (p, n) and the observability matrix ``Gamma`` (p b, n) of order n."""
+    def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``A`` (n, n), ``C`` (p, n), ``Gamma`` (p b, n) and the first block column ``G`` (n, r) of order n."""
         sq = self._sq[:n_states]
         A = self._projected[:n_states, :n_states] / np.outer(sq, sq)
         gamma = self.decomposition.U[:, :n_states] * sq
-        return A, gamma[: self.decomposition.n_outputs].copy(), gamma
+        r = self.decomposition.n_block_inputs
+        G = sq[:, None] * self.decomposition.Vt[:n_states, :r]
+        return A, gamma[: self.decomposition.n_outputs].copy(), gamma, G
 
 
 def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int
