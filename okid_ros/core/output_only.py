@@ -29,6 +29,7 @@ from scipy import linalg
 
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
+from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
@@ -41,6 +42,7 @@ from okid_ros.core.output_only_modes import (
     mark_stable,
 )
 from okid_ros.core.output_only_support import Jackknife, match_clusters, output_only_diagram, prepare_outputs
+from okid_ros.core.regressors import arx_regressors
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
@@ -116,7 +118,8 @@ def identify_output_only(
     if method == "ssi-cov":
         decomposition = covariance_decomposition(r_mean, references, block_rows)
     else:
-        var, decomposition = _var_decomposition(y, block_rows, p)
+        var = _var_markov(y, block_rows)
+        decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = int(min(top, decomposition.max_states))
     top -= top % 2
     if top < 2:
@@ -185,13 +188,12 @@ def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.nd
     return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
 
 
-def _var_decomposition(y: np.ndarray, block_rows: int, p: int):
-    """Route (a): VAR over the lag window (at most the coefficient budget), stochastic Markov, SVD."""
+def _var_markov(y: np.ndarray, block_rows: int):
+    """Route (a): a VAR over the lag window (at most the coefficient budget) and its stochastic Markov parameters."""
     budget = min(MAX_VAR_COEFFICIENTS, y.shape[0] // 10)
-    order = int(max(2, min(2 * block_rows, budget // p)))
+    order = int(max(2, min(2 * block_rows, budget // y.shape[1])))
     var = fit_var(y, order)
-    markov = stochastic_markov_from_var(var, 2 * block_rows + 1)
-    return (var, markov), decompose_hankel(markov, block_rows, block_rows)
+    return var, stochastic_markov_from_var(var, 2 * block_rows + 1)
 
 
 def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
@@ -200,7 +202,7 @@ def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     The stochastic Riccati equation when the covariance model is positive real; otherwise (a
     truncated model often is not: its spectrum dips below zero somewhere) the gain fitted to the
     stochastic Markov parameters of a VAR of the record with ``A`` and ``C`` fixed, if its
-    predictor is stable, else the Riccati gain with white noise added to ``R_0``.
+    predictor is stable, else the Kalman gain of the noise covariances of a state sequence.
     """
     p = C.shape[0]
     stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
@@ -208,18 +210,25 @@ def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     solved = forward_innovation(A, C, G, correlations[0])
     if solved is not None:
         return solved[0], solved[1], "riccati"
-    (var, markov), _ = _var_decomposition(y, block_rows, p)
+    var, markov = _var_markov(y, block_rows)
     L = gain_from_markov(A, C, markov)
     if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
         return L, var.residual_covariance, "var-markov"
-    # Last resort: white noise added to R_0 until the model is positive real (a suboptimal but
-    # stable predictor; the innovation covariance is then that of the VAR).
-    scale = np.trace(correlations[0]) / p
-    for inflation in np.logspace(-4, 0, 9):
-        solved = forward_innovation(A, C, G, correlations[0] + inflation * scale * np.eye(p))
-        if solved is not None:
-            return solved[0], var.residual_covariance, "riccati-inflated"
-    raise IdentificationError("no stable innovation model: the covariance model is far from positive real")
+    # That gain's predictor is unstable: states driven by the VAR's innovations through the
+    # stable A (x+ = A x + L e), the noise covariances of their residuals and the Kalman gain
+    # of the filtering Riccati equation, stable by construction (as :mod:`.state_completion`).
+    u = np.zeros((y.shape[0], 0))
+    phi, targets, _ = arx_regressors(u, y, var.order)
+    innovations = targets - phi @ var.theta
+    drive = innovations @ L.T
+    states = np.zeros_like(drive)
+    for k in range(drive.shape[0] - 1):
+        states[k + 1] = A @ states[k] + drive[k]
+    try:
+        L, Re = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
+    except ValueError as exc:
+        raise IdentificationError(f"no stable innovation model: {exc}") from None
+    return L, Re, "riccati-residuals"
 
 
 def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time_s: float, *,
