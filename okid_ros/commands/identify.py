@@ -11,8 +11,6 @@ import argparse
 from okid_ros.commands._args import add_bag_arguments, positive_int, states_or_auto
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
 
-OUTPUT_ONLY_METHODS = ("ssi-cov", "var")  # okid_ros.core.output_only.OUTPUT_ONLY_METHODS (imported lazily)
-
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `identify`."""
@@ -63,9 +61,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--output-only", action="store_true",
                         help="ignore the record's inputs and identify from its outputs alone (ambient vibration; "
                         "automatic for a record without u): the same JSON with n_inputs 0 and B, D empty")
-    parser.add_argument("--output-only-method", choices=OUTPUT_ONLY_METHODS, default=OUTPUT_ONLY_METHODS[0],
-                        help="output-only route: ssi-cov (covariance-driven SSI / NExT-ERA and the Riccati "
-                        "innovation model; default) or var (vector AR and the OKID recursion, the paper's route)")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
@@ -207,10 +202,14 @@ _UNCERTAINTY_METHODS = {
 
 
 def _identify_output_only(record, args: argparse.Namespace):
-    """The output-only identification of ``record.y`` (its ``u``, if any, ignored)."""
+    """The output-only identification of ``record.y`` (its ``u``, if any, ignored).
+
+    Covariance-driven SSI: the paper's VAR route (``method="var"`` of the core) lost on every
+    record of ``docs/benchmarks-output-only.md``, so it is not offered here.
+    """
     from okid_ros.core.output_only import identify_output_only
 
-    return identify_output_only(record.y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets)
+    return identify_output_only(record.y, record.sample_time_s, offsets=args.offsets)
 
 
 def _fit_line(fits: dict) -> str:

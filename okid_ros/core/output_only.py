@@ -140,7 +140,7 @@ def identify_output_only(
     if var is None:
         L, Re, gain_method = _covariance_innovation(A, C, gamma, r_mean, block_rows, y)
     else:
-        L, Re, gain_method = gain_from_markov(A, C, var[1]), var[0].residual_covariance, "var-markov"
+        L, Re, gain_method = _gain_from_var(A, C, y, *var)
     model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=decomposition.s)
@@ -210,17 +210,23 @@ def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     solved = forward_innovation(A, C, G, correlations[0])
     if solved is not None:
         return solved[0], solved[1], "riccati"
-    var, markov = _var_markov(y, block_rows)
+    return _gain_from_var(A, C, y, *_var_markov(y, block_rows))
+
+
+def _gain_from_var(A, C, y, var, markov):
+    """``L``, ``Re`` from a VAR of the record.
+
+    Fitted to its stochastic Markov parameters, or if that predictor is unstable, the Kalman
+    gain of the noise covariances of a state sequence.
+    """
     L = gain_from_markov(A, C, markov)
     if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
         return L, var.residual_covariance, "var-markov"
-    # That gain's predictor is unstable: states driven by the VAR's innovations through the
-    # stable A (x+ = A x + L e), the noise covariances of their residuals and the Kalman gain
-    # of the filtering Riccati equation, stable by construction (as :mod:`.state_completion`).
-    u = np.zeros((y.shape[0], 0))
-    phi, targets, _ = arx_regressors(u, y, var.order)
-    innovations = targets - phi @ var.theta
-    drive = innovations @ L.T
+    # States driven by the VAR's innovations through the stable A (x+ = A x + L e), the noise
+    # covariances of their residuals and the Kalman gain of the filtering Riccati equation,
+    # stable by construction (as :mod:`.state_completion`).
+    phi, targets, _ = arx_regressors(np.zeros((y.shape[0], 0)), y, var.order)
+    drive = (targets - phi @ var.theta) @ L.T
     states = np.zeros_like(drive)
     for k in range(drive.shape[0] - 1):
         states[k + 1] = A @ states[k] + drive[k]

@@ -105,8 +105,9 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
             unstable.add(int(n))
         # Modal share of the correlations (the MSV): |C psi| |chi G| / sqrt(1 - |z|^2), relative.
         gains = np.linalg.norm(C @ vec, axis=0) * np.linalg.norm(np.linalg.solve(vec, G), axis=1)
-        energy = gains / np.sqrt(np.maximum(1.0 - np.abs(ev) ** 2, 1e-12))
-        energy = energy / max(float(np.max(energy[np.abs(ev) < 1.0], initial=0.0)), np.finfo(float).tiny)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            energy = gains / np.sqrt(np.maximum(1.0 - np.abs(ev) ** 2, 1e-12))
+            energy = energy / max(float(np.max(energy[np.abs(ev) < 1.0], initial=0.0)), np.finfo(float).tiny)
         keep = (ev.imag > 0) & (np.abs(ev) < 1.0)
         ev, vec, energy = ev[keep], vec[:, keep], energy[keep]
         s = np.log(ev) / sample_time_s
