@@ -66,9 +66,10 @@ N_SEGMENTS = 8
 #: The VAR of route (a) keeps at most this many coefficients per output (and N / 10).
 MAX_VAR_COEFFICIENTS = 1500
 #: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
-#: std this times ``zeta`` (structural modes: 0.03-0.5 on the simulated cases; noise poles: 2-20).
+#: std this times ``zeta`` (structural modes: up to 0.9 and 1.0 on the simulated cases and the
+#: subframe; noise poles 1-20, nearly always caught by the frequency).
 MAX_FREQUENCY_STD_PER_WIDTH = 1.0
-MAX_DAMPING_CV = 1.0
+MAX_DAMPING_CV = 1.5
 
 
 def identify_output_only(
@@ -116,7 +117,7 @@ def identify_output_only(
     r_mean = correlations.mean
     var = None
     if method == "ssi-cov":
-        decomposition = covariance_decomposition(r_mean, references, block_rows)
+        decomposition = covariance_decomposition(r_mean, references, block_rows, top)
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)

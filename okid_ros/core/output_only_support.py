@@ -101,7 +101,7 @@ class Jackknife:
                  max_states: int) -> None:
         self.realizers = []
         for j in range(correlations.segments.shape[0]):
-            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows)
+            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states)
             self.realizers.append(OrderRealizer(decomposition, min(max_states, decomposition.max_states)))
 
     def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:

