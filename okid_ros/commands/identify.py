@@ -88,7 +88,6 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from okid_ros.core.pipeline import IdentificationError, identify
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import write_json
@@ -114,27 +113,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
     started = time.perf_counter()
-    try:
-        if output_only:
-            model = _identify_output_only(record, args)
-        else:
-            model = identify(
-                record.u,
-                record.y,
-                record.sample_time_s,
-                order=args.order,
-                n_states=args.states,
-                method=args.method,
-                regularization=args.regularization,
-                gain=args.gain,
-                ar_order=args.ar_order,
-                max_states=args.max_states,
-                max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
-                refine=not args.no_refine,
-                offsets=args.offsets,
-            )
-    except IdentificationError as exc:
-        raise DataError(str(exc)) from None
+    model = _identify(record, args, output_only)
     uncertainty = model.uncertainty
     elapsed = time.perf_counter() - started
     u_used = record.u[:, :0] if output_only else record.u
@@ -199,6 +178,33 @@ _UNCERTAINTY_METHODS = {
     "ssi-cov": "delete-one jackknife over consecutive segments of the record",
     "var": "spread of the mode's poles across model orders",
 }
+
+
+def _identify(record, args: argparse.Namespace, output_only: bool):
+    """The model of the record: the chain of the core, or its outputs alone (:func:`_identify_output_only`)."""
+    from okid_ros.core.pipeline import IdentificationError, identify
+    from okid_ros.errors import DataError
+
+    try:
+        if output_only:
+            return _identify_output_only(record, args)
+        return identify(
+            record.u,
+            record.y,
+            record.sample_time_s,
+            order=args.order,
+            n_states=args.states,
+            method=args.method,
+            regularization=args.regularization,
+            gain=args.gain,
+            ar_order=args.ar_order,
+            max_states=args.max_states,
+            max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
+            refine=not args.no_refine,
+            offsets=args.offsets,
+        )
+    except IdentificationError as exc:
+        raise DataError(str(exc)) from None
 
 
 def _identify_output_only(record, args: argparse.Namespace):

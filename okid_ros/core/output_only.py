@@ -146,15 +146,20 @@ def identify_output_only(
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=decomposition.s)
     model.output_offset, model.warnings = offset, warnings
-    if jackknife is not None:
-        targets = np.array([mode.eigenvalue for mode in model.modes])
-        f_std, z_std = jackknife.std(targets, n_model, sample_time_s)
-        for mode, fs, zs in zip(model.modes, f_std, z_std):
-            mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
-        model.uncertainty = UncertaintyResult(True, "", 0, int(correlations.segments.shape[0]))
-    else:
-        model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
+    _attach_std(model, jackknife, n_model)
     return model
+
+
+def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int) -> None:
+    """The jackknife's standard deviations at the model order (kept: the clusters' spread without one)."""
+    if jackknife is None:
+        model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
+        return
+    targets = np.array([mode.eigenvalue for mode in model.modes])
+    f_std, z_std = jackknife.std(targets, n_model, model.sample_time_s)
+    for mode, fs, zs in zip(model.modes, f_std, z_std):
+        mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
+    model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers))
 
 
 def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float
