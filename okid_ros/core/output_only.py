@@ -65,6 +65,10 @@ MAX_DAMPING = 0.1
 N_SEGMENTS = 8
 #: The VAR of route (a) keeps at most this many coefficients per output (and N / 10).
 MAX_VAR_COEFFICIENTS = 1500
+#: The VAR that only supplies a gain (no modes) is kept smaller: its cost is N (q p)^2 and the
+#: predictor's Markov parameters decay at the predictor's rate (4 outputs, 60000 samples: 15 s at
+#: q = 250, 1 s at q = 50).
+MAX_GAIN_VAR_COEFFICIENTS = 200
 #: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
 #: std this times ``zeta`` (structural modes: up to 0.9 and 1.0 on the simulated cases and the
 #: subframe; noise poles 1-20, nearly always caught by the frequency).
@@ -194,9 +198,9 @@ def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.nd
     return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
 
 
-def _var_markov(y: np.ndarray, block_rows: int):
-    """Route (a): a VAR over the lag window (at most the coefficient budget) and its stochastic Markov parameters."""
-    budget = min(MAX_VAR_COEFFICIENTS, y.shape[0] // 10)
+def _var_markov(y: np.ndarray, block_rows: int, max_coefficients: int = MAX_VAR_COEFFICIENTS):
+    """A VAR over the lag window (``max_coefficients`` per output, N / 10 at most), its stochastic Markov parameters."""
+    budget = min(max_coefficients, y.shape[0] // 10)
     order = int(max(2, min(2 * block_rows, budget // y.shape[1])))
     var = fit_var(y, order)
     return var, stochastic_markov_from_var(var, 2 * block_rows + 1)
@@ -216,7 +220,7 @@ def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     solved = forward_innovation(A, C, G, correlations[0])
     if solved is not None:
         return solved[0], solved[1], "riccati"
-    return _gain_from_var(A, C, y, *_var_markov(y, block_rows))
+    return _gain_from_var(A, C, y, *_var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
 
 
 def _gain_from_var(A, C, y, var, markov):

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations
-from okid_ros.core.era import HankelDecomposition, block_hankel, decompose_hankel
+from okid_ros.core.era import HankelDecomposition, decompose_hankel
 from okid_ros.core.regressors import arx_regressors
 
 __all__ = [
@@ -82,8 +82,8 @@ def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, b
     blocks = correlations[1 : 2 * block_rows + 1][:, :, references]
     if max_states is None:
         return decompose_hankel(blocks, block_rows, block_rows)
-    h0 = block_hankel(blocks, block_rows, block_rows, 0)
-    h1 = block_hankel(blocks, block_rows, block_rows, 1)
+    h0 = _block_hankel(blocks, block_rows, 0)
+    h1 = _block_hankel(blocks, block_rows, 1)
     k = int(min(max_states, h0.shape[1]))
     values, V = linalg.eigh(h0.T @ h0, subset_by_index=[h0.shape[1] - k, h0.shape[1] - 1])
     order = np.argsort(values)[::-1]
@@ -94,6 +94,17 @@ def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, b
     U = (h0 @ V) / s
     return HankelDecomposition(h0=h0, h1w=h1, U=U, s=s, Vt=V.T, n_outputs=blocks.shape[1],
                                n_block_inputs=blocks.shape[2])
+
+
+def _block_hankel(blocks: np.ndarray, n_rows: int, shift: int) -> np.ndarray:
+    """Square block Hankel ``H(shift)`` of ``blocks`` (K, p, r) by one fancy index.
+
+    The same matrix as :func:`okid_ros.core.era.block_hankel`, without its Python loop of
+    ``hstack`` calls (0.1 s per 500 x 500 Hankel, paid 18 times by the jackknife).
+    """
+    index = np.arange(n_rows)[:, None] + np.arange(n_rows)[None, :] + shift
+    _, p, r = blocks.shape
+    return blocks[index].transpose(0, 2, 1, 3).reshape(n_rows * p, n_rows * r)
 
 
 def fit_var(y: np.ndarray, order: int) -> ArxFit:
