@@ -144,3 +144,14 @@ def test_white_noise_has_no_modes() -> None:
     y = np.random.default_rng(5).standard_normal((6000, 3))
     with pytest.raises(IdentificationError, match="no stable mode"):
         identify_output_only(y, 0.01)
+
+
+def test_harmonic_disturbance_is_not_listed_as_a_mode() -> None:
+    from okid_ros.sim.output_only_cases import output_only_case
+
+    case = output_only_case("harmonic")
+    model = identify_output_only(case.simulate(seed=2, n_samples=20_000), case.sample_time_s)
+    frequencies = np.array([m.frequency_hz for m in model.modes])
+    assert not np.any(np.abs(frequencies - case.harmonic_hz) < 0.02 * case.harmonic_hz)
+    truth = [t["frequency_hz"] for t in case.truth()]
+    assert all(np.min(np.abs(frequencies - f)) < 0.005 * f for f in truth)

@@ -2,6 +2,8 @@
 
 Batch identification of one record (.npz or .csv, see :mod:`okid_ros.records`) with the core
 pipeline; writes the model in normalized modal form and its physical modes as JSON.
+``--output-only`` (automatic for a record without u) identifies from the outputs alone
+(:mod:`okid_ros.core.output_only`): the same JSON with ``n_inputs`` 0 and B, D empty.
 """
 
 from __future__ import annotations
