@@ -10,7 +10,7 @@ Records:
   daisy-steel-subframe``, the shaker forces not used), against its 15 input-output reference
   modes (frequency only; the listed uncertain poles near 368 and 485-496 Hz are not counted as
   spurious);
-* the simulated cases of :mod:`okid_ros.sim.output_only_cases` (truth from the discrete system
+* the simulated cases of :mod:`okid_bench.output_only_cases` (bench/okid_bench) (truth from the discrete system
   simulated), ``--seeds`` noise seeds each.
 
 Every method gets the centred record; the peers get the Hankel block rows okid_ros chooses from
@@ -41,8 +41,8 @@ import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np
 from output_only_peers import METHODS, run_method
 
+from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, score_modes
 from okid_ros.core.output_covariance import choose_block_rows, reference_channels
-from okid_ros.sim.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, score_modes
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 KOMA = DATA / "oma" / "koma-shear-frame"

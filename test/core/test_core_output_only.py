@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from scipy import linalg
 
+from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.stochastic_realization import forward_innovation, stochastic_markov_from_var
 from okid_ros.sim.models import modal_structure
-from okid_ros.sim.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.sim.simulators import simulate_noisy
 
-KOMA = Path(__file__).resolve().parents[2] / "shared" / "data" / "oma" / "koma-shear-frame"
+KOMA = Path(__file__).resolve().parents[3] / "shared" / "data" / "oma" / "koma-shear-frame"
 
 
 def _system(seed: int = 3):
@@ -147,7 +147,7 @@ def test_white_noise_has_no_modes() -> None:
 
 
 def test_harmonic_disturbance_is_not_listed_as_a_mode() -> None:
-    from okid_ros.sim.output_only_cases import output_only_case
+    from okid_bench.output_only_cases import output_only_case
 
     case = output_only_case("harmonic")
     model = identify_output_only(case.simulate(seed=2, n_samples=20_000), case.sample_time_s)

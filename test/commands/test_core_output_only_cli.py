@@ -11,7 +11,7 @@ import pytest
 from okid_ros import cli
 from okid_ros.records import Record
 
-KOMA = Path(__file__).resolve().parents[2] / "shared" / "data" / "oma" / "koma-shear-frame"
+KOMA = Path(__file__).resolve().parents[3] / "shared" / "data" / "oma" / "koma-shear-frame"
 
 
 @pytest.fixture(scope="module")
