@@ -10,6 +10,7 @@ here, one role per module:
     switching  piecewise-constant systems (a structural change mid-record) and their simulation
     changes    the change-detection scenarios built on them
     peers      other identification methods (SIPPY, nfoursid, python-control) behind one call
+    output_only_cases  ambient records with discrete modal truth, and their scoring (output-only)
 
 ``bench/`` scripts import it as ``okid_bench`` (Python puts the script's folder on ``sys.path``);
 the tests through ``pythonpath = bench`` in ``setup.cfg``.

@@ -2,6 +2,8 @@
 
 Batch identification of one record (.npz or .csv, see :mod:`okid_ros.records`) with the core
 pipeline; writes the model in normalized modal form and its physical modes as JSON.
+``--output-only`` (automatic for a record without u) identifies from the outputs alone
+(:mod:`okid_ros.core.output_only`): the same JSON with ``n_inputs`` 0 and B, D empty.
 """
 
 from __future__ import annotations
@@ -58,6 +60,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--uff", default=None, metavar="OUT.uff",
                         help="also write the mode shapes (UFF dataset 55) and the FRFs, model and measured H1 "
                         "(dataset 58), in Universal File Format")
+    parser.add_argument("--output-only", action="store_true",
+                        help="ignore the record's inputs and identify from its outputs alone (ambient vibration; "
+                        "automatic for a record without u): the same JSON with n_inputs 0 and B, D empty")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
@@ -85,11 +90,9 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from okid_ros.core.pipeline import IdentificationError, identify
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import write_json
-    from okid_ros.records import require_inputs
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -99,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
             prepare_output(path, force=False, kind="output")  # refuse before the work, not after
     reference = _load_reference(args.reference) if args.reference else None
     record, source = load_any_record(args.data, args.params, args.param, args.source)
-    if not getattr(args, "output_only", False):
-        require_inputs(record, args.data, "identify")
     pairs = None
     if args.frf_pairs:
         from okid_ros.tools.validation_plots import parse_pairs
@@ -109,31 +110,19 @@ def run(args: argparse.Namespace) -> int:
             pairs = parse_pairs(args.frf_pairs, record.y.shape[1], record.u.shape[1])
         except ValueError as exc:
             raise ParameterError(f"--frf-pairs: {exc}") from None
+    output_only = bool(args.output_only) or record.u.shape[1] == 0
+    if output_only and (args.uff or args.plot_dir or args.frf_pairs):
+        raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
+                             "not available for an output-only identification")
     started = time.perf_counter()
-    try:
-        model = identify(
-            record.u,
-            record.y,
-            record.sample_time_s,
-            order=args.order,
-            n_states=args.states,
-            method=args.method,
-            regularization=args.regularization,
-            gain=args.gain,
-            ar_order=args.ar_order,
-            max_states=args.max_states,
-            max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
-            refine=not args.no_refine,
-            offsets=args.offsets,
-        )
-    except IdentificationError as exc:
-        raise DataError(str(exc)) from None
+    model = _identify(record, args, output_only)
     uncertainty = model.uncertainty
     elapsed = time.perf_counter() - started
-    fits = prediction_fits(model, record.u, record.y)
+    u_used = record.u[:, :0] if output_only else record.u
+    fits = prediction_fits(model, u_used, record.y)
     document = model.to_json_dict()
     document["uncertainty"] = {"computed": uncertainty.computed, "reason": uncertainty.reason or None,
-                               "method": "first-order propagation of the prediction-error covariance"}
+                               "method": _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])}
     document["fit_one_step_pct"] = fits["one_step_pct"]
     document["fit_simulation_pct"] = fits["simulation_pct"]
     document["fit_burn_in_samples"] = fits["burn_in_samples"]
@@ -146,8 +135,10 @@ def run(args: argparse.Namespace) -> int:
     for warning in model.warnings:
         print(f"okid-ros identify: warning: {warning}", file=sys.stderr)
     print(f"record: {source}")
+    front = (f"output-only ({model.method}, {model.gain_method} gain)" if output_only
+             else f"ARX order {model.arx.order}")
     print(
-        f"identified ARX order {model.arx.order}, n={model.n_states} states, {len(model.modes)} physical modes "
+        f"identified {front}, n={model.n_states} states, {len(model.modes)} physical modes "
         f"in {elapsed:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
         f"{model.predictor_spectral_radius():.4f}) -> {out}"
     )
@@ -181,6 +172,52 @@ def run(args: argparse.Namespace) -> int:
                                            reference=reference, pairs=pairs)
         print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
     return 0
+
+
+_UNCERTAINTY_METHODS = {
+    "okid": "first-order propagation of the prediction-error covariance",
+    "paper": "first-order propagation of the prediction-error covariance",
+    "ssi-cov": "delete-one jackknife over consecutive segments of the record",
+    "var": "spread of the mode's poles across model orders",
+}
+
+
+def _identify(record, args: argparse.Namespace, output_only: bool):
+    """The model of the record: the chain of the core, or its outputs alone (:func:`_identify_output_only`)."""
+    from okid_ros.core.pipeline import IdentificationError, identify
+    from okid_ros.errors import DataError
+
+    try:
+        if output_only:
+            return _identify_output_only(record, args)
+        return identify(
+            record.u,
+            record.y,
+            record.sample_time_s,
+            order=args.order,
+            n_states=args.states,
+            method=args.method,
+            regularization=args.regularization,
+            gain=args.gain,
+            ar_order=args.ar_order,
+            max_states=args.max_states,
+            max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
+            refine=not args.no_refine,
+            offsets=args.offsets,
+        )
+    except IdentificationError as exc:
+        raise DataError(str(exc)) from None
+
+
+def _identify_output_only(record, args: argparse.Namespace):
+    """The output-only identification of ``record.y`` (its ``u``, if any, ignored).
+
+    Covariance-driven SSI: the paper's VAR route (``method="var"`` of the core) lost on every
+    record of ``docs/benchmarks-output-only.md``, so it is not offered here.
+    """
+    from okid_ros.core.output_only import identify_output_only
+
+    return identify_output_only(record.y, record.sample_time_s, offsets=args.offsets)
 
 
 def _fit_line(fits: dict) -> str:

@@ -142,10 +142,12 @@ def test_record_without_inputs_loads_with_zero_input_channels(tmp_path: Path) ->
     assert Record(np.zeros((N, 0)), y, 0.01).validate().u.shape == (N, 0)
 
 
-def test_identify_without_inputs_suggests_output_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_track_without_inputs_suggests_output_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # identify takes such a record as output-only (test_core_output_only_cli.py); track needs u.
     _, y = _good_arrays()
     np.savez(tmp_path / "y_only.npz", y=y, sample_time_s=0.01)
-    assert cli.main(["identify", str(tmp_path / "y_only.npz"), "--json", str(tmp_path / "m.json")]) == 2
+    assert cli.main(["track", str(tmp_path / "y_only.npz"), "--jsonl", str(tmp_path / "m.jsonl"),
+                     "--window", "200"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no input channels" in err and "--output-only" in err
 

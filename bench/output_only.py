@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""Output-only identification: okid_ros against pyOMA2 and koma on records with known truth.
+
+Records:
+
+* ``koma``: the koma shear frame (``../shared/data/oma/koma-shear-frame``), 5 outputs, 12 Hz,
+  1200 s; scored against the record's own (Tustin-shifted) ``discrete_frequency_hz`` /
+  ``discrete_damping_ratio`` and the shapes of ``truth.json``;
+* ``subframe``: the steel subframe's 28 accelerations alone (``../shared/data/real/
+  daisy-steel-subframe``, the shaker forces not used), against its 15 input-output reference
+  modes (frequency only; the listed uncertain poles near 368 and 485-496 Hz are not counted as
+  spurious);
+* the simulated cases of :mod:`okid_bench.output_only_cases` (bench/okid_bench) (truth from the discrete system
+  simulated), ``--seeds`` noise seeds each.
+
+Every method gets the centred record; the peers get the Hankel block rows okid_ros chooses from
+the data and orders 2..``--max-order`` (step 2): ``bench/output_only_peers.py``. A true mode is
+*found* when an identified mode lies within 0.5 % of its frequency (nearest first, one each);
+identified modes more than 2 % from every true mode are *spurious*. Columns: found / true modes
+(summed over seeds), spurious (summed), RMS relative frequency and damping errors of the found
+modes, the share of found modes with damping within 30 %, the smallest MAC, the 2-sigma
+coverage of the standard deviations (okid_ros only), the median wall time of one call.
+
+Usage::
+
+    python bench/output_only.py                          # everything, 5 seeds, ~10 min on one core
+    python bench/output_only.py --seeds 20 --methods okid-ssi-cov,koma
+    python bench/output_only.py --records koma,subframe --cases none
+    python bench/output_only.py --out /tmp/oo.md [--force]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
+import numpy as np
+from output_only_peers import METHODS, run_method
+
+from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, score_modes
+from okid_ros.core.output_covariance import choose_block_rows, reference_channels
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+KOMA = DATA / "oma" / "koma-shear-frame"
+SUBFRAME = DATA / "real" / "daisy-steel-subframe"
+
+
+def _koma():
+    record = np.load(KOMA / "shear_frame.npz")
+    modes = json.loads((KOMA / "truth.json").read_text())["modes"]
+    truth = [{"frequency_hz": m["discrete_frequency_hz"], "damping_ratio": m["discrete_damping_ratio"],
+              "shape": np.asarray(m["shape"], float)} for m in modes]
+    return record["y"], float(record["sample_time_s"]), truth, []
+
+
+def _subframe():
+    record = np.load(SUBFRAME / "steel_subframe.npz")
+    reference = json.loads((SUBFRAME / "truth.json").read_text())["reference_estimates_not_published"]
+    truth = [{"frequency_hz": m["f_Hz"], "damping_ratio": m["zeta_pct"] / 100, "shape": None}
+             for m in reference["modes"]]
+    uncertain = [m["f_Hz"] for m in reference["uncertain_near_band_edge_or_unstable"]]
+    return record["y"], float(record["sample_time_s"]), truth, uncertain
+
+
+def _runs(args):
+    """(record name, seed, y, dt, truth, uncertain) for every record and seed asked for."""
+    loaders = {"koma": _koma, "subframe": _subframe}
+    for name in args.records:
+        y, dt, truth, uncertain = loaders[name]()
+        yield name, 0, y, dt, truth, uncertain
+    for name in args.cases:
+        case = output_only_case(name)
+        truth = case.truth()
+        for seed in range(args.seeds):
+            yield name, seed, case.simulate(seed), case.sample_time_s, truth, []
+
+
+def _score(found: list[dict], truth: list[dict], uncertain: list[float]) -> dict:
+    """Found within 0.5 %, spurious beyond 2 % of every true (and uncertain) mode."""
+    strict = score_modes(found, truth, match_tolerance=0.005)
+    rows = [r for r in strict["modes"] if r["frequency_error"] == r["frequency_error"]]
+    known = [t["frequency_hz"] for t in truth] + list(uncertain)
+    spurious = sum(all(abs(f["frequency_hz"] - k) / k > 0.02 for k in known) for f in found)
+    return {"rows": rows, "n_true": len(truth), "spurious": spurious}
+
+
+def _summary(results: list[dict]) -> dict:
+    rows = [r for res in results for r in res["rows"]]
+
+    def rms(key):
+        values = np.array([r[key] for r in rows], float)
+        return float(100 * np.sqrt(np.mean(values ** 2))) if values.size else float("nan")
+
+    def share(key, test=lambda v: v):
+        values = np.array([r[key] for r in rows], float)
+        values = values[np.isfinite(values)]
+        return float(np.mean(test(values))) if values.size else float("nan")
+
+    macs = [r["mac"] for r in rows if r["mac"] == r["mac"]]
+    return {
+        "found": sum(len(res["rows"]) for res in results), "true": sum(res["n_true"] for res in results),
+        "spurious": sum(res["spurious"] for res in results), "f_rms": rms("frequency_error"),
+        "z_rms": rms("damping_error"), "z30": share("damping_error", lambda v: np.abs(v) <= 0.3),
+        "mac": min(macs) if macs else float("nan"), "cov_f": share("frequency_covered"),
+        "cov_z": share("damping_covered"), "time": float(np.median([res["time"] for res in results])),
+        "failed": sum(res.get("failed", 0) for res in results),
+    }
+
+
+def _evaluate(args) -> dict:
+    table: dict = {}
+    for name, seed, y, dt, truth, uncertain in _runs(args):
+        y = y - y.mean(axis=0)
+        references = reference_channels(y, 12)
+        block_rows, _ = choose_block_rows(y, dt, n_references=references.size, max_states=args.max_order)
+        for method in args.methods:
+            started = time.perf_counter()
+            try:
+                found = run_method(method, y, dt, block_rows, args.max_order)
+                failed = 0
+            except Exception as exc:  # a peer's crash is a result of the benchmark, not its end
+                print(f"  {name} seed {seed} {method}: failed ({type(exc).__name__}: {exc})"[:200], file=sys.stderr)
+                found, failed = [], 1
+            elapsed = time.perf_counter() - started
+            result = _score(found, truth, uncertain)
+            result.update(time=elapsed, failed=failed)
+            table.setdefault((name, method), []).append(result)
+            print(f"  {name} seed {seed} {method}: {len(result['rows'])}/{result['n_true']} found, "
+                  f"{result['spurious']} spurious, {elapsed:.2f} s", file=sys.stderr)
+    return {key: _summary(results) for key, results in table.items()}
+
+
+def _markdown(summary: dict, args) -> str:
+    lines = [
+        f"seeds per simulated case: {args.seeds}; peers at okid_ros's block rows, orders 2..{args.max_order}",
+        "",
+        "| record | method | found | spurious | f RMS % | zeta RMS % | zeta within 30 % | min MAC "
+        "| 2-sigma coverage f / zeta | time s (median) | failed |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (name, method), s in summary.items():
+        cover = "" if s["cov_f"] != s["cov_f"] else f"{100 * s['cov_f']:.0f} / {100 * s['cov_z']:.0f} %"
+        lines.append(
+            f"| {name} | {method} | {s['found']}/{s['true']} | {s['spurious']} | {s['f_rms']:.3f} | "
+            f"{s['z_rms']:.1f} | {100 * s['z30']:.0f} % | {s['mac']:.3f} | {cover} | {s['time']:.2f} | "
+            f"{s['failed']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--records", default="koma,subframe", help="koma,subframe or none")
+    parser.add_argument("--cases", default=",".join(OUTPUT_ONLY_CASES), help="simulated cases, or none")
+    parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--max-order", type=int, default=100)
+    parser.add_argument("--out", default=None, help="also write the table (markdown) here")
+    parser.add_argument("--force", action="store_true")
+    parser.add_argument("--threads", default="1", help="BLAS threads (read before numpy loads)")
+    args = parser.parse_args(argv)
+    for key in ("records", "cases", "methods"):
+        setattr(args, key, [] if getattr(args, key) == "none" else getattr(args, key).split(","))
+    if args.out and Path(args.out).exists() and not args.force:
+        print(f"{args.out} exists (use --force)", file=sys.stderr)
+        return 2
+    text = _markdown(_evaluate(args), args)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

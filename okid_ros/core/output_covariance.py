@@ -1,0 +1,143 @@
+"""Output correlations of an ambient record and the lag window they are taken over.
+
+Output-only identification starts from the output correlations
+``R_k = E[y_{t+k} y_t^T]`` (p, p), k = 0 .. L (NExT: they are free responses of the structure
+to its ambient excitation, ``R_k = C A^(k-1) G`` with ``G = E[x_{t+1} y_t^T]``). Three choices
+are made from the data here:
+
+- the **lag window**: long enough to span several periods of the slowest mode (a window
+  shorter than one period merges close low modes, ``../shared/identification-findings.md``),
+  from the lowest prominent peak of the output spectrum;
+- the **reference channels**: with many outputs only the most independent channels serve as
+  the Hankel's columns (pivoted QR of the normalized record);
+- **segments**: the correlations of consecutive segments, whose mean is the record's
+  estimate and whose spread gives the modes' standard deviations (jackknife).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, signal
+
+__all__ = [
+    "OutputCorrelations",
+    "output_correlations",
+    "slowest_mode_hz",
+    "choose_block_rows",
+    "reference_channels",
+]
+
+#: The Hankel's block rows cover this many periods of the slowest mode (lags up to twice that).
+PERIODS_PER_BLOCK_ROWS = 1.0
+#: The correlations' lags stay below this fraction of a segment (their variance grows with lag).
+MAX_LAG_FRACTION_OF_SEGMENT = 0.1
+#: Peaks in the summed output spectrum at least this prominent (decades) count as modes.
+PEAK_PROMINENCE_DECADES = 0.3
+
+
+@dataclass
+class OutputCorrelations:
+    """Output correlations of a record, per segment.
+
+    Attributes
+    ----------
+    segments : (S, L + 1, p, p) ``R_k`` of each segment, ``R_k[i, j] = mean(y_i[t + k] y_j[t])``.
+    weights : (S,) samples of each segment (the record's estimate is the weighted mean).
+    """
+
+    segments: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(L + 1, p, p) the record's correlations."""
+        return np.tensordot(self.weights / self.weights.sum(), self.segments, axes=1)
+
+    def leave_one_out(self, index: int) -> np.ndarray:
+        """(L + 1, p, p) the correlations without segment ``index`` (jackknife)."""
+        w = self.weights.copy()
+        w[index] = 0.0
+        return np.tensordot(w / w.sum(), self.segments, axes=1)
+
+
+def _correlations(y: np.ndarray, max_lag: int) -> np.ndarray:
+    """(max_lag + 1, p, p) unbiased correlations of centred ``y`` (N, p), by FFT (N log N per pair)."""
+    n, p = y.shape
+    nfft = int(2 ** np.ceil(np.log2(n + max_lag + 1)))
+    spectrum = np.fft.rfft(y, nfft, axis=0)  # (F, p)
+    out = np.empty((max_lag + 1, p, p))
+    for j in range(p):
+        cross = np.fft.irfft(spectrum * np.conj(spectrum[:, j : j + 1]), nfft, axis=0)
+        out[:, :, j] = cross[: max_lag + 1]
+    return out / (n - np.arange(max_lag + 1))[:, None, None]
+
+
+def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8) -> OutputCorrelations:
+    """Correlations ``R_0 .. R_max_lag`` of each of ``n_segments`` consecutive segments.
+
+    Parameters
+    ----------
+    y : (N, p) outputs, means removed.
+    max_lag : largest lag L (samples).
+    n_segments : segments (at least 1; fewer when a segment would be shorter than
+        ``max_lag / MAX_LAG_FRACTION_OF_SEGMENT``).
+    """
+    n = y.shape[0]
+    longest = int(n // max(max_lag / MAX_LAG_FRACTION_OF_SEGMENT, 1))
+    n_segments = int(max(1, min(n_segments, longest)))
+    bounds = np.linspace(0, n, n_segments + 1).astype(int)
+    segments = np.stack([_correlations(y[lo:hi], max_lag) for lo, hi in zip(bounds[:-1], bounds[1:])])
+    return OutputCorrelations(segments, np.diff(bounds).astype(float))
+
+
+def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
+    """Frequency (Hz) of the lowest prominent peak of the summed, normalized output spectrum.
+
+    Welch spectrum with about 0.5 % of the sampling rate per bin or finer (at least 8 averages);
+    the channels are scaled to unit variance so that every sensor counts. NaN when no peak
+    stands out.
+    """
+    n = y.shape[0]
+    scaled = y / np.maximum(y.std(axis=0), np.finfo(float).tiny)
+    nperseg = int(min(max(2 ** np.ceil(np.log2(200)), 2 ** np.floor(np.log2(max(n // 8, 16)))), 8192))
+    freq, psd = signal.welch(scaled, fs=1.0 / sample_time_s, nperseg=nperseg, axis=0)
+    total = np.log10(np.maximum(psd.sum(axis=1), np.finfo(float).tiny))
+    peaks, _ = signal.find_peaks(total, prominence=PEAK_PROMINENCE_DECADES)
+    peaks = peaks[peaks >= 2]  # the first bins hold the offsets and drifts, not a mode
+    return float(freq[peaks[0]]) if peaks.size else float("nan")
+
+
+def choose_block_rows(
+    y: np.ndarray, sample_time_s: float, *, n_references: int, max_states: int
+) -> tuple[int, float]:
+    """Hankel block rows ``i`` (lags 1 .. 2 i) from the data, and the slowest mode found (Hz).
+
+    ``i`` spans :data:`PERIODS_PER_BLOCK_ROWS` periods of the slowest mode, at least what the
+    largest model order needs (``n_references i >= max_states + 2``), at most a tenth of a
+    fifth of the record (the segments of the jackknife), and the Hankel at most 2000 rows.
+    """
+    n, p = y.shape
+    f_low = slowest_mode_hz(y, sample_time_s)
+    fs = 1.0 / sample_time_s
+    wanted = PERIODS_PER_BLOCK_ROWS * fs / f_low if np.isfinite(f_low) and f_low > 0 else 40.0
+    needed = int(np.ceil((max_states + 2) / max(n_references, 1))) + 1
+    cap = int(min(MAX_LAG_FRACTION_OF_SEGMENT * n / 5 / 2, 2000 // p))
+    rows = int(np.clip(np.ceil(wanted), needed, max(cap, needed)))
+    return max(rows, 2), f_low
+
+
+def reference_channels(y: np.ndarray, max_references: int) -> np.ndarray:
+    """Indices of the ``max_references`` most independent outputs (all when p is small), sorted.
+
+    Pivoted QR of the unit-variance record picks the channels that span it best; a Hankel with
+    only these columns keeps every mode a reference sees and costs ``p / r`` times less.
+    """
+    p = y.shape[1]
+    if p <= max_references:
+        return np.arange(p)
+    scaled = y / np.maximum(y.std(axis=0), np.finfo(float).tiny)
+    step = max(1, y.shape[0] // 4000)  # 4000 rows rank the channels as well as all of them
+    _, _, pivots = linalg.qr(scaled[::step], mode="economic", pivoting=True)
+    return np.sort(pivots[:max_references])

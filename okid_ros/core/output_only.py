@@ -1,0 +1,279 @@
+"""Output-only (ambient) identification: modes and an innovation model from outputs alone.
+
+:func:`identify_output_only` turns a record ``y`` (N, p) with no measured input into the
+project's :class:`~okid_ros.core.identified_model.IdentifiedModel` with m = 0 (``B`` (n, 0),
+``D`` (p, 0)), ``A``, ``C``, ``K`` (paper convention, predictor gain ``A K``) and the innovation
+covariance, in normalized modal form, with its physical modes and their standard deviations.
+
+Steps (one module each):
+
+1. means removed; reference channels and the lag window from the data
+   (:mod:`.output_covariance`);
+2. ``method="ssi-cov"`` (default): output correlations of consecutive segments, block Hankel,
+   ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
+   parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
+3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
+4. (ssi-cov) each candidate mode re-identified with each segment of the record left out
+   (jackknife): a mode whose frequency scatters by more than its half-power half-width
+   ``zeta f`` or whose damping scatters by more than itself is noise and dropped; the
+   jackknife's standard deviations are the modes' (the spread of the cluster across orders for
+   ``var``);
+5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
+   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import linalg
+
+from okid_ros.core.era import decompose_hankel
+from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
+from okid_ros.core.kalman_gain import kalman_gain_from_residuals
+from okid_ros.core.modal import modal_form
+from okid_ros.core.options import ModeCriteria
+from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
+from okid_ros.core.output_only_modes import (
+    ModeCluster,
+    PoleSet,
+    cluster_modes,
+    collect_poles,
+    lowest_complete_order,
+    mark_stable,
+)
+from okid_ros.core.output_only_support import Jackknife, match_clusters, output_only_diagram, prepare_outputs
+from okid_ros.core.regressors import arx_regressors
+from okid_ros.core.stochastic_realization import (
+    OrderRealizer,
+    covariance_decomposition,
+    fit_var,
+    forward_innovation,
+    gain_from_markov,
+    stochastic_markov_from_var,
+)
+from okid_ros.core.uncertainty import UncertaintyResult
+
+__all__ = ["OUTPUT_ONLY_METHODS", "identify_output_only"]
+
+OUTPUT_ONLY_METHODS = ("ssi-cov", "var")
+#: Most Hankel columns' channels (references); more outputs are represented by the best spread.
+MAX_REFERENCES = 12
+#: Highest model order tried by default, and the damping limit of a candidate pole.
+DEFAULT_MAX_STATES = 100
+MAX_DAMPING = 0.1
+#: Segments of the record for the correlations' jackknife.
+N_SEGMENTS = 8
+#: The VAR of route (a) keeps at most this many coefficients per output (and N / 10).
+MAX_VAR_COEFFICIENTS = 1500
+#: The VAR that only supplies a gain (no modes) is kept smaller: its cost is N (q p)^2 and the
+#: predictor's Markov parameters decay at the predictor's rate (4 outputs, 60000 samples: 15 s at
+#: q = 250, 1 s at q = 50).
+MAX_GAIN_VAR_COEFFICIENTS = 200
+#: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
+#: std this times ``zeta`` (structural modes: up to 0.9 and 1.0 on the simulated cases and the
+#: subframe; noise poles 1-20, nearly always caught by the frequency).
+MAX_FREQUENCY_STD_PER_WIDTH = 1.0
+MAX_DAMPING_CV = 1.5
+
+
+def identify_output_only(
+    y: np.ndarray,
+    sample_time_s: float,
+    *,
+    method: str = "ssi-cov",
+    max_states: int | None = None,
+    block_rows: int | None = None,
+    offsets: str = "remove",
+) -> IdentifiedModel:
+    """Identify an innovation model and its modes from outputs alone.
+
+    Parameters
+    ----------
+    y : (N, p) outputs (accelerations, strains, ...), finite.
+    sample_time_s : sample time in seconds.
+    method : "ssi-cov" (covariance-driven SSI / NExT-ERA, default) or "var" (vector AR and the
+        OKID recursion, the paper's route).
+    max_states : highest model order tried (default :data:`DEFAULT_MAX_STATES`, less when the
+        Hankel is smaller).
+    block_rows : Hankel block rows (default from the data: a period of the slowest mode).
+    offsets : "remove" (default, the means are kept with the model) or "none".
+
+    Returns
+    -------
+    IdentifiedModel with ``n_inputs == 0``; ``modes`` are the selected modes.
+
+    Raises
+    ------
+    IdentificationError with a one-line reason.
+    """
+    if method not in OUTPUT_ONLY_METHODS:
+        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
+    y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
+    n_samples, p = y.shape
+    references = reference_channels(y, MAX_REFERENCES)
+    top = int(max_states or DEFAULT_MAX_STATES)
+    if block_rows is None:
+        block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
+    block_rows = int(block_rows)
+    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
+        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
+    correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
+    r_mean = correlations.mean
+    var = None
+    if method == "ssi-cov":
+        decomposition = covariance_decomposition(r_mean, references, block_rows, top)
+    else:
+        var = _var_markov(y, block_rows)
+        decomposition = decompose_hankel(var[1], block_rows, block_rows)
+    top = int(min(top, decomposition.max_states))
+    top -= top % 2
+    if top < 2:
+        raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
+    realizer = OrderRealizer(decomposition, top)
+    poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
+                          max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s)
+    mark_stable(poles)
+    modes, _ = cluster_modes(poles)
+    jackknife = None
+    if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
+        jackknife = Jackknife(correlations, references, block_rows, top)
+        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s)
+    n_model = lowest_complete_order(modes)
+    if n_model is None:
+        raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
+    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
+    if var is None:
+        L, Re, gain_method = _covariance_innovation(A, C, gamma, r_mean, block_rows, y)
+    else:
+        L, Re, gain_method = _gain_from_var(A, C, y, *var)
+    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
+                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
+                     diagram=output_only_diagram(poles), singular_values=decomposition.s)
+    model.output_offset, model.warnings = offset, warnings
+    _attach_std(model, jackknife, n_model)
+    return model
+
+
+def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int) -> None:
+    """The jackknife's standard deviations at the model order (kept: the clusters' spread without one)."""
+    if jackknife is None:
+        model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
+        return
+    targets = np.array([mode.eigenvalue for mode in model.modes])
+    f_std, z_std = jackknife.std(targets, n_model, model.sample_time_s)
+    for mode, fs, zs in zip(model.modes, f_std, z_std):
+        mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
+    model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers))
+
+
+def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float
+                      ) -> list[ModeCluster]:
+    """The candidate modes whose jackknife scatter says they are structural (step 4 of the module).
+
+    Each candidate is judged at its own median order (a mode's pole is best resolved where its
+    cluster lives, not at an order chosen for all of them).
+    """
+    kept = []
+    for mode in modes:
+        orders = sorted(mode.members)
+        n_home = orders[len(orders) // 2]
+        target = poles.eigenvalue[mode.members[n_home]]
+        f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
+        width = mode.damping_ratio * mode.frequency_hz
+        if f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio:
+            kept.append(mode)
+    return kept
+
+
+def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, C, Gamma)`` restricted to the invariant subspace of the poles inside the unit circle.
+
+    A realized order can hold a pole on or outside the unit circle that is no selected mode (a
+    drift, a noise pole); the ordered real Schur form (``scipy.linalg.schur(sort="iuc")``) keeps
+    the rest exactly: ``A Z_1 = Z_1 T_11``.
+    """
+    T, Z, k = linalg.schur(A, output="real", sort="iuc")
+    if k == A.shape[0]:
+        return A, C, gamma
+    return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
+
+
+def _var_markov(y: np.ndarray, block_rows: int, max_coefficients: int = MAX_VAR_COEFFICIENTS):
+    """A VAR over the lag window (``max_coefficients`` per output, N / 10 at most), its stochastic Markov parameters."""
+    budget = min(max_coefficients, y.shape[0] // 10)
+    order = int(max(2, min(2 * block_rows, budget // y.shape[1])))
+    var = fit_var(y, order)
+    return var, stochastic_markov_from_var(var, 2 * block_rows + 1)
+
+
+def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
+    """``L``, ``Re`` of the forward innovation model at this order, and how they were obtained.
+
+    The stochastic Riccati equation when the covariance model is positive real; otherwise (a
+    truncated model often is not: its spectrum dips below zero somewhere) the gain fitted to the
+    stochastic Markov parameters of a VAR of the record with ``A`` and ``C`` fixed, if its
+    predictor is stable, else the Kalman gain of the noise covariances of a state sequence.
+    """
+    p = C.shape[0]
+    stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
+    G = linalg.lstsq(gamma, stacked)[0]
+    solved = forward_innovation(A, C, G, correlations[0])
+    if solved is not None:
+        return solved[0], solved[1], "riccati"
+    return _gain_from_var(A, C, y, *_var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
+
+
+def _gain_from_var(A, C, y, var, markov):
+    """``L``, ``Re`` from a VAR of the record.
+
+    Fitted to its stochastic Markov parameters, or if that predictor is unstable, the Kalman
+    gain of the noise covariances of a state sequence.
+    """
+    L = gain_from_markov(A, C, markov)
+    if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
+        return L, var.residual_covariance, "var-markov"
+    # States driven by the VAR's innovations through the stable A (x+ = A x + L e), the noise
+    # covariances of their residuals and the Kalman gain of the filtering Riccati equation,
+    # stable by construction (as :mod:`.state_completion`).
+    phi, targets, _ = arx_regressors(np.zeros((y.shape[0], 0)), y, var.order)
+    drive = (targets - phi @ var.theta) @ L.T
+    states = np.zeros_like(drive)
+    for k in range(drive.shape[0] - 1):
+        states[k + 1] = A @ states[k] + drive[k]
+    try:
+        L, Re = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
+    except ValueError as exc:
+        raise IdentificationError(f"no stable innovation model: {exc}") from None
+    return L, Re, "riccati-residuals"
+
+
+def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time_s: float, *,
+             method, gain_method, arx, diagram, singular_values) -> IdentifiedModel:
+    """Modal form of the model, its physical modes those matched to a selected cluster."""
+    n, p = A.shape[0], C.shape[0]
+    K = linalg.solve(A, L)
+    criteria = ModeCriteria(max_damping=MAX_DAMPING, min_msv=0.0, min_mpc=0.0)
+
+    def cluster_of(mode) -> ModeCluster | None:
+        return next((c for ev, c in chosen if abs(mode.eigenvalue - ev) < 1e-9), None)
+
+    # The stochastic input (L) stands for B in the modal indicators: it is what excites the modes.
+    form = modal_form(A, L, C, K, sample_time_s, None, criteria=criteria,
+                      stability=lambda mode: 0.0 if cluster_of(mode) is None else 1.0)
+    for i, mode in enumerate(form.modes):
+        cluster = cluster_of(mode)
+        mode.id = i
+        mode.stability = len(cluster.members) / max(len(diagram), 1)
+        mode.frequency_hz_std, mode.damping_ratio_std = cluster.frequency_hz_spread, cluster.damping_ratio_spread
+        mode.extras = {"orders": len(cluster.members), "cluster_frequency_hz": cluster.frequency_hz,
+                       "cluster_damping_ratio": cluster.damping_ratio}
+    model = IdentifiedModel(
+        A=form.A, B=np.zeros((n, 0)), C=form.C, D=np.zeros((p, 0)), K=form.K, innovation_covariance=Re,
+        sample_time_s=sample_time_s, modes=form.modes, arx=arx, method=method, gain_method=gain_method,
+        completion="output-only", hankel_singular_values=singular_values, stabilization=diagram,
+        x0=np.zeros(n), input_offset=np.zeros(0),
+    )
+    problem = model.stability_problem()
+    if problem:
+        raise IdentificationError(f"refused: {problem}")
+    return model

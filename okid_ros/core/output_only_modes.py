@@ -1,0 +1,225 @@
+"""Automatic mode selection of output-only identification: stable poles, clustered across orders.
+
+The stabilization diagram without clicks:
+
+1. every order ``n = 2, 4, ..`` contributes its stable complex poles below the band limit and
+   the damping limit, with their output shapes (:func:`collect_poles`);
+2. a pole is *stable* when the order just below or just above has a pole within
+   ``FREQUENCY_TOLERANCE`` in frequency, ``DAMPING_TOLERANCE`` (relative) in damping and with
+   MAC >= ``MAC_TOLERANCE`` (:func:`mark_stable`);
+3. stable poles are grouped by average-linkage hierarchical clustering
+   (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
+   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`);
+4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
+   from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
+   ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
+   more outputs its median MPC is at least ``MIN_MPC``, its median share of the correlations'
+   energy (modal singular value relative to the order's strongest pole) is at least
+   ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
+   than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
+   across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
+   bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
+
+Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
+the lowest at which every mode has its pole.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.cluster import hierarchy
+from scipy.spatial.distance import squareform
+
+from okid_ros.core.modal import mpc
+
+__all__ = ["PoleSet", "ModeCluster", "collect_poles", "mark_stable", "cluster_modes", "lowest_complete_order"]
+
+FREQUENCY_TOLERANCE = 0.01
+DAMPING_TOLERANCE = 0.3
+MAC_TOLERANCE = 0.9
+CLUSTER_DISTANCE = 0.02
+MIN_ORDER_FRACTION = 0.5
+MIN_TOTAL_FRACTION = 0.3
+MIN_ORDERS = 5
+MIN_DAMPING = 5e-4
+MIN_MPC = 0.5
+MIN_ENERGY = 0.0
+MAX_FREQUENCY_SPREAD_PER_DAMPING = 1.0
+MIN_OUTPUTS_FOR_MPC = 3
+
+
+@dataclass
+class PoleSet:
+    """The poles of every order, flattened.
+
+    Attributes
+    ----------
+    order : (P,) model order of each pole; frequency_hz, damping_ratio : (P,);
+    eigenvalue : (P,) complex discrete pole (upper half plane); shape : (P, p) complex output
+    shapes, unit norm; stable : (P,) bool, set by :func:`mark_stable`.
+    """
+
+    order: np.ndarray
+    frequency_hz: np.ndarray
+    damping_ratio: np.ndarray
+    eigenvalue: np.ndarray
+    shape: np.ndarray
+    energy: np.ndarray
+    stable: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    unstable_orders: set = field(default_factory=set)
+
+    def __len__(self) -> int:
+        return int(self.order.size)
+
+
+@dataclass
+class ModeCluster:
+    """One mode found across orders: the index of its pole at each order (``members[order]``)."""
+
+    members: dict[int, int]
+    frequency_hz: float
+    damping_ratio: float
+    frequency_hz_spread: float
+    damping_ratio_spread: float
+    mpc: float
+    energy: float
+
+
+def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float) -> PoleSet:
+    """Stable complex poles of the model of each order.
+
+    Parameters
+    ----------
+    realize : ``realize(n) -> (A, C, ...)``, e.g. :meth:`OrderRealizer.realize`.
+    orders : the orders to realize.
+    max_damping : poles with a larger damping ratio are left out; max_frequency_hz : so are
+        poles at or above this frequency.
+    """
+    parts: dict[str, list] = {"order": [], "f": [], "z": [], "ev": [], "shape": [], "energy": []}
+    unstable = set()
+    for n in orders:
+        A, C, _, G = realize(n)
+        ev, vec = np.linalg.eig(A)
+        if np.max(np.abs(ev)) >= 1.0:
+            unstable.add(int(n))
+        # Modal share of the correlations (the MSV): |C psi| |chi G| / sqrt(1 - |z|^2), relative.
+        gains = np.linalg.norm(C @ vec, axis=0) * np.linalg.norm(np.linalg.solve(vec, G), axis=1)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            energy = gains / np.sqrt(np.maximum(1.0 - np.abs(ev) ** 2, 1e-12))
+            energy = energy / max(float(np.max(energy[np.abs(ev) < 1.0], initial=0.0)), np.finfo(float).tiny)
+        keep = (ev.imag > 0) & (np.abs(ev) < 1.0)
+        ev, vec, energy = ev[keep], vec[:, keep], energy[keep]
+        s = np.log(ev) / sample_time_s
+        w = np.abs(s)
+        zeta = -s.real / w
+        f = w / (2 * np.pi)
+        ok = (zeta > 0) & (zeta < max_damping) & (f < max_frequency_hz)
+        shapes = (C @ vec[:, ok]).T
+        shapes /= np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), np.finfo(float).tiny)
+        parts["order"].append(np.full(int(ok.sum()), n))
+        parts["f"].append(f[ok])
+        parts["z"].append(zeta[ok])
+        parts["ev"].append(ev[ok])
+        parts["shape"].append(shapes)
+        parts["energy"].append(energy[ok])
+    p = parts["shape"][0].shape[1] if parts["shape"] else 0
+    cat = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in parts.items() if k != "shape"}
+    shapes = np.vstack(parts["shape"]) if parts["shape"] else np.zeros((0, p), complex)
+    return PoleSet(cat["order"].astype(int), cat["f"], cat["z"], cat["ev"].astype(complex), shapes,
+                   cat["energy"], np.zeros(cat["order"].size, bool), unstable)
+
+
+def _mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """MAC of every pair of unit-norm shapes (rows of a and b)."""
+    return np.abs(np.conj(a) @ b.T) ** 2
+
+
+def mark_stable(poles: PoleSet) -> None:
+    """Set ``poles.stable``: a pole matched in frequency, damping and shape at an adjacent order."""
+    orders = np.unique(poles.order)
+    stable = np.zeros(len(poles), bool)
+    for a, b in zip(orders[:-1], orders[1:]):
+        ia, ib = np.flatnonzero(poles.order == a), np.flatnonzero(poles.order == b)
+        if ia.size == 0 or ib.size == 0:
+            continue
+        fa, fb = poles.frequency_hz[ia][:, None], poles.frequency_hz[ib][None, :]
+        za, zb = poles.damping_ratio[ia][:, None], poles.damping_ratio[ib][None, :]
+        close = (np.abs(fa - fb) <= FREQUENCY_TOLERANCE * fa) & (np.abs(za - zb) <= DAMPING_TOLERANCE * za)
+        close &= _mac_matrix(poles.shape[ia], poles.shape[ib]) >= MAC_TOLERANCE
+        stable[ia[close.any(axis=1)]] = True
+        stable[ib[close.any(axis=0)]] = True
+    poles.stable = stable
+
+
+def _robust_spread(values: np.ndarray) -> float:
+    """Normalized median absolute deviation (the standard deviation of a normal sample)."""
+    return float(1.4826 * np.median(np.abs(values - np.median(values)))) if values.size else float("nan")
+
+
+def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
+    """One pole per order (nearest the median frequency), outliers in damping dropped."""
+    f_med = np.median(poles.frequency_hz[index])
+    members: dict[int, int] = {}
+    for i in index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]:
+        members.setdefault(int(poles.order[i]), int(i))
+    chosen = np.array(sorted(members.values()))
+    z = poles.damping_ratio[chosen]
+    spread = _robust_spread(z)
+    inliers = np.abs(z - np.median(z)) <= 3.0 * max(spread, 1e-12) + 1e-12
+    chosen = chosen[inliers]
+    members = {int(poles.order[i]): int(i) for i in chosen}
+    shapes_mpc = [mpc(poles.shape[i]) for i in chosen] if n_outputs >= MIN_OUTPUTS_FOR_MPC else [1.0]
+    return ModeCluster(
+        members=members,
+        frequency_hz=float(np.median(poles.frequency_hz[chosen])),
+        damping_ratio=float(np.median(poles.damping_ratio[chosen])),
+        frequency_hz_spread=_robust_spread(poles.frequency_hz[chosen]),
+        damping_ratio_spread=_robust_spread(poles.damping_ratio[chosen]),
+        mpc=float(np.median(shapes_mpc)),
+        energy=float(np.median(poles.energy[chosen])),
+    )
+
+
+def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[list[ModeCluster], list[ModeCluster]]:
+    """Group the stable poles into modes (module docstring).
+
+    Returns
+    -------
+    modes : the accepted clusters by frequency; rejected : the others (for reports).
+    """
+    index = np.flatnonzero(poles.stable)
+    if index.size < 2:
+        return [], []
+    f = poles.frequency_hz[index]
+    distance = np.abs(f[:, None] - f[None, :]) / np.maximum(f[:, None], f[None, :])
+    distance += 1.0 - _mac_matrix(poles.shape[index], poles.shape[index])
+    np.fill_diagonal(distance, 0.0)
+    tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0), checks=False), method="average")
+    labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
+    orders = np.unique(poles.order)
+    p = poles.shape.shape[1]
+    accepted, rejected = [], []
+    for label in np.unique(labels):
+        cluster = _cluster(poles, index[labels == label], p)
+        first = min(cluster.members)
+        available = int(np.sum(orders >= first))
+        count = len(cluster.members)
+        ok = (count >= max(MIN_ORDERS, MIN_TOTAL_FRACTION * orders.size) and count >= MIN_ORDER_FRACTION * available
+              and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC and cluster.energy >= MIN_ENERGY
+              and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
+              * cluster.frequency_hz)
+        (accepted if ok else rejected).append(cluster)
+    accepted.sort(key=lambda c: c.frequency_hz)
+    return accepted, rejected
+
+
+def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset()) -> int | None:
+    """The lowest order (not in ``unstable_orders``) where the most modes have a pole (usually all); None if none."""
+    orders = sorted({n for mode in modes for n in mode.members} - set(unstable_orders))
+    if not orders:
+        return None
+    counts = [sum(n in mode.members for mode in modes) for n in orders]
+    best = max(counts)
+    return next(n for n, c in zip(orders, counts) if c == best)

@@ -1,0 +1,122 @@
+"""Helpers of :mod:`okid_ros.core.output_only`: input checks, the diagram, the jackknife."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import linalg
+
+from okid_ros.core.identified_model import IdentificationError
+from okid_ros.core.options import OFFSETS
+from okid_ros.core.output_covariance import OutputCorrelations
+from okid_ros.core.output_only_modes import ModeCluster, PoleSet
+from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
+from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
+
+__all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife"]
+
+#: Fewest samples per output channel and per Hankel lag worth identifying from.
+MIN_SAMPLES = 200
+
+
+def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``y`` as (N, p) floats less its means (``offsets="remove"``), the means, warnings.
+
+    Raises IdentificationError naming what is wrong (shape, NaN/Inf, a constant channel, too
+    short, a bad sample time).
+    """
+    if offsets not in OFFSETS:
+        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    y = np.asarray(y, dtype=float)
+    if y.ndim == 1:
+        y = y[:, None]
+    if y.ndim != 2 or y.shape[1] == 0:
+        raise IdentificationError(f"y must be 2-D (N, p) with at least one channel, got shape {y.shape}")
+    if not (np.isfinite(sample_time_s) and sample_time_s > 0):
+        raise IdentificationError(f"sample_time_s must be a positive number, got {sample_time_s}")
+    if y.shape[0] < MIN_SAMPLES:
+        raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
+    if not np.all(np.isfinite(y)):
+        bad = np.argwhere(~np.isfinite(y))[0]
+        raise IdentificationError(f"y holds NaN or Inf (first at sample {bad[0]}, channel {bad[1]})")
+    mean = y.mean(axis=0)
+    std = y.std(axis=0)
+    flat = np.flatnonzero(std <= 1e-12 * max(float(np.abs(y).max()), np.finfo(float).tiny))
+    if flat.size:
+        raise IdentificationError(f"output channel {int(flat[0])} is constant: it carries no response")
+    warnings = []
+    large = np.flatnonzero(np.abs(mean) > 0.1 * std)
+    if large.size:
+        action = "removed" if offsets == "remove" else "NOT removed (offsets='none')"
+        warnings.append(f"large offsets {action} on outputs {', '.join(str(int(i)) for i in large[:6])}")
+    if offsets == "none":
+        return y, np.zeros(y.shape[1]), warnings
+    return y - mean, mean, warnings
+
+
+def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> list[tuple[complex, ModeCluster]]:
+    """The eigenvalue of each mode's pole at order ``n_model`` (modes without one are left out)."""
+    return [(complex(poles.eigenvalue[mode.members[n_model]]), mode) for mode in modes if n_model in mode.members]
+
+
+def output_only_diagram(poles: PoleSet) -> list[StabilizationOrder]:
+    """The stabilization diagram in the project's structure (a stable pole meets all criteria)."""
+    diagram = []
+    for n in np.unique(poles.order):
+        index = np.flatnonzero(poles.order == n)
+        diagram.append(StabilizationOrder(int(n), [
+            StabilizationPole(float(poles.frequency_hz[i]), float(poles.damping_ratio[i]), poles.shape[i],
+                              bool(poles.stable[i]), bool(poles.stable[i]), bool(poles.stable[i]))
+            for i in index
+        ]))
+    return diagram
+
+
+def _modes_of(A: np.ndarray, targets: np.ndarray, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frequency (Hz) and damping of the pole of ``A`` nearest each target eigenvalue (log distance)."""
+    ev = linalg.eigvals(A)
+    ev = ev[ev.imag > 0]
+    if ev.size == 0:
+        return np.full(targets.size, np.nan), np.full(targets.size, np.nan)
+    s_all = np.log(ev) / sample_time_s
+    s_target = np.log(targets) / sample_time_s
+    nearest = np.argmin(np.abs(s_all[None, :] - s_target[:, None]), axis=1)
+    s = s_all[nearest]
+    return np.abs(s) / (2 * np.pi), -s.real / np.abs(s)
+
+
+class Jackknife:
+    """Delete-one jackknife over the record's segments: the model realized with each segment left out.
+
+    Each left-out set of correlations is decomposed once; :meth:`std` then realizes any order
+    from them and reads off, for each target pole, its nearest pole. The jackknife variance is
+    ``(S - 1) / S sum_j (theta_j - mean)^2`` over the S segments.
+
+    Parameters
+    ----------
+    correlations, references, block_rows : as the model was identified.
+    max_states : the highest order :meth:`std` will be asked for.
+    """
+
+    def __init__(self, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
+                 max_states: int) -> None:
+        self.realizers = []
+        for j in range(correlations.segments.shape[0]):
+            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states)
+            self.realizers.append(OrderRealizer(decomposition, min(max_states, decomposition.max_states)))
+
+    def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Standard deviations ``(frequency_hz_std, damping_ratio_std)``, (M,) each.
+
+        ``targets`` (M,) are poles of the model of order ``n_model``.
+        """
+        targets = np.asarray(targets, dtype=complex)
+        n_seg = len(self.realizers)
+        freqs = np.empty((n_seg, targets.size))
+        damps = np.empty((n_seg, targets.size))
+        for j, realizer in enumerate(self.realizers):
+            A = realizer.realize(min(n_model, realizer.max_states))[0]
+            freqs[j], damps[j] = _modes_of(A, targets, sample_time_s)
+        factor = (n_seg - 1) / n_seg
+        f_std = np.sqrt(factor * np.sum((freqs - freqs.mean(axis=0)) ** 2, axis=0))
+        z_std = np.sqrt(factor * np.sum((damps - damps.mean(axis=0)) ** 2, axis=0))
+        return f_std, z_std

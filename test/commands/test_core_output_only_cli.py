@@ -1,0 +1,73 @@
+"""`okid-ros identify --output-only` and a record without inputs: the JSON contract with n_inputs 0."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ros_helpers import REPO_ROOT
+
+from okid_ros import cli
+
+KOMA = REPO_ROOT.parent / "shared" / "data" / "oma" / "koma-shear-frame"
+
+
+@pytest.fixture(scope="module")
+def koma_record() -> tuple[np.ndarray, float, list[dict]]:
+    data = np.load(KOMA / "shear_frame.npz")
+    return data["y"], float(data["sample_time_s"]), json.loads((KOMA / "truth.json").read_text())["modes"]
+
+
+def _check_document(path: Path, truth: list[dict]) -> dict:
+    document = json.loads(path.read_text())
+    n, p = document["n_states"], document["n_outputs"]
+    assert document["n_inputs"] == 0
+    assert document["B"] == [[] for _ in range(n)] and document["D"] == [[] for _ in range(p)]
+    assert np.array(document["K"]).shape == (n, p)
+    assert document["spectral_radius"] < 1 and document["predictor_spectral_radius"] < 1
+    frequencies = [m["frequency_hz"] for m in document["modes"]]
+    assert len(frequencies) == len(truth)
+    for f, true in zip(frequencies, truth):
+        assert abs(f / true["discrete_frequency_hz"] - 1) < 0.005
+    assert all(m["frequency_hz_std"] is not None for m in document["modes"])
+    return document
+
+
+def test_output_only_ignores_the_inputs_of_a_record(tmp_path: Path, koma_record, capsys) -> None:
+    y, dt, truth = koma_record
+    record = tmp_path / "with_u.npz"
+    np.savez(record, u=np.random.default_rng(1).standard_normal((y.shape[0], 2)), y=y, sample_time_s=dt)
+    out = tmp_path / "model.json"
+    assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 0
+    document = _check_document(out, truth)
+    assert document["method"] == "ssi-cov"
+    assert "output-only" in capsys.readouterr().out
+    # Outputs are never replaced without --force.
+    assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 2
+
+
+@pytest.mark.parametrize("kind", ["npz", "csv"])
+def test_record_without_inputs_is_identified_output_only(tmp_path: Path, koma_record, kind: str) -> None:
+    y, dt, truth = koma_record
+    record = tmp_path / f"y_only.{kind}"
+    if kind == "npz":
+        np.savez(record, y=y, sample_time_s=dt)
+    else:
+        header = ",".join(f"y{i + 1}" for i in range(y.shape[1]))
+        rows = "\n".join(",".join(map(repr, row.tolist())) for row in y)
+        record.write_text(f"# sample_time_s={dt!r}\n{header}\n{rows}")
+    out = tmp_path / "model.json"
+    assert cli.main(["identify", str(record), "--json", str(out)]) == 0
+    _check_document(out, truth)
+
+
+def test_frequency_response_outputs_are_refused_in_one_line(tmp_path: Path, koma_record, capsys) -> None:
+    y, dt, _ = koma_record
+    record = tmp_path / "with_u.npz"
+    np.savez(record, u=np.ones((y.shape[0], 1)), y=y, sample_time_s=dt)
+    code = cli.main(["identify", str(record), "--output-only", "--uff", str(tmp_path / "x.uff"),
+                     "--json", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "output-only" in err[0]
