@@ -104,7 +104,7 @@ def _run_dask(jobs: list[BagJob], on_result: OnResult, address: str) -> list[Bag
                    for i, job in enumerate(jobs)}
         finished: set = set()
         stopped = False
-        for future in distributed.as_completed(list(futures)):
+        for future in distributed.as_completed(list(futures), loop=client.loop):
             job = futures[future]
             finished.add(future)
             if future.cancelled():
