@@ -8,6 +8,7 @@ both must give the serial run's table bit for bit.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -56,6 +57,28 @@ def test_local_cluster_of_worker_processes_gives_the_serial_table(campaign, tmp_
         assert batch(campaign["bags"], "--params", campaign["params"], "--out", out,
                      "--scheduler", cluster.scheduler_address) == 1
         assert all(row["reused"] == "True" for row in read_summary(out).values())
+        _max_failures_on(cluster.scheduler_address, campaign, tmp_path)
+
+
+def _max_failures_on(address: str, campaign: dict, tmp_path: Path) -> None:
+    """--max-failures with every bag already sent: bags not started are cancelled and reported skipped."""
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    for name in ("a_garbage.mcap", "b_garbage.mcap"):
+        (bags / name).write_bytes(b"not a bag")
+    for i in range(3):
+        shutil.copytree(campaign["bags"] / f"run_{i:03d}", bags / f"c_run_{i}")
+    out = tmp_path / "stopped"
+    assert batch(bags, "--params", campaign["params"], "--out", out, "--scheduler", address, "--max-failures", 1) == 1
+    summary = read_summary(out)
+    assert {row["status"] for row in summary.values()} <= {"ok", "failed", "skipped"}
+    assert sum(row["status"] == "failed" for row in summary.values()) >= 1
+    journaled = (out / "manifest.jsonl").read_text().count("\n")
+    assert journaled == sum(row["status"] != "skipped" for row in summary.values())
+    assert batch(bags, "--params", campaign["params"], "--out", out, "--scheduler", address) == 1
+    summary = read_summary(out)
+    assert [summary[f"c_run_{i}"]["status"] for i in range(3)] == ["ok", "ok", "ok"]
+    assert summary["b_garbage.mcap"]["status"] == "failed"
 
 
 def _free_port() -> int:

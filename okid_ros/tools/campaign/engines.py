@@ -61,17 +61,17 @@ def _pool_context() -> multiprocessing.context.BaseContext:
 def _run_pool(jobs: list[BagJob], on_result: OnResult, workers: int) -> list[BagJob]:
     # A few bags in flight per worker, not all of them: cancelling the rest at a stop is then exact
     # and the pool's queues stay small for thousands of bags.
-    pending = list(reversed(jobs))
-    running: dict[Future, BagJob] = {}
+    pending = list(reversed(range(len(jobs))))
+    running: dict[Future, int] = {}
     stopped = False
     with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
         while pending or running:
             while pending and not stopped and len(running) < 2 * workers:
-                job = pending.pop()
-                running[pool.submit(run_bag_job, job)] = job
+                index = pending.pop()
+                running[pool.submit(run_bag_job, jobs[index])] = index
             done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=lambda f: jobs.index(running[f])):
-                job = running.pop(future)
+            for future in sorted(done, key=running.__getitem__):
+                job = jobs[running.pop(future)]
                 try:
                     result = future.result()
                 except Exception as exc:  # noqa: BLE001 - a worker process died (killed, out of memory)
@@ -80,7 +80,7 @@ def _run_pool(jobs: list[BagJob], on_result: OnResult, workers: int) -> list[Bag
                 stopped = on_result(job, result) or stopped
             if stopped and not running:
                 break
-    return list(reversed(pending)) if stopped else []
+    return [jobs[i] for i in reversed(pending)] if stopped else []
 
 
 def _import_distributed():

@@ -129,7 +129,7 @@ def _process(job: BagJob, tmp: Path) -> dict:
     return {"bag": job.display, "label": job.label, "status": "ok", "reason": reason, "models": len(updates),
             "samples": int(summary.samples), "input_messages": int(summary.input_messages),
             "duration_s": float(summary.data_duration_s), "start_s": float(summary.first_stamp_s),
-            "seconds": 0.0, "updates": updates}
+            "seconds": 0.0, "process_s": float(summary.elapsed_s), "updates": updates}
 
 
 def _read_shapes(output: Path, topic: str) -> dict[int, dict[int, tuple[list, list]]]:
