@@ -42,14 +42,21 @@ from batch_helpers import PARAMS, write_good_bag  # noqa: E402
 
 def _cli(*args: object) -> float:
     """Wall time of `okid-ros ARGS` in a subprocess (exit status 0 required)."""
+    return _cli_times(*args)[0]
+
+
+def _cli_times(*args: object) -> tuple[float, float]:
+    """Wall time and CPU time (user + system, the command and all its worker processes) of `okid-ros ARGS`."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OPENBLAS_NUM_THREADS": "1"}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "okid_ros.cli", *map(str, args)], env=env,
                           capture_output=True, text=True)
     wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise SystemExit(f"okid-ros {' '.join(map(str, args))} failed ({done.returncode}):\n{done.stderr}")
-    return wall
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def _process_seconds(out_dir: Path) -> float:
@@ -68,21 +75,27 @@ def speed(root: Path, n_bags: int, duration_s: float, repeats: int) -> None:
     params = root / "params.yaml"
     params.write_text(PARAMS)
     walls: dict[int, list[float]] = {1: [], 2: []}
+    cpus: dict[int, list[float]] = {1: [], 2: []}
     overheads: dict[int, list[float]] = {1: [], 2: []}
     for _ in range(repeats):
         for workers in (1, 2):
             out = root / f"out{workers}"
-            wall = _cli("batch", bags, "--params", params, "--out", out, "--workers", workers, "--force",
-                        "--no-progress")
+            load = os.getloadavg()[0]
+            wall, cpu = _cli_times("batch", bags, "--params", params, "--out", out, "--workers", workers, "--force",
+                                   "--no-progress")
             walls[workers].append(wall)
+            cpus[workers].append(cpu)
             overheads[workers].append((workers * wall - _process_seconds(out)) / n_bags)
+            print(f"  run: --workers {workers}: wall {wall:.2f} s, CPU {cpu:.2f} s, load before {load:.2f}",
+                  flush=True)
     same = (root / "out1" / "modes.parquet").read_bytes() == (root / "out2" / "modes.parquet").read_bytes()
     print(f"## {n_bags} bags of {duration_s:g} s, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
-    print("| engine | wall s (median) | runs | per-bag overhead s (median) |")
-    print("|---|---|---|---|")
+    print("| engine | wall s (median) | runs | CPU s (median) | per-bag overhead s (median) |")
+    print("|---|---|---|---|---|")
     for workers in (1, 2):
         print(f"| --workers {workers} | {statistics.median(walls[workers]):.2f} | "
-              f"{', '.join(f'{w:.2f}' for w in walls[workers])} | {statistics.median(overheads[workers]):.3f} |")
+              f"{', '.join(f'{w:.2f}' for w in walls[workers])} | {statistics.median(cpus[workers]):.2f} | "
+              f"{statistics.median(overheads[workers]):.3f} |")
     ratio = statistics.median(walls[1]) / statistics.median(walls[2])
     print(f"speed-up with 2 workers: {ratio:.2f}x (target >= 1.6x); tables identical: {same}")
     started = time.perf_counter()

@@ -84,3 +84,19 @@ def table_rows(out_dir: Path) -> list[dict]:
 
     rows = pq.read_table(out_dir / "modes.parquet").to_pylist()
     return [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()} for row in rows]
+
+
+def build_campaign(root: Path) -> dict:
+    """Three good bags and one truncated in ``root/bags``, the parameters, and the serial run's output.
+
+    Returns ``root``, ``bags``, ``params``, ``serial`` (the output directory) and ``status`` (its exit status).
+    """
+    bags = root / "bags"
+    bags.mkdir()
+    for i in range(3):
+        write_good_bag(bags / f"run_{i:03d}", i)
+    write_truncated_bag(bags / "run_001", bags / "run_001_cut")
+    params = write_params(root / "params.yaml")
+    serial = root / "serial"
+    status = batch(bags, "--params", params, "--out", serial, "--workers", 1)
+    return {"root": root, "bags": bags, "params": params, "serial": serial, "status": status}

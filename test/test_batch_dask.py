@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from batch_helpers import batch, read_summary, table_rows, write_good_bag, write_params, write_truncated_bag
+from batch_helpers import batch, build_campaign, read_summary, table_rows
 
 distributed = pytest.importorskip("distributed")  # the okid_ros[dask] extra, installed by `make setup`
 
@@ -26,16 +26,10 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> dict:
-    root = tmp_path_factory.mktemp("campaign_dask")
-    bags = root / "bags"
-    bags.mkdir()
-    for i in range(3):
-        write_good_bag(bags / f"run_{i:03d}", i)
-    write_truncated_bag(bags / "run_001", bags / "run_001_cut")
-    params = write_params(root / "params.yaml")
-    serial = root / "serial"
-    assert batch(bags, "--params", params, "--out", serial, "--workers", 1) == 1
-    return {"root": root, "bags": bags, "params": params, "serial": serial}
+    """The campaign of batch_helpers.build_campaign, run serially once for the module."""
+    campaign = build_campaign(tmp_path_factory.mktemp("campaign_dask"))
+    assert campaign["status"] == 1
+    return campaign
 
 
 def _assert_same_as_serial(out: Path, campaign: dict) -> None:
