@@ -9,6 +9,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -185,3 +188,28 @@ def test_plot_of_a_campaign_directory(campaign, tmp_path, capsys):
     assert sorted(series) == sorted({r["mode_id"] for r in table_rows(out)})
     assert main(["plot", str(out)]) == 2  # not replaced without --force
     assert main(["plot", str(out), "--force"]) == 0
+
+
+def test_a_run_killed_mid_campaign_is_finished_by_the_next(campaign, tmp_path):
+    out = tmp_path / "c"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    process = subprocess.Popen([sys.executable, "-m", "okid_ros.cli", "batch", str(campaign["bags"]), "--params",
+                                str(campaign["params"]), "--out", str(out), "--workers", "1", "--no-progress"],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    journal = out / "manifest.jsonl"
+    deadline = time.monotonic() + 120
+    while not (journal.exists() and journal.read_text().count("\n") >= 1):
+        assert process.poll() is None and time.monotonic() < deadline, "batch ended before the first bag was done"
+        time.sleep(0.02)
+    process.kill()  # SIGKILL: no clean-up of any kind
+    process.wait()
+    journaled = journal.read_text().count("\n")
+    assert 1 <= journaled < 4
+    assert not (out / "modes.parquet").exists()
+    for folder in (out / "bags").iterdir():  # every bag folder in place is complete
+        if not folder.name.startswith("."):
+            assert (folder / "result.json").is_file() and (folder / "output" / "metadata.yaml").is_file()
+    assert batch(campaign["bags"], "--params", campaign["params"], "--out", out, "--workers", 1) == 1
+    summary = read_summary(out)
+    assert sum(row["reused"] == "True" for row in summary.values()) == journaled
+    assert (out / "modes.parquet").read_bytes() == (campaign["serial"] / "modes.parquet").read_bytes()

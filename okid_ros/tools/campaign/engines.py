@@ -14,8 +14,10 @@ already imported: the per-bag overhead is the bag itself. Dask is an optional ex
 from __future__ import annotations
 
 import multiprocessing
+import uuid
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
 from okid_ros.errors import OkidError
 from okid_ros.tools.campaign.worker import BagJob, failed_result, run_bag_job
@@ -63,24 +65,41 @@ def _run_pool(jobs: list[BagJob], on_result: OnResult, workers: int) -> list[Bag
     # and the pool's queues stay small for thousands of bags.
     pending = list(reversed(range(len(jobs))))
     running: dict[Future, int] = {}
-    stopped = False
     with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
-        while pending or running:
-            while pending and not stopped and len(running) < 2 * workers:
-                index = pending.pop()
-                running[pool.submit(run_bag_job, jobs[index])] = index
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=running.__getitem__):
-                job = jobs[running.pop(future)]
-                try:
-                    result = future.result()
-                except Exception as exc:  # noqa: BLE001 - a worker process died (killed, out of memory)
-                    result = failed_result(job, f"{job.display}: worker failed ({type(exc).__name__}: {exc})",
-                                           transient=True)
-                stopped = on_result(job, result) or stopped
-            if stopped and not running:
+        try:
+            _drain(pool, jobs, pending, running, on_result, workers)
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)  # what finished is journaled already
+            raise
+    return [jobs[i] for i in reversed(pending)]
+
+
+def _drain(pool: ProcessPoolExecutor, jobs: list[BagJob], pending: list[int], running: dict[Future, int],
+           on_result: OnResult, workers: int) -> None:
+    """Submit and collect until every job ran, or ``on_result`` stopped (``pending`` then holds the rest)."""
+    stopped = False
+    while pending or running:
+        while pending and not stopped and len(running) < 2 * workers:
+            try:
+                running[pool.submit(run_bag_job, jobs[pending[-1]])] = pending[-1]
+            except BrokenProcessPool:  # a worker died (killed, out of memory): the rest cannot run here
+                for index in reversed(pending):
+                    on_result(jobs[index], failed_result(jobs[index], f"{jobs[index].display}: not run, a worker "
+                                                         "process of the pool died", transient=True))
+                pending.clear()
                 break
-    return [jobs[i] for i in reversed(pending)] if stopped else []
+            pending.pop()
+        done, _ = wait(running, return_when=FIRST_COMPLETED)
+        for future in sorted(done, key=running.__getitem__):
+            job = jobs[running.pop(future)]
+            try:
+                result = future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker process died (killed, out of memory)
+                result = failed_result(job, f"{job.display}: worker failed ({type(exc).__name__}: {exc})",
+                                       transient=True)
+            stopped = on_result(job, result) or stopped
+        if stopped and not running:
+            return
 
 
 def _import_distributed():
@@ -100,7 +119,8 @@ def _run_dask(jobs: list[BagJob], on_result: OnResult, address: str) -> list[Bag
         raise OkidError(f"--scheduler {address}: cannot connect ({type(exc).__name__}: {exc})") from None
     try:
         # pure=False: a rerun with --force must run again; the key names the bag in the dashboard.
-        futures = {client.submit(run_bag_job, job, pure=False, key=f"okid-batch-{job.label}-{i}"): job
+        run = uuid.uuid4().hex[:8]  # two campaigns on one cluster never share a key
+        futures = {client.submit(run_bag_job, job, pure=False, key=f"okid-batch-{job.label}-{run}-{i}"): job
                    for i, job in enumerate(jobs)}
         finished: set = set()
         stopped = False
