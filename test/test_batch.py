@@ -213,3 +213,11 @@ def test_a_run_killed_mid_campaign_is_finished_by_the_next(campaign, tmp_path):
     summary = read_summary(out)
     assert sum(row["reused"] == "True" for row in summary.values()) == journaled
     assert (out / "modes.parquet").read_bytes() == (campaign["serial"] / "modes.parquet").read_bytes()
+
+
+def test_scheduler_without_the_dask_extra_is_a_one_line_error(campaign, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if okid_ros[dask] were not installed
+    assert batch(campaign["bags"] / "run_000", "--params", campaign["params"], "--out", tmp_path / "c",
+                 "--scheduler", "tcp://127.0.0.1:8786") == 2
+    err = capsys.readouterr().err
+    assert "okid_ros[dask]" in err and err.count("\n") == 1
