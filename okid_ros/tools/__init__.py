@@ -8,6 +8,7 @@ One module per role:
   bag metadata;
 - :mod:`.replay`: publish a bag on live topics with its original timing (rclpy);
 - :mod:`.process`: the nodes' service layer run offline over a bag, output bag and JSON lines;
+- :mod:`.campaign`: many bags processed as `process` does (local pool or Dask), one table of modes;
 - :mod:`.monitor`: the live terminal view of the modes;
 - :mod:`.plots`: PNG figures like the paper's Figs 2-5, and modes over time;
 - :mod:`.errors`: the exceptions, all one-line `okid-ros` errors.
