@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from okid_ros.commands._args import positive_int
+from okid_ros.commands._args import add_progress_arguments, namespace, positive_int
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,7 +33,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="override a parameter, as for `okid-ros process` (repeatable)")
     parser.add_argument("--source", action="append", default=[], metavar="SPEC",
                         help="replace inputs.sources, as for `okid-ros process` (repeatable)")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace, as for `okid-ros process`")
     parser.add_argument("--strict-params", action="store_true",
                         help="refuse a parameter file that sets a name no node declares (default: a warning)")
@@ -53,10 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--csv", action="store_true", help="also write DIR/modes.csv")
     parser.add_argument("--plan", action="store_true",
                         help="only list the bags, their durations, topics and message counts (from metadata)")
-    progress = parser.add_mutually_exclusive_group()
-    progress.add_argument("--progress", dest="progress", action="store_true", default=None,
-                          help="always show the progress bar (default: only when stderr is a terminal)")
-    progress.add_argument("--no-progress", dest="progress", action="store_false", help="never show it")
+    add_progress_arguments(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -65,15 +62,11 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.errors import OkidError
-    from okid_ros.service.topics import validate_namespace
     from okid_ros.tools.campaign.runner import CampaignOptions, input_topics, run_campaign
     from okid_ros.tools.campaign.summary import print_summary
     from okid_ros.tools.process import load_node_parameters
 
-    try:
-        namespace = None if args.namespace is None else validate_namespace(args.namespace)
-    except ValueError as exc:
-        raise OkidError(f"--namespace: {exc}") from None
+    namespace = args.namespace  # validated by its argparse type
     arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
                                                   strict=args.strict_params)
     if args.plan:
