@@ -66,8 +66,9 @@ def write_params(path: Path) -> Path:
 
 
 def batch(*args: object) -> int:
-    """`okid-ros batch ARGS...` in this process; returns the exit status."""
-    return main(["batch", *map(str, args), "--no-progress"])
+    """`okid-ros batch ARGS...` in this process (no progress bar unless asked); returns the exit status."""
+    argv = ["batch", *map(str, args)]
+    return main(argv if "--progress" in argv else [*argv, "--no-progress"])
 
 
 def read_summary(out_dir: Path) -> dict[str, dict]:

@@ -148,7 +148,11 @@ def test_a_killed_run_leaves_no_half_outputs_and_the_next_run_completes(campaign
 
 def test_exit_statuses_and_usage_errors(campaign, tmp_path, capsys):
     good = [campaign["bags"] / f"run_{i:03d}" for i in (0, 2)]
-    assert batch(*good, "--params", campaign["params"], "--out", tmp_path / "ok", "--workers", 2) == 0
+    assert batch(*good, "--params", campaign["params"], "--out", tmp_path / "ok", "--workers", 2, "--progress") == 0
+    captured = capsys.readouterr()
+    # one bar over the campaign: input messages of both bags (from their metadata), bags and samples
+    assert "2.00k/2.00k" in captured.err and "bags 2/2, samples 2000" in captured.err
+    assert "2 bags: 2 ok, 0 failed, 0 skipped" in captured.out
     assert batch(tmp_path / "missing", "--out", tmp_path / "x") == 2
     assert "missing: no such bag or directory" in capsys.readouterr().err
     other = tmp_path / "other"
