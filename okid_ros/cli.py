@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "okid_ros.commands.simulate",
     "okid_ros.commands.replay",
     "okid_ros.commands.process",
+    "okid_ros.commands.batch",
     "okid_ros.commands.monitor",
     "okid_ros.commands.record",
     "okid_ros.commands.plot",

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv", "add_bag_arguments"]
+__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv", "add_bag_arguments", "add_progress_arguments",
+           "namespace"]
 
 
 def positive_int(text: str) -> int:
@@ -45,3 +46,21 @@ def add_bag_arguments(parser) -> None:
                         help="for a bag: override a parameter, as for `okid-ros process`")
     parser.add_argument("--source", action="append", default=[], metavar="SPEC",
                         help="for a bag: replace inputs.sources, one 'KIND TOPIC [FIELD=CHANNEL ...]' per option")
+
+
+def namespace(text: str) -> str:
+    """A rig namespace, as `okid-ros up --namespace` takes it (validated, normalized)."""
+    from okid_ros.service.topics import validate_namespace
+
+    try:
+        return validate_namespace(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_progress_arguments(parser) -> None:
+    """``--progress`` / ``--no-progress`` (default: a progress bar only when stderr is a terminal)."""
+    progress = parser.add_mutually_exclusive_group()
+    progress.add_argument("--progress", dest="progress", action="store_true", default=None,
+                          help="always show the progress bar (default: only when stderr is a terminal)")
+    progress.add_argument("--no-progress", dest="progress", action="store_false", help="never show it")

@@ -19,7 +19,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "experiment come from the input bag: --input, or for `process` output the source bag recorded in its "
         "metadata.",
     )
-    parser.add_argument("bag", metavar="OUT", help="output bag of `okid-ros process` (or a live recording)")
+    parser.add_argument("bag", metavar="OUT", help="output bag of `okid-ros process` (or a live recording), or a "
+                        "campaign directory of `okid-ros batch` (then: campaign_modes.png, frequency and damping "
+                        "of every mode id over the campaign, in DIR/figures by default)")
     parser.add_argument("--out-dir", default=None, metavar="DIR",
                         help="folder for the PNG files (default: OUT_figures next to the bag)")
     parser.add_argument("--input", default=None, metavar="BAG",
@@ -49,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
     from okid_ros.tools.process import load_node_parameters
 
+    if _is_campaign(args.bag):
+        return _plot_campaign(args)
     if not args.window > 0:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
     bag_path = Path(args.bag)
@@ -100,6 +104,26 @@ def run(args: argparse.Namespace) -> int:
         written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,
                                             reference=_truth_modes(data.truth), reference_label="truth")
     print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
+    for path in written:
+        print(f"  {path}")
+    return 0
+
+
+def _is_campaign(path: str) -> bool:
+    from okid_ros.tools.campaign.runner import is_campaign_dir
+
+    return is_campaign_dir(path)
+
+
+def _plot_campaign(args: argparse.Namespace) -> int:
+    """A campaign directory of `okid-ros batch`: every mode id over the campaign."""
+    from pathlib import Path
+
+    from okid_ros.tools.campaign.plot import write_campaign_figures
+
+    out_dir = Path(args.out_dir) if args.out_dir else Path(args.bag) / "figures"
+    written = write_campaign_figures(Path(args.bag), out_dir, force=args.force)
+    print(f"wrote {len(written)} figure(s) of the campaign {args.bag} to {out_dir}")
     for path in written:
         print(f"  {path}")
     return 0

@@ -10,6 +10,7 @@ One module per role:
 - :mod:`.process`: the nodes' service layer run offline over a bag, output bag and JSON lines
   (:mod:`.offline`: both nodes fed input messages; :mod:`.node_parameters`: both nodes'
   parameters as they read them);
+- :mod:`.campaign`: many bags processed as `process` does (local pool or Dask), one table of modes;
 - :mod:`.monitor`: the live terminal view of the modes;
 - :mod:`.plots`: PNG figures like the paper's Figs 2-5, and modes over time;
 - :mod:`.errors`: the exceptions, all one-line `okid-ros` errors.

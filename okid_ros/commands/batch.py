@@ -1,0 +1,92 @@
+"""`okid-ros batch BAG_OR_DIR... --params FILE --out DIR`: a campaign of bags into one table.
+
+Every bag is processed as `okid-ros process` does (same parameters and options); the logic
+lives in :mod:`okid_ros.tools.campaign`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from okid_ros.commands._args import add_progress_arguments, namespace, positive_int
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `batch`."""
+    parser = subparsers.add_parser(
+        "batch",
+        help="process many bags (a monitoring campaign) in parallel into one table of modes",
+        description="Process every bag given (directories are searched for rosbag2 directories, .mcap, .db3 "
+        "and ROS 1 .bag files) as `okid-ros process` does, locally in parallel (--workers) or on a running Dask "
+        "cluster (--scheduler). Writes DIR/modes.parquet (one row per mode per model update, mode ids kept "
+        "across the bags in stamp order), DIR/summary.csv (one row per bag), and per bag the output bag and "
+        "JSON lines of `process` under DIR/bags/. A rerun processes only new or changed bags. Exit status: 0 "
+        "when every bag is ok, 1 when one failed or was not run, 2 for a usage error.",
+    )
+    parser.add_argument("paths", nargs="+", metavar="BAG_OR_DIR", help="bags, or directories to search for bags")
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="the nodes' parameter YAML (repeatable, later files override; default: the "
+                        "built-in defaults, equal to config/okid.yaml)")
+    parser.add_argument("--out", metavar="DIR", help="campaign directory (created; a rerun continues it)")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a parameter, as for `okid-ros process` (repeatable)")
+    parser.add_argument("--source", action="append", default=[], metavar="SPEC",
+                        help="replace inputs.sources, as for `okid-ros process` (repeatable)")
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
+                        help="the rig's namespace, as for `okid-ros process`")
+    parser.add_argument("--strict-params", action="store_true",
+                        help="refuse a parameter file that sets a name no node declares (default: a warning)")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                        help="storage plugin of the output bags (default: %(default)s)")
+    engine = parser.add_mutually_exclusive_group()
+    engine.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                        help="local worker processes (default: the number of cores; 1: in this process)")
+    engine.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="address of a running Dask distributed scheduler, e.g. tcp://10.0.0.1:8786 "
+                        "(needs the extra okid_ros[dask]); each bag is one task")
+    parser.add_argument("--max-failures", type=positive_int, default=None, metavar="K",
+                        help="stop after K bags failed (bags not started are reported skipped)")
+    parser.add_argument("--force", action="store_true", help="process every bag again, even when unchanged")
+    parser.add_argument("--retry-failed", action="store_true",
+                        help="process again the unchanged bags that failed before (default: keep their failure)")
+    parser.add_argument("--csv", action="store_true", help="also write DIR/modes.csv")
+    parser.add_argument("--plan", action="store_true",
+                        help="only list the bags, their durations, topics and message counts (from metadata)")
+    add_progress_arguments(parser)
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from okid_ros.errors import OkidError
+    from okid_ros.tools.campaign.runner import CampaignOptions, input_topics, run_campaign
+    from okid_ros.tools.campaign.summary import print_summary
+    from okid_ros.tools.process import load_node_parameters
+
+    namespace = args.namespace  # validated by its argparse type
+    arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
+                                                  strict=args.strict_params)
+    if args.plan:
+        from okid_ros.tools.campaign.discovery import find_bags
+        from okid_ros.tools.campaign.plan import format_plan, plan_campaign
+
+        bags = find_bags(args.paths, exclude=Path(args.out) if args.out else None)
+        if not bags:
+            raise OkidError(f"no bags found in {', '.join(args.paths)}")
+        plans, elapsed_s = plan_campaign(bags)
+        format_plan(plans, input_topics(arx_values, est_values, namespace), elapsed_s)
+        return 0
+    if not args.out:
+        raise OkidError("--out DIR is required (except with --plan)")
+    options = CampaignOptions(
+        paths=args.paths, out_dir=Path(args.out), arx_values=arx_values, est_values=est_values,
+        namespace=namespace, storage=args.storage, workers=args.workers or os.cpu_count() or 1,
+        scheduler=args.scheduler, force=args.force, retry_failed=args.retry_failed,
+        max_failures=args.max_failures, csv=args.csv, progress=args.progress,
+        provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"})
+    report = run_campaign(options)
+    print_summary(report, options)
+    return report.exit_status

@@ -1,0 +1,16 @@
+"""A monitoring campaign: many bags processed as `okid-ros process` does, into one table.
+
+Modules, one role each:
+
+- :mod:`~okid_ros.tools.campaign.discovery`: find the bags under the paths given and read
+  their plan (duration, topics, message counts) from the metadata or index only;
+- :mod:`~okid_ros.tools.campaign.manifest`: what was already done (journal keyed by bag path,
+  size, modification time and the parameters' hash) and atomic writes;
+- :mod:`~okid_ros.tools.campaign.worker`: one bag, in any process: `process_bag` into a
+  temporary folder, renamed into place when complete; failures become a one-line reason;
+- :mod:`~okid_ros.tools.campaign.engines`: serial, a local process pool, or a Dask cluster;
+- :mod:`~okid_ros.tools.campaign.table`: campaign mode ids (one deterministic pass after
+  gathering) and the ``modes.parquet`` / ``summary.csv`` tables;
+- :mod:`~okid_ros.tools.campaign.runner`: the command's orchestration and its summary;
+- :mod:`~okid_ros.tools.campaign.plot`: frequency and damping of every mode id over the campaign.
+"""

@@ -1,0 +1,220 @@
+"""`okid-ros batch`: find the bags, skip what is done, run the rest, gather, write the tables.
+
+The order of a run: the bags are found and fingerprinted; a bag whose manifest entry matches
+(same path, size, modification time and parameters' hash) is taken as it is (``reused``), the
+others become jobs for the engine; each finished bag is journaled at once; then campaign mode
+ids are given over every ok bag and ``modes.parquet`` and ``summary.csv`` are written (both
+atomically, rebuilt from the per-bag results each run, so a run killed before this point is
+completed by the next one).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TextIO
+
+from okid_ros.errors import OkidError
+from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
+from okid_ros.tools.campaign.engines import run_jobs
+from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
+from okid_ros.tools.campaign.table import campaign_order, mode_rows, write_modes, write_summary
+from okid_ros.tools.campaign.worker import BagJob
+
+__all__ = ["CampaignOptions", "CampaignReport", "input_topics", "is_campaign_dir", "run_campaign"]
+
+
+@dataclass
+class CampaignOptions:
+    """What `okid-ros batch` was asked to do (see its --help)."""
+
+    paths: list[str]
+    out_dir: Path
+    arx_values: dict
+    est_values: dict
+    namespace: str | None = None
+    storage: str = "mcap"
+    workers: int = 1
+    scheduler: str | None = None
+    force: bool = False
+    retry_failed: bool = False
+    max_failures: int | None = None
+    csv: bool = False
+    progress: bool | None = None
+    provenance: dict = field(default_factory=dict)
+
+
+@dataclass
+class CampaignReport:
+    """What a run did: one summary entry per bag (campaign order) and the mode rows."""
+
+    entries: list[dict]
+    rows: list[dict]
+    elapsed_s: float
+    written: list[Path]
+
+    def count(self, status: str) -> int:
+        return sum(1 for e in self.entries if e["status"] == status)
+
+    @property
+    def exit_status(self) -> int:
+        """0 when every bag is ok, 1 otherwise (failed or not run)."""
+        return 0 if all(e["status"] == "ok" for e in self.entries) else 1
+
+
+def is_campaign_dir(path: Path) -> bool:
+    """True for a directory written by `okid-ros batch`."""
+    return Path(path).is_dir() and (Path(path) / MANIFEST_NAME).is_file()
+
+
+def input_topics(arx_values: dict, est_values: dict, namespace: str | None) -> list[str]:
+    """Input topics of both nodes, as `process` reads them."""
+    from okid_ros.service.inputs import sources_and_grid
+
+    topics: list[str] = []
+    for values in (arx_values, est_values):
+        specs, _ = sources_and_grid(values, namespace)
+        topics += [spec.topic for spec in specs if spec.topic not in topics]
+    return topics
+
+
+def _check_out_dir(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OkidError(f"--out {out_dir}: exists and is not a directory")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not is_campaign_dir(out_dir):
+        raise OkidError(f"--out {out_dir}: a non-empty directory that is not a campaign of okid-ros batch "
+                        f"(no {MANIFEST_NAME}); give a new or empty directory")
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def _job(options: CampaignOptions, bag: Path, state_space_topic: str) -> BagJob:
+    return BagJob(bag=str(bag.resolve()), display=str(bag), label=bag_label(bag),
+                  out_dir=str(options.out_dir.resolve()), arx_values=options.arx_values,
+                  est_values=options.est_values, namespace=options.namespace,
+                  storage=options.storage, state_space_topic=state_space_topic,
+                  provenance={**options.provenance, "campaign": str(options.out_dir.resolve())})
+
+
+def _reused(entry: dict, out_dir: Path, retry_failed: bool) -> dict | None:
+    """The result kept for an unchanged bag, or None when it must run again."""
+    if entry["status"] == "ok":
+        path = out_dir / "bags" / entry["label"] / "result.json"
+        if not path.is_file():
+            return None  # outputs removed by hand: do it again
+        try:
+            return json.loads(path.read_text())
+        except ValueError:
+            return None
+    return None if retry_failed else {**entry["summary"], "updates": []}
+
+
+def run_campaign(options: CampaignOptions) -> CampaignReport:
+    """Run a campaign (see the module docstring); returns its report.
+
+    Raises
+    ------
+    OkidError
+        a usage error: a path missing, no bags found, an --out that is not a campaign directory.
+    """
+    from okid_ros.service.topics import resolve_topic
+
+    started = time.perf_counter()
+    out_dir = options.out_dir
+    bags = find_bags(options.paths, exclude=out_dir)
+    if not bags:
+        raise OkidError(f"no bags found in {', '.join(map(str, options.paths))}")
+    _check_out_dir(out_dir)
+    params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
+                                  storage=options.storage)
+    manifest = Manifest(out_dir)
+    ss_topic = resolve_topic(options.est_values["state_space_model_topic"], options.namespace)
+    results: dict[str, dict] = {}
+    jobs: list[BagJob] = []
+    fingerprints: dict[str, tuple[int, int]] = {}
+    for bag in bags:
+        fingerprints[str(bag)] = fingerprint = bag_fingerprint(bag)
+        entry = None if options.force else manifest.lookup(bag, *fingerprint, params_hash)
+        kept = None if entry is None else _reused(entry, out_dir, options.retry_failed)
+        if kept is not None:
+            results[str(bag)] = {**kept, "bag": str(bag), "reused": True}
+        else:
+            jobs.append(_job(options, bag, ss_topic))
+    topics = input_topics(options.arx_values, options.est_values, options.namespace)
+    bar = CampaignBar(jobs, topics, options.progress)
+    failures = 0
+
+    def on_result(job: BagJob, result: dict) -> bool:
+        nonlocal failures
+        if not result.get("transient"):
+            manifest.record(Path(job.bag), *fingerprints[job.display], params_hash, result)
+        results[job.display] = {**result, "reused": False}
+        failures += result["status"] == "failed"
+        bar.done(job, result)
+        return options.max_failures is not None and failures >= options.max_failures
+
+    try:
+        not_run = run_jobs(jobs, on_result, workers=options.workers, scheduler=options.scheduler)
+    finally:
+        bar.close()
+        manifest.close()
+    for job in not_run:
+        results[job.display] = {"bag": job.display, "label": job.label, "status": "skipped",
+                                "reason": f"not run: --max-failures {options.max_failures} reached", "models": 0,
+                                "samples": 0, "duration_s": math.nan, "start_s": math.nan, "seconds": 0.0,
+                                "reused": False, "updates": []}
+    return _finish(options, manifest, list(results.values()), started)
+
+
+def _finish(options: CampaignOptions, manifest: Manifest, results: list[dict], started: float) -> CampaignReport:
+    ordered = campaign_order(results)
+    rows = mode_rows(ordered, options.est_values)
+    written = write_modes(rows, options.out_dir, csv_too=options.csv)
+    entries = [{**{k: v for k, v in r.items() if k != "updates"},
+                "outputs": f"bags/{r['label']}" if r["status"] == "ok" else ""} for r in ordered]
+    written.append(write_summary(entries, options.out_dir))
+    manifest.compact()
+    return CampaignReport(entries=entries, rows=rows, elapsed_s=time.perf_counter() - started, written=written)
+
+
+class CampaignBar:
+    """One progress bar over the campaign: input messages done (ETA from them), bags and samples."""
+
+    def __init__(self, jobs: list[BagJob], topics: list[str], enabled: bool | None,
+                 stream: TextIO | None = None) -> None:
+        self.stream = stream or sys.stderr
+        if enabled is None:
+            enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.bags, self.done_bags, self.failed, self.samples = len(jobs), 0, 0, 0
+        self._bar = None
+        self._counts = {}
+        if not enabled or not jobs:
+            return
+        for job in jobs:
+            plan = plan_bag(Path(job.bag))
+            self._counts[job.display] = plan.message_count(topics)
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            return
+        tqdm.monitor_interval = 0  # no monitor thread: the local pool forks this process
+        self._bar = tqdm(total=sum(self._counts.values()), file=self.stream, unit="msg", unit_scale=True,
+                         desc="batch", dynamic_ncols=True, mininterval=0.5)
+        self._bar.set_postfix_str(f"bags 0/{self.bags}")
+
+    def done(self, job: BagJob, result: dict) -> None:
+        self.done_bags += 1
+        self.failed += result["status"] == "failed"
+        self.samples += int(result.get("samples", 0))
+        if self._bar is None:
+            return
+        self._bar.update(self._counts.get(job.display, 0))
+        failed = f", {self.failed} failed" if self.failed else ""
+        self._bar.set_postfix_str(f"bags {self.done_bags}/{self.bags}{failed}, samples {self.samples}")
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
