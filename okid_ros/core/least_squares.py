@@ -144,8 +144,11 @@ def solve_normal_equations(
     s, V = linalg.eigh(R_t)
     s = np.maximum(s, 0.0)
     g = V.T @ r_t  # (d, p)
-    g2 = np.sum(g * g, axis=1)
-    parts = _gcv_curve(s, g2, float(np.trace(normal.yy)), n_rows, p)
+    # GCV on outputs of equal weight (each divided by its root mean square): with the per-channel
+    # prior the penalty, hence the fit, does not depend on the units of any channel.
+    weight = 1.0 / np.maximum(np.diag(normal.yy), np.finfo(float).tiny)
+    g2 = np.sum(g * g * weight, axis=1)
+    parts = _gcv_curve(s, g2, float(np.sum(np.diag(normal.yy) * weight)), n_rows, p)
     if isinstance(penalty, str):
         if penalty != "gcv":
             raise ValueError(f"penalty must be a number or 'gcv', got {penalty!r}")

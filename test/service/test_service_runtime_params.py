@@ -87,6 +87,8 @@ def test_tracking_criteria_decide_the_ids_of_the_next_model(running, option, val
     assert min(fresh) > max(before), "no mode matches the strict criterion: all ids fresh"
     running.change(**{option: getattr(ModalEstimationParams(), option)})
     again = ids(running.next_update())
+    while len(again) < 3 and len(running.updates) < 30:  # a model may miss the weak 48 Hz mode
+        again = ids(running.next_update())
     assert len(again) == 3 and set(again) <= set(before) | set(fresh), "matched again: remembered ids"
 
 
