@@ -86,7 +86,6 @@ def _outputs(args: argparse.Namespace) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     import time
     from pathlib import Path
 
@@ -132,6 +131,18 @@ def run(args: argparse.Namespace) -> int:
         write_json(out, document)
     except OSError as exc:
         raise DataError(f"cannot write {out}: {exc}") from None
+    _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
+    if not uncertainty.computed:
+        print(f"  mode standard deviations {uncertainty.reason}")
+    print(_fit_line(fits))
+    _write_exports(args, model, record, reference=reference, pairs=pairs)
+    return 0
+
+
+def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, out) -> None:
+    """The warnings on stderr; the model, its modes with standard deviations, on stdout."""
+    import sys
+
     for warning in model.warnings:
         print(f"okid-ros identify: warning: {warning}", file=sys.stderr)
     print(f"record: {source}")
@@ -139,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
              else f"ARX order {model.arx.order}")
     print(
         f"identified {front}, n={model.n_states} states, {len(model.modes)} physical modes "
-        f"in {elapsed:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
+        f"in {elapsed_s:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
         f"{model.predictor_spectral_radius():.4f}) -> {out}"
     )
     for mode in model.modes:
@@ -149,9 +160,10 @@ def run(args: argparse.Namespace) -> int:
             f"damping {100 * mode.damping_ratio:6.3f} %{_pm(100 * mode.damping_ratio_std)}  "
             f"MPC {mode.mpc:.3f}  MSV {mode.msv:.3f}"
         )
-    if not uncertainty.computed:
-        print(f"  mode standard deviations {uncertainty.reason}")
-    print(_fit_line(fits))
+
+
+def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs) -> None:
+    """``--csv``, ``--uff`` and ``--plot-dir``."""
     if args.csv:
         from okid_ros.tools.exports import write_modal_csv
 
@@ -171,7 +183,6 @@ def run(args: argparse.Namespace) -> int:
         written = write_validation_figures(ModelView.of(model), record.u, record.y, args.plot_dir, force=args.force,
                                            reference=reference, pairs=pairs)
         print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
-    return 0
 
 
 _UNCERTAINTY_METHODS = {

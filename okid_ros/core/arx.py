@@ -130,8 +130,8 @@ def fit_arx(
     regularization: str = "ridge",
     penalty: float | str = "gcv",
     decay: float | str = "gcv",
-    valid: np.ndarray | None = None,
     *,
+    valid: np.ndarray | None = None,
     center: bool = False,
 ) -> ArxFit:
     """Fit a MIMO ARX model of order q by regularized least squares (paper Eq. 23).
@@ -178,7 +178,7 @@ def fit_arx(
             f"too few samples for ARX order {order}: {u.shape[0]} given, at least {needed} recommended"
         )
     normal = normal_equations(phi, targets)
-    return scales.restore_arx(fit_from_normal_equations(normal, order, p, m, regularization, penalty, decay,
+    return scales.restore_arx(fit_from_normal_equations(normal, order, p, m, regularization, penalty, decay=decay,
                                                         center=center))
 
 
@@ -189,8 +189,8 @@ def fit_from_normal_equations(
     n_inputs: int,
     regularization: str = "ridge",
     penalty: float | str = "gcv",
-    decay: float | str = "gcv",
     *,
+    decay: float | str = "gcv",
     center: bool = False,
 ) -> ArxFit:
     """The ARX solution of a window given only its normal equations (see :func:`fit_arx`).

@@ -224,14 +224,7 @@ def identify_modes(
     c_psi = C @ psi
     b_chi = chi @ B
     residues = np.einsum("pi,im->ipm", c_psi, b_chi)
-    msv = np.array([
-        np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12))
-        for i in upper
-    ])
-    # Relative to the largest *stable* mode: an unstable pole's MSV is unbounded.
-    stable_msv = msv[np.abs(z[upper]) < 1.0]
-    scale = stable_msv.max() if stable_msv.size and stable_msv.max() > 0 else (msv.max() if msv.size else 1.0)
-    msv_rel = msv / scale if scale > 0 else msv
+    msv_rel = _relative_msv(z, c_psi, b_chi, upper)
     emac = (
         _emac(z, residues, reference_markov)[upper]
         if reference_markov is not None
@@ -240,16 +233,9 @@ def identify_modes(
     modes: list[Mode] = []
     vectors = []
     for idx, i in enumerate(upper):
+        vec, shape_unit = _normalized_shape(psi[:, i], c_psi[:, i], C)
         w = abs(s[i])
         zeta = -s[i].real / w if w > 0 else 1.0
-        shape = c_psi[:, i]
-        ref = _reference_row(shape)
-        rot = np.exp(-1j * np.angle(shape[ref]))
-        vec = psi[:, i] * rot
-        cn = np.linalg.norm(C @ np.column_stack([vec.real, vec.imag]))
-        vec = vec / cn if cn > 0 else vec
-        shape = C @ vec
-        shape_unit = shape / np.linalg.norm(shape) if np.linalg.norm(shape) > 0 else shape
         stable = bool(abs(z[i]) < 1.0)
         physical = bool(
             stable
@@ -258,25 +244,39 @@ def identify_modes(
             and msv_rel[idx] >= criteria.min_msv
             and (not check_mpc or mpc(shape_unit) >= criteria.min_mpc)
         )
-        modes.append(
-            Mode(
-                frequency_rad_s=float(w),
-                frequency_hz=float(w / (2 * np.pi)),
-                damping_ratio=float(zeta),
-                eigenvalue=complex(z[i]),
-                shape=shape_unit,
-                mpc=mpc(shape_unit),
-                msv=float(msv_rel[idx]),
-                emac=float(emac[idx]),
-                stable=stable,
-                physical=physical,
-            )
-        )
+        modes.append(Mode(frequency_rad_s=float(w), frequency_hz=float(w / (2 * np.pi)), damping_ratio=float(zeta),
+                          eigenvalue=complex(z[i]), shape=shape_unit, mpc=mpc(shape_unit), msv=float(msv_rel[idx]),
+                          emac=float(emac[idx]), stable=stable, physical=physical))
         vectors.append(vec)
     order = np.argsort([m.frequency_rad_s for m in modes], kind="stable")
     modes = [modes[i] for i in order]
     vecs = np.column_stack([vectors[i] for i in order]) if vectors else np.zeros((A.shape[0], 0), complex)
     return modes, vecs
+
+
+def _relative_msv(z: np.ndarray, c_psi: np.ndarray, b_chi: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Modal singular values of the pairs ``upper``, relative to the largest of a stable pole."""
+    msv = np.array([
+        np.linalg.norm(c_psi[:, i]) * np.linalg.norm(b_chi[i]) / np.sqrt(max(1 - abs(z[i]) ** 2, 1e-12))
+        for i in upper
+    ])
+    # Relative to the largest *stable* mode: an unstable pole's MSV is unbounded.
+    stable_msv = msv[np.abs(z[upper]) < 1.0]
+    scale = stable_msv.max() if stable_msv.size and stable_msv.max() > 0 else (msv.max() if msv.size else 1.0)
+    return msv / scale if scale > 0 else msv
+
+
+def _normalized_shape(psi_i: np.ndarray, shape: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The eigenvector rotated to a real reference output and scaled (module docstring), and its unit shape.
+
+    ``shape`` is ``C psi_i`` as computed with the other eigenvectors (the same rounding).
+    """
+    rot = np.exp(-1j * np.angle(shape[_reference_row(shape)]))
+    vec = psi_i * rot
+    cn = np.linalg.norm(C @ np.column_stack([vec.real, vec.imag]))
+    vec = vec / cn if cn > 0 else vec
+    shape = C @ vec
+    return vec, shape / np.linalg.norm(shape) if np.linalg.norm(shape) > 0 else shape
 
 
 def modal_form(

@@ -105,6 +105,7 @@ def _package(
     x0: np.ndarray,
     sample_time_s: float,
     arx: ArxFit,
+    *,
     reference_markov: np.ndarray,
     options: RealizationOptions,
     stability=None,
@@ -216,7 +217,7 @@ def identify_from_arx(
     diagram = _diagram(search, completer, sample_time_s, options)
     system_markov = markov_from_arx(arx)
     identified = _package(
-        model, best.x0, sample_time_s, arx, system_markov[1:], options,
+        model, best.x0, sample_time_s, arx, reference_markov=system_markov[1:], options=options,
         stability=lambda mode: stable_fraction(mode, diagram, n_best, options.modes),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
@@ -231,7 +232,7 @@ def identify_from_arx(
 
 
 def _identify_paper(
-    arx: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, options: RealizationOptions,
+    arx: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *, options: RealizationOptions,
     u_offset: np.ndarray, y_offset: np.ndarray, warnings: list[str],
 ) -> IdentifiedModel:
     system_markov = markov_from_arx(arx)  # (q + 1, p, m): D, CB, CAB, ...
@@ -256,7 +257,7 @@ def _identify_paper(
         raise IdentificationError(f"the paper's gain identification failed: {exc}") from None
     model = InnovationModel(real.A, real.B, real.C, arx.D, white.K, white.innovation_covariance)
     return _package(
-        model, np.zeros(n), sample_time_s, arx, system_markov[1:], options,
+        model, np.zeros(n), sample_time_s, arx, reference_markov=system_markov[1:], options=options,
         hankel_singular_values=decomposition.s, method="paper", gain_method="whitening",
         system_markov=system_markov, input_offset=u_offset, output_offset=y_offset, warnings=warnings,
     )
@@ -349,15 +350,7 @@ def identify(
     if order == AUTO:
         order, arx_scores = choose_arx_order(u, y, options=options, arx_orders=arx_orders, center=center)
     order = int(order)
-    if order < 2:
-        raise IdentificationError(f"ARX order must be >= 2, got {order}")
-    d = regressor_length(order, p, m)
-    needed = order + d + 1
-    if u.shape[0] < needed:
-        raise IdentificationError(
-            f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {u.shape[0]} "
-            f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
-        )
+    _check_record_length(u.shape[0], order, p, m)
     if not frame.excited:
         raise IdentificationError(frame.warnings[0])
     if regularization is None:
@@ -369,9 +362,23 @@ def identify(
         raise IdentificationError(str(exc)) from None
     if method == "paper":
         u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
-        model = _identify_paper(arx, u, y, sample_time_s, options, u_offset, y_offset, warnings)
+        model = _identify_paper(arx, u, y, sample_time_s, options=options, u_offset=u_offset, y_offset=y_offset,
+                                warnings=warnings)
     else:
         model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
     model.arx_order_scores = arx_scores
     model.warnings += frame.warnings  # the dead inputs (identify_from_arx saw only the live ones)
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
+
+
+def _check_record_length(n_samples: int, order: int, p: int, m: int) -> None:
+    """IdentificationError unless an ARX model of ``order`` can be fitted to ``n_samples``."""
+    if order < 2:
+        raise IdentificationError(f"ARX order must be >= 2, got {order}")
+    d = regressor_length(order, p, m)
+    needed = order + d + 1
+    if n_samples < needed:
+        raise IdentificationError(
+            f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {n_samples} "
+            f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
+        )

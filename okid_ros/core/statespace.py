@@ -191,26 +191,26 @@ def simulate(
 
 
 def one_step_prediction(
-    A: np.ndarray,
-    B: np.ndarray,
-    C: np.ndarray,
-    D: np.ndarray,
-    K: np.ndarray,
+    model: "InnovationModel | tuple",
     u: np.ndarray,
     y: np.ndarray,
+    *,
     x0: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One-step predictions ``yhat_k = C xhat_k + D u_k`` and innovations ``y_k - yhat_k``.
 
     Parameters
     ----------
-    K : (n, p) the gain in the paper's convention (predictor gain ``A K``).
+    model : an :class:`InnovationModel` (or anything with ``A, B, C, D, K``), or the tuple
+        ``(A, B, C, D, K)``; ``K`` (n, p) is the gain in the paper's convention (predictor gain ``A K``).
     u : (N, m); y : (N, p).
+    x0 : (n,) the first state estimate (default zero).
 
     Returns
     -------
     y_hat : (N, p); innovations : (N, p)
     """
+    A, B, C, D, K = (model.A, model.B, model.C, model.D, model.K) if hasattr(model, "A") else model
     L = A @ K
     F = A - L @ C
     G = np.hstack([B - L @ D, L])

@@ -107,9 +107,15 @@ class _Layout:
         self.size = pos + p * m
 
 
-def _jacobian_and_residuals(lam_pairs, g_pairs, c_pairs, lam_reals, g_reals, c_reals, D, layout: _Layout,
+def _jacobian_and_residuals(pairs: tuple, reals: tuple, D, layout: _Layout, *,
                             u: np.ndarray, y: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``d yhat / d theta`` at the sample indices ``rows``: (R, p, P), and the residuals (R, p)."""
+    """``d yhat / d theta`` at the sample indices ``rows``: (R, p, P), and the residuals (R, p).
+
+    ``pairs`` and ``reals``: (poles, input residues, output shapes) of the complex pairs (upper
+    halves) and of the real poles.
+    """
+    lam_pairs, g_pairs, c_pairs = pairs
+    lam_reals, g_reals, c_reals = reals
     p, m = layout.p, layout.m
     v = np.hstack([y, u])
     J = np.zeros((rows.size, p, layout.size))
@@ -201,78 +207,93 @@ def attach_mode_uncertainty(
     u, y = check_io_arrays(u, y)
     A, B, C, D, K = (np.asarray(getattr(model, k), dtype=float) for k in ("A", "B", "C", "D", "K"))
     n, p, m = A.shape[0], C.shape[0], B.shape[1]
-    dt = float(model.sample_time_s)
     if not modes:
         return UncertaintyResult(True)
     if u.shape[0] != y.shape[0] or u.shape[1] != m or y.shape[1] != p:
         _set_nan(modes)
         return UncertaintyResult(False, f"record u{u.shape}, y{y.shape} does not fit the model (m={m}, p={p})")
-    L = A @ K
-    Abar = A - L @ C
-    lam, W = linalg.eig(Abar)
-    upper, real = _split_poles(lam)
-    if 2 * upper.size + real.size != n or np.max(np.abs(lam)) >= 1.0:
+    predictor = _diagonal_predictor(A, B, C, D, K)
+    if isinstance(predictor, str):
         _set_nan(modes)
-        return UncertaintyResult(False, "the predictor has repeated or unstable poles")
+        return UncertaintyResult(False, predictor)
+    lam, upper, real, G, Cw = predictor
+    layout = _Layout([int(np.argmax(np.abs(Cw[:, i]))) for i in upper],
+                     [int(np.argmax(np.abs(Cw[:, i]))) for i in real], p, m)
+    if burn_in is None:
+        burn_in = int(getattr(getattr(model, "arx", None), "order", DEFAULT_BURN_IN))
+    rows = _sample_rows(y.shape[0], burn_in, p=p, n_states=n, n_parameters=layout.size, max_flops=max_flops)
+    if isinstance(rows, str):
+        _set_nan(modes)
+        return UncertaintyResult(False, rows, layout.size)
+    J, residuals = _jacobian_and_residuals(
+        (lam[upper], G[upper], Cw[:, upper].T), (lam[real].real, G[real].real, Cw[:, real].real.T), D, layout,
+        u=u, y=y, rows=rows,
+    )
+    cov = _parameter_covariance(J, residuals, stride=int(rows[1] - rows[0]) if rows.size > 1 else 1)
+    _propagate_to_modes(modes, cov, predictor, layout, p=p, sample_time_s=float(model.sample_time_s))
+    return UncertaintyResult(True, "", layout.size, int(rows.size * p))
+
+
+def _diagonal_predictor(A, B, C, D, K) -> tuple | str:
+    """The predictor ``A - A K C`` in its eigenbasis: (poles, upper pairs, reals, G, C W), or why not."""
+    L = A @ K
+    lam, W = linalg.eig(A - L @ C)
+    upper, real = _split_poles(lam)
+    if 2 * upper.size + real.size != A.shape[0] or np.max(np.abs(lam)) >= 1.0:
+        return "the predictor has repeated or unstable poles"
     try:
         W_inv = linalg.inv(W)
     except linalg.LinAlgError:
-        _set_nan(modes)
-        return UncertaintyResult(False, "the predictor is not diagonalizable")
-    G = W_inv @ np.hstack([L, B - L @ D])  # rows g, (n, w)
-    Cw = C @ W  # columns c, (p, n)
-    pair_refs = [int(np.argmax(np.abs(Cw[:, i]))) for i in upper]
-    real_refs = [int(np.argmax(np.abs(Cw[:, i]))) for i in real]
-    layout = _Layout(pair_refs, real_refs, p, m)
-    P = layout.size
+        return "the predictor is not diagonalizable"
+    return lam, upper, real, W_inv @ np.hstack([L, B - L @ D]), C @ W  # G: rows g (n, w); C W: columns c
 
-    if burn_in is None:
-        arx = getattr(model, "arx", None)
-        burn_in = int(getattr(arx, "order", DEFAULT_BURN_IN))
-    n_samples = y.shape[0]
+
+def _sample_rows(n_samples: int, burn_in: int, *, p: int, n_states: int, n_parameters: int,
+                 max_flops: float) -> np.ndarray | str:
+    """The sample indices the information matrices use (every ``stride``-th), or why there are too few."""
+    P = n_parameters
     burn_in = int(min(max(burn_in, 0), n_samples // 4))
     available = n_samples - burn_in
     max_samples = int(min(max_flops / (2.0 * p * P * P), MAX_JACOBIAN_ENTRIES / (p * P)))
     if max_samples * p < MIN_ROWS_PER_PARAMETER * P or available * p < MIN_ROWS_PER_PARAMETER * P:
-        _set_nan(modes)
         need = 2.0 * min(available, max(max_samples, 1)) * p * P * P
-        return UncertaintyResult(
-            False,
-            f"not computed: {P} predictor parameters ({p} outputs, {n} states) need more than "
-            f"{MIN_ROWS_PER_PARAMETER} residuals per parameter within the budget of {max_flops:.0e} flops "
-            f"({need:.1e} for the rows available)",
-            P,
-        )
+        return (f"not computed: {P} predictor parameters ({p} outputs, {n_states} states) need more than "
+                f"{MIN_ROWS_PER_PARAMETER} residuals per parameter within the budget of {max_flops:.0e} flops "
+                f"({need:.1e} for the rows available)")
     stride = max(1, int(np.ceil(available / max_samples)))
-    rows = np.arange(burn_in, n_samples, stride)
+    return np.arange(burn_in, n_samples, stride)
 
-    J, residuals = _jacobian_and_residuals(
-        lam[upper], G[upper], Cw[:, upper].T, lam[real].real, G[real].real, Cw[:, real].real.T, D, layout, u, y, rows
-    )
-    innovation_cov = residuals.T @ residuals / rows.size
-    Jf = J.reshape(rows.size * p, P)
+
+def _parameter_covariance(J: np.ndarray, residuals: np.ndarray, *, stride: int) -> np.ndarray:
+    """Sandwich covariance ``H^-1 M H^-1`` of the predictor parameters from the Jacobian (R, p, P)."""
+    rows, p, P = J.shape
+    innovation_cov = residuals.T @ residuals / rows
+    Jf = J.reshape(rows * p, P)
     H = Jf.T @ Jf
     chol = linalg.cholesky(innovation_cov + 1e-300 * np.eye(p), lower=True)  # Re = chol chol^T
-    Jw = np.einsum("ij,rip->rjp", chol, J).reshape(rows.size * p, P)
+    Jw = np.einsum("ij,rip->rjp", chol, J).reshape(rows * p, P)
     M = Jw.T @ Jw
     # Subsampled rows stand for ``stride`` samples each.
     H *= stride
     M *= stride
     scale = np.sqrt(np.maximum(np.diag(H), 1e-300))
-    Hs = H / np.outer(scale, scale)
-    evals, evecs = linalg.eigh(Hs)
+    evals, evecs = linalg.eigh(H / np.outer(scale, scale))
     keep = evals > 1e-12 * evals.max()
-    H_pinv_s = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
-    H_inv = H_pinv_s / np.outer(scale, scale)
-    cov = H_inv @ M @ H_inv
+    H_inv = ((evecs[:, keep] / evals[keep]) @ evecs[:, keep].T) / np.outer(scale, scale)
+    return H_inv @ M @ H_inv
 
+
+def _propagate_to_modes(modes: list, cov: np.ndarray, predictor: tuple, layout: "_Layout", *, p: int,
+                        sample_time_s: float) -> None:
+    """Each mode's frequency and damping standard deviations from the parameters' covariance."""
+    lam, upper, real, G, Cw = predictor
     # Eigenvalues of A in the complex coordinates [pairs, conjugates, reals].
     lam_c = np.concatenate([lam[upper], np.conj(lam[upper]), lam[real].real])
     L_c = np.vstack([G[upper, :p], np.conj(G[upper, :p]), G[real, :p].real])
     C_c = np.hstack([Cw[:, upper], np.conj(Cw[:, upper]), Cw[:, real].real])
-    A_c = np.diag(lam_c) + L_c @ C_c
-    mu, R = linalg.eig(A_c)
+    mu, R = linalg.eig(np.diag(lam_c) + L_c @ C_c)
     Lf = linalg.inv(R)
+    dt = sample_time_s
     for mode in modes:
         j = int(np.argmin(np.abs(mu - complex(mode.eigenvalue))))
         grad_mu = _eigenvalue_gradient(Lf[j], R[:, j], C_c, L_c, upper.size, layout)
@@ -285,4 +306,3 @@ def attach_mode_uncertainty(
         d_zeta = -np.real(ds) / w + s.real * dw / w**2
         mode.frequency_hz_std = float(np.sqrt(max(d_freq @ cov @ d_freq, 0.0)))
         mode.damping_ratio_std = float(np.sqrt(max(d_zeta @ cov @ d_zeta, 0.0)))
-    return UncertaintyResult(True, "", P, int(rows.size * p))

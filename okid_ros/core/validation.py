@@ -88,7 +88,7 @@ def prediction_fits(model, u: np.ndarray, y: np.ndarray, *, burn_in: int | None 
     x0 = getattr(model, "x0", None)
     if x0 is not None and np.asarray(x0).shape != (model.A.shape[0],):
         x0 = None
-    y_pred, _ = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y, x0)
+    y_pred, _ = one_step_prediction(model, u, y, x0=x0)
     y_sim = simulate(model.A, model.B, model.C, model.D, u, x0)
     return {
         "one_step_pct": [float(v) for v in fit_percent(y[burn_in:], y_pred[burn_in:])],

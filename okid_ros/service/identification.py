@@ -145,7 +145,7 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     decay: float | str = "gcv" if prm.penalty_by_gcv else prm.tc_decay
     try:
         fit = fit_from_normal_equations(
-            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay,
+            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay=decay,
             center=prm.offsets == "remove",
         )
     except (ValueError, np.linalg.LinAlgError) as exc:

@@ -206,7 +206,24 @@ def modal_structure(frequencies_hz: Sequence[float], damping_ratios: Sequence[fl
     phi_in = rng.standard_normal((nm, n_inputs))
     phi_out = rng.standard_normal((n_outputs, nm))
     phi_w = rng.standard_normal((nm, nd))
-    w = 2 * np.pi * f
+    Ac, Bc, Bwc, Cq, D, Dw = _continuous_modal_matrices(2 * np.pi * f, z, phi_in, phi_out, phi_w, output)
+    A, BB = zero_order_hold(Ac, np.hstack([Bc, Bwc]), sample_time_s)
+    B, Bw = BB[:, :n_inputs], BB[:, n_inputs:]
+    s2 = float(disturbance_std) ** 2
+    Q = s2 * Bw @ Bw.T
+    S = s2 * Bw @ Dw.T
+    Rw = s2 * Dw @ Dw.T
+    P = scipy.linalg.solve_discrete_lyapunov(A, B @ B.T)
+    out_var = np.diag(Cq @ P @ Cq.T + D @ D.T)
+    R = Rw + np.diag((measurement_noise_ratio ** 2) * out_var)
+    return NoisyStateSpace(A, B, Cq, D, Q, R, sample_time_s, cross_covariance=S)
+
+
+def _continuous_modal_matrices(w: np.ndarray, z: np.ndarray, phi_in: np.ndarray, phi_out: np.ndarray,
+                               phi_w: np.ndarray, output: str) -> tuple[np.ndarray, ...]:
+    """``Ac, Bc, Bw_c, C, D, Dw`` of the modal structure of :func:`modal_structure` (continuous time)."""
+    nm, n_inputs = phi_in.shape
+    n_outputs, nd = phi_out.shape[0], phi_w.shape[1]
     n = 2 * nm
     Ac = np.zeros((n, n))
     Bc = np.zeros((n, n_inputs))
@@ -219,21 +236,8 @@ def modal_structure(frequencies_hz: Sequence[float], damping_ratios: Sequence[fl
     if output == "displacement":
         for i in range(nm):
             Cq[:, 2 * i] = phi_out[:, i]
-        D = np.zeros((n_outputs, n_inputs))
-        Dw = np.zeros((n_outputs, nd))
-    else:
-        for i in range(nm):
-            Cq[:, 2 * i] = -phi_out[:, i] * w[i] ** 2
-            Cq[:, 2 * i + 1] = -phi_out[:, i] * 2 * z[i] * w[i]
-        D = phi_out @ phi_in
-        Dw = phi_out @ phi_w
-    A, BB = zero_order_hold(Ac, np.hstack([Bc, Bwc]), sample_time_s)
-    B, Bw = BB[:, :n_inputs], BB[:, n_inputs:]
-    s2 = float(disturbance_std) ** 2
-    Q = s2 * Bw @ Bw.T
-    S = s2 * Bw @ Dw.T
-    Rw = s2 * Dw @ Dw.T
-    P = scipy.linalg.solve_discrete_lyapunov(A, B @ B.T)
-    out_var = np.diag(Cq @ P @ Cq.T + D @ D.T)
-    R = Rw + np.diag((measurement_noise_ratio ** 2) * out_var)
-    return NoisyStateSpace(A, B, Cq, D, Q, R, sample_time_s, cross_covariance=S)
+        return Ac, Bc, Bwc, Cq, np.zeros((n_outputs, n_inputs)), np.zeros((n_outputs, nd))
+    for i in range(nm):
+        Cq[:, 2 * i] = -phi_out[:, i] * w[i] ** 2
+        Cq[:, 2 * i + 1] = -phi_out[:, i] * 2 * z[i] * w[i]
+    return Ac, Bc, Bwc, Cq, phi_out @ phi_in, phi_out @ phi_w

@@ -66,6 +66,7 @@ def process_bag(
     out_path: str | Path,
     arx_values: dict,
     est_values: dict,
+    *,
     jsonl_path: str | Path | None = None,
     force: bool = False,
     storage: str = "mcap",

@@ -61,7 +61,7 @@ def test_analytic_jacobian_equals_finite_differences():
 
 
 def cost(model, u, y, burn_in):
-    _, e = one_step_prediction(model[0], model[1], model[2], model[3], model[4], u, y)
+    _, e = one_step_prediction(model[:5], u, y)
     return float(np.sum(e[burn_in:] ** 2))
 
 
@@ -87,7 +87,7 @@ def test_refinement_lowers_the_cost_and_approaches_the_truth():
     np.testing.assert_allclose(np.sort(np.abs(np.linalg.eigvals(refined.A))),
                                np.sort(np.abs(np.linalg.eigvals(truth.A))), atol=2e-3)
     # Its innovations are those of the returned model after the burn-in.
-    _, e = one_step_prediction(*after, u, y)
+    _, e = one_step_prediction(after, u, y)
     n_used = fit.innovations.shape[0]
     assert n_used == y.shape[0] - burn_in
     np.testing.assert_allclose(fit.innovations, e[-n_used:], atol=1e-9)

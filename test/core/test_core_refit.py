@@ -45,7 +45,7 @@ def test_refit_predictor_recovers_the_true_model_from_its_predictor_poles():
     assert rel(model.A @ model.K, truth.predictor_gain) < 0.02
     np.testing.assert_allclose(model.innovation_covariance, truth.innovation_covariance, atol=0.05)
     # Its innovations are the one-step prediction errors of the fitted model (x0 = 0 here).
-    _, errors = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y, fit.x0)
+    _, errors = one_step_prediction(model, u, y, x0=fit.x0)
     np.testing.assert_allclose(fit.innovations, errors, atol=1e-8 * np.abs(y).max())
     assert rel(fit.innovations, e) < 0.06
     # The record starts at rest: the fitted initial state is small against the typical state.

@@ -28,8 +28,8 @@ def _paper_record(n_samples: int, cutoff_hz: float | None, seed: int):
 
 
 def _ratio(model, truth, u, y, burn_in: int = 500) -> float:
-    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u, y)
-    _, e0 = one_step_prediction(truth.A, truth.B, truth.C, truth.D, truth.K, u, y)
+    _, e = one_step_prediction(model, u, y)
+    _, e0 = one_step_prediction(truth, u, y)
     return float(np.trace(np.cov(e[burn_in:].T)) / np.trace(np.cov(e0[burn_in:].T)))
 
 
@@ -88,7 +88,7 @@ def test_estimator_reproduces_the_innovation_form_predictor_and_modal_coordinate
     out = estimator.run(u, y)
     # The model applies to the signals less the offsets it removed (the record's means).
     u0, y0 = u - model.input_offset, y - model.output_offset
-    _, e = one_step_prediction(model.A, model.B, model.C, model.D, model.K, u0, y0)
+    _, e = one_step_prediction(model, u0, y0)
     np.testing.assert_allclose(out.innovations, e, atol=1e-9 * np.abs(y).max())
     assert out.modal_coordinates.shape == (3750, len(model.modes), 2)
     # Filtered outputs are closer to the measurements than the one-step predictions.

@@ -96,7 +96,7 @@ def test_window_gcv_fit_equals_fit_arx_on_its_samples(q, window, seed, regulariz
     est = SlidingWindowArx(q, 2, 2, window=window)
     est.update(u, y)
     u_w, y_w, _ = est.window_samples()
-    fit = fit_from_normal_equations(est.normal_equations(), q, 2, 2, regularization, 0.3, 0.9)
+    fit = fit_from_normal_equations(est.normal_equations(), q, 2, 2, regularization, 0.3, decay=0.9)
     batch = fit_arx(u_w, y_w, q, regularization, 0.3, 0.9)
     assert fit.n_rows == batch.n_rows == window
     assert np.linalg.norm(fit.theta - batch.theta) <= 1e-8 * np.linalg.norm(batch.theta)

@@ -138,12 +138,12 @@ def test_fit_of_window_equals_fit_arx_on_window_samples(regularization):
     u, y = simulate(1500, p, m, seed=4)
     est = SlidingWindowArx(q, p, m, window=W)
     est.update(u, y)
-    window_fit = fit_from_normal_equations(est.normal_equations(), q, p, m, regularization, 0.5, 0.9)
+    window_fit = fit_from_normal_equations(est.normal_equations(), q, p, m, regularization, 0.5, decay=0.9)
     batch = fit_arx(u[-(W + q):], y[-(W + q):], q, regularization, 0.5, 0.9)
     assert window_fit.n_rows == batch.n_rows == W
     assert rel(window_fit.theta, batch.theta) <= RTOL
     # With GCV the penalties agree to the tolerance of the scalar search of the batch routine.
-    gcv_fit = fit_from_normal_equations(est.normal_equations(), q, p, m, regularization, "gcv", "gcv")
+    gcv_fit = fit_from_normal_equations(est.normal_equations(), q, p, m, regularization, "gcv", decay="gcv")
     gcv_batch = fit_arx(u[-(W + q):], y[-(W + q):], q, regularization, "gcv", "gcv")
     assert gcv_fit.penalty == pytest.approx(gcv_batch.penalty, rel=1e-4)
     assert gcv_fit.decay == gcv_batch.decay

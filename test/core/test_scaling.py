@@ -59,9 +59,9 @@ def test_modes_do_not_depend_on_the_units_of_each_channel(paper_record, units: i
         assert abs(np.linalg.norm(a.shape) - 1) < 1e-12
         expected = b.shape * output_units / np.linalg.norm(b.shape * output_units)
         assert abs(abs(np.vdot(a.shape, expected)) - 1) < 1e-6
-    _, e_ref = one_step_prediction(reference.A, reference.B, reference.C, reference.D, reference.K,
+    _, e_ref = one_step_prediction(reference,
                                    u - reference.input_offset, y - reference.output_offset)
-    _, e = one_step_prediction(scaled.A, scaled.B, scaled.C, scaled.D, scaled.K,
+    _, e = one_step_prediction(scaled,
                                u * input_units - scaled.input_offset, y * output_units - scaled.output_offset)
     np.testing.assert_allclose(e / output_units, e_ref, rtol=1e-5, atol=1e-8 * np.abs(e_ref).max())
     assert scaled.stability_problem() is None or scaled.stability_problem() == ""

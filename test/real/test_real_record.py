@@ -60,7 +60,7 @@ def test_held_out_one_step_prediction_and_free_run_simulation(steel):
     uc, yc = u - model.input_offset, y - model.output_offset
     # The predictor runs from the start of the record (it is causal) and is scored on the
     # held-out samples only.
-    _, innovations = one_step_prediction(model.A, model.B, model.C, model.D, model.K, uc, yc, model.x0)
+    _, innovations = one_step_prediction(model, uc, yc, x0=model.x0)
     held_out = slice(TEST_START, None)
     ratio = np.var(innovations[held_out], axis=0) / np.var(yc[held_out], axis=0)
     assert np.all(np.isfinite(ratio))
