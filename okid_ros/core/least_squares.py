@@ -146,9 +146,11 @@ def solve_normal_equations(
     g = V.T @ r_t  # (d, p)
     # GCV on outputs of equal weight (each divided by its root mean square): with the per-channel
     # prior the penalty, hence the fit, does not depend on the units of any channel.
-    weight = 1.0 / np.maximum(np.diag(normal.yy), np.finfo(float).tiny)
-    g2 = np.sum(g * g * weight, axis=1)
-    parts = _gcv_curve(s, g2, float(np.sum(np.diag(normal.yy) * weight)), n_rows, p)
+    yy = np.diag(normal.yy)
+    root_weight = 1.0 / np.sqrt(np.maximum(yy, np.finfo(float).tiny))
+    with np.errstate(over="ignore"):  # an unexcited window: inf, which the GCV search avoids
+        g2 = np.sum((g * root_weight) ** 2, axis=1)
+    parts = _gcv_curve(s, g2, float(np.sum(yy * root_weight**2)), n_rows, p)
     if isinstance(penalty, str):
         if penalty != "gcv":
             raise ValueError(f"penalty must be a number or 'gcv', got {penalty!r}")
