@@ -11,6 +11,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from test_imports import _graph as import_graph
+
 PACKAGE = Path(__file__).resolve().parent.parent / "okid_ros"
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
@@ -57,24 +59,12 @@ def test_options_are_keyword_only():
     assert found == {}
 
 
-def _okid_imports(path: Path, modules: set[str]) -> set[str]:
-    names = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Import):
-            names.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module)
-            names.update(f"{node.module}.{a.name}" for a in node.names)
-    return {n for n in names if n in modules}
-
-
 def test_layers_import_only_downward():
-    modules = _modules()
     upward = {}
-    for name, path in modules.items():
+    for name, imported in import_graph().items():
         if name == "okid_ros":
             continue
-        bad = sorted(m for m in _okid_imports(path, set(modules)) if m != "okid_ros" and _layer(m) > _layer(name))
+        bad = sorted(m for m in imported if m != "okid_ros" and _layer(m) > _layer(name))
         if bad:
             upward[name] = bad
     assert upward == {}
