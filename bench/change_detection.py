@@ -1,6 +1,6 @@
 """Structural change: detection delay, re-identification time and false alarms (issue 13).
 
-Run:  python bench/change_detection.py [--part track delay stationary] [--seeds 0] [--threads 1]
+Run:  python bench/change_detection.py [--part track delay stationary calibration] [--seeds 0] [--threads 1]
 
 Systems: ``okid_bench.changes`` (250 Hz, 2 inputs, 3 accelerometers, 5 % sensor noise,
 disturbance forces): a 4-mode structure whose frequencies drop by 6 % or 2 % or whose damping
@@ -24,6 +24,9 @@ Parts:
   at 250 Hz) per system and seed; after an alarm the detector is re-armed with the same model,
   so every alarm is counted. In `track` the reference model stays the same once the window is
   full (it is only replaced by models of twice as many rows), so this is what `track` sees.
+- ``calibration``: the detector alone on white unit innovations (2 outputs), calibrated on
+  200 or 1000 samples: runs with an alarm within 20 000 samples, with the threshold of an exact
+  calibration against the one that allows for the calibration's error (the default), 300 runs each.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import os
 import sys
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-_parser.add_argument("--part", nargs="+", choices=("track", "delay", "stationary"),
+_parser.add_argument("--part", nargs="+", choices=("track", "delay", "stationary", "calibration"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -64,7 +67,7 @@ from okid_bench.changes import change_case  # noqa: E402
 from okid_bench.switching import settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
-from okid_ros.core.change_detection import InnovationPredictor, StructuralChangeMonitor  # noqa: E402
+from okid_ros.core.change_detection import ChangeDetector, InnovationPredictor, StructuralChangeMonitor  # noqa: E402
 from okid_ros.core.pipeline import identify_from_arx  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402
 
@@ -220,9 +223,34 @@ def part_stationary() -> None:
     print()
 
 
+def part_calibration(runs: int = 300, samples: int = 20_000, n_outputs: int = 2) -> None:
+    import numpy as np
+
+    print(f"## calibration: runs of white innovations ({n_outputs} outputs) with an alarm within {samples} "
+          f"samples, of {runs} (expected at the default 1e7 samples between false alarms: "
+          f"{runs * (1 - np.exp(-samples / 1e7)):.1f})")
+    print()
+    print("| calibration samples | exact-calibration threshold | threshold allowing for the calibration's error |")
+    print("|---|---|---|")
+    for reference in (200, 1000):
+        counts = []
+        for confidence in (None, "default"):
+            options = {} if confidence == "default" else {"calibration_confidence": None}
+            alarms = 0
+            for run in range(runs):
+                z = np.random.default_rng(run).standard_normal((reference + samples, n_outputs))
+                detector = ChangeDetector(n_outputs, reference_samples=reference, **options)
+                alarms += detector.process(z, 0) is not None
+            counts.append(alarms)
+        print(f"| {reference} | {counts[0]} | {counts[1]} |")
+        sys.stdout.flush()
+    print()
+
+
 def main() -> int:
     for part in _args.part:
-        {"track": part_track, "delay": part_delay, "stationary": part_stationary}[part]()
+        {"track": part_track, "delay": part_delay, "stationary": part_stationary,
+         "calibration": part_calibration}[part]()
     return 0
 
 

@@ -2,8 +2,8 @@
 
 A mode of a new model keeps the id of a mode seen in the last ``mode_memory`` accepted models
 when it matches it (relative frequency change below ``max_frequency_change`` and MAC of the
-shapes at least ``min_mac``, :func:`okid_ros.core.modal.match_modes`); other modes get fresh
-ids. ``mac_previous`` of a kept mode is its MAC to the mode it continues.
+shapes at least ``min_mac``, :func:`okid_ros.core.modal.match_modes`), the most recently seen
+first; other modes get fresh ids. ``mac_previous`` of a kept mode is its MAC to the mode it continues.
 
 After a structural change the memory is not used: the first model of the new structure is
 matched against the modes of the model before the change only (:meth:`ModeRegistry.match`
@@ -54,11 +54,25 @@ class ModeRegistry:
 
         ``against``: match only these modes (with their ids) instead of the memory.
         """
-        if against is None:
-            memory = [(mid, mode) for mid, (mode, seen) in self._seen.items()
-                      if self.accepted - seen <= self.mode_memory]
-        else:
-            memory = [(mode.id, mode) for mode in against]
+        if against is not None:
+            return self._match_one_group(modes, [(mode.id, mode) for mode in against])
+        # The most recently seen first: a mode continues the latest mode it matches, so an older id of
+        # the same mode (given up when the criteria were stricter, or lost for a few models) cannot
+        # take its place.
+        groups: dict[int, list[tuple[int, Mode]]] = {}
+        for mid, (mode, seen) in self._seen.items():
+            if self.accepted - seen <= self.mode_memory:
+                groups.setdefault(seen, []).append((mid, mode))
+        result: list[tuple[int, Mode] | None] = [None] * len(modes)
+        for seen in sorted(groups, reverse=True):
+            open_ = [i for i, match in enumerate(result) if match is None]
+            if not open_:
+                break
+            for i, match in zip(open_, self._match_one_group([modes[i] for i in open_], groups[seen])):
+                result[i] = match
+        return result
+
+    def _match_one_group(self, modes: list[Mode], memory: list[tuple[int, Mode]]) -> list[tuple[int, Mode] | None]:
         matches = match_modes([mode for _, mode in memory], modes, self.max_frequency_change, self.min_mac)
         return [None if j is None else memory[j] for j in matches]
 

@@ -22,7 +22,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
 from okid_msgs.msg import IoSample, StateSpaceModel, StructuralChange
-from okid_ros.core.change_detection import cusum_threshold
+from okid_ros.core.change_detection import DEFAULT_REFERENCE_SAMPLES, calibration_scale, cusum_threshold
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 T0 = 2000.0
@@ -43,7 +43,6 @@ PARAMS = """
   ros__parameters:
     realization: {n_states: 6, refine: false, worker: thread}
     tracking: {min_matched_fraction: 0.0}
-    change: {reference_samples: 200}
 """
 SENSOR_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -219,7 +218,8 @@ def _monitoring_threshold(probe: Probe) -> float:
 def test_the_variance_ratio_retunes_the_change_test_at_once(probe):
     threshold = _monitoring_threshold(probe)
     probe.set(change__variance_ratio=3.0)
-    ratio = cusum_threshold(1e7, 2, 3.0) / cusum_threshold(1e7, 2, 1.5)
+    scale = calibration_scale(DEFAULT_REFERENCE_SAMPLES, 2)  # the threshold allows for the calibration's error
+    ratio = cusum_threshold(1e7, 2, 3.0, scale=scale) / cusum_threshold(1e7, 2, 1.5, scale=scale)
     status = probe.fresh_status()
     assert float(status["change_threshold"]) == pytest.approx(threshold * ratio, rel=1e-3)
     probe.set(change__variance_ratio=1.5)

@@ -46,3 +46,16 @@ def test_after_a_change_only_the_modes_before_count_and_the_others_are_retired()
     # A retired id never comes back, even for a mode like the old one.
     again = [mode(14.0, [0, 1]), mode(20.0, [1, 1])]
     assert [m.id for m in reg.assign(again, reg.match(again))] == [4, 5]
+
+
+def test_a_returning_mode_takes_the_id_it_was_last_seen_with_not_an_older_one():
+    reg = ModeRegistry(max_frequency_change=0.05, min_mac=0.7, mode_memory=10)
+    old = reg.assign([mode(48.5, [1, 0.2])], reg.match([mode(48.5, [1, 0.2])]))[0].id
+    reg.configure(max_frequency_change=1e-9, min_mac=1.0, mode_memory=10)  # nothing matches: a fresh id
+    newer = reg.assign([mode(48.6, [1, 0.25])], reg.match([mode(48.6, [1, 0.25])]))[0].id
+    assert newer != old
+    reg.configure(max_frequency_change=0.05, min_mac=0.7, mode_memory=10)
+    reg.assign([], [])  # the mode is missing from one model
+    # It is closer to the old entry (same frequency and shape), but continues the newer one.
+    back = reg.assign([mode(48.5, [1, 0.2])], reg.match([mode(48.5, [1, 0.2])]))
+    assert back[0].id == newer

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from okid_ros.core.change_detection import cusum_threshold
+from okid_ros.core.change_detection import calibration_scale, cusum_threshold
 from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
@@ -128,7 +128,8 @@ def test_the_change_test_takes_a_new_tuning_at_once(running):
         running.step()
     threshold = running.est.diagnostics()["change_threshold"]
     running.change(change_variance_ratio=3.0)
-    ratio = cusum_threshold(1e7, 2, 3.0) / cusum_threshold(1e7, 2, 1.5)
+    scale = calibration_scale(200, 2)  # the threshold allows for the calibration's error
+    ratio = cusum_threshold(1e7, 2, 3.0, scale=scale) / cusum_threshold(1e7, 2, 1.5, scale=scale)
     assert running.est.diagnostics()["change_threshold"] == pytest.approx(threshold * ratio)
     assert not running.changes
     running.change(change_variance_ratio=1.5, change_false_alarm_samples=100.0)
