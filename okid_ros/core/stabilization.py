@@ -103,9 +103,17 @@ def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria,
     return sorted(poles, key=lambda pole: pole.frequency_hz)
 
 
-def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tuple[bool, bool, bool]:
-    """(frequency, + damping, + shape) criteria of ``pole`` against the closest of ``others``."""
+def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria,
+           frequencies: np.ndarray | None = None) -> tuple[bool, bool, bool]:
+    """(frequency, + damping, + shape) criteria of ``pole`` against the closest of ``others``.
+
+    ``frequencies``: the others' ``frequency_hz`` as an array (then only the poles within the
+    frequency tolerance are visited, in the same order).
+    """
     best = (False, False, False)
+    if frequencies is not None:
+        near = np.abs(frequencies - pole.frequency_hz) / max(pole.frequency_hz, 1e-300) <= criteria.stability_frequency
+        others = [others[i] for i in np.flatnonzero(near)]
     for other in others:
         df = abs(other.frequency_hz - pole.frequency_hz) / max(pole.frequency_hz, 1e-300)
         if df > criteria.stability_frequency:
@@ -148,8 +156,10 @@ def stabilization_diagram(
         if known is not None and known[1].shape[0] != models[n].A.shape[0]:
             known = None
         poles = _poles(models[n], sample_time_s, criteria, known)
+        frequencies = np.array([other.frequency_hz for other in previous])
         for pole in poles:
-            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, previous, criteria)
+            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(
+                pole, previous, criteria, frequencies)
         diagram.append(StabilizationOrder(n, poles))
         previous = poles
     return diagram

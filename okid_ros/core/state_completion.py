@@ -75,15 +75,41 @@ def stabilize_with_eigen(
     moved = np.abs(lam) >= 1.0 - 1e-12
     if not moved.any():
         return A, 0, (lam, V)
-    if np.linalg.cond(V) > 1e10:
+    V_inv = _basis_inverse(V)
+    if V_inv is None:
         # Defective or nearly so: no eigenbasis to work in; shrink the whole matrix instead.
         factor = max_radius / np.max(np.abs(lam))
         return A * factor, int(moved.sum()), (lam * factor, V)
     new = lam.copy()
     mod = np.abs(lam[moved])
     new[moved] = lam[moved] / mod * np.minimum(1.0 / mod, max_radius)
-    A_stable = (V * new) @ linalg.inv(V)
+    A_stable = (V * new) @ V_inv
     return np.real(A_stable), int(moved.sum()), (new, V)
+
+
+# An eigenbasis with a 2-norm condition number above this is taken as defective.
+MAX_BASIS_CONDITION = 1e10
+
+
+def _basis_inverse(V: np.ndarray) -> np.ndarray | None:
+    """``inv(V)`` (n, n), or None when ``cond(V) > MAX_BASIS_CONDITION`` (2-norm) or V is singular.
+
+    The 2-norm condition number lies between ``cond_F / n`` and ``cond_F`` (Frobenius norms of
+    ``V`` and its inverse, which is needed anyway): the SVD of ``V`` is computed only when that
+    bracket straddles the limit.
+    """
+    try:
+        V_inv = linalg.inv(V)
+    except (linalg.LinAlgError, ValueError):
+        return None
+    if not np.all(np.isfinite(V_inv)):
+        return None
+    frobenius = np.linalg.norm(V) * np.linalg.norm(V_inv)
+    if frobenius <= MAX_BASIS_CONDITION:
+        return V_inv
+    if frobenius / V.shape[0] > MAX_BASIS_CONDITION or np.linalg.cond(V) > MAX_BASIS_CONDITION:
+        return None
+    return V_inv
 
 
 def _lstsq(regressor: np.ndarray, target: np.ndarray) -> np.ndarray:

@@ -169,11 +169,15 @@ def _run_states(F: np.ndarray, G: np.ndarray, w: np.ndarray, x0: np.ndarray) -> 
     """States ``x_k`` (N, n) of ``x+ = F x + G w`` for inputs ``w`` (N, r), from ``x0``."""
     n_samples = w.shape[0]
     states = np.empty((n_samples, F.shape[0]))
-    x = x0.astype(float).copy()
+    if n_samples == 0:
+        return states
+    states[0] = x0
     Gw = w @ G.T  # precompute the input drive: one matmul instead of N small ones
-    for k in range(n_samples):
-        states[k] = x
-        x = F @ x + Gw[k]
+    product = np.empty(F.shape[0])
+    dot, add = np.dot, np.add  # written in place: no temporaries per sample
+    for k in range(n_samples - 1):
+        dot(F, states[k], out=product)
+        add(product, Gw[k], out=states[k + 1])
     return states
 
 
