@@ -74,8 +74,11 @@ def gain_from_predictor(A: np.ndarray, L: np.ndarray) -> np.ndarray:
         return linalg.lstsq(A, L)[0]
 
 
-def _impulse_rows(Abar: np.ndarray, C: np.ndarray, length: int) -> np.ndarray:
-    """``C Abar^k`` for k = 0..length-1: (length, p, n), zero once it has decayed to 1e-13."""
+def _impulse_rows(Abar: np.ndarray, C: np.ndarray, length: int) -> tuple[np.ndarray, int]:
+    """``C Abar^k`` for k = 0..length-1: (length, p, n), zero once it has decayed to 1e-13.
+
+    Also returns how many leading rows are filled (the rest are zero).
+    """
     p, n = C.shape
     out = np.zeros((length, p, n))
     row = C.copy()
@@ -84,8 +87,8 @@ def _impulse_rows(Abar: np.ndarray, C: np.ndarray, length: int) -> np.ndarray:
         out[k] = row
         row = row @ Abar
         if np.abs(row).max() < 1e-13 * scale:
-            break
-    return out
+            return out, k + 1
+    return out, length
 
 
 def refit_predictor(
@@ -125,11 +128,14 @@ def refit_predictor(
     n_par = n_gam + n_x0 + p * m
     if n_samples * p <= n_par:
         raise ValueError(f"{n_samples} samples are too few to refit {n_par} predictor parameters")
-    impulse = _impulse_rows(Abar, C, n_samples)  # C Abar^k, (N, p, n)
+    impulse, filled = _impulse_rows(Abar, C, n_samples)  # C Abar^k, (N, p, n), zero after `filled` rows
     # Regressor of Gam[i, j] for output c at time k: sum_{tau>=1} (C Abar^{tau-1})[c, i] v_j(k - tau).
-    nfft = fft.next_fast_len(2 * n_samples)
+    # The impulse is nonzero at lags 1..filled only, so N + filled points keep the circular
+    # convolution's first N samples free of wrap-around (a stable predictor decays within a few
+    # hundred samples: the FFTs are about half as long as 2 N).
+    nfft = fft.next_fast_len(n_samples + filled)
     h = np.zeros((nfft, p, n))
-    h[1 : n_samples + 1] = impulse[: min(n_samples, nfft - 1)]
+    h[1 : filled + 1] = impulse[:filled]
     h_f = fft.rfft(h, axis=0)
     v_f = fft.rfft(v, n=nfft, axis=0)
     normal = np.zeros((n_par, n_par))
