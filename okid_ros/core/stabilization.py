@@ -103,17 +103,9 @@ def _poles(model: InnovationModel, sample_time_s: float, criteria: ModeCriteria,
     return sorted(poles, key=lambda pole: pole.frequency_hz)
 
 
-def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria,
-           frequencies: np.ndarray | None = None) -> tuple[bool, bool, bool]:
-    """(frequency, + damping, + shape) criteria of ``pole`` against the closest of ``others``.
-
-    ``frequencies``: the others' ``frequency_hz`` as an array (then only the poles within the
-    frequency tolerance are visited, in the same order).
-    """
+def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tuple[bool, bool, bool]:
+    """(frequency, + damping, + shape) criteria of ``pole`` against the closest of ``others``."""
     best = (False, False, False)
-    if frequencies is not None:
-        near = np.abs(frequencies - pole.frequency_hz) / max(pole.frequency_hz, 1e-300) <= criteria.stability_frequency
-        others = [others[i] for i in np.flatnonzero(near)]
     for other in others:
         df = abs(other.frequency_hz - pole.frequency_hz) / max(pole.frequency_hz, 1e-300)
         if df > criteria.stability_frequency:
@@ -126,6 +118,22 @@ def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria,
         if sum(candidate) > sum(best):
             best = candidate
     return best
+
+
+def _near_in_frequency(poles: list[StabilizationPole], previous: list[StabilizationPole],
+                       criteria: ModeCriteria) -> list[list[StabilizationPole]]:
+    """For each pole, the previous order's poles within the frequency tolerance (in order).
+
+    One array comparison per order instead of a Python loop over every pair; :func:`_match`
+    then visits only these (the others fail its first test).
+    """
+    if not poles or not previous:
+        return [[] for _ in poles]
+    current = np.array([pole.frequency_hz for pole in poles])
+    others = np.array([pole.frequency_hz for pole in previous])
+    relative = np.abs(others[None, :] - current[:, None]) / np.maximum(current, 1e-300)[:, None]
+    near = relative <= criteria.stability_frequency
+    return [[previous[j] for j in np.flatnonzero(row)] if row.any() else [] for row in near]
 
 
 def stabilization_diagram(
@@ -156,10 +164,8 @@ def stabilization_diagram(
         if known is not None and known[1].shape[0] != models[n].A.shape[0]:
             known = None
         poles = _poles(models[n], sample_time_s, criteria, known)
-        frequencies = np.array([other.frequency_hz for other in previous])
-        for pole in poles:
-            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(
-                pole, previous, criteria, frequencies)
+        for pole, near in zip(poles, _near_in_frequency(poles, previous, criteria)):
+            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, near, criteria)
         diagram.append(StabilizationOrder(n, poles))
         previous = poles
     return diagram
