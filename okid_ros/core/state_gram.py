@@ -25,7 +25,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.regressors import arx_regressors
-from okid_ros.core.state_completion import stabilize_with_eigen
+from okid_ros.core.stable_matrix import stabilize_with_eigen
 from okid_ros.core.statespace import free_parameters
 
 __all__ = ["StateGram", "GramRegression"]
@@ -107,6 +107,36 @@ class StateGram:
         self._pairs = max(self.n_samples - 1, 1)
         self._pair_gram = (self.gram * self.n_samples - np.outer(last, last)) / self._pairs
         self._base: np.ndarray | None = None
+
+    @classmethod
+    def of_states(cls, states: np.ndarray, u: np.ndarray, y: np.ndarray) -> "StateGram":
+        """The Gram of a given state sequence: ``regress(n)`` then regresses it as the data pass does.
+
+        ``states`` (N, n), ``u`` (N, m), ``y`` (N, p): ``regress(n, covariances=True)`` gives what
+        :func:`.state_completion.regress_state_equations` and the residual covariances give.
+
+        Raises
+        ------
+        ValueError if the states are not finite.
+        """
+        if not np.all(np.isfinite(states)):
+            raise ValueError("the state sequence is not finite")
+        n_samples, n = states.shape
+        self = cls.__new__(cls)
+        self.m, self.p, self.n_cols = u.shape[1], y.shape[1], 0
+        self.rows = np.arange(n_samples)
+        self.n_samples = max(n_samples, 1)
+        self._pairs = max(n_samples - 1, 1)
+        pairs = np.hstack([u[:-1], states[:-1], y[:-1], states[1:]])  # [u, x, y, x_next]
+        self._pair_base = pairs.T @ pairs
+        base = self._pair_base.copy()
+        last = np.concatenate([u[-1], states[-1], y[-1]])
+        k = last.size
+        base[:k, :k] += np.outer(last, last)  # the output equation uses every row
+        self._base = base / self.n_samples
+        self._pair_base /= self._pairs
+        self._top = n
+        return self
 
     def past_weight(self) -> np.ndarray:
         """Lower Cholesky factor of the past data's covariance ``z^T z / M`` (the ERA weighting)."""
