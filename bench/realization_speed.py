@@ -105,12 +105,17 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
             times.append(elapsed)
     model = json.loads(out.read_text())
     svd_s, shape = _hankel_svd_seconds(data_path, order, runs)
-    return {"identify_s": times, "realization_s": _realization_seconds(data_path, order, runs), "svd_s": svd_s,
-            "hankel_shape": list(shape), "n_states": model["n_states"], "modes": len(model["modes"])}
+    realization_s, realization_cpu_s = _realization_seconds(data_path, order, runs)
+    return {"identify_s": times, "realization_s": realization_s, "realization_cpu_s": realization_cpu_s,
+            "svd_s": svd_s, "hankel_shape": list(shape), "n_states": model["n_states"], "modes": len(model["modes"])}
 
 
-def _realization_seconds(data_path: Path, order: int, runs: int) -> list[float]:
-    """Times of ``identify_from_arx`` alone (the realization, without the ARX fit and the JSON)."""
+def _realization_seconds(data_path: Path, order: int, runs: int) -> tuple[list[float], list[float]]:
+    """Wall and CPU times of ``identify_from_arx`` alone (the realization, without the ARX fit and the JSON).
+
+    The CPU time of this one-threaded process is what the load of other jobs on the machine
+    changes least (they stretch the wall time by waiting for a core).
+    """
     from okid_ros.core.arx import fit_from_normal_equations, normal_equations
     from okid_ros.core.pipeline import identify_from_arx
     from okid_ros.core.regressors import arx_regressors
@@ -120,13 +125,14 @@ def _realization_seconds(data_path: Path, order: int, runs: int) -> list[float]:
     phi, targets, _ = arx_regressors(u, y, order)
     arx = fit_from_normal_equations(normal_equations(phi, targets), order, y.shape[1], u.shape[1], "ridge",
                                     center=True)
-    times = []
+    times, cpu = [], []
     for i in range(runs + 1):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         identify_from_arx(arx, u, y, dt)
         if i:
             times.append(time.perf_counter() - start)
-    return times
+            cpu.append(time.process_time() - start_cpu)
+    return times, cpu
 
 
 def _old_tree(ref: str) -> Path:
@@ -149,21 +155,24 @@ def _run_worker(tree: Path, data_path: Path, order: int, runs: int) -> dict:
 def _table(results: dict) -> str:
     lines = [
         "| case | Hankel | code | states | modes | identify s (median) | one Hankel SVD s | identify / SVD "
-        "| speed-up | realization s | realization / SVD | speed-up |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| speed-up | realization s | realization / SVD | speed-up | realization CPU s | speed-up (CPU) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, runs in results.items():
         label, order = CASES[name]
         old, new = runs["old"], runs["new"]
         old_t, new_t = np.median(old["identify_s"]), np.median(new["identify_s"])
         old_r, new_r = np.median(old["realization_s"]), np.median(new["realization_s"])
+        old_c, new_c = (np.median(res.get("realization_cpu_s") or [np.nan]) for res in (old, new))
         svd = np.median(old["svd_s"] + new["svd_s"])  # the same matrix: pooled over all workers
-        for code, res, t, r in (("old", old, old_t, old_r), ("new", new, new_t, new_r)):
+        for code, res, t, r, c in (("old", old, old_t, old_r, old_c), ("new", new, new_t, new_r, new_c)):
             shape = "x".join(str(s) for s in res["hankel_shape"][0])
             speed = "" if code == "old" else f"{old_t / t:.1f}x"
             speed_r = "" if code == "old" else f"{old_r / r:.1f}x"
+            speed_c = "" if code == "old" else f"{old_c / c:.1f}x"
             lines.append(f"| {label}, --order {order} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
-                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} |")
+                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} "
+                         f"| {c:.3f} | {speed_c} |")
     return "\n".join(lines)
 
 
@@ -194,6 +203,7 @@ def main() -> None:
                 slot = runs[code]
                 slot.setdefault("identify_s", []).extend(res["identify_s"])
                 slot.setdefault("realization_s", []).extend(res["realization_s"])
+                slot.setdefault("realization_cpu_s", []).extend(res["realization_cpu_s"])
                 slot.setdefault("svd_s", []).append(res["svd_s"])
                 for key in ("hankel_shape", "n_states", "modes"):
                     slot.setdefault(key, []).append(res[key])
