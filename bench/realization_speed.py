@@ -63,8 +63,8 @@ def _write_case_data(name: str, folder: Path) -> Path:
     return path
 
 
-def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, tuple[int, int]]:
-    """Median time of one SVD of the weighted Hankel matrix ``identify`` factors for this record."""
+def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, float, tuple[int, int]]:
+    """Median wall and CPU time of one SVD of the weighted Hankel matrix ``identify`` factors here."""
     from scipy import linalg
 
     from okid_ros.core.arx import fit_from_normal_equations, normal_equations
@@ -80,12 +80,13 @@ def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, 
     past = arx_regressors(u, y, cols)[0][:, u.shape[1]:]
     weight = linalg.cholesky(past.T @ past / past.shape[0] + 1e-10 * np.eye(past.shape[1]), lower=True)
     weighted = h0 @ weight
-    times = []
-    for _ in range(runs + 1):
-        start = time.perf_counter()
+    times, cpu = [], []
+    for _ in range(4 * runs + 1):  # milliseconds each: more repeats for a steady median
+        start, start_cpu = time.perf_counter(), time.process_time()
         linalg.svd(weighted, full_matrices=False)
         times.append(time.perf_counter() - start)
-    return float(np.median(times[1:])), weighted.shape
+        cpu.append(time.process_time() - start_cpu)
+    return float(np.median(times[1:])), float(np.median(cpu[1:])), weighted.shape
 
 
 def _worker(data_path: Path, order: int, runs: int) -> dict:
@@ -104,10 +105,11 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
         if i:
             times.append(elapsed)
     model = json.loads(out.read_text())
-    svd_s, shape = _hankel_svd_seconds(data_path, order, runs)
+    svd_s, svd_cpu_s, shape = _hankel_svd_seconds(data_path, order, runs)
     realization_s, realization_cpu_s = _realization_seconds(data_path, order, runs)
     return {"identify_s": times, "realization_s": realization_s, "realization_cpu_s": realization_cpu_s,
-            "svd_s": svd_s, "hankel_shape": list(shape), "n_states": model["n_states"], "modes": len(model["modes"])}
+            "svd_s": svd_s, "svd_cpu_s": svd_cpu_s, "hankel_shape": list(shape), "n_states": model["n_states"],
+            "modes": len(model["modes"])}
 
 
 def _realization_seconds(data_path: Path, order: int, runs: int) -> tuple[list[float], list[float]]:
@@ -155,8 +157,9 @@ def _run_worker(tree: Path, data_path: Path, order: int, runs: int) -> dict:
 def _table(results: dict) -> str:
     lines = [
         "| case | Hankel | code | states | modes | identify s (median) | one Hankel SVD s | identify / SVD "
-        "| speed-up | realization s | realization / SVD | speed-up | realization CPU s | speed-up (CPU) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| speed-up | realization s | realization / SVD | speed-up | realization CPU s | SVD CPU s "
+        "| realization / SVD (CPU) | speed-up (CPU) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, runs in results.items():
         label, order = CASES[name]
@@ -165,6 +168,7 @@ def _table(results: dict) -> str:
         old_r, new_r = np.median(old["realization_s"]), np.median(new["realization_s"])
         old_c, new_c = (np.median(res.get("realization_cpu_s") or [np.nan]) for res in (old, new))
         svd = np.median(old["svd_s"] + new["svd_s"])  # the same matrix: pooled over all workers
+        svd_cpu = np.median(old.get("svd_cpu_s", []) + new.get("svd_cpu_s", []) or [np.nan])
         for code, res, t, r, c in (("old", old, old_t, old_r, old_c), ("new", new, new_t, new_r, new_c)):
             shape = "x".join(str(s) for s in res["hankel_shape"][0])
             speed = "" if code == "old" else f"{old_t / t:.1f}x"
@@ -172,7 +176,7 @@ def _table(results: dict) -> str:
             speed_c = "" if code == "old" else f"{old_c / c:.1f}x"
             lines.append(f"| {label}, --order {order} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
                          f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} "
-                         f"| {c:.3f} | {speed_c} |")
+                         f"| {c:.3f} | {svd_cpu:.4f} | {c / svd_cpu:.0f} | {speed_c} |")
     return "\n".join(lines)
 
 
@@ -205,6 +209,7 @@ def main() -> None:
                 slot.setdefault("realization_s", []).extend(res["realization_s"])
                 slot.setdefault("realization_cpu_s", []).extend(res["realization_cpu_s"])
                 slot.setdefault("svd_s", []).append(res["svd_s"])
+                slot.setdefault("svd_cpu_s", []).append(res["svd_cpu_s"])
                 for key in ("hankel_shape", "n_states", "modes"):
                     slot.setdefault(key, []).append(res[key])
             print(f"{name}: old {np.median(runs['old']['identify_s']):.3f} s, new "
