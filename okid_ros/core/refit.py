@@ -74,20 +74,38 @@ def gain_from_predictor(A: np.ndarray, L: np.ndarray) -> np.ndarray:
         return linalg.lstsq(A, L)[0]
 
 
+# Rows of C Abar^k computed per block (one product per block instead of one per lag).
+IMPULSE_BLOCK = 64
+
+
 def _impulse_rows(Abar: np.ndarray, C: np.ndarray, length: int) -> tuple[np.ndarray, int]:
     """``C Abar^k`` for k = 0..length-1: (length, p, n), zero once it has decayed to 1e-13.
 
-    Also returns how many leading rows are filled (the rest are zero).
+    Also returns how many leading rows are filled (the rest are zero): the rows up to the first
+    whose largest entry is below 1e-13 of ``C``'s, as a lag-by-lag recursion stops. The rows are
+    made in blocks of :data:`IMPULSE_BLOCK` lags, ``block_{j+1} = block_j Abar^64``, the first
+    block by doubling (``[R; R Abar^k]``), so a predictor decaying in a few hundred lags takes a
+    handful of matrix products instead of hundreds of Python steps.
     """
     p, n = C.shape
     out = np.zeros((length, p, n))
-    row = C.copy()
     scale = max(np.abs(C).max(), np.finfo(float).tiny)
-    for k in range(length):
-        out[k] = row
-        row = row @ Abar
-        if np.abs(row).max() < 1e-13 * scale:
-            return out, k + 1
+    block, power = C[None].copy(), Abar.copy()  # rows C Abar^0..k-1 and Abar^k
+    while block.shape[0] < min(IMPULSE_BLOCK, length):
+        block = np.concatenate([block, block @ power])
+        power = power @ power
+    start = 0
+    while start < length:
+        rows = block[: length - start]
+        decayed = np.flatnonzero(np.abs(rows).reshape(rows.shape[0], -1).max(axis=1) < 1e-13 * scale)
+        decayed = decayed[decayed + start > 0]  # row 0 (C itself) is always kept
+        if decayed.size:
+            stop = int(decayed[0])
+            out[start : start + stop] = rows[:stop]
+            return out, start + stop
+        out[start : start + rows.shape[0]] = rows
+        start += rows.shape[0]
+        block = block @ power
     return out, length
 
 

@@ -124,3 +124,26 @@ def test_diagram_marks_equal_the_pairwise_test_of_every_pole():
     assert any(pole.stable_shape for pole in diagram[-1].poles)
     assert mac(diagram[-1].poles[0].shape, diagram[-1].poles[0].shape) == pytest.approx(1.0)
     assert isinstance(diagram[0].poles[0], StabilizationPole)
+
+
+@pytest.mark.parametrize(("radius", "length"), [(0.94, 3000), (0.999, 2000), (0.5, 40), (0.9, 5), (0.0, 30)])
+def test_impulse_rows_by_blocks_equal_the_lag_by_lag_recursion(radius, length):
+    """``C Abar^k`` by blocks of lags: the same rows and the same decay point as one lag at a time."""
+    from okid_ros.core.refit import _impulse_rows
+
+    rng = np.random.default_rng(int(radius * 1000) + length)
+    n = 6
+    Q = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    Abar = Q @ np.diag(radius * np.cos(rng.uniform(0, 3, n))) @ Q.T
+    C = rng.standard_normal((2, n))
+    want = np.zeros((length, 2, n))
+    row, filled = C.copy(), length
+    for k in range(length):
+        want[k] = row
+        row = row @ Abar
+        if np.abs(row).max() < 1e-13 * np.abs(C).max():
+            filled = k + 1
+            break
+    got, got_filled = _impulse_rows(Abar, C, length)
+    assert got_filled == filled
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * np.abs(C).max())
