@@ -152,22 +152,24 @@ def refit_predictor(
     # convolution's first N samples free of wrap-around (a stable predictor decays within a few
     # hundred samples: the FFTs are about half as long as 2 N).
     nfft = fft.next_fast_len(n_samples + filled)
-    h = np.zeros((nfft, p, n))
-    h[1 : filled + 1] = impulse[:filled]
-    h_f = fft.rfft(h, axis=0)
-    v_f = fft.rfft(v, n=nfft, axis=0)
+    # Time along the last axis: contiguous transforms, and each output's design built transposed
+    # (parameters x samples) so that no strided copy is needed.
+    h = np.zeros((p, n, nfft))
+    h[:, :, 1 : filled + 1] = impulse[:filled].transpose(1, 2, 0)
+    h_f = fft.rfft(h, axis=-1)
+    v_f = fft.rfft(v.T, n=nfft, axis=-1)  # (w, nfft / 2 + 1)
     normal = np.zeros((n_par, n_par))
     rhs = np.zeros(n_par)
     blocks = []
     for c in range(p):
-        z = fft.irfft(h_f[:, c, :, None] * v_f[:, None, :], n=nfft, axis=0)[:n_samples]
-        design = np.zeros((n_samples, n_par))
-        design[:, :n_gam] = z.reshape(n_samples, n_gam)
+        design = np.zeros((n_par, n_samples))  # transposed: one row per parameter
+        z = fft.irfft(h_f[c][:, None, :] * v_f[None, :, :], n=nfft, axis=-1)  # (n, w, nfft)
+        design[:n_gam] = z[:, :, :n_samples].reshape(n_gam, n_samples)
         if fit_initial_state:
-            design[:, n_gam : n_gam + n] = impulse[:, c, :]
-        design[:, n_gam + n_x0 + c * m : n_gam + n_x0 + (c + 1) * m] = u
-        normal += design.T @ design
-        rhs += design.T @ y[:, c]
+            design[n_gam : n_gam + n] = impulse[:, c, :].T
+        design[n_gam + n_x0 + c * m : n_gam + n_x0 + (c + 1) * m] = u.T
+        normal += design @ design.T
+        rhs += design @ y[:, c]
         blocks.append(design)
     # A whisper of ridge keeps the solve defined if some direction is unexcited.
     ridge = 1e-12 * max(np.trace(normal) / n_par, np.finfo(float).tiny)
@@ -176,7 +178,7 @@ def refit_predictor(
     x0 = theta[n_gam : n_gam + n] if fit_initial_state else np.zeros(n)
     D = theta[n_gam + n_x0 :].reshape(p, m)
     L, Bbar = gam[:, :p], gam[:, p:]
-    innovations = np.column_stack([y[:, c] - blocks[c] @ theta for c in range(p)])
+    innovations = np.column_stack([y[:, c] - theta @ blocks[c] for c in range(p)])
     A = Abar + L @ C
     B = Bbar + L @ D
     K = gain_from_predictor(A, L)
