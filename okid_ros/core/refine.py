@@ -334,7 +334,8 @@ class _Objective:
         with np.errstate(all="ignore"):
             sig, coef = self.predictor.signals(theta, self.v, self.u, self.burn_in)
             sig = sig[: self.n_fitted // p]
-            sig = np.where(np.isfinite(sig), sig, 0.0)
+            if not np.all(np.isfinite(sig)):
+                sig = np.where(np.isfinite(sig), sig, 0.0)
             gram = sig.T @ sig
             cross = sig.T @ r.reshape(-1, p)  # (s, p)
             H = sum(coef[k].T @ gram @ coef[k] for k in range(p))
