@@ -29,11 +29,13 @@ class ArxOrderChoice:
     scores : GCV score per row of each order tried (q -> score; lower is better).
     limited_by : why larger orders were not tried ("" if the candidates ran out or the
         score rose), e.g. the record length or the cost limit.
+    normal : the normal equations of the chosen order (uncentered), for its fit.
     """
 
     order: int
     scores: dict[int, float]
     limited_by: str = ""
+    normal: NormalEquations | None = None  # the chosen order's normal equations (not centered)
 
 
 class _NestedNormalEquations:
@@ -112,6 +114,7 @@ def select_arx_order(
     limited_by = ""
     best_q, best_score, since_best = 0, np.inf, 0
     nested = _NestedNormalEquations(u, y)
+    best_normal = None
     for q in tried:
         d = regressor_length(q, p, m)
         if d > max_coefficients:
@@ -128,6 +131,7 @@ def select_arx_order(
         scores[q] = float(gcv) / normal.n_rows  # per row: orders differ in row count
         if scores[q] < best_score:
             best_q, best_score, since_best = q, scores[q], 0
+            best_normal = nested.normal
         else:
             since_best += 1
             if since_best >= patience:
@@ -136,4 +140,4 @@ def select_arx_order(
         raise ValueError(
             f"no ARX order can be fitted to {u.shape[0]} samples with {m} inputs and {p} outputs ({limited_by})"
         )
-    return ArxOrderChoice(best_q, scores, limited_by if best_q == max(scores) else "")
+    return ArxOrderChoice(best_q, scores, limited_by if best_q == max(scores) else "", best_normal)
