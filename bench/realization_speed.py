@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """Speed of the realization: ``okid-ros identify`` against the old code and one Hankel SVD.
 
-Two cases (issue 17): the paper size (the published model, 2 inputs, 2 outputs, inputs
+Three cases (issue 17): the paper size (the published model, 2 inputs, 2 outputs, inputs
 low-passed at 15 Hz, 3750 samples, ``--order 100``) and the steel subframe's samples 0-5999
-(2 inputs, 28 outputs, ``--order 20``; ``../shared/data/real/daisy-steel-subframe``). For each
+(2 inputs, 28 outputs, ``--order 20``; ``../shared/data/real/daisy-steel-subframe``), the
+latter also with identify's defaults (no ``--order``: the ARX order by GCV; the realization
+and SVD columns then at the order it chose). For each
 case and each code version the command runs in a fresh worker process with one BLAS thread
 (``python bench/realization_speed.py --worker``, with ``PYTHONPATH`` at that version's tree);
 the worker times ``okid_ros.cli.main(["identify", ...])`` in-process (interpreter start and
@@ -42,7 +44,9 @@ import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = REPO.parent / "shared" / "data" / "real" / "daisy-steel-subframe" / "steel_subframe.npz"
-CASES = {"paper": ("paper size: p = m = 2, N = 3750", 100), "subframe": ("steel subframe 0-5999: p = 28, m = 2", 20)}
+# name -> (label, ARX order; 0: identify's default, the order chosen by GCV)
+CASES = {"paper": ("paper size: p = m = 2, N = 3750", 100), "subframe": ("steel subframe 0-5999: p = 28, m = 2", 20),
+         "subframe-default": ("steel subframe 0-5999: p = 28, m = 2", 0)}
 
 
 def _write_case_data(name: str, folder: Path) -> Path:
@@ -57,7 +61,7 @@ def _write_case_data(name: str, folder: Path) -> Path:
         u = lowpass_input(3750, 2, 15.0, truth.sample_time_s, seed=3)
         y, _ = simulate_innovation(truth, u, seed=4)
         np.savez(path, u=u, y=y, sample_time_s=truth.sample_time_s)
-    else:
+    else:  # the subframe cases
         data = np.load(RECORD)
         np.savez(path, u=data["u"][:6000], y=data["y"][:6000], sample_time_s=float(data["sample_time_s"]))
     return path
@@ -94,7 +98,8 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
     from okid_ros.cli import main
 
     out = Path(tempfile.mkdtemp(prefix="okid-speed-")) / "model.json"
-    argv = ["identify", str(data_path), "--order", str(order), "--json", str(out), "--force"]
+    order_args = ["--order", str(order)] if order else []  # 0: the ARX order by GCV, as identify's default
+    argv = ["identify", str(data_path), *order_args, "--json", str(out), "--force"]
     times = []
     for i in range(runs + 1):
         start = time.perf_counter()
@@ -105,6 +110,7 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
         if i:
             times.append(elapsed)
     model = json.loads(out.read_text())
+    order = order or int(model["arx_order"])  # the SVD and the realization at the order identify chose
     svd_s, svd_cpu_s, shape = _hankel_svd_seconds(data_path, order, runs)
     realization_s, realization_cpu_s = _realization_seconds(data_path, order, runs)
     return {"identify_s": times, "realization_s": realization_s, "realization_cpu_s": realization_cpu_s,
@@ -174,7 +180,8 @@ def _table(results: dict) -> str:
             speed = "" if code == "old" else f"{old_t / t:.1f}x"
             speed_r = "" if code == "old" else f"{old_r / r:.1f}x"
             speed_c = "" if code == "old" else f"{old_c / c:.1f}x"
-            lines.append(f"| {label}, --order {order} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
+            option = f"--order {order}" if order else "no --order (ARX order by GCV)"
+            lines.append(f"| {label}, {option} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
                          f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} "
                          f"| {c:.3f} | {svd_cpu:.4f} | {c / svd_cpu:.0f} | {speed_c} |")
     return "\n".join(lines)
@@ -187,7 +194,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="timed runs per worker (default 3, plus one warm-up)")
     ap.add_argument("--rounds", type=int, default=3, help="old/new worker pairs per case (default 3)")
     ap.add_argument("--old-ref", default=None, help="git ref of the old code (default: merge base with main)")
-    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: paper,subframe")
+    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: paper,subframe,subframe-default")
     args = ap.parse_args()
     if args.worker:
         print(json.dumps(_worker(Path(args.worker), args.order, args.runs)))
