@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """Speed of the realization: ``okid-ros identify`` against the old code and one Hankel SVD.
 
-Two cases (issue 17): the paper size (the published model, 2 inputs, 2 outputs, inputs
+Three cases (issue 17): the paper size (the published model, 2 inputs, 2 outputs, inputs
 low-passed at 15 Hz, 3750 samples, ``--order 100``) and the steel subframe's samples 0-5999
-(2 inputs, 28 outputs, ``--order 20``; ``../shared/data/real/daisy-steel-subframe``). For each
+(2 inputs, 28 outputs, ``--order 20``; ``../shared/data/real/daisy-steel-subframe``), the
+latter also with identify's defaults (no ``--order``: the ARX order by GCV; the realization
+and SVD columns then at the order it chose). For each
 case and each code version the command runs in a fresh worker process with one BLAS thread
 (``python bench/realization_speed.py --worker``, with ``PYTHONPATH`` at that version's tree);
 the worker times ``okid_ros.cli.main(["identify", ...])`` in-process (interpreter start and
@@ -42,7 +44,9 @@ import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = REPO.parent / "shared" / "data" / "real" / "daisy-steel-subframe" / "steel_subframe.npz"
-CASES = {"paper": ("paper size: p = m = 2, N = 3750", 100), "subframe": ("steel subframe 0-5999: p = 28, m = 2", 20)}
+# name -> (label, ARX order; 0: identify's default, the order chosen by GCV)
+CASES = {"paper": ("paper size: p = m = 2, N = 3750", 100), "subframe": ("steel subframe 0-5999: p = 28, m = 2", 20),
+         "subframe-default": ("steel subframe 0-5999: p = 28, m = 2", 0)}
 
 
 def _write_case_data(name: str, folder: Path) -> Path:
@@ -57,14 +61,14 @@ def _write_case_data(name: str, folder: Path) -> Path:
         u = lowpass_input(3750, 2, 15.0, truth.sample_time_s, seed=3)
         y, _ = simulate_innovation(truth, u, seed=4)
         np.savez(path, u=u, y=y, sample_time_s=truth.sample_time_s)
-    else:
+    else:  # the subframe cases
         data = np.load(RECORD)
         np.savez(path, u=data["u"][:6000], y=data["y"][:6000], sample_time_s=float(data["sample_time_s"]))
     return path
 
 
-def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, tuple[int, int]]:
-    """Median time of one SVD of the weighted Hankel matrix ``identify`` factors for this record."""
+def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, float, tuple[int, int]]:
+    """Median wall and CPU time of one SVD of the weighted Hankel matrix ``identify`` factors here."""
     from scipy import linalg
 
     from okid_ros.core.arx import fit_from_normal_equations, normal_equations
@@ -80,12 +84,13 @@ def _hankel_svd_seconds(data_path: Path, order: int, runs: int) -> tuple[float, 
     past = arx_regressors(u, y, cols)[0][:, u.shape[1]:]
     weight = linalg.cholesky(past.T @ past / past.shape[0] + 1e-10 * np.eye(past.shape[1]), lower=True)
     weighted = h0 @ weight
-    times = []
-    for _ in range(runs + 1):
-        start = time.perf_counter()
+    times, cpu = [], []
+    for _ in range(4 * runs + 1):  # milliseconds each: more repeats for a steady median
+        start, start_cpu = time.perf_counter(), time.process_time()
         linalg.svd(weighted, full_matrices=False)
         times.append(time.perf_counter() - start)
-    return float(np.median(times[1:])), weighted.shape
+        cpu.append(time.process_time() - start_cpu)
+    return float(np.median(times[1:])), float(np.median(cpu[1:])), weighted.shape
 
 
 def _worker(data_path: Path, order: int, runs: int) -> dict:
@@ -93,7 +98,8 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
     from okid_ros.cli import main
 
     out = Path(tempfile.mkdtemp(prefix="okid-speed-")) / "model.json"
-    argv = ["identify", str(data_path), "--order", str(order), "--json", str(out), "--force"]
+    order_args = ["--order", str(order)] if order else []  # 0: the ARX order by GCV, as identify's default
+    argv = ["identify", str(data_path), *order_args, "--json", str(out), "--force"]
     times = []
     for i in range(runs + 1):
         start = time.perf_counter()
@@ -104,13 +110,20 @@ def _worker(data_path: Path, order: int, runs: int) -> dict:
         if i:
             times.append(elapsed)
     model = json.loads(out.read_text())
-    svd_s, shape = _hankel_svd_seconds(data_path, order, runs)
-    return {"identify_s": times, "realization_s": _realization_seconds(data_path, order, runs), "svd_s": svd_s,
-            "hankel_shape": list(shape), "n_states": model["n_states"], "modes": len(model["modes"])}
+    order = order or int(model["arx_order"])  # the SVD and the realization at the order identify chose
+    svd_s, svd_cpu_s, shape = _hankel_svd_seconds(data_path, order, runs)
+    realization_s, realization_cpu_s = _realization_seconds(data_path, order, runs)
+    return {"identify_s": times, "realization_s": realization_s, "realization_cpu_s": realization_cpu_s,
+            "svd_s": svd_s, "svd_cpu_s": svd_cpu_s, "hankel_shape": list(shape), "n_states": model["n_states"],
+            "modes": len(model["modes"])}
 
 
-def _realization_seconds(data_path: Path, order: int, runs: int) -> list[float]:
-    """Times of ``identify_from_arx`` alone (the realization, without the ARX fit and the JSON)."""
+def _realization_seconds(data_path: Path, order: int, runs: int) -> tuple[list[float], list[float]]:
+    """Wall and CPU times of ``identify_from_arx`` alone (the realization, without the ARX fit and the JSON).
+
+    The CPU time of this one-threaded process is what the load of other jobs on the machine
+    changes least (they stretch the wall time by waiting for a core).
+    """
     from okid_ros.core.arx import fit_from_normal_equations, normal_equations
     from okid_ros.core.pipeline import identify_from_arx
     from okid_ros.core.regressors import arx_regressors
@@ -120,13 +133,14 @@ def _realization_seconds(data_path: Path, order: int, runs: int) -> list[float]:
     phi, targets, _ = arx_regressors(u, y, order)
     arx = fit_from_normal_equations(normal_equations(phi, targets), order, y.shape[1], u.shape[1], "ridge",
                                     center=True)
-    times = []
+    times, cpu = [], []
     for i in range(runs + 1):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         identify_from_arx(arx, u, y, dt)
         if i:
             times.append(time.perf_counter() - start)
-    return times
+            cpu.append(time.process_time() - start_cpu)
+    return times, cpu
 
 
 def _old_tree(ref: str) -> Path:
@@ -149,21 +163,27 @@ def _run_worker(tree: Path, data_path: Path, order: int, runs: int) -> dict:
 def _table(results: dict) -> str:
     lines = [
         "| case | Hankel | code | states | modes | identify s (median) | one Hankel SVD s | identify / SVD "
-        "| speed-up | realization s | realization / SVD | speed-up |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| speed-up | realization s | realization / SVD | speed-up | realization CPU s | SVD CPU s "
+        "| realization / SVD (CPU) | speed-up (CPU) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, runs in results.items():
         label, order = CASES[name]
         old, new = runs["old"], runs["new"]
         old_t, new_t = np.median(old["identify_s"]), np.median(new["identify_s"])
         old_r, new_r = np.median(old["realization_s"]), np.median(new["realization_s"])
+        old_c, new_c = (np.median(res.get("realization_cpu_s") or [np.nan]) for res in (old, new))
         svd = np.median(old["svd_s"] + new["svd_s"])  # the same matrix: pooled over all workers
-        for code, res, t, r in (("old", old, old_t, old_r), ("new", new, new_t, new_r)):
+        svd_cpu = np.median(old.get("svd_cpu_s", []) + new.get("svd_cpu_s", []) or [np.nan])
+        for code, res, t, r, c in (("old", old, old_t, old_r, old_c), ("new", new, new_t, new_r, new_c)):
             shape = "x".join(str(s) for s in res["hankel_shape"][0])
             speed = "" if code == "old" else f"{old_t / t:.1f}x"
             speed_r = "" if code == "old" else f"{old_r / r:.1f}x"
-            lines.append(f"| {label}, --order {order} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
-                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} |")
+            speed_c = "" if code == "old" else f"{old_c / c:.1f}x"
+            option = f"--order {order}" if order else "no --order (ARX order by GCV)"
+            lines.append(f"| {label}, {option} | {shape} | {code} | {res['n_states'][0]} | {res['modes'][0]} | "
+                         f"{t:.3f} | {svd:.4f} | {t / svd:.0f} | {speed} | {r:.3f} | {r / svd:.0f} | {speed_r} "
+                         f"| {c:.3f} | {svd_cpu:.4f} | {c / svd_cpu:.0f} | {speed_c} |")
     return "\n".join(lines)
 
 
@@ -174,7 +194,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="timed runs per worker (default 3, plus one warm-up)")
     ap.add_argument("--rounds", type=int, default=3, help="old/new worker pairs per case (default 3)")
     ap.add_argument("--old-ref", default=None, help="git ref of the old code (default: merge base with main)")
-    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: paper,subframe")
+    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: paper,subframe,subframe-default")
     args = ap.parse_args()
     if args.worker:
         print(json.dumps(_worker(Path(args.worker), args.order, args.runs)))
@@ -194,7 +214,9 @@ def main() -> None:
                 slot = runs[code]
                 slot.setdefault("identify_s", []).extend(res["identify_s"])
                 slot.setdefault("realization_s", []).extend(res["realization_s"])
+                slot.setdefault("realization_cpu_s", []).extend(res["realization_cpu_s"])
                 slot.setdefault("svd_s", []).append(res["svd_s"])
+                slot.setdefault("svd_cpu_s", []).append(res["svd_cpu_s"])
                 for key in ("hankel_shape", "n_states", "modes"):
                     slot.setdefault(key, []).append(res[key])
             print(f"{name}: old {np.median(runs['old']['identify_s']):.3f} s, new "

@@ -25,11 +25,18 @@ def to_strict(value: Any) -> Any:
     lists; tuples become lists; dict keys become strings. Other objects are returned as they are
     (``json`` then raises on them, or applies the caller's ``default``).
     """
+    kind = type(value)
+    if kind is float:  # the common leaves first: a model's JSON has tens of thousands of them
+        return value if math.isfinite(value) else None
+    if kind is str or kind is int or value is None:
+        return value
     if isinstance(value, dict):
         return {str(k): to_strict(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [to_strict(v) for v in value]
     if isinstance(value, np.ndarray):
+        if value.dtype.kind in "biu" or (value.dtype.kind == "f" and np.isfinite(value).all()):
+            return value.tolist()  # already plain Python numbers, nothing to replace
         return to_strict(value.tolist())
     if isinstance(value, (bool, np.bool_)):
         return bool(value)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations, select_arx_order
+from okid_ros.core.arx import ArxFit, ArxOrderChoice, fit_from_normal_equations, normal_equations, select_arx_order
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
@@ -279,6 +279,13 @@ def choose_arx_order(
     -------
     order : the chosen q; scores : GCV score per row of each order tried.
     """
+    choice = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
+    return choice.order, choice.scores
+
+
+def _arx_order_choice(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
+                      arx_orders: ArxOrderOptions | None, center: bool) -> ArxOrderChoice:
+    """:func:`choose_arx_order` with the chosen order's normal equations (for its fit)."""
     options = options or RealizationOptions()
     arx_orders = arx_orders or ArxOrderOptions()
     p = y.shape[1]
@@ -293,7 +300,7 @@ def choose_arx_order(
         )
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
-    return choice.order, choice.scores
+    return choice
 
 
 def identify(
@@ -347,17 +354,21 @@ def identify(
     # means before the completion, exactly as the live window does: same samples, same model.
     center = offsets == "remove"
     arx_scores: dict = {}
+    normal = None
     if order == AUTO:
-        order, arx_scores = choose_arx_order(u, y, options=options, arx_orders=arx_orders, center=center)
+        # The order search's normal equations of the chosen order serve its fit (not formed twice).
+        choice = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
+        order, arx_scores, normal = choice.order, choice.scores, choice.normal
     order = int(order)
     _check_record_length(u.shape[0], order, p, m)
     if not frame.excited:
         raise IdentificationError(frame.warnings[0])
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
-    phi, targets, _ = arx_regressors(u, y, order)
+    if normal is None:
+        normal = normal_equations(*arx_regressors(u, y, order)[:2])
     try:
-        arx = fit_from_normal_equations(normal_equations(phi, targets), order, p, m, regularization, center=center)
+        arx = fit_from_normal_equations(normal, order, p, m, regularization, center=center)
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
     if method == "paper":

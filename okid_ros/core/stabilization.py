@@ -120,6 +120,22 @@ def _match(pole, others: list[StabilizationPole], criteria: ModeCriteria) -> tup
     return best
 
 
+def _near_in_frequency(poles: list[StabilizationPole], previous: list[StabilizationPole],
+                       criteria: ModeCriteria) -> list[list[StabilizationPole]]:
+    """For each pole, the previous order's poles within the frequency tolerance (in order).
+
+    One array comparison per order instead of a Python loop over every pair; :func:`_match`
+    then visits only these (the others fail its first test).
+    """
+    if not poles or not previous:
+        return [[] for _ in poles]
+    current = np.array([pole.frequency_hz for pole in poles])
+    others = np.array([pole.frequency_hz for pole in previous])
+    relative = np.abs(others[None, :] - current[:, None]) / np.maximum(current, 1e-300)[:, None]
+    near = relative <= criteria.stability_frequency
+    return [[previous[j] for j in np.flatnonzero(row)] if row.any() else [] for row in near]
+
+
 def stabilization_diagram(
     models: dict[int, InnovationModel],
     sample_time_s: float,
@@ -148,8 +164,8 @@ def stabilization_diagram(
         if known is not None and known[1].shape[0] != models[n].A.shape[0]:
             known = None
         poles = _poles(models[n], sample_time_s, criteria, known)
-        for pole in poles:
-            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, previous, criteria)
+        for pole, near in zip(poles, _near_in_frequency(poles, previous, criteria)):
+            pole.stable_frequency, pole.stable_damping, pole.stable_shape = _match(pole, near, criteria)
         diagram.append(StabilizationOrder(n, poles))
         previous = poles
     return diagram

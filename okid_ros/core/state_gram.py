@@ -25,7 +25,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.regressors import arx_regressors
-from okid_ros.core.state_completion import stabilize_with_eigen
+from okid_ros.core.stable_matrix import stabilize_with_eigen
 from okid_ros.core.statespace import free_parameters
 
 __all__ = ["StateGram", "GramRegression"]
@@ -108,6 +108,36 @@ class StateGram:
         self._pair_gram = (self.gram * self.n_samples - np.outer(last, last)) / self._pairs
         self._base: np.ndarray | None = None
 
+    @classmethod
+    def of_states(cls, states: np.ndarray, u: np.ndarray, y: np.ndarray) -> "StateGram":
+        """The Gram of a given state sequence: ``regress(n)`` then regresses it as the data pass does.
+
+        ``states`` (N, n), ``u`` (N, m), ``y`` (N, p): ``regress(n, covariances=True)`` gives what
+        :func:`.state_completion.regress_state_equations` and the residual covariances give.
+
+        Raises
+        ------
+        ValueError if the states are not finite.
+        """
+        if not np.all(np.isfinite(states)):
+            raise ValueError("the state sequence is not finite")
+        n_samples, n = states.shape
+        self = cls.__new__(cls)
+        self.m, self.p, self.n_cols = u.shape[1], y.shape[1], 0
+        self.rows = np.arange(n_samples)
+        self.n_samples = max(n_samples, 1)
+        self._pairs = max(n_samples - 1, 1)
+        pairs = np.hstack([u[:-1], states[:-1], y[:-1], states[1:]])  # [u, x, y, x_next]
+        self._pair_base = pairs.T @ pairs
+        base = self._pair_base.copy()
+        last = np.concatenate([u[-1], states[-1], y[-1]])
+        k = last.size
+        base[:k, :k] += np.outer(last, last)  # the output equation uses every row
+        self._base = base / self.n_samples
+        self._pair_base /= self._pairs
+        self._top = n
+        return self
+
     def past_weight(self) -> np.ndarray:
         """Lower Cholesky factor of the past data's covariance ``z^T z / M`` (the ERA weighting)."""
         w = self.p + self.m
@@ -165,22 +195,23 @@ class StateGram:
         r_cov = v_coef.T @ g @ v_coef
         g = self._pair_base[np.ix_(sub, sub)]  # order [x, u, y, x_next]: the pairs
         C, D = cd[:n].T, cd[n:].T
-        # Coefficients over [x, u, y, x_next] of v = y - C x - D u and of the regressors [x, u, v].
+        # Coefficients over [x, u, y, x_next] of v = y - C x - D u; the regressors [x, u, v] are
+        # reg = [[I, v_coef[:k1]], [0, v_coef[k1:]], [0, 0]]: g @ reg and reg^T g reg by blocks
+        # (products with its identity and zero blocks would be most of the flops at n ~ 100).
         size = g.shape[0]
         v_coef = np.vstack([v_coef, np.zeros((n, p))])
-        reg = np.zeros((size, k1 + p))
-        reg[:k1, :k1] = np.eye(k1)
-        reg[:, k1:] = v_coef
-        g_reg = g @ reg
-        abl = _scaled_solve(reg.T @ g_reg, g_reg[k1 + p :].T)  # targets x_next
+        k2 = k1 + p
+        g_reg = np.empty((size, k2))
+        g_reg[:, :k1] = g[:, :k1]
+        g_reg[:, k1:] = g[:, :k2] @ v_coef[:k2]
+        reg_gram = np.vstack([g_reg[:k1], v_coef[:k2].T @ g_reg[:k2]])  # reg^T g reg
+        abl = _scaled_solve(reg_gram, g_reg[k2:].T)  # targets x_next
         A, B = abl[:n].T, abl[n:k1].T
         A, n_moved, eigen = stabilize_with_eigen(A, max_radius=max_radius)
         if n_moved:
-            uv = reg[:, n:]  # [u, v]
-            target = np.zeros((size, n))
-            target[k1 + p :] = np.eye(n)
-            target[:n] = -A.T
-            bl = _scaled_solve(uv.T @ g @ uv, uv.T @ g @ target)
+            # [u, v] on x_next - A x: the rows [x, u, y] of g times the target's coefficients.
+            g_target = g[:k2, k2:] - g[:k2, :n] @ A.T
+            bl = _scaled_solve(reg_gram[n:, n:], np.vstack([g_target[n:k1], v_coef[:k2].T @ g_target]))
             B = bl[:m].T
         q_cov = s_cov = None
         if covariances:

@@ -1,0 +1,167 @@
+"""The faster forms of the realization's steps give what the direct forms give (issue 17).
+
+Each speed-up of the realization replaced a direct computation by a cheaper one with the same
+result: these tests compute both on the same data and compare, so a change in either shows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import linalg
+
+from okid_ros.core.kalman_gain import kalman_gain_from_residuals
+from okid_ros.core.modal import mac
+from okid_ros.core.options import ModeCriteria
+from okid_ros.core.refine import _Objective, _Predictor
+from okid_ros.core.refit import refit_predictor
+from okid_ros.core.stabilization import StabilizationPole, _match, stabilization_diagram
+from okid_ros.core.stable_matrix import MAX_BASIS_CONDITION, _basis_inverse
+from okid_ros.core.state_completion import fit_from_states, regress_state_equations
+from okid_ros.core.statespace import InnovationModel, _run_states, one_step_prediction, predictor_states
+from okid_ros.sim.inputs import white_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+
+def _paper_record(n_samples: int = 3000, seed: int = 1):
+    truth = paper_model()
+    u = white_input(n_samples, 2, seed=seed)
+    y, _ = simulate_innovation(truth, u, seed=seed + 1)
+    return truth, u, y
+
+
+def test_fit_from_states_by_the_gram_equals_the_data_regressions():
+    """One Gram of [u, x, y, x_next] gives the data pass's A, B, C, D and Riccati gain."""
+    truth, u, y = _paper_record()
+    states, _ = predictor_states(truth, u, y)
+    states = states + 0.01 * np.random.default_rng(4).standard_normal(states.shape)  # not exact states
+    model = fit_from_states(states, u, y)
+    A, B, C, D, w, v = regress_state_equations(states, u, y)
+    L, Re = kalman_gain_from_residuals(A, C, w, v[:-1])
+    for got, want in ((model.A, A), (model.B, B), (model.C, C), (model.D, D), (model.predictor_gain, L),
+                      (model.innovation_covariance, Re)):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-8 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("condition", [1e3, 3e8, 3e9, 1e10 / 1.5, 1.5e10, 5e10, 1e13])
+def test_basis_inverse_refuses_exactly_the_bases_the_svd_condition_refuses(condition):
+    """The Frobenius bracket decides as ``np.linalg.cond`` (2-norm) around the limit 1e10."""
+    rng = np.random.default_rng(int(np.log10(condition) * 10))
+    n = 6
+    left, _ = np.linalg.qr(rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n)))
+    right, _ = np.linalg.qr(rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n)))
+    V = (left * np.geomspace(1.0, 1.0 / condition, n)) @ right
+    inverse = _basis_inverse(V)
+    refused = np.linalg.cond(V) > MAX_BASIS_CONDITION
+    assert (inverse is None) == refused
+    if inverse is not None:
+        np.testing.assert_allclose(inverse, linalg.inv(V))
+
+
+def test_refine_normal_equations_equal_those_of_the_explicit_jacobian():
+    rng = np.random.default_rng(5)
+    p, m, n_pairs, n_real = 3, 2, 2, 1
+    w = p + m
+    pairs = [(0.9 * np.exp(1j * rng.uniform(0.2, 2.5)), rng.standard_normal(w) + 1j * rng.standard_normal(w),
+              rng.standard_normal(p) + 1j * rng.standard_normal(p)) for _ in range(n_pairs)]
+    reals = [(0.5, rng.standard_normal(w), rng.standard_normal(p)) for _ in range(n_real)]
+    predictor = _Predictor(n_pairs, n_real, p, m)
+    theta = predictor.pack(pairs, reals, rng.standard_normal((p, m)))
+    u, y = rng.standard_normal((400, m)), rng.standard_normal((400, p))
+    objective = _Objective(predictor, u, y, 20, 350, (10.0, 10.0))
+    r = objective.residuals(theta)
+    J = -predictor.jacobian(theta, objective.v, u, 20)[: objective.n_fitted]
+    H, g = objective.normal(theta, r)
+    np.testing.assert_allclose(H, J.T @ J, rtol=0, atol=1e-10 * np.abs(J.T @ J).max())
+    np.testing.assert_allclose(g, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
+
+
+def test_refit_innovations_are_the_refitted_predictor_s_one_step_errors():
+    """The shortened FFT convolution leaves no wrap-around.
+
+    The refit's innovations are the one-step prediction errors of the model it returns, from its
+    fitted initial state.
+    """
+    truth, u, y = _paper_record(2500, seed=7)
+    Abar = truth.A - truth.predictor_gain @ truth.C
+    fit = refit_predictor(Abar, truth.C, u, y)
+    _, innovations = one_step_prediction(fit.model, u, y, x0=fit.x0)
+    np.testing.assert_allclose(fit.innovations, innovations, rtol=0, atol=1e-9 * np.abs(y).max())
+
+
+def test_predictor_run_by_gemv_equals_the_plain_recursion():
+    rng = np.random.default_rng(8)
+    n, r = 7, 3
+    F = 0.3 * rng.standard_normal((n, n))
+    G, w, x0 = rng.standard_normal((n, r)), rng.standard_normal((200, r)), rng.standard_normal(n)
+    want = np.empty((200, n))
+    x = x0.copy()
+    for k in range(200):
+        want[k] = x
+        x = F @ x + G @ w[k]
+    np.testing.assert_allclose(_run_states(F, G, w, x0), want, rtol=1e-12, atol=1e-12)
+    assert _run_states(F, G, w[:0], x0).shape == (0, n)
+
+
+def test_diagram_marks_equal_the_pairwise_test_of_every_pole():
+    """The diagram's frequency prefilter keeps every pole pair the pairwise test accepts."""
+    truth = paper_model()
+    rng = np.random.default_rng(9)
+    models = {}
+    for n_extra, order in enumerate((6, 8, 10)):
+        A = linalg.block_diag(truth.A, 0.5 * np.eye(order - truth.A.shape[0]))
+        A = A + 1e-4 * (n_extra + 1) * rng.standard_normal(A.shape)
+        C = np.hstack([truth.C, rng.standard_normal((truth.C.shape[0], order - truth.A.shape[0]))])
+        models[order] = InnovationModel(A, np.zeros((order, 2)), C, np.zeros((2, 2)), np.zeros((order, 2)),
+                                        np.eye(2))
+    criteria = ModeCriteria()
+    diagram = stabilization_diagram(models, truth.sample_time_s, criteria)
+    for previous, current in zip(diagram, diagram[1:]):
+        for pole in current.poles:
+            want = _match(pole, previous.poles, criteria)
+            assert (pole.stable_frequency, pole.stable_damping, pole.stable_shape) == want
+    assert any(pole.stable_shape for pole in diagram[-1].poles)
+    assert mac(diagram[-1].poles[0].shape, diagram[-1].poles[0].shape) == pytest.approx(1.0)
+    assert isinstance(diagram[0].poles[0], StabilizationPole)
+
+
+@pytest.mark.parametrize(("radius", "length"), [(0.94, 3000), (0.999, 2000), (0.5, 40), (0.9, 5), (0.0, 30)])
+def test_impulse_rows_by_blocks_equal_the_lag_by_lag_recursion(radius, length):
+    """``C Abar^k`` by blocks of lags: the same rows and the same decay point as one lag at a time."""
+    from okid_ros.core.refit import _impulse_rows
+
+    rng = np.random.default_rng(int(radius * 1000) + length)
+    n = 6
+    Q = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    Abar = Q @ np.diag(radius * np.cos(rng.uniform(0, 3, n))) @ Q.T
+    C = rng.standard_normal((2, n))
+    want = np.zeros((length, 2, n))
+    row, filled = C.copy(), length
+    for k in range(length):
+        want[k] = row
+        row = row @ Abar
+        if np.abs(row).max() < 1e-13 * np.abs(C).max():
+            filled = k + 1
+            break
+    got, got_filled = _impulse_rows(Abar, C, length)
+    assert got_filled == filled
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * np.abs(C).max())
+
+
+def test_nested_normal_equations_of_the_arx_order_search_equal_the_direct_ones():
+    """Each order's normal equations grown from the previous order's equal those formed afresh."""
+    from okid_ros.core.arx_order import _NestedNormalEquations
+    from okid_ros.core.least_squares import normal_equations
+    from okid_ros.core.regressors import arx_regressors
+
+    rng = np.random.default_rng(11)
+    u, y = rng.standard_normal((900, 2)) + 0.3, rng.standard_normal((900, 3)) - 1.0
+    nested = _NestedNormalEquations(u, y)
+    for q in (3, 5, 9, 16, 7, 12):  # increasing, then a smaller order (made afresh), then larger
+        got = nested.at(q)
+        want = normal_equations(*arx_regressors(u, y, q)[:2])
+        assert got.n_rows == want.n_rows == 900 - q
+        for a, b in ((got.R, want.R), (got.r, want.r), (got.yy, want.yy), (got.phi_sum, want.phi_sum),
+                     (got.y_sum, want.y_sum)):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.abs(b).max())
