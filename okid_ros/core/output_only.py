@@ -7,17 +7,20 @@ covariance, in normalized modal form, with its physical modes and their standard
 
 Steps (one module each):
 
-1. means removed; reference channels and the lag window from the data
-   (:mod:`.output_covariance`);
+1. means removed; harmonic lines (a sinusoidal disturbance: a spectral line whose band has
+   the kurtosis of a sinusoid) found and removed by least squares (:mod:`.output_only_harmonics`);
+   reference channels and the lag window from the data (:mod:`.output_covariance`);
 2. ``method="ssi-cov"`` (default): output correlations of consecutive segments, block Hankel,
    ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
    parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
 4. (ssi-cov) each candidate mode re-identified with each segment of the record left out
    (jackknife): a mode whose frequency scatters by more than its half-power half-width
-   ``zeta f`` or whose damping scatters by more than itself is noise and dropped; the
-   jackknife's standard deviations are the modes' (the spread of the cluster across orders for
-   ``var``);
+   ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
+   that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
+   frequency along its own shape (a pole fitted to correlation noise under a flat spectrum);
+   the jackknife's standard deviations are the modes' (the spread of the cluster across orders
+   for ``var``);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cov) or read from the VAR (var).
 """
@@ -33,6 +36,7 @@ from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
+from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
 from okid_ros.core.output_only_modes import (
     ModeCluster,
     PoleSet,
@@ -41,7 +45,13 @@ from okid_ros.core.output_only_modes import (
     lowest_complete_order,
     mark_stable,
 )
-from okid_ros.core.output_only_support import Jackknife, match_clusters, output_only_diagram, prepare_outputs
+from okid_ros.core.output_only_support import (
+    Jackknife,
+    match_clusters,
+    output_only_diagram,
+    prepare_outputs,
+    spectral_dominance,
+)
 from okid_ros.core.regressors import arx_regressors
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
@@ -74,6 +84,10 @@ MAX_GAIN_VAR_COEFFICIENTS = 200
 #: subframe; noise poles 1-20, nearly always caught by the frequency).
 MAX_FREQUENCY_STD_PER_WIDTH = 1.0
 MAX_DAMPING_CV = 1.5
+#: A mode accounts for at least this share of the output spectrum at its frequency, along its
+#: shape (:func:`.output_only_support.spectral_dominance`; modes 0.57-1.1, noise poles below 0.2
+#: on 80 simulated records, the koma frame and the subframe).
+MIN_SPECTRAL_DOMINANCE = 0.4
 
 
 def identify_output_only(
@@ -84,6 +98,7 @@ def identify_output_only(
     max_states: int | None = None,
     block_rows: int | None = None,
     offsets: str = "remove",
+    harmonics: str = "remove",
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -97,6 +112,8 @@ def identify_output_only(
         Hankel is smaller).
     block_rows : Hankel block rows (default from the data: a period of the slowest mode).
     offsets : "remove" (default, the means are kept with the model) or "none".
+    harmonics : "remove" (default: harmonic lines are found, named in ``warnings`` and removed
+        before identification) or "keep" (the record as it is).
 
     Returns
     -------
@@ -108,7 +125,11 @@ def identify_output_only(
     """
     if method not in OUTPUT_ONLY_METHODS:
         raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
+    if harmonics not in ("remove", "keep"):
+        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
+    if harmonics == "remove":
+        y = _without_harmonics(y, sample_time_s, warnings)
     n_samples, p = y.shape
     references = reference_channels(y, MAX_REFERENCES)
     top = int(max_states or DEFAULT_MAX_STATES)
@@ -137,7 +158,9 @@ def identify_output_only(
     jackknife = None
     if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
         jackknife = Jackknife(correlations, references, block_rows, top)
-        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s)
+        modes = _drop_noise_modes(
+            modes, poles, jackknife, sample_time_s,
+            dominance=lambda n, pole: spectral_dominance(realizer, n, pole, r_mean[0], references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
@@ -166,12 +189,23 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers))
 
 
-def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float
-                      ) -> list[ModeCluster]:
-    """The candidate modes whose jackknife scatter says they are structural (step 4 of the module).
+def _without_harmonics(y: np.ndarray, sample_time_s: float, warnings: list[str]) -> np.ndarray:
+    """``y`` less its harmonic lines; each one removed is named in ``warnings``."""
+    found = find_harmonics(y, sample_time_s)
+    if not found:
+        return y
+    listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
+    warnings.append(f"harmonic disturbance removed before identification (not a mode): {listed}")
+    return remove_harmonics(y, sample_time_s, found)
+
+
+def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float, *,
+                      dominance) -> list[ModeCluster]:
+    """The candidate modes whose jackknife scatter and spectral share say they are structural (step 4).
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
-    cluster lives, not at an order chosen for all of them).
+    cluster lives, not at an order chosen for all of them). ``dominance(n, pole)`` is the
+    mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`).
     """
     kept = []
     for mode in modes:
@@ -180,7 +214,8 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
         target = poles.eigenvalue[mode.members[n_home]]
         f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
         width = mode.damping_ratio * mode.frequency_hz
-        if f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio:
+        if (f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio
+                and dominance(n_home, target) >= MIN_SPECTRAL_DOMINANCE):
             kept.append(mode)
     return kept
 
