@@ -22,7 +22,9 @@ Steps (one module each):
    the jackknife's standard deviations are the modes' (the spread of the cluster across orders
    for ``var``);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var).
+   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
+6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
+   longer lags (:mod:`.output_only_low_band`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from okid_ros.core.modal import modal_form
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
 from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
+from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
     ModeCluster,
     PoleSet,
@@ -99,6 +102,7 @@ def identify_output_only(
     block_rows: int | None = None,
     offsets: str = "remove",
     harmonics: str = "remove",
+    low_band: bool = True,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -114,6 +118,8 @@ def identify_output_only(
     offsets : "remove" (default, the means are kept with the model) or "none".
     harmonics : "remove" (default: harmonic lines are found, named in ``warnings`` and removed
         before identification) or "keep" (the record as it is).
+    low_band : (ssi-cov) re-estimate the modes far below the sampling rate from the record
+        decimated, with longer lags (:mod:`.output_only_low_band`; default True).
 
     Returns
     -------
@@ -123,21 +129,13 @@ def identify_output_only(
     ------
     IdentificationError with a one-line reason.
     """
-    if method not in OUTPUT_ONLY_METHODS:
-        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
-    if harmonics not in ("remove", "keep"):
-        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
+    _check_options(method, harmonics)
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
     if harmonics == "remove":
         y = _without_harmonics(y, sample_time_s, warnings)
-    n_samples, p = y.shape
     references = reference_channels(y, MAX_REFERENCES)
     top = int(max_states or DEFAULT_MAX_STATES)
-    if block_rows is None:
-        block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
-    block_rows = int(block_rows)
-    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
-        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
+    block_rows = _block_rows(y, sample_time_s, references, top, block_rows)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
     r_mean = correlations.mean
     var = None
@@ -146,10 +144,7 @@ def identify_output_only(
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
-    top = int(min(top, decomposition.max_states))
-    top -= top % 2
-    if top < 2:
-        raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
+    top = _usable_order(top, decomposition.max_states)
     realizer = OrderRealizer(decomposition, top)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s)
@@ -174,7 +169,38 @@ def identify_output_only(
                      diagram=output_only_diagram(poles), singular_values=decomposition.s)
     model.output_offset, model.warnings = offset, warnings
     _attach_std(model, jackknife, n_model)
+    if low_band and jackknife is not None:
+        refine_low_modes(model, y, sample_time_s, lambda low, dt, block_rows: identify_output_only(
+            low, dt, max_states=max_states, block_rows=block_rows, harmonics="keep", low_band=False))
     return model
+
+
+def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None
+                ) -> int:
+    """The Hankel block rows asked for, or chosen from the data; IdentificationError if they do not fit."""
+    if block_rows is None:
+        block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
+    block_rows, n_samples = int(block_rows), y.shape[0]
+    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
+        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
+    return block_rows
+
+
+def _usable_order(top: int, hankel_rank: int) -> int:
+    """The highest even order at most ``top`` that the Hankel's rank supports (at least 2)."""
+    top = int(min(top, hankel_rank))
+    top -= top % 2
+    if top < 2:
+        raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
+    return top
+
+
+def _check_options(method: str, harmonics: str) -> None:
+    """IdentificationError naming an unknown method or harmonics option."""
+    if method not in OUTPUT_ONLY_METHODS:
+        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
+    if harmonics not in ("remove", "keep"):
+        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int) -> None:
