@@ -29,6 +29,8 @@ Steps (one module each):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import linalg
 
@@ -133,8 +135,43 @@ def identify_output_only(
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
     if harmonics == "remove":
         y = _without_harmonics(y, sample_time_s, warnings)
+    chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
+                           block_rows=block_rows)
+    modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
+    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
+    if var is None:
+        L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
+    else:
+        L, Re, gain_method = _gain_from_var(A, C, y, *var)
+    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
+                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
+                     diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
+    model.output_offset, model.warnings = offset, warnings
+    _attach_std(model, chosen.jackknife, n_model)
+    if low_band and chosen.jackknife is not None:
+        refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
+            _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows), dt))
+    return model
+
+
+@dataclass
+class _Selection:
+    """Steps 1-4 of the module: the realizations, the poles and the modes selected."""
+
+    modes: list[ModeCluster]
+    poles: PoleSet
+    realizer: OrderRealizer
+    correlations: np.ndarray  # (L + 1, p, p) the record's
+    block_rows: int
+    jackknife: Jackknife | None
+    var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
+    n_model: int
+
+
+def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None
+                  ) -> _Selection:
+    """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4)."""
     references = reference_channels(y, MAX_REFERENCES)
-    top = int(max_states or DEFAULT_MAX_STATES)
     block_rows = _block_rows(y, sample_time_s, references, top, block_rows)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
     r_mean = correlations.mean
@@ -159,20 +196,19 @@ def identify_output_only(
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
-    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
-    if var is None:
-        L, Re, gain_method = _covariance_innovation(A, C, gamma, r_mean, block_rows, y)
-    else:
-        L, Re, gain_method = _gain_from_var(A, C, y, *var)
-    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
-                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
-                     diagram=output_only_diagram(poles), singular_values=decomposition.s)
-    model.output_offset, model.warnings = offset, warnings
-    _attach_std(model, jackknife, n_model)
-    if low_band and jackknife is not None:
-        refine_low_modes(model, y, sample_time_s, lambda low, dt, block_rows: identify_output_only(
-            low, dt, max_states=max_states, block_rows=block_rows, harmonics="keep", low_band=False))
-    return model
+    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+
+
+def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
+    """Frequency, damping and their jackknife standard deviations of the selected modes at the model order."""
+    pairs = match_clusters(chosen.modes, chosen.poles, chosen.n_model)
+    if not pairs or chosen.jackknife is None:
+        return []
+    targets = np.array([ev for ev, _ in pairs])
+    f_std, z_std = chosen.jackknife.std(targets, chosen.n_model, sample_time_s)
+    s = np.log(targets) / sample_time_s
+    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si),
+             "frequency_hz_std": float(fs), "damping_ratio_std": float(zs)} for si, fs, zs in zip(s, f_std, z_std)]
 
 
 def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None

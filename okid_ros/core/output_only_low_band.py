@@ -54,15 +54,15 @@ def _decimate(y: np.ndarray, factor: int) -> tuple[np.ndarray, int]:
     return y, used
 
 
-def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float, identify) -> None:
+def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float, select) -> None:
     """Re-estimate ``model``'s slow modes in place (module docstring); nothing when none is slow.
 
     Parameters
     ----------
     model : the full-rate identification of ``y``.
     y : (N, p) the record it was identified from (means and harmonics removed).
-    identify : ``identify(y, sample_time_s, block_rows=..)`` -> IdentifiedModel, the full-rate
-        method without this step.
+    select : ``select(y, sample_time_s, block_rows)`` -> the selected modes of a record, dicts
+        with ``frequency_hz``, ``damping_ratio`` and their ``_std`` (the full-rate selection).
     """
     if not model.modes:
         return
@@ -74,20 +74,20 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
     low_dt = sample_time_s * factor
     block_rows = int(np.ceil(PERIODS_PER_BLOCK_ROWS / (low_dt * slowest_hz)))
     try:
-        decimated = identify(low, low_dt, block_rows=block_rows)
+        decimated = select(low, low_dt, block_rows)
     except IdentificationError:
         return  # the record is too short for the longer lags: the full-rate values stand
     band_hz = min(BAND_FRACTION * 0.5 / low_dt, SLOWEST_FACTOR * slowest_hz)
-    found = np.array([m.frequency_hz for m in decimated.modes])
+    found = np.array([m["frequency_hz"] for m in decimated])
     for mode in model.modes:
         if mode.frequency_hz > band_hz or found.size == 0:
             continue
         j = int(np.argmin(np.abs(found - mode.frequency_hz)))
         if abs(found[j] / mode.frequency_hz - 1) > MATCH_TOLERANCE:
             continue
-        better = decimated.modes[j]
+        better = decimated[j]
         mode.extras.update(full_rate_frequency_hz=mode.frequency_hz, full_rate_damping_ratio=mode.damping_ratio,
                            decimation=factor, block_rows=block_rows)
-        mode.frequency_hz, mode.frequency_rad_s = better.frequency_hz, better.frequency_rad_s
-        mode.damping_ratio = better.damping_ratio
-        mode.frequency_hz_std, mode.damping_ratio_std = better.frequency_hz_std, better.damping_ratio_std
+        mode.frequency_hz, mode.frequency_rad_s = better["frequency_hz"], 2 * np.pi * better["frequency_hz"]
+        mode.damping_ratio = better["damping_ratio"]
+        mode.frequency_hz_std, mode.damping_ratio_std = better["frequency_hz_std"], better["damping_ratio_std"]
