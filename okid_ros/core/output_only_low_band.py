@@ -32,6 +32,8 @@ __all__ = ["refine_low_modes"]
 #: Samples per period of the slowest mode after decimation (decimation only when it saves 4x).
 SAMPLES_PER_PERIOD = 10
 MIN_DECIMATION = 4
+#: Fewest samples of the decimated record worth identifying from.
+MIN_DECIMATED_SAMPLES = 1000
 #: Largest factor of one decimation stage (scipy's FIR decimation, stages for larger factors).
 MAX_STAGE = 10
 #: Block rows per period of the slowest mode in the decimated Hankel.
@@ -68,9 +70,12 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
         return
     slowest_hz = min(mode.frequency_hz for mode in model.modes)
     factor = int(1.0 / (sample_time_s * SAMPLES_PER_PERIOD * slowest_hz))
-    if factor < MIN_DECIMATION:
+    if factor < MIN_DECIMATION or y.shape[0] // factor < MIN_DECIMATED_SAMPLES:
         return
-    low, factor = _decimate(y, factor)
+    try:
+        low, factor = _decimate(y, factor)
+    except ValueError:  # a stage's record shorter than its filter's padding
+        return
     low_dt = sample_time_s * factor
     block_rows = int(np.ceil(PERIODS_PER_BLOCK_ROWS / (low_dt * slowest_hz)))
     try:
