@@ -7,22 +7,29 @@ covariance, in normalized modal form, with its physical modes and their standard
 
 Steps (one module each):
 
-1. means removed; reference channels and the lag window from the data
-   (:mod:`.output_covariance`);
+1. means removed; harmonic lines (a sinusoidal disturbance: a spectral line whose band has
+   the kurtosis of a sinusoid) found and removed by least squares (:mod:`.output_only_harmonics`);
+   reference channels and the lag window from the data (:mod:`.output_covariance`);
 2. ``method="ssi-cov"`` (default): output correlations of consecutive segments, block Hankel,
    ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
    parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
 4. (ssi-cov) each candidate mode re-identified with each segment of the record left out
    (jackknife): a mode whose frequency scatters by more than its half-power half-width
-   ``zeta f`` or whose damping scatters by more than itself is noise and dropped; the
-   jackknife's standard deviations are the modes' (the spread of the cluster across orders for
-   ``var``);
+   ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
+   that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
+   frequency along its own shape (a pole fitted to correlation noise under a flat spectrum);
+   the jackknife's standard deviations are the modes' (the spread of the cluster across orders
+   for ``var``);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var).
+   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
+6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
+   longer lags (:mod:`.output_only_low_band`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg
@@ -33,6 +40,8 @@ from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
+from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
+from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
     ModeCluster,
     PoleSet,
@@ -41,7 +50,13 @@ from okid_ros.core.output_only_modes import (
     lowest_complete_order,
     mark_stable,
 )
-from okid_ros.core.output_only_support import Jackknife, match_clusters, output_only_diagram, prepare_outputs
+from okid_ros.core.output_only_support import (
+    Jackknife,
+    match_clusters,
+    output_only_diagram,
+    prepare_outputs,
+    spectral_dominance,
+)
 from okid_ros.core.regressors import arx_regressors
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
@@ -74,6 +89,10 @@ MAX_GAIN_VAR_COEFFICIENTS = 200
 #: subframe; noise poles 1-20, nearly always caught by the frequency).
 MAX_FREQUENCY_STD_PER_WIDTH = 1.0
 MAX_DAMPING_CV = 1.5
+#: A mode accounts for at least this share of the output spectrum at its frequency, along its
+#: shape (:func:`.output_only_support.spectral_dominance`; modes 0.57-1.1, noise poles below 0.2
+#: on 80 simulated records, the koma frame and the subframe).
+MIN_SPECTRAL_DOMINANCE = 0.4
 
 
 def identify_output_only(
@@ -84,6 +103,8 @@ def identify_output_only(
     max_states: int | None = None,
     block_rows: int | None = None,
     offsets: str = "remove",
+    harmonics: str = "remove",
+    low_band: bool = True,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -97,6 +118,10 @@ def identify_output_only(
         Hankel is smaller).
     block_rows : Hankel block rows (default from the data: a period of the slowest mode).
     offsets : "remove" (default, the means are kept with the model) or "none".
+    harmonics : "remove" (default: harmonic lines are found, named in ``warnings`` and removed
+        before identification) or "keep" (the record as it is).
+    low_band : (ssi-cov) re-estimate the modes far below the sampling rate from the record
+        decimated, with longer lags (:mod:`.output_only_low_band`; default True).
 
     Returns
     -------
@@ -106,17 +131,48 @@ def identify_output_only(
     ------
     IdentificationError with a one-line reason.
     """
-    if method not in OUTPUT_ONLY_METHODS:
-        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
+    _check_options(method, harmonics)
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
-    n_samples, p = y.shape
+    if harmonics == "remove":
+        y = _without_harmonics(y, sample_time_s, warnings)
+    chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
+                           block_rows=block_rows)
+    modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
+    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
+    if var is None:
+        L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
+    else:
+        L, Re, gain_method = _gain_from_var(A, C, y, *var)
+    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
+                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
+                     diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
+    model.output_offset, model.warnings = offset, warnings
+    _attach_std(model, chosen.jackknife, n_model)
+    if low_band and chosen.jackknife is not None:
+        refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
+            _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows), dt))
+    return model
+
+
+@dataclass
+class _Selection:
+    """Steps 1-4 of the module: the realizations, the poles and the modes selected."""
+
+    modes: list[ModeCluster]
+    poles: PoleSet
+    realizer: OrderRealizer
+    correlations: np.ndarray  # (L + 1, p, p) the record's
+    block_rows: int
+    jackknife: Jackknife | None
+    var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
+    n_model: int
+
+
+def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None
+                  ) -> _Selection:
+    """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4)."""
     references = reference_channels(y, MAX_REFERENCES)
-    top = int(max_states or DEFAULT_MAX_STATES)
-    if block_rows is None:
-        block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
-    block_rows = int(block_rows)
-    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
-        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
+    block_rows = _block_rows(y, sample_time_s, references, top, block_rows)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
     r_mean = correlations.mean
     var = None
@@ -125,10 +181,7 @@ def identify_output_only(
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
-    top = int(min(top, decomposition.max_states))
-    top -= top % 2
-    if top < 2:
-        raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
+    top = _usable_order(top, decomposition.max_states)
     realizer = OrderRealizer(decomposition, top)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s)
@@ -137,21 +190,53 @@ def identify_output_only(
     jackknife = None
     if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
         jackknife = Jackknife(correlations, references, block_rows, top)
-        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s)
+        modes = _drop_noise_modes(
+            modes, poles, jackknife, sample_time_s,
+            dominance=lambda n, pole: spectral_dominance(realizer, n, pole, r_mean[0], references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
-    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
-    if var is None:
-        L, Re, gain_method = _covariance_innovation(A, C, gamma, r_mean, block_rows, y)
-    else:
-        L, Re, gain_method = _gain_from_var(A, C, y, *var)
-    model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
-                     method=method, gain_method=gain_method, arx=None if var is None else var[0],
-                     diagram=output_only_diagram(poles), singular_values=decomposition.s)
-    model.output_offset, model.warnings = offset, warnings
-    _attach_std(model, jackknife, n_model)
-    return model
+    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+
+
+def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
+    """Frequency, damping and their jackknife standard deviations of the selected modes at the model order."""
+    pairs = match_clusters(chosen.modes, chosen.poles, chosen.n_model)
+    if not pairs or chosen.jackknife is None:
+        return []
+    targets = np.array([ev for ev, _ in pairs])
+    f_std, z_std = chosen.jackknife.std(targets, chosen.n_model, sample_time_s)
+    s = np.log(targets) / sample_time_s
+    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si),
+             "frequency_hz_std": float(fs), "damping_ratio_std": float(zs)} for si, fs, zs in zip(s, f_std, z_std)]
+
+
+def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None
+                ) -> int:
+    """The Hankel block rows asked for, or chosen from the data; IdentificationError if they do not fit."""
+    if block_rows is None:
+        block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top)
+    block_rows, n_samples = int(block_rows), y.shape[0]
+    if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
+        raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")
+    return block_rows
+
+
+def _usable_order(top: int, hankel_rank: int) -> int:
+    """The highest even order at most ``top`` that the Hankel's rank supports (at least 2)."""
+    top = int(min(top, hankel_rank))
+    top -= top % 2
+    if top < 2:
+        raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
+    return top
+
+
+def _check_options(method: str, harmonics: str) -> None:
+    """IdentificationError naming an unknown method or harmonics option."""
+    if method not in OUTPUT_ONLY_METHODS:
+        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
+    if harmonics not in ("remove", "keep"):
+        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int) -> None:
@@ -166,12 +251,23 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers))
 
 
-def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float
-                      ) -> list[ModeCluster]:
-    """The candidate modes whose jackknife scatter says they are structural (step 4 of the module).
+def _without_harmonics(y: np.ndarray, sample_time_s: float, warnings: list[str]) -> np.ndarray:
+    """``y`` less its harmonic lines; each one removed is named in ``warnings``."""
+    found = find_harmonics(y, sample_time_s)
+    if not found:
+        return y
+    listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
+    warnings.append(f"harmonic disturbance removed before identification (not a mode): {listed}")
+    return remove_harmonics(y, sample_time_s, found)
+
+
+def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float, *,
+                      dominance) -> list[ModeCluster]:
+    """The candidate modes whose jackknife scatter and spectral share say they are structural (step 4).
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
-    cluster lives, not at an order chosen for all of them).
+    cluster lives, not at an order chosen for all of them). ``dominance(n, pole)`` is the
+    mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`).
     """
     kept = []
     for mode in modes:
@@ -180,7 +276,8 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
         target = poles.eigenvalue[mode.members[n_home]]
         f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
         width = mode.damping_ratio * mode.frequency_hz
-        if f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio:
+        if (f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio
+                and dominance(n_home, target) >= MIN_SPECTRAL_DOMINANCE):
             kept.append(mode)
     return kept
 

@@ -1,0 +1,131 @@
+"""Harmonic disturbances in an ambient record: found, told apart from modes, removed.
+
+A harmonic force (a machine's rotation, the mains) makes the outputs hold a sinusoid of
+constant amplitude. Stochastic subspace identification sees it as an undamped, perfectly
+order-stable pole; it is no mode, and next to a mode it also disturbs that mode's pole. Two
+facts of the record tell the two apart (Brincker, Andersen & Moller 2000, "An indicator for
+separation of structural and harmonic modes in output-only modal testing"):
+
+- a **spectral line**: the record's periodogram (Hann window, the full record) holds the
+  harmonic's power in its window's main lobe, ``HARMONIC_LINE_RATIO`` times or more above the
+  median of the bins around it; a structural mode spreads its power over its half-power
+  bandwidth ``2 zeta f``;
+- a **constant envelope**: the record band-passed around the line (``HARMONIC_BAND_BINS``
+  bins each side) and projected on the line's spatial direction is a sinusoid, whose
+  probability density has kurtosis 1.5; a randomly excited mode's response is Gaussian
+  (kurtosis 3). A line is a harmonic when its kurtosis is at most ``HARMONIC_MAX_KURTOSIS``.
+
+Measured: harmonics 1.50-1.51 (line ratios above 4000, the simulated harmonic case); structural
+modes 1.78-4.1 (line ratios up to 130 on the 8-s subframe record, below 20 on 600-s records);
+a lightly damped mode's Gaussian response, simulated 300 times for every record holding 4 to 32
+of its decay times: 1st percentile 1.71-2.15, lowest 1.68. A harmonic is flagged when its
+in-band power is about 20 times the noise's or more (kurtosis ``(1.5 r^2 + 6 r + 3) / (r + 1)^2``
+at power ratio r).
+
+Each harmonic found is removed by least squares (its frequency refined to a fraction of a
+bin, then one cosine and one sine per harmonic and channel) before the correlations are
+taken. A harmonic whose amplitude or frequency drifts is removed only in part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage, optimize, stats
+
+__all__ = ["Harmonic", "find_harmonics", "remove_harmonics"]
+
+#: A line's peak bin stands this many times above the median of its neighbourhood.
+HARMONIC_LINE_RATIO = 100.0
+#: Kurtosis of the band-passed, projected record at most this: a sinusoid (1.5), not a mode (3).
+HARMONIC_MAX_KURTOSIS = 1.65
+#: Half-width of the band (bins of the full record) of the kurtosis test.
+HARMONIC_BAND_BINS = 10
+#: The neighbourhood of a line: bins 4 .. 24 away on either side (the Hann main lobe is +-2).
+_RING_INNER, _RING_OUTER = 4, 24
+#: Most lines tested (the strongest first) and most harmonics removed.
+MAX_LINES = 32
+#: Share of the band-passed signal cut at each end (the circular FFT's wrap-around).
+_EDGE = 0.1
+
+
+@dataclass
+class Harmonic:
+    """One harmonic line: its frequency (Hz, refined), line ratio and kurtosis."""
+
+    frequency_hz: float
+    line_ratio: float
+    kurtosis: float
+
+
+def find_harmonics(y: np.ndarray, sample_time_s: float) -> list[Harmonic]:
+    """The harmonic lines of a record (module docstring), strongest first.
+
+    Parameters
+    ----------
+    y : (N, p) outputs, means removed.
+    sample_time_s : sample time (s).
+
+    Returns
+    -------
+    list of :class:`Harmonic` (empty when the record holds none).
+    """
+    n = y.shape[0]
+    if n < 8 * _RING_OUTER:
+        return []
+    windowed = np.fft.rfft(y * np.hanning(n)[:, None], axis=0)  # (F, p)
+    power = np.sum(np.abs(windowed) ** 2, axis=1)
+    footprint = np.ones(2 * _RING_OUTER + 1, bool)
+    footprint[_RING_OUTER - _RING_INNER + 1 : _RING_OUTER + _RING_INNER] = False
+    background = ndimage.median_filter(power, footprint=footprint, mode="reflect")
+    ratio = power / np.maximum(background, np.finfo(float).tiny)
+    local_max = np.r_[False, (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:]), False]
+    bins = np.flatnonzero(local_max & (ratio >= HARMONIC_LINE_RATIO))
+    bins = bins[(bins >= 3) & (bins <= power.size - 4)]
+    bins = bins[np.argsort(ratio[bins])[::-1]][:MAX_LINES]
+    if bins.size == 0:
+        return []
+    raw = np.fft.rfft(y, axis=0)
+    found = []
+    for k in bins:
+        kurtosis = _band_kurtosis(raw, windowed[k], int(k), n)
+        if kurtosis <= HARMONIC_MAX_KURTOSIS:
+            found.append(Harmonic(_refine(y, k / (n * sample_time_s), n * sample_time_s, sample_time_s),
+                                  float(ratio[k]), kurtosis))
+    return found
+
+
+def _band_kurtosis(raw: np.ndarray, direction: np.ndarray, k: int, n: int) -> float:
+    """Kurtosis of the record band-passed around bin ``k`` and projected on ``direction`` (p,)."""
+    unit = np.conj(direction) / max(float(np.linalg.norm(direction)), np.finfo(float).tiny)
+    lo, hi = max(k - HARMONIC_BAND_BINS, 1), min(k + HARMONIC_BAND_BINS + 1, raw.shape[0])
+    band = np.zeros(n, complex)
+    band[lo:hi] = raw[lo:hi] @ unit  # one-sided: the analytic signal of the projection
+    signal = np.fft.ifft(band).real
+    cut = int(_EDGE * n)
+    return float(stats.kurtosis(signal[cut : n - cut], fisher=False))
+
+
+def _refine(y: np.ndarray, frequency_hz: float, duration_s: float, sample_time_s: float) -> float:
+    """The frequency within one bin of ``frequency_hz`` that maximizes the record's summed power."""
+    t = np.arange(y.shape[0]) * sample_time_s
+
+    def negative_power(f: float) -> float:
+        return -float(np.sum(np.abs(np.exp(-2j * np.pi * f * t) @ y) ** 2))
+
+    bin_hz = 1.0 / duration_s
+    result = optimize.minimize_scalar(negative_power, bounds=(frequency_hz - bin_hz, frequency_hz + bin_hz),
+                                      method="bounded", options={"xatol": 1e-4 * bin_hz})
+    return float(result.x)
+
+
+def remove_harmonics(y: np.ndarray, sample_time_s: float, harmonics: list[Harmonic]) -> np.ndarray:
+    """``y`` (N, p) less the least-squares sinusoids at the harmonics' frequencies (all at once)."""
+    if not harmonics:
+        return y
+    t = np.arange(y.shape[0]) * sample_time_s
+    phase = 2 * np.pi * np.outer(t, [h.frequency_hz for h in harmonics])
+    basis = np.hstack([np.cos(phase), np.sin(phase)])  # (N, 2 H)
+    coefficients = np.linalg.lstsq(basis, y, rcond=None)[0]
+    return y - basis @ coefficients
