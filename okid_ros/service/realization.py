@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from okid_ros.core.change_detection import whitening_matrix
+from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
@@ -49,6 +50,21 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
     return predictor.x
 
 
+def _identify(job: RealizationJob) -> IdentifiedModel:
+    """The core's model of a job: from its ARX fit, or (m = 0) from the window's outputs alone.
+
+    Output-only (``n_inputs`` 0): the ARX fit is node 1's vector autoregression of the window;
+    it defines the window, and the model comes from the window's outputs by the core's
+    output-only front end (:func:`okid_ros.core.output_only.identify_output_only`, route
+    ``output_only_method``).
+    """
+    prm = job.params
+    if prm.n_inputs == 0:
+        return identify_output_only(job.y, prm.sample_time_s, method=prm.output_only_method, offsets=prm.offsets)
+    return identify_from_arx(job.fit, job.u, job.y, prm.sample_time_s,
+                             options=prm.realization_options(), offsets=prm.offsets)
+
+
 def realize(job: RealizationJob) -> RealizationOutcome:
     """Realize the model of a job, check it, warm-start its predictor over the job's window.
 
@@ -58,10 +74,7 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     prm = job.params
     t0 = time.perf_counter()
     try:
-        model = identify_from_arx(
-            job.fit, job.u, job.y, prm.sample_time_s,
-            options=prm.realization_options(), offsets=prm.offsets,
-        )
+        model = _identify(job)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
     elapsed = time.perf_counter() - t0
