@@ -36,11 +36,10 @@ def bag(experiment, tmp_path_factory):
 
 
 def assert_true_modes_found(updates: list[list[dict]], rtol: float = 0.02) -> None:
-    """Each true mode within ``rtol`` in frequency in at least half of the updates; in every
-    update at most one listed mode is no true one.
+    """Each true mode within ``rtol`` in frequency in at least half of the updates.
 
-    (A 40 s window holds 128 periods of the slowest mode, which the output-only selection
-    does not always keep: docs/benchmarks-output-only.md.)
+    In every update at most one listed mode is no true one. (A 40 s window holds 128 periods
+    of the slowest mode, which the output-only selection does not always keep.)
     """
     hits = np.zeros(len(AMBIENT_FREQUENCIES_HZ))
     for modes in updates:
