@@ -27,7 +27,7 @@ import numpy as np
 from okid_ros.jsonio import dumps
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
 from okid_ros.tools.errors import ToolParameterError
-from okid_ros.tools.simulate_bag import Experiment
+from okid_ros.tools.simulate_bag import Experiment, accelerometer_message
 
 __all__ = ["AMBIENT_FREQUENCIES_HZ", "AMBIENT_IMU_TOPICS", "simulate_ambient", "write_ambient_bag"]
 
@@ -89,24 +89,10 @@ def write_ambient_bag(path: str | Path, experiment: Experiment, storage: str = "
         for topic in AMBIENT_IMU_TOPICS:
             bag.add_topic(topic, "sensor_msgs/msg/Imu")
         Time = bag.msg_class("builtin_interfaces/msg/Time")
-        Header = bag.msg_class("std_msgs/msg/Header")
-        Vector3 = bag.msg_class("geometry_msgs/msg/Vector3")
-        Quaternion = bag.msg_class("geometry_msgs/msg/Quaternion")
-        Imu = bag.msg_class("sensor_msgs/msg/Imu")
-        not_provided = np.zeros(9)
-        not_provided[0] = -1.0  # REP 145: the sensor does not measure this quantity
-        unknown = np.zeros(9)
-        zero = Vector3(x=0.0, y=0.0, z=0.0)
-        identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+        imu = accelerometer_message(bag)
         y = experiment.y
         for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
             stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
             for i, topic in enumerate(AMBIENT_IMU_TOPICS):
-                ax, ay, az = (float(v) for v in y[k, 3 * i: 3 * i + 3])
-                bag.write(topic, stamp_ns, Imu(
-                    header=Header(stamp=stamp, frame_id=_IMU_FRAMES[i]),
-                    orientation=identity, orientation_covariance=not_provided,
-                    angular_velocity=zero, angular_velocity_covariance=not_provided,
-                    linear_acceleration=Vector3(x=ax, y=ay, z=az), linear_acceleration_covariance=unknown,
-                ))
+                bag.write(topic, stamp_ns, imu(stamp, _IMU_FRAMES[i], tuple(float(v) for v in y[k, 3 * i: 3 * i + 3])))
         return dict(bag.counts)
