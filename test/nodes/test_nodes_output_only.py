@@ -162,3 +162,17 @@ def test_io_sample_with_empty_u_fills_an_outputs_only_sample():
     grid = SampleGrid(0.01, 0, 3, [spec.channels], latency_samples=0)
     samples = grid.add(0, 5.0, values) + grid.add(0, 5.01, values)
     assert samples and samples[0].u.shape == (0,) and samples[0].y.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_the_output_only_example_is_read_strictly_by_both_nodes():
+    from okid_ros.service.inputs import parse_sources
+    from okid_ros.tools.node_parameters import load_node_parameters
+
+    files = [REPO_ROOT / "config" / "okid.yaml", REPO_ROOT / "config" / "okid_output_only.yaml"]
+    arx, est = load_node_parameters(files, strict=True)  # every name in the files is declared
+    for values in (arx, est):
+        assert values["n_inputs"] == 0 and values["n_outputs"] == 6 and values["sample_time_s"] == 0.005
+        specs = parse_sources(values["inputs.sources"], 0, 6)
+        assert [s.kind for s in specs] == ["imu", "imu"]
+        assert sorted(c for s in specs for c in s.channels) == list(range(6))
+    assert arx["arx.order"] == 10 and est["realization.output_only_method"] == "ssi-cov"
