@@ -22,6 +22,8 @@ from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 from sensor_msgs.msg import Imu
 
 from okid_msgs.msg import ArxModel, ModalStates, StateSpaceModel
+from okid_ros.nodes.common import sensor_qos
+from okid_ros.nodes.conversions import stamp_to_seconds as stamp_s
 from okid_ros.tools.simulate_ambient import AMBIENT_FREQUENCIES_HZ, AMBIENT_IMU_TOPICS, simulate_ambient
 
 T0 = 1000.0
@@ -37,12 +39,7 @@ OVERRIDES = """
     arx:
       window_length: 12000
 """
-SENSOR_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 RELIABLE = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def stamp_s(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 class Probe(ProbeNode):
@@ -53,7 +50,7 @@ class Probe(ProbeNode):
         self.arx: list = []
         self.models: list = []
         self.state_stamps: list[float] = []
-        self.imus = [self.node.create_publisher(Imu, topic, SENSOR_QOS) for topic in AMBIENT_IMU_TOPICS]
+        self.imus = [self.node.create_publisher(Imu, topic, sensor_qos(1000)) for topic in AMBIENT_IMU_TOPICS]
         self.node.create_subscription(ArxModel, "/okid/arx_model", self.keep(self.arx), RELIABLE)
         self.node.create_subscription(StateSpaceModel, "/okid/state_space_model", self.keep(self.models), RELIABLE)
         self.node.create_subscription(ModalStates, "/okid/modal_states", self._on_states, RELIABLE)
