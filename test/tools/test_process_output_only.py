@@ -78,6 +78,10 @@ def test_process_bag_holds_state_space_models_without_inputs(bag, tmp_path):
     first_model_s = models[0].header.stamp.sec + models[0].header.stamp.nanosec * 1e-9
     samples_after = 60.0 - (first_model_s - 1_000.0)
     assert n_states_msgs >= 0.98 * samples_after / 0.005  # modal states on (nearly) every sample
+    assert okid_ros_main(["plot", str(out)]) == 0  # the source bag recorded by process; no input: no FRF
+    figures = sorted(p.name for p in (tmp_path / "out_figures").iterdir())
+    assert "modes_over_time.png" in figures and "stabilization.png" in figures
+    assert "frf.png" not in figures and "fig2_system_markov.png" not in figures
 
 
 def test_batch_takes_the_output_only_parameters(bag, tmp_path):
