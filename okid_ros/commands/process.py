@@ -88,7 +88,9 @@ def run(args: argparse.Namespace) -> int:
         if "fit_one_step_pct" in last:
             pred = ", ".join(f"{v:.1f}" for v in last["fit_one_step_pct"])
             sim = ", ".join(f"{v:.1f}" for v in last["fit_simulation_pct"])
-            print(f"  fit on its window, per output: one-step prediction [{pred}] %, free-run simulation [{sim}] %")
+            # Without an input the free run is zero: only the one-step prediction says something.
+            free_run = f", free-run simulation [{sim}] %" if last.get("n_inputs", 1) else " (output-only)"
+            print(f"  fit on its window, per output: one-step prediction [{pred}] %{free_run}")
     else:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
         print("no model was identified" + (f": {reason}" if reason else ""))

@@ -3,7 +3,10 @@
 Runs the recursive ARX window (:class:`okid_ros.core.recursive.SlidingWindowArx`) over a record
 (.npz or .csv, as `identify`) and, once the window holds W regressor rows and then every S
 samples, the identification pipeline of the core on the current window
-(:func:`okid_ros.core.pipeline.identify_from_arx`). Each update writes one JSON object per line:
+(:func:`okid_ros.core.pipeline.identify_from_arx`, or, for a record without ``u`` or with
+``--output-only``, the output-only identification of the window's outputs, as the nodes do:
+:func:`okid_ros.service.realization.identify_window`; ``n_inputs`` 0 in every line). Each
+update writes one JSON object per line:
 
     {"sample_index": k, "window_first_index": ..., "time_s": ..., "n_states": ...,
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
@@ -100,6 +103,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--restart-min-fill", type=_fraction, default=ArxIdentificationParams.restart_min_fill,
                         metavar="F", help="after a change the window restarts at the change point; models "
                         "come from this fraction of W rows on (default: %(default)g)")
+    parser.add_argument("--output-only", action="store_true",
+                        help="identify from the outputs alone, ignoring the record's u (automatic for a record "
+                        "without u): each window's model by output-only identification, n_inputs 0 in every line")
     parser.add_argument("--jsonl", required=True, metavar="OUT.jsonl", help="where to write the updates")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl")
@@ -212,7 +218,6 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from pathlib import Path
 
     from okid_ros.core.channels import group_scales
-    from okid_ros.records import require_inputs
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -220,11 +225,17 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
     record, _ = load_any_record(args.data, args.params, args.param, args.source)
-    require_inputs(record, args.data, "track")
+    # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
+    u = record.u[:, :0] if args.output_only else record.u
     # Inputs and outputs each divided by a power of two (exact: the same fits): values near
     # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
-    u, y = group_scales(record.u, record.y).scale(record.u, record.y)
+    u, y = group_scales(u, record.y).scale(u, record.y)
     return out, (u, y, record.sample_time_s)
+
+
+#: The VAR order of an output-only window (``--order auto`` with no input): the VAR only frames
+#: the window (its model comes from the outputs, service/realization.identify_window), so small.
+OUTPUT_ONLY_ORDER = 10
 
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
@@ -234,7 +245,9 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     from okid_ros.errors import DataError, ParameterError
 
     window, (n_samples, m), p = args.window, u.shape, y.shape[1]
-    if args.order == "auto":
+    if args.order == "auto" and m == 0:
+        q = OUTPUT_ONLY_ORDER
+    elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
         try:
             q, _ = choose_arx_order(u[: window + 200], y[: window + 200], options=options)
@@ -287,7 +300,7 @@ def _arm_reference(monitor, model, u_window, y_window, rows: int) -> None:
 def _window_model(estimator, q: int, dt: float, args: argparse.Namespace, options) -> tuple:
     """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
     from okid_ros.core.arx import fit_from_normal_equations
-    from okid_ros.core.pipeline import identify_from_arx
+    from okid_ros.service.realization import identify_window
     from okid_ros.service.records import mode_record
 
     p, m = estimator.n_outputs, estimator.n_inputs
@@ -295,10 +308,11 @@ def _window_model(estimator, q: int, dt: float, args: argparse.Namespace, option
     fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
                                     center=True)
     u_w, y_w, _ = estimator.window_samples()
-    model = identify_from_arx(fit, u_w, y_w, dt, options=options)
+    model = identify_window(fit, u_w, y_w, dt, options=options)  # output-only when m = 0
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,
+        n_inputs=model.n_inputs,  # 0: output-only
         arx_order=int(q),
         max_states_reached=bool(model.max_states_reached),
         arx_penalty=float(fit.penalty),

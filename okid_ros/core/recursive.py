@@ -109,8 +109,8 @@ class SlidingWindowArx:
     ) -> None:
         if int(order) < 1:
             raise ValueError(f"ARX order must be >= 1, got {order}")
-        if int(n_outputs) < 1 or int(n_inputs) < 1:
-            raise ValueError(f"need at least one output and one input, got p={n_outputs}, m={n_inputs}")
+        if int(n_outputs) < 1 or int(n_inputs) < 0:  # m = 0: a vector autoregression (output-only)
+            raise ValueError(f"need at least one output and m >= 0 inputs, got p={n_outputs}, m={n_inputs}")
         self.order = q = int(order)
         self.n_outputs = p = int(n_outputs)
         self.n_inputs = m = int(n_inputs)

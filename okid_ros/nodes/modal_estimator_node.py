@@ -137,6 +137,8 @@ class ModalEstimatorNode(OkidNode):
         self._lock = threading.Lock()
         self.start_inputs()
         order = "auto" if params.n_states == 0 else str(params.n_states)
+        if params.n_inputs == 0:  # the realization's order options do not apply
+            order = f"auto, output-only ({params.output_only_method})"
         self.get_logger().info(
             f"ready: states {order}, m={params.n_inputs}, p={params.n_outputs}, dt={params.sample_time_s:g} s; "
             f"inputs {self.input_summary()}; models from {self.topics['arx_model_topic']}; publishing "

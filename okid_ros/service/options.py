@@ -116,6 +116,7 @@ class ModalEstimationParams:
     max_states_limit: int = _est("max_states_limit")
     gain: str = _est("gain")
     refine: bool = _est("refine")
+    output_only_method: str = _est("output_only_method")  # with n_inputs 0
     max_damping: float = _est("max_damping")
     min_msv: float = _est("min_msv")
     max_nyquist_fraction: float = _est("max_nyquist_fraction")

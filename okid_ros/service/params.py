@@ -39,6 +39,7 @@ from okid_ros.core.change_detection import (
 )
 from okid_ros.core.modal import match_modes
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+from okid_ros.core.output_only import OUTPUT_ONLY_METHODS
 from okid_ros.errors import ParameterError
 from okid_ros.service.param_files import node_fqn, node_values_from_tree, read_parameter_file
 from okid_ros.service.topics import ARX_MODEL, IO_SAMPLE, MODAL_STATES, STATE_SPACE_MODEL, STRUCTURAL_CHANGE
@@ -161,7 +162,7 @@ def _fmt(x: float) -> str:
 # Shared by both nodes (YAML section "/**").
 SHARED_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("sample_time_s", 0.008, "sample time of the input/output samples (paper: 0.008 s)", "s", 1e-6, 3600.0, field="sample_time_s", fixed=SIZES),
-    ParamSpec("n_inputs", 2, "number of inputs m (channels u0..u{m-1})", "", 1, 64, field="n_inputs", fixed=SIZES),
+    ParamSpec("n_inputs", 2, "number of inputs m (channels u0..u{m-1}); 0: output-only (ambient) identification from the outputs alone", "", 0, 64, field="n_inputs", fixed=SIZES),
     ParamSpec("n_outputs", 2, "number of outputs p (channels y0..y{p-1})", "", 1, 64, field="n_outputs", fixed=SIZES),
     ParamSpec(
         "inputs.sources", [f"io_sample {IO_SAMPLE}"],
@@ -206,6 +207,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("realization.refine", True, "finish each realization with the prediction-error refinement of the core (skipped for large models)", field="refine", runtime=True),
     ParamSpec("realization.worker", "process", "where realizations run: a worker process (never competes with the per-sample path for the interpreter lock) or a thread", choices=("process", "thread"), fixed=WORKER),
     ParamSpec("realization.gain", _REALIZATION.gain, "estimator gain: refit (least squares where the predictor is stable by construction, else the Riccati gain), riccati (always the Kalman gain of the Riccati equation on the residual covariances) or whitening (the paper's)", choices=GAINS, field="gain", runtime=True),
+    ParamSpec("realization.output_only_method", OUTPUT_ONLY_METHODS[0], "with n_inputs 0 (output-only): how each window's model is realized from its outputs: ssi-cov (covariance-driven SSI / NExT-ERA, the measured winner) or var (a vector AR and the OKID recursion, the paper's route); see okid_ros/core/output_only.py", choices=OUTPUT_ONLY_METHODS, field="output_only_method", runtime=True),
     ParamSpec("modes.max_damping", _MODES.max_damping, "largest damping ratio of a physical mode", "", 1e-6, 1.0, field="max_damping", runtime=True),
     ParamSpec("modes.min_msv", _MODES.min_msv, "smallest relative modal singular value of a physical mode", "", 0.0, 1.0, field="min_msv", runtime=True),
     ParamSpec("modes.max_nyquist_fraction", _MODES.max_nyquist_fraction, "physical modes lie below this fraction of the Nyquist frequency", "", 0.01, 1.0, field="max_nyquist_fraction", runtime=True),

@@ -2,11 +2,13 @@
 
 :func:`realize` turns a :class:`~okid_ros.service.results.RealizationJob` (an ARX fit and a
 copy of its window's samples) into a :class:`~okid_ros.service.results.RealizationOutcome`:
-the core's realization (:func:`okid_ros.core.pipeline.identify_from_arx`: weighted ERA,
-refit, order selection, refinement), the checks every model handed out passes (stable ``A``
-and stable predictor, :meth:`okid_ros.core.statespace.InnovationModel.stability_problem`; a
-positive definite innovation covariance; a physical mode) and the warm start of the new
-model's predictor over the window. Pure: runs on any thread or in a worker process.
+the core's realization (:func:`identify_window`: :func:`okid_ros.core.pipeline.identify_from_arx`,
+weighted ERA, refit, order selection, refinement; with no input, m = 0, the output-only front
+end :func:`okid_ros.core.output_only.identify_output_only` on the window's outputs), the
+checks every model handed out passes (stable ``A`` and stable predictor,
+:meth:`okid_ros.core.statespace.InnovationModel.stability_problem`; a positive definite
+innovation covariance; a physical mode) and the warm start of the new model's predictor over
+the window. Pure: runs on any thread or in a worker process.
 
 :func:`advance_state` and :func:`bridge_state` move a model's predicted state over samples
 and gaps, as the estimator would (same state to rounding): the warm start, the catch-up of a
@@ -19,12 +21,15 @@ import time
 
 import numpy as np
 
+from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
+from okid_ros.core.options import RealizationOptions
+from okid_ros.core.output_only import OUTPUT_ONLY_METHODS, identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
 
-__all__ = ["advance_state", "bridge_state", "realize"]
+__all__ = ["advance_state", "bridge_state", "identify_window", "realize"]
 
 
 def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -49,6 +54,32 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
     return predictor.x
 
 
+def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
+                    options: RealizationOptions, offsets: str = "remove",
+                    output_only_method: str = OUTPUT_ONLY_METHODS[0]) -> IdentifiedModel:
+    """The core's model of one window: from its ARX fit, or (m = 0) from its outputs alone.
+
+    The one place where the nodes (:func:`realize`), ``okid-ros process`` and ``okid-ros
+    track`` choose the front end. With no input channel (``u`` (N, 0)) the ARX fit is a vector
+    autoregression that defines the window; the model comes from the window's outputs by the
+    core's output-only identification (:func:`okid_ros.core.output_only.identify_output_only`,
+    route ``output_only_method``: "ssi-cov" or "var"); ``options`` (the input-output
+    realization's) do not apply to it.
+
+    Parameters
+    ----------
+    fit : the window's ARX fit; u : (N, m) inputs; y : (N, p) outputs of the window.
+    sample_time_s : dt [s]; options : the realization's options; offsets : "remove" or "none".
+
+    Raises
+    ------
+    IdentificationError, ValueError or numpy.linalg.LinAlgError with the reason.
+    """
+    if u.shape[1] == 0:
+        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets)
+    return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets)
+
+
 def realize(job: RealizationJob) -> RealizationOutcome:
     """Realize the model of a job, check it, warm-start its predictor over the job's window.
 
@@ -58,10 +89,8 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     prm = job.params
     t0 = time.perf_counter()
     try:
-        model = identify_from_arx(
-            job.fit, job.u, job.y, prm.sample_time_s,
-            options=prm.realization_options(), offsets=prm.offsets,
-        )
+        model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
+                                offsets=prm.offsets, output_only_method=prm.output_only_method)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
     elapsed = time.perf_counter() - t0

@@ -83,6 +83,7 @@ def update_record(update: Any, applied_at_stamp_s: float, change: dict | None = 
         "model_id": int(update.model_id),
         "arx_model_id": int(update.arx_model_id),
         "n_states": int(update.model.n_states),
+        "n_inputs": int(update.model.n_inputs),  # 0: output-only
         "window_samples": int(update.window_samples),
         "realization_time_s": float(update.realization_time_s),
         "modes": [mode_record(m) for m in update.modes],

@@ -256,8 +256,9 @@ class SampleGrid:
     ) -> None:
         if not (sample_time_s > 0 and math.isfinite(sample_time_s)):
             raise ValueError(f"sample_time_s must be a positive number, got {sample_time_s}")
-        if int(n_inputs) < 1 or int(n_outputs) < 1:
-            raise ValueError(f"need at least one input and one output, got m={n_inputs}, p={n_outputs}")
+        if int(n_inputs) < 0 or int(n_outputs) < 1:
+            raise ValueError(f"need m >= 0 inputs (0: outputs only) and at least one output, got m={n_inputs}, "
+                             f"p={n_outputs}")
         if not 0.0 < tolerance < 0.5:
             raise ValueError(f"tolerance must be in (0, 0.5) sample times, got {tolerance}")
         if int(latency_samples) < 0:

@@ -7,6 +7,11 @@
 4. stop the nodes, draw the figures from the recording (:mod:`.plots`);
 5. print the modes of the last live model against the true ones.
 
+With ``output_only`` (``okid-ros demo --output-only``) the experiment is ambient vibration
+(:mod:`.simulate_ambient`: a structure shaken by forces nobody measures, two Imu topics) and
+the nodes run ``config/okid.yaml`` + ``config/okid_output_only.yaml`` (n_inputs 0) with the
+window of :data:`OUTPUT_ONLY_DEMO_WINDOW` samples, so the first model comes within the demo.
+
 Everything goes into a new run folder ``OUT_DIR/YYYYmmdd-HHMMSS`` (``OUT_DIR/latest`` points
 to it). The ROS domain is ``ROS_DOMAIN_ID`` if set, otherwise a free one of 1..100 (the same
 per-id lock files the test sessions take, so a demo never shares a domain with a test run);
@@ -38,6 +43,16 @@ OUTPUT_TOPICS = {
     "/okid/state_space_model": "okid_msgs/msg/StateSpaceModel",
     "/okid/modal_states": "okid_msgs/msg/ModalStates",
 }
+
+
+#: The output-only demo's window [samples] (60 s at 200 Hz; config/okid_output_only.yaml has 120 s).
+OUTPUT_ONLY_DEMO_WINDOW = 12000
+_OUTPUT_ONLY_OVERRIDES = f"""# okid-ros demo --output-only: a window that fits the demo (the file's: 120 s)
+/**/okid_arx_identifier:
+  ros__parameters:
+    arx:
+      window_length: {OUTPUT_ONLY_DEMO_WINDOW}
+"""
 
 
 def default_params_file(name: str = "okid.yaml") -> Path:
@@ -163,11 +178,20 @@ class DemoOptions:
     seed: int = 1
     ansi: bool | None = None
     startup_timeout_s: float = 90.0
+    output_only: bool = False
 
     @property
     def param_files(self) -> list[Path]:
-        """The parameter files given, else the default one for the input topics."""
-        return list(self.params) or [default_params_file("okid_imu_wrench.yaml" if self.sensors else "okid.yaml")]
+        """The parameter files given, else the default ones for the input topics.
+
+        Output-only: config/okid.yaml and config/okid_output_only.yaml; the demo adds its
+        window (``_DemoRun``).
+        """
+        if self.params:
+            return list(self.params)
+        if self.output_only:
+            return [default_params_file("okid.yaml"), default_params_file("okid_output_only.yaml")]
+        return [default_params_file("okid_imu_wrench.yaml" if self.sensors else "okid.yaml")]
 
 
 def _new_run_dir(out_dir: Path) -> Path:
@@ -195,6 +219,10 @@ class _DemoRun:
             if not path.is_file():
                 raise OkidError(f"parameter file {path} does not exist")
         self.run_dir = _new_run_dir(out_dir)
+        if options.output_only and not options.params:
+            overrides = self.run_dir / "output_only_demo.yaml"
+            overrides.write_text(_OUTPUT_ONLY_OVERRIDES)
+            self.param_files.append(overrides)
         self.domain_id, self._domain_lock = _claim_domain_id()
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1")
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -249,7 +277,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
         ``params`` (the nodes' parameter files, later ones override; default config/okid.yaml,
         with ``sensors`` config/okid_imu_wrench.yaml), ``sensors`` (feed the nodes the Imu and
         WrenchStamped topics instead of IoSample), ``seed``, ``ansi`` (redraw the monitor in
-        place; default: when ``stream`` is a terminal), ``startup_timeout_s``.
+        place; default: when ``stream`` is a terminal), ``startup_timeout_s``, ``output_only``
+        (an ambient experiment on Imu topics, the nodes with n_inputs 0).
 
     Raises
     ------
@@ -275,22 +304,32 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
         run.close()
 
 
-def _input_topics(sensors: bool) -> list[str]:
+def _input_topics(options: DemoOptions) -> list[str]:
+    from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS
     from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
 
-    return list(THRUSTER_TOPICS) + list(IMU_TOPICS) if sensors else [IO_SAMPLE_TOPIC]
+    if options.output_only:
+        return list(AMBIENT_IMU_TOPICS)
+    return list(THRUSTER_TOPICS) + list(IMU_TOPICS) if options.sensors else [IO_SAMPLE_TOPIC]
 
 
 def _simulate(run: _DemoRun) -> tuple[Path, dict]:
     """Step 1: the simulated experiment as a bag; returns the bag and the truth."""
+    from okid_ros.tools.simulate_ambient import simulate_ambient, write_ambient_bag
     from okid_ros.tools.simulate_bag import simulate_experiment, write_experiment_bag
 
     experiment_bag = run.run_dir / "experiment"
-    experiment = simulate_experiment(run.options.duration_s, seed=run.options.seed)
-    write_experiment_bag(experiment_bag, experiment)
+    if run.options.output_only:
+        experiment = simulate_ambient(run.options.duration_s, seed=run.options.seed)
+        write_ambient_bag(experiment_bag, experiment)
+        what = "ambient vibration (no measured input, two Imu topics)"
+    else:
+        experiment = simulate_experiment(run.options.duration_s, seed=run.options.seed)
+        write_experiment_bag(experiment_bag, experiment)
+        what = "the paper's experiment"
     truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"
                            for m in experiment.truth["modes"])
-    run.say(f"[1/5] simulated {experiment.n_samples * experiment.sample_time_s:g} s of the paper's experiment "
+    run.say(f"[1/5] simulated {experiment.n_samples * experiment.sample_time_s:g} s of {what} "
             f"-> {experiment_bag} (true modes: {truth_text})")
     return experiment_bag, experiment.truth
 
@@ -308,7 +347,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
     run.node = rclpy.create_node("okid_demo", context=run.context)
     run.executor = SingleThreadedExecutor(context=run.context)
     run.executor.add_node(run.node)
-    input_topics = _input_topics(run.options.sensors)
+    input_topics = _input_topics(run.options)
     deadline = time.monotonic() + run.options.startup_timeout_s
     while not (all(run.node.count_subscribers(t) >= 2 for t in input_topics)
                and all(run.node.count_publishers(t) >= 1 for t in OUTPUT_TOPICS)):
@@ -348,7 +387,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
             counts["models"] += 1
 
     live_bag = run.run_dir / "live"
-    input_topics = _input_topics(run.options.sensors)
+    input_topics = _input_topics(run.options)
     rate = run.options.rate
     with BagWriter(live_bag) as writer:
         writer.set_custom_data(TRUTH_KEY, dumps(truth))

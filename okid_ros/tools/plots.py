@@ -281,8 +281,8 @@ def output_estimates(data: PlotData, output: int = 0) -> dict[str, np.ndarray]:
 
 
 def _figure_system_markov(plt, data: PlotData, truth: dict | None, n_stochastic: int):
-    """Paper Fig. 2: system Markov parameters (1,1) of the last valid ArxModel."""
-    if data.arx_markov is None:
+    """Paper Fig. 2: system Markov parameters (1,1) of the last valid ArxModel (none without input)."""
+    if data.arx_markov is None or data.arx_markov.shape[2] == 0:
         return None
     fig, ax = plt.subplots(figsize=(7, 3.5))
     Y = data.arx_markov

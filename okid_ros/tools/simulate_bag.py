@@ -169,6 +169,32 @@ def simulate_experiment(
     return Experiment(sample_time_s=dt, start_ns=int(start_ns), u=u, y=y, truth=truth)
 
 
+def accelerometer_message(bag: BagWriter):
+    """``make(stamp, frame_id, (ax, ay, az))`` -> the bag's ``sensor_msgs/Imu`` of an accelerometer.
+
+    REP 145 for what it does not measure: orientation and angular velocity covariances start
+    with -1 ("not provided"), the acceleration covariance is all zero ("unknown").
+    """
+    Header = bag.msg_class("std_msgs/msg/Header")
+    Vector3 = bag.msg_class("geometry_msgs/msg/Vector3")
+    Quaternion = bag.msg_class("geometry_msgs/msg/Quaternion")
+    Imu = bag.msg_class("sensor_msgs/msg/Imu")
+    not_provided = np.zeros(9)
+    not_provided[0] = -1.0
+    unknown = np.zeros(9)
+    zero = Vector3(x=0.0, y=0.0, z=0.0)
+    identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+    def make(stamp, frame_id: str, acceleration) -> object:
+        ax, ay, az = acceleration
+        return Imu(header=Header(stamp=stamp, frame_id=frame_id), orientation=identity,
+                   orientation_covariance=not_provided, angular_velocity=zero,
+                   angular_velocity_covariance=not_provided, linear_acceleration=Vector3(x=ax, y=ay, z=az),
+                   linear_acceleration_covariance=unknown)
+
+    return make
+
+
 def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str = "mcap",
                          force: bool = False, progress=None) -> dict[str, int]:
     """Write ``experiment`` as a rosbag2 (see the module docstring for topics and fields).
@@ -197,15 +223,10 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
         Vector3 = bag.msg_class("geometry_msgs/msg/Vector3")
         Wrench = bag.msg_class("geometry_msgs/msg/Wrench")
         WrenchStamped = bag.msg_class("geometry_msgs/msg/WrenchStamped")
-        Quaternion = bag.msg_class("geometry_msgs/msg/Quaternion")
-        Imu = bag.msg_class("sensor_msgs/msg/Imu")
         IoSample = bag.msg_class("okid_msgs/msg/IoSample")
+        imu = accelerometer_message(bag)
 
-        not_provided = np.zeros(9)
-        not_provided[0] = -1.0  # REP 145: the sensor does not measure this quantity
-        unknown = np.zeros(9)
         zero = Vector3(x=0.0, y=0.0, z=0.0)
-        identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
         u, y = experiment.u, experiment.y
         for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
             stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
@@ -214,13 +235,7 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
                 bag.write(topic, stamp_ns, WrenchStamped(header=Header(stamp=stamp, frame_id=THRUSTER_FRAMES[j]),
                                                          wrench=Wrench(force=force, torque=zero)))
             for i, topic in enumerate(IMU_TOPICS):
-                bag.write(topic, stamp_ns, Imu(
-                    header=Header(stamp=stamp, frame_id=IMU_FRAMES[i]),
-                    orientation=identity, orientation_covariance=not_provided,
-                    angular_velocity=zero, angular_velocity_covariance=not_provided,
-                    linear_acceleration=Vector3(x=float(y[k, i]), y=0.0, z=0.0),
-                    linear_acceleration_covariance=unknown,
-                ))
+                bag.write(topic, stamp_ns, imu(stamp, IMU_FRAMES[i], (float(y[k, i]), 0.0, 0.0)))
             bag.write(IO_SAMPLE_TOPIC, stamp_ns, IoSample(header=Header(stamp=stamp, frame_id=RIG_FRAME),
                                                           u=u[k].astype(float), y=y[k].astype(float)))
             if progress is not None and (k + 1) % 1000 == 0:

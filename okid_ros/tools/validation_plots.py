@@ -362,7 +362,7 @@ def write_validation_figures(view: ModelView, u: np.ndarray | None, y: np.ndarra
                              force: bool = False, reference: Sequence[Any] | None = None,
                              reference_label: str = "reference", pairs: Sequence[tuple[int, int]] | None = None,
                              dpi: int = 110) -> list[Path]:
-    """Write frf.png (needs the record), mac.png and stabilization.png (needs ``view.stabilization``).
+    """Write frf.png (needs the record with inputs), mac.png and stabilization.png (needs ``view.stabilization``).
 
     Raises
     ------
@@ -375,7 +375,7 @@ def write_validation_figures(view: ModelView, u: np.ndarray | None, y: np.ndarra
     out_dir.mkdir(parents=True, exist_ok=True)
     plt = pyplot()
     written = []
-    if u is not None and y is not None:
+    if u is not None and y is not None and u.shape[1] > 0:  # no FRF of an output-only record
         written.append(save_figure(plt, plot_frf(frf_data(view, u, y, pairs=pairs)), out_dir / "frf.png", dpi))
     if view.modes:
         data = mac_data(view, reference, reference_label=reference_label)

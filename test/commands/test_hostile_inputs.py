@@ -7,6 +7,7 @@ The property-based versions (random bytes, cuts, dtypes) are in test_property_re
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -142,14 +143,16 @@ def test_record_without_inputs_loads_with_zero_input_channels(tmp_path: Path) ->
     assert Record(np.zeros((N, 0)), y, 0.01).validate().u.shape == (N, 0)
 
 
-def test_track_without_inputs_suggests_output_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # identify takes such a record as output-only (test_core_output_only_cli.py); track needs u.
+def test_track_without_inputs_runs_output_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # A record without u is tracked output-only (issue 18; test_track_output_only.py checks the
+    # modes); white noise has no mode: each update is a line with a one-line error, no traceback.
     _, y = _good_arrays()
     np.savez(tmp_path / "y_only.npz", y=y, sample_time_s=0.01)
     assert cli.main(["track", str(tmp_path / "y_only.npz"), "--jsonl", str(tmp_path / "m.jsonl"),
-                     "--window", "200"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "no input channels" in err and "--output-only" in err
+                     "--window", "200", "--no-progress"]) == 0
+    lines = [json.loads(line) for line in (tmp_path / "m.jsonl").read_text().splitlines()]
+    assert lines and all(line["modes"] == [] and "\n" not in line["error"] for line in lines)
+    assert "Traceback" not in capsys.readouterr().err
 
 
 def test_bool_and_integer_arrays_are_numbers(tmp_path: Path) -> None:

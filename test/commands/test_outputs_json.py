@@ -51,16 +51,17 @@ def record(tmp_path_factory):
 def nan_emac(monkeypatch):
     """Every identified model gets a mode whose EMAC could not be computed (NaN)."""
     import okid_ros.core.pipeline as pipeline
+    import okid_ros.service.realization as realization  # track's windows (identify_window)
 
-    for name in ("identify", "identify_from_arx"):
-        original = getattr(pipeline, name)
+    for module, name in ((pipeline, "identify"), (pipeline, "identify_from_arx"), (realization, "identify_from_arx")):
+        original = getattr(module, name)
 
         def wrapped(*args, _original=original, **kwargs):
             model = _original(*args, **kwargs)
             model.modes[0].emac = math.nan
             return model
 
-        monkeypatch.setattr(pipeline, name, wrapped)
+        monkeypatch.setattr(module, name, wrapped)
 
 
 def test_identify_json_is_strict_and_not_overwritten_without_force(record, tmp_path, capsys, nan_emac):

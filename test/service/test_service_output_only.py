@@ -1,0 +1,173 @@
+"""Output-only (n_inputs 0) through both services: Imu-like sources, the sample grid, the window.
+
+A simulated structure with known discrete modes (3, 7 and 12 Hz at 1 % damping, 50 Hz, four
+accelerometers, :func:`okid_ros.sim.models.modal_structure`) is driven by forces nobody
+measures; its outputs come in as two Imu topics of two axes each (parameters as the nodes read
+them), are assembled on the sample grid (u of shape (0,)) and go through
+:class:`okid_ros.service.windowed.WindowedPipeline`: node 1's window is a vector autoregression,
+node 2 realizes each window output-only, checks it, keeps mode ids, estimates modal states on
+every sample and watches the innovations for a change.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from okid_ros.errors import ParameterError
+from okid_ros.service.inputs import sources_and_grid
+from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
+from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
+from okid_ros.service.windowed import WindowedPipeline
+from okid_ros.sim.models import modal_structure
+from okid_ros.sim.simulators import simulate_noisy
+
+DT = 1.0 / 50.0
+FREQS_HZ = (3.0, 7.0, 12.0)
+N = 14_000
+T0 = 20.0
+SOURCES = ["imu /rig/imu_a linear_acceleration.x=y0 linear_acceleration.y=y1",
+           "imu /rig/imu_b linear_acceleration.x=y2 linear_acceleration.z=y3"]
+VALUES = {"sample_time_s": DT, "n_inputs": 0, "n_outputs": 4, "inputs.sources": SOURCES}
+
+
+def structure():
+    return modal_structure(FREQS_HZ, 0.01, 1, 4, DT, seed=3, output="acceleration", disturbance_std=1.0,
+                           measurement_noise_ratio=0.05)
+
+
+def true_modes(system) -> list[tuple[float, float]]:
+    """(frequency_hz, damping_ratio) of the simulated discrete poles."""
+    s = np.log(np.linalg.eigvals(system.A)) / DT
+    s = s[s.imag > 0]
+    return sorted((abs(v) / (2 * np.pi), -v.real / abs(v)) for v in s)
+
+
+def pipeline(method: str = "ssi-cov") -> WindowedPipeline:
+    arx = resolve_parameters(ARX_NODE, {**VALUES, "arx.order": 10, "arx.window_length": 5000,
+                                        "publish_rate_hz": 1.0 / 40.0})
+    est = resolve_parameters(ESTIMATOR_NODE, {**VALUES, "realization.output_only_method": method})
+    return WindowedPipeline(ArxIdentificationParams.from_parameters(arx), ModalEstimationParams.from_parameters(est))
+
+
+def run(y: np.ndarray, method: str = "ssi-cov"):
+    """Each sample as two Imu messages through the grid, then both nodes; (pipeline, samples, results)."""
+    _, grid = sources_and_grid({**resolve_parameters(ARX_NODE, VALUES)})
+    pipe = pipeline(method)
+    samples, results = [], []
+    for k in range(y.shape[0]):
+        stamp = T0 + k * DT
+        emitted = grid.add(0, stamp, y[k, :2]) + grid.add(1, stamp, y[k, 2:])
+        for sample in emitted:
+            samples.append(sample)
+            results.append(pipe.estimate(sample))
+            snapshot = pipe.identify(sample)
+            if snapshot is not None and snapshot.valid:
+                pipe.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
+    return pipe, samples, results
+
+
+@pytest.fixture(scope="module")
+def stationary():
+    system = structure()
+    y = simulate_noisy(system, np.zeros((N, 1)), seed=1)
+    return (system, *run(y))
+
+
+def test_parameter_table_takes_zero_inputs_and_refuses_negative():
+    assert resolve_parameters(ARX_NODE, {"n_inputs": 0})["n_inputs"] == 0
+    with pytest.raises(ParameterError, match=r"n_inputs = -1 is out of range; valid range \[0, 64\]"):
+        resolve_parameters(ESTIMATOR_NODE, {"n_inputs": -1})
+    with pytest.raises(ParameterError, match="realization.output_only_method"):
+        resolve_parameters(ESTIMATOR_NODE, {"realization.output_only_method": "fdd"})
+
+
+def test_outputs_only_sources_make_samples_without_inputs(stationary):
+    _, pipe, samples, _ = stationary
+    assert len(samples) >= N - 10
+    assert all(s.u.shape == (0,) and s.y.shape == (4,) for s in samples)
+    assert pipe.arx.snapshot().fit.n_inputs == 0  # node 1's window: a vector autoregression
+
+
+def test_models_have_no_input_matrices_and_pass_the_checks(stationary):
+    _, pipe, _, _ = stationary
+    model = pipe.est.current_model
+    assert model.n_inputs == 0 and model.B.shape == (model.n_states, 0) and model.D.shape == (4, 0)
+    assert model.stability_problem() == ""
+    assert model.spectral_radius() < 1 and model.predictor_spectral_radius() < 1
+    assert len(pipe.updates) >= 5
+    assert all(line["n_inputs"] == 0 for line in pipe.updates)
+
+
+def test_modes_are_found_within_a_few_percent_of_truth(stationary):
+    system, pipe, _, _ = stationary
+    truth = true_modes(system)
+    for line in pipe.updates:
+        found = sorted((m["frequency_hz"], m["damping_ratio"]) for m in line["modes"])
+        assert len(found) == len(truth), line["modes"]
+        for (f, z), (f_true, z_true) in zip(found, truth):
+            assert abs(f / f_true - 1) < 0.02, (f, f_true)
+            assert abs(z / z_true - 1) < 0.6, (z, z_true)  # a 100 s window: damping to tens of %
+
+
+def test_mode_ids_persist_across_windows(stationary):
+    _, pipe, _, _ = stationary
+    by_id: dict[int, list[float]] = {}
+    for line in pipe.updates:
+        for mode in line["modes"]:
+            by_id.setdefault(mode["id"], []).append(mode["frequency_hz"])
+    assert len(by_id) == len(FREQS_HZ), by_id
+    for freqs in by_id.values():
+        assert len(freqs) == len(pipe.updates) and np.ptp(freqs) / np.mean(freqs) < 0.03
+
+
+def test_modal_states_on_every_sample_after_the_first_model(stationary):
+    _, pipe, samples, results = stationary
+    first = next(i for i, r in enumerate(results) if r is not None)
+    after = results[first:]
+    assert all(r is not None for r in after), sum(r is None for r in after)
+    assert len(after) > 0.5 * len(samples)
+    last = after[-1]
+    assert last.coordinates.shape == (len(last.modes), 2) and np.all(np.isfinite(last.coordinates))
+    d = pipe.est.diagnostics()
+    assert d["diverged_samples"] == 0 and d["rejected_samples"] == 0
+
+
+def test_the_change_test_watches_the_innovations(stationary):
+    _, pipe, _, _ = stationary
+    d = pipe.est.diagnostics()
+    assert d["change_monitor"] == "monitoring" and d["change_threshold"] > 0
+    assert d["changes_detected"] == 0  # a stationary structure
+
+
+def test_a_stiffness_loss_is_declared_from_the_outputs_alone():
+    """All frequencies 6 % lower from sample 9000 on: declared, node 1's window restarts there."""
+    before = structure()
+    after = dataclasses.replace(before, A=_scaled_frequencies(before.A, 0.94))
+    change = 9000
+    y = np.vstack([simulate_noisy(before, np.zeros((change, 1)), seed=5),
+                   simulate_noisy(after, np.zeros((N - change, 1)), seed=6)])
+    pipe, _, _ = run(y)
+    assert len(pipe.changes) >= 1
+    declared = pipe.changes[0]
+    assert abs(declared["change_stamp_s"] - (T0 + change * DT)) < 300 * DT
+    assert pipe.arx.diagnostics()["window_restarts"] >= 1
+
+
+def _scaled_frequencies(A: np.ndarray, factor: float) -> np.ndarray:
+    """The discrete ``A`` with every pole's continuous frequency and decay scaled by ``factor``."""
+    z, V = np.linalg.eig(A)
+    return np.real(V @ np.diag(np.exp(factor * np.log(z))) @ np.linalg.inv(V))
+
+
+def test_the_var_route_gives_an_output_only_model_too():
+    system = structure()
+    y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
+    pipe, _, results = run(y, method="var")
+    assert pipe.updates and all(line["n_inputs"] == 0 for line in pipe.updates)
+    f_true = [f for f, _ in true_modes(system)]
+    found = [m["frequency_hz"] for m in pipe.updates[-1]["modes"]]
+    assert found and all(min(abs(f / t - 1) for t in f_true) < 0.02 for f in found)
+    assert results[-1] is not None
