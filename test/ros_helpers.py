@@ -9,6 +9,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Mapping
@@ -97,6 +98,19 @@ class RosProcess:
         self.proc.wait()
         self._reader.join(timeout=timeout_s)
         return self.proc.returncode
+
+
+def start_nodes(ros_args: list[str], env: Mapping[str, str]) -> dict[str, RosProcess]:
+    """Both nodes as processes with the same ``--ros-args`` arguments: ``{"arx": ..., "est": ...}``."""
+    modules = {"arx": "arx_identifier_node", "est": "modal_estimator_node"}
+    return {name: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", "--ros-args", *ros_args], env)
+            for name, module in modules.items()}
+
+
+def wait_ready(procs: Mapping[str, RosProcess], timeout_s: float = 30.0) -> None:
+    """Until every node has logged that it is ready."""
+    for proc in procs.values():
+        proc.wait_for_output(r"ready:", timeout_s=timeout_s)
 
 
 class ProbeNode:

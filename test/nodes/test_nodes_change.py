@@ -10,14 +10,13 @@ new structure once its first model is accepted.
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, start_nodes, subprocess_env, wait_ready
 
 from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
@@ -86,13 +85,10 @@ def run(ros_domain_id, tmp_path_factory):
     params = tmp_path_factory.mktemp("change") / "params.yaml"
     params.write_text(PARAMS)
     env = subprocess_env(ros_domain_id)
-    args = ["--ros-args", "--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)]
-    procs = {name: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", *args], env, REPO_ROOT)
-             for name, module in (("arx", "arx_identifier_node"), ("est", "modal_estimator_node"))}
+    procs = start_nodes(["--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)], env)
     probe = Probe()
     try:
-        for proc in procs.values():
-            proc.wait_for_output(r"ready:", timeout_s=30)
+        wait_ready(procs)
         probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
         before, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
         u = lowpass_input(N, 2, 40.0, DT, seed=3)

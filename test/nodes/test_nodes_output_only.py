@@ -11,14 +11,13 @@ true modes, and ModalStates on (nearly) every sample after its first model.
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
 import pytest
 from geometry_msgs.msg import Vector3
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
+from ros_helpers import REPO_ROOT, ProbeNode, start_nodes, subprocess_env, wait_ready
 from sensor_msgs.msg import Imu
 
 from okid_msgs.msg import ArxModel, ModalStates, StateSpaceModel
@@ -77,13 +76,10 @@ def run(ros_domain_id, tmp_path_factory):
     experiment = simulate_ambient(N * 0.005, seed=3, start_ns=int(T0 * 1e9))
     env = subprocess_env(ros_domain_id)
     files = [REPO_ROOT / "config" / "okid.yaml", REPO_ROOT / "config" / "okid_output_only.yaml", overrides]
-    args = ["--ros-args", *[a for f in files for a in ("--params-file", str(f))]]
-    procs = {name: RosProcess([sys.executable, "-m", f"okid_ros.nodes.{module}", *args], env, REPO_ROOT)
-             for name, module in (("arx", "arx_identifier_node"), ("est", "modal_estimator_node"))}
+    procs = start_nodes([a for f in files for a in ("--params-file", str(f))], env)
     probe = Probe()
     try:
-        for proc in procs.values():
-            proc.wait_for_output(r"ready:", timeout_s=30)
+        wait_ready(procs)
         probe.wait_until("the nodes to subscribe the Imu topics",
                          lambda: all(p.get_subscription_count() >= 2 for p in probe.imus), 20)
         y, dt = experiment.y, experiment.sample_time_s
