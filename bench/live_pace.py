@@ -91,7 +91,7 @@ def receiver(out: str) -> None:
     """
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
@@ -127,10 +127,8 @@ def receiver(out: str) -> None:
                              lambda d: raw["change"].append((clock(), d)), 50, raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
     print("receiver ready", flush=True)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
     try:
-        executor.spin()
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     arx = [deserialize_message(d, ArxModel) for _, d in raw["arx"]]
