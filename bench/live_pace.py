@@ -262,7 +262,7 @@ def run_window(args: argparse.Namespace, window: int, domain: int, msgs: list, d
         procs["receiver"].send_signal(signal.SIGINT)
         procs["receiver"].wait(timeout=60)
         rx = json.loads((tmp / "rx.json").read_text())
-        row = analyse(run, rx, (tmp / "est.log").read_text())
+        row = analyse(run, rx, (tmp / "est.log").read_text(), save=tmp / "latency.npz")
         row.update(window=window, logs=str(tmp))
         return row
     finally:
@@ -330,8 +330,11 @@ def diagnostics_delta(diagnostics: list, t_start: int, t_end: int) -> dict:
     return delta
 
 
-def analyse(run: dict, rx: dict, est_log: str) -> dict:
-    """Everything the table prints, from the publish times, the receiver's record and node 2's log."""
+def analyse(run: dict, rx: dict, est_log: str, *, save: Path | None = None) -> dict:
+    """Everything the table prints, from the publish times, the receiver's record and node 2's log.
+
+    ``save``: an .npz for the per-sample latencies (sample index, latency [ms], arrival) and t0.
+    """
     import numpy as np
 
     before, after = run["before"], run["after"]
@@ -343,6 +346,9 @@ def analyse(run: dict, rx: dict, est_log: str) -> dict:
     keep = (index >= run["measure_from"]) & (index < run["end"])
     latency_ms = (states[keep, 1] - published[index[keep]]) * 1e-6
     expected = run["end"] - run["measure_from"]
+    if save is not None:
+        np.savez(save, index=index[keep], latency_ms=latency_ms, arrival_ns=states[keep, 1], t0_ns=run["t0_ns"],
+                 dt_ns=run["dt_ns"], measure_from=run["measure_from"])
     received = int(np.unique(index[keep]).size)
     row = pace(rx, run["dt_ns"], t_start, t_end)
     row["diag"] = diagnostics_delta(rx["diagnostics"], t_start, t_end)
