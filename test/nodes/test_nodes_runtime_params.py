@@ -27,7 +27,7 @@ from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 T0 = 2000.0
 RATE = 500.0  # samples per second of wall time
-N = 120_000
+N = 600_000  # 20 min at RATE: more than the module ever takes, even on a loaded machine
 EST = "/okid_modal_estimator"
 STATUS = "okid_modal_estimator: estimation"
 PARAMS = """
