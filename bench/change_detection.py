@@ -36,7 +36,7 @@ import os
 import sys
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-_parser.add_argument("--part", nargs="+", choices=("track", "delay", "stationary", "calibration"),
+_parser.add_argument("--part", nargs="+", choices=("track", "delay", "stationary", "calibration", "short-reference"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -49,6 +49,7 @@ _parser.add_argument("--variance-ratio", type=float, default=None,
 _parser.add_argument("--false-alarm-samples", type=float, default=None,
                      help="expected samples between false alarms of the delay and stationary parts "
                      "(default: the core's)")
+_parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
 _parser.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1)")
 _args = _parser.parse_args()
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -247,10 +248,55 @@ def part_calibration(runs: int = 300, samples: int = 20_000, n_outputs: int = 2)
     print()
 
 
+def part_short_reference(samples: int = 20_000) -> None:
+    import numpy as np
+
+    from okid_ros.core.pipeline import identify
+    from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+    truth = paper_model()
+    seeds = range(_args.reference_seeds)
+    print(f"## short-reference: false alarms of references from 1000-sample windows of the paper's structure, "
+          f"{len(seeds)} seeds, {samples} stationary samples each (expected at the default 1e7 samples between "
+          f"false alarms: {len(seeds) * (1 - np.exp(-samples / 1e7)):.2f} runs with an alarm)")
+    print()
+    print("| whitening | runs with an alarm | references whitened (order > 0) | median order | "
+          "largest statistic / threshold (median, max) |")
+    print("|---|---|---|---|---|")
+    rows = {0: [], None: []}
+    for seed in seeds:
+        u = lowpass_input(samples + 1000, 2, 50.0, truth.sample_time_s, seed=seed)
+        y, _ = simulate_innovation(truth, u, seed=100 + seed)
+        model = identify(u[:1000], y[:1000], truth.sample_time_s, order=20, n_states=6, refine=False)
+        warm = InnovationPredictor(model)
+        warm.run(u[:1000], y[:1000])
+        for max_order in rows:
+            options = {} if max_order is None else {"whitening_max_order": max_order}
+            monitor = StructuralChangeMonitor(2, **options)
+            monitor.arm(model, warm.x)
+            largest, alarm, index = 0.0, None, 1000
+            for lo in range(1000, samples + 1000, 250):  # blocks, to follow the statistic
+                alarm = monitor.process(u[lo:lo + 250], y[lo:lo + 250], lo)
+                detector = monitor.detector
+                if alarm is not None:
+                    largest = alarm.statistic / alarm.threshold
+                    break
+                if detector.calibrated:
+                    largest = max(largest, detector.statistic / detector.threshold)
+            rows[max_order].append((alarm is not None, detector.whitening_order, largest))
+    for max_order, label in ((0, "none (before)"), (None, "AR, BIC order (default)")):
+        alarms = sum(r[0] for r in rows[max_order])
+        orders = [r[1] for r in rows[max_order]]
+        ratios = [r[2] for r in rows[max_order]]
+        print(f"| {label} | {alarms} | {sum(o > 0 for o in orders)} | {np.median(orders):.0f} | "
+              f"{np.median(ratios):.2f}, {max(ratios):.2f} |")
+    print()
+
+
 def main() -> int:
     for part in _args.part:
         {"track": part_track, "delay": part_delay, "stationary": part_stationary,
-         "calibration": part_calibration}[part]()
+         "calibration": part_calibration, "short-reference": part_short_reference}[part]()
     return 0
 
 
