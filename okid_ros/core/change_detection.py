@@ -335,8 +335,10 @@ class ChangeDetector:
             phi, _, _ = arx_regressors(np.zeros((ref.shape[0], 0)), ref, q)
             ref = ref[q:] - phi @ self._whitening
         self.mean = ref.mean(axis=0)
-        # Residual covariance with the AR's degrees of freedom (about q p per output) taken off.
-        cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (ref.shape[0] - 1) / max(ref.shape[0] - 1 - dof, 1.0)
+        # The AR's residuals on new samples: Akaike's final prediction error, the calibration's
+        # residual covariance times (N + d) / (N - d) for d coefficients per output (1 for d = 0).
+        n = ref.shape[0]
+        cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (n + dof) / max(n - dof, 1.0)
         self.rewhiten = whitening_matrix(cov)
         if self.batch_samples:
             w = (ref - self.mean) @ self.rewhiten.T

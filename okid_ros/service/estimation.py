@@ -58,7 +58,10 @@ matched against the modes before the change (:mod:`okid_ros.service.model_switch
 
 Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
 predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
-time jump the estimator restarts from zero.
+time jump the estimator restarts from zero. A realization's window may hold short gaps too: they
+are filled by the window's ARX prediction and left out of its Gram (:mod:`okid_ros.core.gap_fill`,
+at most 10 % of the window; counted in ``window_samples_filled``); it starts after the last
+longer gap.
 """
 
 from __future__ import annotations
@@ -73,6 +76,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.gap_fill import fill_short_gaps
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
@@ -258,17 +262,25 @@ class ModalEstimationService:
                     f"waiting for a model of post-change data"
                 )
             stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
-            # Keep the newest contiguous run (the window's rows never span a gap either).
-            breaks = np.flatnonzero(skipped[1:] != 0) + 1
+            # Keep the newest run without a long gap or a restart; its short gaps are filled.
+            breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > self.params.max_gap_samples)) + 1
             start = int(breaks[-1]) if breaks.size else 0
-            u, y = u[start:], y[start:]
+            u, y, skipped = u[start:], y[start:], skipped[start:]
+            valid = None
+            if np.any(skipped[1:]):
+                try:
+                    u, y, valid = fill_short_gaps(u, y, skipped, fit)
+                except ValueError as exc:
+                    return self._refuse(f"ARX window: {exc}")
+                self._stats.window_samples_filled += int(np.count_nonzero(~valid))
             minimum = max(4 * fit.order, need // 2)
             if u.shape[0] < minimum:
                 return self._refuse(
-                    f"buffer holds {u.shape[0]} contiguous samples of the ARX window of {need}; need at least {minimum}"
+                    f"buffer holds {u.shape[0]} samples of the ARX window of {need} without a gap longer than "
+                    f"{self.params.max_gap_samples} samples; need at least {minimum}"
                 )
             self._busy = True
-            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation)
+            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation, valid)
 
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1
@@ -399,7 +411,7 @@ class ModalEstimationService:
             return None
         model = outcome.model
         change = self._watch.change
-        modes = self._selection.select(model, job.end_index - job.u.shape[0] + 1, self._active, change)
+        modes = self._selection.select(model, job.first_index, self._active, change)
         if modes is None:
             return None
         if change is not None:
@@ -467,6 +479,7 @@ class ModalEstimationService:
             "max_switch_jump": st.max_switch_jump,
             "switches_measured": st.switches_measured,
             "gaps_bridged": st.gaps_bridged,
+            "window_samples_filled": st.window_samples_filled,
             "estimator_restarts": st.estimator_restarts,
             "diverged_samples": st.diverged_samples,
             "divergence_restarts": st.divergence_restarts,

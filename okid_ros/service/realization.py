@@ -56,7 +56,8 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
 
 def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
                     options: RealizationOptions, offsets: str = "remove",
-                    output_only_method: str = OUTPUT_ONLY_METHODS[0]) -> IdentifiedModel:
+                    output_only_method: str = OUTPUT_ONLY_METHODS[0],
+                    valid: np.ndarray | None = None) -> IdentifiedModel:
     """The core's model of one window: from its ARX fit, or (m = 0) from its outputs alone.
 
     The one place where the nodes (:func:`realize`), ``okid-ros process`` and ``okid-ros
@@ -70,6 +71,9 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     ----------
     fit : the window's ARX fit; u : (N, m) inputs; y : (N, p) outputs of the window.
     sample_time_s : dt [s]; options : the realization's options; offsets : "remove" or "none".
+    valid : (N,) bool, False at samples filled in short gaps (:mod:`okid_ros.core.gap_fill`):
+        left out of the Gram of past data (input-output route; the output-only route uses the
+        filled outputs).
 
     Raises
     ------
@@ -77,7 +81,7 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     """
     if u.shape[1] == 0:
         return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets)
-    return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets)
+    return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid)
 
 
 def realize(job: RealizationJob) -> RealizationOutcome:
@@ -90,7 +94,8 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     t0 = time.perf_counter()
     try:
         model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
-                                offsets=prm.offsets, output_only_method=prm.output_only_method)
+                                offsets=prm.offsets, output_only_method=prm.output_only_method,
+                                valid=job.valid)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
     elapsed = time.perf_counter() - t0

@@ -115,6 +115,13 @@ class RealizationJob:
     end_index: int  # absolute buffer index of the window's last sample
     params: ModalEstimationParams
     generation: int = 0  # outcomes of jobs taken before a reset are dropped
+    valid: np.ndarray | None = None  # (N,) False at samples filled in short gaps (core/gap_fill.py)
+
+    @property
+    def first_index(self) -> int:
+        """Absolute buffer index of the window's first sample (filled samples are not buffered)."""
+        received = self.u.shape[0] if self.valid is None else int(np.count_nonzero(self.valid))
+        return self.end_index - received + 1
 
 
 @dataclass
@@ -169,6 +176,7 @@ class EstimationStats:
     forced_accepts: int = 0
     estimator_restarts: int = 0
     gaps_bridged: int = 0
+    window_samples_filled: int = 0
     last_reason: str = ""
     last_accepted: bool = False
     last_realization_time_s: float = math.nan

@@ -45,17 +45,18 @@ def true_modes(system) -> list[tuple[float, float]]:
     return sorted((abs(v) / (2 * np.pi), -v.real / abs(v)) for v in s)
 
 
-def pipeline(method: str = "ssi-cov") -> WindowedPipeline:
+def pipeline(method: str = "ssi-cov", **estimator_values) -> WindowedPipeline:
     arx = resolve_parameters(ARX_NODE, {**VALUES, "arx.order": 10, "arx.window_length": 5000,
                                         "publish_rate_hz": 1.0 / 40.0})
-    est = resolve_parameters(ESTIMATOR_NODE, {**VALUES, "realization.output_only_method": method})
+    est = resolve_parameters(ESTIMATOR_NODE, {**VALUES, "realization.output_only_method": method,
+                                              **estimator_values})
     return WindowedPipeline(ArxIdentificationParams.from_parameters(arx), ModalEstimationParams.from_parameters(est))
 
 
-def run(y: np.ndarray, method: str = "ssi-cov"):
+def run(y: np.ndarray, method: str = "ssi-cov", **estimator_values):
     """Each sample as two Imu messages through the grid, then both nodes; (pipeline, samples, results)."""
     _, grid = sources_and_grid({**resolve_parameters(ARX_NODE, VALUES)})
-    pipe = pipeline(method)
+    pipe = pipeline(method, **estimator_values)
     samples, results = [], []
     for k in range(y.shape[0]):
         stamp = T0 + k * DT
@@ -165,9 +166,21 @@ def _scaled_frequencies(A: np.ndarray, factor: float) -> np.ndarray:
 def test_the_var_route_gives_an_output_only_model_too():
     system = structure()
     y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
-    pipe, _, results = run(y, method="var")
+    # The change test off: it declares a (false) change on this record (the next test).
+    pipe, _, results = run(y, method="var", **{"change.enabled": False})
     assert pipe.updates and all(line["n_inputs"] == 0 for line in pipe.updates)
     f_true = [f for f, _ in true_modes(system)]
     found = [m["frequency_hz"] for m in pipe.updates[-1]["modes"]]
     assert found and all(min(abs(f / t - 1) for t in f_true) < 0.02 for f in found)
     assert results[-1] is not None
+
+
+@pytest.mark.xfail(strict=True, reason="known product issue: the VAR route's first model of this record misses the "
+                   "3 Hz mode and lists a spurious 10.8 Hz one; with it as the change test's reference the innovations' "
+                   "power wanders over ~250 samples (the 3 Hz mode's decay time), more than the 25-sample batch means of "
+                   "the correlation factor see, and a change is declared at 132-135 s of this stationary record")
+def test_the_var_route_declares_no_change_on_a_stationary_record():
+    system = structure()
+    y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
+    pipe, _, _ = run(y, method="var")
+    assert not pipe.changes

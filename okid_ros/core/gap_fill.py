@@ -1,0 +1,86 @@
+"""Short gaps of a window filled by its ARX model's prediction, for the realization.
+
+A sensor stream over a best-effort transport loses a sample now and then: with 2 % of the
+samples lost at random, a window of 1000 holds no contiguous run of more than a couple of
+hundred samples, and a realization that needs contiguous samples gets none. The ARX fit of the
+window (node 1 leaves out the regressor rows that span a gap) is valid; only the realization's
+passes over the samples (state completion, refinement, warm start) need them in sequence.
+
+:func:`fill_short_gaps` puts each missing slot back: the input interpolated linearly between
+its neighbours (the inputs are measured signals, smooth at the sample rate of a structure's
+test), the output predicted one step ahead by the window's own ARX model from the (filled) past
+(the least-squares estimate of the output given the past; it lacks that sample's innovation).
+The filled slots are marked not valid: the realization's Gram of past data (the ERA weighting
+and the state regressions) leaves out every row that reaches them. At most
+:data:`MAX_FILLED_FRACTION` of a window is filled; a window with more missing is refused.
+
+No rclpy; numpy only. (No library fills gaps with the prediction of an ARX model given as
+``theta``; ``np.interp`` does the inputs.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.regressors import regressor_at
+
+__all__ = ["MAX_FILLED_FRACTION", "fill_short_gaps"]
+
+#: Largest fraction of a window's samples that may be filled: beyond it the realization would
+#: fit the ARX model's predictions more than the data.
+MAX_FILLED_FRACTION = 0.1
+
+
+def fill_short_gaps(u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
+                    fit: ArxFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The window with its missing samples filled, and which samples are measured.
+
+    Parameters
+    ----------
+    u : (N, m) received inputs; y : (N, p) received outputs, in time order.
+    skipped : (N,) missing slots just before each received sample (>= 0; the first entry is
+        ignored: the window starts at a received sample).
+    fit : the window's ARX fit (order q, ``theta`` (m + q (p + m), p), in the samples' units).
+
+    Returns
+    -------
+    u_full : (N + S, m); y_full : (N + S, p) with the S missing slots filled.
+    valid : (N + S,) bool, False at the filled slots.
+
+    Raises
+    ------
+    ValueError if a gap is negative or more than :data:`MAX_FILLED_FRACTION` of the window
+    would be filled.
+    """
+    u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+    gaps = np.asarray(skipped, dtype=np.int64).copy()
+    gaps[:1] = 0
+    if np.any(gaps < 0):
+        raise ValueError("a gap in the window is a time restart, not missing samples")
+    n_missing = int(gaps.sum())
+    total = u.shape[0] + n_missing
+    if n_missing > MAX_FILLED_FRACTION * total:
+        raise ValueError(f"{n_missing} of the window's {total} samples are missing; at most "
+                         f"{MAX_FILLED_FRACTION:.0%} are filled by prediction")
+    position = np.arange(u.shape[0]) + np.cumsum(gaps)  # each received sample's slot
+    valid = np.zeros(total, dtype=bool)
+    valid[position] = True
+    m, p, q = u.shape[1], y.shape[1], fit.order
+    u_full = np.empty((total, m))
+    for channel in range(m):
+        u_full[:, channel] = np.interp(np.arange(total), position, u[:, channel])
+    # The prediction on the window's centred signals: the fit may or may not carry an intercept.
+    u_mean, y_mean = u.mean(axis=0), y.mean(axis=0)
+    y_full = np.empty((total, p))
+    y_full[position] = y - y_mean
+    uc = u_full - u_mean
+    theta = fit.theta
+    for k in np.flatnonzero(~valid):
+        if k < q:
+            y_full[k] = y_full[k - 1]  # too early for a regressor: the last output held
+            continue
+        y_full[k] = regressor_at(uc, y_full, k, q) @ theta
+    y_full += y_mean
+    y_full[position] = y  # the measured samples exactly as measured
+    return u_full, y_full, valid
