@@ -274,7 +274,7 @@ def part_short_reference(samples: int = 20_000) -> None:
             options = {} if max_order is None else {"whitening_max_order": max_order}
             monitor = StructuralChangeMonitor(2, **options)
             monitor.arm(model, warm.x)
-            largest, alarm, index = 0.0, None, 1000
+            largest, alarm = 0.0, None
             for lo in range(1000, samples + 1000, 250):  # blocks, to follow the statistic
                 alarm = monitor.process(u[lo:lo + 250], y[lo:lo + 250], lo)
                 detector = monitor.detector

@@ -90,9 +90,13 @@ from okid_ros.core.cusum import (
     cusum_average_run_length,
     cusum_threshold,
 )
-from okid_ros.core.regressors import arx_regressors
+from okid_ros.core.divergence import DivergenceMonitor
+from okid_ros.core.innovation_whitening import (
+    DEFAULT_WHITENING_MAX_ORDER,
+    WHITENING_MAX_COEFFICIENT_FRACTION,
+    InnovationWhitening,
+)
 from okid_ros.core.statespace import InnovationPredictor
-from okid_ros.core.stochastic_realization import fit_var
 
 __all__ = [
     "DEFAULT_FALSE_ALARM_SAMPLES",
@@ -116,10 +120,6 @@ DEFAULT_FALSE_ALARM_SAMPLES = 1e7  # expected samples between false alarms (11 h
 DEFAULT_REFERENCE_SAMPLES = 1000  # calibration samples after each (re)arming
 DEFAULT_MEAN_TRACKING_SAMPLES = 200  # time constant of the innovations' tracked mean
 DEFAULT_BATCH_SAMPLES = 25  # batch length of the serial-correlation estimate
-DEFAULT_WHITENING_MAX_ORDER = 10  # lags of the AR whitening of the calibrated innovations
-# Coefficients per output of the whitening AR at most this fraction of the calibration samples:
-# its residuals on new samples are larger than on the calibration samples by about that fraction.
-WHITENING_MAX_COEFFICIENT_FRACTION = 0.05
 
 
 def whitening_matrix(covariance: np.ndarray) -> np.ndarray:
@@ -257,18 +257,16 @@ class ChangeDetector:
         self._n_nis = 0
         self._tracked = np.zeros(self.n_outputs)  # the innovations' slowly varying mean
         self._tracked_count = 0
-        self.whitening_order = 0
-        self._whitening = np.zeros((0, self.n_outputs))  # (q p, p) AR coefficients, lag 1 first
-        self._lags = np.zeros(0)  # (q p,) the last q innovations, newest first
-        self._refill = 0  # samples after a gap whose whitening still reaches across it
+        self.whitening = InnovationWhitening(self.n_outputs)
+
+    @property
+    def whitening_order(self) -> int:
+        """Lags of the whitening AR chosen at the calibration (0: none)."""
+        return self.whitening.order
 
     def gap(self) -> None:
-        """Samples are missing before the next one: the whitening's lags are not those samples'.
-
-        The next ``whitening_order`` samples refill the lags and are not tested.
-        """
-        self._lags = np.zeros_like(self._lags)
-        self._refill = self.whitening_order
+        """Samples are missing before the next one: the next ``whitening_order`` are not tested."""
+        self.whitening.gap()
 
     def _remove_tracked_mean(self, z: np.ndarray) -> np.ndarray:
         """``z`` (N, p) less the tracked mean before each sample, which then takes the sample in.
@@ -286,58 +284,13 @@ class ChangeDetector:
         self._tracked, self._tracked_count = tracked, count
         return out
 
-    def _whitening_order_by_bic(self, ref: np.ndarray) -> int:
-        """Lags of the whitening AR: BIC of least-squares fits over the same rows, 0 .. max order.
-
-        statsmodels' ``VAR.select_order`` does this, but statsmodels is not among our
-        dependencies for a dozen lines; the fit itself is the core's :func:`fit_var`.
-        """
-        q_max = self.whitening_max_order
-        if q_max < 1:
-            return 0
-        p = self.n_outputs
-        rows = ref.shape[0] - q_max
-        best, best_bic = 0, math.inf
-        for q in range(q_max + 1):
-            targets = ref[q_max:]
-            if q:
-                phi, _, _ = arx_regressors(np.zeros((ref.shape[0], 0)), ref, q)
-                phi = np.hstack([phi[q_max - q:], np.ones((rows, 1))])
-                coef, *_ = np.linalg.lstsq(phi, targets, rcond=None)
-                residuals = targets - phi @ coef
-            else:
-                residuals = targets - targets.mean(axis=0)
-            sign, logdet = np.linalg.slogdet(np.atleast_2d(residuals.T @ residuals) / rows)
-            bic = rows * logdet + q * p * p * math.log(rows) if sign > 0 else math.inf
-            if bic < best_bic:
-                best, best_bic = q, bic
-        return best
-
-    def _whiten_lags(self, z: np.ndarray) -> np.ndarray:
-        """Residuals (N, p) of the whitening AR over ``z`` (N, p), which then take the lags' place."""
-        q, p = self.whitening_order, self.n_outputs
-        if not q:
-            return z
-        history = self._lags.reshape(q, p)[::-1]  # oldest first
-        extended = np.vstack([history, z])
-        phi, _, _ = arx_regressors(np.zeros((extended.shape[0], 0)), extended, q)
-        self._lags = extended[-q:][::-1].ravel().copy()
-        return z - phi @ self._whitening
-
     def _calibrate(self, ref: np.ndarray) -> None:
         """Whitening AR, reference mean, re-whitening and correlation factor from the calibration samples."""
-        q = self._whitening_order_by_bic(ref)
-        dof = 0.0
-        if q:
-            var = fit_var(ref, q)
-            self.whitening_order, self._whitening, dof = q, var.theta, float(var.effective_parameters)
-            self._lags = ref[-q:][::-1].ravel().copy()
-            phi, _, _ = arx_regressors(np.zeros((ref.shape[0], 0)), ref, q)
-            ref = ref[q:] - phi @ self._whitening
+        self.whitening, ref = InnovationWhitening.calibrate(ref, max_order=self.whitening_max_order)
         self.mean = ref.mean(axis=0)
         # The AR's residuals on new samples: Akaike's final prediction error, the calibration's
         # residual covariance times (N + d) / (N - d) for d coefficients per output (1 for d = 0).
-        n = ref.shape[0]
+        n, dof = ref.shape[0], self.whitening.dof
         cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (n + dof) / max(n - dof, 1.0)
         self.rewhiten = whitening_matrix(cov)
         if self.batch_samples:
@@ -372,10 +325,10 @@ class ChangeDetector:
                 self._last_zero = first_index + start - 1
         if start >= z.shape[0] or not self.calibrated:
             return None
-        residuals = self._whiten_lags(z[start:])
-        if self._refill:
-            skip = min(self._refill, residuals.shape[0])
-            self._refill -= skip
+        residuals = self.whitening.residuals(z[start:])
+        if self.whitening.refill:
+            skip = min(self.whitening.refill, residuals.shape[0])
+            self.whitening.refill -= skip
             residuals, start = residuals[skip:], start + skip
         w = (residuals - self.mean) @ self.rewhiten.T
         nis = np.einsum("ij,ij->i", w, w)
@@ -394,14 +347,10 @@ class ChangeDetector:
             self._tracked_count += 1
             self._tracked = tracked + (z - tracked) / min(self._tracked_count, self.mean_tracking_samples)
             z = z - tracked
-        if self.whitening_order:
-            lags = self._lags
-            residual = z - lags @ self._whitening
-            self._lags = np.concatenate([z, lags[: -self.n_outputs]])
-            z = residual
-            if self._refill:
-                self._refill -= 1
-                return None
+        z = self.whitening.step(z)
+        if self.whitening.refill:
+            self.whitening.refill -= 1
+            return None
         w = self.rewhiten @ (z - self.mean)
         return self._add(float(w @ w), index)
 
@@ -420,55 +369,6 @@ class ChangeDetector:
             return ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
                                self._sum_nis / (self._n_nis * self.n_outputs))
         return None
-
-
-class DivergenceMonitor:
-    """Flags diverged samples and sustained divergence (see the module docstring).
-
-    Parameters
-    ----------
-    n_outputs : p.
-    window_samples : samples of the moving mean of ``nis`` and of divergence before it is
-        sustained.
-    nis_ratio : the moving mean above ``nis_ratio * p`` is divergence.
-    """
-
-    def __init__(self, n_outputs: int, *, window_samples: int = 25, nis_ratio: float = 100.0) -> None:
-        if int(window_samples) < 1 or not nis_ratio > 1.0:
-            raise ValueError("window_samples must be >= 1 and nis_ratio > 1")
-        self.n_outputs = int(n_outputs)
-        self.window_samples = int(window_samples)
-        self.nis_ratio = float(nis_ratio)
-        self.restart()
-
-    def restart(self) -> None:
-        self._recent = np.zeros(self.window_samples)
-        self._count = 0
-        self.consecutive = 0
-
-    def check(self, whitened: np.ndarray) -> bool:
-        """One sample's whitened innovation (p,); returns whether the sample is diverged."""
-        nis = float(np.dot(whitened, whitened))
-        if not math.isfinite(nis):
-            self.consecutive += 1
-            return True
-        self._recent[self._count % self.window_samples] = nis
-        self._count += 1
-        n = min(self._count, self.window_samples)
-        diverged = self._recent.sum() / n > self.nis_ratio * self.n_outputs
-        self.consecutive = self.consecutive + 1 if diverged else 0
-        return diverged
-
-    @property
-    def nis_ratio_now(self) -> float:
-        """Moving mean of the normalized innovation squared over its expectation p."""
-        n = min(self._count, self.window_samples)
-        return float(self._recent.sum() / (n * self.n_outputs)) if n else math.nan
-
-    @property
-    def sustained(self) -> bool:
-        """Diverged for ``window_samples`` samples in a row."""
-        return self.consecutive >= self.window_samples
 
 
 class StructuralChangeMonitor:

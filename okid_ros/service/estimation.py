@@ -58,10 +58,8 @@ matched against the modes before the change (:mod:`okid_ros.service.model_switch
 
 Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
 predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
-time jump the estimator restarts from zero. A realization's window may hold short gaps too: they
-are filled by the window's ARX prediction and left out of its Gram (:mod:`okid_ros.core.gap_fill`,
-at most 10 % of the window; counted in ``window_samples_filled``); it starts after the last
-longer gap.
+time jump the estimator restarts from zero. A realization's window starts after the last longer
+gap; its short gaps are filled (:mod:`okid_ros.core.gap_fill`, ``window_samples_filled``).
 """
 
 from __future__ import annotations
@@ -239,7 +237,7 @@ class ModalEstimationService:
 
         Returns None when there is nothing to do, a job is running, or the buffer has not yet
         received the window's last sample. A request whose window is not in the buffer (too
-        few contiguous samples) is dropped with a reason.
+        few samples after the last long gap, too many missing) is dropped with a reason.
         """
         with self._lock:
             if self._busy or self._request is None or not self.enabled:
@@ -267,18 +265,16 @@ class ModalEstimationService:
             start = int(breaks[-1]) if breaks.size else 0
             u, y, skipped = u[start:], y[start:], skipped[start:]
             valid = None
-            if np.any(skipped[1:]):
-                try:
+            try:
+                if np.any(skipped[1:]):
                     u, y, valid = fill_short_gaps(u, y, skipped, fit)
-                except ValueError as exc:
-                    return self._refuse(f"ARX window: {exc}")
-                self._stats.window_samples_filled += int(np.count_nonzero(~valid))
+                    self._stats.window_samples_filled += int(np.count_nonzero(~valid))
+            except ValueError as exc:
+                return self._refuse(f"ARX window: {exc}")
             minimum = max(4 * fit.order, need // 2)
             if u.shape[0] < minimum:
-                return self._refuse(
-                    f"buffer holds {u.shape[0]} samples of the ARX window of {need} without a gap longer than "
-                    f"{self.params.max_gap_samples} samples; need at least {minimum}"
-                )
+                return self._refuse(f"buffer holds {u.shape[0]} samples of the ARX window of {need} without a gap "
+                                    f"longer than {self.params.max_gap_samples} samples; need at least {minimum}")
             self._busy = True
             return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation, valid)
 

@@ -175,10 +175,11 @@ def test_the_var_route_gives_an_output_only_model_too():
     assert results[-1] is not None
 
 
-@pytest.mark.xfail(strict=True, reason="known product issue: the VAR route's first model of this record misses the "
-                   "3 Hz mode and lists a spurious 10.8 Hz one; with it as the change test's reference the innovations' "
-                   "power wanders over ~250 samples (the 3 Hz mode's decay time), more than the 25-sample batch means of "
-                   "the correlation factor see, and a change is declared at 132-135 s of this stationary record")
+@pytest.mark.xfail(strict=True, reason=(
+    "known product issue: the VAR route's first model of this record misses the 3 Hz mode and lists a "
+    "spurious 10.8 Hz one; with it as the change test's reference the innovations' power wanders over "
+    "~250 samples (the 3 Hz mode's decay time), more than the 25-sample batch means of the correlation "
+    "factor see, and a change is declared at 132-135 s of this stationary record"))
 def test_the_var_route_declares_no_change_on_a_stationary_record():
     system = structure()
     y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
