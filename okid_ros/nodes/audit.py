@@ -11,6 +11,7 @@ module makes the calls that change a running node visible in its log:
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from rclpy.node import Node
@@ -25,14 +26,18 @@ def log_calls(node: Node, service: Any) -> None:
     Written when the answer is sent (the request, kept by the wrapped callback, and the
     response together). The caller: :func:`caller_of`. Without SROS2 the name is what the caller
     claims to be; with SROS2 enforced only enclaves allowed to call the service can.
+
+    A client created just before its call can reach the service before discovery has told
+    this node the client's node name (the endpoint is known, its node is
+    ``_NODE_NAME_UNKNOWN_``); the line then waits, polled by a timer, up to
+    ``CALLER_WAIT_S`` for the name. The answer itself is never held back.
     """
     send = service.send_response
 
     def send_response(response: Any, header: Any) -> None:
         try:
-            node.get_logger().info(
-                f"call of {service.service_name} by {caller_of(node, service.service_name)}: "
-                f"request {_brief(getattr(service, '_okid_request', None))} -> {_brief(response)}")
+            what = f"request {_brief(getattr(service, '_okid_request', None))} -> {_brief(response)}"
+            _log_when_named(node, service.service_name, what)
         except Exception as exc:  # the log line must never cost the answer
             node.get_logger().warning(f"call of {service.service_name}: not logged ({exc!r})")
         send(response, header)
@@ -47,18 +52,59 @@ def log_calls(node: Node, service: Any) -> None:
     service.send_response = send_response
 
 
+CALLER_WAIT_S = 2.0
+"""How long a call's log line waits for discovery to name the caller's node."""
+
+_CALLER_POLL_S = 0.05
+
+
+def _log_when_named(node: Node, service_name: str, what: str) -> None:
+    """Log the call (``what``: request and answer) now if the caller is named, else once it is."""
+    names = _client_nodes(node, service_name)
+    if names and not any(_UNKNOWN in name for name in names):
+        node.get_logger().info(f"call of {service_name} by {_caller_text(names)}: {what}")
+        return
+    deadline = time.monotonic() + CALLER_WAIT_S
+    timer = None
+
+    def poll() -> None:
+        try:
+            current = _client_nodes(node, service_name)
+            named = bool(current) and not any(_UNKNOWN in name for name in current)
+            if not named and time.monotonic() < deadline:
+                return
+            node.get_logger().info(f"call of {service_name} by {_caller_text(current)}: {what}")
+        except Exception as exc:  # a timer callback that raises would stop the node's executor
+            node.get_logger().warning(f"call of {service_name}: not logged ({exc!r})")
+        timer.cancel()
+        node.destroy_timer(timer)
+
+    timer = node.create_timer(_CALLER_POLL_S, poll)
+
+
+_UNKNOWN = "_NODE_NAME_UNKNOWN_"
+
+
+def _client_nodes(node: Node, service_name: str) -> list[str]:
+    infos = node.get_publishers_info_by_topic(f"rq{service_name}Request", no_mangle=True)
+    return sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
+
+
+def _caller_text(names: list[str]) -> str:
+    if not names:
+        return "a client not in the graph"
+    return names[0] if len(names) == 1 else "one of " + ", ".join(names)
+
+
 def caller_of(node: Node, service_name: str) -> str:
     """The node(s) with a client of ``service_name`` in the graph: who can have called.
 
     rclpy's request header carries no caller (only a sequence number and time stamps), and DDS
     names no sender, so the clients of the service that discovery knows at the time of the call
-    are named: one in the usual case (clients are created for the call), else all of them.
+    are named: one in the usual case (clients are created for the call), else all of them. A
+    client whose node discovery has not named yet is listed as ``_NODE_NAME_UNKNOWN_``.
     """
-    infos = node.get_publishers_info_by_topic(f"rq{service_name}Request", no_mangle=True)
-    names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
-    if not names:
-        return "a client not in the graph"
-    return names[0] if len(names) == 1 else "one of " + ", ".join(names)
+    return _caller_text(_client_nodes(node, service_name))
 
 
 def _brief(msg: Any) -> str:
