@@ -67,7 +67,13 @@ class InnovationWatch:
         self.restart_failed = False  # no good sample since the last divergence restart
 
     def configure(self, params: ModalEstimationParams) -> None:
-        """Take run-time options at once: the divergence ratio and the change test's tuning."""
+        """Take run-time options at once: the divergence ratio and the change test's tuning.
+
+        Switching the change test off or on disarms it: while off its reference predictor
+        saw no samples, so the next accepted model arms it afresh.
+        """
+        if bool(params.change_detection) != bool(self.params.change_detection):
+            self.monitor.disarm()
         self.params = params
         self.divergence.nis_ratio = float(params.divergence_nis_ratio)
         self.monitor.detector.retune(false_alarm_samples=params.change_false_alarm_samples,

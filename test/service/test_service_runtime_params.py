@@ -140,6 +140,22 @@ def test_the_change_test_takes_a_new_tuning_at_once(running):
     assert running.changes, "a false alarm about every 100 samples on a stationary structure"
 
 
+def test_the_change_test_switched_off_and_on_is_armed_again_by_the_next_model(running):
+    while running.est.diagnostics()["change_monitor"] != "monitoring":
+        running.step()
+    reference = running.est._watch.monitor.model
+    running.change(change_detection=False)
+    for _ in range(3 * EVERY):  # models and samples the change test does not see
+        running.step()
+    running.change(change_detection=True)
+    assert running.est.diagnostics()["change_monitor"] != "monitoring", "its predictor missed the samples"
+    running.next_update()
+    assert running.est._watch.monitor.armed and running.est._watch.monitor.model is not reference
+    for _ in range(3000):
+        running.step()
+    assert running.est.diagnostics()["change_monitor"] == "monitoring" and not running.changes
+
+
 def test_the_next_realization_uses_a_gain_changed_at_run_time(running, monkeypatch):
     gains = []
     realize = realization.identify_from_arx
