@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
-    print(_fit_line(fits))
+    print(_fit_line(fits, output_only=output_only))
     _write_exports(args, model, record, reference=reference, pairs=pairs)
     return 0
 
@@ -231,12 +231,14 @@ def _identify_output_only(record, args: argparse.Namespace):
     return identify_output_only(record.y, record.sample_time_s, offsets=args.offsets)
 
 
-def _fit_line(fits: dict) -> str:
+def _fit_line(fits: dict, *, output_only: bool) -> str:
     """One line with the fits per output (identification record, after the burn-in)."""
     pred = ", ".join(f"{v:.1f}" for v in fits["one_step_pct"])
     sim = ", ".join(f"{v:.1f}" for v in fits["simulation_pct"])
+    # Without an input the free run is zero: only the one-step prediction says something.
+    free_run = " (output-only)" if output_only else f", free-run simulation [{sim}] %"
     return (f"fit on the record (after {fits['burn_in_samples']} samples), per output: one-step prediction "
-            f"[{pred}] %, free-run simulation [{sim}] %")
+            f"[{pred}] %{free_run}")
 
 
 def _load_reference(path: str) -> list:

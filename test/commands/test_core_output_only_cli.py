@@ -43,7 +43,9 @@ def test_output_only_ignores_the_inputs_of_a_record(tmp_path: Path, koma_record,
     assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 0
     document = _check_document(out, truth)
     assert document["method"] == "ssi-cov"
-    assert "output-only" in capsys.readouterr().out
+    stdout = capsys.readouterr().out
+    assert "output-only" in stdout
+    assert "one-step prediction [" in stdout and "free-run simulation" not in stdout, "no input: no free run"
     # Outputs are never replaced without --force.
     assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 2
 
