@@ -242,7 +242,7 @@ def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker
     if measure_from is None:
         raise RuntimeError(f"no StateSpaceModel within {args.first_model_timeout:g} s of samples")
     return {"published": published[:end], "t0_ns": t0_ns, "dt_ns": dt_ns, "measure_from": measure_from,
-            "end": end, "before": before, "after": after}
+            "end": end, "before": before, "after": after, "loop_samples": len(msgs)}
 
 
 def run_window(args: argparse.Namespace, window: int, domain: int, msgs: list, dt: float) -> dict:
@@ -278,7 +278,10 @@ def run_window(args: argparse.Namespace, window: int, domain: int, msgs: list, d
 
 
 # ------------------------------------------------------------------------------ analysis
-def pace(rx: dict, dt_ns: int, t_start: int, t_end: int) -> dict:
+SEAM_S = 0.1  # a declared change this close to the loop's seam is put down to the seam
+
+
+def pace(rx: dict, dt_ns: int, t_start: int, t_end: int, *, t0_ns: int, loop_samples: int) -> dict:
     """The issue's criterion over the ArxModels that arrived in [t_start, t_end).
 
     An ArxModel counts as in time when a StateSpaceModel realized from it arrived before the
@@ -287,7 +290,9 @@ def pace(rx: dict, dt_ns: int, t_start: int, t_end: int) -> dict:
     from its stamp) spans the stamp of a declared change (node 2 refuses such windows once the
     change is declared), else to the pace: published too late, or never (replaced by a newer
     ArxModel while the worker was busy, or rejected). ``to_model_s``: from the arrival of each
-    ArxModel to the arrival of its StateSpaceModel.
+    ArxModel to the arrival of its StateSpaceModel. ``at_seam``: declared changes whose change
+    point lies within ``SEAM_S`` of a seam of the loop (the record's last sample followed by its
+    first, a jump no structure makes).
     """
     arx, ssm = rx["arx"], rx["ssm"]
     declared = [(t, stamp) for t, stamp, identified in rx["changes"] if not identified]
@@ -314,8 +319,16 @@ def pace(rx: dict, dt_ns: int, t_start: int, t_end: int) -> dict:
             "ssm": len(ssm_in), "ssm_interval_s": [(b - a) * 1e-9 for a, b in zip(ssm_in, ssm_in[1:])],
             "states": [n for t, _, _, n in ssm if t_start <= t < t_end],
             "declared": sum(1 for t, _ in declared if t_start <= t < t_end),
+            "at_seam": sum(1 for t, stamp in declared if t_start <= t < t_end
+                           and _from_seam_s(stamp, t0_ns, dt_ns, loop_samples) < SEAM_S),
             "to_model_s": [(ssm_arrival[arx[i][1]] - arx[i][0]) * 1e-9 for i in measured
                            if arx[i][1] in ssm_arrival]}
+
+
+def _from_seam_s(stamp_ns: int, t0_ns: int, dt_ns: int, loop_samples: int) -> float:
+    """Time from a sample stamp to the nearest seam of the loop [s]."""
+    phase = round((stamp_ns - t0_ns) / dt_ns) % loop_samples
+    return min(phase, loop_samples - phase) * dt_ns * 1e-9
 
 
 def diagnostics_delta(diagnostics: list, t_start: int, t_end: int) -> dict:
@@ -350,7 +363,7 @@ def analyse(run: dict, rx: dict, est_log: str, *, save: Path | None = None) -> d
         np.savez(save, index=index[keep], latency_ms=latency_ms, arrival_ns=states[keep, 1], t0_ns=run["t0_ns"],
                  dt_ns=run["dt_ns"], measure_from=run["measure_from"])
     received = int(np.unique(index[keep]).size)
-    row = pace(rx, run["dt_ns"], t_start, t_end)
+    row = pace(rx, run["dt_ns"], t_start, t_end, t0_ns=run["t0_ns"], loop_samples=run["loop_samples"])
     row["diag"] = diagnostics_delta(rx["diagnostics"], t_start, t_end)
     measured_arx_ids = {arx_id for t, _, arx_id, _ in rx["ssm"] if t_start <= t < t_end}
     row["realization_s"] = [float(s) for _, arx_id, _, s in MODEL_LOG.findall(est_log)
@@ -401,6 +414,7 @@ def print_table(args: argparse.Namespace, rows: list[dict], dt: float) -> None:
         "model states": lambda r: _stats(r["states"], digits=0),
         "structural changes declared (on a stationary record) / windows refused for a change": lambda r: (
             f"{r['declared']} / {r['diag']['windows_refused_for_change']}"),
+        f"of those changes, at a seam of the loop (within {SEAM_S:g} s)": lambda r: f"{r['at_seam']}",
         "samples published (measured)": lambda r: f"{r['expected']}",
         "samples without ModalStates (drops)": lambda r: (
             f"{r['dropped']} ({100 * r['dropped'] / max(r['expected'], 1):.2f} %)"),
