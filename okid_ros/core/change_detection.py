@@ -325,11 +325,8 @@ class ChangeDetector:
                 self._last_zero = first_index + start - 1
         if start >= z.shape[0] or not self.calibrated:
             return None
-        residuals = self.whitening.residuals(z[start:])
-        if self.whitening.refill:
-            skip = min(self.whitening.refill, residuals.shape[0])
-            self.whitening.refill -= skip
-            residuals, start = residuals[skip:], start + skip
+        residuals, skipped = self.whitening.residuals(z[start:])
+        start += skipped
         w = (residuals - self.mean) @ self.rewhiten.T
         nis = np.einsum("ij,ij->i", w, w)
         for k in range(nis.shape[0]):
@@ -348,8 +345,7 @@ class ChangeDetector:
             self._tracked = tracked + (z - tracked) / min(self._tracked_count, self.mean_tracking_samples)
             z = z - tracked
         z = self.whitening.step(z)
-        if self.whitening.refill:
-            self.whitening.refill -= 1
+        if z is None:  # its lags reach across a gap
             return None
         w = self.rewhiten @ (z - self.mean)
         return self._add(float(w @ w), index)

@@ -97,19 +97,28 @@ class InnovationWhitening:
         self.lags = np.zeros_like(self.lags)
         self.refill = self.order
 
-    def residuals(self, z: np.ndarray) -> np.ndarray:
-        """Residuals (N, p) of innovations ``z`` (N, p), which then take the lags' place."""
+    def residuals(self, z: np.ndarray) -> tuple[np.ndarray, int]:
+        """Residuals of innovations ``z`` (N, p), which then take the lags' place.
+
+        Returns the residuals (N - s, p) of the samples to be tested and s, the leading samples
+        left out because their lags reach across a gap (``refill``).
+        """
         q = self.order
         if not q:
-            return z
+            return z, 0
         extended = np.vstack([self.lags.reshape(q, self.n_outputs)[::-1], z])  # oldest first
         self.lags = extended[-q:][::-1].ravel().copy()
-        return z - _lagged(extended, q) @ self.coefficients
+        skip = min(self.refill, z.shape[0])
+        self.refill -= skip
+        return (z - _lagged(extended, q) @ self.coefficients)[skip:], skip
 
-    def step(self, z: np.ndarray) -> np.ndarray:
-        """The residual (p,) of one innovation ``z`` (p,): :meth:`residuals` without the block overhead."""
+    def step(self, z: np.ndarray) -> np.ndarray | None:
+        """The residual (p,) of one innovation ``z`` (p,), None while refilling: :meth:`residuals` per sample."""
         if not self.order:
             return z
         lags = self.lags
         self.lags = np.concatenate([z, lags[: -self.n_outputs]])
+        if self.refill:
+            self.refill -= 1
+            return None
         return z - lags @ self.coefficients

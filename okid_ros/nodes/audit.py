@@ -61,7 +61,7 @@ _CALLER_POLL_S = 0.05
 def _log_when_named(node: Node, service_name: str, what: str) -> None:
     """Log the call (``what``: request and answer) now if the caller is named, else once it is."""
     names = _client_nodes(node, service_name)
-    if names and not any(_UNKNOWN in name for name in names):
+    if _all_named(names):
         node.get_logger().info(f"call of {service_name} by {_caller_text(names)}: {what}")
         return
     deadline = time.monotonic() + CALLER_WAIT_S
@@ -70,8 +70,7 @@ def _log_when_named(node: Node, service_name: str, what: str) -> None:
     def poll() -> None:
         try:
             current = _client_nodes(node, service_name)
-            named = bool(current) and not any(_UNKNOWN in name for name in current)
-            if not named and time.monotonic() < deadline:
+            if not _all_named(current) and time.monotonic() < deadline:
                 return
             node.get_logger().info(f"call of {service_name} by {_caller_text(current)}: {what}")
         except Exception as exc:  # a timer callback that raises would stop the node's executor
@@ -82,7 +81,9 @@ def _log_when_named(node: Node, service_name: str, what: str) -> None:
     timer = node.create_timer(_CALLER_POLL_S, poll)
 
 
-_UNKNOWN = "_NODE_NAME_UNKNOWN_"
+def _all_named(names: list[str]) -> bool:
+    """Whether discovery has named the node of every client (and there is one)."""
+    return bool(names) and not any("_NODE_NAME_UNKNOWN_" in name for name in names)
 
 
 def _client_nodes(node: Node, service_name: str) -> list[str]:
