@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from okid_ros.core.change_detection import StructuralChangeMonitor
+    from okid_ros.core.change_monitor import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError

@@ -65,6 +65,13 @@ alarm within 20000 samples where 0.1 was expected at ``false_alarm_samples`` 1e7
 1000 samples). The threshold allows
 for the under-estimate that 90 % of calibrations stay below (:func:`calibration_scale`).
 
+Power also rises when the unmeasured excitation or the sensor noise grows, with the structure
+unchanged. With a :class:`~okid_ros.core.model_error_check.ModelErrorCheck` attached
+(``check``, as :class:`~okid_ros.core.change_monitor.StructuralChangeMonitor` does), an alarm is
+declared only when the residuals of its excursion carry a model error: a part the past inputs
+and residuals predict beyond what the calibration's did. Otherwise it is counted
+(``unconfirmed_alarms``), the CUSUM goes on, and the excursion is judged again later.
+
 The change point estimate is the sample after the last ``g = 0``
 before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of
 samples between false alarms (the average run length under no change, ARL0): it is computed
@@ -96,7 +103,7 @@ from okid_ros.core.innovation_whitening import (
     WHITENING_MAX_COEFFICIENT_FRACTION,
     InnovationWhitening,
 )
-from okid_ros.core.statespace import InnovationPredictor
+from okid_ros.core.model_error_check import ModelErrorCheck, ModelErrorVerdict
 
 __all__ = [
     "DEFAULT_FALSE_ALARM_SAMPLES",
@@ -108,7 +115,6 @@ __all__ = [
     "ChangeAlarm",
     "ChangeDetector",
     "DivergenceMonitor",
-    "StructuralChangeMonitor",
     "calibration_scale",
     "cusum_average_run_length",
     "cusum_threshold",
@@ -197,6 +203,10 @@ class ChangeDetector:
     correlation_factor : r >= 1 measured on the calibration samples (1 before).
     scale : :func:`calibration_scale` of ``reference_samples`` calibration samples.
     whitening_order : lags of the whitening AR chosen at the calibration (0: none).
+    check : judges each alarm before it is declared (None: every alarm is declared); it is
+        given the tested residuals, the caller gives it the inputs.
+    last_verdict : the check's judgement of the last alarm, if any.
+    unconfirmed_alarms : excursions whose alarm the check did not confirm, since construction.
     """
 
     def __init__(self, n_outputs: int, *, false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES,
@@ -222,6 +232,8 @@ class ChangeDetector:
         self.whitening_max_order = min(int(whitening_max_order), int(
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
+        self.check: ModelErrorCheck | None = None
+        self.unconfirmed_alarms = 0
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
@@ -258,6 +270,9 @@ class ChangeDetector:
         self._tracked = np.zeros(self.n_outputs)  # the innovations' slowly varying mean
         self._tracked_count = 0
         self.whitening = InnovationWhitening(self.n_outputs)
+        self.last_verdict: ModelErrorVerdict | None = None
+        self._judge_from = -1  # no judgement of this excursion before this sample
+        self._unconfirmed_excursion = -2  # the last_zero of the last excursion counted unconfirmed
 
     @property
     def whitening_order(self) -> int:
@@ -284,8 +299,11 @@ class ChangeDetector:
         self._tracked, self._tracked_count = tracked, count
         return out
 
-    def _calibrate(self, ref: np.ndarray) -> None:
-        """Whitening AR, reference mean, re-whitening and correlation factor from the calibration samples."""
+    def _calibrate(self, ref: np.ndarray, last_index: int) -> None:
+        """Whitening AR, mean, re-whitening, correlation factor and the check's baseline.
+
+        From the calibration samples ``ref``, the last of which is sample ``last_index``.
+        """
         self.whitening, ref = InnovationWhitening.calibrate(ref, max_order=self.whitening_max_order)
         self.mean = ref.mean(axis=0)
         # The AR's residuals on new samples: Akaike's final prediction error, the calibration's
@@ -293,8 +311,11 @@ class ChangeDetector:
         n, dof = ref.shape[0], self.whitening.dof
         cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (n + dof) / max(n - dof, 1.0)
         self.rewhiten = whitening_matrix(cov)
+        w = (ref - self.mean) @ self.rewhiten.T
+        if self.check is not None:
+            self.check.push_residuals(last_index - n + 1, w)
+            self.check.calibrate(last_index, n)
         if self.batch_samples:
-            w = (ref - self.mean) @ self.rewhiten.T
             nis = np.einsum("ij,ij->i", w, w)
             n_batches = nis.shape[0] // self.batch_samples
             means = nis[: n_batches * self.batch_samples].reshape(n_batches, self.batch_samples).mean(axis=1)
@@ -321,13 +342,15 @@ class ChangeDetector:
             if self._ref_count >= self.reference_samples:
                 ref = np.concatenate(self._ref)
                 self._ref = []
-                self._calibrate(ref)
                 self._last_zero = first_index + start - 1
+                self._calibrate(ref, self._last_zero)
         if start >= z.shape[0] or not self.calibrated:
             return None
         residuals, skipped = self.whitening.residuals(z[start:])
         start += skipped
         w = (residuals - self.mean) @ self.rewhiten.T
+        if self.check is not None:
+            self.check.push_residuals(first_index + start, w)
         nis = np.einsum("ij,ij->i", w, w)
         for k in range(nis.shape[0]):
             alarm = self._add(float(nis[k]), first_index + start + k)
@@ -348,6 +371,8 @@ class ChangeDetector:
         if z is None:  # its lags reach across a gap
             return None
         w = self.rewhiten @ (z - self.mean)
+        if self.check is not None:
+            self.check.push_residuals(index, w[None, :])
         return self._add(float(w @ w), index)
 
     def _add(self, nis: float, index: int) -> ChangeAlarm | None:
@@ -357,126 +382,26 @@ class ChangeDetector:
             self.statistic = 0.0
             self._last_zero = index
             self._sum_nis, self._n_nis = 0.0, 0
+            self._judge_from = -1
             return None
         self.statistic = g
         self._sum_nis += nis
         self._n_nis += 1
-        if g > self.threshold:
-            return ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
-                               self._sum_nis / (self._n_nis * self.n_outputs))
+        if g > self.threshold and index >= self._judge_from:
+            alarm = ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
+                                self._sum_nis / (self._n_nis * self.n_outputs))
+            return alarm if self._confirmed(alarm) else None
         return None
 
-
-class StructuralChangeMonitor:
-    """A reference model's predictor, whitening and :class:`ChangeDetector`, sample by sample.
-
-    Life: :meth:`arm` with a model (and its predicted state for the next sample), then
-    :meth:`process` the samples; on an alarm the monitor disarms itself and waits for the next
-    :meth:`arm` (the first model of the new structure).
-
-    Parameters are those of :class:`ChangeDetector`.
-    """
-
-    def __init__(self, n_outputs: int, **detector_options) -> None:
-        self.detector = ChangeDetector(n_outputs, **detector_options)
-        self.disarm()
-
-    def disarm(self) -> None:
-        self.predictor: InnovationPredictor | None = None
-        self.whiten: np.ndarray | None = None
-        self.reference_rows = 0
-        self._hold = 0
-        self.detector.restart()
-
-    @property
-    def armed(self) -> bool:
-        return self.predictor is not None
-
-    @property
-    def state(self) -> str:
-        """'disarmed', 'calibrating' or 'monitoring'."""
-        if not self.armed:
-            return "disarmed"
-        return "monitoring" if self.detector.calibrated else "calibrating"
-
-    def arm(self, model, state: np.ndarray | None = None, *, reference_rows: int = 0) -> None:
-        """Take ``model`` as the reference (its predicted state for the next sample: ``state``).
-
-        Raises ValueError if the model's innovation covariance is not positive definite.
-        """
-        whiten = whitening_matrix(model.innovation_covariance)
-        self.model = model
-        self.predictor = InnovationPredictor(model, state)
-        self.whiten = whiten
-        self.reference_rows = int(reference_rows)
-        self._hold = 0
-        self.detector.restart()
-
-    def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
-        """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).
-
-        A short gap is bridged by prediction; otherwise the predictor restarts from zero and its
-        innovations are not tested until its start-up transient has decayed.
-        """
-        if not self.armed:
-            return
-        if not self.predictor.bridge(u_held, skipped, max_gap):
-            self._hold = self.predictor.memory_samples
-        self.detector.gap()
-
-    def set_state(self, state: np.ndarray) -> None:
-        """Replace the reference predictor's state (e.g. after the estimator restarted)."""
-        if self.armed:
-            self.predictor.x = np.asarray(state, dtype=float).reshape(self.predictor.x.shape).copy()
-
-    def process(self, u: np.ndarray, y: np.ndarray, first_index: int, *, test: bool = True) -> ChangeAlarm | None:
-        """Samples ``first_index ..`` (u (N, m), y (N, p)); the first alarm, else None.
-
-        ``test=False``: the predictor runs over the samples but they are not tested (samples
-        the estimator flagged as diverged). After an alarm the monitor is disarmed.
-        """
-        if not self.armed or len(u) == 0:
-            return None
-        e = self.predictor.run(u, y)
-        if not test:
-            self.detector.gap()  # untested samples are a gap to the whitening's lags
-            return None
-        if self._hold:
-            skip = min(self._hold, e.shape[0])
-            self._hold -= skip
-            e, u, first_index = e[skip:], u[skip:], first_index + skip
-        z = e @ self.whiten.T
-        if not np.all(np.isfinite(z)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(z), axis=1))[0])
-            z = z[:bad]  # a non-finite innovation is the estimator's problem, not a change
-        alarm = self.detector.process(z, first_index)
-        if alarm is not None:
-            self.disarm()
-        return alarm
-
-    def step(self, u: np.ndarray, y: np.ndarray, index: int, *, test: bool = True) -> ChangeAlarm | None:
-        """One sample ``u`` (m,), ``y`` (p,): :meth:`process` without the block overhead."""
-        if not self.armed:
-            return None
-        e = self.predictor.step(u, y)
-        if self._hold:
-            self._hold -= 1
-            return None
-        if not test:
-            self.detector.gap()  # untested samples are a gap to the whitening's lags
-            return None
-        z = self.whiten @ e
-        if not np.all(np.isfinite(z)):
-            return None
-        alarm = self.detector.push(z, index)
-        if alarm is not None:
-            self.disarm()
-        return alarm
-
-    @property
-    def statistic(self) -> float:
-        return self.detector.statistic
-
-    @property
-    def threshold(self) -> float:
-        return self.detector.threshold
+    def _confirmed(self, alarm: ChangeAlarm) -> bool:
+        """Whether the check confirms the alarm; if not, its excursion is judged again later."""
+        if self.check is None:
+            return True
+        self.last_verdict = self.check.judge(alarm.change_index, alarm.alarm_index)
+        if self.last_verdict.confirmed:
+            return True
+        if self._unconfirmed_excursion != self._last_zero:
+            self._unconfirmed_excursion = self._last_zero
+            self.unconfirmed_alarms += 1
+        self._judge_from = alarm.alarm_index + self.check.judge_period
+        return False

@@ -479,11 +479,8 @@ class ModalEstimationService:
             "estimator_restarts": st.estimator_restarts,
             "diverged_samples": st.diverged_samples,
             "divergence_restarts": st.divergence_restarts,
-            "change_monitor": watch["change_monitor"],
-            "change_statistic": watch["change_statistic"],
-            "change_threshold": watch["change_threshold"],
+            **watch,  # the change test's state (service/watch.py)
             "changes_detected": st.changes_detected,
-            "change_waiting_for_model": watch["change_waiting_for_model"],
             "last_change_stamp_s": st.last_change_stamp_s,
             "last_change_statistic": st.last_change_statistic,
             "last_change_delay_samples": st.last_change_delay_samples,

@@ -21,7 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from okid_ros.core.change_detection import DivergenceMonitor, StructuralChangeMonitor
+from okid_ros.core.change_detection import DivergenceMonitor
+from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import advance_state, bridge_state
@@ -192,5 +193,6 @@ class InnovationWatch:
             "change_monitor": self.monitor.state if self.params.change_detection else "off",
             "change_statistic": float(self.monitor.statistic),
             "change_threshold": float(self.monitor.threshold),
+            "change_alarms_unconfirmed": int(self.monitor.unconfirmed_alarms),
             "change_waiting_for_model": self.change is not None,
         }

@@ -44,7 +44,11 @@ def test_the_change_is_declared_once_and_the_window_restarts_at_it(record, tmp_p
     declared = [e for e in lines if e["change_detected"]]
     assert len(declared) == 1
     e = declared[0]
-    assert CHANGE <= e["change_declared_index"] <= e["sample_index"] < CHANGE + EVERY + 1
+    # Declared 57 samples after the change: the model-error check refuses the first alarm (25
+    # samples after the change, too few of them among the samples it judges), so the change is
+    # reported by the second update after it.
+    assert CHANGE <= e["change_declared_index"] <= min(e["sample_index"], CHANGE + 100)
+    assert e["sample_index"] < CHANGE + 2 * EVERY + 1
     assert abs(e["change_sample_index"] - CHANGE) <= 50
     assert e["change_statistic"] > e["change_threshold"] > 0
     assert "structural change at sample" in capsys.readouterr().out

@@ -16,15 +16,16 @@ from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_detection import (
     ChangeDetector,
     DivergenceMonitor,
-    InnovationPredictor,
-    StructuralChangeMonitor,
     calibration_scale,
     cusum_average_run_length,
     cusum_threshold,
     predictor_spectral_radius,
     whitening_matrix,
 )
+from okid_ros.core.change_monitor import StructuralChangeMonitor
+from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.pipeline import identify_from_arx
+from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.sim.inputs import lowpass_input
 
 DT = 1.0 / 250.0
@@ -153,15 +154,84 @@ def test_a_step_change_of_the_frequencies_is_detected_at_once(identified, factor
     assert monitor.state == "disarmed"  # waits for the model of the new structure
 
 
-def test_a_wrongly_calibrated_detector_does_alarm(identified):
+def test_a_wrongly_calibrated_power_test_does_alarm(identified):
     # The same stationary data with a reference calibrated on 20 % smaller innovations: the
-    # test must be able to fail.
+    # power test must be able to fail. The model-error check then refuses the alarm (the
+    # innovations are as unpredictable as at the calibration) and counts it.
     _, model, u, y = identified
+    counts = {}
+    for check in (False, True):
+        monitor = _armed(model, u, y, model_error_check=check)
+        monitor.process(u[FIT:FIT + 1000], y[FIT:FIT + 1000], FIT)
+        assert monitor.state == "monitoring"
+        monitor.detector.rewhiten = monitor.detector.rewhiten / 0.8
+        alarm = monitor.process(u[FIT + 1000:FIT + 20_000], y[FIT + 1000:FIT + 20_000], FIT + 1000)
+        counts[check] = (alarm is not None, monitor.unconfirmed_alarms)
+    assert counts[False] == (True, 0)
+    assert counts[True][0] is False and counts[True][1] >= 1, counts
+
+
+def _noisier(system, factor: float):
+    """``system`` with every noise covariance (Q, R, S) times ``factor``: the same structure."""
+    return dataclasses.replace(
+        system, process_noise_covariance=factor * system.process_noise_covariance,
+        measurement_noise_covariance=factor * system.measurement_noise_covariance,
+        cross_covariance=None if system.cross_covariance is None else factor * system.cross_covariance)
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+def test_more_noise_alone_is_not_declared_a_change(identified, seed):
+    # The disturbances and the sensor noise grow by 60 % in power for 3000 samples and drop
+    # back, the structure unchanged: the power test alarms, the model-error check refuses it.
+    before, model, u, _ = identified
+    rise, end = FIT + 4000, FIT + 7000
+    n = FIT + 12_000
+    y = simulate_switched([before, _noisier(before, 1.6), before], [rise, end], u[:n], seed=seed)
+    declared = {}
+    for check in (False, True):
+        monitor = _armed(model, u, y, model_error_check=check)
+        declared[check] = monitor.process(u[FIT:n], y[FIT:n], FIT)
+        if check:
+            assert monitor.unconfirmed_alarms >= 1 and not monitor.detector.last_verdict.confirmed
+            assert monitor.state == "monitoring"  # still armed: nothing was declared
+    assert declared[False] is not None and rise <= declared[False].alarm_index < end, declared[False]
+    assert declared[True] is None, (declared[True], monitor.detector.last_verdict)
+
+
+def test_a_change_during_a_noisy_stretch_is_declared(identified):
+    # The noise rises first (refused); 1000 samples later the frequencies drop by 6 %.
+    before, model, u, _ = identified
+    _, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
+    rise, change = FIT + 4000, FIT + 5000
+    n = change + 3000
+    y = simulate_switched([before, _noisier(before, 1.6), _noisier(after, 1.6)], [rise, change], u[:n], seed=2)
     monitor = _armed(model, u, y)
-    monitor.process(u[FIT:FIT + 1000], y[FIT:FIT + 1000], FIT)
-    assert monitor.state == "monitoring"
-    monitor.detector.rewhiten = monitor.detector.rewhiten / 0.8
-    assert monitor.process(u[FIT + 1000:FIT + 20_000], y[FIT + 1000:FIT + 20_000], FIT + 1000) is not None
+    alarm = monitor.process(u[FIT:n], y[FIT:n], FIT)
+    assert monitor.unconfirmed_alarms >= 1
+    assert alarm is not None and change <= alarm.alarm_index <= change + 300, alarm
+    assert monitor.state == "disarmed"
+
+
+def test_the_check_confirms_a_model_error_and_not_white_residuals():
+    # The check alone: white residuals (any power) are refused, residuals that follow the
+    # inputs are confirmed; its calibration's own predictable part is allowed for.
+    rng = np.random.default_rng(5)
+    p, m, n = 4, 2, 6000
+    u = rng.standard_normal((n, m))
+    w = rng.standard_normal((n, p))
+    w[3000:] *= 3.0  # more power, still white
+    w[5000:] += 3.0 * np.roll(u, 3, axis=0)[5000:, [0, 1, 0, 1]]  # then a part the inputs 3 samples ago explain
+    check = ModelErrorCheck(p, m, capacity=n)
+    check.push_inputs(0, u)
+    check.push_residuals(0, w)
+    check.calibrate(999, 1000)
+    assert abs(check.baseline) < 0.02
+    assert not check.judge(3100, 3300).confirmed
+    verdict = check.judge(5000, 5400)
+    assert verdict.confirmed and verdict.excess > 0.1, verdict
+    # A calibration whose residuals already follow the inputs as much: nothing in excess.
+    check.calibrate(5999, 1000)
+    assert not check.judge(5000, 5400).confirmed
 
 
 def test_divergence_monitor_flags_non_finite_and_huge_innovations():

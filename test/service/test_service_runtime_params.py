@@ -135,9 +135,10 @@ def test_the_change_test_takes_a_new_tuning_at_once(running):
     running.change(change_variance_ratio=1.5, change_false_alarm_samples=100.0)
     for _ in range(3000):  # ~30 average run lengths
         running.step()
-        if running.changes:
-            break
-    assert running.changes, "a false alarm about every 100 samples on a stationary structure"
+    # A false alarm of the power test about every 100 samples on a stationary structure; the
+    # model-error check refuses them (nothing declared) and counts them.
+    assert running.est.diagnostics()["change_alarms_unconfirmed"] >= 3
+    assert not running.changes
 
 
 def test_the_change_test_switched_off_and_on_is_armed_again_by_the_next_model(running):
