@@ -49,6 +49,9 @@ _parser.add_argument("--variance-ratio", type=float, default=None,
 _parser.add_argument("--false-alarm-samples", type=float, default=None,
                      help="expected samples between false alarms of the delay and stationary parts "
                      "(default: the core's)")
+_parser.add_argument("--no-model-error-check", dest="model_error_check", action="store_false",
+                     help="delay and stationary parts: every alarm of the power test declared (the test before "
+                     "the model-error check)")
 _parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
 _parser.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1)")
 _args = _parser.parse_args()
@@ -68,8 +71,10 @@ from okid_bench.changes import change_case  # noqa: E402
 from okid_bench.switching import settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
-from okid_ros.core.change_detection import ChangeDetector, InnovationPredictor, StructuralChangeMonitor  # noqa: E402
+from okid_ros.core.change_detection import ChangeDetector  # noqa: E402
+from okid_ros.core.change_monitor import StructuralChangeMonitor  # noqa: E402
 from okid_ros.core.pipeline import identify_from_arx  # noqa: E402
+from okid_ros.core.statespace import InnovationPredictor  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402
 
 # Rejected trial steps of the refinement may overflow; they are part of its normal work.
@@ -147,7 +152,7 @@ def armed(model, u_window, y_window) -> StructuralChangeMonitor:
         options["variance_ratio"] = _args.variance_ratio
     if _args.false_alarm_samples is not None:
         options["false_alarm_samples"] = _args.false_alarm_samples
-    monitor = StructuralChangeMonitor(model.C.shape[0], **options)
+    monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check, **options)
     monitor.arm(model, warm.x, reference_rows=WINDOW)
     return monitor
 
