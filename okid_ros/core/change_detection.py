@@ -271,8 +271,7 @@ class ChangeDetector:
         self._tracked_count = 0
         self.whitening = InnovationWhitening(self.n_outputs)
         self.last_verdict: ModelErrorVerdict | None = None
-        self._judge_from = -1  # no judgement of this excursion before this sample
-        self._unconfirmed_excursion = -2  # the last_zero of the last excursion counted unconfirmed
+        self._judge_from = -1  # no judgement of this excursion before this sample (-1: none refused yet)
 
     @property
     def whitening_order(self) -> int:
@@ -400,8 +399,7 @@ class ChangeDetector:
         self.last_verdict = self.check.judge(alarm.change_index, alarm.alarm_index)
         if self.last_verdict.confirmed:
             return True
-        if self._unconfirmed_excursion != self._last_zero:
-            self._unconfirmed_excursion = self._last_zero
+        if self._judge_from < 0:  # the excursion's first refusal (reset when g returns to 0)
             self.unconfirmed_alarms += 1
         self._judge_from = alarm.alarm_index + self.check.judge_period
         return False

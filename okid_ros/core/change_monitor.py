@@ -74,10 +74,10 @@ class StructuralChangeMonitor:
         self.reference_rows = int(reference_rows)
         self._hold = 0
         self.detector.restart()
-        self.detector.check = None
-        if self.model_error_check:  # it holds the calibration and a chunk beyond
-            self.detector.check = ModelErrorCheck(model.C.shape[0], model.B.shape[1], capacity=(
-                self.detector.reference_samples + 2 * _CHUNK_SAMPLES))
+        # The check holds the calibration and a chunk beyond.
+        self.detector.check = ModelErrorCheck(
+            model.C.shape[0], model.B.shape[1], capacity=self.detector.reference_samples + 2 * _CHUNK_SAMPLES,
+        ) if self.model_error_check else None
 
     def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
         """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).

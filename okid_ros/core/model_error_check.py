@@ -161,6 +161,10 @@ class ModelErrorCheck:
 
     def _store(self, ring: np.ndarray, held: np.ndarray, first_index: int, values: np.ndarray) -> None:
         n = values.shape[0]
+        if n == 1:  # the per-sample path
+            slot = first_index % self.capacity
+            ring[slot], held[slot] = values[0], first_index
+            return
         if n > self.capacity:
             values, first_index, n = values[-self.capacity:], first_index + n - self.capacity, self.capacity
         slots = (first_index + np.arange(n)) % self.capacity
