@@ -60,6 +60,8 @@ METHODS = ("okid", "paper")
 # took 3 minutes); the paper case needs 4e7 flops per iteration.
 MAX_REFINE_PARAMETERS = 400
 MAX_REFINE_FLOPS_PER_ITERATION = 2e9
+# A record too short for the whole state search still gets a search of at least one mode.
+MIN_SEARCH_STATES = 2
 # An offset this large against the channel's standard deviation is worth a warning.
 LARGE_OFFSET_FRACTION = 0.1
 
@@ -279,29 +281,52 @@ def choose_arx_order(
     -------
     order : the chosen q; scores : GCV score per row of each order tried.
     """
-    choice = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
+    choice, _ = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
     return choice.order, choice.scores
 
 
+def _min_arx_order(states: int, n_outputs: int) -> int:
+    """The smallest ARX order whose Hankel matrix holds ``states`` (rows about half the lags)."""
+    return 2 * int(np.ceil(states / n_outputs)) + 1
+
+
 def _arx_order_choice(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
-                      arx_orders: ArxOrderOptions | None, center: bool) -> ArxOrderChoice:
-    """:func:`choose_arx_order` with the chosen order's normal equations (for its fit)."""
+                      arx_orders: ArxOrderOptions | None, center: bool) -> tuple[ArxOrderChoice, list[str]]:
+    """:func:`choose_arx_order` with the chosen order's normal equations (for its fit), and warnings.
+
+    With an automatic state order, a record too short for the order that the whole state search
+    needs falls back to the orders it can fit (down to one mode's worth): the search then stops
+    at that Hankel matrix's rank, and the warning says so.
+    """
     options = options or RealizationOptions()
     arx_orders = arx_orders or ArxOrderOptions()
     p = y.shape[1]
     states = options.max_states if options.automatic_order else int(options.n_states)
-    # ERA needs p * (Hankel block rows) >= states; the rows are about half the lags.
-    min_order = 2 * int(np.ceil(states / p)) + 1
-    try:
-        choice = select_arx_order(
-            u, y, candidates=arx_orders.candidates, min_order=min_order,
-            max_coefficients=arx_orders.max_coefficients,
+    min_order = _min_arx_order(states, p)
+
+    def choose(floor: int, candidates: tuple[int, ...] = arx_orders.candidates) -> ArxOrderChoice:
+        return select_arx_order(
+            u, y, candidates=candidates, min_order=floor, max_coefficients=arx_orders.max_coefficients,
             min_rows_per_coefficient=arx_orders.min_rows_per_coefficient, center=center,
         )
+
+    try:
+        return choose(min_order), []
+    except ValueError as exc:
+        # The largest order the record fits: N - q >= rows_per_coefficient * (m + q (p + m)).
+        m, rows = u.shape[1], arx_orders.min_rows_per_coefficient
+        longest = int((u.shape[0] - rows * m) // (1.0 + rows * (p + m)))
+        if not options.automatic_order or longest < _min_arx_order(MIN_SEARCH_STATES, p):
+            raise IdentificationError(str(exc)) from None
+    try:
+        choice = choose(longest, (longest,))
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
-    return choice
-
+    return choice, [
+        f"{u.shape[0]} samples are too few for the ARX order a search up to {states} states needs "
+        f"({min_order}): ARX order {choice.order}, the largest the record fits; the state search stops at "
+        f"its Hankel matrix's rank"
+    ]
 
 def identify(
     u: np.ndarray,
@@ -355,9 +380,10 @@ def identify(
     center = offsets == "remove"
     arx_scores: dict = {}
     normal = None
+    order_warnings: list[str] = []
     if order == AUTO:
         # The order search's normal equations of the chosen order serve its fit (not formed twice).
-        choice = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
+        choice, order_warnings = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
         order, arx_scores, normal = choice.order, choice.scores, choice.normal
     order = int(order)
     _check_record_length(u.shape[0], order, p, m)
@@ -378,7 +404,8 @@ def identify(
     else:
         model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
     model.arx_order_scores = arx_scores
-    model.warnings += frame.warnings  # the dead inputs (identify_from_arx saw only the live ones)
+    # frame.warnings: the dead inputs (identify_from_arx saw only the live ones)
+    model.warnings += order_warnings + frame.warnings
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 

@@ -234,3 +234,36 @@ def test_every_model_handed_out_has_a_stable_a_and_predictor():
             model = identify(u, y, case.sample_time_s, completion=completion, refine=False)
             assert model.spectral_radius() < 1.0, (case.name, completion)
             assert model.predictor_spectral_radius() < 1.0, (case.name, completion)
+
+
+def test_a_record_too_short_for_the_whole_state_search_is_still_identified():
+    """400 samples of one accelerometer: the order a 40-state search needs (81) does not fit.
+
+    The chain falls back to the largest ARX order the record fits and says so; no mode it lists
+    is spurious and most models hold both modes (4 s of data: BIC may keep only the stronger);
+    a fixed state order the record cannot hold, or a record too short for any search, is
+    refused with a one-line reason.
+    """
+    from okid_ros.sim import simulate
+    from okid_ros.sim.models import modal_structure
+
+    dt, truth = 0.01, (3.0, 11.0)
+    both = 0
+    for seed in range(4):
+        system = modal_structure(truth, 0.02, 1, 1, dt, seed=4 + seed)
+        u = white_input(400, 1, seed=5 + seed)
+        y = simulate(system, u, 6 + seed)
+        model = identify(u, y, dt)
+        assert model.arx.order < 81
+        assert any("too few for the ARX order" in w for w in model.warnings)
+        assert model.stability_problem() == ""
+        listed = [md.frequency_hz for md in model.modes]
+        assert listed and all(min(abs(g - f) / f for f in truth) < 0.02 for g in listed), listed
+        z = np.linalg.eigvals(model.A)
+        poles_hz = np.abs(np.log(z[z.imag > 0])) / (2 * np.pi * dt)
+        both += all(np.min(np.abs(poles_hz - f)) / f < 0.02 for f in truth)
+    assert both >= 3
+    with pytest.raises(IdentificationError, match="no ARX order can be fitted"):
+        identify(u, y, dt, n_states=60)
+    with pytest.raises(IdentificationError, match="no ARX order can be fitted|too few"):
+        identify(u[:12], y[:12], dt)
