@@ -46,7 +46,10 @@ import numpy as np
 
 from okid_ros.core.kalman_gain import riccati_predictor_gain as _riccati_predictor_gain
 
-__all__ = ["PEERS", "peer_identify", "available_peers"]
+__all__ = ["PEERS", "BIC", "peer_identify", "available_peers"]
+
+#: ``n_states`` for a peer's own order choice by BIC (the SIPPY peers only).
+BIC = "bic"
 
 
 def _paper_K(A: np.ndarray, L: Optional[np.ndarray]) -> Optional[np.ndarray]:
@@ -86,20 +89,24 @@ def _control_era(u, y, dt, n, n_markov: Optional[int] = None, **_):
 
 
 def _sippy(method: str):
-    def run(u, y, dt, n, horizon: int = 20, **_):
+    def run(u, y, dt, n, horizon: int = 20, max_order: int = 20, **_):
         from sippy_unipi import system_identification
 
-        f = int(max(horizon, n + 1))
+        if n == BIC:  # SIPPY's own order choice: BIC over orders 1..max_order, horizon f = p = horizon
+            f = int(horizon)
+            order = {"IC": "BIC", "SS_orders": [1, int(max_order)], "SS_p": f}
+        else:
+            f = int(max(horizon, n + 1))
+            order = {"SS_fixed_order": int(n)}
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf), warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            mod = system_identification(y, u, method, SS_fixed_order=int(n), SS_f=f,
-                                        SS_D_required=True, tsample=dt)
+            mod = system_identification(y, u, method, SS_f=f, SS_D_required=True, tsample=dt, **order)
         K = mod.K
         L = None if (K is None or np.size(K) == 0) else np.asarray(K, dtype=float)
         if L is not None and not np.all(np.isfinite(L)):
             L = None
-        return _model(mod.A, mod.B, mod.C, mod.D, L, {"horizon": f})
+        return _model(mod.A, mod.B, mod.C, mod.D, L, {"horizon": f, **({"order": "BIC"} if n == BIC else {})})
     return run
 
 
@@ -150,7 +157,7 @@ def available_peers() -> list[str]:
     return names
 
 
-def peer_identify(name: str, u: np.ndarray, y: np.ndarray, sample_time_s: float, n_states: int,
+def peer_identify(name: str, u: np.ndarray, y: np.ndarray, sample_time_s: float, n_states: int | str,
                   **options) -> tuple[Optional[dict], str]:
     """Identify a model with a peer package, given the (true) state dimension.
 
@@ -160,9 +167,10 @@ def peer_identify(name: str, u: np.ndarray, y: np.ndarray, sample_time_s: float,
         ``sippy-cva``, ``nfoursid``).
     u : (N, m) inputs; y : (N, p) outputs; time along axis 0.
     sample_time_s : sample period in seconds.
-    n_states : model order n.
+    n_states : model order n, or :data:`BIC` (the SIPPY peers: their own choice by BIC).
     options : ``horizon`` (subspace past/future block rows, default 20) for the subspace
-        peers; ``n_markov`` (number of Markov parameters, default ``min(200, N / (5 m))``) for
+        peers; ``max_order`` (largest order of the BIC choice, default 20); ``n_markov``
+        (number of Markov parameters, default ``min(200, N / (5 m))``) for
         ``control-era``.
 
     Returns
@@ -174,15 +182,17 @@ def peer_identify(name: str, u: np.ndarray, y: np.ndarray, sample_time_s: float,
         return None, f"unknown peer {name!r}"
     u = np.asarray(u, dtype=float).reshape(len(u), -1)
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    if n_states == BIC and not name.startswith("sippy-"):
+        return None, f"{name} has no order choice of its own"
     try:
         with np.errstate(all="ignore"):
-            model = PEERS[name](u, y, float(sample_time_s), int(n_states), **options)
+            model = PEERS[name](u, y, float(sample_time_s), n_states if n_states == BIC else int(n_states), **options)
     except Exception as exc:  # noqa: BLE001 - a peer failure is a result, not a crash
         msg = str(exc).splitlines()[0] if str(exc) else ""
         return None, f"{name} failed: {type(exc).__name__}: {msg}"[:200]
     for key in ("A", "B", "C", "D"):
         if not np.all(np.isfinite(model[key])):
             return None, f"{name} returned non-finite {key}"
-    if model["A"].shape != (n_states, n_states):
+    if n_states != BIC and model["A"].shape != (n_states, n_states):
         return None, f"{name} returned order {model['A'].shape[0]} instead of {n_states}"
     return model, ""
