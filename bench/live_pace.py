@@ -1,6 +1,6 @@
 """Does the live chain keep its pace at 28 channels? Both nodes on the steel subframe at 1024 Hz.
 
-Run:  .venv/bin/python bench/live_pace.py [--duration 60] [--window 6000 3000]
+Run:  .venv/bin/python bench/live_pace.py [--duration 60] [--window 6000 3000] [--synthetic 200]
 
 Issue 17 item 3: at 28 channels, 1024 Hz, ARX order 20, window 6000, with the default
 realization settings and change detection on, every ArxModel after the first is realized and
@@ -19,7 +19,10 @@ published before the next one. What it does, for each ``--window``:
    arrival stamped with CLOCK_MONOTONIC;
 3. this process publishes the DaISy steel-subframe record (``../shared/data/real/
    daisy-steel-subframe``, 8523 samples) as ``okid_msgs/IoSample`` in real time, looped with
-   continuing stamps (no time jump: the window and the model carry over each seam);
+   continuing stamps (no time jump: the window and the model carry over each seam); with
+   ``--synthetic SECONDS`` instead that many seconds of the record's identified model driven by
+   white noise (:func:`synthetic_record`: the same channels and dynamics without the seam, where
+   the jump from the record's last sample to its first is a transient the nodes react to);
 4. from the first StateSpaceModel on it measures ``--duration`` seconds: the ArxModels and
    StateSpaceModels published, how many ArxModels were realized and published before the next
    ArxModel arrived (the issue's criterion), the realization time of each model (node 2's log;
@@ -71,6 +74,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--first-model-timeout", type=float, default=180.0,
                         help="seconds of publishing to wait for the first StateSpaceModel (default 180)")
     parser.add_argument("--record", default=str(RECORD), help="record .npz with u, y, sample_time_s")
+    parser.add_argument("--synthetic", type=float, default=0.0, metavar="SECONDS",
+                        help="publish instead SECONDS of the record's identified model driven by white noise "
+                             "(no seam; see synthetic_record)")
     parser.add_argument("--domain", type=int, default=61, help="ROS_DOMAIN_ID of the first run (default 61)")
     parser.add_argument("--role", default="bench", choices=("bench", "receiver"), help=argparse.SUPPRESS)
     parser.add_argument("--out", default="", help=argparse.SUPPRESS)
@@ -184,6 +190,34 @@ def make_messages(record: Path):
         msg.u, msg.y = u.tolist(), y.tolist()
         msgs.append(msg)
     return msgs, float(data["sample_time_s"])
+
+
+def synthetic_record(record: Path, seconds: float, folder: Path) -> Path:
+    """A seam-free stand-in for the looped record: ``seconds`` of its identified model, simulated.
+
+    The record is identified with ``identify``'s defaults (on this record: 122 states, its 15
+    reference modes); the model is driven by white-noise inputs of the record's input spread
+    (the shakers' forces were white noise) and by innovations of its covariance, with the
+    record's offsets. Same channels, rate and dynamics, and no seam where a looped record jumps
+    from its last sample back to its first (which the nodes rightly take for a transient).
+    """
+    import numpy as np
+
+    from okid_ros.core.pipeline import identify
+    from okid_ros.sim.simulators import simulate_innovation
+
+    data = np.load(record)
+    u, y, dt = np.asarray(data["u"], float), np.asarray(data["y"], float), float(data["sample_time_s"])
+    model = identify(u, y, dt)
+    n_samples = int(seconds / dt)
+    rng = np.random.default_rng(17)
+    u_sim = rng.standard_normal((n_samples, u.shape[1])) * u.std(axis=0)
+    y_sim, _ = simulate_innovation(model, u_sim, seed=18)
+    path = folder / "synthetic.npz"
+    np.savez(path, u=u_sim + model.input_offset, y=y_sim + model.output_offset, sample_time_s=dt)
+    print(f"synthetic record: {seconds:g} s of the identified model ({model.n_states} states, "
+          f"{len(model.modes)} modes listed) driven by white noise", flush=True)
+    return path
 
 
 def snapshot(procs: dict) -> dict:
@@ -391,7 +425,9 @@ def _stats(values: list, unit: str = "", digits: int = 2) -> str:
 
 def print_table(args: argparse.Namespace, rows: list[dict], dt: float) -> None:
     """The markdown table: one column per window."""
-    print(f"\nbench/live_pace.py: steel subframe looped, {1 / dt:g} Hz, p = 28, m = 2, q = {args.order}, "
+    source = (f"the steel subframe's identified model simulated for {args.synthetic:g} s" if args.synthetic > 0
+              else "steel subframe looped")
+    print(f"\nbench/live_pace.py: {source}, {1 / dt:g} Hz, p = 28, m = 2, q = {args.order}, "
           f"defaults otherwise (ArxModel 1 Hz, automatic order, change detection "
           f"{'off' if args.no_change_detection else 'on'}), "
           f"measured {args.duration:g} s after the first StateSpaceModel, {os.cpu_count()} cores\n")
@@ -445,7 +481,10 @@ def main() -> int:
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     sys.path.insert(0, str(REPO))
     print(f"load average (1 min) before starting: {os.getloadavg()[0]:.2f}", flush=True)
-    msgs, dt = make_messages(Path(args.record))
+    record = Path(args.record)
+    if args.synthetic > 0:
+        record = synthetic_record(record, args.synthetic, Path(tempfile.mkdtemp(prefix="okid_pace_record_")))
+    msgs, dt = make_messages(record)
     rows = []
     for i, window in enumerate(args.window):
         try:
