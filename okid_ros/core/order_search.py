@@ -5,7 +5,9 @@ is completed into an innovation model, by the least-squares refit of the predict
 (:mod:`.refit`) or from the state sequence (:mod:`.state_completion`); the order with the
 lowest BIC wins. The automatic search tries every order up to ``max_states`` (2 apart up to 40
 states, about n / 20 apart above) and goes on, doubling the limit, while BIC is lowest at it,
-up to ``max_states_limit`` and the Hankel rank, and says so when it stops there.
+up to ``max_states_limit`` and the Hankel rank, and says so when it stops there. Given the
+order of the previous window's model (the nodes, ``process`` and ``track``), the search is
+warm-started: it screens a band of orders around it, widened until BIC has its minimum inside.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, free_parameters, predictor_states
 
 __all__ = ["Completer", "OrderSearch", "choose_completion", "search_orders"]
+
+#: Orders screened each side of the previous window's order in a warm-started search.
+WARM_BAND = NEIGHBOURS + 2
 
 # Above this many flops for the refit's normal equations, "auto" completes from states instead
 # (2e10 is ~1 s here; the paper case needs 2e8, 28 outputs need 3e11).
@@ -171,34 +176,104 @@ def _orders_to_try(n_states: int | str, limit: int, tried: set[int]) -> list[int
     return sorted(({n} | set(neighbours)) - tried)
 
 
-def _screen_orders(completer: Completer, options: RealizationOptions, search: OrderSearch) -> None:
-    """Every candidate order from the Gram; the limit doubles while BIC is lowest at it."""
+def _screen_orders(completer: Completer, options: RealizationOptions, search: OrderSearch,
+                   order_hint: int | None = None) -> None:
+    """Every candidate order from the Gram; the limit doubles while BIC is lowest at it.
+
+    With ``order_hint`` (the previous window's order, automatic order only) the search is warm
+    started: :func:`_screen_band`.
+    """
     rank = completer.decomposition.max_states
     limit = min(options.max_states, rank) if options.automatic_order else rank
     limit = min(limit, completer.gram.max_states)
+    top = min(options.max_states_limit, rank, completer.gram.max_states)
+    band: dict[int, PredictorFit] = {}
+    if options.automatic_order and order_hint is not None:
+        if _screen_band(completer, search, int(order_hint), limit, top, options):
+            return
+        # The full search decides, on exactly its own orders; the band's fits are reused.
+        band = dict(search.screened)
+        search.screened.clear()
+        search.reasons.clear()
+        search.max_states_reached, search.limit_reason = False, ""
     tried: set[int] = set()
     while True:
         for n in _orders_to_try(options.n_states, limit, tried):
             tried.add(n)
-            try:
-                search.screened[n] = completer.complete(n, screen=True) if completer.completion == "states" \
-                    else completer.screen(n)
-            except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
-                search.reasons.append(f"n={n}: {exc}")
+            if n in band:
+                search.screened[n] = band[n]
+            else:
+                _screen(completer, search, n)
         if not options.automatic_order or not search.screened:
             return
         best = min(search.screened, key=lambda n: (search.screened[n].bic(), n))
         if best < max(tried):
             return
-        top = min(options.max_states_limit, rank, completer.gram.max_states)
         if limit >= top:
-            search.max_states_reached = True
-            search.limit_reason = (
-                f"the Hankel rank {rank}" if rank <= options.max_states_limit
-                else f"max_states_limit {options.max_states_limit}"
-            )
+            _at_limit(search, rank, options)
             return
         limit = min(2 * limit, top)
+
+
+def _screen(completer: Completer, search: OrderSearch, n: int) -> None:
+    try:
+        search.screened[n] = completer.complete(n, screen=True) if completer.completion == "states" \
+            else completer.screen(n)
+    except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
+        search.reasons.append(f"n={n}: {exc}")
+
+
+def _at_limit(search: OrderSearch, rank: int, options: RealizationOptions) -> None:
+    search.max_states_reached = True
+    search.limit_reason = (
+        f"the Hankel rank {rank}" if rank <= options.max_states_limit
+        else f"max_states_limit {options.max_states_limit}"
+    )
+
+
+def _screen_band(completer: Completer, search: OrderSearch, hint: int, limit: int, top: int,
+                 options: RealizationOptions) -> bool:
+    """The warm-started search: the orders around ``hint``, widened until BIC has a minimum inside.
+
+    The band starts ``WARM_BAND`` orders each side of the hint and grows on a side while the
+    winner has fewer than ``NEIGHBOURS + 1`` screened orders there (its modes' stability is
+    judged on ``NEIGHBOURS`` each side; one more tells a minimum from the band's edge); at the
+    limit, the limit doubles as in the full search. The same minimum gives the same model as
+    the full search (each order's screening is independent). A window's order moves little
+    from the previous window's, so a minimum within the first band is taken; one the band had to
+    widen to reach says the hint was poor (BIC may have another minimum elsewhere): False, and
+    the caller runs the full search (the orders screened here are not screened again).
+    """
+    orders = _orders_to_try(AUTO, top, set())
+    at = int(np.argmin(np.abs(np.asarray(orders) - hint)))
+    lo, hi = orders[max(0, at - WARM_BAND)], orders[min(len(orders) - 1, at + WARM_BAND)]
+    first_band = (lo, hi)
+    limit = max(limit, min(hi, top))
+    tried: set[int] = set()
+    while True:
+        candidates = [n for n in _orders_to_try(AUTO, limit, set()) if lo <= n <= hi]
+        for n in candidates:
+            if n not in tried:
+                tried.add(n)
+                _screen(completer, search, n)
+        if not search.screened:
+            return False
+        in_reach = _orders_to_try(AUTO, limit, set())
+        best = min(search.screened, key=lambda n: (search.screened[n].bic(), n))
+        at = in_reach.index(best)
+        missing = [n for n in in_reach[max(0, at - NEIGHBOURS - 1) : at + NEIGHBOURS + 2] if n not in tried]
+        if missing:
+            lo, hi = min(lo, missing[0]), max(hi, missing[-1])
+            continue
+        if not first_band[0] <= best <= first_band[1]:
+            return False
+        if best < in_reach[-1]:
+            return True
+        if limit >= top:
+            _at_limit(search, completer.decomposition.max_states, options)
+            return True
+        limit = min(2 * limit, top)
+        hi = limit
 
 
 def _refit_near(completer: Completer, options: RealizationOptions, search: OrderSearch) -> None:
@@ -261,13 +336,14 @@ def _refit_near(completer: Completer, options: RealizationOptions, search: Order
     search.repaired = completer.repaired
 
 
-def search_orders(completer: Completer, options: RealizationOptions) -> OrderSearch:
+def search_orders(completer: Completer, options: RealizationOptions, *, order_hint: int | None = None) -> OrderSearch:
     """Screen every candidate order from the Gram, complete the best; BIC picks one (step 5).
 
     The screening goes past ``max_states`` while BIC is lowest at the limit, up to
     ``max_states_limit`` and the Hankel rank. With the state completion the screened fits are
     the completed ones (as before: regressions only); with the predictor refit, the refit runs
-    only near the screened winner (:func:`_refit_near`).
+    only near the screened winner (:func:`_refit_near`). ``order_hint``: the order of the
+    previous window's model, which warm-starts an automatic search (:func:`_screen_band`).
     """
     rank = completer.decomposition.max_states
     if not options.automatic_order and not 1 <= int(options.n_states) <= rank:
@@ -276,7 +352,7 @@ def search_orders(completer: Completer, options: RealizationOptions) -> OrderSea
             f"numerical rank {rank}"
         )
     search = OrderSearch({}, completer.completion, [])
-    _screen_orders(completer, options, search)
+    _screen_orders(completer, options, search, order_hint)
     if completer.completion == "states":
         search.fits = dict(search.screened)
         search.repaired = completer.repaired

@@ -161,6 +161,7 @@ def identify_from_arx(
     options: RealizationOptions | None = None,
     valid: np.ndarray | None = None,
     offsets: str = "remove",
+    order_hint: int | None = None,
     **option_changes: Any,
 ) -> IdentifiedModel:
     """Steps 3-8 of the robust chain on an identified ARX model and the data of its window.
@@ -174,6 +175,8 @@ def identify_from_arx(
     options : :class:`~okid_ros.core.options.RealizationOptions` (default: its defaults).
     valid : (N,) bool, optional mask of trustworthy samples (for the weighting only).
     offsets : "remove" (the window's means are removed and kept with the model) or "none".
+    order_hint : the previous window's model order: the automatic order search screens the
+        orders around it first (:func:`okid_ros.core.order_search.search_orders`).
     option_changes : individual options (``n_states=8``, ``max_damping=0.05``, ...) applied on
         top of ``options``.
 
@@ -199,7 +202,7 @@ def identify_from_arx(
     search_top = options.max_states if options.automatic_order else int(options.n_states)
     completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
     completer = Completer(decomposition, gram, u, y, completion, options=options, burn_in=arx.order)
-    search = search_orders(completer, options)
+    search = search_orders(completer, options, order_hint=order_hint)
     n_best, best = _complete_chosen(search, completer, options)
     refined = _refine(best, u, y, arx, options)
     if refined is not None:

@@ -276,7 +276,8 @@ class ModalEstimationService:
                 return self._refuse(f"buffer holds {u.shape[0]} samples of the ARX window of {need} without a gap "
                                     f"longer than {self.params.max_gap_samples} samples; need at least {minimum}")
             self._busy = True
-            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation, valid)
+            hint = None if self._active is None else self._active.model.n_states  # warm start
+            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation, valid, hint)
 
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1

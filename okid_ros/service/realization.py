@@ -57,7 +57,7 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
 def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
                     options: RealizationOptions, offsets: str = "remove",
                     output_only_method: str = OUTPUT_ONLY_METHODS[0],
-                    valid: np.ndarray | None = None) -> IdentifiedModel:
+                    valid: np.ndarray | None = None, order_hint: int | None = None) -> IdentifiedModel:
     """The core's model of one window: from its ARX fit, or (m = 0) from its outputs alone.
 
     The one place where the nodes (:func:`realize`), ``okid-ros process`` and ``okid-ros
@@ -74,6 +74,7 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     valid : (N,) bool, False at samples filled in short gaps (:mod:`okid_ros.core.gap_fill`):
         left out of the Gram of past data (input-output route; the output-only route uses the
         filled outputs).
+    order_hint : the order of the model in use, which warm-starts the order search.
 
     Raises
     ------
@@ -81,7 +82,8 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     """
     if u.shape[1] == 0:
         return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets)
-    return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid)
+    return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid,
+                             order_hint=order_hint)
 
 
 def realize(job: RealizationJob) -> RealizationOutcome:
@@ -95,7 +97,7 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     try:
         model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
                                 offsets=prm.offsets, output_only_method=prm.output_only_method,
-                                valid=job.valid)
+                                valid=job.valid, order_hint=job.order_hint)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
     elapsed = time.perf_counter() - t0

@@ -116,6 +116,7 @@ class RealizationJob:
     params: ModalEstimationParams
     generation: int = 0  # outcomes of jobs taken before a reset are dropped
     valid: np.ndarray | None = None  # (N,) False at samples filled in short gaps (core/gap_fill.py)
+    order_hint: int | None = None  # the order of the model in use: warm-starts the order search
 
     @property
     def first_index(self) -> int:
