@@ -168,15 +168,13 @@ def identify_from_arx(
 
     Parameters
     ----------
-    arx : the (regularized) ARX model of the window.
+    arx : the (regularized) ARX model of the window; sample_time_s : sample time in seconds.
     u : (N, m); y : (N, p) the samples of the window, contiguous (used for the weighting, the
         completion and the refinement).
-    sample_time_s : sample time in seconds.
     options : :class:`~okid_ros.core.options.RealizationOptions` (default: its defaults).
     valid : (N,) bool, optional mask of trustworthy samples (for the weighting only).
     offsets : "remove" (the window's means are removed and kept with the model) or "none".
-    order_hint : the previous window's model order: the automatic order search screens the
-        orders around it first (:func:`okid_ros.core.order_search.search_orders`).
+    order_hint : the previous window's model order, which warm-starts the order search.
     option_changes : individual options (``n_states=8``, ``max_damping=0.05``, ...) applied on
         top of ``options``.
 
