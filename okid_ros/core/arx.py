@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from okid_ros.core.arx_order import ArxOrderChoice, select_arx_order
+from okid_ros.core.arx_order import ArxOrderChoice, longest_arx_order, select_arx_order
 
 # The solver and the order choice live in their own modules; their names stay importable from here.
 from okid_ros.core.channels import group_scales
@@ -55,6 +55,7 @@ __all__ = [
     "minimum_samples",
     "ArxOrderChoice",
     "center_normal_equations",
+    "longest_arx_order",
     "select_arx_order",
     "channel_mean_square",
     "residual_covariance",

@@ -16,7 +16,7 @@ from okid_ros.core.least_squares import (
 )
 from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
 
-__all__ = ["ArxOrderChoice", "select_arx_order"]
+__all__ = ["ArxOrderChoice", "longest_arx_order", "select_arx_order"]
 
 
 @dataclass
@@ -74,6 +74,12 @@ class _NestedNormalEquations:
         return self.normal
 
 
+def longest_arx_order(n_samples: int, n_outputs: int, n_inputs: int, *, min_rows_per_coefficient: float) -> int:
+    """The largest ARX order q a record fits: ``N - q >= rows * (m + q (p + m))`` regressor rows."""
+    rows = float(min_rows_per_coefficient)
+    return int((n_samples - rows * n_inputs) // (1.0 + rows * (n_outputs + n_inputs)))
+
+
 def select_arx_order(
     u: np.ndarray,
     y: np.ndarray,
@@ -114,13 +120,14 @@ def select_arx_order(
     limited_by = ""
     best_q, best_score, since_best = 0, np.inf, 0
     nested = _NestedNormalEquations(u, y)
+    longest = longest_arx_order(u.shape[0], p, m, min_rows_per_coefficient=min_rows_per_coefficient)
     best_normal = None
     for q in tried:
         d = regressor_length(q, p, m)
         if d > max_coefficients:
             limited_by = f"cost: ARX order {q} has {d} coefficients per output (limit {max_coefficients})"
             break
-        if u.shape[0] - q < min_rows_per_coefficient * d:
+        if q > longest:
             limited_by = f"record length: ARX order {q} needs {int(min_rows_per_coefficient * d) + q} samples"
             break
         normal = nested.at(q)

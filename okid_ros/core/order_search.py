@@ -251,14 +251,13 @@ def _screen_band(completer: Completer, search: OrderSearch, hint: int, limit: in
     limit = max(limit, min(hi, top))
     tried: set[int] = set()
     while True:
-        candidates = [n for n in _orders_to_try(AUTO, limit, set()) if lo <= n <= hi]
-        for n in candidates:
-            if n not in tried:
+        in_reach = _orders_to_try(AUTO, limit, set())
+        for n in in_reach:
+            if lo <= n <= hi and n not in tried:
                 tried.add(n)
                 _screen(completer, search, n)
         if not search.screened:
             return False
-        in_reach = _orders_to_try(AUTO, limit, set())
         best = min(search.screened, key=lambda n: (search.screened[n].bic(), n))
         at = in_reach.index(best)
         missing = [n for n in in_reach[max(0, at - NEIGHBOURS - 1) : at + NEIGHBOURS + 2] if n not in tried]

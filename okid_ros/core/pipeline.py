@@ -34,7 +34,14 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import ArxFit, ArxOrderChoice, fit_from_normal_equations, normal_equations, select_arx_order
+from okid_ros.core.arx import (
+    ArxFit,
+    ArxOrderChoice,
+    fit_from_normal_equations,
+    longest_arx_order,
+    normal_equations,
+    select_arx_order,
+)
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
@@ -314,9 +321,8 @@ def _arx_order_choice(u: np.ndarray, y: np.ndarray, *, options: RealizationOptio
     try:
         return choose(min_order), []
     except ValueError as exc:
-        # The largest order the record fits: N - q >= rows_per_coefficient * (m + q (p + m)).
-        m, rows = u.shape[1], arx_orders.min_rows_per_coefficient
-        longest = int((u.shape[0] - rows * m) // (1.0 + rows * (p + m)))
+        longest = longest_arx_order(u.shape[0], p, u.shape[1],
+                                    min_rows_per_coefficient=arx_orders.min_rows_per_coefficient)
         if not options.automatic_order or longest < _min_arx_order(MIN_SEARCH_STATES, p):
             raise IdentificationError(str(exc)) from None
     try:
@@ -328,6 +334,7 @@ def _arx_order_choice(u: np.ndarray, y: np.ndarray, *, options: RealizationOptio
         f"({min_order}): ARX order {choice.order}, the largest the record fits; the state search stops at "
         f"its Hankel matrix's rank"
     ]
+
 
 def identify(
     u: np.ndarray,
