@@ -349,7 +349,8 @@ def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time
     """Modal form of the model, its physical modes those matched to a selected cluster."""
     n, p = A.shape[0], C.shape[0]
     K = linalg.solve(A, L)
-    criteria = ModeCriteria(max_damping=MAX_DAMPING, min_msv=0.0, min_mpc=0.0)
+    # The modes were selected already (their spectral dominance included, step 4): no criterion here.
+    criteria = ModeCriteria(max_damping=MAX_DAMPING, min_msv=0.0, min_mpc=0.0, min_dominance=0.0)
 
     def cluster_of(mode) -> ModeCluster | None:
         return next((c for ev, c in chosen if abs(mode.eigenvalue - ev) < 1e-9), None)

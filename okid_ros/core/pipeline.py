@@ -122,7 +122,7 @@ def _package(
 ) -> IdentifiedModel:
     """Step 7-8: normalized modal form, physical modes, the final checks."""
     form = modal_form(model.A, model.B, model.C, model.K, sample_time_s, reference_markov,
-                      criteria=options.modes, stability=stability)
+                      criteria=options.modes, stability=stability, D=model.D)
     for i, mode in enumerate(form.modes):
         mode.id = i
     identified = IdentifiedModel(

@@ -121,6 +121,7 @@ class ModalEstimationParams:
     min_msv: float = _est("min_msv")
     max_nyquist_fraction: float = _est("max_nyquist_fraction")
     min_mpc: float = _est("min_mpc")
+    min_dominance: float = _est("min_dominance")
     min_stable_fraction: float = _est("min_stable_fraction")
     offsets: str = _est("offsets")
     max_frequency_change: float = _est("max_frequency_change")
@@ -153,7 +154,8 @@ class ModalEstimationParams:
             refine=self.refine,
             modes=ModeCriteria(
                 max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
-                min_msv=self.min_msv, min_mpc=self.min_mpc, min_stable_fraction=self.min_stable_fraction,
+                min_msv=self.min_msv, min_mpc=self.min_mpc, min_dominance=self.min_dominance,
+                min_stable_fraction=self.min_stable_fraction,
             ),
         )
 

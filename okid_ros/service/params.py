@@ -212,6 +212,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("modes.min_msv", _MODES.min_msv, "smallest relative modal singular value of a physical mode", "", 0.0, 1.0, field="min_msv", runtime=True),
     ParamSpec("modes.max_nyquist_fraction", _MODES.max_nyquist_fraction, "physical modes lie below this fraction of the Nyquist frequency", "", 0.01, 1.0, field="max_nyquist_fraction", runtime=True),
     ParamSpec("modes.min_mpc", _MODES.min_mpc, "smallest modal phase collinearity of a physical mode (with 3 or more outputs)", "", 0.0, 1.0, field="min_mpc", runtime=True),
+    ParamSpec("modes.min_dominance", _MODES.min_dominance, "smallest share of the model's frequency response at a physical mode's frequency that its pole pair makes up, along its shape (input-output models)", "", 0.0, 1.0, field="min_dominance", runtime=True),
     ParamSpec("modes.min_stable_fraction", _MODES.min_stable_fraction, "a physical mode is found in at least this fraction of the neighbouring model orders (stabilization; 0: off)", "", 0.0, 1.0, field="min_stable_fraction", runtime=True),
     ParamSpec("tracking.max_frequency_change", _MATCH_FREQUENCY, "relative frequency change up to which a mode keeps its id", "", 1e-6, 1.0, field="max_frequency_change", runtime=True),
     ParamSpec("tracking.min_mac", _MATCH_MAC, "smallest MAC of the shapes for a mode to keep its id", "", 0.0, 1.0, field="min_mac", runtime=True),

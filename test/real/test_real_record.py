@@ -55,6 +55,16 @@ def test_reference_modes_are_found_within_half_a_percent(steel):
     assert len(model.modes) <= len(reference) + 5, [round(m.frequency_hz, 2) for m in model.modes]
 
 
+def test_the_whole_record_lists_its_reference_modes_and_nothing_else():
+    """Issue 17: with the defaults, the whole record gives the 15 reference modes, one each."""
+    u, y, dt, reference = load_record()
+    model = identify(u, y, dt)
+    found = sorted(mode.frequency_hz for mode in model.modes)
+    assert len(found) == len(reference), [round(f, 2) for f in found]
+    for f, ref in zip(found, sorted(reference)):
+        assert abs(f - ref) / ref <= 0.005, ([round(f, 2) for f in found], sorted(reference))
+
+
 def test_held_out_one_step_prediction_and_free_run_simulation(steel):
     u, y, _, _, model = steel
     uc, yc = u - model.input_offset, y - model.output_offset
