@@ -274,7 +274,7 @@ def response_dominance(z: np.ndarray, c_psi: np.ndarray, b_chi: np.ndarray, uppe
     ``b_j^T = chi_j B``) at the pair's damped frequency ``w = arg z_i``, seen along the pair's unit
     output shape ``s`` and over the inputs: ``|s^H H_i(w)| / |s^H H(w)|``, ``H_i`` the two terms of
     the pair. A resonance dominates the response at its own frequency (about 1; the weaker mode of
-    a pair 1.6 % apart measured 0.36-0.6, the tail of its neighbour adding to the response); a
+    a pair 1.6 % apart measured 0.37-1.0, the tail of its neighbour adding to the response); a
     broad pole under stronger modes does not. The pair's own shape keeps a close mode of another
     shape out. (The output-only selection has its covariance-model counterpart,
     :func:`okid_ros.core.output_only_support.spectral_dominance`.)

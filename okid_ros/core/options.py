@@ -53,7 +53,7 @@ class ModeCriteria:
         (:func:`okid_ros.core.modal.response_dominance`). A pole pair that does not stand out of
         the response at its own frequency models no resonance of its own: broad poles that fit
         noise or nonlinearity under stronger modes. Measured (docs/benchmarks-realization.md):
-        the true modes of the simulated cases 0.36-1.0 (the lowest: the weaker mode of a pair
+        the true modes of the simulated cases 0.37-1.0 (the lowest: the weaker mode of a pair
         1.6 % apart), the two spurious modes of the whole steel-subframe record 0.08 and 0.04.
     stability_frequency : relative frequency change within which a pole of a neighbouring
         model order is "the same pole" (stabilization diagram, first criterion).
