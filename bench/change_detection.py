@@ -24,6 +24,13 @@ Parts:
   at 250 Hz) per system and seed; after an alarm the detector is re-armed with the same model,
   so every alarm is counted. In `track` the reference model stays the same once the window is
   full (it is only replaced by models of twice as many rows), so this is what `track` sees.
+- ``jump``: the state-jump test (``okid_ros/core/state_jump.py``) on each system and seed: the
+  record looped back on itself 3000 samples after the arming (a seam: the state jumps, the
+  structure does not change) and every change size of ``delay``; the reference model's whitened
+  innovations from 5 samples before the seam or change, ``--jump-lengths`` samples of them, fitted
+  by a jump of the state: power before -> after over the calibration's (first 1000 samples), and
+  whether the test takes it for a jump (``*``). The steel subframe looped (a model of samples
+  0-5999, ARX order 20) closes the table.
 - ``calibration``: the detector alone on white unit innovations (2 outputs), calibrated on
   200 or 1000 samples: runs with an alarm within 20 000 samples, with the threshold of an exact
   calibration against the one that allows for the calibration's error (the default), 300 runs each.
@@ -36,7 +43,8 @@ import os
 import sys
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-_parser.add_argument("--part", nargs="+", choices=("track", "delay", "stationary", "calibration", "short-reference"),
+_parser.add_argument("--part", nargs="+",
+                     choices=("track", "delay", "stationary", "jump", "calibration", "short-reference"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -52,6 +60,11 @@ _parser.add_argument("--false-alarm-samples", type=float, default=None,
 _parser.add_argument("--no-model-error-check", dest="model_error_check", action="store_false",
                      help="delay and stationary parts: every alarm of the power test declared (the test before "
                      "the model-error check)")
+_parser.add_argument("--no-state-jump-test", dest="state_jump_test", action="store_false",
+                     help="delay and stationary parts: no state-jump judgement of confirmed alarms (the test "
+                     "before it)")
+_parser.add_argument("--jump-lengths", type=int, nargs="+", default=[90, 100, 150],
+                     help="jump part: samples fitted from 5 before the seam or change (default 90 100 150)")
 _parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
 _parser.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1)")
 _args = _parser.parse_args()
@@ -66,14 +79,17 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import numpy as np  # noqa: E402
+
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from okid_bench.changes import change_case  # noqa: E402
 from okid_bench.switching import settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
-from okid_ros.core.change_detection import ChangeDetector  # noqa: E402
+from okid_ros.core.change_detection import ChangeDetector, whitening_matrix  # noqa: E402
 from okid_ros.core.change_monitor import StructuralChangeMonitor  # noqa: E402
-from okid_ros.core.pipeline import identify_from_arx  # noqa: E402
+from okid_ros.core.pipeline import identify, identify_from_arx  # noqa: E402
+from okid_ros.core.state_jump import StateJumpTest  # noqa: E402
 from okid_ros.core.statespace import InnovationPredictor  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402
 
@@ -81,6 +97,7 @@ from okid_ros.records import save_record  # noqa: E402
 warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"okid_ros\.core\.refine")
 
 ORDER, WINDOW, EVERY, TOLERANCE = 100, 4000, 250, 0.005
+REAL_RECORD = Path(__file__).resolve().parents[2] / "shared/data/real/daisy-steel-subframe/steel_subframe.npz"
 FIRST = WINDOW + ORDER - 1
 CHANGE = FIRST + 6 * EVERY - 1
 AFTER = 4500
@@ -152,7 +169,8 @@ def armed(model, u_window, y_window) -> StructuralChangeMonitor:
         options["variance_ratio"] = _args.variance_ratio
     if _args.false_alarm_samples is not None:
         options["false_alarm_samples"] = _args.false_alarm_samples
-    monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check, **options)
+    monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check,
+                                      state_jump_test=_args.state_jump_test, **options)
     monitor.arm(model, warm.x, reference_rows=WINDOW)
     return monitor
 
@@ -229,8 +247,48 @@ def part_stationary() -> None:
     print()
 
 
+def _jump_row(label: str, model, u, y, start: int, onset: int) -> str:
+    """One row of the jump part: the fit's power before -> after at each length, ``*`` if a jump."""
+    predictor, whiten = InnovationPredictor(model), whitening_matrix(model.innovation_covariance)
+    z = predictor.run(u, y) @ whiten.T
+    baseline = float(np.mean(z[start:start + 1000] ** 2))
+    test = StateJumpTest(predictor.F, whiten @ predictor.C)
+    cells = []
+    for length in _args.jump_lengths:
+        jump = test.judge(z[onset - 5:onset - 5 + length], onset - 5, baseline_power=baseline)
+        cells.append("too few" if jump is None else
+                     f"{jump.power_before:.2f} -> {jump.power_after:.2f}{' *' if jump.explained else ''}")
+    return f"| {label} | {model.n_states} | {baseline:.2f} | " + " | ".join(cells) + " |"
+
+
+def part_jump() -> None:
+    print("## jump: a jump of the state fitted to the excursion; power over the calibration's, before -> after "
+          "(* taken for a jump)")
+    print()
+    print("| record | states | calibration power | " + " | ".join(f"{n} samples" for n in _args.jump_lengths) + " |")
+    print("|---|---|---|" + "---|" * len(_args.jump_lengths))
+    start = WINDOW + ORDER
+    change = start + 3000
+    for kind, sizes in DELAY_SIZES.items():
+        for seed in _args.seeds:
+            u, y = change_case(kind, sizes[0]).simulate(change + 2000, change, seed)
+            model = reference_model(change_case(kind, sizes[0]), u, y)
+            looped_u, looped_y = u.copy(), y.copy()
+            rest = len(u) - change
+            looped_u[change:], looped_y[change:] = u[start + 200:start + 200 + rest], y[start + 200:start + 200 + rest]
+            print(_jump_row(f"{kind} seed {seed}: seam", model, looped_u, looped_y, start, change))
+            for size in sizes:
+                u, y = change_case(kind, size).simulate(change + 2000, change, seed)
+                print(_jump_row(f"{kind} seed {seed}: {size:g}", model, u, y, start, change))
+            sys.stdout.flush()
+    record = np.load(REAL_RECORD)
+    u, y, dt = record["u"], record["y"], float(record["sample_time_s"])
+    model = identify(u[:6000], y[:6000], dt, order=20)
+    print(_jump_row("steel subframe, looped", model, np.vstack([u, u]), np.vstack([y, y]), 6000, len(u)))
+    print()
+
+
 def part_calibration(runs: int = 300, samples: int = 20_000, n_outputs: int = 2) -> None:
-    import numpy as np
 
     print(f"## calibration: runs of white innovations ({n_outputs} outputs) with an alarm within {samples} "
           f"samples, of {runs} (expected at the default 1e7 samples between false alarms: "
@@ -254,7 +312,6 @@ def part_calibration(runs: int = 300, samples: int = 20_000, n_outputs: int = 2)
 
 
 def part_short_reference(samples: int = 20_000) -> None:
-    import numpy as np
 
     from okid_ros.core.pipeline import identify
     from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -300,7 +357,7 @@ def part_short_reference(samples: int = 20_000) -> None:
 
 def main() -> int:
     for part in _args.part:
-        {"track": part_track, "delay": part_delay, "stationary": part_stationary,
+        {"track": part_track, "delay": part_delay, "stationary": part_stationary, "jump": part_jump,
          "calibration": part_calibration, "short-reference": part_short_reference}[part]()
     return 0
 

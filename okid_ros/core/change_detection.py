@@ -72,6 +72,16 @@ declared only when the residuals of its excursion carry a model error: a part th
 and residuals predict beyond what the calibration's did. Otherwise it is counted
 (``unconfirmed_alarms``), the CUSUM goes on, and the excursion is judged again later.
 
+A jump of the state raises the power too, and the model-error check confirms it (an impact,
+a bag replayed in a loop: the decaying mismatch is predictable from its own lags), but it is
+not a change: the excursion is the free response of the reference predictor to the jump. With
+a ``jump_test`` attached (the monitor attaches a
+:class:`~okid_ros.core.state_jump.StateJumpTest`), a confirmed alarm is judged as a state jump
+before it is declared; an excursion that a jump explains ends there (the statistic returns to
+0, the tracked mean takes the fit's constant, the whitening's lags refill), it is counted
+(``state_jumps``) and the caller corrects its predictor (``jump_at``). The judgement waits for
+enough samples of the excursion (``StateJumpTest.needed_samples``, up to 24 more).
+
 The change point estimate is the sample after the last ``g = 0``
 before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of
 samples between false alarms (the average run length under no change, ARL0): it is computed
@@ -85,6 +95,7 @@ No rclpy; numpy and scipy only.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,6 +115,7 @@ from okid_ros.core.innovation_whitening import (
     InnovationWhitening,
 )
 from okid_ros.core.model_error_check import ModelErrorCheck, ModelErrorVerdict
+from okid_ros.core.state_jump import StateJump
 
 __all__ = [
     "DEFAULT_FALSE_ALARM_SAMPLES",
@@ -207,6 +219,12 @@ class ChangeDetector:
         given the tested residuals, the caller gives it the inputs.
     last_verdict : the check's judgement of the last alarm, if any.
     unconfirmed_alarms : excursions whose alarm the check did not confirm, since construction.
+    jump_test : ``(change_index, alarm_index) -> StateJump | None`` judging a confirmed alarm's
+        excursion as a state jump before it is declared (None: no such judgement); None from
+        it: not yet (too few samples).
+    state_jumps : excursions explained as a state jump, since construction.
+    jump_at : the sample of the last explained excursion's alarm, until the caller takes it
+        (sets it to None) and corrects its predictor by ``last_jump``.
     """
 
     def __init__(self, n_outputs: int, *, false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES,
@@ -233,7 +251,9 @@ class ChangeDetector:
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.check: ModelErrorCheck | None = None
+        self.jump_test: Callable[[int, int], StateJump | None] | None = None
         self.unconfirmed_alarms = 0
+        self.state_jumps = 0
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
@@ -271,6 +291,9 @@ class ChangeDetector:
         self._tracked_count = 0
         self.whitening = InnovationWhitening(self.n_outputs)
         self.last_verdict: ModelErrorVerdict | None = None
+        self.last_jump: StateJump | None = None
+        self.jump_at: int | None = None
+        self._awaiting_jump = False  # the check confirmed this excursion; the state-jump test has not judged it
         self._judge_from = -1  # no judgement of this excursion before this sample (-1: none refused yet)
 
     @property
@@ -355,6 +378,9 @@ class ChangeDetector:
             alarm = self._add(float(nis[k]), first_index + start + k)
             if alarm is not None:
                 return alarm
+            if self.jump_at is not None:  # the rest of the block is the caller's to correct and feed again
+                self._forget_jump()
+                return None
         return None
 
     def push(self, z: np.ndarray, index: int) -> ChangeAlarm | None:
@@ -372,16 +398,16 @@ class ChangeDetector:
         w = self.rewhiten @ (z - self.mean)
         if self.check is not None:
             self.check.push_residuals(index, w[None, :])
-        return self._add(float(w @ w), index)
+        alarm = self._add(float(w @ w), index)
+        if self.jump_at is not None:
+            self._forget_jump()
+        return alarm
 
     def _add(self, nis: float, index: int) -> ChangeAlarm | None:
         """One CUSUM step with the calibrated ``|w|^2`` of sample ``index``."""
         g = self.statistic + self._a * nis - self._b
         if g <= 0.0:
-            self.statistic = 0.0
-            self._last_zero = index
-            self._sum_nis, self._n_nis = 0.0, 0
-            self._judge_from = -1
+            self._end_excursion(index)
             return None
         self.statistic = g
         self._sum_nis += nis
@@ -389,8 +415,37 @@ class ChangeDetector:
         if g > self.threshold and index >= self._judge_from:
             alarm = ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
                                 self._sum_nis / (self._n_nis * self.n_outputs))
-            return alarm if self._confirmed(alarm) else None
+            if not self._awaiting_jump:
+                if not self._confirmed(alarm):
+                    return None
+                if self.jump_test is None:
+                    return alarm
+                self._awaiting_jump = True  # confirmed: declared unless a jump of the state explains it
+            jump = self.jump_test(alarm.change_index, index)
+            if jump is None:  # too few samples of the excursion yet
+                self._judge_from = index + 1
+                return None
+            self._awaiting_jump = False
+            if not jump.explained:
+                return alarm
+            self._end_excursion(index)
+            self.state_jumps += 1
+            self.last_jump, self.jump_at = jump, index
+            return None
         return None
+
+    def _end_excursion(self, index: int) -> None:
+        self.statistic = 0.0
+        self._last_zero = index
+        self._sum_nis, self._n_nis = 0.0, 0
+        self._judge_from = -1
+        self._awaiting_jump = False
+
+    def _forget_jump(self) -> None:
+        """The tracked mean from the jump's fit (offsets may step with it); the whitening's lags refill."""
+        if self.mean_tracking_samples:
+            self._tracked = np.asarray(self.last_jump.offset, dtype=float).copy()
+        self.whitening.gap()
 
     def _confirmed(self, alarm: ChangeAlarm) -> bool:
         """Whether the check confirms the alarm; if not, its excursion is judged again later."""

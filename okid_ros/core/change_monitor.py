@@ -4,7 +4,10 @@
 whitens its innovations by the model's innovation covariance and hands them to a
 :class:`~okid_ros.core.change_detection.ChangeDetector` (the calibrated CUSUM), whose alarms a
 :class:`~okid_ros.core.model_error_check.ModelErrorCheck` of the same residuals and the inputs
-confirms before they are declared. See :mod:`okid_ros.core.change_detection` for the test.
+confirms; a confirmed alarm's excursion is then judged as a jump of the state
+(:mod:`okid_ros.core.state_jump`), and one that a jump explains is not declared: the monitor
+corrects its predictor's state by the fitted jump and goes on. See
+:mod:`okid_ros.core.change_detection` for the test.
 
 No rclpy; numpy and scipy only.
 """
@@ -15,11 +18,13 @@ import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
 from okid_ros.core.model_error_check import ModelErrorCheck
+from okid_ros.core.state_jump import InnovationRing, StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
 
 __all__ = ["StructuralChangeMonitor"]
 
 _CHUNK_SAMPLES = 1024  # samples of a block handed to the detector at a time
+_ONSET_ROOM = 8  # samples before the CUSUM's change point the state-jump fit may start from
 
 
 class StructuralChangeMonitor:
@@ -35,12 +40,18 @@ class StructuralChangeMonitor:
     model_error_check : judge each alarm by a :class:`ModelErrorCheck` of the reference
         model's inputs and residuals before declaring it (an alarm of more noise alone is not a
         change); False: every alarm of the power test is declared.
+    state_jump_test : judge each confirmed alarm by a :class:`StateJumpTest` of the reference
+        predictor before declaring it (a jump of the state is not a change); False: no such
+        judgement.
     detector_options : those of :class:`ChangeDetector`.
     """
 
-    def __init__(self, n_outputs: int, *, model_error_check: bool = True, **detector_options) -> None:
+    def __init__(self, n_outputs: int, *, model_error_check: bool = True, state_jump_test: bool = True,
+                 **detector_options) -> None:
         self.detector = ChangeDetector(n_outputs, **detector_options)
         self.model_error_check = bool(model_error_check)
+        self.state_jump_test = bool(state_jump_test)
+        self._ring = InnovationRing(n_outputs, self.detector.reference_samples + 2 * _CHUNK_SAMPLES)
         self.disarm()
 
     def disarm(self) -> None:
@@ -50,6 +61,10 @@ class StructuralChangeMonitor:
         self._hold = 0
         self.detector.restart()
         self.detector.check = None
+        self.detector.jump_test = None
+        self._jumps: StateJumpTest | None = None
+        self._ring.clear()
+        self._calibration_power = [0.0, 0]  # sum of |z|^2 / p and samples while calibrating
 
     @property
     def armed(self) -> bool:
@@ -78,6 +93,43 @@ class StructuralChangeMonitor:
         self.detector.check = ModelErrorCheck(
             model.C.shape[0], model.B.shape[1], capacity=self.detector.reference_samples + 2 * _CHUNK_SAMPLES,
         ) if self.model_error_check else None
+        self._ring.clear()
+        self._calibration_power = [0.0, 0]
+        self._jumps = StateJumpTest(self.predictor.F, whiten @ self.predictor.C) if self.state_jump_test else None
+        self.detector.jump_test = self._judge_jump if self.state_jump_test else None
+
+    def _judge_jump(self, change_index: int, alarm_index: int) -> StateJump | None:
+        """The detector's ``jump_test``: the excursion's innovations fitted by a jump of the state."""
+        z, first = self._ring.since(change_index - _ONSET_ROOM, alarm_index)
+        total, count = self._calibration_power
+        return self._jumps.judge(z, first, baseline_power=total / max(count, 1))
+
+    def _record(self, first_index: int, z: np.ndarray) -> None:
+        """Keep the innovations for the state-jump fit (and their power while calibrating)."""
+        if self._jumps is None:
+            return
+        self._ring.push(first_index, z)
+        total, count = self._calibration_power
+        if count < self.detector.reference_samples:  # the calibration's samples
+            z = z[:self.detector.reference_samples - count]
+            self._calibration_power = [total + float(np.einsum("ij,ij->", z, z)) / z.shape[1], count + z.shape[0]]
+
+    def _take_jump(self, next_index: int) -> int | None:
+        """After an explained jump: correct the predictor's state for sample ``next_index``.
+
+        Returns the sample of the jump's alarm (None if there was none).
+        """
+        at = self.detector.jump_at
+        if at is None:
+            return None
+        self.detector.jump_at = None
+        self.predictor.x = self.predictor.x + self.detector.last_jump.correction(self.predictor.F, next_index)
+        return at
+
+    @property
+    def state_jumps(self) -> int:
+        """Alarms whose excursion was explained as a jump of the state (not declared)."""
+        return self.detector.state_jumps
 
     def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
         """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).
@@ -105,26 +157,43 @@ class StructuralChangeMonitor:
         if not self.armed or len(u) == 0:
             return None
         e = self.predictor.run(u, y)
+        end = first_index + e.shape[0]  # the predictor's state is that of sample `end`
         if not test:
+            self._record(first_index, self._finite(e @ self.whiten.T))
             self.detector.gap()  # untested samples are a gap to the whitening's lags
             return None
         if self._hold:
             skip = min(self._hold, e.shape[0])
             self._hold -= skip
             e, u, first_index = e[skip:], u[skip:], first_index + skip
-        z = e @ self.whiten.T
-        if not np.all(np.isfinite(z)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(z), axis=1))[0])
-            z = z[:bad]  # a non-finite innovation is the estimator's problem, not a change
+        z = self._finite(e @ self.whiten.T)
         # In chunks, so the check holds a chunk's inputs before the detector judges its samples.
-        for lo in range(0, z.shape[0], _CHUNK_SAMPLES):
+        lo = 0
+        while lo < z.shape[0]:
+            hi = min(lo + _CHUNK_SAMPLES, z.shape[0])
+            self._record(first_index + lo, z[lo:hi])
             if self.detector.check is not None:
-                self.detector.check.push_inputs(first_index + lo, u[lo:lo + _CHUNK_SAMPLES])
-            alarm = self.detector.process(z[lo:lo + _CHUNK_SAMPLES], first_index + lo)
+                self.detector.check.push_inputs(first_index + lo, u[lo:hi])
+            alarm = self.detector.process(z[lo:hi], first_index + lo)
             if alarm is not None:
                 self.disarm()
                 return alarm
+            at = self._take_jump(end)
+            if at is None:
+                lo = hi
+                continue
+            # The samples after the jump's alarm again, less the jump's response.
+            lo = at + 1 - first_index
+            if lo < z.shape[0]:
+                z[lo:] -= self._jumps.response(self.detector.last_jump, at + 1, z.shape[0] - lo)
         return None
+
+    @staticmethod
+    def _finite(z: np.ndarray) -> np.ndarray:
+        """``z`` up to its first non-finite row (the estimator's problem, not a change)."""
+        if np.all(np.isfinite(z)):
+            return z
+        return z[:int(np.flatnonzero(~np.all(np.isfinite(z), axis=1))[0])]
 
     def step(self, u: np.ndarray, y: np.ndarray, index: int, *, test: bool = True) -> ChangeAlarm | None:
         """One sample ``u`` (m,), ``y`` (p,): :meth:`process` without the block overhead."""
@@ -134,17 +203,21 @@ class StructuralChangeMonitor:
         if self._hold:
             self._hold -= 1
             return None
+        z = self.whiten @ e
+        finite = bool(np.all(np.isfinite(z)))
+        if finite:
+            self._record(index, z[None, :])
         if not test:
             self.detector.gap()  # untested samples are a gap to the whitening's lags
             return None
-        z = self.whiten @ e
-        if not np.all(np.isfinite(z)):
+        if not finite:
             return None
         if self.detector.check is not None:
             self.detector.check.push_inputs(index, u[None, :])
         alarm = self.detector.push(z, index)
         if alarm is not None:
             self.disarm()
+        self._take_jump(index + 1)
         return alarm
 
     @property

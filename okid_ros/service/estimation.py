@@ -480,6 +480,7 @@ class ModalEstimationService:
             "estimator_restarts": st.estimator_restarts,
             "diverged_samples": st.diverged_samples,
             "divergence_restarts": st.divergence_restarts,
+            "state_jumps": st.state_jumps,
             **watch,  # the change test's state (service/watch.py)
             "changes_detected": st.changes_detected,
             "last_change_stamp_s": st.last_change_stamp_s,

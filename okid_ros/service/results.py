@@ -187,6 +187,7 @@ class EstimationStats:
     switches_measured: int = 0
     diverged_samples: int = 0
     divergence_restarts: int = 0
+    state_jumps: int = 0  # divergences explained as a jump of the state (estimator corrected, no restart)
     changes_detected: int = 0
     windows_refused_for_change: int = 0
     last_change_stamp_s: float = math.nan

@@ -2,14 +2,16 @@
 
 Divergence watchdog: each innovation is whitened by the model's innovation covariance
 (:class:`okid_ros.core.change_detection.DivergenceMonitor`); a diverged sample (non-finite, or
-the moving mean of the normalized innovation squared far above p) is not published, and
-sustained divergence restarts the estimator from the buffered samples (warm start with the
-model's predictor, diverged samples predicted over).
+the moving mean of the normalized innovation squared far above p) is not published. Sustained
+divergence is first judged as a jump of the state (:mod:`okid_ros.core.state_jump`: an impact,
+a bag replayed in a loop); a jump that explains it corrects the estimator's state, and nothing
+else happens. Otherwise the estimator restarts from the buffered samples (warm start with the
+model's predictor, diverged samples predicted over: a spike).
 
 Structural change: every sample also goes to a
 :class:`okid_ros.core.change_detection.StructuralChangeMonitor` armed with a reference model
 (the first model of a structure, then models of windows twice as long). An alarm, or a
-divergence that comes back right after a restart, declares a
+divergence that comes back right after a restart or a jump's correction, declares a
 :class:`~okid_ros.service.results.StructuralChangeEvent`, which waits (:attr:`InnovationWatch.change`)
 until a model of post-change data is accepted.
 """
@@ -24,12 +26,21 @@ import numpy as np
 from okid_ros.core.change_detection import DivergenceMonitor
 from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.core.state_jump import InnovationRing, StateJump, StateJumpTest
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import advance_state, bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
 from okid_ros.service.sample_buffer import SampleBuffer
 
 __all__ = ["InnovationWatch", "is_new_reference"]
+
+_JUMP_RING_SAMPLES = 512  # the estimator's last whitened innovations, for the state-jump fit
+_ONSET_ROOM = 8  # samples before the first diverged one the state-jump fit may start from
+# Fewest samples of a divergence's state-jump fit (raised to 4 n / p by the test): judged when
+# the divergence is sustained (25 samples by default, with the room before them). Shorter than
+# the change test's: a divergence is 100 times the innovations' power, and what a changed
+# structure leaves after such a fit is far above the test's limit of twice the baseline.
+_DIVERGENCE_JUMP_SAMPLES = 16
 
 
 def is_new_reference(monitor: StructuralChangeMonitor, rows: int) -> bool:
@@ -65,7 +76,9 @@ class InnovationWatch:
         self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
         self.changes = 0
         self.diverged: list[int] = []  # buffer indices of diverged samples since the last restart
-        self.restart_failed = False  # no good sample since the last divergence restart
+        self.restart_failed = False  # no good sample since the last divergence restart or jump
+        self._innovations = InnovationRing(p, _JUMP_RING_SAMPLES)
+        self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
 
     def configure(self, params: ModalEstimationParams) -> None:
         """Take run-time options at once: the divergence ratio and the change test's tuning.
@@ -83,6 +96,7 @@ class InnovationWatch:
     # ------------------------------------------------------------------ per sample
     def gap(self, u_prev: np.ndarray | None, skipped: int) -> None:
         """Samples missing before the next one (or time restarted): the change test's predictor bridges them."""
+        self._innovations.clear()  # the estimator's error is not a free response across a gap
         if self.params.change_detection:
             self.monitor.gap(u_prev, int(skipped), self.params.max_gap_samples)
 
@@ -94,7 +108,9 @@ class InnovationWatch:
         (or None) and, after a restart from the buffer, the last buffered input (else None).
         """
         prm = self.params
-        diverged = self.divergence.check(active.whiten @ innovation)
+        z = active.whiten @ innovation
+        diverged = self.divergence.check(z)
+        self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
         change = None
         if prm.change_detection:
             alarm = self.monitor.step(u, y, index, test=not diverged)
@@ -110,6 +126,16 @@ class InnovationWatch:
             del self.diverged[0]
         u_prev = None
         if self.divergence.sustained:
+            wait, jump = self._state_jump(active, index)
+            if wait:  # too few samples of the excursion to judge yet
+                return True, change, None
+            if jump is not None and jump.explained:
+                active.estimator.set_state(active.estimator.state + jump.correction(self._jump_test[1].F, index + 1))
+                self.diverged.clear()
+                self.divergence.restart()
+                self._stats.state_jumps += 1
+                self.restart_failed = True  # diverging again at once: not a jump after all
+                return True, change, None
             if self.restart_failed and prm.change_detection and self.change is None:
                 # Diverged again right after a restart: the model no longer fits at all.
                 ratio = self.divergence.nis_ratio_now
@@ -119,6 +145,25 @@ class InnovationWatch:
             u_prev = self._restart_from_buffer(active, index)
             self.restart_failed = True
         return True, change, u_prev
+
+    def _state_jump(self, active: ActiveModel, index: int) -> tuple[bool, StateJump | None]:
+        """The diverged samples' innovations fitted by a jump of the estimator's state.
+
+        Returns ``(wait, jump)``: wait while there are too few of them; no jump when a restart or
+        a correction has just failed (the divergence came back) or the innovations are not held.
+        """
+        if self._jump_test is None or self._jump_test[0] != active.model_id:
+            F = active.model.predictor()[0]
+            self._jump_test = (active.model_id, StateJumpTest(F, active.whiten @ active.model.C,
+                                                              min_samples=_DIVERGENCE_JUMP_SAMPLES))
+        test = self._jump_test[1]
+        if self.restart_failed:
+            return False, None
+        run = self.divergence.consecutive  # the diverged samples in a row up to this one
+        z, first = self._innovations.since(index - run + 1 - _ONSET_ROOM, index)
+        if z.shape[0] < test.needed_samples and run < test.needed_samples:
+            return True, None
+        return False, test.judge(z, first)
 
     def declare(self, active: ActiveModel, stamp_s: float, index: int, change_index: int, *, statistic: float,
                 threshold: float, variance_ratio: float) -> StructuralChangeEvent:
@@ -149,6 +194,7 @@ class InnovationWatch:
         It becomes the change test's reference by :func:`is_new_reference`.
         """
         self.divergence.restart()
+        self._innovations.clear()
         if self.params.change_detection and is_new_reference(self.monitor, rows):
             self.monitor.arm(model, state, reference_rows=rows)
 
@@ -194,5 +240,6 @@ class InnovationWatch:
             "change_statistic": float(self.monitor.statistic),
             "change_threshold": float(self.monitor.threshold),
             "change_alarms_unconfirmed": int(self.monitor.unconfirmed_alarms),
+            "change_alarms_state_jump": int(self.monitor.state_jumps),
             "change_waiting_for_model": self.change is not None,
         }

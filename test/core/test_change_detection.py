@@ -310,12 +310,13 @@ def _short_window_references(seeds):
 
 def test_references_that_miss_a_mode_keep_the_false_alarm_rate():
     # 20000 stationary samples per reference, 1e7 expected between false alarms: 0.06 alarms
-    # expected over 30 references. Without the whitening AR several of them alarm.
+    # expected over 30 references. Without the whitening AR several of them alarm. (The
+    # state-jump test, which explains some of those excursions too, is off: the AR alone.)
     plain = whitened = 0
     orders = []
     for model, state, u, y in _short_window_references(range(30)):
         for options in ({"whitening_max_order": 0}, {}):
-            monitor = StructuralChangeMonitor(2, **options)
+            monitor = StructuralChangeMonitor(2, state_jump_test=False, **options)
             monitor.arm(model, state)
             alarm = monitor.process(u, y, 0)
             if options:
