@@ -27,7 +27,8 @@ Parts:
 - ``jump``: the state-jump test (``okid_ros/core/state_jump.py``) on each system and seed: the
   record looped back on itself 3000 samples after the arming (a seam: the state jumps, the
   structure does not change) and every change size of ``delay``; the reference model's whitened
-  innovations from 5 samples before the seam or change, ``--jump-lengths`` samples of them, fitted
+  innovations from 5 samples before the seam or change (its first loud sample searched over the
+  first judgement's samples), ``--jump-lengths`` samples of them, fitted
   by a jump of the state: power before -> after over the calibration's (first 1000 samples), and
   whether the test takes it for a jump (``*``). The steel subframe looped (a model of samples
   0-5999, ARX order 20) closes the table.
@@ -254,8 +255,9 @@ def _jump_row(label: str, model, u, y, start: int, onset: int) -> str:
     baseline = float(np.mean(z[start:start + 1000] ** 2))
     test = StateJumpTest(predictor.F, whiten @ predictor.C)
     cells = []
-    for length in _args.jump_lengths:
-        jump = test.judge(z[onset - 5:onset - 5 + length], onset - 5, baseline_power=baseline)
+    for length in _args.jump_lengths:  # loud samples searched up to the first judgement's end, as the detector's
+        jump = test.judge(z[onset - 5:onset - 5 + length], onset - 5, baseline_power=baseline,
+                          loud_until=onset - 5 + test.needed_samples - 1)
         cells.append("too few" if jump is None else
                      f"{jump.power_before:.2f} -> {jump.power_after:.2f}{' *' if jump.explained else ''}")
     return f"| {label} | {model.n_states} | {baseline:.2f} | " + " | ".join(cells) + " |"

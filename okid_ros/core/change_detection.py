@@ -80,7 +80,7 @@ a ``jump_test`` attached (the monitor attaches a
 before it is declared; an excursion that a jump explains ends there (the statistic returns to
 0, the tracked mean takes the fit's constant, the whitening's lags refill), it is counted
 (``state_jumps``) and the caller corrects its predictor (``jump_at``). The judgement waits for
-enough samples of the excursion (``StateJumpTest.needed_samples``, up to 24 more).
+enough samples after the excursion's first loud sample (``StateJumpTest.needed_samples``).
 
 The change point estimate is the sample after the last ``g = 0``
 before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of
@@ -219,8 +219,9 @@ class ChangeDetector:
         given the tested residuals, the caller gives it the inputs.
     last_verdict : the check's judgement of the last alarm, if any.
     unconfirmed_alarms : excursions whose alarm the check did not confirm, since construction.
-    jump_test : ``(change_index, alarm_index) -> StateJump | None`` judging a confirmed alarm's
-        excursion as a state jump before it is declared (None: no such judgement); None from
+    jump_test : ``(change_index, alarm_index, index) -> StateJump | None`` judging at sample
+        ``index`` the excursion from ``change_index`` whose alarm at ``alarm_index`` the check
+        confirmed, as a state jump, before it is declared (None: no such judgement); None from
         it: not yet (too few samples).
     state_jumps : excursions explained as a state jump, since construction.
     jump_at : the sample of the last explained excursion's alarm, until the caller takes it
@@ -251,7 +252,7 @@ class ChangeDetector:
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.check: ModelErrorCheck | None = None
-        self.jump_test: Callable[[int, int], StateJump | None] | None = None
+        self.jump_test: Callable[[int, int, int], StateJump | None] | None = None
         self.unconfirmed_alarms = 0
         self.state_jumps = 0
         self.restart()
@@ -293,7 +294,7 @@ class ChangeDetector:
         self.last_verdict: ModelErrorVerdict | None = None
         self.last_jump: StateJump | None = None
         self.jump_at: int | None = None
-        self._awaiting_jump = False  # the check confirmed this excursion; the state-jump test has not judged it
+        self._confirmed_at = -1  # the sample whose alarm the check confirmed, awaiting the state-jump test
         self._judge_from = -1  # no judgement of this excursion before this sample (-1: none refused yet)
 
     @property
@@ -415,17 +416,17 @@ class ChangeDetector:
         if g > self.threshold and index >= self._judge_from:
             alarm = ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
                                 self._sum_nis / (self._n_nis * self.n_outputs))
-            if not self._awaiting_jump:
+            if self._confirmed_at < 0:
                 if not self._confirmed(alarm):
                     return None
                 if self.jump_test is None:
                     return alarm
-                self._awaiting_jump = True  # confirmed: declared unless a jump of the state explains it
-            jump = self.jump_test(alarm.change_index, index)
+                self._confirmed_at = index  # declared unless a jump of the state explains it
+            jump = self.jump_test(alarm.change_index, self._confirmed_at, index)
             if jump is None:  # too few samples of the excursion yet
                 self._judge_from = index + 1
                 return None
-            self._awaiting_jump = False
+            self._confirmed_at = -1
             if not jump.explained:
                 return alarm
             self._end_excursion(index)
@@ -439,7 +440,7 @@ class ChangeDetector:
         self._last_zero = index
         self._sum_nis, self._n_nis = 0.0, 0
         self._judge_from = -1
-        self._awaiting_jump = False
+        self._confirmed_at = -1
 
     def _forget_jump(self) -> None:
         """The tracked mean from the jump's fit (offsets may step with it); the whitening's lags refill."""

@@ -98,11 +98,11 @@ class StructuralChangeMonitor:
         self._jumps = StateJumpTest(self.predictor.F, whiten @ self.predictor.C) if self.state_jump_test else None
         self.detector.jump_test = self._judge_jump if self.state_jump_test else None
 
-    def _judge_jump(self, change_index: int, alarm_index: int) -> StateJump | None:
+    def _judge_jump(self, change_index: int, alarm_index: int, index: int) -> StateJump | None:
         """The detector's ``jump_test``: the excursion's innovations fitted by a jump of the state."""
-        z, first = self._ring.since(change_index - _ONSET_ROOM, alarm_index)
+        z, first = self._ring.since(change_index - _ONSET_ROOM, index)
         total, count = self._calibration_power
-        return self._jumps.judge(z, first, baseline_power=total / max(count, 1))
+        return self._jumps.judge(z, first, baseline_power=total / max(count, 1), loud_until=alarm_index)
 
     def _record(self, first_index: int, z: np.ndarray) -> None:
         """Keep the innovations for the state-jump fit (and their power while calibrating)."""

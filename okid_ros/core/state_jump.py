@@ -30,11 +30,11 @@ check) and what remains is a small part of the excess there was and below ``min_
 with ``L >= min_samples`` (50, and several times ``n / p``: over fewer samples the free response
 of ``n`` states follows the first samples of a change, whose innovations grow slowly). Any
 ``theta`` at or after the true onset fits (the error at ``theta`` is again a state), so the onset
-is searched over ``ONSET_CANDIDATES`` samples around the first loud one among the excursion's
-first 32 (``|z|^2 / b`` above the 1e-4 quantile of white innovations; from the first sample if
-none is) and the best fit taken; not further: a jump's excursion starts with its largest
-innovations, and a fit that may start anywhere finds a stretch that a free response follows in
-the tail of any excursion.
+is searched over ``ONSET_CANDIDATES`` samples around the excursion's first loud one up to its
+alarm (``|z|^2 / b`` above the 1e-4 quantile of white innovations; from the first sample if none
+is: the CUSUM's change point may lie tens of samples before a jump) and the best fit taken;
+not anywhere: a jump's excursion starts with its largest innovations, and a fit that may start
+anywhere finds a stretch that a free response follows in the tail of any excursion.
 
 Measured (``bench/change_detection.py --part jump --seeds 0 1 2``, docs/benchmarks-change.md):
 the change bench's systems looped back on themselves leave 0.91-1.10 of the baseline (out of
@@ -71,7 +71,6 @@ DEFAULT_MIN_JUMP_SAMPLES = 50  # fewest samples fitted (and at least 4 n / p)
 DEFAULT_MIN_JUMP_POWER = 2.0  # excursions below twice the baseline power are not judged as jumps
 ONSET_CANDIDATES = 16  # onsets tried, around the excursion's first loud sample
 _LOUD_PROBABILITY = 1e-4  # a sample whose |z|^2 a white innovation exceeds this rarely is loud
-_LOUD_SEARCH = 32  # samples searched for the first loud one (the judgement waits at most this much longer)
 
 
 @dataclass(frozen=True)
@@ -125,7 +124,7 @@ class StateJumpTest:
     Attributes
     ----------
     needed_samples : samples from the onsets' first on that a judgement needs (the fit's and
-        room for the onset search); the onsets start up to 24 samples into the excursion.
+        room for the onset search).
     max_samples : most samples fitted from an onset (4 ``min_samples``).
     """
 
@@ -148,10 +147,13 @@ class StateJumpTest:
             self._responses = jump_responses(self.F, self.C_whitened, max(samples, 2 * self._responses.shape[0]))
         return self._responses[:samples]
 
-    def judge(self, z: np.ndarray, first_index: int, *, baseline_power: float = 1.0) -> StateJump | None:
+    def judge(self, z: np.ndarray, first_index: int, *, baseline_power: float = 1.0,
+              loud_until: int | None = None) -> StateJump | None:
         """Fit a jump to whitened innovations ``z`` (L, p) of samples ``first_index ..``.
 
         ``baseline_power``: the mean ``|z|^2 / p`` of the calibration (1 for an exact model).
+        ``loud_until``: the last sample searched for the excursion's first loud one (the alarm's:
+        a judgement that waits for samples keeps its onsets); None: every sample of ``z``.
         Only the first ``max_samples`` from each onset are fitted (a jump's response has decayed
         or been fitted by then). Returns None when there are fewer than ``needed_samples``; a
         baseline that is not positive or innovations that are not finite are no jump.
@@ -163,7 +165,7 @@ class StateJumpTest:
                              math.nan, False)
         # The onsets tried surround the first sample far above the baseline (a jump's largest
         # innovations come first; where the excursion began is not known to the sample).
-        head = z[:_LOUD_SEARCH]
+        head = z if loud_until is None else z[:max(int(loud_until) - int(first_index) + 1, 0)]
         loud = np.flatnonzero(np.einsum("kp,kp->k", head, head) > self._loud * baseline_power)
         lo = max(int(loud[0]) - ONSET_CANDIDATES // 2, 0) if loud.size else 0
         z, first_index = z[lo:lo + self.max_samples + ONSET_CANDIDATES - 1], first_index + lo
