@@ -80,7 +80,7 @@ a ``jump_test`` attached (the monitor attaches a
 before it is declared; an excursion that a jump explains ends there (the statistic returns to
 0, the tracked mean takes the fit's constant, the whitening's lags refill), it is counted
 (``state_jumps``) and the caller corrects its predictor (``jump_at``). The judgement waits for
-enough samples after the excursion's first loud sample (``StateJumpTest.needed_samples``).
+enough samples after the excursion's loud samples begin (``StateJumpTest.needed_samples``).
 
 The change point estimate is the sample after the last ``g = 0``
 before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of

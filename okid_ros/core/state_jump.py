@@ -30,9 +30,11 @@ check) and what remains is a small part of the excess there was and below ``min_
 with ``L >= min_samples`` (50, and several times ``n / p``: over fewer samples the free response
 of ``n`` states follows the first samples of a change, whose innovations grow slowly). Any
 ``theta`` at or after the true onset fits (the error at ``theta`` is again a state), so the onset
-is searched over ``ONSET_CANDIDATES`` samples around the excursion's first loud one up to its
-alarm (``|z|^2 / b`` above the 1e-4 quantile of white innovations; from the first sample if none
-is: the CUSUM's change point may lie tens of samples before a jump) and the best fit taken;
+is searched over ``ONSET_CANDIDATES`` samples around where the excursion's loud samples (``|z|^2
+/ b`` above the 1e-4 quantile of white innovations) up to its alarm begin: the run of them
+around the loudest one if that is ten times the level (the CUSUM's change point may lie tens or
+thousands of samples before a jump, in a noisier stretch), else the first one, else the first
+sample; the best fit is taken;
 not anywhere: a jump's excursion starts with its largest innovations, and a fit that may start
 anywhere finds a stretch that a free response follows in the tail of any excursion.
 
@@ -69,8 +71,9 @@ __all__ = [
 DEFAULT_MAX_REMAINING = 0.1  # part of the excess power a state jump may leave unexplained
 DEFAULT_MIN_JUMP_SAMPLES = 50  # fewest samples fitted (and at least 4 n / p)
 DEFAULT_MIN_JUMP_POWER = 2.0  # excursions below twice the baseline power are not judged as jumps
-ONSET_CANDIDATES = 16  # onsets tried, around the excursion's first loud sample
+ONSET_CANDIDATES = 16  # onsets tried, around where the excursion's loud samples begin
 _LOUD_PROBABILITY = 1e-4  # a sample whose |z|^2 a white innovation exceeds this rarely is loud
+_JUMP_LOUDNESS = 10.0  # a sample this many times the loud level marks where a jump's response begins
 
 
 @dataclass(frozen=True)
@@ -152,7 +155,7 @@ class StateJumpTest:
         """Fit a jump to whitened innovations ``z`` (L, p) of samples ``first_index ..``.
 
         ``baseline_power``: the mean ``|z|^2 / p`` of the calibration (1 for an exact model).
-        ``loud_until``: the last sample searched for the excursion's first loud one (the alarm's:
+        ``loud_until``: the last sample searched for the excursion's loud ones (the alarm's:
         a judgement that waits for samples keeps its onsets); None: every sample of ``z``.
         Only the first ``max_samples`` from each onset are fitted (a jump's response has decayed
         or been fitted by then). Returns None when there are fewer than ``needed_samples``; a
@@ -166,8 +169,8 @@ class StateJumpTest:
         # The onsets tried surround the first sample far above the baseline (a jump's largest
         # innovations come first; where the excursion began is not known to the sample).
         head = z if loud_until is None else z[:max(int(loud_until) - int(first_index) + 1, 0)]
-        loud = np.flatnonzero(np.einsum("kp,kp->k", head, head) > self._loud * baseline_power)
-        lo = max(int(loud[0]) - ONSET_CANDIDATES // 2, 0) if loud.size else 0
+        lo = max(self._loud_start(np.einsum("kp,kp->k", head, head) / (self._loud * baseline_power))
+                 - ONSET_CANDIDATES // 2, 0)
         z, first_index = z[lo:lo + self.max_samples + ONSET_CANDIDATES - 1], first_index + lo
         L = z.shape[0]
         if L < self.needed_samples:
@@ -202,6 +205,24 @@ class StateJumpTest:
                      and after - 1.0 <= self.max_remaining * (before - 1.0))
         return StateJump(first_index + offset, first_index + offset + samples - 1, solution[:n], solution[n:],
                          before, after, bool(explained))
+
+    @staticmethod
+    def _loud_start(loudness: np.ndarray) -> int:
+        """Where the excursion's jump would start: ``loudness`` (L,) is ``|z|^2`` over the loud level.
+
+        The start of the run of loud samples around the loudest one when that is far above the
+        level (a jump's first innovations; an excursion may have begun long before, in a noisier
+        stretch), else the first loud sample (a change grows: its first loud samples are as good
+        as any), else the first sample.
+        """
+        loud = np.flatnonzero(loudness > 1.0)
+        if not loud.size:
+            return 0
+        peak = int(np.argmax(loudness))
+        if loudness[peak] < _JUMP_LOUDNESS:
+            return int(loud[0])
+        quiet = np.flatnonzero(np.diff(loud[loud <= peak]) > ONSET_CANDIDATES // 2)  # gaps between runs
+        return int(loud[loud <= peak][quiet[-1] + 1]) if quiet.size else int(loud[0])
 
     def response(self, jump: StateJump, first_index: int, samples: int) -> np.ndarray:
         """(samples, p) the jump's whitened response at samples ``first_index ..`` (>= its onset)."""

@@ -137,3 +137,15 @@ def test_the_ring_returns_the_run_of_samples_up_to_the_last():
     ring.push(13, np.arange(40.0).reshape(20, 2))  # more than it holds: the newest 8
     z, first = ring.since(0, 32)
     assert first == 25 and z.shape == (8, 2)
+
+
+def test_a_seam_after_a_noisier_stretch_of_the_same_excursion_is_found(structure):
+    # The CUSUM's excursion may have begun long before the jump, in a noisier stretch that the
+    # model-error check refused: the onsets are sought where the loudest samples begin.
+    model, (u, y), _ = structure
+    z, test = _whitened(model, *_looped(u, y))
+    baseline = float(np.mean(z[START:START + 1000] ** 2))
+    z[CHANGE - 600:CHANGE - 400] *= 2.0  # four times the power for 200 samples
+    start = CHANGE - 700
+    jump = test.judge(z[start:CHANGE + 100], start, baseline_power=baseline, loud_until=CHANGE + 10)
+    assert jump.explained and jump.onset_index >= CHANGE, jump
