@@ -1,6 +1,6 @@
 """Structural change: detection delay, re-identification time and false alarms (issue 13).
 
-Run:  python bench/change_detection.py [--part track delay stationary calibration] [--seeds 0] [--threads 1]
+Run:  python bench/change_detection.py [--part track delay stationary jump calibration] [--seeds 0] [--threads 1]
 
 Systems: ``okid_bench.changes`` (250 Hz, 2 inputs, 3 accelerometers, 5 % sensor noise,
 disturbance forces): a 4-mode structure whose frequencies drop by 6 % or 2 % or whose damping
