@@ -28,10 +28,11 @@ Settings and why:
 - `change.enabled: false`: the record is one stationary test, but the change test still
   declares a "structural change" on it now and then: the seams between passes are taken for
   jumps of the state since the eighth session, but with some reference models the noisier
-  stretch 4.35 s into the record is confirmed by the model-error check (2 of about 20 runs with
-  the test on, each at 4.35 s, none at a seam); each false alarm restarts node 1's window and
-  makes node 2 refuse models until a post-change window is valid, which would make the number
-  and timing of the live models depend on that rather than on the live path under test.
+  stretch 4.35 s into the record is confirmed by the model-error check (seen in runs of this
+  test with the change test on; docs/benchmarks-change.md); each false alarm restarts node 1's
+  window and makes node 2 refuse models until a post-change window is valid, which would make
+  the number and timing of the live models depend on that rather than on the live path under
+  test.
 - `qos_overrides./okid/modal_states.publisher.depth: 20000` on node 2 (the standard ROS QoS
   override; the node's default history is 100): after a stall node 2 drains its input queue
   and publishes the backlog's ModalStates in a burst, faster than this test's Python
