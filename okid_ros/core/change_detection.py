@@ -445,7 +445,7 @@ class ChangeDetector:
     def _forget_jump(self) -> None:
         """The tracked mean from the jump's fit (offsets may step with it); the whitening's lags refill."""
         if self.mean_tracking_samples:
-            self._tracked = np.asarray(self.last_jump.offset, dtype=float).copy()
+            self._tracked = self.last_jump.offset.copy()
         self.whitening.gap()
 
     def _confirmed(self, alarm: ChangeAlarm) -> bool:

@@ -18,7 +18,8 @@ import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
 from okid_ros.core.model_error_check import ModelErrorCheck
-from okid_ros.core.state_jump import InnovationRing, StateJump, StateJumpTest
+from okid_ros.core.sample_ring import SampleRing
+from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
 
 __all__ = ["StructuralChangeMonitor"]
@@ -51,7 +52,7 @@ class StructuralChangeMonitor:
         self.detector = ChangeDetector(n_outputs, **detector_options)
         self.model_error_check = bool(model_error_check)
         self.state_jump_test = bool(state_jump_test)
-        self._ring = InnovationRing(n_outputs, self.detector.reference_samples + 2 * _CHUNK_SAMPLES)
+        self._ring = SampleRing(n_outputs, self.detector.reference_samples + 2 * _CHUNK_SAMPLES)
         self.disarm()
 
     def disarm(self) -> None:

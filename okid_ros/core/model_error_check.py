@@ -48,6 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from okid_ros.core.sample_ring import SampleRing
+
 __all__ = [
     "DEFAULT_CHECK_LAGS",
     "DEFAULT_MIN_EXCESS",
@@ -143,43 +145,25 @@ class ModelErrorCheck:
         self.min_excess = float(min_excess)
         self.z = float(stats.norm.isf(false_confirmation))
         self.capacity = max(_CAPACITY_ROWS, 2 * (self.min_samples + self.lags), int(capacity))
-        # Rings addressed by sample index (slot = index % capacity); the index held names a slot's sample.
-        self._w = np.zeros((self.capacity, self.n_outputs))
-        self._u = np.zeros((self.capacity, self.n_inputs))
-        self._w_index = np.full(self.capacity, -1, dtype=np.int64)
-        self._u_index = np.full(self.capacity, -1, dtype=np.int64)
+        self._w = SampleRing(self.n_outputs, self.capacity)
+        self._u = SampleRing(self.n_inputs, self.capacity)
         self.baseline: float | None = None
         self._baseline_rows = 0
 
     def push_inputs(self, first_index: int, u: np.ndarray) -> None:
         """Inputs ``u`` (N, m) of samples ``first_index ..``."""
-        self._store(self._u, self._u_index, first_index, u)
+        self._u.push(first_index, u)
 
     def push_residuals(self, first_index: int, w: np.ndarray) -> None:
         """Tested residuals ``w`` (N, p) of samples ``first_index ..``."""
-        self._store(self._w, self._w_index, first_index, w)
-
-    def _store(self, ring: np.ndarray, held: np.ndarray, first_index: int, values: np.ndarray) -> None:
-        n = values.shape[0]
-        if n == 1:  # the per-sample path
-            slot = first_index % self.capacity
-            ring[slot], held[slot] = values[0], first_index
-            return
-        if n > self.capacity:
-            values, first_index, n = values[-self.capacity:], first_index + n - self.capacity, self.capacity
-        slots = (first_index + np.arange(n)) % self.capacity
-        ring[slots] = values
-        held[slots] = first_index + np.arange(n)
+        self._w.push(first_index, w)
 
     def _run_until(self, last: int, samples: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to ``samples`` consecutive samples ending at ``last`` that hold a residual and an input."""
-        index = int(last) - np.arange(min(int(samples), self.capacity))  # newest first
-        index = index[index >= 0]
-        slots = index % self.capacity
-        present = (self._w_index[slots] == index) & (self._u_index[slots] == index)
-        run = present.size if present.all() else int(np.argmin(present))
-        slots = slots[:run][::-1]
-        return self._w[slots], self._u[slots]
+        w, w_first = self._w.since(int(last) - int(samples) + 1, last)
+        u, u_first = self._u.since(int(last) - int(samples) + 1, last)
+        first = max(w_first, u_first)
+        return w[first - w_first:], u[first - u_first:]
 
     def _predictable(self, last: int, samples: int) -> tuple[float, int] | None:
         """``((R^2 - c) / (1 - c), n)`` over the samples ending at ``last``; None if too few."""

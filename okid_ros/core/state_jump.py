@@ -166,8 +166,8 @@ class StateJumpTest:
         if not baseline_power > 0.0 or not np.all(np.isfinite(z)):
             return StateJump(first_index, first_index + z.shape[0] - 1, np.zeros(n), np.zeros(p), math.nan,
                              math.nan, False)
-        # The onsets tried surround the first sample far above the baseline (a jump's largest
-        # innovations come first; where the excursion began is not known to the sample).
+        # The onsets tried surround where the loud samples begin (a jump's largest innovations
+        # come first; where the excursion began is not known to the sample).
         head = z if loud_until is None else z[:max(int(loud_until) - int(first_index) + 1, 0)]
         lo = max(self._loud_start(np.einsum("kp,kp->k", head, head) / (self._loud * baseline_power))
                  - ONSET_CANDIDATES // 2, 0)
@@ -228,47 +228,3 @@ class StateJumpTest:
         """(samples, p) the jump's whitened response at samples ``first_index ..`` (>= its onset)."""
         lo = int(first_index - jump.onset_index)
         return self._rows(lo + int(samples))[lo:] @ jump.jump
-
-
-class InnovationRing:
-    """The last ``capacity`` whitened innovations, addressed by sample index (slot = index % capacity).
-
-    Writing a sample again replaces it (a corrected innovation takes the place of the first).
-
-    Parameters
-    ----------
-    n_outputs : p.
-    capacity : samples kept.
-    """
-
-    def __init__(self, n_outputs: int, capacity: int) -> None:
-        self._z = np.zeros((int(capacity), int(n_outputs)))
-        self._index = np.full(int(capacity), -1, dtype=np.int64)
-
-    def clear(self) -> None:
-        self._index[:] = -1
-
-    def push(self, first_index: int, z: np.ndarray) -> None:
-        """Innovations ``z`` (N, p) of samples ``first_index ..``."""
-        cap = self._z.shape[0]
-        z = np.asarray(z, dtype=float)
-        if z.shape[0] > cap:  # only the newest fit
-            first_index, z = first_index + z.shape[0] - cap, z[-cap:]
-        if z.shape[0] == 1:  # the per-sample path
-            slot = int(first_index) % cap
-            self._z[slot], self._index[slot] = z[0], first_index
-            return
-        index = int(first_index) + np.arange(z.shape[0])
-        self._z[index % cap], self._index[index % cap] = z, index
-
-    def since(self, first_index: int, last_index: int) -> tuple[np.ndarray, int]:
-        """The held innovations of samples ``first_index .. last_index`` that run without a gap to the last.
-
-        Returns ``(z (L, p), index of its first row)``; L is 0 if the last sample is not held.
-        """
-        cap = self._z.shape[0]
-        index = int(last_index) - np.arange(min(int(last_index) - int(first_index) + 1, cap))  # newest first
-        index = index[index >= 0]
-        held = self._index[index % cap] == index
-        run = held.size if held.all() else int(np.argmin(held))
-        return self._z[index[:run][::-1] % cap].copy(), int(last_index) - run + 1

@@ -26,7 +26,8 @@ import numpy as np
 from okid_ros.core.change_detection import DivergenceMonitor
 from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.pipeline import IdentifiedModel
-from okid_ros.core.state_jump import InnovationRing, StateJump, StateJumpTest
+from okid_ros.core.sample_ring import SampleRing
+from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import advance_state, bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
@@ -77,7 +78,7 @@ class InnovationWatch:
         self.changes = 0
         self.diverged: list[int] = []  # buffer indices of diverged samples since the last restart
         self.restart_failed = False  # no good sample since the last divergence restart or jump
-        self._innovations = InnovationRing(p, _JUMP_RING_SAMPLES)
+        self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
 
     def configure(self, params: ModalEstimationParams) -> None:

@@ -16,7 +16,8 @@ from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.pipeline import identify_from_arx
-from okid_ros.core.state_jump import InnovationRing, StateJumpTest
+from okid_ros.core.sample_ring import SampleRing
+from okid_ros.core.state_jump import StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
 
 ORDER, WINDOW = 100, 4000
@@ -125,7 +126,7 @@ def test_the_monitor_takes_a_seam_as_a_jump_and_still_declares_a_change(structur
 
 
 def test_the_ring_returns_the_run_of_samples_up_to_the_last():
-    ring = InnovationRing(2, 8)
+    ring = SampleRing(2, 8)
     ring.push(0, np.arange(12.0).reshape(6, 2))
     z, first = ring.since(2, 5)
     assert first == 2 and z[:, 0].tolist() == [4.0, 6.0, 8.0, 10.0]
