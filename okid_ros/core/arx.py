@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.arx_order import ArxOrderChoice, longest_arx_order, select_arx_order
 
 # The solver and the order choice live in their own modules; their names stay importable from here.
@@ -42,7 +43,7 @@ from okid_ros.core.least_squares import (
     solve_fixed_penalty,
     solve_normal_equations,
 )
-from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, regressor_length, valid_regressor_rows
 
 __all__ = [
     "ArxFit",
@@ -166,19 +167,19 @@ def fit_arx(
     if order < 1:
         raise ValueError(f"ARX order must be >= 1, got {order}")
     m, p = u.shape[1], y.shape[1]
-    phi, targets, _ = arx_regressors(u, y, order, valid)
-    d = phi.shape[1]
+    n_rows = valid_regressor_rows(u.shape[0], order, valid).size
+    d = regressor_length(order, p, m)
     needed = minimum_samples(order, p, m)
-    if regularization == "none" and phi.shape[0] < d:
+    if regularization == "none" and n_rows < d:
         raise ValueError(
             f"too few samples for ARX order {order}: {u.shape[0]} given, at least {needed} needed "
             f"(d = {d} coefficients per output)"
         )
-    if phi.shape[0] < max(order + 1, 2 * (p + m)):
+    if n_rows < max(order + 1, 2 * (p + m)):
         raise ValueError(
             f"too few samples for ARX order {order}: {u.shape[0]} given, at least {needed} recommended"
         )
-    normal = normal_equations(phi, targets)
+    normal = arx_normal_equations(u, y, order, valid)
     return scales.restore_arx(fit_from_normal_equations(normal, order, p, m, regularization, penalty, decay=decay,
                                                         center=center))
 

@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.least_squares import (
     NormalEquations,
     center_normal_equations,
     channel_mean_square,
-    normal_equations,
     prior_precision,
     solve_normal_equations,
 )
-from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, regressor_length
 
 __all__ = ["ArxOrderChoice", "longest_arx_order", "select_arx_order"]
 
@@ -36,42 +36,6 @@ class ArxOrderChoice:
     scores: dict[int, float]
     limited_by: str = ""
     normal: NormalEquations | None = None  # the chosen order's normal equations (not centered)
-
-
-class _NestedNormalEquations:
-    """The normal equations of increasing ARX orders, each grown from the previous one.
-
-    The regressor of order q is the one of a smaller order q' with lags q'+1..q appended, over
-    rows q..N-1 instead of q'..N-1: the previous ``Phi^T Phi`` loses the rows q'..q-1 (a few
-    rows) and gains the new columns' blocks. Forming only those costs ``N d (d - d')`` per
-    order instead of ``N d^2`` (the same sums to rounding).
-    """
-
-    def __init__(self, u: np.ndarray, y: np.ndarray):
-        self.u, self.y = u, y
-        self.order = 0
-        self.normal: NormalEquations | None = None
-
-    def at(self, q: int) -> NormalEquations:
-        """The normal equations of order ``q`` (increasing from call to call, else made afresh)."""
-        phi, targets, _ = arx_regressors(self.u, self.y, q)
-        previous, q_prev = self.normal, self.order
-        self.order = q
-        if previous is None or q <= q_prev:
-            self.normal = normal_equations(phi, targets)
-            return self.normal
-        d_prev = previous.R.shape[0]
-        # The rows q_prev..q-1 of the previous order leave (its first q - q_prev rows).
-        gone, gone_targets, _ = arx_regressors(self.u[: q], self.y[: q], q_prev)
-        kept_R = previous.R - gone.T @ gone
-        new = phi[:, d_prev:]
-        cross = phi[:, :d_prev].T @ new
-        R = np.block([[kept_R, cross], [cross.T, new.T @ new]])
-        r = np.vstack([previous.r - gone.T @ gone_targets, new.T @ targets])
-        yy = previous.yy - gone_targets.T @ gone_targets
-        phi_sum = np.concatenate([previous.phi_sum - gone.sum(axis=0), new.sum(axis=0)])
-        self.normal = NormalEquations(R, r, yy, phi.shape[0], phi_sum, previous.y_sum - gone_targets.sum(axis=0))
-        return self.normal
 
 
 def longest_arx_order(n_samples: int, n_outputs: int, n_inputs: int, *, min_rows_per_coefficient: float) -> int:
@@ -119,7 +83,6 @@ def select_arx_order(
     scores: dict[int, float] = {}
     limited_by = ""
     best_q, best_score, since_best = 0, np.inf, 0
-    nested = _NestedNormalEquations(u, y)
     longest = longest_arx_order(u.shape[0], p, m, min_rows_per_coefficient=min_rows_per_coefficient)
     best_normal = None
     for q in tried:
@@ -130,15 +93,14 @@ def select_arx_order(
         if q > longest:
             limited_by = f"record length: ARX order {q} needs {int(min_rows_per_coefficient * d) + q} samples"
             break
-        normal = nested.at(q)
-        if center:
-            normal = center_normal_equations(normal)
+        uncentered = arx_normal_equations(u, y, q)
+        normal = center_normal_equations(uncentered) if center else uncentered
         precision = prior_precision(q, p, m, channel_mean_square(normal, p, m, q), "ridge")
         _, _, dof, gcv = solve_normal_equations(normal, precision, "gcv")
         scores[q] = float(gcv) / normal.n_rows  # per row: orders differ in row count
         if scores[q] < best_score:
             best_q, best_score, since_best = q, scores[q], 0
-            best_normal = nested.normal
+            best_normal = uncentered
         else:
             since_best += 1
             if since_best >= patience:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from okid_ros.core.arx_gram import arx_regressor_product
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
@@ -57,7 +58,7 @@ from okid_ros.core.output_only_support import (
     prepare_outputs,
     spectral_dominance,
 )
-from okid_ros.core.regressors import arx_regressors
+from okid_ros.core.statespace import simulate
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
@@ -332,11 +333,10 @@ def _gain_from_var(A, C, y, var, markov):
     # States driven by the VAR's innovations through the stable A (x+ = A x + L e), the noise
     # covariances of their residuals and the Kalman gain of the filtering Riccati equation,
     # stable by construction (as :mod:`.state_completion`).
-    phi, targets, _ = arx_regressors(np.zeros((y.shape[0], 0)), y, var.order)
-    drive = (targets - phi @ var.theta) @ L.T
-    states = np.zeros_like(drive)
-    for k in range(drive.shape[0] - 1):
-        states[k + 1] = A @ states[k] + drive[k]
+    targets = y[var.order :]
+    drive = (targets - arx_regressor_product(np.zeros((y.shape[0], 0)), y, var.order, var.theta)) @ L.T
+    n = A.shape[0]
+    states = simulate(A, np.eye(n), np.eye(n), np.zeros((n, n)), drive)  # x_0 = 0
     try:
         L, Re = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
     except ValueError as exc:

@@ -39,9 +39,9 @@ from okid_ros.core.arx import (
     ArxOrderChoice,
     fit_from_normal_equations,
     longest_arx_order,
-    normal_equations,
     select_arx_order,
 )
+from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.gain import gain_by_whitening
@@ -52,7 +52,7 @@ from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOpt
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
-from okid_ros.core.regressors import arx_regressors, check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, regressor_length
 from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
 from okid_ros.core.state_gram import StateGram
@@ -400,7 +400,7 @@ def identify(
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
     if normal is None:
-        normal = normal_equations(*arx_regressors(u, y, order)[:2])
+        normal = arx_normal_equations(u, y, order)
     try:
         arx = fit_from_normal_equations(normal, order, p, m, regularization, center=center)
     except ValueError as exc:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.regressors import arx_regressors
+from okid_ros.core.arx_gram import lagged_gram
 from okid_ros.core.stable_matrix import stabilize_with_eigen
 from okid_ros.core.statespace import free_parameters
 
@@ -94,16 +94,17 @@ class StateGram:
 
     def __init__(self, u: np.ndarray, y: np.ndarray, n_cols: int, valid: np.ndarray | None = None):
         m, p = u.shape[1], y.shape[1]
-        phi, targets, rows = arx_regressors(u, y, n_cols, valid)
         self.m, self.p, self.n_cols = m, p, n_cols
+        self._u, self._y = u, y
+        # The Gram of e_k = [y_k; u_k; z_k] over the rows, z_k the past data, from sums of lagged
+        # products (:mod:`.arx_gram`), without the (M, (p + m) (c + 1)) matrix of rows.
+        gram, _, rows = lagged_gram(u, y, n_cols, valid)
         self.rows = rows
-        self.z = phi[:, m:]  # (M, (p + m) c) past data of each row
-        extended = np.hstack([targets, phi])  # e_k = [y_k; u_k; z_k]
         self.n_samples = max(rows.size, 1)
-        self.gram = extended.T @ extended / self.n_samples
+        self.gram = gram / self.n_samples
         # The state equation pairs (x_k, x_{k+1}) of all rows but the last, as the data-pass
         # regressions do (same models to rounding): the Gram less the last row, per pair.
-        last = extended[-1]
+        last = self._extended(rows[-1:])[0] if rows.size else np.zeros(gram.shape[0])
         self._pairs = max(self.n_samples - 1, 1)
         self._pair_gram = (self.gram * self.n_samples - np.outer(last, last)) / self._pairs
         self._base: np.ndarray | None = None
@@ -166,7 +167,13 @@ class StateGram:
 
     def states(self, n: int) -> np.ndarray:
         """(M, n) the ERA state sequence of the window's rows."""
-        return self.z @ self._transform[:, :n]
+        return self._extended(self.rows)[:, self.p + self.m :] @ self._transform[:, :n]
+
+    def _extended(self, rows: np.ndarray) -> np.ndarray:
+        """``e_k = [y_k; u_k; v_{k-1}; ..; v_{k-c}]`` (len(rows), (p + m) (c + 1)) of the given rows."""
+        s = np.hstack([self._y, self._u])
+        index = np.asarray(rows)[:, None] - np.arange(self.n_cols + 1)[None, :]
+        return s[index].reshape(len(rows), -1)
 
     def _indices(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         m, p, top = self.m, self.p, self._top

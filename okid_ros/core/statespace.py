@@ -318,16 +318,12 @@ class InnovationPredictor:
         """Innovations (N, p) of samples ``u`` (N, m), ``y`` (N, p); advances the state."""
         u = np.asarray(u, dtype=float) - self.input_offset
         y = np.asarray(y, dtype=float) - self.output_offset
-        Ft, Ct = self.F.T, self.C.T
-        forcing = u @ self.Gu.T + y @ self.Gy.T
-        direct = y - u @ self.D.T
-        e = np.empty_like(direct)
-        x = self.x
-        for k in range(u.shape[0]):
-            e[k] = direct[k] - x @ Ct
-            x = x @ Ft + forcing[k]
-        self.x = x
-        return e
+        if u.shape[0] == 0:
+            return np.empty((0, self.C.shape[0]))
+        # The states of the samples (the BLAS loop of _run_states), then all innovations at once.
+        states = _run_states(self.F, np.hstack([self.Gu, self.Gy]), np.hstack([u, y]), self.x)
+        self.x = self.F @ states[-1] + self.Gu @ u[-1] + self.Gy @ y[-1]
+        return y - u @ self.D.T - states @ self.C.T
 
     def advance(self, u: np.ndarray, y: np.ndarray) -> None:
         """Advance the state over samples ``u`` (N, m), ``y`` (N, p), a chunk per matrix product.

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import ArxFit, fit_from_normal_equations, normal_equations
+from okid_ros.core.arx import ArxFit, fit_from_normal_equations
+from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.era import HankelDecomposition, decompose_hankel
-from okid_ros.core.regressors import arx_regressors
 
 __all__ = [
     "OrderRealizer",
@@ -112,9 +112,8 @@ def fit_var(y: np.ndarray, order: int) -> ArxFit:
 
     Ridge-regularized with the penalty chosen by GCV, with an intercept.
     """
-    u = np.zeros((y.shape[0], 0))
-    phi, targets, _ = arx_regressors(u, y, order)
-    return fit_from_normal_equations(normal_equations(phi, targets), order, y.shape[1], 0, "ridge", center=True)
+    normal = arx_normal_equations(np.zeros((y.shape[0], 0)), y, order)
+    return fit_from_normal_equations(normal, order, y.shape[1], 0, "ridge", center=True)
 
 
 def stochastic_markov_from_var(var: ArxFit, n_terms: int) -> np.ndarray:

@@ -147,21 +147,3 @@ def test_impulse_rows_by_blocks_equal_the_lag_by_lag_recursion(radius, length):
     got, got_filled = _impulse_rows(Abar, C, length)
     assert got_filled == filled
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * np.abs(C).max())
-
-
-def test_nested_normal_equations_of_the_arx_order_search_equal_the_direct_ones():
-    """Each order's normal equations grown from the previous order's equal those formed afresh."""
-    from okid_ros.core.arx_order import _NestedNormalEquations
-    from okid_ros.core.least_squares import normal_equations
-    from okid_ros.core.regressors import arx_regressors
-
-    rng = np.random.default_rng(11)
-    u, y = rng.standard_normal((900, 2)) + 0.3, rng.standard_normal((900, 3)) - 1.0
-    nested = _NestedNormalEquations(u, y)
-    for q in (3, 5, 9, 16, 7, 12):  # increasing, then a smaller order (made afresh), then larger
-        got = nested.at(q)
-        want = normal_equations(*arx_regressors(u, y, q)[:2])
-        assert got.n_rows == want.n_rows == 900 - q
-        for a, b in ((got.R, want.R), (got.r, want.r), (got.yy, want.yy), (got.phi_sum, want.phi_sum),
-                     (got.y_sum, want.y_sum)):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.abs(b).max())

@@ -218,3 +218,21 @@ def test_chunked_predictor_advance_gives_the_stepped_state_over_gaps():
     held = stepped.run_with_gaps(u, y, skipped, None, 5)
     assert np.array_equal(chunked.run_with_gaps(u, y, skipped, None, 5, chunked=True), held)
     np.testing.assert_allclose(chunked.x, stepped.x, rtol=0, atol=1e-12 * np.abs(stepped.x).max())
+
+
+def test_predictor_run_equals_its_steps():
+    """``run`` over a block (one BLAS loop, then the innovations at once) equals ``step`` per sample."""
+    from okid_ros.core.statespace import InnovationPredictor
+    from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+    model = paper_model()
+    model.input_offset, model.output_offset = np.array([0.3, -0.1]), np.array([2.0, -1.0])
+    u = lowpass_input(400, 2, 20.0, model.sample_time_s, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    x0 = np.linspace(-1.0, 1.0, model.n_states)
+    block, stepped = InnovationPredictor(model, x0), InnovationPredictor(model, x0)
+    got = block.run(u, y)
+    want = np.array([stepped.step(u[k], y[k]) for k in range(u.shape[0])])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    np.testing.assert_allclose(block.x, stepped.x, rtol=0, atol=1e-12 * np.abs(stepped.x).max())
+    assert block.run(u[:0], y[:0]).shape == (0, 2)
