@@ -123,6 +123,10 @@ class RealizationOptions:
     state_passes : re-estimations of the state sequence with the completed model's own Kalman
         predictor (each kept only if it lowers the one-step prediction error).
     refine : finish with the prediction-error refinement when it is affordable.
+    refined_orders : in an automatic search, the refinement runs on this many orders (the BIC
+        winner and the next best completed ones) and the lowest BIC after refinement wins: the
+        refinement moves each order's fit by a different amount (1: the winner only, about half
+        the time at the paper's size; docs/benchmarks-realization.md, ninth session).
     max_radius : eigenvalues of ``A`` on or outside the unit circle are moved inside, to at
         most this modulus (unstable poles of a realization are not structural modes).
     ar_order : AR order of the whitening gain (None: the ARX order).
@@ -138,6 +142,7 @@ class RealizationOptions:
     completion: str = "auto"
     state_passes: int = 2
     refine: bool = True
+    refined_orders: int = 3
     max_radius: float = 0.9999
     ar_order: int | None = None
     modes: ModeCriteria = field(default_factory=ModeCriteria)
@@ -157,6 +162,8 @@ class RealizationOptions:
             raise ValueError(f"max_radius must be in (0, 1), got {self.max_radius}")
         if self.state_passes < 0:
             raise ValueError(f"state_passes must be >= 0, got {self.state_passes}")
+        if self.refined_orders < 1:
+            raise ValueError(f"refined_orders must be >= 1, got {self.refined_orders}")
 
     @property
     def automatic_order(self) -> bool:

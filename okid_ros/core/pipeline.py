@@ -136,17 +136,42 @@ def _package(
     return identified
 
 
-def _complete_chosen(search: OrderSearch, completer: Completer, options: RealizationOptions
-                     ) -> tuple[int, PredictorFit]:
-    """The chosen order and its completed fit (gain, re-estimation passes where screened)."""
-    n_best = search.best_order() if options.automatic_order else int(options.n_states)
-    best = search.fits[n_best]
-    if completer.completion == "states" or (options.state_passes and n_best in completer.via_states):
+def _completed(search: OrderSearch, completer: Completer, n: int, options: RealizationOptions) -> PredictorFit:
+    """The completed fit of order n (gain, re-estimation passes where screened)."""
+    fit = search.fits[n]
+    if completer.completion == "states" or (options.state_passes and n in completer.via_states):
         try:
-            best = completer.complete(n_best, passes=options.state_passes)
+            fit = completer.complete(n, passes=options.state_passes)
         except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
-            raise IdentificationError(f"order {n_best} could not be completed: {exc}") from None
-    return n_best, best
+            raise IdentificationError(f"order {n} could not be completed: {exc}") from None
+    return fit
+
+
+def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray, y: np.ndarray, arx: ArxFit,
+                        options: RealizationOptions) -> tuple[int, PredictorFit, bool]:
+    """Steps 5b-6: the chosen order completed and refined; the lowest BIC after refinement wins.
+
+    In an automatic search the next best orders by BIC (``options.refined_orders`` in all, none
+    the search had to repair) are completed and refined too: the refinement moves each order's
+    fit by a different amount, so the winner before it is not always the winner after it.
+    Returns the order, its fit and whether that fit is refined.
+    """
+    n_best = search.best_order() if options.automatic_order else int(options.n_states)
+    best = _completed(search, completer, n_best, options)
+    refined = _refine(best, u, y, arx, options)
+    if refined is None:
+        return n_best, best, False
+    if options.automatic_order:
+        others = sorted((n for n in search.fits if n != n_best and n not in search.repaired),
+                        key=lambda n: (search.fits[n].bic(), n))
+        for n in others[: options.refined_orders - 1]:
+            try:
+                alternative = _refine(_completed(search, completer, n, options), u, y, arx, options)
+            except IdentificationError:
+                continue
+            if alternative is not None and alternative.bic() < refined.bic():
+                n_best, refined = n, alternative
+    return n_best, refined, True
 
 
 def _diagram(search: OrderSearch, completer: Completer, sample_time_s: float, options: RealizationOptions) -> list:
@@ -208,10 +233,7 @@ def identify_from_arx(
     completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
     completer = Completer(decomposition, gram, u, y, completion, options=options, burn_in=arx.order)
     search = search_orders(completer, options, order_hint=order_hint)
-    n_best, best = _complete_chosen(search, completer, options)
-    refined = _refine(best, u, y, arx, options)
-    if refined is not None:
-        best = refined
+    n_best, best, refined = _refine_best_orders(search, completer, u, y, arx, options)
     model = best.model
     gain_method = options.gain
     if options.gain == "whitening":
@@ -232,7 +254,7 @@ def identify_from_arx(
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
         completed_orders=sorted(search.fits), stabilization=diagram,
-        system_markov=system_markov, completion=completion, refined=refined is not None,
+        system_markov=system_markov, completion=completion, refined=refined,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
         warnings=warnings + frame.warnings,
     )
