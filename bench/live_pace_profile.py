@@ -8,7 +8,8 @@ node 1 makes it: ridge prior, penalty by GCV, intercept for the offsets), with n
 options from the parameter table at p = 28, m = 2, 1/1024 s (the default realization
 settings), then times the worker's function
 (:func:`okid_ros.service.realization.realize`: ``identify_window`` -> ``identify_from_arx``,
-the model's checks, the warm start over the window) ``--repeats`` times with one BLAS thread
+the model's checks, the warm start over the window; ``--order-hint`` the order of the model in use, as
+the node passes it) ``--repeats`` times with one BLAS thread
 and profiles one more run under cProfile. Prints the wall times and the functions with the
 most cumulative and the most own time.
 """
@@ -39,6 +40,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=3, help="timed runs before the profiled one (default 3)")
     parser.add_argument("--top", type=int, default=25, help="functions listed per table (default 25)")
     parser.add_argument("--record", default=str(RECORD), help="record .npz with u, y, sample_time_s")
+    parser.add_argument("--order-hint", type=int, default=None,
+                        help="the order of the model in use, as the node passes it (warm-started order "
+                             "search; default none: a cold search, as for the first model)")
     return parser.parse_args()
 
 
@@ -59,7 +63,7 @@ def make_job(args: argparse.Namespace):
     dt = float(data["sample_time_s"])
     params = ModalEstimationParams(sample_time_s=dt, n_inputs=u.shape[1], n_outputs=y.shape[1])
     fit = fit_arx(u, y, args.order, "ridge", "gcv", center=True)
-    return RealizationJob(fit, 1, stop * dt, u.copy(), y.copy(), stop - 1, params)
+    return RealizationJob(fit, 1, stop * dt, u.copy(), y.copy(), stop - 1, params, order_hint=args.order_hint)
 
 
 def main() -> int:
@@ -72,6 +76,7 @@ def main() -> int:
     job = make_job(args)
     print(f"bench/live_pace_profile.py: p = {job.y.shape[1]}, m = {job.u.shape[1]}, q = {args.order}, "
           f"window {args.window} rows (samples {args.start}..{args.start + args.window + args.order - 1}), "
+          f"order search {'warm-started at ' + str(args.order_hint) if args.order_hint else 'cold'}, "
           f"one BLAS thread, load average (1 min) {os.getloadavg()[0]:.2f}\n")
     walls = []
     for _ in range(args.repeats):

@@ -95,6 +95,18 @@ class HankelDecomposition:
         tol = self.s[0] * np.finfo(float).eps * max(self.h0.shape) if self.s.size else 0.0
         return int(np.sum(self.s > tol))
 
+    def projected(self, n_states: int) -> np.ndarray:
+        """``U_n^T H(1) W V_n`` (n, n): the state matrix of order n before the ``S^-1/2`` scaling."""
+        return self.U[:, :n_states].T @ self.h1w @ self.Vt[:n_states].T
+
+    def left_block_row(self, n_states: int) -> np.ndarray:
+        """The first block row of ``U_n``: (p, n)."""
+        return self.U[: self.n_outputs, :n_states]
+
+    def left_vectors(self, n_states: int) -> np.ndarray:
+        """``U_n`` (b p, n)."""
+        return self.U[:, :n_states]
+
     def realize(self, n_states: int) -> Realization:
         """Truncate to ``n_states`` and return ``(A, B, C)``."""
         if not 1 <= n_states <= self.max_states:

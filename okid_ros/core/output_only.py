@@ -139,7 +139,7 @@ def identify_output_only(
     chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                            block_rows=block_rows)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
-    A, C, gamma = _stable_part(*realizer.realize(n_model)[:3])
+    A, C, gamma = _stable_part(*realizer.realize(n_model)[:2], realizer.observability(n_model))
     if var is None:
         L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
     else:

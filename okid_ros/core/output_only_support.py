@@ -140,7 +140,7 @@ def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, 
     target : the pole (discrete, upper half plane); r0 : (p, p) ``R_0``; references : (r,) the
     reference channels (the Hankel's columns).
     """
-    A, C, _, G = realizer.realize(n_states)
+    A, C, G = realizer.realize(n_states)
     C, r0 = C[references], r0[np.ix_(references, references)]
     eigenvalues, vectors = linalg.eig(A)
     left = linalg.solve(vectors, G)  # (n, r)

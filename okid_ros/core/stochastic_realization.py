@@ -20,7 +20,7 @@ Two sequences of "free responses" are realized by the same ERA (:mod:`okid_ros.c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
@@ -30,13 +30,74 @@ from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.era import HankelDecomposition, decompose_hankel
 
 __all__ = [
+    "CovarianceDecomposition",
     "OrderRealizer",
     "covariance_decomposition",
     "fit_var",
     "stochastic_markov_from_var",
     "forward_innovation",
     "gain_from_markov",
+    "hankel_grams",
 ]
+
+
+@dataclass
+class CovarianceDecomposition:
+    """The leading singular triplets of the block Hankel ``H(0)`` of ``R_1 .. R_2i``, from Gram sums.
+
+    ``H(0)^T H(0)`` and ``H(0)^T H(1)`` (``i r`` square each, ``r`` reference columns) are sums
+    along the block diagonals of the Gram of the one block row ``[R_1, .., R_2i]``
+    (:func:`hankel_grams`), so neither Hankel matrix is formed: at 28 outputs, 12 references and
+    60 block rows that is 1.2e8 flops instead of 2.2e9 for the products with the formed matrices.
+    The leading eigenvectors ``V`` of the first give the singular values ``s`` and the right
+    vectors; the left vectors ``U = H(0) V / s`` are formed only when asked for
+    (:meth:`left_vectors`: at the model's order), their first block row always.
+
+    Attributes
+    ----------
+    blocks : (2 i, p, r) ``R_1 .. R_2i`` at the reference columns; block_rows : i.
+    s : (k,) singular values; Vt : (k, i r) right singular vectors.
+    shifted : (k, k) ``U^T H(1) V`` (the state matrix of every order is a corner of it).
+    first_rows : (p, k) the first block row of ``U``.
+    """
+
+    blocks: np.ndarray
+    block_rows: int
+    s: np.ndarray
+    Vt: np.ndarray
+    shifted: np.ndarray
+    first_rows: np.ndarray
+    _left: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def n_outputs(self) -> int:
+        return self.blocks.shape[1]
+
+    @property
+    def n_block_inputs(self) -> int:
+        return self.blocks.shape[2]
+
+    @property
+    def max_states(self) -> int:
+        """Largest order supported numerically (the rule of :class:`~okid_ros.core.era.HankelDecomposition`)."""
+        i, (_, p, r) = self.block_rows, self.blocks.shape
+        tol = self.s[0] * np.finfo(float).eps * max(i * p, i * r) if self.s.size else 0.0
+        return int(np.sum(self.s > tol))
+
+    def projected(self, n_states: int) -> np.ndarray:
+        """``U_n^T H(1) V_n`` (n, n)."""
+        return self.shifted[:n_states, :n_states]
+
+    def left_block_row(self, n_states: int) -> np.ndarray:
+        """The first block row of ``U_n``: (p, n)."""
+        return self.first_rows[:, :n_states]
+
+    def left_vectors(self, n_states: int) -> np.ndarray:
+        """``U_n`` (i p, n), formed from ``H(0)`` on the first call."""
+        if self._left is None:
+            h0 = _block_hankel(self.blocks, self.block_rows, 0)
+            self._left = (h0 @ self.Vt.T) / self.s
+        return self._left[:, :n_states]
 
 
 @dataclass
@@ -45,62 +106,93 @@ class OrderRealizer:
 
     Attributes
     ----------
-    decomposition : the Hankel SVD (:func:`okid_ros.core.era.decompose_hankel`).
+    decomposition : the Hankel SVD: a :class:`CovarianceDecomposition` or an
+        :class:`~okid_ros.core.era.HankelDecomposition` (:func:`okid_ros.core.era.decompose_hankel`).
     max_states : the largest order offered.
     """
 
-    decomposition: HankelDecomposition
+    decomposition: CovarianceDecomposition | HankelDecomposition
     max_states: int
 
     def __post_init__(self) -> None:
         d, n = self.decomposition, self.max_states
         self._sq = np.sqrt(d.s[:n])
-        self._projected = d.U[:, :n].T @ d.h1w @ d.Vt[:n].T  # (n, n), A of every order is a corner
+        self._projected = d.projected(n)  # (n, n), A of every order is a corner
 
-    def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``A`` (n, n), ``C`` (p, n), ``Gamma`` (p b, n) and the first block column ``G`` (n, r) of order n."""
+    def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``A`` (n, n), ``C`` (p, n) and the first block column ``G`` (n, r) of order n."""
         sq = self._sq[:n_states]
         A = self._projected[:n_states, :n_states] / np.outer(sq, sq)
-        gamma = self.decomposition.U[:, :n_states] * sq
-        r = self.decomposition.n_block_inputs
-        G = sq[:, None] * self.decomposition.Vt[:n_states, :r]
-        return A, gamma[: self.decomposition.n_outputs].copy(), gamma, G
+        C = self.decomposition.left_block_row(n_states) * sq
+        G = sq[:, None] * self.decomposition.Vt[:n_states, : self.decomposition.n_block_inputs]
+        return A, C, G
+
+    def observability(self, n_states: int) -> np.ndarray:
+        """``Gamma`` (p b, n) of order n (``b`` block rows)."""
+        return self.decomposition.left_vectors(n_states) * self._sq[:n_states]
 
 
 def covariance_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
-                             max_states: int | None = None) -> HankelDecomposition:
-    """SVD of the block Hankel of ``R_1 .. R_2i`` (reference columns), ``i = block_rows``.
+                             max_states: int | None = None) -> CovarianceDecomposition | HankelDecomposition:
+    """Leading singular triplets of the block Hankel of ``R_1 .. R_2i`` (reference columns), ``i = block_rows``.
 
     Parameters
     ----------
     correlations : (L + 1, p, p) ``R_0 .. R_L``, ``L >= 2 i``.
     references : (r,) the reference channels (Hankel columns).
     max_states : keep only this many singular triplets, from the eigen-decomposition of the
-        smaller Gram matrix ``H^T H`` (the full SVD of a 2000 x 850 Hankel takes 1.5 s, this
-        0.15 s; the leading singular values lose nothing that matters at double precision).
+        Gram ``H^T H`` (:class:`CovarianceDecomposition`; the full SVD of a 2000 x 850 Hankel
+        takes 1.5 s, this 0.15 s; the leading singular values lose nothing that matters at
+        double precision); None: the full SVD of the Hankel matrix.
     """
     blocks = correlations[1 : 2 * block_rows + 1][:, :, references]
     if max_states is None:
         return decompose_hankel(blocks, block_rows, block_rows)
-    h0 = _block_hankel(blocks, block_rows, 0)
-    h1 = _block_hankel(blocks, block_rows, 1)
-    k = int(min(max_states, h0.shape[1]))
-    values, V = linalg.eigh(h0.T @ h0, subset_by_index=[h0.shape[1] - k, h0.shape[1] - 1])
+    gram, cross = hankel_grams(blocks, block_rows)
+    k = int(min(max_states, gram.shape[0]))
+    values, V = linalg.eigh(gram, subset_by_index=[gram.shape[0] - k, gram.shape[0] - 1])
     order = np.argsort(values)[::-1]
     s = np.sqrt(np.maximum(values[order], 0.0))
     V = V[:, order]
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
-    U = (h0 @ V) / s
-    return HankelDecomposition(h0=h0, h1w=h1, U=U, s=s, Vt=V.T, n_outputs=blocks.shape[1],
-                               n_block_inputs=blocks.shape[2])
+    # U^T H(1) V = S^-1 V^T H(0)^T H(1) V; the first block row of H(0) is [R_1 .. R_i].
+    first_row = blocks[:block_rows].transpose(1, 0, 2).reshape(blocks.shape[1], -1)
+    return CovarianceDecomposition(blocks, block_rows, s, V.T, (V.T @ cross @ V) / s[:, None],
+                                   (first_row @ V) / s)
+
+
+def hankel_grams(blocks: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """``H(0)^T H(0)`` and ``H(0)^T H(1)`` of the square block Hankel of ``blocks`` (2 i, p, r), ``i = n_rows``.
+
+    Block ``(a, b)`` of the first is ``sum_c Y_(a+c)^T Y_(b+c)`` over the ``i`` block rows ``c``
+    (``Y_k = blocks[k]``), a sum along a block diagonal of the Gram ``T`` of ``[Y_0 .. Y_(2i-1)]``;
+    running sums along those diagonals give every block as one difference (the second likewise,
+    one block to the right). ``4 i^2 r^2 p`` flops for ``T`` instead of ``2 i^3 r^2 p`` for each
+    Hankel product; no library offers block-Hankel Gram products (scipy.linalg.hankel is scalar
+    and dense). Equal to the products of the formed matrices to rounding
+    (test/core/test_core_output_only.py).
+    """
+    n_blocks, p, r = blocks.shape
+    if n_blocks < 2 * n_rows:
+        raise ValueError(f"{n_rows} block rows need {2 * n_rows} blocks, got {n_blocks}")
+    row = blocks[: 2 * n_rows].transpose(1, 0, 2).reshape(p, 2 * n_rows * r)
+    m = 2 * n_rows
+    running = np.zeros((m + 1, r, m + 1, r))  # running[s, :, t, :] = sum_d T[s-1-d, t-1-d]
+    running[1:, :, 1:, :] = (row.T @ row).reshape(m, r, m, r)
+    for s in range(2, m + 1):
+        running[s, :, 2:, :] += running[s - 1, :, 1:-1, :]
+    i = n_rows
+    gram = running[i:m, :, i:m, :] - running[:i, :, :i, :]
+    cross = running[i:m, :, i + 1 : m + 1, :] - running[:i, :, 1 : i + 1, :]
+    return gram.reshape(i * r, i * r), cross.reshape(i * r, i * r)
 
 
 def _block_hankel(blocks: np.ndarray, n_rows: int, shift: int) -> np.ndarray:
     """Square block Hankel ``H(shift)`` of ``blocks`` (K, p, r) by one fancy index.
 
     The same matrix as :func:`okid_ros.core.era.block_hankel`, without its Python loop of
-    ``hstack`` calls (0.1 s per 500 x 500 Hankel, paid 18 times by the jackknife).
+    ``hstack`` calls.
     """
     index = np.arange(n_rows)[:, None] + np.arange(n_rows)[None, :] + shift
     _, p, r = blocks.shape

@@ -10,9 +10,16 @@ from ros_helpers import REPO_ROOT
 from scipy import linalg
 
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
+from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_only import identify_output_only
-from okid_ros.core.stochastic_realization import forward_innovation, stochastic_markov_from_var
+from okid_ros.core.stochastic_realization import (
+    OrderRealizer,
+    covariance_decomposition,
+    forward_innovation,
+    hankel_grams,
+    stochastic_markov_from_var,
+)
 from okid_ros.sim.models import modal_structure
 from okid_ros.sim.simulators import simulate_noisy
 
@@ -45,6 +52,47 @@ def test_not_positive_real_is_refused() -> None:
     system = _system()
     G, r0 = _exact_covariances(system)
     assert forward_innovation(system.A, system.C, 50.0 * G, r0) is None
+
+
+def _decaying_correlations(n_lags: int, p: int, seed: int) -> np.ndarray:
+    """``R_0 .. R_L`` (L + 1, p, p) of a random stable covariance model plus a little scatter."""
+    rng = np.random.default_rng(seed)
+    poles = 0.97 * np.exp(1j * np.linspace(0.2, 2.6, 6))
+    C = rng.standard_normal((p, 6)) + 1j * rng.standard_normal((p, 6))
+    G = rng.standard_normal((6, p)) + 1j * rng.standard_normal((6, p))
+    exact = np.array([np.real(C @ np.diag(poles**k) @ G) for k in range(n_lags + 1)])
+    return exact + 1e-3 * rng.standard_normal(exact.shape)
+
+
+@pytest.mark.parametrize(("block_rows", "p", "references"), [(7, 3, [0, 1, 2]), (12, 6, [4, 1]), (2, 1, [0])])
+def test_hankel_grams_equal_the_products_of_the_formed_hankels(block_rows, p, references) -> None:
+    blocks = _decaying_correlations(2 * block_rows + 3, p, seed=block_rows)[1 : 2 * block_rows + 1][:, :, references]
+    h0 = block_hankel(blocks, block_rows, block_rows, 0)
+    h1 = block_hankel(blocks, block_rows, block_rows, 1)
+    gram, cross = hankel_grams(blocks, block_rows)
+    scale = np.abs(h0.T @ h0).max()
+    assert np.abs(gram - h0.T @ h0).max() <= 1e-13 * scale
+    assert np.abs(cross - h0.T @ h1).max() <= 1e-13 * scale
+    with pytest.raises(ValueError, match="block rows need"):
+        hankel_grams(blocks[:-1], block_rows)
+
+
+def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
+    """Every order's (A, C, G, Gamma) from the Gram sums equal the formed Hankel's SVD (up to signs)."""
+    correlations, references, block_rows = _decaying_correlations(40, 5, seed=3), np.array([0, 2, 3]), 15
+    full = OrderRealizer(covariance_decomposition(correlations, references, block_rows), 12)
+    decomposition = covariance_decomposition(correlations, references, block_rows, max_states=12)
+    fast = OrderRealizer(decomposition, 12)
+    assert decomposition.max_states == 12
+    for n in (2, 6, 12):
+        (A, C, G), (A0, C0, G0) = fast.realize(n), full.realize(n)
+        signs = np.sign(np.sum(G * G0, axis=1))  # each singular pair is defined up to a sign
+        flip = np.outer(signs, signs)
+        assert np.allclose(A, A0 * flip, rtol=1e-8, atol=1e-10 * np.abs(A0).max())
+        assert np.allclose(C, C0 * signs, rtol=1e-8, atol=1e-10 * np.abs(C0).max())
+        assert np.allclose(G, G0 * signs[:, None], rtol=1e-8, atol=1e-10 * np.abs(G0).max())
+        gamma, gamma0 = fast.observability(n), full.observability(n)
+        assert np.allclose(gamma, gamma0 * signs, rtol=1e-8, atol=1e-10 * np.abs(gamma0).max())
 
 
 def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() -> None:
