@@ -115,8 +115,16 @@ def choose_block_rows(
     """Hankel block rows ``i`` (lags 1 .. 2 i) from the data, and the slowest mode found (Hz).
 
     ``i`` spans :data:`PERIODS_PER_BLOCK_ROWS` periods of the slowest mode, at least what the
-    largest model order needs (``n_references i >= max_states + 2``), at most a tenth of a
-    fifth of the record (the segments of the jackknife), and the Hankel at most 2000 rows.
+    largest model order needs (``n_references i >= max_states + 2``), but at most a tenth of a
+    fifth of the record and the Hankel at most 2000 rows. The record's bound keeps five segments
+    for the jackknife, which tells modes from noise poles, and wins over the orders: with one or
+    two channels and a short record the orders tried stop lower instead (1 channel, 6000
+    samples: 60 block rows and orders to 60 rather than 103 rows, two segments, no jackknife and
+    ~9 noise poles listed per record). It wins over the slowest mode's period as well (as it
+    did before): a record shorter than about a hundred periods of its slowest spectral peak gets
+    lags shorter than that period, which may lose that mode but lists no noise (with one channel
+    the lowest "peak" is often noise, 0.15-2.2 Hz below a 3 Hz mode, and honouring it cost the
+    jackknife).
     """
     n, p = y.shape
     f_low = slowest_mode_hz(y, sample_time_s)
@@ -124,7 +132,7 @@ def choose_block_rows(
     wanted = PERIODS_PER_BLOCK_ROWS * fs / f_low if np.isfinite(f_low) and f_low > 0 else 40.0
     needed = int(np.ceil((max_states + 2) / max(n_references, 1))) + 1
     cap = int(min(MAX_LAG_FRACTION_OF_SEGMENT * n / 5 / 2, 2000 // p))
-    rows = int(np.clip(np.ceil(wanted), needed, max(cap, needed)))
+    rows = int(min(max(np.ceil(wanted), needed), cap))
     return max(rows, 2), f_low
 
 

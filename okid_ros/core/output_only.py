@@ -7,9 +7,12 @@ covariance, in normalized modal form, with its physical modes and their standard
 
 Steps (one module each):
 
-1. means removed; harmonic lines (a sinusoidal disturbance: a spectral line whose band has
-   the kurtosis of a sinusoid) found and removed by least squares (:mod:`.output_only_harmonics`);
-   reference channels and the lag window from the data (:mod:`.output_covariance`);
+1. means removed; the outputs divided by one power of two (:func:`.channels.group_scales`:
+   exact, and no step depends on a common factor; the model is restored to the record's units
+   at the end, :func:`.scaling.restore_model`); harmonic lines (a sinusoidal disturbance: a
+   spectral line whose band has the kurtosis of a sinusoid) found and removed by least squares
+   (:mod:`.output_only_harmonics`); reference channels and the lag window from the data
+   (:mod:`.output_covariance`);
 2. ``method="ssi-cov"`` (default): output correlations of consecutive segments, block Hankel,
    ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
    parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
@@ -35,12 +38,18 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx_gram import arx_regressor_product
+from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.options import ModeCriteria
-from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
+from okid_ros.core.output_covariance import (
+    MAX_LAG_FRACTION_OF_SEGMENT,
+    choose_block_rows,
+    output_correlations,
+    reference_channels,
+)
 from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
 from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
@@ -58,6 +67,7 @@ from okid_ros.core.output_only_support import (
     prepare_outputs,
     spectral_dominance,
 )
+from okid_ros.core.scaling import restore_model
 from okid_ros.core.statespace import simulate
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
@@ -134,11 +144,20 @@ def identify_output_only(
     """
     _check_options(method, harmonics)
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
+    # One power of two for every output (exact, and every step below is unchanged by a common
+    # factor): records near the float64 limits neither overflow nor underflow the correlations.
+    scales = group_scales(np.zeros((y.shape[0], 0)), y)
+    y = y / scales.output
     if harmonics == "remove":
         y = _without_harmonics(y, sample_time_s, warnings)
     chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                            block_rows=block_rows)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
+    if method == "ssi-cov" and chosen.jackknife is None:
+        segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
+        warnings.append(f"the record holds fewer than 3 segments of {segment:.0f} samples ({chosen.block_rows} "
+                        f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
+                        f"their standard deviations are the clusters' spread across orders")
     A, C, gamma = _stable_part(*realizer.realize(n_model)[:2], realizer.observability(n_model))
     if var is None:
         L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
@@ -147,11 +166,12 @@ def identify_output_only(
     model = _package(A, C, L, Re, match_clusters(modes, poles, n_model), sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
-    model.output_offset, model.warnings = offset, warnings
     _attach_std(model, chosen.jackknife, n_model)
     if low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows), dt))
+    model = restore_model(model, scales)
+    model.output_offset, model.warnings = offset, warnings
     return model
 
 

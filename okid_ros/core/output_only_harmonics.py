@@ -22,6 +22,16 @@ of its decay times: 1st percentile 1.71-2.15, lowest 1.68. A harmonic is flagged
 in-band power is about 20 times the noise's or more (kurtosis ``(1.5 r^2 + 6 r + 3) / (r + 1)^2``
 at power ratio r).
 
+The envelope tells the two apart only over several decay times ``1 / (zeta omega)`` of the mode:
+over a shorter record a lightly damped mode's amplitude hardly changes and its kurtosis nears a
+sinusoid's (simulated, 20 records each: a 3 Hz mode at 0.2 % damping is taken for a harmonic in
+14 records holding 0.2 of its decay times, 4 holding 0.8, none from 1.5 on; at 0.5 % in 3
+holding 0.5). A line is therefore tested only when the record holds ``LINE_DECAY_TIMES`` decay
+times of a mode at ``REFERENCE_DAMPING`` at its frequency, that is ``LINE_DECAY_TIMES / (2 pi
+REFERENCE_DAMPING)`` (about 160) of its cycles; a harmonic with fewer cycles in the record stays
+in it (an undamped pole the mode selection rejects by its damping, or a warning sign in the
+diagram).
+
 Each harmonic found is removed by least squares (its frequency refined to a fraction of a
 bin, then one cosine and one sine per harmonic and channel) before the correlations are
 taken. A harmonic whose amplitude or frequency drifts is removed only in part.
@@ -40,6 +50,11 @@ __all__ = ["Harmonic", "find_harmonics", "remove_harmonics"]
 HARMONIC_LINE_RATIO = 100.0
 #: Kurtosis of the band-passed, projected record at most this: a sinusoid (1.5), not a mode (3).
 HARMONIC_MAX_KURTOSIS = 1.65
+#: A line is tested when the record holds this many decay times of a mode at the reference
+#: damping at its frequency (module docstring): bins (cycles in the record) of at least
+#: ``LINE_DECAY_TIMES / (2 pi REFERENCE_DAMPING)``.
+LINE_DECAY_TIMES = 2.0
+REFERENCE_DAMPING = 0.002
 #: Half-width of the band (bins of the full record) of the kurtosis test.
 HARMONIC_BAND_BINS = 10
 #: The neighbourhood of a line: bins 4 .. 24 away on either side (the Hann main lobe is +-2).
@@ -82,7 +97,8 @@ def find_harmonics(y: np.ndarray, sample_time_s: float) -> list[Harmonic]:
     ratio = power / np.maximum(background, np.finfo(float).tiny)
     local_max = np.r_[False, (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:]), False]
     bins = np.flatnonzero(local_max & (ratio >= HARMONIC_LINE_RATIO))
-    bins = bins[(bins >= 3) & (bins <= power.size - 4)]
+    min_cycles = LINE_DECAY_TIMES / (2 * np.pi * REFERENCE_DAMPING)
+    bins = bins[(bins >= max(3, min_cycles)) & (bins <= power.size - 4)]
     bins = bins[np.argsort(ratio[bins])[::-1]][:MAX_LINES]
     if bins.size == 0:
         return []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
+from okid_ros.core.channels import channel_std
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import OFFSETS
 from okid_ros.core.output_covariance import OutputCorrelations
@@ -38,9 +39,12 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
     if not np.all(np.isfinite(y)):
         bad = np.argwhere(~np.isfinite(y))[0]
         raise IdentificationError(f"y holds NaN or Inf (first at sample {bad[0]}, channel {bad[1]})")
-    mean = y.mean(axis=0)
-    std = y.std(axis=0)
-    flat = np.flatnonzero(std <= 1e-12 * max(float(np.abs(y).max()), np.finfo(float).tiny))
+    # Each channel against its own peak (channels in different units may differ by decades), by
+    # the helpers that neither overflow nor underflow for values near the float64 limits.
+    peak = np.max(np.abs(y), axis=0)
+    mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
+    std = channel_std(y)
+    flat = np.flatnonzero(~(std > 1e-12 * peak))
     if flat.size:
         raise IdentificationError(f"output channel {int(flat[0])} is constant: it carries no response")
     warnings = []

@@ -188,6 +188,46 @@ def test_bad_records_get_a_one_line_reason(y: np.ndarray, reason: str) -> None:
         identify_output_only(y, 0.01)
 
 
+def _three_modes(n: int, p: int, seed: int) -> np.ndarray:
+    """(n, p) ambient response of 3, 7 and 12 Hz modes at 1 %, 50 Hz sampling."""
+    system = modal_structure([3.0, 7.0, 12.0], 0.01, 1, 4, 0.02, seed=1)
+    return simulate_noisy(system, np.zeros((n, 1)), seed=seed)[:, :p]
+
+
+@pytest.mark.parametrize("factor", [1e300, 1e-300])
+def test_records_near_the_float64_limits_get_a_reason_not_a_traceback(factor: float) -> None:
+    # The correlations of 1e300 overflowed (a ValueError from inside LAPACK); 1e-300 was taken
+    # for a constant channel. Identified on scaled data, the model's covariance in the record's
+    # units is what float64 cannot hold, and the error says so.
+    with pytest.raises(IdentificationError, match="beyond the float64 range"):
+        identify_output_only(_three_modes(6000, 4, seed=1) * factor, 0.02)
+
+
+def test_the_units_do_not_change_the_modes() -> None:
+    y = _three_modes(6000, 4, seed=1)
+    reference = identify_output_only(y, 0.02)
+    scaled = identify_output_only(y * 2.0**200, 0.02)  # a power of two: the same arithmetic
+    assert [m.frequency_hz for m in scaled.modes] == pytest.approx([m.frequency_hz for m in reference.modes], rel=1e-9)
+    # Modal form: unit-norm shape blocks of C in output units, so the states carry the factor.
+    assert np.allclose(scaled.C, reference.C, rtol=1e-6, atol=1e-9)
+    assert np.allclose(scaled.output_offset, reference.output_offset * 2.0**200, rtol=1e-9)
+    assert np.allclose(scaled.innovation_covariance, reference.innovation_covariance * 2.0**400, rtol=1e-6)
+    # Channels in units decades apart are channels, not constants (each judged against its own peak).
+    mixed = identify_output_only(y * np.array([1e8, 1e-8, 1.0, 1.0]), 0.02)
+    assert sorted(round(m.frequency_hz) for m in mixed.modes) == [3, 7, 12]
+
+
+def test_a_single_channel_of_a_short_record_lists_no_noise_poles() -> None:
+    # One channel, 120 s: the 102 block rows that orders to 100 need left two segments, no
+    # jackknife, and about nine noise poles were listed per record; the record's bound on the
+    # lags now wins and the orders stop at 60.
+    for seed in range(3):
+        model = identify_output_only(_three_modes(6000, 1, seed=seed), 0.02)
+        found = np.array([m.frequency_hz for m in model.modes])
+        assert found.size and all(np.min(np.abs(f / np.array([3.0, 7.0, 12.0]) - 1)) < 0.02 for f in found), found
+        assert not any("jackknife" in w for w in model.warnings)
+
+
 def test_white_noise_has_no_modes() -> None:
     y = np.random.default_rng(5).standard_normal((6000, 3))
     with pytest.raises(IdentificationError, match="no stable mode"):
