@@ -1,4 +1,4 @@
-"""Does the input excite the system? Dead input channels named, unexcited windows refused.
+"""Does the input excite the system, do the outputs respond? Dead channels named, such windows refused.
 
 OKID learns how the inputs drive the outputs; an input channel without variance in the window
 (all zeros, a constant, a sensor or actuator that stopped) tells it nothing, and a window where
@@ -11,6 +11,11 @@ refuses a window without excitation, the service's diagnostics can call
 A channel is *dead* when its standard deviation is at most :data:`NEGLIGIBLE_RELATIVE_SPREAD`
 of its largest magnitude (a constant, or a constant plus rounding) or it is all zeros. The test
 is relative to the channel's own level because the units of each channel are unknown.
+
+Outputs (:func:`output_problem`): a dead output channel, or one that is a linear combination of
+the others (a channel recorded twice, a derived channel), leaves the innovation covariance
+singular: no predictor weighting, change test or uncertainty can be formed. Both are refused
+with the channel named, before any fit.
 """
 
 from __future__ import annotations
@@ -18,17 +23,23 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, NormalEquations
 from okid_ros.core.channels import channel_std
 from okid_ros.core.identified_model import IdentifiedModel
 
-__all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "input_excitation", "excitation_warnings",
-           "unexcited_reason", "window_excitation_warnings"]
+__all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
+           "excitation_warnings", "output_problem", "unexcited_reason", "window_excitation_warnings"]
 
 #: A standard deviation at most this fraction of the channel's peak is no excitation (below the
 #: resolution of a 24-bit converter around that level).
 NEGLIGIBLE_RELATIVE_SPREAD = 1e-7
+
+#: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
+#: fraction of the spread of the largest (10 copies of a channel with 1 % independent noise each:
+#: 1e-2; a channel recorded twice: 1e-8 or less).
+DEPENDENT_OUTPUT_RATIO = 1e-5
 
 _WHAT_TO_DO = ("check the sensor or actuator and its topic/column mapping, or, if the input is not "
                "measured, use output-only identification (identify --output-only)")
@@ -65,6 +76,43 @@ class Excitation:
         return f"input {index} ({'all zeros' if value == 0.0 else f'constant {value:.6g}'})"
 
 
+def dead_channels(x: np.ndarray) -> np.ndarray:
+    """Indices of the columns of ``x`` (N, c), N >= 1, without (or with negligible) variance."""
+    level = np.max(np.abs(x), axis=0)
+    return np.flatnonzero((level == 0) | (channel_std(x) <= NEGLIGIBLE_RELATIVE_SPREAD * level))
+
+
+def output_problem(y: np.ndarray) -> str:
+    """Why the outputs ``y`` (N, p) cannot be identified from (module docstring), or "".
+
+    Checked: a dead channel (constant or all zeros), then linearly dependent channels (the
+    eigenvalues of the Gram of the centred, unit-spread outputs; ``N p^2`` flops).
+    """
+    y = np.asarray(y, dtype=float)
+    if y.shape[0] == 0:
+        return ""
+    dead = dead_channels(y)
+    if dead.size:
+        j = int(dead[0])
+        level = float(np.max(np.abs(y[:, j])))
+        value = "all zeros" if level == 0 else f"constant {float(np.mean(y[:, j] / level)) * level:.6g}"
+        return (f"output channel {j} carries no response ({value}): check the sensor and its topic/column "
+                f"mapping, or leave the channel out")
+    if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
+        return ""
+    scaled = (y - y.mean(axis=0)) / channel_std(y)
+    values, vectors = linalg.eigh(scaled.T @ scaled)
+    null = vectors[:, values <= DEPENDENT_OUTPUT_RATIO**2 * values[-1]]
+    if not null.shape[1]:
+        return ""
+    # The channels each null combination holds (a repeated channel: the two; a derived one: all).
+    involved = np.flatnonzero(np.max(np.abs(null), axis=1) > 1e-3 * np.max(np.abs(null)))
+    listed = ", ".join(str(int(j)) for j in involved)
+    return (f"outputs {listed} are linearly dependent (one is a combination of the others: a channel recorded "
+            f"twice? a derived channel?): the innovation covariance would be singular; leave "
+            f"{'one' if null.shape[1] == 1 else null.shape[1]} of them out")
+
+
 def input_excitation(u: np.ndarray) -> Excitation:
     """Which input channels of ``u`` (N, m) carry no excitation (see the module docstring)."""
     u = np.asarray(u, dtype=float)
@@ -75,8 +123,7 @@ def input_excitation(u: np.ndarray) -> Excitation:
                           dict.fromkeys(range(u.shape[1]), 0.0))
     std = channel_std(u)
     level = np.max(np.abs(u), axis=0)
-    dead_mask = (level == 0) | (std <= NEGLIGIBLE_RELATIVE_SPREAD * level)
-    dead = [int(i) for i in np.flatnonzero(dead_mask)]
+    dead = [int(i) for i in dead_channels(u)]
     values = {i: float(np.mean(u[:, i] / level[i]) * level[i]) if level[i] > 0 else 0.0 for i in dead}
     return Excitation(std, level, dead, values)
 

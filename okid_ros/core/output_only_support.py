@@ -6,6 +6,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.channels import channel_std
+from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import OFFSETS
 from okid_ros.core.output_covariance import OutputCorrelations
@@ -22,8 +23,8 @@ MIN_SAMPLES = 200
 def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """``y`` as (N, p) floats less its means (``offsets="remove"``), the means, warnings.
 
-    Raises IdentificationError naming what is wrong (shape, NaN/Inf, a constant channel, too
-    short, a bad sample time).
+    Raises IdentificationError naming what is wrong (shape, NaN/Inf, a dead channel or one the
+    others make up, too short, a bad sample time).
     """
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
@@ -39,14 +40,13 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
     if not np.all(np.isfinite(y)):
         bad = np.argwhere(~np.isfinite(y))[0]
         raise IdentificationError(f"y holds NaN or Inf (first at sample {bad[0]}, channel {bad[1]})")
-    # Each channel against its own peak (channels in different units may differ by decades), by
-    # the helpers that neither overflow nor underflow for values near the float64 limits.
+    problem = output_problem(y)  # a dead channel, or one the others make up (the input-output rule)
+    if problem:
+        raise IdentificationError(problem)
+    # Neither overflows nor underflows for values near the float64 limits.
     peak = np.max(np.abs(y), axis=0)
     mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
     std = channel_std(y)
-    flat = np.flatnonzero(~(std > 1e-12 * peak))
-    if flat.size:
-        raise IdentificationError(f"output channel {int(flat[0])} is constant: it carries no response")
     warnings = []
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:

@@ -29,7 +29,7 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.channels import ChannelScales, channel_scales
-from okid_ros.core.excitation import LiveInputs, excitation_warnings
+from okid_ros.core.excitation import LiveInputs, excitation_warnings, output_problem
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.modal import _reference_row
 
@@ -131,11 +131,16 @@ class IdentificationFrame:
 
     @classmethod
     def of(cls, u: np.ndarray, y: np.ndarray, *, refuse_unexcited: bool = True) -> IdentificationFrame:
-        """The frame of ``u`` (N, m), ``y`` (N, p); IdentificationError when no input varies.
+        """The frame of ``u`` (N, m), ``y`` (N, p); IdentificationError when it cannot be identified.
 
-        With ``refuse_unexcited=False`` a record without excitation keeps all its inputs (the
-        caller refuses it after its own checks, :attr:`excited`).
+        Refused: no input varies; an output is dead or a combination of the others
+        (:func:`~okid_ros.core.excitation.output_problem`). With ``refuse_unexcited=False`` a
+        record without excitation keeps all its inputs (the caller refuses it after its own
+        checks, :attr:`excited`).
         """
+        problem = output_problem(y)
+        if problem:
+            raise IdentificationError(problem)
         live, warnings = LiveInputs.of(u), excitation_warnings(u)
         excited = bool(live.keep)
         if not excited:

@@ -2,7 +2,8 @@
 
 Truth: the paper's two-mode model driven on both inputs; a dead second input (zeros or a
 constant) must still give the modes from the live input, with a warning naming the dead channel;
-a record or window where no input varies is refused with the reason.
+a record or window where no input varies is refused with the reason. Outputs that carry no
+response, or that the other outputs make up, are refused with the channel named.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import pytest
 
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.excitation import LiveInputs, excitation_warnings, input_excitation
+from okid_ros.core.excitation import LiveInputs, excitation_warnings, input_excitation, output_problem
+from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import IdentificationError, identify, identify_from_arx
 from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.paper_model import paper_model
@@ -70,6 +72,33 @@ def test_no_excitation_is_refused_with_the_reason(one_input_record) -> None:
     for u in (np.zeros((y.shape[0], 2)), np.full((y.shape[0], 2), [1.0, -2.0])):
         with pytest.raises(IdentificationError, match="no input carries excitation"):
             identify(u, y, DT, order=40)
+
+
+def _bad_outputs(y: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
+    """Outputs the identification cannot use, each with the words its refusal must hold."""
+    rng = np.random.default_rng(3)
+    return {
+        "dead": (np.column_stack([y, np.full(y.shape[0], 5.0)]), "output channel 2 carries no response (constant 5)"),
+        "zeros": (np.column_stack([np.zeros(y.shape[0]), y]), "output channel 0 carries no response (all zeros)"),
+        "twice": (np.column_stack([y, y[:, 1]]), "outputs 1, 2 are linearly dependent"),
+        "derived": (np.column_stack([y, y[:, 0] - 2.0 * y[:, 1] + 7.0]), "outputs 0, 1, 2 are linearly dependent"),
+        "copies": (np.column_stack([y[:, 0], 3.0 * y[:, 0], y[:, 0], y[:, 1]]), "outputs 0, 1, 2 are linearly"),
+        "alive": (np.column_stack([y, y[:, 0] + 1e-2 * y[:, 0].std() * rng.standard_normal(y.shape[0])]), ""),
+    }
+
+
+def test_outputs_without_response_or_made_up_of_others_are_named(one_input_record) -> None:
+    u, y = one_input_record
+    for name, (outputs, words) in _bad_outputs(y).items():
+        assert words in output_problem(outputs), name
+        if not words:
+            continue
+        # Before: a ValueError (NaN in a solve) for the dead channel, a LinAlgError from the
+        # uncertainty's Cholesky of a singular innovation covariance for the repeated one.
+        with pytest.raises(IdentificationError, match=words.split(" (")[0]):
+            identify(u, outputs, DT, order=40)
+        with pytest.raises(IdentificationError, match=words.split(" (")[0]):
+            identify_output_only(outputs, DT)
 
 
 def test_an_unexcited_window_is_refused_like_other_refusals(one_input_record) -> None:

@@ -143,7 +143,7 @@ def test_the_order_is_chosen_again_after_refining():
 
 
 def test_identify_errors_are_one_line_reasons():
-    u, y = np.zeros((300, 2)), np.ones((300, 2))
+    u, y = np.zeros((300, 2)), np.random.default_rng(0).standard_normal((300, 2))
     with pytest.raises(IdentificationError, match="at least 503 needed"):
         identify(u, y, DT, order=100)
     with pytest.raises(IdentificationError, match="sample_time_s"):
@@ -179,7 +179,10 @@ def test_identify_command_writes_the_json_contract(tmp_path, capsys):
     [
         ({"u": np.zeros((600, 2)), "y": np.zeros((599, 2)), "sample_time_s": DT}, "length mismatch"),
         ({"u": np.zeros((600, 2)), "y": np.full((600, 2), np.nan), "sample_time_s": DT}, "NaN"),
-        ({"u": np.zeros((300, 2)), "y": np.ones((300, 2)), "sample_time_s": DT}, "503 needed"),
+        ({"u": np.zeros((300, 2)), "y": np.random.default_rng(0).standard_normal((300, 2)), "sample_time_s": DT},
+         "503 needed"),
+        ({"u": np.random.default_rng(1).standard_normal((600, 2)), "y": np.ones((600, 2)), "sample_time_s": DT},
+         "output channel 0 carries no response"),
         ({"u": np.zeros((600, 2)), "y": np.ones((600, 2))}, "missing key"),
         ({"u": np.zeros((600, 2, 2)), "y": np.ones((600, 2)), "sample_time_s": DT}, "2-D"),
     ],
