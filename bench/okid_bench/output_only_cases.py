@@ -97,6 +97,10 @@ def _cases() -> dict[str, OutputOnlyCase]:
             "harmonic", _structure([3.0, 6.0, 10.0], 0.01, 5, 1 / 50, seed=7), 30_000,
             "a harmonic force at 6.3 Hz (5 % above mode 2, 3x the white forces), fs 50 Hz, 600 s",
             harmonic_hz=6.3, force_std=3.0),
+        "one-channel": OutputOnlyCase(
+            "one-channel", _structure([3.0, 7.0, 12.0], 0.01, 1, 1 / 50, seed=1), 6_000,
+            "3 modes at 1 %, one accelerometer, fs 50 Hz, 120 s (a short record: the lags and the jackknife "
+            "compete for it)"),
     }
 
 

@@ -149,7 +149,9 @@ def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
             time.sleep(wait)
 
     def window_seen(ns: str) -> bool:
-        return any(m.samples_used >= 0.9 * n[ns] for m in probe.arx[ns])
+        # Most of its samples (best-effort at 2 x 400 Hz: a loaded 2-core machine lost over 10 %
+        # once in a full run); the isolation is the upper bound checked below.
+        return any(m.samples_used >= 0.8 * n[ns] for m in probe.arx[ns])
 
     for ns in RIGS:
         probe.wait_until(f"{ns}'s ArxModel over its samples", lambda ns=ns: window_seen(ns), 30)
