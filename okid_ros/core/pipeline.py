@@ -44,6 +44,7 @@ from okid_ros.core.arx import (
 from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
+from okid_ros.core.excitation import unexplained_warnings
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
@@ -256,7 +257,7 @@ def identify_from_arx(
         completed_orders=sorted(search.fits), stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
-        warnings=warnings + frame.warnings,
+        warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y),
     )
     # Step 7b: standard deviations of every mode's frequency and damping (on the offset-free data).
     identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)

@@ -101,6 +101,14 @@ def test_outputs_without_response_or_made_up_of_others_are_named(one_input_recor
             identify_output_only(outputs, DT)
 
 
+def test_a_model_that_explains_nothing_says_so(one_input_record) -> None:
+    u, y = one_input_record
+    assert not any("explains at most" in w for w in identify(u, y, DT, order=40).warnings)
+    unrelated = np.random.default_rng(4).standard_normal(y.shape)  # outputs of another experiment
+    model = identify(u, unrelated, DT, order=40)
+    assert any("explains at most" in w and "no dynamics identified" in w for w in model.warnings)
+
+
 def test_an_unexcited_window_is_refused_like_other_refusals(one_input_record) -> None:
     u, y = one_input_record
     u_w, y_w = np.zeros_like(u[:1200]), y[:1200]
