@@ -31,6 +31,10 @@ published before the next one. What it does, for each ``--window``:
    sample's ModalStates, and the CPU of each node with its workers (as bench/dds_latency.py:
    /proc, node 2 with its realization process).
 
+``--output-only`` publishes the accelerations alone (``u`` empty, ``n_inputs: 0``): node 1 fits
+a vector autoregression, node 2 realizes by the output-only front end (issue 18 item 6: a model
+every publish period, at most 1 s of compute per update at 28 channels).
+
 Prints a markdown table, one column per window; docs/benchmarks-nodes.md has the numbers of
 this machine ("28 channels at 1024 Hz (issue 17 item 3)").
 """
@@ -77,6 +81,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--synthetic", type=float, default=0.0, metavar="SECONDS",
                         help="publish instead SECONDS of the record's identified model driven by white noise "
                              "(no seam; see synthetic_record)")
+    parser.add_argument("--output-only", action="store_true",
+                        help="n_inputs 0: the accelerations alone, the shaker forces not published (issue 18 "
+                             "item 6: node 1 a vector autoregression, node 2 the output-only realization)")
     parser.add_argument("--domain", type=int, default=61, help="ROS_DOMAIN_ID of the first run (default 61)")
     parser.add_argument("--role", default="bench", choices=("bench", "receiver"), help=argparse.SUPPRESS)
     parser.add_argument("--out", default="", help=argparse.SUPPRESS)
@@ -157,7 +164,8 @@ def start_chain(args: argparse.Namespace, window: int, dt: float, tmp: Path, env
     """Both nodes and the receiver as processes; returns {name: Popen} (logs in ``tmp``)."""
     overrides = tmp / "pace.yaml"
     overrides.write_text(
-        f"/**:\n  ros__parameters:\n    sample_time_s: {dt!r}\n    n_inputs: 2\n    n_outputs: 28\n"
+        f"/**:\n  ros__parameters:\n    sample_time_s: {dt!r}\n    n_inputs: {0 if args.output_only else 2}\n"
+        f"    n_outputs: 28\n"
         f"/**/okid_arx_identifier:\n  ros__parameters:\n"
         f"    arx:\n      order: {args.order}\n      window_length: {window}\n"
         f"/**/okid_modal_estimator:\n  ros__parameters:\n"
@@ -177,8 +185,11 @@ def start_chain(args: argparse.Namespace, window: int, dt: float, tmp: Path, env
     return procs
 
 
-def make_messages(record: Path):
-    """One IoSample per sample of the record (stamps set when published) and the sample time."""
+def make_messages(record: Path, *, output_only: bool = False):
+    """One IoSample per sample of the record and the sample time.
+
+    Stamps are set when published; ``u`` is empty with ``output_only``.
+    """
     import numpy as np
 
     from okid_msgs.msg import IoSample
@@ -187,7 +198,7 @@ def make_messages(record: Path):
     msgs = []
     for u, y in zip(data["u"], data["y"]):
         msg = IoSample()
-        msg.u, msg.y = u.tolist(), y.tolist()
+        msg.u, msg.y = ([] if output_only else u.tolist()), y.tolist()
         msgs.append(msg)
     return msgs, float(data["sample_time_s"])
 
@@ -427,7 +438,8 @@ def print_table(args: argparse.Namespace, rows: list[dict], dt: float) -> None:
     """The markdown table: one column per window."""
     source = (f"the steel subframe's identified model simulated for {args.synthetic:g} s" if args.synthetic > 0
               else "steel subframe looped")
-    print(f"\nbench/live_pace.py: {source}, {1 / dt:g} Hz, p = 28, m = 2, q = {args.order}, "
+    print(f"\nbench/live_pace.py: {source}, {1 / dt:g} Hz, p = 28, m = {0 if args.output_only else 2}, "
+          f"q = {args.order}{' (output-only: node 1 a VAR)' if args.output_only else ''}, "
           f"defaults otherwise (ArxModel 1 Hz, automatic order, change detection "
           f"{'off' if args.no_change_detection else 'on'}), "
           f"measured {args.duration:g} s after the first StateSpaceModel, {os.cpu_count()} cores\n")
@@ -484,7 +496,7 @@ def main() -> int:
     record = Path(args.record)
     if args.synthetic > 0:
         record = synthetic_record(record, args.synthetic, Path(tempfile.mkdtemp(prefix="okid_pace_record_")))
-    msgs, dt = make_messages(record)
+    msgs, dt = make_messages(record, output_only=args.output_only)
     rows = []
     for i, window in enumerate(args.window):
         try:
