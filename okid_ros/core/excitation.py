@@ -108,8 +108,11 @@ def output_problem(y: np.ndarray) -> str:
                 f"mapping, or leave the channel out")
     if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
         return ""
-    scaled = (y - y.mean(axis=0)) / channel_std(y)
-    values, vectors = linalg.eigh(scaled.T @ scaled)
+    x = y / np.max(np.abs(y), axis=0)  # each channel within +-1 (no overflow near the float64 limits)
+    x = x - x.mean(axis=0)
+    gram = x.T @ x
+    scale = np.sqrt(np.diag(gram))
+    values, vectors = linalg.eigh(gram / np.outer(scale, scale))  # the channels' correlation matrix
     null = vectors[:, values <= DEPENDENT_OUTPUT_RATIO**2 * values[-1]]
     if not null.shape[1]:
         return ""
