@@ -184,9 +184,7 @@ def run(args: argparse.Namespace) -> int:
             rows = int(estimator.status.rows_in_window)
             entry = _line_head(k, rows, q, dt, alarm)
             if rows < restart_rows:
-                entry.update(n_states=None, modes=[], waiting=(
-                    f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the "
-                    f"{restart_rows} rows needed"))
+                entry.update(n_states=None, modes=[], waiting=_waiting(estimator.status, changes, rows, restart_rows))
                 entry["elapsed_s"] = time.perf_counter() - t0
                 handle.write(dumps(entry) + "\n")
                 continue
@@ -269,6 +267,14 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"(window {window} rows plus {q} lags)"
         )
     return q
+
+
+def _waiting(status, changes: list, rows: int, needed: int) -> str:
+    """Why the window holds too few rows for a model: a restart at a change, or rejected samples."""
+    if changes:
+        return f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the {needed} rows needed"
+    return (f"the window holds {rows} of the {needed} rows needed: {status.rejected_magnitude} samples rejected for "
+            f"values beyond 1e150 (rescale those channels), {status.rejected_nonfinite} for NaN/Inf")
 
 
 def _line_head(k: int, rows: int, q: int, dt: float, alarm) -> dict:

@@ -148,6 +148,7 @@ def identify_output_only(
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
     scales = group_scales(np.zeros((y.shape[0], 0)), y)
     y = y / scales.output
+    _check_channel_sizes(y)
     if harmonics == "remove":
         y = _without_harmonics(y, sample_time_s, warnings)
     chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
@@ -258,6 +259,22 @@ def _check_options(method: str, harmonics: str) -> None:
         raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
     if harmonics not in ("remove", "keep"):
         raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
+
+
+#: Largest channel size after the common scale: the Hankel's Gram holds fourth powers of the
+#: outputs, and 1e50 keeps them within float64.
+MAX_SCALED_OUTPUT = 1e50
+
+
+def _check_channel_sizes(y: np.ndarray) -> None:
+    """IdentificationError when the outputs (one common scale) span too many decades to correlate."""
+    peak = np.max(np.abs(y), axis=0)
+    if np.max(peak) > MAX_SCALED_OUTPUT:
+        sizes = ", ".join(f"{v:.1e}" for v in peak / np.min(peak))
+        raise IdentificationError(
+            f"the output channels differ too much in size (relative peaks {sizes}): output-only identification "
+            f"weighs each channel by its variance, and the correlations of channels so far apart leave float64; "
+            f"express them in comparable units")
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int) -> None:

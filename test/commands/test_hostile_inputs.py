@@ -155,6 +155,20 @@ def test_track_without_inputs_runs_output_only(tmp_path: Path, capsys: pytest.Ca
     assert "Traceback" not in capsys.readouterr().err
 
 
+def test_track_says_why_a_window_of_rejected_samples_waits(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Outputs 450 decades apart: after track's common scale of the outputs one is still beyond
+    # 1e150, which the sliding window rejects (its squares would overflow), so no window fills;
+    # the line said "restarted at the change" of a change that never was, and the lookup of that
+    # change ended track with an IndexError (found by test_property_cli).
+    u, y = _good_arrays()
+    np.savez(tmp_path / "huge.npz", u=u, y=y * np.array([1e-150, 1e300]), sample_time_s=0.01)
+    assert cli.main(["track", str(tmp_path / "huge.npz"), "--jsonl", str(tmp_path / "t.jsonl"),
+                     "--window", "200", "--order", "6", "--states", "4", "--no-progress"]) == 0
+    lines = [json.loads(line) for line in (tmp_path / "t.jsonl").read_text().splitlines()]
+    assert lines and all("rejected for values beyond 1e150" in line["waiting"] for line in lines)
+    assert "Traceback" not in capsys.readouterr().err
+
+
 def test_bool_and_integer_arrays_are_numbers(tmp_path: Path) -> None:
     u, y = _good_arrays()
     np.savez(tmp_path / "ints.npz", u=u > 0, y=(1000 * y).astype(np.int32), sample_time_s=np.int64(1))

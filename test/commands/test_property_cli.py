@@ -1,9 +1,10 @@
 """Property-based tests of the `okid-ros` entry points on generated records and files.
 
-Whatever the record (channel units from 1e-150 to 1e150, dead or constant inputs, NaN, too short,
-damaged bytes), `identify` and `track` end with status 0 or 2 and print only lines starting with
-``okid-ros COMMAND:`` on stderr (no traceback, no bare warning); a success writes JSON without NaN
-or null in the model, a failure writes nothing. Bag commands on random bytes fail in one line.
+Whatever the record (channel units from 1e-150 to 1e300, dead or constant inputs, dead or
+repeated outputs, no inputs (output-only), NaN, too short, damaged bytes), `identify` and `track`
+end with status 0 or 2 and print only lines starting with ``okid-ros COMMAND:`` on stderr (no
+traceback, no bare warning); a success writes JSON without NaN or null in the model, a failure
+writes nothing. Bag commands on random bytes fail in one line.
 """
 
 from __future__ import annotations
@@ -80,8 +81,9 @@ def records(draw):
     for k in range(2, n):
         y[k] = 1.6 * y[k - 1] - 0.9 * y[k - 2] + u[k - 1].sum() + 0.05 * rng.standard_normal(p)
     u *= draw(st.lists(st.sampled_from([1.0, 1e-150, 1e150, 3e-7]), min_size=m, max_size=m))
-    y *= draw(st.lists(st.sampled_from([1.0, 1e-150, 1e150, 2e5]), min_size=p, max_size=p))
-    fault = draw(st.sampled_from(["none", "none", "dead", "constant", "all_dead", "nan", "no_u"]))
+    y *= draw(st.lists(st.sampled_from([1.0, 1e-150, 1e150, 2e5, 1e300]), min_size=p, max_size=p))
+    fault = draw(st.sampled_from(["none", "none", "dead", "constant", "all_dead", "nan", "no_u", "no_u",
+                                  "dead_output", "repeated_output"]))
     if fault == "dead":
         u[:, -1] = 0.0
     elif fault == "constant":
@@ -90,6 +92,10 @@ def records(draw):
         u[:] = 1.5
     elif fault == "nan":
         y[draw(st.integers(0, n - 1)), 0] = np.nan
+    elif fault == "dead_output":
+        y[:, 0] = 2.5
+    elif fault == "repeated_output":
+        y[:, -1] = -3.0 * y[:, 0]
     arrays = {"y": y, "sample_time_s": 0.01}
     if fault != "no_u":
         arrays["u"] = u
