@@ -33,7 +33,7 @@ from okid_ros.core.identified_model import IdentifiedModel
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
-           "window_excitation_warnings"]
+           "window_excitation_warnings", "window_output_problem"]
 
 #: A standard deviation at most this fraction of the channel's peak is no excitation (below the
 #: resolution of a 24-bit converter around that level).
@@ -43,6 +43,10 @@ NEGLIGIBLE_RELATIVE_SPREAD = 1e-7
 #: fraction of the spread of the largest (10 copies of a channel with 1 % independent noise each:
 #: 1e-2; a channel recorded twice: 1e-8 or less).
 DEPENDENT_OUTPUT_RATIO = 1e-5
+
+#: A channel whose standard deviation exceeds its normalized median absolute deviation this many
+#: times holds a spike (a Gaussian record: about 1; a lightly damped response: a few).
+SPIKE_SPREAD_RATIO = 100.0
 
 #: A model whose one-step prediction explains less than this share of every output's variance
 #: identified no dynamics (outputs of white noise, 4000 samples, ARX orders 40 and automatic:
@@ -94,7 +98,7 @@ def output_problem(y: np.ndarray) -> str:
     """Why the outputs ``y`` (N, p) cannot be identified from (module docstring), or "".
 
     Checked: a dead channel (constant or all zeros), then linearly dependent channels (the
-    eigenvalues of the Gram of the centred, unit-spread outputs; ``N p^2`` flops).
+    eigenvalues of the correlation matrix of the outputs; ``N p^2`` flops).
     """
     y = np.asarray(y, dtype=float)
     if y.shape[0] == 0:
@@ -103,14 +107,52 @@ def output_problem(y: np.ndarray) -> str:
     if dead.size:
         j = int(dead[0])
         level = float(np.max(np.abs(y[:, j])))
-        value = "all zeros" if level == 0 else f"constant {float(np.mean(y[:, j] / level)) * level:.6g}"
-        return (f"output channel {j} carries no response ({value}): check the sensor and its topic/column "
-                f"mapping, or leave the channel out")
+        return _dead_output(j, float(np.mean(y[:, j] / level)) * level if level > 0 else 0.0)
     if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
         return ""
     x = y / np.max(np.abs(y), axis=0)  # each channel within +-1 (no overflow near the float64 limits)
     x = x - x.mean(axis=0)
-    gram = x.T @ x
+    dependent = _dependent_outputs(x.T @ x)
+    if dependent:
+        # One sample far beyond the rest in every channel (a glitch) also makes the outputs collinear.
+        robust = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+        ratio = x.std(axis=0) / np.maximum(robust, np.finfo(float).tiny)
+        if np.max(ratio) > SPIKE_SPREAD_RATIO:
+            j = int(np.argmax(ratio))
+            return (f"output channel {j} holds samples far beyond its usual range (standard deviation "
+                    f"{ratio[j]:.3g} times its median absolute deviation), enough to make the outputs look "
+                    f"linearly dependent: a spike or a glitch? remove or repair those samples")
+    return dependent
+
+
+def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int) -> str:
+    """:func:`output_problem` of a window known only by its normal equations (the live service).
+
+    Columns ``m .. m + p`` of the regressor are ``y_(k-1)``: their sums and Gram give each
+    output's level, spread and the outputs' covariance in the window.
+    """
+    n = max(normal.n_rows, 1)
+    cols = slice(n_inputs, n_inputs + n_outputs)
+    mean = normal.phi_sum[cols] / n if normal.phi_sum is not None else np.zeros(n_outputs)
+    covariance = normal.R[cols, cols] / n - np.outer(mean, mean)
+    square = np.diag(normal.R)[cols] / n
+    variance = np.maximum(np.diag(covariance), 0.0)
+    # Rounding leaves about eps * mean^2 of variance in a constant channel (as for the inputs).
+    dead = np.flatnonzero((square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps)
+                                           * square))
+    if dead.size:
+        return _dead_output(int(dead[0]), float(mean[dead[0]]))
+    return _dependent_outputs(covariance) if n_outputs > 1 else ""
+
+
+def _dead_output(channel: int, value: float) -> str:
+    text = "all zeros" if value == 0.0 else f"constant {value:.6g}"
+    return (f"output channel {channel} carries no response ({text}): check the sensor and its topic/column "
+            f"mapping, or leave the channel out")
+
+
+def _dependent_outputs(gram: np.ndarray) -> str:
+    """Why outputs whose (centred) Gram or covariance is ``gram`` (p, p) are linearly dependent, or ""."""
     scale = np.sqrt(np.diag(gram))
     values, vectors = linalg.eigh(gram / np.outer(scale, scale))  # the channels' correlation matrix
     null = vectors[:, values <= DEPENDENT_OUTPUT_RATIO**2 * values[-1]]
@@ -120,8 +162,8 @@ def output_problem(y: np.ndarray) -> str:
     involved = np.flatnonzero(np.max(np.abs(null), axis=1) > 1e-3 * np.max(np.abs(null)))
     listed = ", ".join(str(int(j)) for j in involved)
     return (f"outputs {listed} are linearly dependent (one is a combination of the others: a channel recorded "
-            f"twice? a derived channel?): the innovation covariance would be singular; leave "
-            f"{'one' if null.shape[1] == 1 else null.shape[1]} of them out")
+            f"twice? a derived channel? or a spike far larger than the rest in all of them): the innovation "
+            f"covariance would be singular; leave {'one' if null.shape[1] == 1 else null.shape[1]} of them out")
 
 
 def unexplained_warnings(innovation_covariance: np.ndarray, y: np.ndarray) -> list[str]:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
-from okid_ros.core.excitation import window_excitation_warnings
+from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -153,11 +153,13 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     cond = float(fit.condition_number)
     elapsed = time.perf_counter() - t0
     if not cond <= prm.max_condition_number:
-        dead = window_excitation_warnings(capture.normal, prm.n_inputs)  # names the dead inputs, says what to do
+        # Name what makes the window singular: dead inputs, dead or dependent outputs.
+        causes = window_excitation_warnings(capture.normal, prm.n_inputs)[:1]
+        causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
         return SolveResult(
             None, cond,
             f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}"
-            + (f"; {dead[0]}" if dead else ""),
+            + "".join(f"; {cause}" for cause in causes),
             elapsed,
         )
     if not np.all(np.isfinite(fit.theta)):

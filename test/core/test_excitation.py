@@ -16,7 +16,14 @@ import pytest
 
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.excitation import LiveInputs, excitation_warnings, input_excitation, output_problem
+from okid_ros.core.arx_gram import arx_normal_equations
+from okid_ros.core.excitation import (
+    LiveInputs,
+    excitation_warnings,
+    input_excitation,
+    output_problem,
+    window_output_problem,
+)
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import IdentificationError, identify, identify_from_arx
 from okid_ros.sim.inputs import lowpass_input
@@ -84,13 +91,15 @@ def _bad_outputs(y: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
         "derived": (np.column_stack([y, y[:, 0] - 2.0 * y[:, 1] + 7.0]), "outputs 0, 1, 2 are linearly dependent"),
         "copies": (np.column_stack([y[:, 0], 3.0 * y[:, 0], y[:, 0], y[:, 1]]), "outputs 0, 1, 2 are linearly"),
         "alive": (np.column_stack([y, y[:, 0] + 1e-2 * y[:, 0].std() * rng.standard_normal(y.shape[0])]), ""),
+        "spike": (np.where(np.arange(y.shape[0])[:, None] == 700, 1e9, y), "holds samples far beyond its usual range"),
     }
 
 
 def test_outputs_without_response_or_made_up_of_others_are_named(one_input_record) -> None:
     u, y = one_input_record
     for name, (outputs, words) in _bad_outputs(y).items():
-        assert words in output_problem(outputs), name
+        found = output_problem(outputs)
+        assert (words in found) if words else found == "", (name, found)
         if not words:
             continue
         # Before: a ValueError (NaN in a solve) for the dead channel, a LinAlgError from the
@@ -99,6 +108,17 @@ def test_outputs_without_response_or_made_up_of_others_are_named(one_input_recor
             identify(u, outputs, DT, order=40)
         with pytest.raises(IdentificationError, match=words.split(" (")[0]):
             identify_output_only(outputs, DT)
+
+
+def test_the_live_window_names_dead_and_dependent_outputs(one_input_record) -> None:
+    # Node 1 knows its window only by the normal equations; a singular window's refusal named
+    # dead inputs only, and called a dead output an "unexcited window" without saying which.
+    u, y = one_input_record
+    for name, (outputs, words) in _bad_outputs(y).items():
+        if name in ("zeros", "spike"):  # (zeros: as "dead"; a spike needs the samples themselves)
+            continue
+        found = window_output_problem(arx_normal_equations(u, outputs, 10), u.shape[1], outputs.shape[1])
+        assert (words.split(" (")[0] in found) if words else found == "", (name, found)
 
 
 def test_a_model_that_explains_nothing_says_so(one_input_record) -> None:
