@@ -135,7 +135,7 @@ def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int
     cols = slice(n_inputs, n_inputs + n_outputs)
     mean = normal.phi_sum[cols] / n if normal.phi_sum is not None else np.zeros(n_outputs)
     covariance = normal.R[cols, cols] / n - np.outer(mean, mean)
-    square = np.diag(normal.R)[cols] / n
+    square = np.maximum(np.diag(normal.R)[cols] / n, 0.0)
     variance = np.maximum(np.diag(covariance), 0.0)
     # Rounding leaves about eps * mean^2 of variance in a constant channel (as for the inputs).
     dead = np.flatnonzero((square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps)
@@ -287,7 +287,8 @@ def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[s
     the column sums) and the mean magnitudes give each input's spread and level in the window.
     """
     n = max(normal.n_rows, 1)
-    square = np.diag(normal.R)[:n_inputs] / n
+    # A sliding window's downdates can leave an all-zero column's sum of squares at -1e-17.
+    square = np.maximum(np.diag(normal.R)[:n_inputs] / n, 0.0)
     mean = normal.phi_sum[:n_inputs] / n if normal.phi_sum is not None else np.zeros(n_inputs)
     variance = np.maximum(square - mean**2, 0.0)
     # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no excitation.
