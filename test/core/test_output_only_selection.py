@@ -67,7 +67,7 @@ def test_a_lightly_damped_mode_is_no_harmonic() -> None:
 
 def test_a_mode_over_less_than_a_decay_time_is_no_harmonic() -> None:
     # 3 Hz at 0.2 % damping over 20 s (60 cycles, 0.75 decay times): its envelope hardly changes
-    # and its kurtosis nears a sinusoid's; 3 of these 8 records were taken for a harmonic before
+    # and its kurtosis nears a sinusoid's; 1 of these 8 records was taken for a harmonic before
     # lines with fewer than ~160 cycles in the record were left untested.
     for seed in range(8):
         y = _lightly_damped_response(1000, seed, frequency_hz=3.0, zeta=0.002, sample_time_s=0.02)
