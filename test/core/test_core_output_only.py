@@ -218,7 +218,7 @@ def test_the_units_do_not_change_the_modes() -> None:
 
 
 def test_a_single_channel_of_a_short_record_lists_no_noise_poles() -> None:
-    # One channel, 120 s: the 102 block rows that orders to 100 need left two segments, no
+    # One channel, 120 s: the 103 block rows that orders to 100 need left two segments, no
     # jackknife, and about nine noise poles were listed per record; the record's bound on the
     # lags now wins and the orders stop at 60.
     for seed in range(3):
