@@ -94,6 +94,12 @@ def dead_channels(x: np.ndarray) -> np.ndarray:
     return np.flatnonzero((level == 0) | (channel_std(x) <= NEGLIGIBLE_RELATIVE_SPREAD * level))
 
 
+def _constant_value(column: np.ndarray) -> float:
+    """The value of a dead channel (its mean, without overflow near the float64 limits)."""
+    level = float(np.max(np.abs(column)))
+    return float(np.mean(column / level)) * level if level > 0 else 0.0
+
+
 def output_problem(y: np.ndarray) -> str:
     """Why the outputs ``y`` (N, p) cannot be identified from (module docstring), or "".
 
@@ -106,8 +112,7 @@ def output_problem(y: np.ndarray) -> str:
     dead = dead_channels(y)
     if dead.size:
         j = int(dead[0])
-        level = float(np.max(np.abs(y[:, j])))
-        return _dead_output(j, float(np.mean(y[:, j] / level)) * level if level > 0 else 0.0)
+        return _dead_output(j, _constant_value(y[:, j]))
     if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
         return ""
     x = y / np.max(np.abs(y), axis=0)  # each channel within +-1 (no overflow near the float64 limits)
@@ -131,18 +136,28 @@ def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int
     Columns ``m .. m + p`` of the regressor are ``y_(k-1)``: their sums and Gram give each
     output's level, spread and the outputs' covariance in the window.
     """
-    n = max(normal.n_rows, 1)
     cols = slice(n_inputs, n_inputs + n_outputs)
-    mean = normal.phi_sum[cols] / n if normal.phi_sum is not None else np.zeros(n_outputs)
-    covariance = normal.R[cols, cols] / n - np.outer(mean, mean)
+    square, mean, _, dead = _window_columns(normal, cols)
+    if dead.any():
+        j = int(np.flatnonzero(dead)[0])
+        return _dead_output(j, float(mean[j]))
+    if n_outputs < 2:
+        return ""
+    return _dependent_outputs(normal.R[cols, cols] / max(normal.n_rows, 1) - np.outer(mean, mean))
+
+
+def _window_columns(normal: NormalEquations, cols: slice
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean square, mean, variance and the dead mask of regressor columns ``cols`` of a window."""
+    n = max(normal.n_rows, 1)
+    # A sliding window's downdates can leave an all-zero column's sum of squares at -1e-17.
     square = np.maximum(np.diag(normal.R)[cols] / n, 0.0)
-    variance = np.maximum(np.diag(covariance), 0.0)
-    # Rounding leaves about eps * mean^2 of variance in a constant channel (as for the inputs).
-    dead = np.flatnonzero((square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps)
-                                           * square))
-    if dead.size:
-        return _dead_output(int(dead[0]), float(mean[dead[0]]))
-    return _dependent_outputs(covariance) if n_outputs > 1 else ""
+    width = square.size
+    mean = normal.phi_sum[cols] / n if normal.phi_sum is not None else np.zeros(width)
+    variance = np.maximum(square - mean**2, 0.0)
+    # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no variation.
+    dead = (square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * square)
+    return square, mean, variance, dead
 
 
 def _dead_output(channel: int, value: float) -> str:
@@ -193,7 +208,7 @@ def input_excitation(u: np.ndarray) -> Excitation:
     std = channel_std(u)
     level = np.max(np.abs(u), axis=0)
     dead = [int(i) for i in dead_channels(u)]
-    values = {i: float(np.mean(u[:, i] / level[i]) * level[i]) if level[i] > 0 else 0.0 for i in dead}
+    values = {i: _constant_value(u[:, i]) for i in dead}
     return Excitation(std, level, dead, values)
 
 
@@ -286,13 +301,7 @@ def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[s
     The first ``m`` regressor columns are ``u_k``: their centered mean squares (from ``R`` and
     the column sums) and the mean magnitudes give each input's spread and level in the window.
     """
-    n = max(normal.n_rows, 1)
-    # A sliding window's downdates can leave an all-zero column's sum of squares at -1e-17.
-    square = np.maximum(np.diag(normal.R)[:n_inputs] / n, 0.0)
-    mean = normal.phi_sum[:n_inputs] / n if normal.phi_sum is not None else np.zeros(n_inputs)
-    variance = np.maximum(square - mean**2, 0.0)
-    # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no excitation.
-    dead = (square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * square)
+    square, mean, variance, dead = _window_columns(normal, slice(0, n_inputs))
     report = Excitation(np.sqrt(variance), np.sqrt(square), [int(i) for i in np.flatnonzero(dead)],
                         {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
     if not report.dead:
