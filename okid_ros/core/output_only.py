@@ -305,19 +305,23 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
     cluster lives, not at an order chosen for all of them). ``dominance(n, pole)`` is the
-    mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`).
+    mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`). Of
+    the families split from one cluster (``group``: nearly one frequency and one shape, a mode
+    and the noise pole beside it) the one that passes with the largest share is kept.
     """
-    kept = []
+    best: dict[int, tuple[float, ModeCluster]] = {}
     for mode in modes:
         orders = sorted(mode.members)
         n_home = orders[len(orders) // 2]
         target = poles.eigenvalue[mode.members[n_home]]
         f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
         width = mode.damping_ratio * mode.frequency_hz
-        if (f_std[0] <= MAX_FREQUENCY_STD_PER_WIDTH * width and z_std[0] <= MAX_DAMPING_CV * mode.damping_ratio
-                and dominance(n_home, target) >= MIN_SPECTRAL_DOMINANCE):
-            kept.append(mode)
-    return kept
+        if f_std[0] > MAX_FREQUENCY_STD_PER_WIDTH * width or z_std[0] > MAX_DAMPING_CV * mode.damping_ratio:
+            continue
+        share = dominance(n_home, target)
+        if share >= MIN_SPECTRAL_DOMINANCE and share > best.get(mode.group, (-np.inf, None))[0]:
+            best[mode.group] = (share, mode)
+    return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
 
 
 def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

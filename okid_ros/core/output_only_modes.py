@@ -9,7 +9,9 @@ The stabilization diagram without clicks:
    MAC >= ``MAC_TOLERANCE`` (:func:`mark_stable`);
 3. stable poles are grouped by average-linkage hierarchical clustering
    (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
-   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`);
+   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`); a cluster holding two poles at ``MIN_ORDERS``
+   orders or more holds two families (a mode has one pole per order) and is split
+   (:func:`_families`);
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
@@ -48,6 +50,8 @@ MIN_MPC = 0.5
 MIN_ENERGY = 0.0
 MAX_FREQUENCY_SPREAD_PER_DAMPING = 1.0
 MIN_OUTPUTS_FOR_MPC = 3
+#: Times a linkage cluster may be split into families of poles (:func:`_families`).
+MAX_SPLITS = 2
 
 
 @dataclass
@@ -85,6 +89,8 @@ class ModeCluster:
     damping_ratio_spread: float
     mpc: float
     energy: float
+    #: The linkage cluster the mode's poles came from; modes split from one (:func:`_families`) share it.
+    group: int = -1
 
 
 def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float) -> PoleSet:
@@ -195,6 +201,24 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
     )
 
 
+def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> list[np.ndarray]:
+    """The poles of one linkage cluster as the families of poles it holds: one mode has one pole per order.
+
+    A cluster with two poles at :data:`MIN_ORDERS` orders or more holds two families (a mode and
+    a noise pole beside it with nearly its shape, or two close modes seen by one or two
+    outputs, whose MAC is 1): they are split in two by Ward linkage on log frequency, in units
+    of the cluster's damping ratio (half-power bandwidths), and log damping, and each part is
+    looked at again.
+    """
+    _, counts = np.unique(poles.order[index], return_counts=True)
+    if depth == 0 or np.sum(counts >= 2) < MIN_ORDERS:
+        return [index]
+    zeta = poles.damping_ratio[index]
+    features = np.column_stack([np.log(poles.frequency_hz[index]) / max(_median(zeta), MIN_DAMPING), np.log(zeta)])
+    labels = hierarchy.fcluster(hierarchy.linkage(features, method="ward"), t=2, criterion="maxclust")
+    return [part for label in (1, 2) for part in _families(poles, index[labels == label], depth - 1)]
+
+
 def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[list[ModeCluster], list[ModeCluster]]:
     """Group the stable poles into modes (module docstring).
 
@@ -214,8 +238,9 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]
     accepted, rejected = [], []
-    for label in np.unique(labels):
-        cluster = _cluster(poles, index[labels == label], p)
+    for label, family in ((lb, f) for lb in np.unique(labels) for f in _families(poles, index[labels == lb])):
+        cluster = _cluster(poles, family, p)
+        cluster.group = int(label)
         first = min(cluster.members)
         available = int(np.sum(orders >= first))
         count = len(cluster.members)

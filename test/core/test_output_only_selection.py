@@ -83,3 +83,60 @@ def test_a_sinusoid_is_found_refined_and_removed() -> None:
     assert abs(found[0].frequency_hz - 12.3456) < 1e-4 and found[0].kurtosis < 1.6
     cleaned = remove_harmonics(y + line, 0.01, found)
     assert np.sum((cleaned - y) ** 2) < 1e-3 * np.sum(line ** 2)
+
+
+def _twin_poles(n_orders: int = 30):
+    """A PoleSet of two families at every order, one shape: 187.0 Hz at 3.1 % and 188.3 Hz at 0.2 %."""
+    from okid_ros.core.output_only_modes import PoleSet
+
+    dt, rng = 1e-3, np.random.default_rng(0)
+    orders = np.repeat(np.arange(10, 10 + 2 * n_orders, 2), 2)
+    f = np.tile([187.0, 188.3], n_orders) * (1 + 2e-4 * rng.standard_normal(orders.size))
+    z = np.tile([0.031, 0.002], n_orders) * (1 + 0.05 * rng.standard_normal(orders.size))
+    s = 2 * np.pi * f * (-z + 1j * np.sqrt(1 - z ** 2))
+    shape = np.tile([0.5, 0.5, 0.5, 0.5], (orders.size, 1)).astype(complex)
+    return PoleSet(orders, f, z, np.exp(s * dt), shape, np.ones(orders.size), np.ones(orders.size, bool))
+
+
+def test_a_cluster_with_two_poles_per_order_is_two_modes() -> None:
+    from okid_ros.core.output_only_modes import cluster_modes
+
+    modes, _ = cluster_modes(_twin_poles())
+    assert [round(m.frequency_hz, 1) for m in modes] == [187.0, 188.3]
+    assert modes[0].damping_ratio == pytest.approx(0.031, rel=0.1)
+    assert modes[1].damping_ratio == pytest.approx(0.002, rel=0.1)
+    assert modes[0].group == modes[1].group  # split from one linkage cluster
+
+
+def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
+    from okid_ros.core.output_only import _drop_noise_modes
+    from okid_ros.core.output_only_modes import cluster_modes
+
+    poles = _twin_poles()
+    modes, _ = cluster_modes(poles)
+
+    class Quiet:  # every candidate passes the jackknife
+        def std(self, targets, n, dt):
+            return np.zeros(len(targets)), np.zeros(len(targets))
+
+    def share(n, pole):  # both would pass MIN_SPECTRAL_DOMINANCE on their own
+        return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
+
+    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share)
+    assert [round(m.frequency_hz, 1) for m in kept] == [187.0]
+
+
+def test_a_mode_beside_a_noise_pole_of_its_shape_is_found() -> None:
+    """A mode whose noise twin shares its cluster is found.
+
+    5 modes, 4 accelerometers at 1 kHz, 60 s: the 186.5 Hz mode (2.9 %) gets a 188.3 Hz noise
+    pole of its shape at most orders; the two were one cluster and the mode was lost.
+    """
+    from okid_bench.output_only_cases import OutputOnlyCase
+    from okid_ros.sim.models import modal_structure
+
+    system = modal_structure([11.9114, 19.2368, 37.0717, 57.1692, 186.4959],
+                             [0.005547, 0.025307, 0.004298, 0.021711, 0.028618], 1, 4, 1e-3, seed=534420,
+                             output="acceleration", disturbance_std=1.0, measurement_noise_ratio=0.0113)
+    case = OutputOnlyCase("twin", system, 60_000, "")
+    _check_modes(case, identify_output_only(case.simulate(29), case.sample_time_s))
