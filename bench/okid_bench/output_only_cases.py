@@ -18,7 +18,7 @@ from scipy import linalg, signal
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
 from okid_ros.sim.simulators import simulate_noisy
 
-__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "OUTPUT_ONLY_CASES"]
+__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "random_case", "OUTPUT_ONLY_CASES"]
 
 
 @dataclass
@@ -118,6 +118,39 @@ def output_only_case(name: str) -> OutputOnlyCase:
 def output_only_cases() -> list[OutputOnlyCase]:
     """Every case."""
     return list(_cases().values())
+
+
+def random_case(index: int) -> OutputOnlyCase:
+    """Structure number ``index`` of a family drawn at random: records no selection rule was tuned on.
+
+    2-8 modes between 1 % and 35 % of the sampling rate (50-1000 Hz), at least 3 % apart, and in
+    three structures of ten one pair 1-2 % apart; damping 0.3-4 % (log-uniform, each mode its
+    own); 1-16 outputs, accelerations (two in three) or displacements; 300-3000 periods of the
+    slowest mode (3000-60000 samples); sensor noise 1-15 % of each output; random shapes and
+    white forces (:func:`okid_ros.sim.models.modal_structure`). Some draws are beyond any method
+    (two modes closer than their bandwidths, a mode a displacement sensor barely sees): they
+    score every method alike.
+    """
+    rng = np.random.default_rng(1000 + index)
+    n_modes = int(rng.integers(2, 9))
+    fs = float(rng.choice([50, 100, 200, 256, 512, 1000]))
+    while True:
+        f = np.sort(np.exp(rng.uniform(np.log(0.01), np.log(0.35), n_modes))) * fs
+        if np.all(np.diff(f) / f[:-1] > 0.03):
+            break
+    if n_modes >= 3 and rng.random() < 0.3:
+        j = int(rng.integers(0, n_modes - 1))
+        f[j + 1] = f[j] * (1 + rng.uniform(0.01, 0.02))
+        f = np.sort(f)
+    zeta = np.exp(rng.uniform(np.log(0.003), np.log(0.04), n_modes))
+    p = int(rng.choice([1, 2, 3, 4, 6, 8, 12, 16]))
+    n_samples = int(min(max(rng.uniform(300, 3000) * fs / f[0], 3000), 60000))
+    noise = float(rng.uniform(0.01, 0.15))
+    output = str(rng.choice(["acceleration", "acceleration", "displacement"]))
+    system = modal_structure(list(f), list(zeta), 1, p, 1.0 / fs, seed=int(rng.integers(1e6)), output=output,
+                             disturbance_std=1.0, measurement_noise_ratio=noise)
+    return OutputOnlyCase(f"random-{index}", system, n_samples,
+                          f"{n_modes} modes, {p} {output} outputs, fs {fs:g} Hz, {n_samples / fs:.0f} s")
 
 
 def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float = 0.02) -> dict:
