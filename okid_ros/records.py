@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.options import sample_time_problem
 from okid_ros.errors import DataError, write_atomically
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
@@ -95,8 +96,9 @@ def _sample_time(value: object) -> float:
     if arr.size != 1 or arr.dtype.kind not in "iuf":
         raise DataError(f"sample_time_s must be one positive number of seconds, got {arr.dtype} of shape {arr.shape}")
     dt = float(arr.reshape(()))
-    if not np.isfinite(dt) or dt <= 0:
-        raise DataError(f"sample_time_s must be a positive number of seconds, got {dt}")
+    problem = sample_time_problem(dt)
+    if problem:
+        raise DataError(problem)
     return dt
 
 

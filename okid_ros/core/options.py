@@ -28,12 +28,30 @@ __all__ = [
     "ModeCriteria",
     "RealizationOptions",
     "ArxOrderOptions",
+    "SAMPLE_TIME_RANGE_S",
+    "sample_time_problem",
 ]
 
 AUTO = "auto"
 GAINS = ("refit", "riccati", "whitening")
 COMPLETIONS = ("auto", "predictor", "states")
 OFFSETS = ("remove", "none")
+#: Sample times the chain accepts [s], from 1 MHz to one sample an hour: every structural record
+#: lies inside, and the frequencies (1 / dt) and their squares stay far inside float64 (a record
+#: at 1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations).
+SAMPLE_TIME_RANGE_S = (1e-6, 3600.0)
+
+
+def sample_time_problem(sample_time_s: Any) -> str | None:
+    """Why ``sample_time_s`` is not a usable sample time (one line), or None when it is."""
+    low, high = SAMPLE_TIME_RANGE_S
+    try:
+        dt = float(sample_time_s)
+    except (TypeError, ValueError):
+        return f"sample_time_s must be a number of seconds, got {sample_time_s!r}"
+    if not low <= dt <= high:  # NaN fails too
+        return f"sample_time_s must be between {low:g} and {high:g} s, got {dt:g}"
+    return None
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from scipy import linalg
 from okid_ros.core.channels import channel_std
 from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.options import OFFSETS
+from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
@@ -33,8 +33,8 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
         y = y[:, None]
     if y.ndim != 2 or y.shape[1] == 0:
         raise IdentificationError(f"y must be 2-D (N, p) with at least one channel, got shape {y.shape}")
-    if not (np.isfinite(sample_time_s) and sample_time_s > 0):
-        raise IdentificationError(f"sample_time_s must be a positive number, got {sample_time_s}")
+    if sample_time_problem(sample_time_s):
+        raise IdentificationError(sample_time_problem(sample_time_s))
     if y.shape[0] < MIN_SAMPLES:
         raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
     if not np.all(np.isfinite(y)):

@@ -49,7 +49,7 @@ from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
-from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
+from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
 from okid_ros.core.refit import PredictorFit
@@ -391,8 +391,8 @@ def identify(
     """
     if method not in METHODS:
         raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
-    if not np.isfinite(sample_time_s) or sample_time_s <= 0:
-        raise IdentificationError(f"sample_time_s must be a positive number, got {sample_time_s}")
+    if sample_time_problem(sample_time_s):
+        raise IdentificationError(sample_time_problem(sample_time_s))
     try:
         options = (options or RealizationOptions()).with_changes(**option_changes)
         u, y = check_io_arrays(u, y)

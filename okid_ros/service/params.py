@@ -38,7 +38,7 @@ from okid_ros.core.change_detection import (
     DivergenceMonitor,
 )
 from okid_ros.core.modal import match_modes
-from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+from okid_ros.core.options import GAINS, OFFSETS, SAMPLE_TIME_RANGE_S, RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS
 from okid_ros.errors import ParameterError
 from okid_ros.service.param_files import node_fqn, node_values_from_tree, read_parameter_file
@@ -161,7 +161,7 @@ def _fmt(x: float) -> str:
 
 # Shared by both nodes (YAML section "/**").
 SHARED_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("sample_time_s", 0.008, "sample time of the input/output samples (paper: 0.008 s)", "s", 1e-6, 3600.0, field="sample_time_s", fixed=SIZES),
+    ParamSpec("sample_time_s", 0.008, "sample time of the input/output samples (paper: 0.008 s)", "s", *SAMPLE_TIME_RANGE_S, field="sample_time_s", fixed=SIZES),
     ParamSpec("n_inputs", 2, "number of inputs m (channels u0..u{m-1}); 0: output-only (ambient) identification from the outputs alone", "", 0, 64, field="n_inputs", fixed=SIZES),
     ParamSpec("n_outputs", 2, "number of outputs p (channels y0..y{p-1})", "", 1, 64, field="n_outputs", fixed=SIZES),
     ParamSpec(

@@ -53,6 +53,8 @@ def _write_case(tmp_path: Path, case: str) -> Path:
         "complex_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=0.01 + 1j),
         "string_dt": lambda: np.savez(path, u=u, y=y, sample_time_s="fast"),
         "vector_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=[0.01, 0.02]),
+        "tiny_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=1e-300),
+        "huge_dt": lambda: np.savez(path, u=u, y=y, sample_time_s=1e308),
         "no_samples": lambda: np.savez(path, u=np.zeros((0, 1)), y=np.zeros((0, 2)), sample_time_s=0.01),
         "no_y": lambda: np.savez(path, u=u, sample_time_s=0.01),
         "beyond_float64": lambda: np.savez(path, u=u.astype(np.longdouble) * np.longdouble(10) ** 400, y=y,
@@ -70,6 +72,7 @@ HOSTILE_CASES = {
     "crc": "not a readable .npz", "random": "not a readable .npz", "complex": "complex",
     "object": "not a readable .npz", "strings": "string", "cube": "2-D", "structured": "structured",
     "complex_dt": "sample_time_s", "string_dt": "sample_time_s", "vector_dt": "sample_time_s",
+    "tiny_dt": "between 1e-06 and 3600 s", "huge_dt": "between 1e-06 and 3600 s",
     "no_samples": "no samples", "no_y": "missing key(s) y", "beyond_float64": "NaN/Inf",
     "nan": "first at sample 7", "length": "length mismatch", "a_npy": "single array",
 }

@@ -288,3 +288,15 @@ def test_a_record_too_short_for_the_whole_state_search_is_still_identified():
         identify(u, y, dt, n_states=60)
     with pytest.raises(IdentificationError, match="no ARX order can be fitted|too few"):
         identify(u[:12], y[:12], dt)
+
+
+@pytest.mark.parametrize("sample_time_s", [1e-300, 1e308, 0.0, float("nan")])
+def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s: float) -> None:
+    """1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations, 1e308 s frequencies of 0."""
+    from okid_ros.core.output_only import identify_output_only
+
+    rng = np.random.default_rng(0)
+    u, y = rng.standard_normal((1000, 1)), rng.standard_normal((1000, 2))
+    for run in (lambda: identify(u, y, sample_time_s), lambda: identify_output_only(y, sample_time_s)):
+        with pytest.raises(IdentificationError, match="between 1e-06 and 3600 s"):
+            run()
