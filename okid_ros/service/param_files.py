@@ -18,6 +18,7 @@ No rclpy here.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -27,6 +28,8 @@ from okid_ros.errors import ParameterError
 
 __all__ = [
     "ROS_STANDARD_PARAMETERS",
+    "load_yaml_as_rcl",
+    "rcl_scalar",
     "node_fqn",
     "read_parameter_file",
     "section_matches",
@@ -152,13 +155,75 @@ def params_files_from_args(args: Sequence[str]) -> list[str]:
     return files
 
 
+_RCL_TRUE = frozenset("Y y yes Yes YES true True TRUE on On ON".split())
+_RCL_FALSE = frozenset("N n no No NO false False FALSE off Off OFF".split())
+_RCL_SPECIAL_FLOATS = {f"{sign}.{word}": float(f"{sign}{word}")
+                       for sign in ("", "+", "-") for word in ("inf", "Inf", "INF")}
+_RCL_SPECIAL_FLOATS.update({".nan": float("nan"), ".NaN": float("nan"), ".NAN": float("nan")})
+_STRTOL = re.compile(r"\s*[+-]?(0[xX][0-9a-fA-F]+|0[0-7]*|[1-9][0-9]*)")
+_INT64 = (-(2 ** 63), 2 ** 63 - 1)
+
+
+def rcl_scalar(text: str) -> bool | int | float | str:
+    """A plain (unquoted) YAML scalar typed as rcl types parameter values.
+
+    rcl_yaml_param_parser (the parser of ``--params-file`` and ``-p name:=value``) tries, in order:
+    its bool words, ``strtol(text, 0)`` over the whole text (``010`` is 8, ``0x1F`` 31), then
+    ``strtod`` (``1e-3`` is a double, which YAML 1.1 and so PyYAML read as a string), then keeps
+    the text. A number beyond the C types' range stays a string there, as here.
+    """
+    if text in _RCL_TRUE or text in _RCL_FALSE:
+        return text in _RCL_TRUE
+    match = _STRTOL.fullmatch(text)
+    if match:
+        digits = match.group(1)
+        value = int(digits, 16 if digits[:2] in ("0x", "0X") else 8 if digits.startswith("0") else 10)
+        value = -value if text.strip().startswith("-") else value
+        if _INT64[0] <= value <= _INT64[1]:
+            return value
+    if text in _RCL_SPECIAL_FLOATS:
+        return _RCL_SPECIAL_FLOATS[text]
+    if "_" not in text:  # Python's float() reads 1_000; strtod does not
+        try:
+            value = float(text)
+        except ValueError:
+            if not re.fullmatch(r"\s*[+-]?0[xX].*", text):  # strtod's hexadecimal floats need the 0x
+                return text
+            try:
+                value = float.fromhex(text)
+            except (ValueError, OverflowError):
+                return text
+        if math.isfinite(value) or text.strip().lstrip("+-").lower().startswith(("inf", "nan")):
+            return value  # strtod overflows to an error (a string in rcl), Python to inf
+    return text
+
+
+def load_yaml_as_rcl(text: str) -> Any:
+    """``yaml.safe_load(text)`` with each plain scalar typed by :func:`rcl_scalar`, as a node would see it."""
+    import yaml
+
+    tag = "tag:okid_ros,2026:rcl"
+
+    class Loader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            for key, _ in node.value:  # keys are names, never typed
+                if isinstance(key, yaml.ScalarNode) and key.tag == tag:
+                    key.tag = "tag:yaml.org,2002:str"
+            return super().construct_mapping(node, deep)
+
+    Loader.yaml_implicit_resolvers = {}  # no YAML 1.1 typing; plain scalars go to rcl_scalar
+    Loader.add_implicit_resolver(tag, re.compile(r".*", re.DOTALL), None)
+    Loader.add_constructor(tag, lambda loader, node: rcl_scalar(loader.construct_scalar(node)))
+    return yaml.load(text, Loader=Loader)  # noqa: S506 (a SafeLoader subclass)
+
+
 def read_parameter_file(path: str | Path) -> Mapping:
     """The YAML tree of a ROS parameter file (node sections at the top), or ParameterError."""
     import yaml
 
     path = Path(path)
     try:
-        tree = yaml.safe_load(path.read_text(encoding="utf-8"))
+        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:

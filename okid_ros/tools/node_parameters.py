@@ -42,7 +42,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     """
     import yaml
 
-    from okid_ros.service.param_files import file_report, node_fqn, node_values_from_tree
+    from okid_ros.service.param_files import file_report, load_yaml_as_rcl, node_fqn, node_values_from_tree
     from okid_ros.service.params import (
         ARX_NODE,
         ESTIMATOR_NODE,
@@ -59,7 +59,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         if not sep or not name:
             raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
         try:
-            value = yaml.safe_load(text)
+            value = load_yaml_as_rcl(text)
         except yaml.YAMLError:
             raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
         if not any(name in known for known in names.values()):

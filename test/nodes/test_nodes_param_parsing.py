@@ -1,0 +1,65 @@
+"""Parameter files and --param values are typed as rcl types them for a node.
+
+`okid-ros process`/`batch` read the nodes' parameter YAML without ROS
+(:func:`okid_ros.service.param_files.load_yaml_as_rcl`); the nodes get the same file through
+rcl's C parser. A value must mean the same to both: ``1e-3`` is a double to rcl and was a
+string to PyYAML's YAML 1.1 rules ("publish_rate_hz must be a number, got '1e-3'").
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from okid_ros.service.param_files import flatten, load_yaml_as_rcl
+from okid_ros.tools.node_parameters import load_node_parameters
+
+SCALARS = {
+    "exponent": "1e-3", "exponent_upper": "2E+2", "decimal": "0.25", "leading_dot": ".5", "trailing_dot": "3.",
+    "integer": "42", "negative": "-7", "octal": "010", "hex": "0x1F", "not_octal": "08", "big": "99999999999999999999",
+    "underscore": "1_000", "word_true": "yes", "letter_y": "y", "word_off": "Off", "inf": ".inf", "minus_inf": "-.Inf",
+    "bare_inf": "inf", "text": "abc", "quoted_number": "'1e-3'", "double_quoted": '"7"',
+}
+
+PROBE = """
+import json, sys, math
+import rclpy
+from rclpy.node import Node
+rclpy.init(args=["--ros-args", "--params-file", sys.argv[1]])
+node = Node("probe", automatically_declare_parameters_from_overrides=True)
+out = {}
+for name, p in node.get_parameters_by_prefix("").items():
+    v = p.value
+    out[name] = [type(v).__name__, "inf" if isinstance(v, float) and math.isinf(v) and v > 0
+                 else "-inf" if isinstance(v, float) and math.isinf(v) else v]
+print("PARAMS " + json.dumps(out), flush=True)
+"""
+
+
+def _typed(value) -> list:
+    if isinstance(value, float) and value in (float("inf"), float("-inf")):
+        return [type(value).__name__, "inf" if value > 0 else "-inf"]
+    return [type(value).__name__, value]
+
+
+def test_a_parameter_file_means_to_okid_ros_what_it_means_to_rcl(tmp_path: Path, spawn_ros) -> None:
+    path = tmp_path / "params.yaml"
+    path.write_text("/**:\n  ros__parameters:\n" + "".join(f"    {k}: {v}\n" for k, v in SCALARS.items()))
+    probe = spawn_ros("-c", PROBE, str(path))
+    rcl = json.loads(probe.wait_for_output(r"^PARAMS (.*)$", timeout_s=60).group(1))
+    rcl = {k: v for k, v in rcl.items() if k not in ("use_sim_time", "start_type_description_service")}
+    ours = {k: _typed(v) for k, v in flatten(load_yaml_as_rcl(path.read_text())["/**"]["ros__parameters"]).items()}
+    assert ours == rcl
+    assert ours["exponent"] == ["float", 0.001] and ours["octal"] == ["int", 8] and ours["letter_y"] == ["bool", True]
+
+
+@pytest.mark.parametrize("text, expected", [("5e-1", 0.5), ("2", 2.0)])
+def test_a_number_in_exponent_form_is_a_number_in_files_and_overrides(tmp_path: Path, text: str,
+                                                                       expected: float) -> None:
+    path = tmp_path / "rate.yaml"
+    path.write_text(f"/**:\n  ros__parameters:\n    publish_rate_hz: {text}\n")
+    from_file, _ = load_node_parameters([path])
+    from_override, _ = load_node_parameters(overrides=[f"publish_rate_hz={text}"])
+    assert from_file["publish_rate_hz"] == from_override["publish_rate_hz"] == expected
