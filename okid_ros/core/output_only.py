@@ -21,8 +21,9 @@ Steps (one module each):
    (jackknife): a mode whose frequency scatters by more than its half-power half-width
    ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
    that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
-   frequency along its own shape (a pole fitted to correlation noise under a flat spectrum);
-   the jackknife's standard deviations are the modes' (the spread of the cluster across orders
+   frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
+   unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
+   cluster one is kept; the jackknife's standard deviations are the modes' (the spread of the cluster across orders
    for ``var``);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
@@ -104,6 +105,13 @@ MAX_DAMPING_CV = 1.5
 #: shape (:func:`.output_only_support.spectral_dominance`; modes 0.57-1.1, noise poles below 0.2
 #: on 80 simulated records, the koma frame and the subframe).
 MIN_SPECTRAL_DOMINANCE = 0.4
+#: A candidate whose jackknife scatter is below both of these (times ``zeta f`` and ``zeta``)
+#: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
+#: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles
+#: that passed the limits above scattered at least 1.8 times more (0.36 width or 0.54 cv;
+#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md).
+STEADY_FREQUENCY_STD_PER_WIDTH = 0.2
+STEADY_DAMPING_CV = 0.3
 
 
 def identify_output_only(
@@ -319,7 +327,9 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
         if f_std[0] > MAX_FREQUENCY_STD_PER_WIDTH * width or z_std[0] > MAX_DAMPING_CV * mode.damping_ratio:
             continue
         share = dominance(n_home, target)
-        if share >= MIN_SPECTRAL_DOMINANCE and share > best.get(mode.group, (-np.inf, None))[0]:
+        steady = (f_std[0] <= STEADY_FREQUENCY_STD_PER_WIDTH * width
+                  and z_std[0] <= STEADY_DAMPING_CV * mode.damping_ratio)
+        if (share >= MIN_SPECTRAL_DOMINANCE or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
             best[mode.group] = (share, mode)
     return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
 
