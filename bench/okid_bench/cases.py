@@ -16,7 +16,7 @@ from okid_ros.sim.inputs import lowpass_input, white_input
 from okid_ros.sim.models import TrueSystem, modal_structure
 from okid_ros.sim.paper_model import paper_model
 
-__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case"]
+__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case", "random_case"]
 
 
 @dataclass
@@ -164,6 +164,34 @@ def separate_noise_case() -> BenchmarkCase:
     return BenchmarkCase("separate-noise", desc, sys_,
                          lambda N, seed: white_input(N, 1, seed), (3750, 15000),
                          suggested_arx_order(sys_))
+
+
+def random_case(index: int) -> BenchmarkCase:
+    """Structure number ``index`` of a family drawn at random, with a measured white input.
+
+    2-7 modes between 1 % and 35 % of the sampling rate (50-1000 Hz), at least 3 % apart;
+    damping 0.3-4 % per mode (log-uniform); 1 or 2 inputs, 1-8 accelerometers (two in three) or
+    displacement sensors; 100-1000 periods of the slowest mode (2000-20000 samples); random
+    shapes, disturbance forces 0.05-0.5 of the input, sensor noise 1-15 %. Records no
+    threshold was tuned on (``bench/random_structures.py``).
+    """
+    rng = np.random.default_rng(5000 + index)
+    n_modes = int(rng.integers(2, 8))
+    fs = float(rng.choice([50, 100, 200, 256, 512, 1000]))
+    while True:
+        f = np.sort(np.exp(rng.uniform(np.log(0.01), np.log(0.35), n_modes))) * fs
+        if np.all(np.diff(f) / f[:-1] > 0.03):
+            break
+    zeta = np.exp(rng.uniform(np.log(0.003), np.log(0.04), n_modes))
+    p, m = int(rng.choice([1, 2, 3, 4, 6, 8])), int(rng.choice([1, 1, 2]))
+    n_samples = int(min(max(rng.uniform(100, 1000) * fs / f[0], 2000), 20000))
+    noise = float(rng.uniform(0.01, 0.15))
+    output = str(rng.choice(["acceleration", "acceleration", "displacement"]))
+    system = modal_structure(list(f), list(zeta), m, p, 1.0 / fs, seed=int(rng.integers(1e6)), output=output,
+                             disturbance_std=float(rng.uniform(0.05, 0.5)), measurement_noise_ratio=noise)
+    desc = f"{n_modes} modes, {m} white input(s), {p} {output} outputs, fs {fs:g} Hz, {n_samples / fs:.0f} s"
+    return BenchmarkCase(f"random-{index}", desc, system, lambda N, seed: white_input(N, m, seed), (n_samples,),
+                         suggested_arx_order(system))
 
 
 _CASES = {

@@ -338,6 +338,7 @@ def modal_form(
     *,
     criteria: ModeCriteria | None = None,
     stability: Callable[[Mode], float] | None = None,
+    steady: Callable[[Mode], bool] | None = None,
     D: np.ndarray | None = None,
 ) -> ModalForm:
     """Transform an innovation-form model to the normalized real modal form.
@@ -345,8 +346,8 @@ def modal_form(
     ``criteria`` are passed to :func:`identify_modes`. ``stability(mode)`` gives the fraction
     of neighbouring model orders in which the mode is found (:mod:`okid_ros.core.stabilization`;
     NaN: not judged); a physical mode below ``criteria.min_stable_fraction`` is listed as
-    non-physical. ``D`` (p, m), the feedthrough, is part of the response the dominance of each
-    mode is judged against.
+    non-physical unless ``steady(mode)`` (its pole known precisely from the data). ``D`` (p, m),
+    the feedthrough, is part of the response the dominance of each mode is judged against.
     """
     n = A.shape[0]
     criteria = ModeCriteria() if criteria is None else criteria
@@ -355,7 +356,8 @@ def modal_form(
         for mode in modes:
             if mode.physical:
                 mode.stability = float(stability(mode))
-                mode.physical = not mode.stability < criteria.min_stable_fraction
+                confirmed = not mode.stability < criteria.min_stable_fraction
+                mode.physical = confirmed or bool(steady and steady(mode))
     physical = [i for i, m in enumerate(modes) if m.physical]
     others = [i for i, m in enumerate(modes) if not m.physical]
     columns = []

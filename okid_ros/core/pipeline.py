@@ -58,7 +58,7 @@ from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
-from okid_ros.core.uncertainty import attach_mode_uncertainty
+from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady_poles
 
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
@@ -119,11 +119,12 @@ def _package(
     reference_markov: np.ndarray,
     options: RealizationOptions,
     stability=None,
+    steady=None,
     **fields: Any,
 ) -> IdentifiedModel:
     """Step 7-8: normalized modal form, physical modes, the final checks."""
     form = modal_form(model.A, model.B, model.C, model.K, sample_time_s, reference_markov,
-                      criteria=options.modes, stability=stability, D=model.D)
+                      criteria=options.modes, stability=stability, steady=steady, D=model.D)
     for i, mode in enumerate(form.modes):
         mode.id = i
     identified = IdentifiedModel(
@@ -134,6 +135,40 @@ def _package(
     problem = identified.stability_problem()
     if problem:
         raise IdentificationError(f"refused: {problem}")
+    return identified
+
+
+def _package_judged(model: InnovationModel, x0: np.ndarray, sample_time_s: float, arx: ArxFit, u: np.ndarray,
+                    y: np.ndarray, *, stability, **fields: Any) -> IdentifiedModel:
+    """:func:`_package` with the stabilization fraction ``stability`` and the modes' standard deviations (step 7b).
+
+    A mode refused by the stabilization fraction alone is kept when its standard deviations
+    (:func:`.uncertainty.attach_mode_uncertainty`, on the offset-free data) say its pole is
+    steady (:func:`.uncertainty.steady_poles`).
+    """
+    refused: list[complex] = []
+
+    def judged(mode) -> float:
+        fraction = stability(mode)
+        if fraction < fields["options"].modes.min_stable_fraction:
+            refused.append(mode.eigenvalue)
+        return fraction
+
+    identified = _package(model, x0, sample_time_s, arx, stability=judged, **fields)
+    if not refused:
+        identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
+        return identified
+    every = _package(model, x0, sample_time_s, arx, **fields)  # the refused modes too, to know their scatter
+    uncertainty = attach_mode_uncertainty(every, u, y, burn_in=arx.order)
+    steady = steady_poles(every.modes)
+    if any(same_pole(ev, steady) for ev in refused):
+        identified = _package(model, x0, sample_time_s, arx, stability=stability,
+                              steady=lambda mode: same_pole(mode.eigenvalue, steady), **fields)
+    stds = {mode.eigenvalue: (mode.frequency_hz_std, mode.damping_ratio_std) for mode in every.modes}
+    for mode in identified.modes:
+        mode.frequency_hz_std, mode.damping_ratio_std = next(
+            (v for ev, v in stds.items() if same_pole(mode.eigenvalue, [ev])), (float("nan"), float("nan")))
+    identified.uncertainty = uncertainty
     return identified
 
 
@@ -249,8 +284,8 @@ def identify_from_arx(
         )
     diagram = _diagram(search, completer, sample_time_s, options)
     system_markov = markov_from_arx(arx)
-    identified = _package(
-        model, best.x0, sample_time_s, arx, reference_markov=system_markov[1:], options=options,
+    identified = _package_judged(
+        model, best.x0, sample_time_s, arx, u, y, reference_markov=system_markov[1:], options=options,
         stability=lambda mode: stable_fraction(mode, diagram, n_best, options.modes),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
@@ -259,8 +294,6 @@ def identify_from_arx(
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
         warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y),
     )
-    # Step 7b: standard deviations of every mode's frequency and damping (on the offset-free data).
-    identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
     return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
