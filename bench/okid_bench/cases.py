@@ -16,7 +16,8 @@ from okid_ros.sim.inputs import lowpass_input, white_input
 from okid_ros.sim.models import TrueSystem, modal_structure
 from okid_ros.sim.paper_model import paper_model
 
-__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case", "random_case"]
+__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case", "random_case",
+           "random_frequencies"]
 
 
 @dataclass
@@ -166,6 +167,20 @@ def separate_noise_case() -> BenchmarkCase:
                          suggested_arx_order(sys_))
 
 
+def random_frequencies(rng: np.random.Generator, *, max_modes: int) -> tuple[float, np.ndarray]:
+    """A sampling rate (50-1000 Hz) and 2..``max_modes`` natural frequencies [Hz], ascending.
+
+    Log-uniform between 1 % and 35 % of the sampling rate, redrawn until every two are at least
+    3 % apart (the random cases of this module and of :mod:`okid_bench.output_only_cases`).
+    """
+    n_modes = int(rng.integers(2, max_modes + 1))
+    fs = float(rng.choice([50, 100, 200, 256, 512, 1000]))
+    while True:
+        f = np.sort(np.exp(rng.uniform(np.log(0.01), np.log(0.35), n_modes))) * fs
+        if np.all(np.diff(f) / f[:-1] > 0.03):
+            return fs, f
+
+
 def random_case(index: int) -> BenchmarkCase:
     """Structure number ``index`` of a family drawn at random, with a measured white input.
 
@@ -176,12 +191,8 @@ def random_case(index: int) -> BenchmarkCase:
     threshold was tuned on (``bench/random_structures.py``).
     """
     rng = np.random.default_rng(5000 + index)
-    n_modes = int(rng.integers(2, 8))
-    fs = float(rng.choice([50, 100, 200, 256, 512, 1000]))
-    while True:
-        f = np.sort(np.exp(rng.uniform(np.log(0.01), np.log(0.35), n_modes))) * fs
-        if np.all(np.diff(f) / f[:-1] > 0.03):
-            break
+    fs, f = random_frequencies(rng, max_modes=7)
+    n_modes = f.size
     zeta = np.exp(rng.uniform(np.log(0.003), np.log(0.04), n_modes))
     p, m = int(rng.choice([1, 2, 3, 4, 6, 8])), int(rng.choice([1, 1, 2]))
     n_samples = int(min(max(rng.uniform(100, 1000) * fs / f[0], 2000), 20000))

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, signal
 
+from okid_bench.cases import random_frequencies
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
 from okid_ros.sim.simulators import simulate_noisy
 
@@ -132,12 +133,8 @@ def random_case(index: int) -> OutputOnlyCase:
     score every method alike.
     """
     rng = np.random.default_rng(1000 + index)
-    n_modes = int(rng.integers(2, 9))
-    fs = float(rng.choice([50, 100, 200, 256, 512, 1000]))
-    while True:
-        f = np.sort(np.exp(rng.uniform(np.log(0.01), np.log(0.35), n_modes))) * fs
-        if np.all(np.diff(f) / f[:-1] > 0.03):
-            break
+    fs, f = random_frequencies(rng, max_modes=8)
+    n_modes = f.size
     if n_modes >= 3 and rng.random() < 0.3:
         j = int(rng.integers(0, n_modes - 1))
         f[j + 1] = f[j] * (1 + rng.uniform(0.01, 0.02))
