@@ -78,7 +78,7 @@ def _runs(args):
         y, dt, truth, uncertain = loaders[name]()
         yield name, 0, y, dt, truth, uncertain
     for name in args.cases:
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             case = random_case(seed) if name == "random" else output_only_case(name)
             yield name, seed, case.simulate(seed), case.sample_time_s, case.truth(), []
 
@@ -161,6 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default=",".join(OUTPUT_ONLY_CASES), help="simulated cases (or random), or none")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0, help="first noise seed (random: first structure)")
     parser.add_argument("--max-order", type=int, default=100)
     parser.add_argument("--out", default=None, help="also write the table (markdown) here")
     parser.add_argument("--force", action="store_true")
