@@ -247,9 +247,12 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]
     accepted, rejected = [], []
-    for label, family in ((lb, f) for lb in np.unique(labels) for f in _families(poles, index[labels == lb])):
-        cluster = _cluster(poles, family, p)
-        cluster.group = int(label)
+    clusters = []
+    for label in np.unique(labels):
+        for family in _families(poles, index[labels == label]):
+            clusters.append(_cluster(poles, family, p))
+            clusters[-1].group = int(label)
+    for cluster in clusters:
         first = min(cluster.members)
         available = int(np.sum(orders >= first))
         count = len(cluster.members)

@@ -33,8 +33,8 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
         y = y[:, None]
     if y.ndim != 2 or y.shape[1] == 0:
         raise IdentificationError(f"y must be 2-D (N, p) with at least one channel, got shape {y.shape}")
-    if sample_time_problem(sample_time_s):
-        raise IdentificationError(sample_time_problem(sample_time_s))
+    if problem := sample_time_problem(sample_time_s):
+        raise IdentificationError(problem)
     if y.shape[0] < MIN_SAMPLES:
         raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
     if not np.all(np.isfinite(y)):

@@ -424,8 +424,8 @@ def identify(
     """
     if method not in METHODS:
         raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
-    if sample_time_problem(sample_time_s):
-        raise IdentificationError(sample_time_problem(sample_time_s))
+    if problem := sample_time_problem(sample_time_s):
+        raise IdentificationError(problem)
     try:
         options = (options or RealizationOptions()).with_changes(**option_changes)
         u, y = check_io_arrays(u, y)

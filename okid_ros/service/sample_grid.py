@@ -130,8 +130,8 @@ class StampSequence:
     """
 
     def __init__(self, sample_time_s: float) -> None:
-        if sample_time_problem(sample_time_s):
-            raise ValueError(sample_time_problem(sample_time_s))
+        if problem := sample_time_problem(sample_time_s):
+            raise ValueError(problem)
         self.sample_time_s = float(sample_time_s)
         self.reset()
 
@@ -256,8 +256,8 @@ class SampleGrid:
         latency_samples: int = 5,
         time_jump_s: float = 1.0,
     ) -> None:
-        if sample_time_problem(sample_time_s):
-            raise ValueError(sample_time_problem(sample_time_s))
+        if problem := sample_time_problem(sample_time_s):
+            raise ValueError(problem)
         if int(n_inputs) < 0 or int(n_outputs) < 1:
             raise ValueError(f"need m >= 0 inputs (0: outputs only) and at least one output, got m={n_inputs}, "
                              f"p={n_outputs}")
