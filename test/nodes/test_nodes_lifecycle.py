@@ -41,6 +41,7 @@ class Probe(ProbeNode):
         super().__init__("okid_lifecycle_probe")
         self.arx: list[ArxModel] = []
         self.diagnostics: list[str] = []
+        self.clients: dict = {}
         self.io = self.node.create_publisher(IoSample, f"{NS}/io_sample",
                                              QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -72,23 +73,44 @@ class Probe(ProbeNode):
             self.k += 1
             time.sleep(1.0 / rate_hz)
 
-    def call(self, srv_type, name: str, request):
-        client = self.node.create_client(srv_type, name)
+    def call(self, srv_type, name: str, request, *, attempts: int = 4, wait_s: float = 20.0):
+        """Answer of one service call; the request is sent again when no answer comes.
+
+        A client's first request can be lost over DDS while the service's reply path is still
+        being matched (wait_for_service sees only the request path), so one silent request is
+        not a failure of the node; four are.
+        """
+        if name not in self.clients:
+            self.clients[name] = self.node.create_client(srv_type, name)
+        client = self.clients[name]
         assert client.wait_for_service(timeout_sec=60), name
-        future = client.call_async(request)
-        deadline = time.monotonic() + 60  # a transition on a loaded machine may take seconds
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert future.done(), name
-        return future.result()
+        for _ in range(attempts):
+            future = client.call_async(request)
+            deadline = time.monotonic() + wait_s  # a transition on a loaded machine may take seconds
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError(f"{name}: no answer to {attempts} requests of {wait_s} s each")
 
     def state(self, node: str) -> int:
         return self.call(GetState, f"{node}/get_state", GetState.Request()).current_state.id
 
     def transition(self, node: str, transition_id: int) -> None:
-        answer = self.call(ChangeState, f"{node}/change_state",
-                           ChangeState.Request(transition=Transition(id=transition_id)))
-        assert answer.success, (node, transition_id)
+        """Request one transition; a lost request is sent again only if the node did not move."""
+        before = self.state(node)
+        request = ChangeState.Request(transition=Transition(id=transition_id))
+        for _ in range(4):
+            try:
+                answer = self.call(ChangeState, f"{node}/change_state", request, attempts=1)
+            except AssertionError:
+                if self.state(node) != before:  # the reply was lost, the transition was not
+                    return
+                continue
+            assert answer.success, (node, transition_id)
+            return
+        raise AssertionError(f"{node}: transition {transition_id} never answered")
 
     def counts(self) -> tuple[int, int]:
         with self.lock:
