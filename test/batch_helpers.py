@@ -39,7 +39,11 @@ def write_good_bag(path: Path, index: int, duration_s: float = DURATION_S) -> Pa
 
 
 def write_truncated_bag(source: Path, path: Path) -> Path:
-    """A copy of the rosbag2 ``source`` whose MCAP file is cut in the middle (metadata intact)."""
+    """A copy of the rosbag2 ``source`` whose MCAP file is cut in the middle (metadata intact).
+
+    An 8 s bag is about 1.1 MB, its first chunk about 1 MB: the cut falls inside the first chunk,
+    nothing before it is whole, and the bag fails (a later cut would be read up to it).
+    """
     path.mkdir(parents=True)
     shutil.copy(source / "metadata.yaml", path / "metadata.yaml")
     data = next(source.glob("*.mcap")).read_bytes()

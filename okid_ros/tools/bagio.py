@@ -4,7 +4,9 @@ Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader
 directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file) and ROS 1
 bags, deserialized with the definitions stored in the bag (bags without definitions fall back
 to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
-the middle of the messages, becomes a one-line :class:`BagReadError` naming the path.
+the middle of the messages, becomes a one-line :class:`BagReadError` naming the path. A
+recording that was not closed (an MCAP file cut off, or without its ``metadata.yaml``) is read as
+far as it is whole, with a warning (:mod:`okid_ros.tools.mcap_salvage`).
 
 Writing (:class:`BagWriter`) creates a rosbag2 of format version 9 (Jazzy) with the message
 definitions embedded, so any reader can decode it, and refuses an existing path unless
@@ -29,11 +31,14 @@ import functools
 import os
 import shutil
 import sys
+import tempfile
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError, OutputExistsError
 
 __all__ = [
@@ -124,9 +129,11 @@ class BagReader:
     Use :func:`open_bag`. ``topics`` maps each topic to its message type (``pkg/msg/Name``).
     """
 
-    def __init__(self, path: Path, reader: Any) -> None:
+    def __init__(self, path: Path, reader: Any, read_note: str = "") -> None:
         self.path = path
         self._reader = reader
+        #: How the bag was read when not as a whole (a cut-off recording, its MCAP file alone).
+        self.read_note = read_note
         self.topics: dict[str, str] = {}
         for connection in reader.connections:
             self.topics.setdefault(connection.topic, msgtype_name(connection.msgtype))
@@ -228,27 +235,75 @@ class BagReader:
             yield connection.topic, stamp_ns, self._decode(connection, stamp_ns, raw)
 
 
+def _open_reader(path: Path) -> Any:
+    from rosbags.highlevel import AnyReader
+
+    reader = AnyReader([path], default_typestore=okid_typestore())
+    reader.open()
+    return reader
+
+
+def _try_open_reader(path: Path) -> Any:
+    try:
+        return _open_reader(path)
+    except Exception:  # noqa: BLE001 - the caller reports the first failure
+        return None
+
+
 class _OpenBag:
     """Context manager behind :func:`open_bag`."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self._reader: Any = None
+        self._scratch: Path | None = None
 
     def __enter__(self) -> BagReader:
-        from rosbags.highlevel import AnyReader
-
         path = self.path
         if not path.exists():
             raise BagReadError(f"{path}: no such bag")
+        note = ""
         try:
-            reader = AnyReader([path], default_typestore=okid_typestore())
-            reader.open()
+            self._reader = _open_reader(path)
         except Exception as exc:  # the readers raise many kinds; all mean "not a usable bag"
-            raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
-                               f"({type(exc).__name__}: {_one_line(exc)})") from None
-        self._reader = reader
-        return BagReader(path, reader)
+            self._reader, note = self._open_mcap_alone(path)
+            if self._reader is None:
+                raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
+                                   f"({type(exc).__name__}: {_one_line(exc)})") from None
+            warnings.warn(note, stacklevel=2)
+        return BagReader(path, self._reader, note)
+
+    def _open_mcap_alone(self, path: Path) -> tuple[Any, str]:
+        """The reader of the MCAP file of a recording that was not closed, and how it was read.
+
+        A cut-off file (no footer) is read up to its last whole record from a closed copy in a
+        temporary directory (:mod:`okid_ros.tools.mcap_salvage`; removed on exit); a closed
+        file in a directory whose ``metadata.yaml`` is missing or unreadable is read alone.
+        The reader is None when ``path`` is not such a recording.
+        """
+        file = mcap_salvage.single_mcap_file(path)
+        if file is None:
+            return None, ""
+        whole = mcap_salvage.whole_records_end(file)
+        if whole is None:  # closed, or not MCAP at all
+            reader = None if file == path else _try_open_reader(file)
+            return reader, (f"{path}: metadata.yaml missing or unreadable (a recording that was not "
+                            f"closed?): read its MCAP file {file.name} alone")
+        self._scratch = Path(tempfile.mkdtemp(prefix="okid-salvage-"))
+        copy = self._scratch / file.name
+        mcap_salvage.write_closed_copy(file, whole, copy)
+        reader = _try_open_reader(copy)
+        if reader is None or not reader.message_count:
+            if reader is not None:
+                reader.close()
+            self.__exit__(None, None, None)
+            raise BagReadError(f"{path}: the MCAP file {file.name} was cut off (a recording that was not "
+                               f"closed) and no message before the cut could be read")
+        size = file.stat().st_size
+        return reader, (f"{path}: the MCAP file {file.name} was cut off (a recording that was not closed): "
+                        f"read the {reader.message_count} messages of its whole records, "
+                        f"{(reader.end_time - reader.start_time) * 1e-9:.1f} s, {whole / size:.0%} of "
+                        f"the file; the rest is lost")
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
@@ -258,6 +313,9 @@ class _OpenBag:
             except Exception:  # noqa: BLE001 - closing a broken bag must not hide the first error
                 pass
             self._reader = None
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+            self._scratch = None
 
 
 def open_bag(path: str | os.PathLike) -> _OpenBag:

@@ -38,6 +38,7 @@ class ProcessSummary:
     arx_diagnostics: dict = field(default_factory=dict)
     estimator_diagnostics: dict = field(default_factory=dict)
     grid_counters: dict = field(default_factory=dict)
+    input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
 
     @property
     def data_duration_s(self) -> float:

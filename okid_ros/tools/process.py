@@ -124,6 +124,7 @@ def process_bag(
                     if jsonl is not None:
                         jsonl.close()
                 summary = nodes.summary
+                summary.input_note = bag.read_note
                 summary.elapsed_s = time.perf_counter() - started
                 _write_metadata(writer, nodes, {
                     "source": str(bag_path),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from okid_ros.cli import main
 from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
 from okid_ros.tools.bagio import TRUTH_KEY, open_bag
+from okid_ros.tools.campaign.worker import BagJob, run_bag_job
 from okid_ros.tools.plots import add_measured_outputs, fit_percent, output_estimates, read_plot_data
 from okid_ros.tools.process import load_node_parameters
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
@@ -328,8 +330,11 @@ def _garbage_metadata(bag: Path) -> None:
     (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
 
 
-@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
-@pytest.mark.parametrize("damage", [_truncate_storage, _garbage_storage, _garbage_metadata])
+# A 2 s MCAP bag is one chunk: cut at a third, nothing before the cut is whole. A closed MCAP
+# file under a broken metadata.yaml is read alone (test_an_mcap_file_under_a_broken_metadata...).
+@pytest.mark.parametrize("storage, damage", [
+    ("sqlite3", _truncate_storage), ("sqlite3", _garbage_storage), ("sqlite3", _garbage_metadata),
+    ("mcap", _truncate_storage), ("mcap", _garbage_storage)])
 def test_a_corrupt_bag_is_one_line(tmp_path, capsys, storage, damage):
     bag = tmp_path / "bag"
     assert run_cli(capsys, "simulate", "--out", bag, "--duration", "2", "--storage", storage)[0] == 0
@@ -349,6 +354,56 @@ def test_a_missing_bag_and_bad_options_are_one_line(tmp_path, capsys):
     assert_one_line_error(code, err, "bogus")
     code, _, err = run_cli(capsys, "simulate", "--out", tmp_path / "s", "--duration", "-1")
     assert_one_line_error(code, err, "--duration")
+
+
+def _sorted_before(messages: list, stamp_ns: int) -> list:
+    return sorted(m for m in messages if m[2] < stamp_ns)
+
+
+def test_a_cut_off_mcap_recording_is_read_up_to_its_cut(run, tmp_path, capsys, monkeypatch):
+    """A recorder killed mid-file: no footer, no metadata.yaml; what is whole is read, with a warning."""
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    with open_bag(run["bag"]) as whole:
+        full = list(whole.raw_messages())
+    data = next(run["bag"].glob("*.mcap")).read_bytes()
+    cut = tmp_path / "killed"
+    cut.mkdir()
+    (cut / "killed_0.mcap").write_bytes(data[: 2 * len(data) // 3])
+    with pytest.warns(UserWarning, match=r"killed_0.mcap was cut off .* read the \d+ messages"):
+        with open_bag(cut) as bag:
+            got = list(bag.raw_messages())
+            assert "cut off" in bag.read_note and len(list(scratch.iterdir())) == 1
+    assert not list(scratch.iterdir())  # the closed copy is removed on exit
+    assert len(full) // 3 < len(got) < len(full)
+    last = max(m[2] for m in got)
+    assert _sorted_before(got, last) == _sorted_before(full, last)  # every message before the cut, unchanged
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "process", cut, "--out", out, "--no-progress", *FAST)
+    assert code == 0 and out.is_dir(), err
+    assert err.count("warning:") == 1 and "cut off" in err and "Traceback" not in err, err
+    # A campaign reports the bag ok, and says in its reason that it was read in part.
+    arx, est = load_node_parameters(overrides=FAST[1::2])
+    with pytest.warns(UserWarning, match="cut off"):
+        result = run_bag_job(BagJob(bag=str(cut), display="killed", label="killed",
+                                    out_dir=str(tmp_path / "campaign"), arx_values=arx, est_values=est))
+    assert result["status"] == "ok" and "cut off" in result["reason"], result["reason"]
+    # Cut inside its first chunk: nothing to read, one line, nothing written.
+    (cut / "killed_0.mcap").write_bytes(data[:3000])
+    code, _, err = run_cli(capsys, "process", cut, "--out", tmp_path / "out2", "--no-progress")
+    assert_one_line_error(code, err, "cut off", "no message before the cut")
+    assert not (tmp_path / "out2").exists() and not list(scratch.iterdir())
+
+
+def test_an_mcap_file_under_a_broken_metadata_yaml_is_read_alone(run, tmp_path):
+    bag = tmp_path / "bag"
+    shutil.copytree(run["bag"], bag)
+    _garbage_metadata(bag)
+    with pytest.warns(UserWarning, match="metadata.yaml missing or unreadable"):
+        with open_bag(bag) as alone, open_bag(run["bag"]) as whole:
+            assert alone.message_count() == whole.message_count() > 0
+            assert alone.topics == whole.topics
 
 
 def test_a_bare_mcap_file_opens_like_its_bag(run):

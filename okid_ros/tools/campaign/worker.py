@@ -2,8 +2,8 @@
 
 :func:`run_bag_job` runs :func:`okid_ros.tools.process.process_bag` into a temporary folder
 ``DIR/bags/.tmp-LABEL-XXXX`` (output bag ``output``, ``models.jsonl``, ``result.json``) and
-renames it to ``DIR/bags/LABEL`` only when complete. Any failure (unreadable, corrupt or
-truncated bag, input topics missing) becomes a ``failed`` result with a one-line reason and
+renames it to ``DIR/bags/LABEL`` only when complete. Any failure (unreadable or corrupt bag,
+input topics missing) becomes a ``failed`` result with a one-line reason and
 removes the temporary folder; it never raises, so one bad bag cannot stop the others.
 
 The result is a plain JSON-ready dict (it travels between processes and machines and is kept
@@ -123,10 +123,11 @@ def _process(job: BagJob, tmp: Path) -> dict:
             modes.append({**mode, "shape_real": real, "shape_imag": imag})
         update["modes"] = modes
         updates.append(update)
-    reason = ""
+    reason = summary.input_note  # an ok bag read in part says so
     if not updates:
         diagnostics = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
-        reason = "no model was identified" + (f": {diagnostics}" if diagnostics else "")
+        reason = "; ".join(filter(None, [
+            "no model was identified" + (f": {diagnostics}" if diagnostics else ""), summary.input_note]))
     return {"bag": job.display, "label": job.label, "status": "ok", "reason": reason, "models": len(updates),
             "samples": int(summary.samples), "input_messages": int(summary.input_messages),
             "duration_s": float(summary.data_duration_s), "start_s": float(summary.first_stamp_s),
