@@ -322,11 +322,13 @@ def _identify_paper(
     except (ValueError, np.linalg.LinAlgError, linalg.LinAlgError) as exc:
         raise IdentificationError(f"the paper's gain identification failed: {exc}") from None
     model = InnovationModel(real.A, real.B, real.C, arx.D, white.K, white.innovation_covariance)
-    return _package(
+    identified = _package(
         model, np.zeros(n), sample_time_s, arx, reference_markov=system_markov[1:], options=options,
         hankel_singular_values=decomposition.s, method="paper", gain_method="whitening",
         system_markov=system_markov, input_offset=u_offset, output_offset=y_offset, warnings=warnings,
     )
+    identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
+    return identified
 
 
 def choose_arx_order(

@@ -94,3 +94,17 @@ def test_track_jsonl_is_strict_and_not_overwritten_without_force(record, tmp_pat
     assert out.read_text() == "keep me"
     assert main([*argv, "--force"]) == 0
     assert len(out.read_text().splitlines()) == len(lines)
+
+
+def test_identify_with_the_papers_method_writes_its_modes_and_their_standard_deviations(tmp_path, capsys):
+    """``--method paper`` once failed after identifying (the model carried no uncertainty result)."""
+    u = white_input(15000, 2, seed=3)  # the paper's method needs a long broadband record to stay stable
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    record, out = tmp_path / "broadband.npz", tmp_path / "paper.json"
+    save_record(record, u, y, DT)
+    assert main(["identify", str(record), "--order", "100", "--states", "6", "--method", "paper",
+                 "--json", str(out)]) == 0, capsys.readouterr().err
+    document = strict_loads(out.read_text())
+    assert document["method"] == "paper" and document["uncertainty"]["computed"] is True
+    assert len(document["modes"]) == 3
+    assert all(mode["frequency_hz_std"] > 0 for mode in document["modes"])
