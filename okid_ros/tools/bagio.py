@@ -284,14 +284,14 @@ class _OpenBag:
         file = mcap_salvage.single_mcap_file(path)
         if file is None:
             return None, ""
-        whole = mcap_salvage.whole_records_end(file)
-        if whole is None:  # closed, or not MCAP at all
+        cut = mcap_salvage.whole_records_end(file)
+        if cut is None:  # closed, or not MCAP at all
             reader = None if file == path else _try_open_reader(file)
             return reader, (f"{path}: metadata.yaml missing or unreadable (a recording that was not "
                             f"closed?): read its MCAP file {file.name} alone")
         self._scratch = Path(tempfile.mkdtemp(prefix="okid-salvage-"))
         copy = self._scratch / file.name
-        mcap_salvage.write_closed_copy(file, whole, copy)
+        mcap_salvage.write_closed_copy(file, cut.whole_bytes, copy)
         reader = _try_open_reader(copy)
         if reader is None or not reader.message_count:
             if reader is not None:
@@ -299,11 +299,13 @@ class _OpenBag:
             self.__exit__(None, None, None)
             raise BagReadError(f"{path}: the MCAP file {file.name} was cut off (a recording that was not "
                                f"closed) and no message before the cut could be read")
-        size = file.stat().st_size
+        read = (f"read the {reader.message_count} messages, "
+                f"{(reader.end_time - reader.start_time) * 1e-9:.1f} s")
+        if cut.data_complete:
+            return reader, f"{path}: the MCAP file {file.name} was cut off in its index: {read}, every message whole"
         return reader, (f"{path}: the MCAP file {file.name} was cut off (a recording that was not closed): "
-                        f"read the {reader.message_count} messages of its whole records, "
-                        f"{(reader.end_time - reader.start_time) * 1e-9:.1f} s, {whole / size:.0%} of "
-                        f"the file; the rest is lost")
+                        f"{read}, of its whole records ({cut.whole_bytes / file.stat().st_size:.0%} of the "
+                        f"file); the rest is lost")
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:

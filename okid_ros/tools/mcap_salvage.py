@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
-__all__ = ["single_mcap_file", "whole_records_end", "write_closed_copy"]
+__all__ = ["Cut", "single_mcap_file", "whole_records_end", "write_closed_copy"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _OP_FOOTER = 0x02
@@ -29,14 +30,19 @@ _RECORD_HEAD = 9  # opcode + uint64 length
 _FOOTER_LENGTH = 20  # summary start, summary offset start (uint64 each), summary CRC (uint32)
 
 
-def whole_records_end(path: Path) -> int | None:
-    """Byte offset after the last whole record of a cut-off MCAP file.
+class Cut(NamedTuple):
+    """Where an MCAP file without its end can be closed."""
+
+    whole_bytes: int  #: the offset after the last whole record of the data section
+    data_complete: bool  #: the cut fell after the data section (in the summary): no message lost
+
+
+def whole_records_end(path: Path) -> Cut | None:
+    """Where the data section of a cut-off MCAP file ends (its last whole record).
 
     Returns
     -------
-    None when the file is not MCAP (no leading magic) or is closed (ends with the magic);
-    otherwise the offset after the last whole record of its data section (at least the
-    header's end when nothing else is whole).
+    None when the file is not MCAP (no leading magic) or is closed (ends with the magic).
     """
     with path.open("rb") as stream:
         if stream.read(len(MAGIC)) != MAGIC:
@@ -48,11 +54,12 @@ def whole_records_end(path: Path) -> int | None:
         while position + _RECORD_HEAD <= size:
             stream.seek(position)
             opcode, length = struct.unpack("<BQ", stream.read(_RECORD_HEAD))
-            end = position + _RECORD_HEAD + length
-            if opcode in (_OP_DATA_END, _OP_FOOTER) or end > size:
-                break  # the data section ends here, or the cut falls inside this record
-            position = end
-        return position
+            if opcode in (_OP_DATA_END, _OP_FOOTER):
+                return Cut(position, True)
+            if position + _RECORD_HEAD + length > size:
+                break  # the cut falls inside this record
+            position += _RECORD_HEAD + length
+        return Cut(position, False)
 
 
 def single_mcap_file(path: Path) -> Path | None:

@@ -389,6 +389,11 @@ def test_a_cut_off_mcap_recording_is_read_up_to_its_cut(run, tmp_path, capsys, m
         result = run_bag_job(BagJob(bag=str(cut), display="killed", label="killed",
                                     out_dir=str(tmp_path / "campaign"), arx_values=arx, est_values=est))
     assert result["status"] == "ok" and "cut off" in result["reason"], result["reason"]
+    # Cut after its messages (the footer lost): every message is read, and the warning says so.
+    (cut / "killed_0.mcap").write_bytes(data[:-37])
+    with pytest.warns(UserWarning, match="cut off in its index: read the .* every message whole"):
+        with open_bag(cut) as bag:
+            assert bag.message_count() == len(full)
     # Cut inside its first chunk: nothing to read, one line, nothing written.
     (cut / "killed_0.mcap").write_bytes(data[:3000])
     code, _, err = run_cli(capsys, "process", cut, "--out", tmp_path / "out2", "--no-progress")
