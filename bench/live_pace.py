@@ -239,6 +239,11 @@ def snapshot(procs: dict) -> dict:
             "harness": harness, "load": os.getloadavg()[0], "t_ns": time.monotonic_ns()}
 
 
+#: Samples go on this long after the measurement: node 2 hands a new model over at the next
+#: sample, so without them the last ArxModel measured could never be published in time.
+GRACE_S = 3.0
+
+
 def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker: Path) -> dict:
     """Publish the record looped in real time until ``--duration`` s after the first StateSpaceModel.
 
@@ -261,16 +266,19 @@ def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker
         time.sleep(0.1)
     time.sleep(2.0)
     dt_ns = int(round(dt * 1e9))
-    limit = int((args.first_model_timeout + args.duration + 1.0) / dt)
+    limit = int((args.first_model_timeout + args.duration + GRACE_S + 1.0) / dt)
     published = np.zeros(limit, dtype=np.int64)
     t0_ns = (time.time_ns() // 1_000_000_000 + 1) * 1_000_000_000
     clock = time.monotonic_ns
-    measure_from, end, before = None, limit, None
+    measure_from, end, before, after = None, limit, None, None
+    grace = int(round(GRACE_S / dt))
     print(f"publishing {len(msgs)} samples looped at {1 / dt:g} Hz until {args.duration:g} s after the "
-          f"first StateSpaceModel", flush=True)
+          f"first StateSpaceModel (and {GRACE_S:g} s more, not measured)", flush=True)
     start = clock()
     k = 0
-    while k < end:
+    while k < min(end + grace, limit):
+        if k == end:
+            after = snapshot(procs)
         wait = start + k * dt_ns - clock()
         if wait > 0:
             time.sleep(wait * 1e-9)  # no busy wait: the publisher must not eat the nodes' CPU
@@ -282,7 +290,7 @@ def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker
         if measure_from is None and k % 64 == 0 and marker.exists():
             measure_from, before = k, snapshot(procs)
             end = k + int(round(args.duration / dt))
-    after = snapshot(procs)
+    after = after or snapshot(procs)
     node.destroy_node()
     if measure_from is None:
         raise RuntimeError(f"no StateSpaceModel within {args.first_model_timeout:g} s of samples")
