@@ -58,7 +58,7 @@ from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
-from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady_poles
+from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady_poles, uncertainty_problem
 
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
@@ -155,7 +155,8 @@ def _package_judged(model: InnovationModel, x0: np.ndarray, sample_time_s: float
         return fraction
 
     identified = _package(model, x0, sample_time_s, arx, stability=judged, **fields)
-    if not refused:
+    # Without standard deviations (tens of outputs) no refused mode can be shown steady.
+    if not refused or uncertainty_problem(model.A.shape[0], *model.D.shape, y.shape[0], burn_in=arx.order):
         identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
         return identified
     every = _package(model, x0, sample_time_s, arx, **fields)  # the refused modes too, to know their scatter

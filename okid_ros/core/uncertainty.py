@@ -40,8 +40,8 @@ from scipy import linalg, signal
 
 from okid_ros.core.regressors import check_io_arrays
 
-__all__ = ["UncertaintyResult", "attach_mode_uncertainty", "steady_poles", "same_pole", "DEFAULT_MAX_FLOPS",
-           "STEADY_STD_PER_WIDTH"]
+__all__ = ["UncertaintyResult", "attach_mode_uncertainty", "n_parameters", "steady_poles", "same_pole",
+           "uncertainty_problem", "DEFAULT_MAX_FLOPS", "STEADY_STD_PER_WIDTH"]
 
 #: Budget for forming H and M (2 N p P^2 flops); 1e9 is ~0.1-0.3 s here.
 DEFAULT_MAX_FLOPS = 1e9
@@ -222,6 +222,14 @@ def attach_mode_uncertainty(
     if u.shape[0] != y.shape[0] or u.shape[1] != m or y.shape[1] != p:
         _set_nan(modes)
         return UncertaintyResult(False, f"record u{u.shape}, y{y.shape} does not fit the model (m={m}, p={p})")
+    if burn_in is None:
+        burn_in = int(getattr(getattr(model, "arx", None), "order", DEFAULT_BURN_IN))
+    # Before the eigendecomposition: the parameter count is n (2 p + m) + p m whatever the poles.
+    rows = _sample_rows(y.shape[0], burn_in, p=p, n_states=n, n_parameters=n_parameters(n, p, m),
+                        max_flops=max_flops)
+    if isinstance(rows, str):
+        _set_nan(modes)
+        return UncertaintyResult(False, rows, n_parameters(n, p, m))
     predictor = _diagonal_predictor(A, B, C, D, K)
     if isinstance(predictor, str):
         _set_nan(modes)
@@ -229,12 +237,6 @@ def attach_mode_uncertainty(
     lam, upper, real, G, Cw = predictor
     layout = _Layout([int(np.argmax(np.abs(Cw[:, i]))) for i in upper],
                      [int(np.argmax(np.abs(Cw[:, i]))) for i in real], p, m)
-    if burn_in is None:
-        burn_in = int(getattr(getattr(model, "arx", None), "order", DEFAULT_BURN_IN))
-    rows = _sample_rows(y.shape[0], burn_in, p=p, n_states=n, n_parameters=layout.size, max_flops=max_flops)
-    if isinstance(rows, str):
-        _set_nan(modes)
-        return UncertaintyResult(False, rows, layout.size)
     J, residuals = _jacobian_and_residuals(
         (lam[upper], G[upper], Cw[:, upper].T), (lam[real].real, G[real].real, Cw[:, real].real.T), D, layout,
         u=u, y=y, rows=rows,
@@ -242,6 +244,20 @@ def attach_mode_uncertainty(
     cov = _parameter_covariance(J, residuals, stride=int(rows[1] - rows[0]) if rows.size > 1 else 1)
     _propagate_to_modes(modes, cov, predictor, layout, p=p, sample_time_s=float(model.sample_time_s))
     return UncertaintyResult(True, "", layout.size, int(rows.size * p))
+
+
+def n_parameters(n_states: int, p: int, m: int) -> int:
+    """Gauge-fixed predictor parameters: ``2 p + m`` per state (a pole pair: 2 for lambda, 2 (p + m)
+    for g, 2 (p - 1) for c; a real pole half that), and ``p m`` for ``D``."""
+    return n_states * (2 * p + m) + p * m
+
+
+def uncertainty_problem(n_states: int, p: int, m: int, n_samples: int, *, burn_in: int,
+                        max_flops: float = DEFAULT_MAX_FLOPS) -> str:
+    """Why :func:`attach_mode_uncertainty` would not compute the standard deviations of such a model ("" if it would)."""
+    rows = _sample_rows(n_samples, burn_in, p=p, n_states=n_states, n_parameters=n_parameters(n_states, p, m),
+                        max_flops=max_flops)
+    return rows if isinstance(rows, str) else ""
 
 
 def steady_poles(modes: list) -> list[complex]:

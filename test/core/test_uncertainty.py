@@ -128,6 +128,23 @@ def test_many_outputs_degrade_quickly_with_a_reason():
     assert all(math.isnan(md.frequency_hz_std) and math.isnan(md.damping_ratio_std) for md in modes)
 
 
+def test_the_parameter_count_and_the_cost_check_need_no_eigendecomposition():
+    """``n (2 p + m) + p m`` whatever the poles (pairs and real ones); the check says what attach does."""
+    for pairs, reals, p, m in ((3, 0, 2, 2), (2, 3, 5, 1), (0, 4, 28, 2), (6, 1, 1, 0)):
+        layout = unc._Layout([0] * pairs, [0] * reals, p, m)
+        assert layout.size == unc.n_parameters(2 * pairs + reals, p, m)
+    case = benchmark_case("paper-lp15")
+    u = case.make_input(3750, 3)
+    y = simulate(case.system, u, seed=3)
+    model = identify(u, y, case.sample_time_s, order=case.arx_order)
+    n, (p, m) = model.A.shape[0], model.D.shape
+    for budget in (unc.DEFAULT_MAX_FLOPS, 1e5):
+        problem = unc.uncertainty_problem(n, p, m, y.shape[0], burn_in=case.arx_order, max_flops=budget)
+        result = attach_mode_uncertainty(model, u, y, burn_in=case.arx_order, max_flops=budget)
+        assert result.computed == (problem == "") and result.reason == problem
+    assert problem.startswith("not computed")
+
+
 def test_subsampled_rows_give_about_the_same_standard_deviations():
     case = benchmark_case("paper-lp15")
     u = case.make_input(3750, 3)
