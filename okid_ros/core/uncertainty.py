@@ -247,14 +247,16 @@ def attach_mode_uncertainty(
 
 
 def n_parameters(n_states: int, p: int, m: int) -> int:
-    """Gauge-fixed predictor parameters: ``2 p + m`` per state (a pole pair: 2 for lambda, 2 (p + m)
-    for g, 2 (p - 1) for c; a real pole half that), and ``p m`` for ``D``."""
+    """Gauge-fixed predictor parameters: ``2 p + m`` per state, and ``p m`` for ``D``.
+
+    A pole pair has 2 for lambda, 2 (p + m) for g and 2 (p - 1) for c; a real pole half that.
+    """
     return n_states * (2 * p + m) + p * m
 
 
 def uncertainty_problem(n_states: int, p: int, m: int, n_samples: int, *, burn_in: int,
                         max_flops: float = DEFAULT_MAX_FLOPS) -> str:
-    """Why :func:`attach_mode_uncertainty` would not compute the standard deviations of such a model ("" if it would)."""
+    """Why :func:`attach_mode_uncertainty` would not compute a model's standard deviations ("" if it would)."""
     rows = _sample_rows(n_samples, burn_in, p=p, n_states=n_states, n_parameters=n_parameters(n_states, p, m),
                         max_flops=max_flops)
     return rows if isinstance(rows, str) else ""
