@@ -23,7 +23,8 @@ published before the next one. What it does, for each ``--window``:
    ``--synthetic SECONDS`` instead that many seconds of the record's identified model driven by
    white noise (:func:`synthetic_record`: the same channels and dynamics without the seam, where
    the jump from the record's last sample to its first is a transient the nodes react to);
-4. from the first StateSpaceModel on it measures ``--duration`` seconds: the ArxModels and
+4. from the first StateSpaceModel on it measures ``--duration`` seconds (the samples go on
+   :data:`GRACE_S` longer, unmeasured, so that the last ArxModel can be published): the ArxModels and
    StateSpaceModels published, how many ArxModels were realized and published before the next
    ArxModel arrived (the issue's criterion), the realization time of each model (node 2's log;
    node 2's diagnostics ``last_realization_time_s`` for the rejected ones too), the samples
