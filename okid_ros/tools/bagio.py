@@ -31,7 +31,6 @@ import functools
 import os
 import shutil
 import sys
-import tempfile
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -235,17 +234,17 @@ class BagReader:
             yield connection.topic, stamp_ns, self._decode(connection, stamp_ns, raw)
 
 
-def _open_reader(path: Path) -> Any:
+def _open_reader(paths: Path | list[Path]) -> Any:
     from rosbags.highlevel import AnyReader
 
-    reader = AnyReader([path], default_typestore=okid_typestore())
+    reader = AnyReader(paths if isinstance(paths, list) else [paths], default_typestore=okid_typestore())
     reader.open()
     return reader
 
 
-def _try_open_reader(path: Path) -> Any:
+def _try_open_reader(paths: Path | list[Path]) -> Any:
     try:
-        return _open_reader(path)
+        return _open_reader(paths)
     except Exception:  # noqa: BLE001 - the caller reports the first failure
         return None
 
@@ -266,46 +265,12 @@ class _OpenBag:
         try:
             self._reader = _open_reader(path)
         except Exception as exc:  # the readers raise many kinds; all mean "not a usable bag"
-            self._reader, note = self._open_mcap_alone(path)
+            self._reader, note, self._scratch = mcap_salvage.read_unclosed(path, _try_open_reader)
             if self._reader is None:
                 raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
                                    f"({type(exc).__name__}: {_one_line(exc)})") from None
             warnings.warn(note, stacklevel=2)
         return BagReader(path, self._reader, note)
-
-    def _open_mcap_alone(self, path: Path) -> tuple[Any, str]:
-        """The reader of the MCAP file of a recording that was not closed, and how it was read.
-
-        A cut-off file (no footer) is read up to its last whole record from a closed copy in a
-        temporary directory (:mod:`okid_ros.tools.mcap_salvage`; removed on exit); a closed
-        file in a directory whose ``metadata.yaml`` is missing or unreadable is read alone.
-        The reader is None when ``path`` is not such a recording.
-        """
-        file = mcap_salvage.single_mcap_file(path)
-        if file is None:
-            return None, ""
-        cut = mcap_salvage.whole_records_end(file)
-        if cut is None:  # closed, or not MCAP at all
-            reader = None if file == path else _try_open_reader(file)
-            return reader, (f"{path}: metadata.yaml missing or unreadable (a recording that was not "
-                            f"closed?): read its MCAP file {file.name} alone")
-        self._scratch = Path(tempfile.mkdtemp(prefix="okid-salvage-"))
-        copy = self._scratch / file.name
-        mcap_salvage.write_closed_copy(file, cut.whole_bytes, copy)
-        reader = _try_open_reader(copy)
-        if reader is None or not reader.message_count:
-            if reader is not None:
-                reader.close()
-            self.__exit__(None, None, None)
-            raise BagReadError(f"{path}: the MCAP file {file.name} was cut off (a recording that was not "
-                               f"closed) and no message before the cut could be read")
-        read = (f"read the {reader.message_count} messages, "
-                f"{(reader.end_time - reader.start_time) * 1e-9:.1f} s")
-        if cut.data_complete:
-            return reader, f"{path}: the MCAP file {file.name} was cut off in its index: {read}, every message whole"
-        return reader, (f"{path}: the MCAP file {file.name} was cut off (a recording that was not closed): "
-                        f"{read}, of its whole records ({cut.whole_bytes / file.stat().st_size:.0%} of the "
-                        f"file); the rest is lost")
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:

@@ -10,6 +10,9 @@ the last whole record; :func:`write_closed_copy` writes the file up to there, cl
 DataEnd record and a Footer that points to no summary (MCAP specification, "Footer": a summary
 start of 0 means none), which rosbags then reads by scanning its records.
 
+A split recording (several files, the last one cut) is read as one: the closed files as they
+are, the cut one from its copy, merged by time by rosbags' ``AnyReader``.
+
 Why by hand: rosbags has no recovery; the Foxglove ``mcap`` package streams cut files but is
 not a dependency of the product and would be a second message path beside rosbags; ``mcap
 recover`` (Go) and ``ros2 bag reindex`` are not available to a pip install.
@@ -17,11 +20,16 @@ recover`` (Go) and ``ros2 bag reindex`` are not available to a pip install.
 
 from __future__ import annotations
 
+import shutil
 import struct
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
-__all__ = ["Cut", "single_mcap_file", "whole_records_end", "write_closed_copy"]
+from okid_ros.tools.errors import BagReadError
+
+__all__ = ["Cut", "mcap_files", "read_unclosed", "whole_records_end", "write_closed_copy"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _OP_FOOTER = 0x02
@@ -62,16 +70,11 @@ def whole_records_end(path: Path) -> Cut | None:
         return Cut(position, False)
 
 
-def single_mcap_file(path: Path) -> Path | None:
-    """The MCAP file of ``path``: itself if a ``.mcap`` file, else a directory's only ``.mcap`` file.
-
-    Of a split recording (several files) the files before the last are closed; joining them to
-    a cut last file is not done here (None).
-    """
+def mcap_files(path: Path) -> list[Path]:
+    """The MCAP files of ``path``: itself if a ``.mcap`` file, else a directory's ``.mcap`` files (split)."""
     if path.is_file():
-        return path if path.suffix == ".mcap" else None
-    files = sorted(path.glob("*.mcap")) if path.is_dir() else []
-    return files[0] if len(files) == 1 else None
+        return [path] if path.suffix == ".mcap" else []
+    return sorted(path.glob("*.mcap")) if path.is_dir() else []
 
 
 def write_closed_copy(path: Path, whole_bytes: int, target: Path) -> None:
@@ -88,3 +91,52 @@ def write_closed_copy(path: Path, whole_bytes: int, target: Path) -> None:
         out.write(struct.pack("<BQQQI", _OP_FOOTER, _FOOTER_LENGTH, 0, 0, 0))
         out.write(MAGIC)
 
+
+
+def read_unclosed(path: Path, open_reader: Callable[[list[Path]], Any]) -> tuple[Any, str, Path | None]:
+    """Open the MCAP files of a recording that was not closed: ``(reader, what was read, scratch)``.
+
+    A cut-off file is read up to its last whole record from a closed copy in the temporary
+    directory ``scratch`` (the caller removes it after reading); closed files in a directory
+    whose ``metadata.yaml`` is missing or unreadable are read alone (a split recording: its
+    files merged by time). ``open_reader`` opens a list of files, None when it cannot. The
+    reader is None when ``path`` is not such a recording.
+
+    Raises
+    ------
+    BagReadError
+        the files were cut before any whole message.
+    """
+    files = mcap_files(path)
+    cuts = {file: whole_records_end(file) for file in files}
+    cut_files = [file for file in files if cuts[file] is not None]
+    if not files or (files == [path] and not cut_files):  # a closed file that failed: its own error
+        return None, "", None
+    scratch = Path(tempfile.mkdtemp(prefix="okid-salvage-")) if cut_files else None
+    readable = []
+    for file in files:
+        if cuts[file] is None:
+            readable.append(file)
+        else:
+            readable.append(scratch / file.name)
+            write_closed_copy(file, cuts[file].whole_bytes, readable[-1])
+    reader = open_reader(readable)
+    if not cut_files:
+        names = ", ".join(file.name for file in files)
+        return reader, (f"{path}: metadata.yaml missing or unreadable (a recording that was not closed?): "
+                        f"read its MCAP file{'s' if len(files) > 1 else ''} {names} alone"), None
+    names, were = ", ".join(file.name for file in cut_files), "were" if len(cut_files) > 1 else "was"
+    if reader is None or not reader.message_count:
+        if reader is not None:
+            reader.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise BagReadError(f"{path}: the MCAP file {names} {were} cut off (a recording that was not "
+                           f"closed) and no message before the cut could be read")
+    read = f"read the {reader.message_count} messages, {(reader.end_time - reader.start_time) * 1e-9:.1f} s"
+    if all(cuts[file].data_complete for file in cut_files):
+        note = f"{path}: the MCAP file {names} {were} cut off in its index: {read}, every message whole"
+        return reader, note, scratch
+    whole = sum(cuts[file].whole_bytes for file in cut_files) / sum(file.stat().st_size for file in cut_files)
+    return reader, (f"{path}: the MCAP file {names} {were} cut off (a recording that was not closed): {read}, "
+                    f"of the whole records ({whole:.0%} of the cut file{'s' if len(cut_files) > 1 else ''}); "
+                    f"the rest is lost"), scratch

@@ -401,6 +401,26 @@ def test_a_cut_off_mcap_recording_is_read_up_to_its_cut(run, tmp_path, capsys, m
     assert not (tmp_path / "out2").exists() and not list(scratch.iterdir())
 
 
+def test_a_split_recording_cut_off_in_its_last_file_is_read_as_one(tmp_path):
+    """rosbag2 splits long recordings into files; a killed recorder leaves the last one cut."""
+    parts = []
+    for k in range(2):
+        assert main(["simulate", "--out", str(tmp_path / f"part{k}"), "--duration", "20",
+                     "--start-time", str(START_S + 20 * k)]) == 0
+        parts.append(next((tmp_path / f"part{k}").glob("*.mcap")).read_bytes())
+    split = tmp_path / "split"
+    split.mkdir()
+    (split / "rec_0.mcap").write_bytes(parts[0])
+    (split / "rec_1.mcap").write_bytes(parts[1][: len(parts[1]) * 3 // 4])  # cut after its first chunk
+    with open_bag(tmp_path / "part0") as first:
+        first_count = first.message_count()
+    with pytest.warns(UserWarning, match=r"rec_1.mcap was cut off .* read the \d+ messages"):
+        with open_bag(split) as bag:
+            stamps = [stamp for _, _, stamp, _ in bag.raw_messages()]
+    assert first_count < len(stamps) < 2 * first_count  # the closed file whole, the cut one in part
+    assert stamps == sorted(stamps) and stamps[-1] > (START_S + 20) * 1_000_000_000
+
+
 def test_an_mcap_file_under_a_broken_metadata_yaml_is_read_alone(run, tmp_path):
     bag = tmp_path / "bag"
     shutil.copytree(run["bag"], bag)
