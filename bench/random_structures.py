@@ -27,21 +27,8 @@ import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np
 
 from okid_bench.cases import random_case
-from okid_bench.output_only_cases import score_modes
+from okid_bench.output_only_cases import score_modes, system_modes
 from okid_ros.sim.simulators import simulate_noisy
-
-
-def _truth(system) -> list[dict]:
-    from scipy import linalg
-
-    z, psi = linalg.eig(system.A)
-    s = np.log(z) / system.sample_time_s
-    modes = []
-    for i in np.flatnonzero(z.imag > 0):
-        shape = system.C @ psi[:, i]
-        modes.append({"frequency_hz": abs(s[i]) / (2 * np.pi), "damping_ratio": -s[i].real / abs(s[i]),
-                      "shape": shape / np.linalg.norm(shape)})
-    return sorted(modes, key=lambda mode: mode["frequency_hz"])
 
 
 def _run(index: int) -> dict:
@@ -58,7 +45,7 @@ def _run(index: int) -> dict:
         error = ""
     except IdentificationError as exc:
         found, error = [], str(exc)
-    truth = _truth(case.system)
+    truth = system_modes(case.system)
     strict = score_modes(found, truth, match_tolerance=0.005)
     return {"index": index, "description": case.description, "time": time.perf_counter() - started,
             "truth": [t["frequency_hz"] for t in truth], "found": [f["frequency_hz"] for f in found],

@@ -19,7 +19,8 @@ from okid_bench.cases import random_frequencies
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
 from okid_ros.sim.simulators import simulate_noisy
 
-__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "random_case", "OUTPUT_ONLY_CASES"]
+__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "random_case", "system_modes",
+           "OUTPUT_ONLY_CASES"]
 
 
 @dataclass
@@ -65,16 +66,24 @@ class OutputOnlyCase:
         return simulate_noisy(self.system, self.force(n, seed), seed=seed)
 
     def truth(self) -> list[dict]:
-        """The discrete system's modes by frequency: ``frequency_hz``, ``damping_ratio``, ``shape`` (p,)."""
-        z, psi = linalg.eig(self.system.A)
-        s = np.log(z) / self.sample_time_s
-        out = []
-        for i in np.flatnonzero(z.imag > 0):
-            w = abs(s[i])
-            shape = self.system.C @ psi[:, i]
-            out.append({"frequency_hz": w / (2 * np.pi), "damping_ratio": -s[i].real / w,
-                        "shape": shape / np.linalg.norm(shape)})
-        return sorted(out, key=lambda m: m["frequency_hz"])
+        """The discrete system's modes by frequency (:func:`system_modes`)."""
+        return system_modes(self.system)
+
+
+def system_modes(system) -> list[dict]:
+    """The modes of a simulated system (``A``, ``C``, ``sample_time_s``) by frequency.
+
+    Each a dict of ``frequency_hz``, ``damping_ratio`` and ``shape`` (p,), unit norm.
+    """
+    z, psi = linalg.eig(system.A)
+    s = np.log(z) / system.sample_time_s
+    out = []
+    for i in np.flatnonzero(z.imag > 0):
+        w = abs(s[i])
+        shape = system.C @ psi[:, i]
+        out.append({"frequency_hz": w / (2 * np.pi), "damping_ratio": -s[i].real / w,
+                    "shape": shape / np.linalg.norm(shape)})
+    return sorted(out, key=lambda m: m["frequency_hz"])
 
 
 def _structure(freqs, damping, p, dt, seed=3, noise=0.05):

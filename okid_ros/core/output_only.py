@@ -292,8 +292,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
         return
-    by_pole = [next(((ev, c) for ev, c in matched if abs(mode.eigenvalue - ev) < 1e-9), (mode.eigenvalue, None))
-               for mode in model.modes]
+    by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
     f_std, z_std = _jackknife_std(jackknife, by_pole, poles, n_model, model.sample_time_s)
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
@@ -335,6 +334,11 @@ def _without_harmonics(y: np.ndarray, sample_time_s: float, warnings: list[str])
     listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
     warnings.append(f"harmonic disturbance removed before identification (not a mode): {listed}")
     return remove_harmonics(y, sample_time_s, found)
+
+
+def _cluster_of(eigenvalue: complex, matched: list[tuple[complex, ModeCluster]]) -> ModeCluster | None:
+    """The cluster whose pole at the model order is ``eigenvalue`` (the modal form keeps it to rounding)."""
+    return next((cluster for ev, cluster in matched if abs(eigenvalue - ev) < 1e-9), None)
 
 
 def _home_order(mode: ModeCluster) -> int:
@@ -443,14 +447,11 @@ def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time
     # The modes were selected already (their spectral dominance included, step 4): no criterion here.
     criteria = ModeCriteria(max_damping=MAX_DAMPING, min_msv=0.0, min_mpc=0.0, min_dominance=0.0)
 
-    def cluster_of(mode) -> ModeCluster | None:
-        return next((c for ev, c in chosen if abs(mode.eigenvalue - ev) < 1e-9), None)
-
     # The stochastic input (L) stands for B in the modal indicators: it is what excites the modes.
     form = modal_form(A, L, C, K, sample_time_s, None, criteria=criteria,
-                      stability=lambda mode: 0.0 if cluster_of(mode) is None else 1.0)
+                      stability=lambda mode: 0.0 if _cluster_of(mode.eigenvalue, chosen) is None else 1.0)
     for i, mode in enumerate(form.modes):
-        cluster = cluster_of(mode)
+        cluster = _cluster_of(mode.eigenvalue, chosen)
         mode.id = i
         mode.stability = len(cluster.members) / max(len(diagram), 1)
         mode.frequency_hz_std, mode.damping_ratio_std = cluster.frequency_hz_spread, cluster.damping_ratio_spread

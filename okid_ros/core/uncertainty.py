@@ -225,11 +225,11 @@ def attach_mode_uncertainty(
     if burn_in is None:
         burn_in = int(getattr(getattr(model, "arx", None), "order", DEFAULT_BURN_IN))
     # Before the eigendecomposition: the parameter count is n (2 p + m) + p m whatever the poles.
-    rows = _sample_rows(y.shape[0], burn_in, p=p, n_states=n, n_parameters=n_parameters(n, p, m),
-                        max_flops=max_flops)
+    size = n_parameters(n, p, m)
+    rows = _sample_rows(y.shape[0], burn_in, p=p, n_states=n, n_parameters=size, max_flops=max_flops)
     if isinstance(rows, str):
         _set_nan(modes)
-        return UncertaintyResult(False, rows, n_parameters(n, p, m))
+        return UncertaintyResult(False, rows, size)
     predictor = _diagonal_predictor(A, B, C, D, K)
     if isinstance(predictor, str):
         _set_nan(modes)
