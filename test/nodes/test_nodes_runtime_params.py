@@ -253,6 +253,10 @@ def test_the_divergence_ratio_decides_which_spike_is_divergence(probe):
         probe.spike_left = SPIKE_SAMPLES
     assert int(probe.fresh_status()["diverged_samples"]) == diverged
     probe.set(estimator__divergence_nis_ratio=100.0)
+    # The first spike was not divergence, so node 2's next models are realized over windows that
+    # hold it: their innovation covariance is up to 1 + SPIKE_SAMPLES * 1e6 / 500 (the shortest
+    # window) times larger, and the same spike whitened by it stays under the ratio. 100 times
+    # larger, it is divergence under any model node 2 may be using.
     with probe.lock:
-        probe.spike, probe.spike_left = spike, SPIKE_SAMPLES
+        probe.spike, probe.spike_left = 100.0 * spike, SPIKE_SAMPLES
     probe.wait_until("a diverged sample", lambda: int(probe.status["diverged_samples"]) > diverged, 10)
