@@ -66,8 +66,11 @@ class Record:
         """Whether the record has at least one input channel."""
         return np.ndim(self.u) == 2 and np.shape(self.u)[1] > 0
 
-    def validate(self) -> "Record":
-        """Check types, shapes, lengths, finiteness and the sample time; raise DataError with the reason."""
+    def validate(self, *, allow_nonfinite: bool = False) -> "Record":
+        """Check types, shapes, lengths, finiteness and the sample time; raise DataError with the reason.
+
+        ``allow_nonfinite``: NaN/Inf samples are kept (missing samples, for ``track``).
+        """
         u = _as_real_array("u", self.u)
         y = _as_real_array("y", self.y)
         u = u[:, None] if u.ndim == 1 else u
@@ -80,7 +83,7 @@ class Record:
             raise DataError("the record has no samples")
         if y.shape[1] == 0:
             raise DataError(f"need at least one output channel; got y{y.shape}")
-        for name, arr in (("u", u), ("y", y)):
+        for name, arr in (("u", u), ("y", y)) if not allow_nonfinite else ():
             bad = ~np.isfinite(arr)
             if bad.any():
                 k, c = np.argwhere(bad)[0]
@@ -191,8 +194,10 @@ def _load_csv(path: Path) -> Record:
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 
-def load_record(path: str | Path) -> Record:
+def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:
     """Read and validate a record from .npz or .csv (see module docstring).
+
+    ``allow_nonfinite``: samples with NaN/Inf are kept (see :meth:`Record.validate`).
 
     Raises
     ------
@@ -212,7 +217,7 @@ def load_record(path: str | Path) -> Record:
     else:
         raise DataError(f"{path}: unknown format {suffix!r}; expected .npz or .csv")
     try:
-        return record.validate()
+        return record.validate(allow_nonfinite=allow_nonfinite)
     except DataError as exc:
         raise DataError(f"{path}: {exc}") from None
 

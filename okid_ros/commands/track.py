@@ -31,6 +31,13 @@ the batch fit of the window's normal equations (same as `identify` on those samp
 prior scaled by the window's data and the penalty by GCV unless ``--penalty`` fixes it); the
 window keeps the normal equations up to date in O(d^2) per sample. An update whose pipeline
 fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run.
+
+Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
+the window leaves out the regressor rows that reach them, the realization fills gaps of up to the
+nodes' ``estimator.max_gap_samples`` by prediction and starts after a longer one
+(:func:`okid_ros.core.gap_fill.realization_window`, node 2's rule), and the change test bridges
+them (:meth:`okid_ros.core.change_monitor.StructuralChangeMonitor.gap`). ``window_first_index``
+then counts the missing samples in the window's span.
 """
 
 from __future__ import annotations
@@ -154,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
     )
     q = _arx_order(args, u, y, options)
+    record = _TrackedRecord(u, y, q, window)
     estimator = SlidingWindowArx(q, p, m, window=window)
     monitor = StructuralChangeMonitor(p, false_alarm_samples=args.false_alarm_samples)
     restart_rows = max(int(np.ceil(args.restart_min_fill * window)), 1)
@@ -172,24 +180,25 @@ def run(args: argparse.Namespace) -> int:
     with handle:
         fed = 0
         for k in points:
-            alarm = monitor.process(u[fed : k + 1], y[fed : k + 1], fed) if monitor.armed else None
+            alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
             else:  # restart the window at the change point, as node 1 does
                 restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+                record.origin = alarm.change_index
                 changes.append(alarm)
             bar.update(k + 1 - fed)
             fed = k + 1
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
-            entry = _line_head(k, rows, q, dt, alarm)
+            entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
             if rows < restart_rows:
                 entry.update(n_states=None, modes=[], waiting=_waiting(estimator.status, changes, rows, restart_rows))
                 entry["elapsed_s"] = time.perf_counter() - t0
                 handle.write(dumps(entry) + "\n")
                 continue
             try:
-                fields, model, u_w, y_w = _window_model(estimator, q, dt, args, options)
+                fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
                 if args.change_detection and is_new_reference(monitor, rows) and not model.stability_problem():
@@ -204,8 +213,9 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes)
+    missing = f" ({record.n_missing} with NaN/Inf skipped)" if record.n_missing else ""
     print(
-        f"tracked {n_samples} samples: {len(points)} updates ({failures} failed) of window {window}, "
+        f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed) of window {window}, "
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
     )
     return 0
@@ -213,7 +223,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _output_and_record(args: argparse.Namespace) -> tuple:
     """The JSON lines path (refused if it exists, unless --force) and the record: u (N, m), y (N, p), dt."""
+    import sys
     from pathlib import Path
+
+    import numpy as np
 
     from okid_ros.core.channels import group_scales
     from okid_ros.tools.bag_record import load_any_record
@@ -222,12 +235,19 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     out = Path(args.jsonl)
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
-    record, _ = load_any_record(args.data, args.params, args.param, args.source)
+    # NaN/Inf samples are missing samples, as on the nodes' topics (_TrackedRecord).
+    record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
     # Inputs and outputs each divided by a power of two (exact: the same fits): values near
     # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
     u, y = group_scales(u, record.y).scale(u, record.y)
+    bad = ~(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1))
+    if bad.any():
+        k = int(np.argmax(bad))
+        print(f"okid-ros track: warning: {int(bad.sum())} of the {bad.size} samples hold NaN/Inf (the first at sample "
+              f"{k}): they are skipped as missing samples, as the nodes do (short gaps bridged, the ARX rows "
+              f"that reach them left out)", file=sys.stderr)
     return out, (u, y, record.sample_time_s)
 
 
@@ -247,8 +267,9 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         q = OUTPUT_ONLY_ORDER
     elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
+        lo = _first_finite_run(u, y, window + 200)
         try:
-            q, _ = choose_arx_order(u[: window + 200], y[: window + 200], options=options)
+            q, _ = choose_arx_order(u[lo : lo + window + 200], y[lo : lo + window + 200], options=options)
         except IdentificationError as exc:
             raise DataError(str(exc)) from None
     else:
@@ -277,11 +298,11 @@ def _waiting(status, changes: list, rows: int, needed: int) -> str:
             f"values beyond 1e150 (rescale those channels), {status.rejected_nonfinite} for NaN/Inf")
 
 
-def _line_head(k: int, rows: int, q: int, dt: float, alarm) -> dict:
+def _line_head(k: int, first: int, rows: int, dt: float, alarm) -> dict:
     """The first fields of the JSON line of the update at sample ``k`` (and of a change declared there)."""
     entry = {
         "sample_index": int(k),
-        "window_first_index": int(k - rows - q + 1),
+        "window_first_index": int(first),
         "time_s": float(k * dt),
         "rows": rows,
         "change_detected": alarm is not None,
@@ -303,18 +324,20 @@ def _arm_reference(monitor, model, u_window, y_window, rows: int) -> None:
     monitor.arm(model, warm.x, reference_rows=rows)
 
 
-def _window_model(estimator, q: int, dt: float, args: argparse.Namespace, options) -> tuple:
+def _window_model(estimator, record: "_TrackedRecord", k: int, dt: float, args: argparse.Namespace,
+                  options) -> tuple:
     """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
     from okid_ros.core.arx import fit_from_normal_equations
     from okid_ros.service.realization import identify_window
     from okid_ros.service.records import mode_record
 
-    p, m = estimator.n_outputs, estimator.n_inputs
+    p, m, q = estimator.n_outputs, estimator.n_inputs, record.order
     # With an intercept, as identify_from_arx removes the window's means (offsets).
     fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
                                     center=True)
-    u_w, y_w, _ = estimator.window_samples()
-    model = identify_window(fit, u_w, y_w, dt, options=options)  # output-only when m = 0
+    samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
+    u_w, y_w = samples.u, samples.y
+    model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid)  # output-only when m = 0
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,
@@ -339,3 +362,93 @@ def _print_summary(changes: list, dt: float, last_modes: list) -> None:
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
             f"damping {100 * mode.damping_ratio:6.3f} %"
         )
+
+
+def _first_finite_run(u, y, length: int) -> int:
+    """Where the record's first ``length`` samples without NaN/Inf begin (for the ARX order's choice)."""
+    import numpy as np
+
+    from okid_ros.errors import DataError
+
+    finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
+    if finite[:length].all():
+        return 0
+    # Runs of finite samples: their starts and ends.
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], finite, [False]]).astype(np.int8)))
+    for start, end in zip(edges[::2], edges[1::2]):
+        if end - start >= length:
+            return int(start)
+    raise DataError(f"--order auto chooses the ARX order on {length} samples without NaN/Inf and the record has "
+                    f"no such run; give --order Q")
+
+
+class _TrackedRecord:
+    """The record as the window sees it: which samples are missing (NaN/Inf), where the window restarted.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) the (scaled) record; order : the ARX order q; window : W.
+    """
+
+    def __init__(self, u, y, order: int, window: int) -> None:
+        import numpy as np
+
+        from okid_ros.service.options import ModalEstimationParams
+
+        self.u, self.y, self.order, self.window = u, y, int(order), int(window)
+        self.finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
+        self.n_missing = int(self.finite.size - np.count_nonzero(self.finite))
+        self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
+        self.origin = 0  # the window's first sample (the last change point)
+        # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
+        missing_before = np.concatenate([[0], np.cumsum(~self.finite)])
+        k = np.arange(self.order, self.finite.size)
+        whole = np.zeros(self.finite.size, dtype=bool)
+        whole[k] = missing_before[k + 1] == missing_before[k - self.order]
+        self._rows_before = np.concatenate([[0], np.cumsum(whole)])
+
+    def test(self, monitor, lo: int, hi: int):
+        """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
+        import numpy as np
+
+        if self.finite[lo:hi].all():
+            return monitor.process(self.u[lo:hi], self.y[lo:hi], lo)
+        edges = lo + np.flatnonzero(np.diff(self.finite[lo:hi].astype(np.int8))) + 1
+        for start, end in zip(np.concatenate([[lo], edges]), np.concatenate([edges, [hi]])):
+            if not monitor.armed:
+                return None
+            if self.finite[start]:
+                alarm = monitor.process(self.u[start:end], self.y[start:end], int(start))
+                if alarm is not None:
+                    return alarm
+            else:
+                held = self.u[start - 1] if start > 0 and self.finite[start - 1] else None
+                monitor.gap(held, int(end - start), self.max_gap)
+        return None
+
+    def window_samples(self, fit, k: int, rows: int):
+        """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
+
+        Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples
+        among them are filled or end the run as on node 2 (:func:`okid_ros.core.gap_fill.realization_window`).
+        """
+        import numpy as np
+
+        from okid_ros.core.gap_fill import realization_window
+
+        start = self.window_start(k, rows)
+        present = np.flatnonzero(self.finite[start : k + 1]) + start
+        skipped = np.diff(present, prepend=present[0]) - 1
+        skipped[0] = 0
+        return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
+                                  need=rows + self.order)
+
+    def window_start(self, k: int, rows: int) -> int:
+        """The first sample of the window of ``rows`` rows ending at sample ``k`` (its oldest row's first lag)."""
+        import numpy as np
+
+        q, before = self.order, self._rows_before
+        # The oldest row is the last sample with the count of rows before it that leaves ``rows``
+        # rows up to k (or the first row after the restart).
+        oldest = max(int(before[k + 1]) - rows, int(before[min(self.origin + q, k)]))
+        return int(np.searchsorted(before, oldest, side="right")) - 1 - q

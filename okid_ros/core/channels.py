@@ -83,6 +83,8 @@ def group_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
     the record itself, restored, yet values near 1e+-150 neither overflow nor underflow.
     """
     def power(x: np.ndarray) -> float:
+        # NaN/Inf samples (missing samples, in ``track``) do not count.
+        x = np.where(np.isfinite(x), x, 0.0)
         peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
         peaks = peaks[peaks > 0]
         return float(2.0 ** np.round(np.mean(np.log2(peaks)))) if peaks.size else 1.0

@@ -74,7 +74,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
-from okid_ros.core.gap_fill import fill_short_gaps
+from okid_ros.core.gap_fill import realization_window
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
@@ -260,24 +260,15 @@ class ModalEstimationService:
                     f"waiting for a model of post-change data"
                 )
             stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
-            # Keep the newest run without a long gap or a restart; its short gaps are filled.
-            breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > self.params.max_gap_samples)) + 1
-            start = int(breaks[-1]) if breaks.size else 0
-            u, y, skipped = u[start:], y[start:], skipped[start:]
-            valid = None
             try:
-                if np.any(skipped[1:]):
-                    u, y, valid = fill_short_gaps(u, y, skipped, fit)
-                    self._stats.window_samples_filled += int(np.count_nonzero(~valid))
+                window = realization_window(u, y, skipped, fit, max_gap=self.params.max_gap_samples, need=need)
             except ValueError as exc:
-                return self._refuse(f"ARX window: {exc}")
-            minimum = max(4 * fit.order, need // 2)
-            if u.shape[0] < minimum:
-                return self._refuse(f"buffer holds {u.shape[0]} samples of the ARX window of {need} without a gap "
-                                    f"longer than {self.params.max_gap_samples} samples; need at least {minimum}")
+                return self._refuse(str(exc))
+            self._stats.window_samples_filled += window.filled
             self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
-            return RealizationJob(fit, arx_id, end_stamp, u, y, end, self.params, self._generation, valid, hint)
+            return RealizationJob(fit, arx_id, end_stamp, window.u, window.y, end, self.params, self._generation,
+                                  window.valid, hint)
 
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1

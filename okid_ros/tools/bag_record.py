@@ -85,15 +85,16 @@ def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
 
 
 def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Sequence[str] = (),
-                    sources: Sequence[str] = ()) -> tuple[Record, str]:
+                    sources: Sequence[str] = (), *, allow_nonfinite: bool = False) -> tuple[Record, str]:
     """A record from .npz/.csv or from a bag, and where it came from.
 
     .npz/.csv through :func:`okid_ros.records.load_record`; the second value is a
-    one-line description of where it came from.
+    one-line description of where it came from. ``allow_nonfinite``: NaN/Inf samples of an
+    .npz/.csv are kept (a bag's are rejected as the nodes do).
     """
     path = Path(path)
     if path.suffix.lower() in RECORD_SUFFIXES:
-        return load_record(path), f"{path}"
+        return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
         raise DataError(f"{path}: no such file or bag")
     from okid_ros.tools.process import load_node_parameters

@@ -98,7 +98,6 @@ CSV_CASES = {
     "header_only": ("# sample_time_s=0.01\nu1,y1\n", "no samples"),
     "ragged": ("# sample_time_s=0.01\nu1,y1\n1,2\n3\n", "data row 2 has 1 values"),
     "text": ("# sample_time_s=0.01\nu1,y1\n1,abc\n", "non-numeric"),
-    "overflow": ("# sample_time_s=0.01\nu1,y1\n1e400,2\n3,4\n", "NaN/Inf"),
     "nan_dt": ("# sample_time_s=nan\nu1,y1\n1,2\n3,4\n", "sample_time_s"),
     "bad_dt": ("# sample_time_s=fast\nu1,y1\n1,2\n", "bad sample_time_s"),
     "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
@@ -116,6 +115,21 @@ def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
     assert cli.main(["track", str(path), "--jsonl", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"okid-ros track: error: {path}: ") and reason in err, err
+    assert not out.exists()
+
+
+def test_a_value_beyond_float64_is_refused_by_identify_and_missing_to_track(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "overflow.csv"
+    path.write_text("# sample_time_s=0.01\nu1,y1\n1e400,2\n3,4\n")
+    assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"okid-ros identify: error: {path}: ") and "NaN/Inf" in err, err
+    out = tmp_path / "track.jsonl"
+    assert cli.main(["track", str(path), "--jsonl", str(out), "--order", "2"]) == 2  # track skips it as missing
+    warning, error = capsys.readouterr().err.splitlines()
+    assert warning.startswith("okid-ros track: warning: 1 of the 2 samples hold NaN/Inf (the first at sample 0)")
+    assert error.startswith(f"okid-ros track: error: {path}: too few samples for one window")
     assert not out.exists()
 
 

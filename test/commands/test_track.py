@@ -9,6 +9,7 @@ import pytest
 
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
+from okid_ros.core.gap_fill import realization_window
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.records import save_record
 from okid_ros.sim.inputs import white_input
@@ -64,3 +65,58 @@ def test_track_too_few_samples_is_one_line_error(record, tmp_path, capsys):
     assert status == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "at least 3020 needed" in err
+
+
+def _track(path, out, *args) -> list[dict]:
+    status = okid_ros_main(["track", str(path), "--jsonl", str(out), "--no-progress", *args])
+    assert status == 0
+    return [json.loads(line) for line in out.read_text().splitlines()]
+
+
+def test_samples_with_nan_are_missing_samples_and_the_update_equals_the_batch_chain(record, tmp_path, capsys):
+    # A dropout of 40 samples (longer than the nodes' bridge of 10), then a dropped reading of 3.
+    _, u, y = record
+    u, y = u.copy(), y.copy()
+    u[1540:1580] = np.inf
+    y[1700:1703, 0] = np.nan
+    path = tmp_path / "gaps.npz"
+    save_record(path, u, y, DT)
+    q, window = 20, 1500
+    lines = _track(path, tmp_path / "gaps.jsonl", "--order", str(q), "--window", str(window), "--every", "100",
+                   "--states", "6")
+    captured = capsys.readouterr()
+    assert "43 of the 2600 samples hold NaN/Inf (the first at sample 1540)" in captured.err
+    assert "(43 with NaN/Inf skipped)" in captured.out
+    assert not any(line["change_detected"] for line in lines)  # a gap is not a structural change
+    at = {line["sample_index"]: line for line in lines}
+    assert at[1519]["window_first_index"] == 0 and len(at[1519]["modes"]) == 3
+    # After the dropout the realization starts after it (node 2's rule): too few samples at first.
+    assert "follow its last gap longer than 10 samples" in at[1619]["error"]
+    # The window's rows leave out those that reach a missing sample (each gap and q after it).
+    k = 2519
+    first = at[k]["window_first_index"]
+    assert first == k - window - (40 + q) - (3 + q) - q + 1 and len(at[k]["modes"]) == 3
+    # The update is the batch chain on the same samples: the ARX fit without the rows that reach
+    # a missing sample, the realization on the samples after the dropout, the 3 missing filled.
+    u_w, y_w = u[first : k + 1], y[first : k + 1]
+    finite = np.isfinite(u_w).all(axis=1) & np.isfinite(y_w).all(axis=1)
+    fit = fit_arx(np.where(finite[:, None], u_w, 0), np.where(finite[:, None], y_w, 0), q, "ridge", "gcv",
+                  valid=finite, center=True)
+    skipped = np.diff(np.flatnonzero(finite), prepend=-1) - 1  # missing samples before each
+    samples = realization_window(u_w[finite], y_w[finite], skipped, fit, max_gap=10, need=window + q)
+    assert samples.filled == 3 and samples.u.shape[0] == k + 1 - 1580
+    batch = identify_from_arx(fit, samples.u, samples.y, DT, n_states=6, valid=samples.valid)
+    got = sorted(mode["frequency_rad_s"] for mode in at[k]["modes"])
+    np.testing.assert_allclose(got, sorted(mode.frequency_rad_s for mode in batch.modes), rtol=1e-6)
+
+
+def test_order_auto_is_chosen_on_samples_without_nan(record, tmp_path, capsys):
+    _, u, y = record
+    y = y.copy()
+    y[::200, 1] = np.nan  # no run of window + 200 samples without NaN
+    path = tmp_path / "holes.npz"
+    save_record(path, u, y, DT)
+    status = okid_ros_main(["track", str(path), "--window", "1000", "--jsonl", str(tmp_path / "o.jsonl"),
+                            "--no-progress"])
+    assert status == 2
+    assert "--order auto chooses the ARX order on 1200 samples without NaN/Inf" in capsys.readouterr().err

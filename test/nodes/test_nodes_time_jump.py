@@ -9,7 +9,7 @@ The bag is 16 s of the simulated experiment (IoSample at 125 Hz), replayed at tw
 window 800 rows, a model once 200 rows are in) so that a model comes within each pass on a
 loaded machine. Without the reset, node 1's window still holds the previous pass after a loop
 and node 2 needs 410 contiguous samples of it: the first model after a loop comes about 2 s of
-bag time later than after the start (and node 2 logs "buffer holds ..." meanwhile).
+bag time later than after the start (and node 2 logs "... samples of the ARX window ... follow its last gap" meanwhile).
 """
 
 from __future__ import annotations

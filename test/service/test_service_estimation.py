@@ -206,7 +206,7 @@ def test_requests_wait_for_the_window_end_and_are_checked(pipeline):
     assert est.take_job() is None and est.has_request
     est.step(2.0, [0.0, 1.0], [1.0, 0.0], skipped=-1)
     assert est.take_job() is None and not est.has_request  # only 1 contiguous sample: refused
-    assert "without a gap longer than" in est.diagnostics()["last_reason"]
+    assert "follow its last gap longer than" in est.diagnostics()["last_reason"]
     wrong = dataclasses.replace(fit, n_inputs=1)
     assert not est.submit_arx(wrong, 2.0, 2, W)
     assert est.diagnostics()["arx_models_refused"] == 2
