@@ -213,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes)
-    missing = f" ({record.n_missing} with NaN/Inf skipped)" if record.n_missing else ""
+    missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(
         f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed) of window {window}, "
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
@@ -393,17 +393,19 @@ class _TrackedRecord:
     def __init__(self, u, y, order: int, window: int) -> None:
         import numpy as np
 
+        from okid_ros.core.window_samples import WindowStatus, accepted_samples
         from okid_ros.service.options import ModalEstimationParams
 
         self.u, self.y, self.order, self.window = u, y, int(order), int(window)
-        self.finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
-        self.n_missing = int(self.finite.size - np.count_nonzero(self.finite))
+        # The samples the window accepts (finite, within its magnitude limit): the others are missing.
+        self.present = accepted_samples(u, y, WindowStatus())
+        self.n_missing = int(self.present.size - np.count_nonzero(self.present))
         self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
         self.origin = 0  # the window's first sample (the last change point)
         # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
-        missing_before = np.concatenate([[0], np.cumsum(~self.finite)])
-        k = np.arange(self.order, self.finite.size)
-        whole = np.zeros(self.finite.size, dtype=bool)
+        missing_before = np.concatenate([[0], np.cumsum(~self.present)])
+        k = np.arange(self.order, self.present.size)
+        whole = np.zeros(self.present.size, dtype=bool)
         whole[k] = missing_before[k + 1] == missing_before[k - self.order]
         self._rows_before = np.concatenate([[0], np.cumsum(whole)])
 
@@ -411,18 +413,18 @@ class _TrackedRecord:
         """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
         import numpy as np
 
-        if self.finite[lo:hi].all():
+        if self.present[lo:hi].all():
             return monitor.process(self.u[lo:hi], self.y[lo:hi], lo)
-        edges = lo + np.flatnonzero(np.diff(self.finite[lo:hi].astype(np.int8))) + 1
+        edges = lo + np.flatnonzero(np.diff(self.present[lo:hi].astype(np.int8))) + 1
         for start, end in zip(np.concatenate([[lo], edges]), np.concatenate([edges, [hi]])):
             if not monitor.armed:
                 return None
-            if self.finite[start]:
+            if self.present[start]:
                 alarm = monitor.process(self.u[start:end], self.y[start:end], int(start))
                 if alarm is not None:
                     return alarm
             else:
-                held = self.u[start - 1] if start > 0 and self.finite[start - 1] else None
+                held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
                 monitor.gap(held, int(end - start), self.max_gap)
         return None
 
@@ -437,7 +439,7 @@ class _TrackedRecord:
         from okid_ros.core.gap_fill import realization_window
 
         start = self.window_start(k, rows)
-        present = np.flatnonzero(self.finite[start : k + 1]) + start
+        present = np.flatnonzero(self.present[start : k + 1]) + start
         skipped = np.diff(present, prepend=present[0]) - 1
         skipped[0] = 0
         return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
@@ -448,6 +450,8 @@ class _TrackedRecord:
         import numpy as np
 
         q, before = self.order, self._rows_before
+        if rows <= 0:
+            return k - q + 1
         # The oldest row is the last sample with the count of rows before it that leaves ``rows``
         # rows up to k (or the first row after the restart).
         oldest = max(int(before[k + 1]) - rows, int(before[min(self.origin + q, k)]))

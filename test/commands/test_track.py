@@ -86,7 +86,7 @@ def test_samples_with_nan_are_missing_samples_and_the_update_equals_the_batch_ch
                    "--states", "6")
     captured = capsys.readouterr()
     assert "43 of the 2600 samples hold NaN/Inf (the first at sample 1540)" in captured.err
-    assert "(43 with NaN/Inf skipped)" in captured.out
+    assert "(43 missing: NaN/Inf or beyond 1e150)" in captured.out
     assert not any(line["change_detected"] for line in lines)  # a gap is not a structural change
     at = {line["sample_index"]: line for line in lines}
     assert at[1519]["window_first_index"] == 0 and len(at[1519]["modes"]) == 3

@@ -77,3 +77,19 @@ def test_without_change_detection_the_window_only_slides(record, tmp_path):
     # The old modes are still listed one window after the change (mixed windows).
     mixed = [e for e in lines if CHANGE < e["sample_index"] < CHANGE + WINDOW // 2]
     assert any(min(abs(m["frequency_hz"] / 6.0 - 1) for m in e["modes"]) < 0.01 for e in mixed)
+
+
+def test_missing_samples_are_bridged_and_the_change_is_still_declared(record, tmp_path, capsys):
+    data = np.load(record)
+    y = data["y"].copy()
+    for start in (2600, 3300, 4500):  # dropped readings of 5 samples, before and after the change
+        y[start : start + 5, 1] = np.nan
+    path = tmp_path / "gaps.npz"
+    save_record(path, data["u"], y, DT)
+    lines = track(path, tmp_path / "gaps.jsonl")
+    declared = [e for e in lines if e["change_detected"]]
+    assert len(declared) == 1 and abs(declared[0]["change_sample_index"] - CHANGE) <= 50
+    for x in lines:
+        if x["sample_index"] < CHANGE:  # the gaps before the change are no change
+            got = sorted(m["frequency_hz"] for m in x["modes"])
+            np.testing.assert_allclose(got, FREQS, rtol=0.01)
