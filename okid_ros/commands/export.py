@@ -31,6 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     from pathlib import Path
 
     from okid_ros.errors import DataError
@@ -50,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
         save_record(out, record.u, record.y, record.sample_time_s, stamp_s=from_bag.stamp_s)
     except OSError as exc:
         raise DataError(f"cannot write {out}: {exc}") from None
+    note = from_bag.rejection_note()
+    if note:
+        print(f"okid-ros export: warning: {args.bag}: {note}", file=sys.stderr)
     print(f"exported {from_bag.summary()} ({record.u.shape[1]} inputs, {record.y.shape[1]} outputs) "
           f"from {args.bag} -> {out}")
     return 0

@@ -11,7 +11,7 @@ dropped slot or a time jump; the samples left out are counted (:class:`BagRecord
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -35,12 +35,16 @@ class BagRecord:
     stamp_s : (N,) the samples' stamps [s].
     samples_total : samples assembled from the whole bag.
     runs : contiguous runs found (1 without gaps).
+    messages : messages read on the source topics.
+    rejected : messages the sample grid refused, by reason (only reasons that occurred).
     """
 
     record: Record
     stamp_s: np.ndarray
     samples_total: int
     runs: int
+    messages: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
 
     @property
     def samples_left_out(self) -> int:
@@ -52,6 +56,21 @@ class BagRecord:
         if self.runs > 1:
             text += f" (longest of {self.runs} contiguous runs; {self.samples_left_out} samples left out)"
         return text
+
+    def rejection_note(self) -> str:
+        """One sentence on the messages the grid refused ("" if none), with the likely cause."""
+        total = sum(self.rejected.values())
+        if not total:
+            return ""
+        reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in self.rejected.items())
+        note = f"{total} of the {self.messages} messages were rejected ({reasons})"
+        # Several messages per slot, or stamps between slots: the grid's sample time is not the
+        # stamps' spacing.
+        where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
+        for reason, text in where.items():
+            if self.rejected.get(reason, 0) > total // 2:
+                note += f"; most fell {text}: is sample_time_s {self.record.sample_time_s:g} s right?"
+        return note
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
@@ -81,7 +100,14 @@ def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]),
                     float(est_values["sample_time_s"])).validate()
-    return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs))
+    grid = inputs.grid.counters
+    rejected = {name: int(getattr(grid, name)) for name in _REJECTIONS if getattr(grid, name)}
+    return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
+                     rejected)
+
+
+#: The sample grid's rejection counters (:class:`okid_ros.service.sample_grid.GridCounters`).
+_REJECTIONS = ("late", "duplicate", "out_of_order", "nonfinite", "wrong_size", "off_grid")
 
 
 def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Sequence[str] = (),
@@ -101,4 +127,5 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
 
     est_values = load_node_parameters(params, overrides, sources)[1]
     from_bag = record_from_bag(path, est_values)
-    return from_bag.record, f"{path} (bag: {from_bag.summary()})"
+    note = from_bag.rejection_note()
+    return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

@@ -70,3 +70,16 @@ def test_a_bag_without_the_source_topic_is_a_one_line_error(bag, tmp_path, capsy
                  "--source", "io_sample /nowhere"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "/nowhere" in err
+
+
+@pytest.mark.parametrize("sample_time_s, reason, where", [("3600", "1499 duplicate", "in a sample time already taken"),
+                                                          ("0.016", "750 off grid", "between sample times")])
+def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path, capsys, sample_time_s, reason,
+                                                                  where):
+    capsys.readouterr()
+    out = tmp_path / "r.npz"
+    assert main(["export", str(bag), "--npz", str(out), "--param", f"sample_time_s={sample_time_s}"]) == 0
+    err = capsys.readouterr().err
+    assert f"of the 1500 messages were rejected ({reason}); most fell {where}: is sample_time_s" in err, err
+    assert main(["export", str(bag), "--npz", str(tmp_path / "ok.npz")]) == 0
+    assert "rejected" not in capsys.readouterr().err
