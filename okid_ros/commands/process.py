@@ -7,6 +7,7 @@ parameter file; writes the ARX models, state-space models and modal states to a 
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -94,6 +95,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
         print("no model was identified" + (f": {reason}" if reason else ""))
+    note = summary.rejection_note()
+    if note and (not summary.samples or not summary.updates):  # the likely cause: say it
+        print(f"okid-ros process: warning: {note}", file=sys.stderr)
     return 0
 
 

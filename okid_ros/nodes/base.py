@@ -159,7 +159,7 @@ class OkidNode(Node):
     # ------------------------------------------------------------------ names
     def topic(self, parameter: str) -> str:
         """Full name of the topic in parameter ``parameter`` (relative: in the rig namespace)."""
-        return resolve_topic(self.values[parameter], self.get_namespace())
+        return resolve_topic(self.values[parameter], self.get_namespace(), parameter=parameter)
 
     @property
     def status_name(self) -> str:

@@ -214,7 +214,7 @@ def sources_and_grid(values: dict, namespace: str | None = None):
         specs = parse_sources(values["inputs.sources"], m, p)
     except ValueError as exc:
         raise ParameterError(f"parameter inputs.sources: {exc}") from None
-    specs = [replace(spec, topic=resolve_topic(spec.topic, namespace)) for spec in specs]
+    specs = [replace(spec, topic=resolve_topic(spec.topic, namespace, parameter="inputs.sources")) for spec in specs]
     grid = SampleGrid(
         float(values["sample_time_s"]), m, p, [s.channels for s in specs],
         tolerance=float(values["inputs.stamp_tolerance"]),

@@ -1,8 +1,8 @@
 """Bag input and output on the `rosbags` library: any rosbag2 in, new rosbag2 out, no ROS needed.
 
 Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader``: rosbag2
-directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file) and ROS 1
-bags, deserialized with the definitions stored in the bag (bags without definitions fall back
+directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file, and a directory
+named ``*.bag``) and ROS 1 bags, deserialized with the definitions stored in the bag (bags without definitions fall back
 to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
 the middle of the messages, becomes a one-line :class:`BagReadError` naming the path. A
 recording that was not closed (an MCAP file cut off, or without its ``metadata.yaml``) is read as
@@ -27,6 +27,7 @@ store JSON documents there under keys starting with ``okid_ros.`` (the simulated
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import shutil
@@ -49,6 +50,7 @@ __all__ = [
     "message_definition_dir",
     "okid_typestore",
     "open_bag",
+    "output_exists",
     "prepare_output",
 ]
 
@@ -236,8 +238,14 @@ class BagReader:
 
 def _open_reader(paths: Path | list[Path]) -> Any:
     from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import Reader as Rosbag2Reader
 
-    reader = AnyReader(paths if isinstance(paths, list) else [paths], default_typestore=okid_typestore())
+    paths = paths if isinstance(paths, list) else [paths]
+    reader = AnyReader(paths, default_typestore=okid_typestore())
+    if not reader.is2 and all(p.is_dir() for p in paths):
+        # AnyReader takes any *.bag for ROS 1 by its suffix; a directory is a rosbag2 bag whatever
+        # its name (`simulate --out run.bag`). Its ROS 1 readers only hold the path until open().
+        reader.is2, reader.readers = True, [Rosbag2Reader(p) for p in paths]
     reader.open()
     return reader
 
@@ -259,7 +267,11 @@ class _OpenBag:
 
     def __enter__(self) -> BagReader:
         path = self.path
-        if not path.exists():
+        try:
+            found = path.exists()
+        except OSError as exc:  # a name too long, a folder we may not enter ...
+            raise BagReadError(f"{path}: cannot open the bag ({_one_line(exc.strerror or exc)})") from None
+        if not found:
             raise BagReadError(f"{path}: no such bag")
         note = ""
         try:
@@ -335,24 +347,61 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
     OutputExistsError
         it exists and may not be replaced.
     BagWriteError
-        the parent folder cannot be created.
+        the path cannot be checked or replaced, or its parent folder cannot be created.
     """
     out = Path(path)
-    if out.exists() or out.is_symlink():
+    if output_exists(out):
         if not force:
             raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
-        if out.is_dir() and not out.is_symlink():
-            if any(out.iterdir()) and not _is_bag_directory(out):
-                raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
-                                        f"with --force")
-            shutil.rmtree(out)
-        else:
-            out.unlink()
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BagWriteError(f"{out}: cannot create the parent folder ({_one_line(exc)})") from None
+        try:
+            if out.is_dir() and not out.is_symlink():
+                if any(out.iterdir()) and not _is_bag_directory(out):
+                    raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
+                                            f"with --force")
+                shutil.rmtree(out)
+            else:
+                out.unlink()
+        except OSError as exc:
+            raise BagWriteError(f"{out}: cannot replace the {kind} ({_one_line(exc.strerror or exc)})") from None
+    _make_folder(out.parent, out)
     return out
+
+
+def _make_folder(folder: Path, out: Path) -> None:
+    """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
+    todo = []
+    while not _is_dir(folder) and folder != folder.parent:
+        todo.append(folder)
+        folder = folder.parent
+    made: list[Path] = []
+    try:
+        for folder in reversed(todo):
+            folder.mkdir(exist_ok=True)
+            made.append(folder)
+    except OSError as exc:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
+        raise BagWriteError(f"{out}: cannot create the parent folder ({_one_line(exc.strerror or exc)})") from None
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name too long: not there, its mkdir says why
+        return False
+
+
+def output_exists(path: str | os.PathLike) -> bool:
+    """Whether ``path`` exists (a dangling symlink too); BagWriteError when that cannot be checked.
+
+    ``Path.exists`` raises OSError for a name too long or a folder that may not be entered.
+    """
+    out = Path(path)
+    try:
+        return out.exists() or out.is_symlink()
+    except OSError as exc:
+        raise BagWriteError(f"{out}: cannot write there ({_one_line(exc.strerror or exc)})") from None
 
 
 class BagWriter:

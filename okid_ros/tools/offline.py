@@ -17,7 +17,17 @@ from typing import Any
 
 from okid_ros.errors import ParameterError
 
-__all__ = ["NodeInputs", "OfflineNodes", "ProcessSummary"]
+__all__ = ["TOPIC_PARAMETERS", "NodeInputs", "OfflineNodes", "ProcessSummary"]
+
+_ARX, _MODEL, _CHANGE = "okid_msgs/msg/ArxModel", "okid_msgs/msg/StateSpaceModel", "okid_msgs/msg/StructuralChange"
+#: node -> topic parameter -> message type on that topic (published or subscribed).
+TOPIC_PARAMETERS: dict[str, dict[str, str]] = {
+    "okid_arx_identifier": {"arx_model_topic": _ARX, "structural_change_topic": _CHANGE},
+    "okid_modal_estimator": {"arx_model_topic": _ARX, "structural_change_topic": _CHANGE,
+                             "state_space_model_topic": _MODEL, "modal_states_topic": "okid_msgs/msg/ModalStates"},
+}
+# Reasons the sample grid refuses a message (GridCounters), the likeliest mistake first.
+_REJECTIONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid")
 
 
 @dataclass
@@ -39,6 +49,7 @@ class ProcessSummary:
     estimator_diagnostics: dict = field(default_factory=dict)
     grid_counters: dict = field(default_factory=dict)
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
+    wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
 
     @property
     def data_duration_s(self) -> float:
@@ -47,6 +58,24 @@ class ProcessSummary:
     @property
     def final_modes(self) -> list[dict]:
         return self.updates[-1]["modes"] if self.updates else []
+
+    def rejection_note(self) -> str:
+        """What node 1's sample grid refused, in one sentence ("" when it refused nothing).
+
+        Said when no sample or no model came out, so that a wrong ``n_outputs`` does not pass
+        as a record too short.
+        """
+        counts = self.grid_counters
+        rejected, messages = counts.get("rejected_messages", 0), counts.get("messages", 0)
+        if not rejected and not counts.get("missing"):
+            return ""
+        reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
+                   for key in _REJECTIONS if counts.get(key)]
+        if counts.get("missing"):
+            reasons.append(f"{counts['missing']} samples dropped incomplete (missing)")
+        head = (f"all {messages} input messages were rejected" if rejected and rejected >= messages
+                else f"{rejected} of the {messages} input messages were rejected")
+        return f"{head}: {', '.join(reasons)}"
 
 
 class NodeInputs:
@@ -60,6 +89,7 @@ class NodeInputs:
         self.by_topic: dict[str, list[int]] = {}
         for i, spec in enumerate(self.specs):
             self.by_topic.setdefault(spec.topic, []).append(i)
+        self.wrong_size_note = ""  # set at the first message of a wrong size
 
     def add(self, topic: str, msg: Any, arrival_s: float) -> list:
         from okid_ros.nodes.conversions import source_values
@@ -67,6 +97,11 @@ class NodeInputs:
         samples = []
         for i in self.by_topic.get(topic, ()):
             stamp, values = source_values(msg, self.specs[i], self.m, self.p)
+            if not len(values) and not self.wrong_size_note:  # empty: the message has the wrong size
+                have = ", ".join(f"{name} of {len(getattr(msg, name))}" for name in ("u", "y", "data")
+                                 if hasattr(msg, name))
+                self.wrong_size_note = (f"n_inputs {self.m}, n_outputs {self.p} expected; the first on "
+                                        f"{topic} has {have or 'other'} values")
             samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
         return samples
 
@@ -85,6 +120,7 @@ class OfflineNodes:
     def __init__(self, arx_values: dict, est_values: dict, types: Any = None, namespace: str | None = None) -> None:
         from okid_ros.nodes.conversions import MessageTypes
         from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
+        from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE
         from okid_ros.service.topics import resolve_topic
         from okid_ros.service.windowed import PipelineSettings, WindowedPipeline
         from okid_ros.tools.bagio import okid_typestore
@@ -92,12 +128,18 @@ class OfflineNodes:
         self.types = types or MessageTypes.from_typestore(okid_typestore())
         self.arx_inputs = NodeInputs(arx_values, namespace)
         self.est_inputs = NodeInputs(est_values, namespace)
-        self.arx_topic = resolve_topic(arx_values["arx_model_topic"], namespace)
-        self.arx_input_topic = resolve_topic(est_values["arx_model_topic"], namespace)
-        self.state_space_topic = resolve_topic(est_values["state_space_model_topic"], namespace)
-        self.modal_states_topic = resolve_topic(est_values["modal_states_topic"], namespace)
-        self.structural_change_topic = resolve_topic(est_values["structural_change_topic"], namespace)
-        self.change_input_topic = resolve_topic(arx_values["structural_change_topic"], namespace)
+        # node -> parameter -> full topic name; resolve_topic refuses a bad name, naming the parameter
+        self.topic_parameters: dict[str, dict[str, str]] = {
+            node: {name: resolve_topic(values[name], namespace, parameter=f"{name} of {node}")
+                   for name in TOPIC_PARAMETERS[node]}
+            for node, values in ((ARX_NODE, arx_values), (ESTIMATOR_NODE, est_values))
+        }
+        arx_topics, est_topics = self.topic_parameters[ARX_NODE], self.topic_parameters[ESTIMATOR_NODE]
+        self.arx_topic, self.change_input_topic = arx_topics["arx_model_topic"], arx_topics["structural_change_topic"]
+        self.arx_input_topic = est_topics["arx_model_topic"]
+        self.state_space_topic = est_topics["state_space_model_topic"]
+        self.modal_states_topic = est_topics["modal_states_topic"]
+        self.structural_change_topic = est_topics["structural_change_topic"]
         settings = PipelineSettings(
             reset_arx_on_time_jump=bool(arx_values["reset_on_time_jump"]),
             reset_estimator_on_time_jump=bool(est_values["reset_on_time_jump"]),
@@ -148,6 +190,7 @@ class OfflineNodes:
         s.arx_diagnostics = self.arx.diagnostics()
         s.estimator_diagnostics = self.est.diagnostics()
         s.grid_counters = self.arx_inputs.grid.counters.as_dict()
+        s.wrong_size_note = self.arx_inputs.wrong_size_note
         return out
 
     def _estimate(self, samples: list) -> list[tuple[str, Any]]:

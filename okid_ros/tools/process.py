@@ -37,12 +37,20 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import ParameterError
+from okid_ros.errors import OutputError, ParameterError
 from okid_ros.jsonio import dumps
-from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, BagWriter, open_bag, prepare_output
+from okid_ros.tools.bagio import (
+    PROCESS_KEY,
+    STABILIZATION_KEY,
+    TRUTH_KEY,
+    BagWriter,
+    open_bag,
+    output_exists,
+    prepare_output,
+)
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.node_parameters import load_node_parameters
-from okid_ros.tools.offline import NodeInputs, OfflineNodes, ProcessSummary
+from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
 
 __all__ = [
     "NodeInputs",
@@ -97,6 +105,10 @@ def process_bag(
         missing/corrupt input, a source topic missing or of another type.
     OutputExistsError
         an output exists and ``force`` is false.
+    OutputError
+        an output is, holds or lies in the input (even with ``force``), or overlaps the other one.
+    ParameterError
+        a topic parameter is not a valid ROS 2 name, or two give one topic two message types.
     """
     bag_path, out_path = Path(bag_path), Path(out_path)
     nodes = OfflineNodes(arx_values, est_values, namespace=namespace)
@@ -110,7 +122,7 @@ def process_bag(
             jsonl = None
             if jsonl_path is not None:
                 prepare_output(jsonl_path, force=force, kind="JSON lines file")
-                jsonl = open(jsonl_path, "w")
+                jsonl = _open_jsonl(jsonl_path)
                 created.append(jsonl_path)
             writer = BagWriter(out_path, storage=storage, force=force)
             created.append(out_path)
@@ -134,30 +146,103 @@ def process_bag(
     except KeyboardInterrupt:
         raise  # what was written stays, closed and readable
     except BaseException:
-        for path in created:  # no half-written outputs after an error
-            if path.is_dir():
-                shutil.rmtree(path, ignore_errors=True)
-            elif path.exists():
-                path.unlink()
+        _remove(created)  # no half-written outputs after an error
         raise
     return summary
 
 
+def _remove(paths: list[Path]) -> None:
+    for path in paths:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        elif path.exists():
+            path.unlink()
+
+
 def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None, nodes: OfflineNodes,
                    force: bool) -> Path | None:
-    """Refuse outputs that exist (unless ``force``), the input as output, overlapping topics."""
-    if out_path.resolve() == bag_path.resolve():
-        raise BagWriteError(f"{out_path}: the output bag cannot be the input bag")
+    """Refuse outputs that exist (unless ``force``), outputs over the input or each other, clashing topics."""
     clash = sorted(set(nodes.input_topics) & set(nodes.output_topics))
     if clash:
         raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
-    if jsonl_path is not None:
-        jsonl_path = Path(jsonl_path)
-        if jsonl_path.exists() and not force:
-            prepare_output(jsonl_path, force=False, kind="JSON lines file")
-    if out_path.exists() and not force:
+    _check_topic_types(nodes)
+    jsonl_path = None if jsonl_path is None else Path(jsonl_path)
+    _check_output_paths(bag_path, out_path, jsonl_path)
+    if jsonl_path is not None and output_exists(jsonl_path) and not force:
+        prepare_output(jsonl_path, force=False, kind="JSON lines file")
+    if output_exists(out_path) and not force:
         prepare_output(out_path, force=False)
     return jsonl_path
+
+
+def _check_topic_types(nodes: OfflineNodes) -> None:
+    """Refuse one topic for two message types (``arx_model_topic`` equal to ``modal_states_topic``)."""
+    uses: dict[str, list[tuple[str, str]]] = {}
+    for topic, msgtype in nodes.input_topics.items():
+        uses.setdefault(topic, []).append(("inputs.sources", msgtype))
+    for node, topics in nodes.topic_parameters.items():
+        for name, topic in topics.items():
+            uses.setdefault(topic, []).append((f"{name} of {node}", TOPIC_PARAMETERS[node][name]))
+    for topic, users in sorted(uses.items()):
+        if len({msgtype for _, msgtype in users}) > 1:
+            listed = ", ".join(f"{label} ({msgtype.rsplit('/', 1)[-1]})" for label, msgtype in users)
+            raise ParameterError(f"parameters {listed} all resolve to the topic {topic}: one topic cannot carry "
+                                 "two message types; give them different topic names")
+
+
+def _check_output_paths(bag_path: Path, out_path: Path, jsonl_path: Path | None) -> None:
+    """Refuse an output that is, holds or lies in the input (even with --force), or --jsonl over --out.
+
+    Paths are compared resolved (symlinks, ``..``); an input file in a rosbag2 directory
+    (``run/run_0.mcap``) counts as that directory, whose metadata.yaml belongs to it.
+    """
+    bag, root = _input_root(bag_path)
+    where = f"the input bag {bag_path}" + (f" (its directory {root})" if root != bag else "")
+    outputs = [(out_path, "output bag")] + ([(jsonl_path, "JSON lines file")] if jsonl_path is not None else [])
+    for path, kind in outputs:
+        relation = _relation(_resolved(path), root)
+        if relation:
+            raise OutputError(f"{path}: the {kind} cannot {relation} {where}, not even with --force")
+    if jsonl_path is not None:
+        relation = _relation(_resolved(jsonl_path), _resolved(out_path))
+        if relation:
+            raise OutputError(f"{jsonl_path}: the JSON lines file cannot {relation} the output bag {out_path} "
+                              "(the bag would replace it)")
+
+
+def _relation(path: Path, other: Path) -> str | None:
+    """How resolved ``path`` overlaps resolved ``other``: "be", "contain", "be inside", or None."""
+    if path == other:
+        return "be"
+    if other.is_relative_to(path):
+        return "contain"
+    if path.is_relative_to(other):
+        return "be inside"
+    return None
+
+
+def _resolved(path: Path) -> Path:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
+        raise OutputError(f"{path}: cannot resolve the path ({' '.join(str(exc).split())})") from None
+
+
+def _input_root(bag_path: Path) -> tuple[Path, Path]:
+    """The resolved input, and what of it outputs must keep clear of (its rosbag2 directory for a file in one)."""
+    bag = _resolved(bag_path)
+    try:
+        in_bag_dir = bag.is_file() and (bag.parent / "metadata.yaml").is_file()
+    except OSError:  # unreadable: open_bag says why later
+        in_bag_dir = False
+    return bag, bag.parent if in_bag_dir else bag
+
+
+def _open_jsonl(path: Path) -> TextIO:
+    try:
+        return open(path, "w")
+    except OSError as exc:
+        raise BagWriteError(f"{path}: cannot write the JSON lines file ({exc.strerror or exc})") from None
 
 
 def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes) -> tuple[int, Any]:

@@ -1,0 +1,152 @@
+"""`process` never writes over its input, keeps its outputs apart, and says why nothing came out.
+
+Offline (no DDS): outputs that are, hold or lie in the input bag (even with --force), --jsonl
+over --out, topic parameters that are not ROS 2 names or put two message types on one topic,
+messages of the wrong size, a rosbag2 directory named ``*.bag``, and names too long for the
+file system.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from pathlib import Path
+
+import pytest
+
+from okid_ros.cli import main
+from okid_ros.errors import ParameterError
+from okid_ros.service.topics import resolve_topic
+from okid_ros.tools.bagio import TRUTH_KEY, open_bag
+
+LONG = "x" * 300  # longer than NAME_MAX (255) of the usual file systems
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err and err.strip().count("\n") == 0, err
+    for fragment in fragments:
+        assert fragment in err, err
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory) -> Path:
+    """A 2 s MCAP bag (enough for the error paths; no model comes from it)."""
+    path = tmp_path_factory.mktemp("guard") / "victim"
+    assert main(["simulate", "--out", str(path), "--duration", "2"]) == 0
+    return path
+
+
+@pytest.fixture()
+def victim(bag, tmp_path, monkeypatch) -> Path:
+    """A copy of the bag in a fresh working directory (relative paths as a user types them)."""
+    import shutil
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(bag, tmp_path / "v")
+    return Path("v")
+
+
+def _mcap(victim: Path) -> str:
+    return str(next(victim.glob("*.mcap")))
+
+
+@pytest.mark.parametrize("argv, fragments", [
+    (lambda v: [_mcap(v), "--out", v], ["output bag cannot be the input bag", "its directory"]),
+    (lambda v: [v, "--out", "."], ["output bag cannot contain the input bag v"]),
+    (lambda v: [v, "--out", v / "sub"], ["output bag cannot be inside the input bag v"]),
+    (lambda v: [v, "--out", "o", "--jsonl", v / "metadata.yaml"], ["JSON lines file cannot be inside"]),
+    (lambda v: [v, "--out", "o", "--jsonl", _mcap(v)], ["JSON lines file cannot be inside"]),
+    (lambda v: [_mcap(v), "--out", "o", "--jsonl", v / "metadata.yaml"], ["JSON lines file cannot be inside"]),
+])
+def test_an_output_over_the_input_is_refused_even_with_force(victim, capsys, argv, fragments):
+    before = digest(victim)
+    args = argv(victim)
+    code, _, err = run_cli(capsys, "process", *args, "--force", "--no-progress")
+    assert_one_line_error(code, err, "not even with --force", *fragments)
+    assert digest(victim) == before
+    assert not Path("o").exists() and not (victim / "sub").exists()
+
+
+@pytest.mark.parametrize("out, jsonl, relation", [
+    ("o2", "o2", "cannot be the output bag"),
+    ("o2", "o2/models.jsonl", "cannot be inside the output bag"),
+    ("o2/bag", "o2", "cannot contain the output bag"),
+])
+def test_jsonl_over_the_output_bag_is_refused(victim, capsys, out, jsonl, relation):
+    code, _, err = run_cli(capsys, "process", victim, "--out", out, "--jsonl", jsonl, "--force", "--no-progress")
+    assert_one_line_error(code, err, f"{jsonl}: the JSON lines file {relation} {out}")
+    assert not Path("o2").exists()
+
+
+@pytest.mark.parametrize("name, problem", [
+    ("bad topic name!!", "not allowed"), ("", "empty"), ("a//b", "'//'"), ("a/", "ends with"),
+    ("2d/x", "starts with a digit"), ("~/private", "substitutions are not supported"),
+])
+def test_topic_parameters_must_be_ros_names(victim, capsys, tmp_path, name, problem):
+    with pytest.raises(ParameterError, match="parameter modal_states_topic: .*not a valid topic name"):
+        resolve_topic(name, parameter="modal_states_topic")
+    params = tmp_path / "p.yaml"
+    params.write_text(f'/**/okid_modal_estimator:\n  ros__parameters:\n    modal_states_topic: "{name}"\n')
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--params", params, "--no-progress")
+    assert_one_line_error(code, err, "modal_states_topic of okid_modal_estimator", problem)
+    assert not Path("o").exists()
+
+
+def test_valid_topic_names_still_resolve():
+    assert resolve_topic("sensors/imu_2", "/rig1") == "/rig1/sensors/imu_2"
+    assert resolve_topic(" /my/imu ") == "/my/imu"
+
+
+def test_two_message_types_on_one_topic_are_refused_up_front(victim, capsys):
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--param", "arx_model_topic=modal_states",
+                           "--no-progress")
+    assert_one_line_error(code, err, "arx_model_topic of okid_arx_identifier (ArxModel)",
+                          "modal_states_topic of okid_modal_estimator (ModalStates)", "/okid/modal_states")
+    assert not Path("o").exists()
+
+
+def test_messages_of_the_wrong_size_are_named_when_nothing_comes_out(victim, capsys):
+    code, out, err = run_cli(capsys, "process", victim, "--out", "o", "--param", "n_inputs=3",
+                             "--param", "n_outputs=5", "--no-progress")
+    assert code == 0, err
+    assert "0 samples" in out and "no model was identified" in out
+    assert "okid-ros process: warning: all 250 input messages were rejected: 250 wrong_size" in err, err
+    assert "n_inputs 3, n_outputs 5 expected; the first on /okid/io_sample has u of 2, y of 2 values" in err
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_rosbag2_directory_named_dot_bag_is_read_as_rosbag2(tmp_path, capsys, storage):
+    path = tmp_path / "run.bag"
+    assert run_cli(capsys, "simulate", "--out", path, "--duration", "1", "--storage", storage)[0] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # read whole: no "metadata.yaml missing" salvage
+        with open_bag(path) as opened:
+            assert opened.read_note == "" and TRUTH_KEY in opened.custom_data
+            assert opened.message_count() > 0
+    code, _, err = run_cli(capsys, "export", path, "--npz", tmp_path / "run.npz")
+    assert code == 0 and "warning" not in err, err
+
+
+def test_names_too_long_are_one_line_errors(victim, capsys):
+    cases = [
+        ([victim, "--out", LONG], [LONG, "File name too long"]),
+        ([victim, "--out", "o", "--jsonl", LONG + ".jsonl"], [LONG, "File name too long"]),
+        ([LONG, "--out", "o"], [LONG, "cannot open the bag"]),
+        ([victim, "--out", f"a/b/{LONG}/c"], ["cannot create the parent folder"]),
+    ]
+    for argv, fragments in cases:
+        code, _, err = run_cli(capsys, "process", *argv, "--force", "--no-progress")
+        assert_one_line_error(code, err, *fragments)
+    assert sorted(p.name for p in Path().iterdir()) == ["v"]  # nothing half-made, not even a/b
