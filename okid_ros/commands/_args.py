@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "states_or_auto", "penalty_or_gcv", "add_bag_arguments", "add_progress_arguments",
-           "namespace"]
+__all__ = ["positive_int", "int_between", "positive_finite_float", "stamp_seconds", "states_or_auto",
+           "penalty_or_gcv", "add_bag_arguments", "add_progress_arguments", "namespace"]
+
+#: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32).
+MAX_STAMP_S = 2**31 - 1
 
 
 def positive_int(text: str) -> int:
@@ -16,6 +19,53 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def int_between(low: int, high: int | None = None):
+    """An argparse type: an integer in ``[low, high]`` (``high`` None: no upper bound).
+
+    The message of a refusal names the range, e.g. "expected an integer from 1 to 10000, got 0".
+    """
+    wanted = f"an integer >= {low}" if high is None else f"an integer from {low} to {high}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+        return value
+
+    parse.__name__ = "int"
+    return parse
+
+
+def _float(text: str, wanted: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+
+
+def positive_finite_float(text: str) -> float:
+    """A number > 0 and finite (not NaN, not inf)."""
+    value = _float(text, "a positive finite number")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {value}")
+    return value
+
+
+def stamp_seconds(text: str) -> float:
+    """Seconds since the epoch that a ROS 2 stamp can hold: 0 to 2**31 - 1 (its ``sec`` is an int32).
+
+    Not negative: a bag's log time (nanoseconds) is unsigned.
+    """
+    wanted = f"seconds since the epoch from 0 to {MAX_STAMP_S} (a ROS 2 stamp's sec is an int32)"
+    value = _float(text, wanted)
+    if not 0.0 <= value <= MAX_STAMP_S:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
     return value
 
 

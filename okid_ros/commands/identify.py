@@ -99,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.force:
         for path in _outputs(args):
             prepare_output(path, force=False, kind="output")  # refuse before the work, not after
-    reference = _load_reference(args.reference) if args.reference else None
     record, source = load_any_record(args.data, args.params, args.param, args.source)
+    reference = _load_reference(args.reference, record.y.shape[1]) if args.reference else None
     pairs = None
     if args.frf_pairs:
         from okid_ros.tools.validation_plots import parse_pairs
@@ -241,23 +241,29 @@ def _fit_line(fits: dict, *, output_only: bool) -> str:
             f"[{pred}] %{free_run}")
 
 
-def _load_reference(path: str) -> list:
-    """The ``modes`` of an `identify --json` document (for MAC against a reference)."""
+def _load_reference(path: str, n_outputs: int) -> list:
+    """The ``modes`` of an `identify --json` document (for MAC against a reference), checked against the record.
+
+    Raises
+    ------
+    ParameterError
+        one line (about the option's file, not the record): the file is unreadable, not such a
+        document, or a mode's shape is missing, not finite, all zero, or not one entry per output
+        (see ``validation_plots.reference_modes``).
+    """
     import json
     from pathlib import Path
 
-    from okid_ros.errors import DataError
+    from okid_ros.errors import ParameterError
+    from okid_ros.tools.validation_plots import reference_modes
 
     try:
         document = json.loads(Path(path).read_text())
-        modes = document["modes"]
-        for mode in modes:
-            mode["shape_real"], mode["frequency_hz"]  # noqa: B018 - presence check
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise DataError(
-            f"--reference {path}: not an `okid-ros identify --json` output with mode shapes ({exc})"
-        ) from None
-    return modes
+    except (OSError, ValueError) as exc:
+        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output ({exc})") from None
+    if not isinstance(document, dict) or "modes" not in document:
+        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output (no 'modes')")
+    return reference_modes(document["modes"], f"--reference {path}", n_outputs)
 
 
 def _pm(std: float) -> str:

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.commands._args import int_between
+
+#: Bound of --terms, equal to okid_ros.tools.plots.MAX_TERMS (not imported: every parser is built at start-up).
+MAX_TERMS = 10_000
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `plot`."""
@@ -31,8 +36,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "recorded by process, else the built-in defaults)")
     parser.add_argument("--window", type=float, default=5.0, metavar="S",
                         help="seconds of modal states and outputs shown, at the end of the bag (default: %(default)s)")
-    parser.add_argument("--terms", type=int, default=100, metavar="N",
-                        help="stochastic Markov parameters drawn (default: %(default)s)")
+    parser.add_argument("--terms", type=int_between(1, MAX_TERMS), default=100, metavar="N",
+                        help=f"stochastic Markov parameters drawn, 1 to {MAX_TERMS}: the figure is about 800 "
+                        "pixels wide and the terms decay, more would not show (default: %(default)s)")
     parser.add_argument("--frf-pairs", default=None, metavar="O:I,...",
                         help="output:input pairs drawn in frf.png, 1-based, e.g. 1:1,2:1 (default: all, at most 16)")
     parser.add_argument("--namespace", default=None, metavar="NS",
@@ -101,8 +107,10 @@ def run(args: argparse.Namespace) -> int:
             pairs = parse_pairs(args.frf_pairs, view.C.shape[0], view.B.shape[1]) if args.frf_pairs else None
         except ValueError as exc:
             raise ToolParameterError(f"--frf-pairs: {exc}") from None
+        reference, why_not = _truth_reference(data.truth, view.C.shape[0])
+        note += why_not
         written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,
-                                            reference=_truth_modes(data.truth), reference_label="truth")
+                                            reference=reference, reference_label="truth")
     print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
     for path in written:
         print(f"  {path}")
@@ -127,6 +135,16 @@ def _plot_campaign(args: argparse.Namespace) -> int:
     for path in written:
         print(f"  {path}")
     return 0
+
+
+def _truth_reference(truth: dict | None, n_outputs: int) -> tuple[list | None, str]:
+    """The true modes to compare in mac.png, or None and a note why not (a model of other outputs)."""
+    modes = _truth_modes(truth)
+    sizes = sorted({mode.shape.size for mode in modes or []})
+    if sizes and sizes != [n_outputs]:
+        return None, (f"; truth not in mac.png (its mode shapes have {', '.join(map(str, sizes))} entries, the "
+                      f"model {n_outputs} outputs)")
+    return modes, ""
 
 
 def _truth_modes(truth: dict | None) -> list | None:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.commands._args import int_between, positive_finite_float, stamp_seconds
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `simulate`."""
@@ -25,13 +27,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="length of the record (default: %(default)s s)")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="rosbag2 storage plugin (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of input and noise (default: %(default)s)")
+    parser.add_argument("--seed", type=int_between(0), default=1,
+                        help="seed of input and noise, an integer >= 0 (default: %(default)s)")
     parser.add_argument("--cutoff", type=float, default=15.0, metavar="HZ",
                         help="low-pass cut-off of the thruster signals (default: %(default)s Hz)")
-    parser.add_argument("--noise", type=float, default=1.0, metavar="R",
-                        help="innovation variance r, Re = r I (default: %(default)s)")
-    parser.add_argument("--start-time", type=float, default=None, metavar="SEC",
-                        help="stamp of the first sample in seconds since the epoch (default: now)")
+    parser.add_argument("--noise", type=positive_finite_float, default=1.0, metavar="R",
+                        help="innovation variance r > 0, Re = r I (default: %(default)s)")
+    parser.add_argument("--start-time", type=stamp_seconds, default=None, metavar="SEC",
+                        help="stamp of the first sample in seconds since the epoch, from 0 to 2**31 - 1 with "
+                        "the whole record (a ROS 2 stamp's sec is an int32; default: now)")
     parser.add_argument("--force", action="store_true", help="replace an existing bag at --out")
     parser.set_defaults(func=run)
     return parser

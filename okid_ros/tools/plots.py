@@ -47,14 +47,17 @@ from pathlib import Path
 import numpy as np
 
 from okid_ros.core.markov import markov_from_state_space, stochastic_markov_from_state_space
+from okid_ros.errors import OutputError, write_atomically
 from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
 
 __all__ = [
     "FIGURES",
+    "MAX_TERMS",
     "PlotData",
     "add_measured_outputs",
     "fit_percent",
+    "make_figure_dir",
     "output_estimates",
     "read_plot_data",
     "write_figures",
@@ -67,6 +70,10 @@ FIGURES = (
     "fig5_output_estimate.png",
     "modes_over_time.png",
 )
+
+#: Most stochastic Markov parameters drawn (``--terms``): Fig. 3 is about 800 pixels wide, and
+#: these terms decay like the predictor, so more are neither visible nor informative.
+MAX_TERMS = 10_000
 
 ARX_TOPIC = "/okid/arx_model"
 STATE_SPACE_TOPIC = "/okid/state_space_model"
@@ -305,10 +312,11 @@ def _figure_stochastic_markov(plt, data: PlotData, truth: dict | None, n_stochas
     ss = data.state_space
     fig, ax = plt.subplots(figsize=(7, 3.5))
     i = np.arange(1, n_stochastic + 1)
-    M = stochastic_markov_from_state_space(ss["A"], ss["C"], ss["K"], n_stochastic)
+    # Only element (1,1) is drawn: C[:1] A^i K[:, :1], not all p x p of every term.
+    M = stochastic_markov_from_state_space(ss["A"], ss["C"][:1], ss["K"][:, :1], n_stochastic)
     ax.plot(i, M[:, 0, 0], ".-", ms=3, lw=0.8, label=f"identified (model {ss['model_id']}, n = {ss['n']})")
     if truth is not None:
-        Mt = stochastic_markov_from_state_space(truth["A"], truth["C"], truth["K"], n_stochastic)
+        Mt = stochastic_markov_from_state_space(truth["A"], truth["C"][:1], truth["K"][:, :1], n_stochastic)
         ax.plot(i, Mt[:, 0, 0], "--", lw=0.8, color="k", label="truth")
     ax.set_xlabel("i [time steps]")
     ax.set_ylabel("C A^i K (1,1) [-]")
@@ -405,20 +413,54 @@ def pyplot():
 
 
 def refuse_existing(out_dir: Path, names, force: bool) -> None:
-    """Raise OutputExistsError if one of ``names`` exists in ``out_dir`` and ``force`` is false."""
-    existing = [name for name in names if (out_dir / name).exists()]
+    """Raise OutputExistsError if one of ``names`` exists in ``out_dir`` and ``force`` is false.
+
+    Raises
+    ------
+    OutputError
+        ``out_dir`` cannot be looked into (a name too long, no permission).
+    """
+    try:
+        existing = [name for name in names if (Path(out_dir) / name).exists()]
+    except OSError as exc:
+        raise OutputError(f"{out_dir}: cannot be the folder of the figures ({exc.strerror or exc})") from None
     if existing and not force:
         raise OutputExistsError(f"{out_dir}: {', '.join(existing)} exist already, not overwriting (use --force)")
 
 
+def make_figure_dir(out_dir: str | Path) -> Path:
+    """Create the folder of the figures (and its parents) if needed; returns it.
+
+    Raises
+    ------
+    OutputError
+        it exists and is not a folder, or cannot be created (a read-only place, a name too long).
+    """
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{out_dir}: exists and is not a folder; give another one for the figures") from None
+    except OSError as exc:
+        raise OutputError(f"{out_dir}: cannot create the folder of the figures ({exc.strerror or exc})") from None
+    return out_dir
+
+
 def save_figure(plt, fig, path: Path, dpi: int = 110) -> Path:
-    """Lay out (unless the figure has its own layout engine), write and close one figure."""
-    # matplotlib's log-axis tick arithmetic overflows (harmlessly) for magnitudes near 1e+-300.
-    with np.errstate(over="ignore", under="ignore"):
-        if fig.get_layout_engine() is None:
-            fig.tight_layout()
-        fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    """Lay out (unless the figure has its own layout engine), write and close one figure.
+
+    The PNG is written through a temporary file and a rename: a failure leaves no half-written file.
+    """
+    try:
+        # matplotlib's log-axis tick arithmetic overflows (harmlessly) for magnitudes near 1e+-300.
+        with np.errstate(over="ignore", under="ignore"):
+            if fig.get_layout_engine() is None:
+                fig.tight_layout()
+            write_atomically(path, lambda stream: fig.savefig(stream, format="png", dpi=dpi))
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -429,12 +471,14 @@ def write_figures(data: PlotData, out_dir: str | Path, force: bool = False, n_st
     Raises
     ------
         OutputExistsError: a figure file exists and ``force`` is false.
+        OutputError: ``out_dir`` is not a folder or cannot be created, a figure cannot be written.
+        ToolParameterError: ``n_stochastic`` outside 1 .. MAX_TERMS.
     """
-    if n_stochastic < 1:
-        raise ToolParameterError(f"--terms must be at least 1, got {n_stochastic}")
+    if not 1 <= n_stochastic <= MAX_TERMS:
+        raise ToolParameterError(f"--terms must be from 1 to {MAX_TERMS}, got {n_stochastic}")
     out_dir = Path(out_dir)
     refuse_existing(out_dir, FIGURES, force)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_figure_dir(out_dir)
     plt = pyplot()
     truth = _truth_matrices(data.truth)
     written: list[Path] = []

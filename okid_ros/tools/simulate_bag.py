@@ -57,6 +57,8 @@ THRUSTER_FRAMES = ("thruster1", "thruster2")
 IMU_FRAMES = ("accel_tip1", "accel_tip2")
 RIG_FRAME = "truss_tip"
 DEFAULT_CUTOFF_HZ = 15.0
+#: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32).
+MAX_STAMP_S = 2**31 - 1
 
 
 @dataclass
@@ -101,10 +103,11 @@ def simulate_experiment(
     Parameters
     ----------
     duration_s : record length [s] (> 0); N = round(duration_s / 0.008) samples.
-    seed : seed of the input and noise generators.
+    seed : seed of the input and noise generators (an integer >= 0).
     cutoff_hz : -3 dB cut-off of the thruster signals' low-pass [Hz], in (0, 62.5).
     innovation_variance : ``r`` in ``Re = r I``.
-    start_ns : stamp of the first sample [ns]; default: now, on a whole second.
+    start_ns : stamp of the first sample [ns]; default: now, on a whole second. Every stamp of the
+        record must lie between 0 and ``MAX_STAMP_S`` seconds (a ROS 2 stamp's ``sec`` is an int32).
 
     Returns
     -------
@@ -118,19 +121,15 @@ def simulate_experiment(
     from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
     from okid_ros.sim.paper_model import PAPER_PUBLISHED_MODES
 
+    # Checked before the model is built: an infinite variance made it NaN (scipy's "infs or NaNs").
+    if not 0 < innovation_variance < np.inf:
+        raise ToolParameterError(f"innovation variance must be a positive finite number, got {innovation_variance}")
     model = paper_model(innovation_variance=innovation_variance)
     dt = model.sample_time_s
-    if not np.isfinite(duration_s) or duration_s <= 0:
-        raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
-    if not 0 < cutoff_hz < 0.5 / dt:
-        raise ToolParameterError(f"input cut-off must be in (0, {0.5 / dt}) Hz, got {cutoff_hz}")
-    if not innovation_variance > 0:
-        raise ToolParameterError(f"innovation variance must be positive, got {innovation_variance}")
-    n_samples = int(round(duration_s / dt))
-    if n_samples < 2:
-        raise ToolParameterError(f"--duration {duration_s} s is shorter than two samples of {dt} s")
+    n_samples = _check_options(duration_s, seed, cutoff_hz, dt)
     if start_ns is None:
         start_ns = int(time.time()) * 1_000_000_000
+    _check_start(start_ns, n_samples, dt)
     u = lowpass_input(n_samples, model.n_inputs, cutoff_hz, dt, seed=seed)
     y, _ = simulate_innovation(model, u, seed=seed + 1_000_003)
     modes = [
@@ -167,6 +166,30 @@ def simulate_experiment(
         },
     }
     return Experiment(sample_time_s=dt, start_ns=int(start_ns), u=u, y=y, truth=truth)
+
+
+def _check_options(duration_s: float, seed: int, cutoff_hz: float, dt: float) -> int:
+    """The number of samples of ``duration_s``; raises ToolParameterError for an option out of range."""
+    if not np.isfinite(duration_s) or duration_s <= 0:
+        raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
+    if not 0 < cutoff_hz < 0.5 / dt:
+        raise ToolParameterError(f"input cut-off must be in (0, {0.5 / dt}) Hz, got {cutoff_hz}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ToolParameterError(f"--seed must be an integer >= 0, got {seed!r}")  # numpy's default_rng needs it
+    n_samples = int(round(duration_s / dt))
+    if n_samples < 2:
+        raise ToolParameterError(f"--duration {duration_s} s is shorter than two samples of {dt} s")
+    return n_samples
+
+
+def _check_start(start_ns: int, n_samples: int, dt: float) -> None:
+    """Every stamp of the record must fit a ROS 2 stamp (``sec`` an int32) and a bag's unsigned log time."""
+    last_s = (int(start_ns) + int(round(dt * 1e9)) * (n_samples - 1)) // 1_000_000_000
+    if start_ns < 0 or last_s > MAX_STAMP_S:
+        raise ToolParameterError(
+            f"--start-time {start_ns * 1e-9:.10g} s: the record's stamps must lie between 0 and {MAX_STAMP_S} s "
+            f"since the epoch (a ROS 2 stamp's sec is an int32; a bag's log time is unsigned); "
+            f"this record of {n_samples * dt:g} s would end at {last_s} s")
 
 
 def accelerometer_message(bag: BagWriter):
@@ -209,35 +232,56 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
     Returns
     -------
         Messages written per topic.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and may not be replaced.
+    BagWriteError
+        the bag cannot be written; the partial bag directory this call created is removed.
     """
-    with BagWriter(path, storage=storage, force=force) as bag:
-        bag.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
-        for topic in THRUSTER_TOPICS:
-            bag.add_topic(topic, "geometry_msgs/msg/WrenchStamped")
-        for topic in IMU_TOPICS:
-            bag.add_topic(topic, "sensor_msgs/msg/Imu")
-        bag.add_topic(IO_SAMPLE_TOPIC, "okid_msgs/msg/IoSample")
+    import shutil
 
-        Time = bag.msg_class("builtin_interfaces/msg/Time")
-        Header = bag.msg_class("std_msgs/msg/Header")
-        Vector3 = bag.msg_class("geometry_msgs/msg/Vector3")
-        Wrench = bag.msg_class("geometry_msgs/msg/Wrench")
-        WrenchStamped = bag.msg_class("geometry_msgs/msg/WrenchStamped")
-        IoSample = bag.msg_class("okid_msgs/msg/IoSample")
-        imu = accelerometer_message(bag)
+    writer = BagWriter(path, storage=storage, force=force)  # refuses, or removes what --force replaces
+    created = not writer.path.exists()  # so a failure removes only what this call made
+    try:
+        with writer as bag:
+            return _write_messages(bag, experiment, progress)
+    except BaseException:
+        if created:
+            shutil.rmtree(writer.path, ignore_errors=True)
+        raise
 
-        zero = Vector3(x=0.0, y=0.0, z=0.0)
-        u, y = experiment.u, experiment.y
-        for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
-            stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-            for j, topic in enumerate(THRUSTER_TOPICS):
-                force = Vector3(x=float(u[k, j]), y=0.0, z=0.0)
-                bag.write(topic, stamp_ns, WrenchStamped(header=Header(stamp=stamp, frame_id=THRUSTER_FRAMES[j]),
-                                                         wrench=Wrench(force=force, torque=zero)))
-            for i, topic in enumerate(IMU_TOPICS):
-                bag.write(topic, stamp_ns, imu(stamp, IMU_FRAMES[i], (float(y[k, i]), 0.0, 0.0)))
-            bag.write(IO_SAMPLE_TOPIC, stamp_ns, IoSample(header=Header(stamp=stamp, frame_id=RIG_FRAME),
-                                                          u=u[k].astype(float), y=y[k].astype(float)))
-            if progress is not None and (k + 1) % 1000 == 0:
-                progress(k + 1)
-        return dict(bag.counts)
+
+def _write_messages(bag: BagWriter, experiment: Experiment, progress) -> dict[str, int]:
+    """The topics and messages of :func:`write_experiment_bag`; returns the messages written per topic."""
+    bag.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
+    for topic in THRUSTER_TOPICS:
+        bag.add_topic(topic, "geometry_msgs/msg/WrenchStamped")
+    for topic in IMU_TOPICS:
+        bag.add_topic(topic, "sensor_msgs/msg/Imu")
+    bag.add_topic(IO_SAMPLE_TOPIC, "okid_msgs/msg/IoSample")
+
+    Time = bag.msg_class("builtin_interfaces/msg/Time")
+    Header = bag.msg_class("std_msgs/msg/Header")
+    Vector3 = bag.msg_class("geometry_msgs/msg/Vector3")
+    Wrench = bag.msg_class("geometry_msgs/msg/Wrench")
+    WrenchStamped = bag.msg_class("geometry_msgs/msg/WrenchStamped")
+    IoSample = bag.msg_class("okid_msgs/msg/IoSample")
+    imu = accelerometer_message(bag)
+
+    zero = Vector3(x=0.0, y=0.0, z=0.0)
+    u, y = experiment.u, experiment.y
+    for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
+        stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+        for j, topic in enumerate(THRUSTER_TOPICS):
+            force = Vector3(x=float(u[k, j]), y=0.0, z=0.0)
+            bag.write(topic, stamp_ns, WrenchStamped(header=Header(stamp=stamp, frame_id=THRUSTER_FRAMES[j]),
+                                                     wrench=Wrench(force=force, torque=zero)))
+        for i, topic in enumerate(IMU_TOPICS):
+            bag.write(topic, stamp_ns, imu(stamp, IMU_FRAMES[i], (float(y[k, i]), 0.0, 0.0)))
+        bag.write(IO_SAMPLE_TOPIC, stamp_ns, IoSample(header=Header(stamp=stamp, frame_id=RIG_FRAME),
+                                                      u=u[k].astype(float), y=y[k].astype(float)))
+        if progress is not None and (k + 1) % 1000 == 0:
+            progress(k + 1)
+    return dict(bag.counts)

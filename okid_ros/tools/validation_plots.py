@@ -36,6 +36,7 @@ __all__ = [
     "frf_data",
     "plot_frf",
     "mac_data",
+    "reference_modes",
     "plot_mac",
     "plot_stabilization",
     "stabilization_points",
@@ -230,11 +231,64 @@ def mac_data(view: ModelView, reference: Sequence[Any] | None = None, *, referen
     out["auto"] = mac_matrix(S, S)
     if reference:
         refs = [_mode_record(m) for m in reference]
-        refs = [r for r in refs if r["shape"] is not None and r["shape"].size == S.shape[0]]
-        if refs:
-            out["reference"] = mac_matrix(S, np.column_stack([r["shape"] for r in refs]))
-            out["reference_frequency_hz"] = [r["frequency_hz"] for r in refs]
+        wrong = [r for r in refs if r["shape"] is None or r["shape"].shape != (S.shape[0],)]
+        if wrong:  # said, not left out of the figure without a word
+            from okid_ros.errors import DataError
+
+            raise DataError(f"{reference_label}: {len(wrong)} of {len(refs)} mode(s) have no shape of "
+                            f"{S.shape[0]} entries (one per output of the model)")
+        # MAC does not depend on the scale; dividing by the largest entry keeps |shape|^2 in float64.
+        scaled = [r["shape"] / max(np.abs(r["shape"]).max(), np.finfo(float).tiny) for r in refs]
+        out["reference"] = mac_matrix(S, np.column_stack(scaled))
+        out["reference_frequency_hz"] = [r["frequency_hz"] for r in refs]
     return out
+
+
+def _shape_problem(mode: dict) -> str:
+    """What is wrong with the shape of a reference mode ('' when nothing)."""
+    def numbers(values) -> bool:
+        return isinstance(values, list) and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in values)
+
+    real, imag = mode.get("shape_real"), mode.get("shape_imag")
+    if not numbers(real) or not real:
+        return "shape_real is not a non-empty list of finite numbers"
+    if imag is not None and not (numbers(imag) and len(imag) == len(real)):
+        return f"shape_imag is not a list of {len(real)} finite numbers like shape_real"
+    if not any(real) and not any(imag or []):
+        return "its shape is all zero"
+    return ""
+
+
+def reference_modes(modes: Any, source: str, n_outputs: int | None = None) -> list[dict]:
+    """Check the ``modes`` of a reference (an `okid-ros identify --json` document); returns them.
+
+    Each mode needs a finite ``frequency_hz`` and a shape: ``shape_real`` (and ``shape_imag``,
+    zero when left out: a real mode shape), finite numbers, not all zero, one per output of the
+    model (``n_outputs``, when given).
+
+    Raises
+    ------
+    ParameterError
+        one line naming ``source``, the mode and what is wrong with it.
+    """
+    from okid_ros.errors import ParameterError
+
+    if not isinstance(modes, list) or not modes:
+        what = "empty" if modes == [] else "not a list"
+        raise ParameterError(f"{source}: 'modes' is {what}: no mode to compare with")
+    for k, mode in enumerate(modes):
+        if not isinstance(mode, dict):
+            raise ParameterError(f"{source}: mode {k} is not an object with frequency_hz and shape_real")
+        frequency = mode.get("frequency_hz")
+        if isinstance(frequency, bool) or not isinstance(frequency, (int, float)) or not np.isfinite(frequency):
+            raise ParameterError(f"{source}: mode {k}: frequency_hz is {frequency!r}, not a finite number")
+        problem = _shape_problem(mode)
+        if not problem and n_outputs is not None and len(mode["shape_real"]) != n_outputs:
+            problem = f"its shape has {len(mode['shape_real'])} entries, the record {n_outputs} outputs"
+        if problem:
+            raise ParameterError(f"{source}: mode {k}: {problem}")
+    return modes
 
 
 def _mac_panel(ax, matrix: np.ndarray, rows_hz: list, cols_hz: list, title: str, col_label: str) -> None:
@@ -367,12 +421,14 @@ def write_validation_figures(view: ModelView, u: np.ndarray | None, y: np.ndarra
     Raises
     ------
     OutputExistsError: one of the files exists and ``force`` is false.
+    OutputError: ``out_dir`` is not a folder or cannot be created, a figure cannot be written.
+    DataError: a reference mode has no shape of one entry per output.
     """
-    from okid_ros.tools.plots import pyplot, refuse_existing, save_figure
+    from okid_ros.tools.plots import make_figure_dir, pyplot, refuse_existing, save_figure
 
     out_dir = Path(out_dir)
     refuse_existing(out_dir, VALIDATION_FIGURES, force)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_figure_dir(out_dir)
     plt = pyplot()
     written = []
     if u is not None and y is not None and u.shape[1] > 0:  # no FRF of an output-only record

@@ -70,19 +70,31 @@ class Manifest:
     def __init__(self, directory: Path) -> None:
         self.path = Path(directory) / MANIFEST_NAME
         self.entries: dict[str, dict] = {}
+        #: Whole lines that were not readable entries (not text, not JSON): spoilt, their bags run again.
+        self.unreadable = 0
         if self.path.exists():
             self._load()
         self._stream = None
 
     def _load(self) -> None:
-        with open(self.path, encoding="utf-8") as stream:
-            for line in stream:
-                try:
-                    entry = json.loads(line)
-                except ValueError:
-                    continue  # a line torn by a kill during its append
-                if isinstance(entry, dict) and entry.get("version") == _VERSION and "key" in entry:
-                    self.entries[entry["key"]] = entry
+        from okid_ros.errors import DataError
+
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot read the campaign's manifest ({exc.strerror or exc})") from None
+        lines = data.split(b"\n")
+        for number, line in enumerate(lines, 1):
+            if not line.strip():
+                continue
+            try:
+                entry = json.loads(line.decode("utf-8"))
+            except ValueError:  # UnicodeDecodeError is one too
+                # The last line without its newline was torn by a kill during its append; others are spoilt.
+                self.unreadable += number < len(lines)
+                continue
+            if isinstance(entry, dict) and entry.get("version") == _VERSION and isinstance(entry.get("key"), str):
+                self.entries[entry["key"]] = entry
 
     @staticmethod
     def key(path: Path) -> str:

@@ -25,16 +25,21 @@ def campaign_series(out_dir: Path) -> dict[int, dict[str, np.ndarray]]:
     Keys: ``stamp_s``, ``frequency_hz``, ``frequency_hz_std``, ``damping_ratio``, ``damping_ratio_std``,
     ``bag_index``.
     """
+    from okid_ros.errors import DataError
     from okid_ros.tools.campaign.table import read_modes
 
-    table = read_modes(out_dir).to_pydict()
-    series: dict[int, dict[str, list]] = {}
     names = ("stamp_s", "frequency_hz", "frequency_hz_std", "damping_ratio", "damping_ratio_std", "bag_index")
-    for i, mode_id in enumerate(table["mode_id"]):
-        entry = series.setdefault(int(mode_id), {name: [] for name in names})
-        for name in names:
-            entry[name].append(table[name][i])
-    return {mid: {k: np.asarray(v, float) for k, v in entry.items()} for mid, entry in sorted(series.items())}
+    table = read_modes(out_dir, ("mode_id", *names)).to_pydict()
+    series: dict[int, dict[str, list]] = {}
+    try:
+        for i, mode_id in enumerate(table["mode_id"]):
+            entry = series.setdefault(int(mode_id), {name: [] for name in names})
+            for name in names:
+                entry[name].append(table[name][i])
+        return {mid: {k: np.asarray(v, float) for k, v in entry.items()} for mid, entry in sorted(series.items())}
+    except (TypeError, ValueError) as exc:  # a null mode id, text where numbers belong
+        raise DataError(f"{Path(out_dir) / 'modes.parquet'}: not a modes table of okid-ros batch "
+                        f"({' '.join(str(exc).split())})") from None
 
 
 def _time_axis(span_s: float) -> tuple[float, str]:
@@ -56,13 +61,13 @@ def write_campaign_figures(out_dir: Path, figure_dir: Path, *, force: bool = Fal
         the campaign has no mode rows.
     """
     from okid_ros.tools.errors import ToolParameterError
-    from okid_ros.tools.plots import pyplot, refuse_existing, save_figure
+    from okid_ros.tools.plots import make_figure_dir, pyplot, refuse_existing, save_figure
 
     series = campaign_series(out_dir)
     if not series:
         raise ToolParameterError(f"{out_dir}: modes.parquet has no modes to draw (no bag gave a model)")
-    figure_dir.mkdir(parents=True, exist_ok=True)
     refuse_existing(figure_dir, CAMPAIGN_FIGURES, force)
+    make_figure_dir(figure_dir)
     t0 = min(float(s["stamp_s"].min()) for s in series.values())
     t1 = max(float(s["stamp_s"].max()) for s in series.values())
     scale, unit = _time_axis(t1 - t0)

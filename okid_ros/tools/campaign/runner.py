@@ -10,7 +10,6 @@ completed by the next one).
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -18,10 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from okid_ros.errors import OkidError
+from okid_ros.errors import OkidError, OutputError
 from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
 from okid_ros.tools.campaign.engines import run_jobs
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
+from okid_ros.tools.campaign.stored import stored_result
 from okid_ros.tools.campaign.table import campaign_order, mode_rows, write_modes, write_summary
 from okid_ros.tools.campaign.worker import BagJob
 
@@ -67,8 +67,11 @@ class CampaignReport:
 
 
 def is_campaign_dir(path: Path) -> bool:
-    """True for a directory written by `okid-ros batch`."""
-    return Path(path).is_dir() and (Path(path) / MANIFEST_NAME).is_file()
+    """True for a directory written by `okid-ros batch` (False for a path that cannot be looked at)."""
+    try:
+        return Path(path).is_dir() and (Path(path) / MANIFEST_NAME).is_file()
+    except OSError:  # a name too long: not a campaign; the command reading it says what is wrong
+        return False
 
 
 def input_topics(arx_values: dict, est_values: dict, namespace: str | None) -> list[str]:
@@ -83,12 +86,16 @@ def input_topics(arx_values: dict, est_values: dict, namespace: str | None) -> l
 
 
 def _check_out_dir(out_dir: Path) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OkidError(f"--out {out_dir}: exists and is not a directory")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not is_campaign_dir(out_dir):
-        raise OkidError(f"--out {out_dir}: a non-empty directory that is not a campaign of okid-ros batch "
-                        f"(no {MANIFEST_NAME}); give a new or empty directory")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Refuse an --out that is not a new, empty or campaign directory, or cannot be created; create it."""
+    try:
+        if out_dir.exists() and not out_dir.is_dir():
+            raise OutputError(f"--out {out_dir}: exists and is not a directory")
+        if out_dir.is_dir() and any(out_dir.iterdir()) and not is_campaign_dir(out_dir):
+            raise OutputError(f"--out {out_dir}: a non-empty directory that is not a campaign of okid-ros batch "
+                              f"(no {MANIFEST_NAME}); give a new or empty directory")
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only place, /proc, a name too long, no permission
+        raise OutputError(f"--out {out_dir}: cannot create the campaign directory ({exc.strerror or exc})") from None
 
 
 def _job(options: CampaignOptions, bag: Path, state_space_topic: str) -> BagJob:
@@ -99,17 +106,12 @@ def _job(options: CampaignOptions, bag: Path, state_space_topic: str) -> BagJob:
                   provenance={**options.provenance, "campaign": str(options.out_dir.resolve())})
 
 
-def _reused(entry: dict, out_dir: Path, retry_failed: bool) -> dict | None:
-    """The result kept for an unchanged bag, or None when it must run again."""
-    if entry["status"] == "ok":
-        path = out_dir / "bags" / entry["label"] / "result.json"
-        if not path.is_file():
-            return None  # outputs removed by hand: do it again
-        try:
-            return json.loads(path.read_text())
-        except ValueError:
-            return None
-    return None if retry_failed else {**entry["summary"], "updates": []}
+def _reused(entry: dict, out_dir: Path, retry_failed: bool, bag: Path) -> dict | None:
+    """The result kept for an unchanged bag, or None when it must run again (a spoilt one: with a warning)."""
+    result, problem = stored_result(entry, out_dir, retry_failed)
+    if problem:
+        print(f"okid-ros batch: warning: {problem}; processing {bag} again", file=sys.stderr)
+    return result
 
 
 def run_campaign(options: CampaignOptions) -> CampaignReport:
@@ -131,6 +133,9 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
                                   storage=options.storage)
     manifest = Manifest(out_dir)
+    if manifest.unreadable:
+        print(f"okid-ros batch: warning: {manifest.path}: {manifest.unreadable} unreadable line(s) ignored (not "
+              f"JSON text); their bags are processed again", file=sys.stderr)
     ss_topic = resolve_topic(options.est_values["state_space_model_topic"], options.namespace)
     results: dict[str, dict] = {}
     jobs: list[BagJob] = []
@@ -138,7 +143,7 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     for bag in bags:
         fingerprints[str(bag)] = fingerprint = bag_fingerprint(bag)
         entry = None if options.force else manifest.lookup(bag, *fingerprint, params_hash)
-        kept = None if entry is None else _reused(entry, out_dir, options.retry_failed)
+        kept = None if entry is None else _reused(entry, out_dir, options.retry_failed, bag)
         if kept is not None:
             results[str(bag)] = {**kept, "bag": str(bag), "reused": True}
         else:

@@ -120,11 +120,31 @@ def write_modes(rows: list[dict], out_dir: Path, *, csv_too: bool = False) -> li
     return written
 
 
-def read_modes(out_dir: Path):
-    """The ``modes.parquet`` of a campaign directory as a pyarrow Table."""
+def read_modes(out_dir: Path, columns: tuple[str, ...] = MODE_COLUMNS):
+    """The ``modes.parquet`` of a campaign directory as a pyarrow Table.
+
+    Raises
+    ------
+    DataError
+        the file is missing, unreadable (cut, not Parquet) or lacks one of ``columns``.
+    """
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
-    return pq.read_table(Path(out_dir) / "modes.parquet")
+    from okid_ros.errors import DataError
+
+    path = Path(out_dir) / "modes.parquet"
+    again = "a rerun of `okid-ros batch` with the same bags and --out writes it again"
+    try:
+        table = pq.read_table(path)
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        reason = " ".join(str(exc).replace(f"Could not open Parquet input source '{path}': ", "").split())
+        reason = reason or type(exc).__name__
+        raise DataError(f"{path}: not a readable modes table of okid-ros batch ({reason}); {again}") from None
+    missing = [name for name in columns if name not in table.column_names]
+    if missing:
+        raise DataError(f"{path}: not a modes table of okid-ros batch (no column {', '.join(missing)}); {again}")
+    return table
 
 
 def write_summary(entries: list[dict], out_dir: Path) -> Path:

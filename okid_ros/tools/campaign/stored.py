@@ -1,0 +1,133 @@
+"""Checking what a previous run of `okid-ros batch` left, before it is taken as it is.
+
+A rerun keeps the result of an unchanged bag: for an ok bag its ``bags/LABEL/result.json``,
+for a failed one the summary in its manifest entry. Both are JSON that a disk error, an
+interrupted copy or a hand edit may have spoilt; what the tables need is checked here, so
+that a spoilt result makes the bag run again (with a warning) instead of stopping the
+campaign with a Python error. Nothing is deleted here: a good stored result is only ever
+replaced by the complete folder of a new run (:func:`okid_ros.tools.campaign.manifest.replace_directory`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+__all__ = ["result_problem", "stored_result"]
+
+#: Fields of a stored result that are numbers (or null) when present.
+_NUMBERS = ("models", "samples", "input_messages", "duration_s", "start_s", "seconds")
+#: Fields of a stored mode that must be numbers, and those that may also be null.
+_MODE_NUMBERS = ("id", "frequency_rad_s", "frequency_hz", "damping_ratio")
+_MODE_OPTIONAL = ("mpc", "msv", "emac", "frequency_hz_std", "damping_ratio_std", "mac_previous")
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _finite(value: object) -> bool:
+    return _number(value) and math.isfinite(value)
+
+
+def _label_problem(label: object) -> str:
+    """Why ``label`` cannot name a folder under ``bags/`` ('' when it can)."""
+    if not isinstance(label, str) or not label:
+        return f"its label is {label!r}, not a folder name"
+    if label in (".", "..") or "/" in label or "\\" in label or "\0" in label:
+        return f"its label {label!r} is not a plain folder name"
+    return ""
+
+
+def _mode_problem(mode: object) -> str:
+    if not isinstance(mode, dict):
+        return "a mode is not an object"
+    for name in _MODE_NUMBERS:
+        if not _number(mode.get(name)):
+            return f"a mode's {name} is {mode.get(name)!r}, not a number"
+    for name in _MODE_OPTIONAL:
+        if mode.get(name) is not None and not _number(mode[name]):
+            return f"a mode's {name} is {mode[name]!r}, not a number"
+    for name in ("shape_real", "shape_imag"):
+        shape = mode.get(name)
+        if shape is not None and not (isinstance(shape, list) and all(_number(x) for x in shape)):
+            return f"a mode's {name} is not a list of numbers"
+    real, imag = mode.get("shape_real") or [], mode.get("shape_imag") or []
+    if real and imag and len(real) != len(imag):
+        return f"a mode's shape_real has {len(real)} entries, its shape_imag {len(imag)}"
+    return ""
+
+
+def _update_problem(update: object) -> str:
+    if not isinstance(update, dict):
+        return "a model update is not an object"
+    if not _finite(update.get("stamp_s")) or not isinstance(update.get("model_id"), int):
+        return "a model update lacks its stamp_s or model_id"
+    for name in ("arx_model_id", "n_states"):
+        if name in update and not isinstance(update[name], int):
+            return f"a model update's {name} is {update[name]!r}, not an integer"
+    if not isinstance(update.get("modes"), list):
+        return "a model update has no list of modes"
+    return next((p for p in map(_mode_problem, update["modes"]) if p), "")
+
+
+def result_problem(result: object, status: str) -> str:
+    """What makes ``result`` unusable as the stored result of a bag of ``status``; '' when it is usable.
+
+    Checked: the fields the tables read (status, label, counts and times as numbers, and for an
+    ok bag every model update with its modes).
+    """
+    if not isinstance(result, dict):
+        return f"not a JSON object but {type(result).__name__}"
+    if result.get("status") != status:
+        return f"its status is {result.get('status')!r}, the manifest says {status!r}"
+    problem = _label_problem(result.get("label"))
+    if problem:
+        return problem
+    for name in _NUMBERS:
+        if result.get(name) is not None and not _number(result[name]):
+            return f"its {name} is {result[name]!r}, not a number"
+    if status == "ok":
+        if not isinstance(result.get("updates"), list):
+            return "it has no list of model updates"
+        return next((p for p in map(_update_problem, result["updates"]) if p), "")
+    return ""
+
+
+def stored_result(entry: dict, out_dir: Path, retry_failed: bool) -> tuple[dict | None, str]:
+    """The result kept for an unchanged bag, or None when it must run again; and why, if spoilt.
+
+    Parameters
+    ----------
+    entry : the bag's manifest entry (its key and fingerprint matched).
+    out_dir : the campaign directory.
+    retry_failed : run a bag that failed before again.
+
+    Returns
+    -------
+    (result or None, problem): ``problem`` is '' unless the stored result or the entry is
+    spoilt (then the result is None: the bag runs again, and the caller says why).
+    """
+    status = entry.get("status")
+    if status == "failed":
+        if retry_failed:
+            return None, ""
+        summary = entry.get("summary")
+        problem = result_problem(summary, "failed")
+        return (None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag is spoilt ({problem})") if problem \
+            else ({**summary, "updates": []}, "")
+    if status != "ok":
+        return None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag has the status {status!r}"
+    problem = _label_problem(entry.get("label"))
+    if problem:
+        return None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag is spoilt ({problem})"
+    path = out_dir / "bags" / entry["label"] / "result.json"
+    if not path.is_file():
+        return None, ""  # outputs removed by hand: do it again
+    try:
+        result = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+        return None, f"{path}: unreadable ({' '.join(str(exc).split())[:120]})"
+    problem = result_problem(result, "ok")
+    return (None, f"{path}: {problem}") if problem else (result, "")
