@@ -5,6 +5,20 @@ from __future__ import annotations
 import argparse
 
 
+def _window_samples(text: str) -> int:
+    """An integer from 1 to MAX_WINDOW_SAMPLES (a deque's maxlen overflowed beyond 64 bits)."""
+    from okid_ros.tools.monitor import MAX_WINDOW_SAMPLES
+
+    wanted = f"an integer from 1 to {MAX_WINDOW_SAMPLES}"
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+    if not 1 <= value <= MAX_WINDOW_SAMPLES:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+    return value
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `monitor`."""
     parser = subparsers.add_parser(
@@ -26,7 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="exit after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--interval", type=float, default=None, metavar="S",
                         help="seconds between tables (default: 0.25 on a terminal, 2 otherwise)")
-    parser.add_argument("--window", type=int, default=250, metavar="N",
+    parser.add_argument("--window", type=_window_samples, default=250, metavar="N",
                         help="samples in the RMS amplitude (default: %(default)s)")
     parser.add_argument("--trend-window", type=float, default=10.0, metavar="S",
                         help="look-back of the frequency trend in stamp seconds (default: %(default)s)")
@@ -44,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
         namespace = None if args.namespace is None else validate_namespace(args.namespace)
     except ValueError as exc:
         raise OkidError(f"--namespace: {exc}") from None
-    topic = args.topic or resolve_topic(MODAL_STATES, namespace)
+    # `--topic ''` is refused by the subscription, not taken for the default in silence
+    topic = resolve_topic(MODAL_STATES, namespace) if args.topic is None else args.topic
     try:
         run_monitor(topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
                     window_samples=args.window, trend_window_s=args.trend_window,

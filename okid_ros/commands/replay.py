@@ -8,6 +8,49 @@ from __future__ import annotations
 import argparse
 
 
+def _number(text: str, wanted: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+
+
+def _delay_s(text: str) -> float:
+    """Seconds from 0 to MAX_DELAY_S (NaN and inf once made the player wait forever)."""
+    from okid_ros.tools.replay import MAX_DELAY_S
+
+    wanted = f"seconds from 0 to {MAX_DELAY_S:g}"
+    value = _number(text, wanted)
+    if not 0.0 <= value <= MAX_DELAY_S:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+    return value
+
+
+def _clock_hz(text: str) -> float:
+    """A /clock rate in CLOCK_HZ_RANGE (0 is refused: it once became 100 Hz in silence)."""
+    from okid_ros.tools.replay import CLOCK_HZ_RANGE
+
+    wanted = f"a rate from {CLOCK_HZ_RANGE[0]:g} to {CLOCK_HZ_RANGE[1]:g} Hz"
+    value = _number(text, wanted)
+    if not CLOCK_HZ_RANGE[0] <= value <= CLOCK_HZ_RANGE[1]:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+    return value
+
+
+def _queue_depth(text: str) -> int:
+    """A history depth from 1 to MAX_QUEUE_DEPTH (rclpy raised a TypeError beyond 64 bits)."""
+    from okid_ros.tools.replay import MAX_QUEUE_DEPTH
+
+    wanted = f"an integer from 1 to {MAX_QUEUE_DEPTH}"
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+    if not 1 <= value <= MAX_QUEUE_DEPTH:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+    return value
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `replay`."""
     parser = subparsers.add_parser(
@@ -27,32 +70,29 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--namespace", default=None, metavar="NS",
                         help="publish the bag's topics of the default rig namespace /okid in NS instead "
                         "(/okid/io_sample -> NS/io_sample), for nodes started with --namespace NS")
-    parser.add_argument("--delay", type=float, default=0.5, metavar="S",
+    parser.add_argument("--delay", type=_delay_s, default=0.5, metavar="S",
                         help="wait after creating the publishers so subscribers discover them "
                         "(default: %(default)s s)")
     parser.add_argument("--wait-for-subscribers", action="store_true",
                         help="before playing, wait until every replayed topic has a subscriber (then --delay)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds of playback (default: the whole bag, or forever with --loop)")
-    parser.add_argument("--clock", nargs="?", type=float, const=100.0, default=None, metavar="HZ",
+    parser.add_argument("--clock", nargs="?", type=_clock_hz, const=100.0, default=None, metavar="HZ",
                         help="also publish the bag time on /clock at HZ (default 100) for use_sim_time nodes")
-    parser.add_argument("--queue-depth", type=int, default=1000, metavar="N",
+    parser.add_argument("--queue-depth", type=_queue_depth, default=1000, metavar="N",
                         help="history depth of each publisher (default: %(default)s)")
     parser.set_defaults(func=run)
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
-    from okid_ros.tools.errors import ToolParameterError
     from okid_ros.tools.replay import BagPlayer, parse_remaps
 
-    if args.queue_depth < 1:
-        raise ToolParameterError(f"--queue-depth must be at least 1, got {args.queue_depth}")
     remaps = parse_remaps([item for group in args.remap for item in group])
     player = BagPlayer(
         args.bag, rate=args.rate, loop=args.loop, topics=args.topics, remaps=remaps, delay_s=args.delay,
         duration_s=args.duration, queue_depth=args.queue_depth, clock=args.clock is not None,
-        clock_hz=args.clock or 100.0, wait_for_subscribers=args.wait_for_subscribers,
+        clock_hz=100.0 if args.clock is None else args.clock, wait_for_subscribers=args.wait_for_subscribers,
         namespace=args.namespace,
     )
     stats = player.run()

@@ -41,6 +41,10 @@ __all__ = [
 
 #: Names (or prefixes ending in '.') every rclpy node accepts besides its own parameters.
 ROS_STANDARD_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
+#: Most YAML values that aliases (``*name``) may add to a document. A parameter file holds a
+#: few hundred values; nested aliases multiply (a 1 KB "billion laughs" file held 9**9 values,
+#: and walking them hung `process` past a minute).
+MAX_ALIAS_EXPANSION = 10_000
 
 
 def node_fqn(node: str, namespace: str | None = None) -> str:
@@ -198,8 +202,45 @@ def rcl_scalar(text: str) -> bool | int | float | str:
     return text
 
 
-def load_yaml_as_rcl(text: str) -> Any:
-    """``yaml.safe_load(text)`` with each plain scalar typed by :func:`rcl_scalar`, as a node would see it."""
+def _children(node: Any) -> list:
+    """The child nodes of a composed YAML node: a mapping's keys and values, a sequence's items."""
+    if not isinstance(node.value, list):
+        return []  # a scalar
+    return [child for item in node.value for child in (item if isinstance(item, tuple) else (item,))]
+
+
+def _expanded_size(root: Any) -> tuple[float, int]:
+    """(values with the aliases expanded, inf if one recurses; distinct values) of a composed document.
+
+    Memoized over the distinct nodes (an alias is the same node object again), without
+    recursion: no expansion, and no Python stack for a deep document.
+    """
+    size: dict[int, float] = {}  # -1 while the node's children are pending
+    stack = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if children_done:
+            size[id(node)] = 1 + sum(size[id(child)] for child in _children(node))
+        elif id(node) not in size:
+            size[id(node)] = -1
+            stack.append((node, True))
+            stack.extend((child, False) for child in _children(node) if size.get(id(child), 0) <= 0)
+        elif size[id(node)] < 0:
+            return math.inf, len(size)  # reached from its own descendants: a cycle
+    return size[id(root)], len(size)
+
+
+def load_yaml_as_rcl(text: str, label: str = "the YAML text") -> Any:
+    """``yaml.safe_load(text)`` with each plain scalar typed by :func:`rcl_scalar`, as a node would see it.
+
+    Raises
+    ------
+    ParameterError
+        Nesting too deep for PyYAML, aliases that refer to their own container, or expand the
+        document by more than :data:`MAX_ALIAS_EXPANSION` values; the message starts with ``label``.
+    yaml.YAMLError
+        Not YAML.
+    """
     import yaml
 
     tag = "tag:okid_ros,2026:rcl"
@@ -214,7 +255,28 @@ def load_yaml_as_rcl(text: str) -> Any:
     Loader.yaml_implicit_resolvers = {}  # no YAML 1.1 typing; plain scalars go to rcl_scalar
     Loader.add_implicit_resolver(tag, re.compile(r".*", re.DOTALL), None)
     Loader.add_constructor(tag, lambda loader, node: rcl_scalar(loader.construct_scalar(node)))
-    return yaml.load(text, Loader=Loader)  # noqa: S506 (a SafeLoader subclass)
+    loader = Loader(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            return None
+        _check_aliases(root, label)
+        return loader.construct_document(root)
+    except RecursionError:  # PyYAML composes and constructs recursively
+        raise ParameterError(f"{label} is nested too deeply") from None
+    finally:
+        loader.dispose()
+
+
+def _check_aliases(root: Any, label: str) -> None:
+    """ParameterError when the aliases of a composed document recurse or expand it too much."""
+    expanded, distinct = _expanded_size(root)
+    if expanded == math.inf:
+        raise ParameterError(f"{label}: a YAML alias refers to a mapping or list that contains it "
+                             f"(an endless structure no parameter can hold)")
+    if expanded - distinct > MAX_ALIAS_EXPANSION:
+        raise ParameterError(f"{label}: its YAML aliases expand it by more than {MAX_ALIAS_EXPANSION} values "
+                             f"(a parameter file has a few hundred); write the values out instead of nesting aliases")
 
 
 def read_parameter_file(path: str | Path) -> Mapping:
@@ -223,13 +285,11 @@ def read_parameter_file(path: str | Path) -> Mapping:
 
     path = Path(path)
     try:
-        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"))
+        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}")
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
         raise ParameterError(f"parameter file {path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except RecursionError:
-        raise ParameterError(f"parameter file {path} is nested too deeply") from None
     except yaml.YAMLError as exc:
         raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(tree, Mapping):

@@ -36,13 +36,16 @@ from typing import Any, TextIO
 
 from okid_ros.tools.errors import ToolParameterError
 
-__all__ = ["ModalStatesView", "TerminalMonitor", "run_monitor"]
+__all__ = ["ModalStatesView", "TerminalMonitor", "run_monitor", "MAX_WINDOW_SAMPLES"]
 
 ANSI_HOME_CLEAR = "\x1b[H\x1b[J"
 #: Arrivals over this many seconds give the message rate.
 RATE_WINDOW_S = 2.0
 #: No message for this long: the stream is shown as stopped.
 STOPPED_AFTER_S = 1.0
+#: Most samples in the RMS amplitude: each draw sums them per mode, and a deque's maxlen must fit
+#: a C ssize_t (an OverflowError beyond). 100000 is minutes of samples at the usual rates.
+MAX_WINDOW_SAMPLES = 100_000
 
 
 @dataclass
@@ -71,8 +74,8 @@ class ModalStatesView:
 
     def __init__(self, window_samples: int = 250, trend_window_s: float = 10.0, trend_threshold: float = 1e-3,
                  arrows: tuple[str, str, str] = ("\u2191", "\u2193", "\u2192")) -> None:
-        if window_samples < 1:
-            raise ToolParameterError(f"--window must be at least 1 sample, got {window_samples}")
+        if not 1 <= window_samples <= MAX_WINDOW_SAMPLES:
+            raise ToolParameterError(f"--window must be from 1 to {MAX_WINDOW_SAMPLES} samples, got {window_samples}")
         if not trend_window_s > 0:
             raise ToolParameterError(f"--trend-window must be positive, got {trend_window_s}")
         self.window_samples = int(window_samples)
@@ -251,6 +254,16 @@ class TerminalMonitor:
         self.draws += 1
 
 
+def _subscribe(node: Any, msg_type: type, topic: str, callback: Any, qos: Any) -> None:
+    """``node.create_subscription``; ToolParameterError naming ``topic`` when it is not a valid name."""
+    from rclpy.exceptions import InvalidTopicNameException
+
+    try:
+        node.create_subscription(msg_type, topic, callback, qos)
+    except (InvalidTopicNameException, ValueError) as exc:  # ValueError: an unknown {substitution}
+        raise ToolParameterError(f"--topic {topic!r}: cannot subscribe: {' '.join(str(exc).split())}") from None
+
+
 def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, duration_s: float | None = None,
                 interval_s: float | None = None, window_samples: int = 250, trend_window_s: float = 10.0,
                 stream: TextIO | None = None, ansi: bool | None = None) -> ModalStatesView:
@@ -288,7 +301,7 @@ def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, durati
     rclpy.init(context=context, args=[])
     try:
         node = rclpy.create_node("okid_monitor", context=context)
-        node.create_subscription(ModalStates, topic, view.update, qos_profile_sensor_data)
+        _subscribe(node, ModalStates, topic, view.update, qos_profile_sensor_data)
         from rclpy.executors import SingleThreadedExecutor
 
         executor = SingleThreadedExecutor(context=context)

@@ -24,10 +24,22 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from okid_ros.errors import DataError
 from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
 
-__all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class"]
+__all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class", "MIN_RATE", "MAX_DELAY_S",
+           "CLOCK_HZ_RANGE", "MAX_QUEUE_DEPTH"]
+
+#: Slowest playback factor: slower, a short bag would play for days (a hang to the user).
+MIN_RATE = 1e-3
+#: Longest --delay [s]: it waits for discovery (about a second); a longer wait is the shell's job.
+MAX_DELAY_S = 3600.0
+#: /clock rates [Hz]: below, the clock step in ns overflows; above, one tick per message anyway.
+CLOCK_HZ_RANGE = (1e-3, 1e6)
+#: Deepest publisher history: as the nodes' inputs.queue_depth. The rmw takes a size_t, but Fast
+#: DDS keeps the depth in an int32 and preallocates for it; rclpy refuses beyond 64 bits (a TypeError).
+MAX_QUEUE_DEPTH = 100_000
 
 
 @dataclass
@@ -76,6 +88,44 @@ def message_class(msgtype: str) -> type:
                           f"{pkg}, or leave its topics out with --topics") from None
 
 
+def _check_options(rate: float, delay_s: float, duration_s: float | None, queue_depth: int,
+                   clock_hz: float) -> None:
+    """ToolParameterError naming the first option of :class:`BagPlayer` out of its range.
+
+    The comparisons are written so that NaN fails them (``nan < 0`` is False: a NaN delay
+    once passed and the player waited forever).
+    """
+    if not rate >= MIN_RATE:  # inf is allowed: as fast as possible
+        raise ToolParameterError(f"--rate must be a factor >= {MIN_RATE:g}, got {rate}")
+    if not 0.0 <= delay_s <= MAX_DELAY_S:
+        raise ToolParameterError(f"--delay must be from 0 to {MAX_DELAY_S:g} s, got {delay_s}")
+    if duration_s is not None and not duration_s > 0:
+        raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
+    if not 1 <= queue_depth <= MAX_QUEUE_DEPTH:
+        raise ToolParameterError(f"--queue-depth must be from 1 to {MAX_QUEUE_DEPTH}, got {queue_depth}")
+    if not CLOCK_HZ_RANGE[0] <= clock_hz <= CLOCK_HZ_RANGE[1]:
+        raise ToolParameterError(f"--clock rate must be from {CLOCK_HZ_RANGE[0]:g} to {CLOCK_HZ_RANGE[1]:g} Hz, "
+                                 f"got {clock_hz}")
+
+
+def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> None:
+    """DataError when two outputs ``(what, topic, type)`` resolve to one topic with different types.
+
+    rcl refuses a second publisher of another type on a topic of the same node (an RCLError);
+    a remap onto another replayed topic (or onto /clock with ``--clock``) does that.
+    """
+    seen: dict[str, tuple[str, str]] = {}
+    for what, name, msgtype in outputs:
+        try:
+            resolved = node.resolve_topic_name(name)
+        except RuntimeError:  # an invalid name: create_publisher reports it in its own words
+            continue
+        first, first_type = seen.setdefault(resolved, (what, msgtype))
+        if first_type != msgtype:
+            raise DataError(f"cannot publish {what} ({msgtype}) on {resolved}: {first} ({first_type}) is "
+                            f"published there too, and a topic has one message type; remap one of them elsewhere")
+
+
 class BagPlayer:
     """Replays one bag; :meth:`run` blocks until the end (or ``stop()``, or the duration).
 
@@ -119,14 +169,7 @@ class BagPlayer:
         wait_for_subscribers: bool = False,
         namespace: str | None = None,
     ) -> None:
-        if not rate > 0:
-            raise ToolParameterError(f"--rate must be a positive factor, got {rate}")
-        if delay_s < 0:
-            raise ToolParameterError(f"--delay must be >= 0 s, got {delay_s}")
-        if duration_s is not None and not duration_s > 0:
-            raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
-        if not clock_hz > 0:
-            raise ToolParameterError(f"--clock rate must be positive, got {clock_hz}")
+        _check_options(rate, delay_s, duration_s, queue_depth, clock_hz)
         self.path = Path(path)
         self.rate = float(rate)
         self.loop = bool(loop)
@@ -192,6 +235,10 @@ class BagPlayer:
 
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        outputs = [(topic, self.remaps.get(topic, topic), self.bag_topics[topic]) for topic in self.topics]
+        if self.clock:
+            outputs.append(("the bag time (--clock)", "/clock", "rosgraph_msgs/msg/Clock"))
+        _check_one_type_per_topic(node, outputs)
         publishers = {}
         for topic in self.topics:
             name = self.remaps.get(topic, topic)

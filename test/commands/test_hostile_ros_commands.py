@@ -1,0 +1,111 @@
+"""Hostile options of the ROS commands `info`, `replay` and `monitor`: one line, exit 2, no hang.
+
+Each case once ended in a traceback (exit 70) or a wait without end: a count, depth or window
+beyond 64 bits (rclpy's QoS and ``deque(maxlen=...)`` refuse them with TypeError and
+OverflowError), a NaN or infinite ``--delay`` (``nan < 0`` is False, so the wait never ended),
+``--clock 0`` (silently 100 Hz), a remap onto a topic of another message type (rcl's RCLError),
+an invalid ``--topic``. ROS_DOMAIN_ID is this session's (conftest.py).
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from okid_ros import cli
+from okid_ros.tools.errors import ToolParameterError
+from okid_ros.tools.monitor import MAX_WINDOW_SAMPLES, ModalStatesView
+from okid_ros.tools.replay import BagPlayer
+from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
+
+HUGE = "99999999999999999999"  # beyond 64 bits
+
+
+def usage_error(capsys, argv: list[str]) -> str:
+    """The error line of an argparse refusal of ``argv`` (exit status 2)."""
+    with pytest.raises(SystemExit) as stopped:
+        cli.main(argv)
+    assert stopped.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith(f"okid-ros {argv[0]}: error: argument "), lines
+    return lines[-1]
+
+
+def one_line_error(capsys, argv: list[str]) -> str:
+    """The one line a command prints when it refuses ``argv`` (exit status 2)."""
+    assert cli.main(argv) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip() and not line.startswith("\x1b")]
+    assert len(lines) == 1 and lines[0].startswith(f"okid-ros {argv[0]}: error: "), lines
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def short_bag(tmp_path_factory) -> Path:
+    bag = tmp_path_factory.mktemp("hostile_replay") / "short"
+    write_experiment_bag(bag, simulate_experiment(0.5), storage="sqlite3")
+    return bag
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["info", "--selftest", "--count", HUGE], "--count"),
+    (["info", "--selftest", "--count", "0"], "--count"),
+    (["replay", "bag", "--queue-depth", HUGE], "--queue-depth"),
+    (["replay", "bag", "--delay", "nan"], "--delay"),
+    (["replay", "bag", "--delay", "inf"], "--delay"),
+    (["replay", "bag", "--delay", "-1"], "--delay"),
+    (["replay", "bag", "--clock", "0"], "--clock"),
+    (["replay", "bag", "--clock", "1e-300"], "--clock"),  # the clock step in ns overflowed
+    (["monitor", "--window", HUGE], "--window"),
+])
+def test_out_of_range_options_are_usage_errors(capsys, argv, option):
+    assert option in usage_error(capsys, argv)
+
+
+@pytest.mark.parametrize("options", [
+    {"delay_s": math.nan}, {"delay_s": math.inf}, {"rate": 1e-300}, {"queue_depth": 10**20},
+    {"clock_hz": 0.0}, {"clock_hz": math.inf},
+])
+def test_the_player_refuses_what_would_never_end_or_overflow(options):
+    # checked before the bag is opened: no bag needed
+    with pytest.raises(ToolParameterError):
+        BagPlayer("no_such_bag", **options)
+
+
+def test_the_monitor_view_refuses_a_window_beyond_its_limit():
+    with pytest.raises(ToolParameterError, match="--window"):
+        ModalStatesView(window_samples=MAX_WINDOW_SAMPLES + 1)
+    assert ModalStatesView(window_samples=MAX_WINDOW_SAMPLES).innovation_sq.maxlen == MAX_WINDOW_SAMPLES
+
+
+def test_a_remap_onto_a_topic_of_another_type_names_both(capsys, short_bag):
+    line = one_line_error(capsys, ["replay", "--delay", "0", str(short_bag), "--remap",
+                                   f"{IO_SAMPLE_TOPIC}:={IMU_TOPICS[0]}"])
+    assert f"{IO_SAMPLE_TOPIC} (okid_msgs/msg/IoSample) on {IMU_TOPICS[0]}" in line, line
+    assert f"{IMU_TOPICS[0]} (sensor_msgs/msg/Imu)" in line, line
+
+
+def test_a_remap_onto_clock_with_clock_is_refused(capsys, short_bag):
+    line = one_line_error(capsys, ["replay", "--delay", "0", "--clock", "50", str(short_bag), "--remap",
+                                   f"{IO_SAMPLE_TOPIC}:=clock"])  # relative: resolves to /clock
+    assert "rosgraph_msgs/msg/Clock" in line and "okid_msgs/msg/IoSample" in line, line
+
+
+@pytest.mark.parametrize("topic", ["bad topic!!", "", "{nope}/x"])
+def test_monitor_refuses_an_invalid_topic_in_one_line(capsys, topic):
+    started = time.monotonic()
+    line = one_line_error(capsys, ["monitor", "--no-ansi", "--duration", "20", "--topic", topic])
+    assert f"--topic {topic!r}" in line and time.monotonic() - started < 10, line
+
+
+def test_selftest_stops_publishing_at_its_timeout(ros_env):
+    """100000 messages against a 0.5 s timeout: it once published on for minutes, ever slower."""
+    started = time.monotonic()
+    result = subprocess.run([sys.executable, "-m", "okid_ros.cli", "info", "--selftest", "--count", "100000",
+                             "--timeout", "0.5"], env=ros_env, capture_output=True, text=True, timeout=14)
+    assert result.returncode == 2 and "self-test:" in result.stderr, result.stderr
+    assert time.monotonic() - started < 14
