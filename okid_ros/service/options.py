@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-from okid_ros.core.options import AUTO, ModeCriteria, RealizationOptions
+from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
 from okid_ros.core.regressors import regressor_length
+from okid_ros.errors import ParameterError
 from okid_ros.service.params import (
     ARX_NODE,
     ESTIMATOR_NODE,
@@ -95,8 +96,32 @@ class ArxIdentificationParams:
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any]) -> "ArxIdentificationParams":
-        """From the resolved node parameters (dotted names, :func:`okid_ros.service.params.resolve_parameters`)."""
-        return cls(**option_values(ARX_NODE, values))
+        """From the resolved node parameters (dotted names, :func:`okid_ros.service.params.resolve_parameters`).
+
+        Raises ParameterError when the ARX regressor does not fit (:meth:`size_problem`).
+        """
+        params = cls(**option_values(ARX_NODE, values))
+        problem = params.size_problem()
+        if problem:
+            raise ParameterError(problem)
+        return params
+
+    def size_problem(self) -> str:
+        """Why the regressor of ``order`` is too long for the window or the live update, or ""."""
+        q, p, m = self.order, self.n_outputs, self.n_inputs
+        d = regressor_length(q, p, m)
+        # The core's bound on the automatic order: the window's d x d normal equations are updated
+        # at every sample and solved at every publication (order 5000 with p = m = 2 meant a
+        # 3.2 GB matrix, and `process` never finished).
+        limit = ArxOrderOptions.max_coefficients
+        if d > limit:
+            return (f"arx.order {q} with {m} inputs and {p} outputs gives regressors of d = m + q (p + m) = {d} "
+                    f"coefficients; at most {limit} (the window's normal equations are d x d, updated at every "
+                    f"sample)")
+        if self.regularization == "none" and 0 < self.window_length < d:
+            return (f"arx.window_length {self.window_length} is smaller than the d = {d} coefficients of arx.order "
+                    f"{q}: unregularized least squares (arx.regularization none) needs at least d rows")
+        return ""
 
     @property
     def n_params(self) -> int:

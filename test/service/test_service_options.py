@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import pytest
 from ros_helpers import REPO_ROOT
 
 from okid_ros.core.change_detection import DEFAULT_FALSE_ALARM_SAMPLES, DivergenceMonitor
 from okid_ros.core.options import RealizationOptions
+from okid_ros.errors import ParameterError
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams, check_runtime_change
 from okid_ros.service.params import (
     ARX_NODE,
@@ -79,3 +81,16 @@ def test_a_structural_option_may_not_change_on_a_running_service():
     with pytest.raises(ValueError, match="order"):
         check_runtime_change(arx, dataclasses.replace(arx, order=10))
     assert check_runtime_change(arx, dataclasses.replace(arx, publish_period_s=0.5)) == ["publish_period_s"]
+
+
+@pytest.mark.parametrize("values, text", [
+    ({"arx.order": 5000}, "d = m + q (p + m) = 20002 coefficients; at most 2500"),
+    ({"arx.order": 150, "arx.regularization": "none", "arx.window_length": 500},
+     "arx.window_length 500 is smaller than the d = 602 coefficients"),
+])
+def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(values, text):
+    with pytest.raises(ParameterError, match=re.escape(text)):
+        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, values))
+    # The same order regularized, or with 28 outputs at the live configuration's order, is taken.
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
