@@ -93,6 +93,35 @@ class Record:
         return Record(u, y, dt)
 
 
+def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, str]:
+    """The longest run of samples without NaN/Inf, and a sentence on what was left out ("" if nothing).
+
+    For the batch identification, which needs contiguous samples (as a bag's longest run of
+    samples, :mod:`okid_ros.tools.bag_record`). ``use_inputs`` False: only ``y`` counts
+    (output-only identification ignores ``u``).
+
+    Raises
+    ------
+    DataError
+        no two samples in a row are free of NaN/Inf.
+    """
+    present = np.isfinite(record.y).all(axis=1)
+    if use_inputs:
+        present &= np.isfinite(record.u).all(axis=1)
+    n = present.size
+    if present.all():
+        return record, ""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], present.astype(np.int8), [0]])))
+    starts, ends = edges[::2], edges[1::2]
+    if not starts.size or (ends - starts).max() < 2:
+        raise DataError(f"no two samples in a row are free of NaN/Inf ({n - int(present.sum())} of {n} hold them)")
+    best = int(np.argmax(ends - starts))
+    lo, hi = int(starts[best]), int(ends[best])
+    note = (f"{n - int(present.sum())} of the {n} samples hold NaN/Inf: identified on the longest run without "
+            f"them, samples {lo} to {hi - 1} ({hi - lo} samples)")
+    return Record(record.u[lo:hi], record.y[lo:hi], record.sample_time_s), note
+
+
 def _sample_time(value: object) -> float:
     """The sample time as a positive finite float, or DataError."""
     arr = np.asarray(value)

@@ -86,12 +86,14 @@ def _outputs(args: argparse.Namespace) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     import time
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import write_json
+    from okid_ros.records import longest_present_run
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
@@ -99,7 +101,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.force:
         for path in _outputs(args):
             prepare_output(path, force=False, kind="output")  # refuse before the work, not after
-    record, source = load_any_record(args.data, args.params, args.param, args.source)
+    record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
+    output_only = bool(args.output_only) or record.u.shape[1] == 0
+    record, gaps = longest_present_run(record, use_inputs=not output_only)
+    if gaps:
+        print(f"okid-ros identify: warning: {gaps}", file=sys.stderr)
+        source = f"{source}; {gaps}"
     reference = _load_reference(args.reference, record.y.shape[1]) if args.reference else None
     pairs = None
     if args.frf_pairs:
@@ -109,7 +116,6 @@ def run(args: argparse.Namespace) -> int:
             pairs = parse_pairs(args.frf_pairs, record.y.shape[1], record.u.shape[1])
         except ValueError as exc:
             raise ParameterError(f"--frf-pairs: {exc}") from None
-    output_only = bool(args.output_only) or record.u.shape[1] == 0
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")

@@ -85,6 +85,8 @@ def test_hostile_npz_is_one_line_naming_the_file(tmp_path: Path, case: str,
     with pytest.raises(DataError) as raised:
         load_record(path)
     assert str(path) in str(raised.value) and HOSTILE_CASES[case] in str(raised.value)
+    if case == "nan":
+        return  # identify takes the longest run without it (test_identify_uses_the_longest_run_without_nan)
     out = tmp_path / "model.json"
     assert cli.main(["identify", str(path), "--json", str(out)]) == 2
     err = capsys.readouterr().err
@@ -118,13 +120,14 @@ def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
     assert not out.exists()
 
 
-def test_a_value_beyond_float64_is_refused_by_identify_and_missing_to_track(tmp_path: Path,
-                                                                            capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_value_beyond_float64_is_a_missing_sample_to_identify_and_track(tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "overflow.csv"
     path.write_text("# sample_time_s=0.01\nu1,y1\n1e400,2\n3,4\n")
     assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith(f"okid-ros identify: error: {path}: ") and "NaN/Inf" in err, err
+    assert err.count("\n") == 1 and err.startswith(f"okid-ros identify: error: {path}: no two samples in a row are "
+                                                   "free of NaN/Inf (1 of 2 hold them)"), err
     out = tmp_path / "track.jsonl"
     assert cli.main(["track", str(path), "--jsonl", str(out), "--order", "2"]) == 2  # track skips it as missing
     warning, error = capsys.readouterr().err.splitlines()
@@ -232,3 +235,28 @@ def test_warnings_are_one_line_naming_the_command(capsys: pytest.CaptureFixture[
     assert cli.run_command("track", warn) == 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("okid-ros track: warning: overflow")
+
+
+def test_identify_uses_the_longest_run_without_nan(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from okid_ros.sim.inputs import white_input
+    from okid_ros.sim.paper_model import paper_model
+    from okid_ros.sim.simulators import simulate_innovation
+
+    u = white_input(3000, 2, seed=3)
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    u[500] = np.nan  # a dropped input reading, then a dropped output reading
+    y[900:903, 1] = np.inf
+    save_record(tmp_path / "gaps.npz", u, y, 0.008)
+    save_record(tmp_path / "run.npz", u[903:], y[903:], 0.008)
+    common = ["--order", "20", "--states", "6"]
+    for name in ("gaps", "run"):
+        out = tmp_path / f"{name}.json"
+        assert cli.main(["identify", str(tmp_path / f"{name}.npz"), *common, "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: 4 of the 3000 samples hold NaN/Inf: identified on the longest run without them, samples 903 to " \
+           "2999 (2097 samples)" in err
+    gaps, run = (json.loads((tmp_path / f"{name}.json").read_text()) for name in ("gaps", "run"))
+    assert gaps["modes"] == run["modes"] and "longest run without them" in gaps["source"]
+    # Output-only identification ignores u, so its NaN does not count.
+    assert cli.main(["identify", str(tmp_path / "gaps.npz"), "--output-only", "--json", str(tmp_path / "oo.json")]) == 0
+    assert "3 of the 3000 samples hold NaN/Inf" in capsys.readouterr().err
