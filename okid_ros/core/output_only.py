@@ -58,6 +58,7 @@ from okid_ros.core.output_only_modes import (
     PoleSet,
     cluster_modes,
     collect_poles,
+    drop_listed_twice,
     lowest_complete_order,
     mark_stable,
 )
@@ -179,7 +180,8 @@ def identify_output_only(
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
-            _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows), dt))
+            _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows,
+                          once=False), dt))
     model = restore_model(model, scales)
     model.output_offset, model.warnings = offset, warnings
     return model
@@ -199,9 +201,13 @@ class _Selection:
     n_model: int
 
 
-def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None
-                  ) -> _Selection:
-    """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4)."""
+def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
+                  once: bool = True) -> _Selection:
+    """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
+
+    ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
+    where a true pair of one shape was taken for twins).
+    """
     references = reference_channels(y, MAX_REFERENCES)
     block_rows = _block_rows(y, sample_time_s, references, top, block_rows)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
@@ -223,7 +229,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
         jackknife = Jackknife(correlations, references, block_rows, top)
         modes = _drop_noise_modes(
             modes, poles, jackknife, sample_time_s,
-            dominance=lambda n, pole: spectral_dominance(realizer, n, pole, r_mean[0], references))
+            dominance=lambda n, pole: spectral_dominance(realizer, n, pole, r_mean[0], references), once=once)
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
@@ -353,14 +359,15 @@ def _scattered(f_std: float, z_std: float, frequency_hz: float, damping_ratio: f
 
 
 def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float, *,
-                      dominance) -> list[ModeCluster]:
+                      dominance, once: bool) -> list[ModeCluster]:
     """The candidate modes whose jackknife scatter and spectral share say they are structural (step 4).
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
     cluster lives, not at an order chosen for all of them). ``dominance(n, pole)`` is the
     mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`). Of
     the families split from one cluster (``group``: nearly one frequency and one shape, a mode
-    and the noise pole beside it) the one that passes with the largest share is kept.
+    and the noise pole beside it) the one that passes with the largest share is kept; ``once``:
+    and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
     """
     best: dict[int, tuple[float, ModeCluster]] = {}
     for mode in modes:
@@ -375,7 +382,10 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
                   and z_std[0] <= STEADY_DAMPING_CV * mode.damping_ratio)
         if (share >= MIN_SPECTRAL_DOMINANCE or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
             best[mode.group] = (share, mode)
-    return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
+    if not once:
+        return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
+    shares, modes = [s for s, _ in best.values()], [m for _, m in best.values()]
+    return drop_listed_twice(modes, shares, [poles.shape[m.members[_home_order(m)]] for m in modes])
 
 
 def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -122,7 +122,7 @@ def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
     def share(n, pole):  # both would pass MIN_SPECTRAL_DOMINANCE on their own
         return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
 
-    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share)
+    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False)
     assert [round(m.frequency_hz, 1) for m in kept] == [187.0]
 
 
@@ -191,3 +191,39 @@ def test_a_modes_standard_deviation_is_its_own_where_the_model_order_loses_it(in
     assert abs(mode.frequency_hz / frequency_hz - 1) < 1e-3
     assert 0 < mode.frequency_hz_std < 0.5 * width
     assert abs(mode.frequency_hz - true_f) < 2 * mode.frequency_hz_std
+
+
+def test_a_mode_listed_twice_is_listed_once() -> None:
+    """Two modes within their half-power bands and of one shape are one; a true close pair is two."""
+    from okid_ros.core.output_only_modes import ModeCluster, drop_listed_twice
+
+    def mode(f: float, zeta: float) -> ModeCluster:
+        return ModeCluster({}, f, zeta, 0.0, 0.0, 1.0, 1.0)
+
+    shape = np.array([1.0, 0.5j, -0.2])
+    other = np.array([0.3, -1.0, 0.4j])  # MAC with shape 0.27
+    # 74.05 Hz at 3.8 % and 73.0 Hz at 2 %: 0.36 of their summed half-widths apart (random record 45).
+    twins = [mode(73.0, 0.02), mode(74.05, 0.038)]
+    assert [m.frequency_hz for m in drop_listed_twice(twins, [0.77, 0.9], [shape, 1j * shape])] == [74.05]
+    assert [m.frequency_hz for m in drop_listed_twice(twins, [0.9, 0.77], [shape, shape])] == [73.0]
+    # The same two of different shapes, or one band apart, are two modes.
+    assert len(drop_listed_twice(twins, [0.77, 0.9], [shape, other])) == 2
+    apart = [mode(73.0, 0.02), mode(77.0, 0.02)]  # 1.35 summed half-widths
+    assert len(drop_listed_twice(apart, [0.77, 0.9], [shape, shape])) == 2
+
+
+@pytest.mark.parametrize("index", [45, 274])
+def test_random_records_whose_mode_was_listed_twice_list_only_true_modes(index: int) -> None:
+    """Each true mode listed at most once, nothing else listed.
+
+    A mode (73.0 Hz at 3.8 %, one displacement sensor; 13.5 Hz at 3.9 %, two accelerometers) was
+    also listed as a second mode 0.5-0.7 of its half-power width beside it.
+    """
+    from okid_bench.output_only_cases import random_case
+
+    case = random_case(index)
+    model = identify_output_only(case.simulate(index), case.sample_time_s)
+    true_f = np.array([t["frequency_hz"] for t in case.truth()])
+    nearest = [int(np.argmin(abs(true_f - mode.frequency_hz))) for mode in model.modes]
+    assert all(abs(mode.frequency_hz / true_f[k] - 1) < 0.02 for mode, k in zip(model.modes, nearest))
+    assert len(set(nearest)) == len(nearest)  # one listed mode per true mode
