@@ -23,8 +23,9 @@ Steps (one module each):
    that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
    frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
-   cluster one is kept; the jackknife's standard deviations are the modes' (the spread of the
-   cluster across orders for ``var``);
+   cluster one is kept, and of two of one shape within their half-power bands (a mode listed
+   twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
+   are the modes' (the spread of the cluster across orders for ``var``);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
 6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
