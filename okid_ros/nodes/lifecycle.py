@@ -17,12 +17,27 @@ __all__ = ["managed_node_class"]
 
 def managed_node_class(cls: type[OkidNode]) -> type:
     """The managed (rclpy.lifecycle) variant of a node class: see the module docstring."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 
     class Managed(LifecycleNodeMixin, cls):
         def __init__(self, **kwargs: Any) -> None:
             cls.__init__(self, managed=True, **kwargs)
             LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
+
+        def _LifecycleNodeMixin__on_change_state(self, request, response):  # noqa: N802 (the mixin's name)
+            # rclpy's ChangeState service raises for a transition the current state does not
+            # have (activate twice, activate before configure), and the exception ends the node
+            # (ros2/rclpy#1209, fixed upstream after this release): refuse it, state unchanged.
+            try:
+                return LifecycleNodeMixin._LifecycleNodeMixin__on_change_state(self, request, response)
+            except rclpy_implementation.RCLError as exc:
+                state = self._state_machine.current_state[1]
+                self.get_logger().warning(f"lifecycle transition {request.transition.id} "
+                                          f"{request.transition.label!r} refused in state {state}: "
+                                          f"{' '.join(str(exc).split())}")
+                response.success = False
+                return response
 
         def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
             try:

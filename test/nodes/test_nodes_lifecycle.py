@@ -112,6 +112,13 @@ class Probe(ProbeNode):
             return
         raise AssertionError(f"{node}: transition {transition_id} never answered")
 
+    def refused(self, node: str, transition_id: int) -> None:
+        """A transition the node's state does not have is answered False and changes nothing."""
+        before = self.state(node)
+        request = ChangeState.Request(transition=Transition(id=transition_id))
+        answer = self.call(ChangeState, f"{node}/change_state", request)
+        assert not answer.success and self.state(node) == before, (node, transition_id)
+
     def counts(self) -> tuple[int, int]:
         with self.lock:
             est = sum(1 for name in self.diagnostics if name.startswith("lc/okid_modal_estimator"))
@@ -136,6 +143,7 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
         for node in NODES:
             assert probe.state(node) == State.PRIMARY_STATE_UNCONFIGURED
         assert probe.node.count_publishers(f"{NS}/arx_model") == 0  # nothing built yet
+        probe.refused(NODES[0], Transition.TRANSITION_ACTIVATE)  # rclpy's service raised: the node ended
         for node in NODES:
             probe.transition(node, Transition.TRANSITION_CONFIGURE)
             assert probe.state(node) == State.PRIMARY_STATE_INACTIVE
@@ -150,6 +158,7 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
         for node in NODES:
             probe.transition(node, Transition.TRANSITION_ACTIVATE)
             assert probe.state(node) == State.PRIMARY_STATE_ACTIVE
+        probe.refused(NODES[1], Transition.TRANSITION_ACTIVATE)  # active already
         probe.publish(600)
         time.sleep(1.0)
         with probe.lock:
