@@ -24,12 +24,17 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
     (:func:`managed_node_class`), configured and activated at once unless
     ``--no-autostart`` is given too (then a lifecycle manager or ``ros2 lifecycle set`` does it).
     """
+    from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.lifecycle import TransitionCallbackReturn
     from rclpy.utilities import remove_ros_args
 
     argv = list(sys.argv if args is None else args)
-    # A launch argument may carry several options in one string, or none ("").
-    own = [word for arg in remove_ros_args(argv)[1:] for word in arg.split()]
+    try:
+        # A launch argument may carry several options in one string, or none ("").
+        own = [word for arg in remove_ros_args(argv)[1:] for word in arg.split()]
+    except rclpy_implementation.RCLError as exc:  # rcl parses --params-file here: not YAML, ...
+        print(f"[{name}] error: {' '.join(str(exc).split())}", file=sys.stderr, flush=True)
+        return 2
     unknown = [a for a in own if a not in ("--lifecycle", "--no-autostart")]
     if unknown:
         print(f"[{name}] error: unknown option(s) {' '.join(unknown)}; options: --lifecycle [--no-autostart] "
@@ -37,7 +42,6 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
         return 2
     managed = "--lifecycle" in own
     autostart = "--no-autostart" not in own
-    from rclpy.impl.implementation_singleton import rclpy_implementation
 
     node = None
     input_thread: InputThread | None = None

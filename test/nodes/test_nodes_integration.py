@@ -440,6 +440,16 @@ def test_a_bad_parameter_is_refused_at_start(spawn_ros, tmp_path, node, text, me
     proc.wait_for_output(message, timeout_s=5)
 
 
+def test_a_parameter_file_rcl_cannot_parse_is_one_line_at_start(spawn_ros, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("this is: [not yaml\n")  # rcl parses --params-file before the node exists
+    proc = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "--params-file", str(bad))
+    assert proc.proc.wait(timeout=30) == 2
+    proc.wait_for_output(r"\[okid_arx_identifier\] error: Failed to parse ROS arguments: Couldn't parse params file",
+                         timeout_s=5)
+    assert "Traceback" not in proc.output()
+
+
 def test_up_starts_both_nodes_and_stops_them_on_sigint(spawn_ros, tmp_path):
     up = spawn_ros("-m", "okid_ros.cli", "up", "--params", str(REPO_ROOT / "config" / "okid.yaml"))
     up.wait_for_output(r"\[okid_arx_identifier\]: ready", timeout_s=30)
