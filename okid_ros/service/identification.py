@@ -56,6 +56,10 @@ __all__ = [
 ]
 
 
+#: How far after the newest sample of the window a structural change may be stamped: node 1 may
+#: lag node 2 by its input queue (at most a few hundred samples at the nodes' rates).
+MAX_CHANGE_LEAD_S = 2.0
+
 @dataclass
 class WindowCapture:
     """A copy of the window's normal equations and counters at one instant.
@@ -320,13 +324,18 @@ class ArxIdentificationService:
     def restart_at(self, change_stamp_s: float) -> int:
         """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
 
-        A change at or before the last restart's (node 2 reports each change twice) is ignored.
-        Returns the number of samples put back into the window (-1 if ignored).
+        A change at or before the last restart's (node 2 reports each change twice) is ignored, and
+        so is one stamped more than :data:`MAX_CHANGE_LEAD_S` after the newest sample here: node 2
+        declares changes at samples it has seen, which reach this window within its lag; a stamp
+        from the future would empty the window and, as the last restart, make every real change
+        before it ignored. Returns the number of samples put back into the window (-1 if ignored).
         """
         c = self._counters
         change_stamp_s = float(change_stamp_s)
         tol = 0.5 * self.params.sample_time_s
-        if not math.isfinite(change_stamp_s) or change_stamp_s <= c.last_restart_stamp_s + tol:
+        newest = self._stamps.newest_stamp_s
+        if (not math.isfinite(change_stamp_s) or change_stamp_s <= c.last_restart_stamp_s + tol
+                or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
             c.restarts_ignored += 1
             return -1
         first = self._recent.first_at_or_after(change_stamp_s, tol)

@@ -120,3 +120,17 @@ def test_due_fires_once_per_publish_period():
     assert fired == [50, 100, 150, 200, 250, 300]
     assert not service.due(0.0)  # time went back: the clock restarts
     assert service.due(0.5)
+
+
+def test_a_structural_change_stamped_in_the_future_is_ignored(record):
+    dt, u, y = record
+    svc = make_service(dt)
+    svc.push_block(np.arange(900) * dt, u, y)
+    newest = 899 * dt
+    # An hour ahead (a bad clock, a forged message): the window would be emptied and every real
+    # change before that stamp ignored as "already restarted".
+    assert svc.restart_at(newest + 3600.0) == -1
+    d = svc.diagnostics()
+    assert d["window_restarts"] == 0 and d["window_restarts_ignored"] == 1
+    assert svc.restart_at(newest - 100 * dt) == 101  # a real change still restarts the window
+    assert svc.restart_at(newest + 1.0) == 0  # within node 1's lag behind node 2: an empty window for now
