@@ -193,14 +193,20 @@ def arx_model_msg(snapshot: ArxSnapshot, types: MessageTypes, frame_id: str = ""
     )
 
 
-def arx_fit_from_msg(msg: Any) -> tuple[ArxFit, float, int]:
+def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxFit, float, int]:
     """``ArxModel`` -> (ArxFit, stamp of its newest sample [s], rows in its window).
+
+    ``sample_time_s``: the receiver's; a model of another sample time is refused (its
+    coefficients mean other dynamics on this grid).
 
     Raises
     ------
-    ValueError when the coefficient array does not match its declared shape.
+    ValueError when the coefficient array does not match its declared shape, or the sample times differ.
     """
     m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
+    if sample_time_s is not None and not abs(float(msg.sample_time_s) - sample_time_s) <= 1e-9 * sample_time_s:
+        raise ValueError(f"ArxModel of sample time {float(msg.sample_time_s):g} s; this node's sample_time_s is "
+                         f"{sample_time_s:g} s")
     # Limits of node 1's own parameters: a message beyond them (from anyone on the domain) would
     # size node 2's sample buffer (4e9 rows: a 33 GB allocation that ended the node).
     limits = {spec.name: spec.high for spec in ARX_PARAMS if spec.name in ("arx.order", "arx.window_length")}

@@ -173,7 +173,7 @@ class ModalEstimatorNode(OkidNode):
             self._arx_invalid += 1
             return
         try:
-            fit, stamp_s, rows = arx_fit_from_msg(msg)
+            fit, stamp_s, rows = arx_fit_from_msg(msg, self.service.params.sample_time_s)
         except ValueError as exc:
             self._arx_malformed += 1
             self.get_logger().warning(f"ArxModel {msg.model_id} ignored: {exc}")

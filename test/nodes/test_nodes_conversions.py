@@ -86,8 +86,11 @@ def test_arx_model_round_trip(identified):
     assert msg.valid and msg.order == 20 and msg.coefficients_rows == 2 + 20 * 4
     assert msg.markov_parameters_count == 21 and msg.markov_parameters.size == 21 * 4
     assert msg.condition_number == pytest.approx(np.sqrt(snap.condition_number))
-    fit, stamp, rows = cv.arx_fit_from_msg(msg)
+    fit, stamp, rows = cv.arx_fit_from_msg(msg, msg.sample_time_s)
     np.testing.assert_array_equal(fit.theta, snap.fit.theta)
+    for other in (0.5, float("nan"), msg.sample_time_s * (1 + 1e-6)):  # another grid's model: refused
+        with pytest.raises(ValueError, match="this node's sample_time_s is"):
+            cv.arx_fit_from_msg(msg, other)
     assert stamp == pytest.approx(snap.stamp_s) and rows == snap.window_rows
     np.testing.assert_allclose(fit.residual_covariance, snap.fit.residual_covariance)
     msg.coefficients = msg.coefficients[:-1]
