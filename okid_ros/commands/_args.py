@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "int_between", "positive_finite_float", "stamp_seconds", "states_or_auto",
+__all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "stamp_seconds", "states_or_auto",
            "penalty_or_gcv", "add_bag_arguments", "add_progress_arguments", "namespace"]
 
 #: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32).
@@ -47,6 +47,23 @@ def _float(text: str, wanted: str) -> float:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+
+
+def float_between(low: float, high: float, wanted: str):
+    """An argparse type: a number in ``[low, high]`` (NaN is refused: it fails the comparison).
+
+    ``wanted`` describes it, with ``{low}`` and ``{high}`` (e.g. ``"seconds from {low:g} to {high:g}"``).
+    """
+    wanted = wanted.format(low=low, high=high)
+
+    def parse(text: str) -> float:
+        value = _float(text, wanted)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+        return value
+
+    parse.__name__ = "float"
+    return parse
 
 
 def positive_finite_float(text: str) -> float:

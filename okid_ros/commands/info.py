@@ -11,6 +11,7 @@ import time
 from importlib import metadata
 
 from okid_ros import __version__
+from okid_ros.commands._args import int_between
 from okid_ros.errors import OkidError
 
 # Distributions whose versions `info` reports, as named on PyPI (ROS wheels: ros-jazzy-*).
@@ -24,14 +25,7 @@ MAX_SELFTEST_COUNT = 100_000
 
 def _selftest_count(text: str) -> int:
     """An integer from 1 to :data:`MAX_SELFTEST_COUNT`."""
-    wanted = f"an integer from 1 to {MAX_SELFTEST_COUNT}"
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-    if not 1 <= value <= MAX_SELFTEST_COUNT:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
-    return value
+    return int_between(1, MAX_SELFTEST_COUNT)(text)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

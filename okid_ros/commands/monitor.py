@@ -4,19 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.commands._args import int_between
+
 
 def _window_samples(text: str) -> int:
     """An integer from 1 to MAX_WINDOW_SAMPLES (a deque's maxlen overflowed beyond 64 bits)."""
     from okid_ros.tools.monitor import MAX_WINDOW_SAMPLES
 
-    wanted = f"an integer from 1 to {MAX_WINDOW_SAMPLES}"
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-    if not 1 <= value <= MAX_WINDOW_SAMPLES:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
-    return value
+    return int_between(1, MAX_WINDOW_SAMPLES)(text)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -7,48 +7,28 @@ from __future__ import annotations
 
 import argparse
 
-
-def _number(text: str, wanted: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+from okid_ros.commands._args import float_between, int_between
 
 
 def _delay_s(text: str) -> float:
     """Seconds from 0 to MAX_DELAY_S (NaN and inf once made the player wait forever)."""
     from okid_ros.tools.replay import MAX_DELAY_S
 
-    wanted = f"seconds from 0 to {MAX_DELAY_S:g}"
-    value = _number(text, wanted)
-    if not 0.0 <= value <= MAX_DELAY_S:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
-    return value
+    return float_between(0.0, MAX_DELAY_S, "seconds from {low:g} to {high:g}")(text)
 
 
 def _clock_hz(text: str) -> float:
     """A /clock rate in CLOCK_HZ_RANGE (0 is refused: it once became 100 Hz in silence)."""
     from okid_ros.tools.replay import CLOCK_HZ_RANGE
 
-    wanted = f"a rate from {CLOCK_HZ_RANGE[0]:g} to {CLOCK_HZ_RANGE[1]:g} Hz"
-    value = _number(text, wanted)
-    if not CLOCK_HZ_RANGE[0] <= value <= CLOCK_HZ_RANGE[1]:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
-    return value
+    return float_between(*CLOCK_HZ_RANGE, "a rate from {low:g} to {high:g} Hz")(text)
 
 
 def _queue_depth(text: str) -> int:
     """A history depth from 1 to MAX_QUEUE_DEPTH (rclpy raised a TypeError beyond 64 bits)."""
     from okid_ros.tools.replay import MAX_QUEUE_DEPTH
 
-    wanted = f"an integer from 1 to {MAX_QUEUE_DEPTH}"
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-    if not 1 <= value <= MAX_QUEUE_DEPTH:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
-    return value
+    return int_between(1, MAX_QUEUE_DEPTH)(text)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

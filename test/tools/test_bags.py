@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 from ros_helpers import REPO_ROOT, rosbags_typestore
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -33,21 +34,6 @@ START_S = 1_700_000_000
 # truth has 6 states, so orders up to 8 are enough for the automatic order selection.
 FAST = ["--param", "publish_rate_hz=0.25", "--param", "realization.max_states=8"]
 TRUTH = paper_modes()
-
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    capsys.readouterr()
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
-    assert code == 2, err
-    assert "Traceback" not in err
-    assert err.strip().count("\n") == 0, err
-    for fragment in fragments:
-        assert fragment in err, err
 
 
 def assert_modes_match_truth(modes: list[dict]) -> None:

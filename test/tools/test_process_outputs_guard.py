@@ -13,6 +13,7 @@ import warnings
 from pathlib import Path
 
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 
 from okid_ros.cli import main
 from okid_ros.errors import ParameterError
@@ -20,20 +21,6 @@ from okid_ros.service.topics import resolve_topic
 from okid_ros.tools.bagio import TRUTH_KEY, open_bag
 
 LONG = "x" * 300  # longer than NAME_MAX (255) of the usual file systems
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    capsys.readouterr()
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
-    assert code == 2, err
-    assert "Traceback" not in err and err.strip().count("\n") == 0, err
-    for fragment in fragments:
-        assert fragment in err, err
 
 
 def digest(folder: Path) -> dict[str, str]:
