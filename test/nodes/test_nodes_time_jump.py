@@ -9,7 +9,8 @@ The bag is 16 s of the simulated experiment (IoSample at 125 Hz), replayed at tw
 window 800 rows, a model once 200 rows are in) so that a model comes within each pass on a
 loaded machine. Without the reset, node 1's window still holds the previous pass after a loop
 and node 2 needs 410 contiguous samples of it: the first model after a loop comes about 2 s of
-bag time later than after the start (and node 2 logs "... samples of the ARX window ... follow its last gap" meanwhile).
+bag time later than after the start, beyond the 1 s a publish period of node 1 may add (and
+node 2 logs "... samples of the ARX window ... follow its last gap" meanwhile).
 """
 
 from __future__ import annotations
@@ -120,9 +121,12 @@ def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
             stamp, used = after[0]
             assert used <= (stamp - start_stamp) / 0.008 + 50, (stamp - start_stamp, used)
         # The first model after each loop comes as soon as after the first start (the window
-        # restarted with the loop instead of holding the previous pass).
+        # restarted with the loop instead of holding the previous pass): within one publish
+        # period of bag time (node 1's timer runs on wall time, so its phase at each pass start is
+        # any; CI saw 1.87 s then 2.88 s) and 0.5 s for a realization on a loaded machine.
+        period_bag_s = RATE / 2.0  # publish_rate_hz 2.0 of SMALL, in bag seconds
         for delay in delays[1:]:
-            assert delay <= delays[0] + 1.0, delays
+            assert delay <= delays[0] + period_bag_s + 0.5, delays
         log = up.output()
         assert len(re.findall(r"okid_arx_identifier\]: time jump back to .* restarted", log)) == passes - 1, log
         assert len(re.findall(r"okid_modal_estimator\]: time jump back to .* restarted", log)) == passes - 1, log
