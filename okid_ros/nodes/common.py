@@ -391,14 +391,31 @@ def check_parameter_files(node: Node, strict: bool, argv: Sequence[str] | None =
     ------
     ParameterError when ``strict`` and there is a problem.
     """
-    from okid_ros.service.param_files import file_report, params_files_from_args, read_files
-    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
+    from okid_ros.service.param_files import (
+        file_report,
+        node_fqn,
+        node_values_from_tree,
+        params_files_from_args,
+        read_files,
+    )
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params, validate_value
 
     names = {n: [s.name for s in node_params(n)] for n in (ARX_NODE, ESTIMATOR_NODE)}
+    specs = {s.name: s for s in node_params(node.get_name())} if node.get_name() in names else {}
     namespace = node.get_namespace()
+    files = read_files(params_files_from_args(sys.argv if argv is None else argv))
+    for label, tree in files:
+        # A value of the wrong kind in a later file is dropped by rcl's merge without a word
+        # (the earlier file's value stays; the same file alone is refused): refuse it here.
+        for name, value in node_values_from_tree(tree, node_fqn(node.get_name(), namespace)).items():
+            if name in specs:
+                try:
+                    validate_value(specs[name], value)
+                except ParameterError as exc:
+                    raise ParameterError(f"{label}: {exc}") from None
     problems = [
         problem
-        for label, tree in read_files(params_files_from_args(sys.argv if argv is None else argv))
+        for label, tree in files
         for problem in file_report(tree, label, names, namespace, for_node=node.get_name())
     ]
     if problems and strict:

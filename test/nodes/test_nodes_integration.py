@@ -440,6 +440,15 @@ def test_a_bad_parameter_is_refused_at_start(spawn_ros, tmp_path, node, text, me
     proc.wait_for_output(message, timeout_s=5)
 
 
+def test_a_value_of_the_wrong_kind_in_a_later_file_is_refused_at_start(spawn_ros, tmp_path):
+    bad = tmp_path / "override.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    sample_time_s: 'abc'\n")  # rcl's merge kept okid.yaml's value
+    proc = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args",
+                     "--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(bad))
+    assert proc.proc.wait(timeout=30) == 2
+    proc.wait_for_output(r"error: .*override\.yaml: parameter sample_time_s must be a number, got 'abc'", timeout_s=5)
+
+
 def test_a_parameter_file_rcl_cannot_parse_is_one_line_at_start(spawn_ros, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("this is: [not yaml\n")  # rcl parses --params-file before the node exists
