@@ -93,6 +93,12 @@ class Record:
         return Record(u, y, dt)
 
 
+def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The runs of True in ``present`` (N,): their starts and their ends (exclusive), in order."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(present, dtype=np.int8), [0]])))
+    return edges[::2], edges[1::2]
+
+
 def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, str]:
     """The longest run of samples without NaN/Inf, and a sentence on what was left out ("" if nothing).
 
@@ -111,8 +117,7 @@ def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Rec
     n = present.size
     if present.all():
         return record, ""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], present.astype(np.int8), [0]])))
-    starts, ends = edges[::2], edges[1::2]
+    starts, ends = present_runs(present)
     if not starts.size or (ends - starts).max() < 2:
         raise DataError(f"no two samples in a row are free of NaN/Inf ({n - int(present.sum())} of {n} hold them)")
     best = int(np.argmax(ends - starts))

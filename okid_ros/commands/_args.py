@@ -4,11 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "stamp_seconds", "states_or_auto",
+__all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "states_or_auto",
            "penalty_or_gcv", "add_bag_arguments", "add_progress_arguments", "namespace"]
-
-#: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32).
-MAX_STAMP_S = 2**31 - 1
 
 
 def positive_int(text: str) -> int:
@@ -71,18 +68,6 @@ def positive_finite_float(text: str) -> float:
     value = _float(text, "a positive finite number")
     if not 0.0 < value < float("inf"):
         raise argparse.ArgumentTypeError(f"expected a positive finite number, got {value}")
-    return value
-
-
-def stamp_seconds(text: str) -> float:
-    """Seconds since the epoch that a ROS 2 stamp can hold: 0 to 2**31 - 1 (its ``sec`` is an int32).
-
-    Not negative: a bag's log time (nanoseconds) is unsigned.
-    """
-    wanted = f"seconds since the epoch from 0 to {MAX_STAMP_S} (a ROS 2 stamp's sec is an int32)"
-    value = _float(text, wanted)
-    if not 0.0 <= value <= MAX_STAMP_S:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
     return value
 
 

@@ -8,7 +8,15 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import int_between, positive_finite_float, stamp_seconds
+from okid_ros.commands._args import float_between, int_between, positive_finite_float
+
+
+def _start_time(text: str) -> float:
+    """Seconds since the epoch that a ROS 2 stamp can hold (not negative: a bag's log time is unsigned)."""
+    from okid_ros.tools.simulate_bag import MAX_STAMP_S
+
+    return float_between(0.0, MAX_STAMP_S, "seconds since the epoch from {low:.0f} to {high:.0f} (a ROS 2 "
+                         "stamp's sec is an int32)")(text)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="low-pass cut-off of the thruster signals (default: %(default)s Hz)")
     parser.add_argument("--noise", type=positive_finite_float, default=1.0, metavar="R",
                         help="innovation variance r > 0, Re = r I (default: %(default)s)")
-    parser.add_argument("--start-time", type=stamp_seconds, default=None, metavar="SEC",
+    parser.add_argument("--start-time", type=_start_time, default=None, metavar="SEC",
                         help="stamp of the first sample in seconds since the epoch, from 0 to 2**31 - 1 with "
                         "the whole record (a ROS 2 stamp's sec is an int32; default: now)")
     parser.add_argument("--force", action="store_true", help="replace an existing bag at --out")

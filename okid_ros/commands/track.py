@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
     )
     q = _arx_order(args, u, y, options)
-    record = _TrackedRecord(u, y, q, window)
+    record = _TrackedRecord(u, y, q)
     estimator = SlidingWindowArx(q, p, m, window=window)
     monitor = StructuralChangeMonitor(p, false_alarm_samples=args.false_alarm_samples)
     restart_rows = max(int(np.ceil(args.restart_min_fill * window)), 1)
@@ -369,13 +369,12 @@ def _first_finite_run(u, y, length: int) -> int:
     import numpy as np
 
     from okid_ros.errors import DataError
+    from okid_ros.records import present_runs
 
     finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
     if finite[:length].all():
         return 0
-    # Runs of finite samples: their starts and ends.
-    edges = np.flatnonzero(np.diff(np.concatenate([[False], finite, [False]]).astype(np.int8)))
-    for start, end in zip(edges[::2], edges[1::2]):
+    for start, end in zip(*present_runs(finite)):
         if end - start >= length:
             return int(start)
     raise DataError(f"--order auto chooses the ARX order on {length} samples without NaN/Inf and the record has "
@@ -387,16 +386,16 @@ class _TrackedRecord:
 
     Parameters
     ----------
-    u : (N, m); y : (N, p) the (scaled) record; order : the ARX order q; window : W.
+    u : (N, m); y : (N, p) the (scaled) record; order : the ARX order q.
     """
 
-    def __init__(self, u, y, order: int, window: int) -> None:
+    def __init__(self, u, y, order: int) -> None:
         import numpy as np
 
         from okid_ros.core.window_samples import WindowStatus, accepted_samples
         from okid_ros.service.options import ModalEstimationParams
 
-        self.u, self.y, self.order, self.window = u, y, int(order), int(window)
+        self.u, self.y, self.order = u, y, int(order)
         # The samples the window accepts (finite, within its magnitude limit): the others are missing.
         self.present = accepted_samples(u, y, WindowStatus())
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))

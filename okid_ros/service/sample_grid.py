@@ -184,6 +184,10 @@ class GridSample:
         return self.skipped > 0 or self.restart
 
 
+#: The reasons a message is refused (fields of :class:`GridCounters`), the likeliest mistake first.
+REJECTION_REASONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid")
+
+
 @dataclass
 class GridCounters:
     """Message and sample counts of a :class:`SampleGrid` (since start or reset)."""
@@ -203,7 +207,11 @@ class GridCounters:
     @property
     def rejected_messages(self) -> int:
         """Messages refused as a whole or in part (late, duplicate, out of order, bad values)."""
-        return self.late + self.duplicate + self.out_of_order + self.nonfinite + self.wrong_size + self.off_grid
+        return sum(getattr(self, reason) for reason in REJECTION_REASONS)
+
+    def rejections(self) -> dict[str, int]:
+        """The messages refused, by reason (:data:`REJECTION_REASONS`, only those that occurred)."""
+        return {reason: int(getattr(self, reason)) for reason in REJECTION_REASONS if getattr(self, reason)}
 
     def as_dict(self) -> dict[str, int]:
         out = {f.name: int(getattr(self, f.name)) for f in fields(self)}

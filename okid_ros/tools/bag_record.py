@@ -101,13 +101,8 @@ def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]),
                     float(est_values["sample_time_s"])).validate()
     grid = inputs.grid.counters
-    rejected = {name: int(getattr(grid, name)) for name in _REJECTIONS if getattr(grid, name)}
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     rejected)
-
-
-#: The sample grid's rejection counters (:class:`okid_ros.service.sample_grid.GridCounters`).
-_REJECTIONS = ("late", "duplicate", "out_of_order", "nonfinite", "wrong_size", "off_grid")
+                     grid.rejections())
 
 
 def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Sequence[str] = (),

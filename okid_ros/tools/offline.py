@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from okid_ros.errors import ParameterError
+from okid_ros.service.sample_grid import REJECTION_REASONS
 
 __all__ = ["TOPIC_PARAMETERS", "NodeInputs", "OfflineNodes", "ProcessSummary"]
 
@@ -26,8 +27,6 @@ TOPIC_PARAMETERS: dict[str, dict[str, str]] = {
     "okid_modal_estimator": {"arx_model_topic": _ARX, "structural_change_topic": _CHANGE,
                              "state_space_model_topic": _MODEL, "modal_states_topic": "okid_msgs/msg/ModalStates"},
 }
-# Reasons the sample grid refuses a message (GridCounters), the likeliest mistake first.
-_REJECTIONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid")
 
 
 @dataclass
@@ -70,7 +69,7 @@ class ProcessSummary:
         if not rejected and not counts.get("missing"):
             return ""
         reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
-                   for key in _REJECTIONS if counts.get(key)]
+                   for key in REJECTION_REASONS if counts.get(key)]
         if counts.get("missing"):
             reasons.append(f"{counts['missing']} samples dropped incomplete (missing)")
         head = (f"all {messages} input messages were rejected" if rejected and rejected >= messages

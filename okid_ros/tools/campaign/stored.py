@@ -14,6 +14,8 @@ import json
 import math
 from pathlib import Path
 
+from okid_ros.tools.campaign.manifest import MANIFEST_NAME
+
 __all__ = ["result_problem", "stored_result"]
 
 #: Fields of a stored result that are numbers (or null) when present.
@@ -115,13 +117,13 @@ def stored_result(entry: dict, out_dir: Path, retry_failed: bool) -> tuple[dict 
             return None, ""
         summary = entry.get("summary")
         problem = result_problem(summary, "failed")
-        return (None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag is spoilt ({problem})") if problem \
+        return (None, f"{out_dir / MANIFEST_NAME}: the entry of the bag is spoilt ({problem})") if problem \
             else ({**summary, "updates": []}, "")
     if status != "ok":
-        return None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag has the status {status!r}"
+        return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag has the status {status!r}"
     problem = _label_problem(entry.get("label"))
     if problem:
-        return None, f"{out_dir / 'manifest.jsonl'}: the entry of the bag is spoilt ({problem})"
+        return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag is spoilt ({problem})"
     path = out_dir / "bags" / entry["label"] / "result.json"
     if not path.is_file():
         return None, ""  # outputs removed by hand: do it again
