@@ -35,20 +35,37 @@ duplicates / out of order
 bad values
     A message whose values are not finite (NaN/Inf), whose stamp is not finite, or whose value
     count is not the source's channel count (``wrong_size``) is rejected as a whole.
+timeline
+    The *timeline* is the newest stamp of the stream (taken, or confirmed as below). A stamp
+    more than ``time_jump_s`` (default 1 s) before or after it is held as the *candidate* of a
+    new timeline instead of being acted on: one corrupt stamp (0, or 1e6 s ahead) must not
+    restart the grid and the nodes, nor strand the timeline where every later message looks
+    like a jump. Then:
+
+    - a stamp off the old timeline within ``time_jump_s`` of the candidate, from any source,
+      confirms it: the candidate is taken as the first message of the new timeline (a time jump
+      or a forward step, below), then the confirming one. The candidate's own source must step
+      on from it (a repeat of its slot is a ``duplicate``, an earlier slot ``out_of_order``);
+    - a stamp on the old timeline from the candidate's source, or one taking the old timeline
+      more than ``time_jump_s`` on, rejects the candidate: counted ``off_timeline``. The other
+      sources' messages on the old timeline are taken meanwhile (after a loop the sources jump
+      one after another);
+    - a stamp off both timelines rejects the candidate and becomes the candidate.
+
+    A real jump or step thus takes effect one message late, with no sample lost.
+    :meth:`SampleGrid.flush` rejects a candidate still held; :meth:`SampleGrid.reset` forgets it.
 time jumps
-    A stamp more than ``time_jump_s`` (default 1 s) before the newest stamp seen (a bag replayed
-    in a loop, a simulation restarted) re-anchors the grid there: incomplete slots are dropped
-    (``missing``), the jump is counted, and the next emitted sample has ``restart=True``. Messages
-    of the other sources still stamped before the jump are dropped (``late``) until each of them
-    has jumped too. Forward jumps are ordinary gaps.
+    A confirmed timeline before the old one (a bag replayed in a loop, a simulation restarted)
+    re-anchors the grid there: incomplete slots are dropped (``missing``), the jump is counted,
+    and the first sample after it has ``restart`` and ``time_jump`` set. A confirmed timeline
+    after the old one (a clock set forward) is an ordinary gap (``missing``, ``skipped > 0``).
+    After either, the messages of the other sources still on the old side are dropped
+    (``late``) until each source has moved too.
 
 Whole samples
 -------------
-A stream of samples that arrive already whole (``okid_ros.service.identification`` fed by a
-caller other than the grid) is checked by :class:`StampSequence` with the same rule in sample
-times (:func:`classify_step`): a step of at most half a sample time from the previous accepted
-stamp is a duplicate, a step back by more than that is out of order, a step of more than 1.5
-sample times is a gap. This module is the only place that policy is written.
+A stream of whole samples is checked by :class:`StampSequence` with the grid's step rule
+(:func:`classify_step`), both from :mod:`okid_ros.service.stamp_steps` and re-exported here.
 
 No rclpy: the nodes and the offline tools both use this module.
 """
@@ -57,102 +74,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
-from enum import Enum
 from typing import Sequence
 
 import numpy as np
 
 from okid_ros.core.options import sample_time_problem
+from okid_ros.service.stamp_steps import StampSequence, StampStep, classify_step
 
-__all__ = [
-    "GridSample",
-    "GridCounters",
-    "SampleGrid",
-    "RESTART_SKIP",
-    "StampStep",
-    "StampSequence",
-    "classify_step",
-]
+__all__ = ["GridSample", "GridCounters", "SampleGrid", "RESTART_SKIP", "REJECTION_REASONS", "StampStep",
+           "StampSequence", "classify_step"]
 
 #: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
 RESTART_SKIP = -1
 
 #: Fraction of each accepted stamp's offset from its slot by which the grid phase follows it.
 PHASE_GAIN = 0.01
-
-
-class StampStep(Enum):
-    """How a stamp relates to the previous accepted stamp of the same stream."""
-
-    NEXT = "next"
-    GAP = "gap"
-    DUPLICATE = "duplicate"
-    OUT_OF_ORDER = "out_of_order"
-
-
-#: Largest step, in sample times, that is still the next sample; a longer step is a gap.
-GAP_STEP = 1.5
-
-
-def classify_step(step_samples: float) -> StampStep:
-    """The grid's rule for the step of a stream from its previous accepted stamp.
-
-    Parameters
-    ----------
-    step_samples : the step in sample times (a whole number of slots on the grid).
-
-    Returns
-    -------
-    StampStep
-        ``OUT_OF_ORDER`` below -1/2, ``DUPLICATE`` up to 1/2, ``GAP`` above ``GAP_STEP``,
-        else ``NEXT``.
-
-    Examples
-    --------
-    >>> [classify_step(s).value for s in (-3, 0.2, 1.0, 4.0)]
-    ['out_of_order', 'duplicate', 'next', 'gap']
-    """
-    if step_samples < -0.5:
-        return StampStep.OUT_OF_ORDER
-    if step_samples <= 0.5:
-        return StampStep.DUPLICATE
-    if step_samples > GAP_STEP:
-        return StampStep.GAP
-    return StampStep.NEXT
-
-
-class StampSequence:
-    """The stamp check of one stream of whole samples (:func:`classify_step` in sample times).
-
-    Parameters
-    ----------
-    sample_time_s : dt [s] > 0.
-    """
-
-    def __init__(self, sample_time_s: float) -> None:
-        if problem := sample_time_problem(sample_time_s):
-            raise ValueError(problem)
-        self.sample_time_s = float(sample_time_s)
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the last accepted stamp."""
-        self._last: float | None = None
-
-    @property
-    def newest_stamp_s(self) -> float:
-        """The last accepted stamp [s] (nan before the first)."""
-        return math.nan if self._last is None else self._last
-
-    def check(self, stamp_s: float) -> StampStep:
-        """Classify a stamp against the last accepted one (``NEXT`` for the first); no state change."""
-        if self._last is None:
-            return StampStep.NEXT
-        return classify_step((float(stamp_s) - self._last) / self.sample_time_s)
-
-    def accept(self, stamp_s: float) -> None:
-        """Make ``stamp_s`` the last accepted stamp."""
-        self._last = float(stamp_s)
 
 
 @dataclass
@@ -185,7 +121,7 @@ class GridSample:
 
 
 #: The reasons a message is refused (fields of :class:`GridCounters`), the likeliest mistake first.
-REJECTION_REASONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid")
+REJECTION_REASONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid", "off_timeline")
 
 
 @dataclass
@@ -201,12 +137,13 @@ class GridCounters:
     nonfinite: int = 0
     wrong_size: int = 0
     off_grid: int = 0
+    off_timeline: int = 0  # lone stamps far from the timeline that the next messages did not confirm
     time_jumps: int = 0
     reanchors: int = 0
 
     @property
     def rejected_messages(self) -> int:
-        """Messages refused as a whole or in part (late, duplicate, out of order, bad values)."""
+        """Messages refused as a whole or in part (late, duplicate, out of order, bad values, stamps)."""
         return sum(getattr(self, reason) for reason in REJECTION_REASONS)
 
     def rejections(self) -> dict[str, int]:
@@ -230,8 +167,18 @@ class _Slot:
 class _Source:
     channels: np.ndarray
     last_slot: int | None = None
-    before_jump: bool = False  # still sending stamps from before the last backward time jump
+    before_jump: bool = False  # still sending stamps from before the last time jump or forward step
     counters: GridCounters = field(default_factory=GridCounters)
+
+
+@dataclass
+class _Candidate:
+    """A message stamped off the timeline, held until the messages after it confirm or refute it."""
+
+    source: int
+    stamp_s: float
+    values: np.ndarray
+    old_newest_s: float  # the newest stamp of the old timeline when the candidate came
 
 
 class SampleGrid:
@@ -246,7 +193,8 @@ class SampleGrid:
     tolerance : largest distance of a stamp from its slot, as a fraction of dt, in (0, 0.5).
     latency_samples : how many slots newer data may be ahead before an incomplete slot is
         dropped (>= 0; 0 drops a slot as soon as a newer slot receives data).
-    time_jump_s : a stamp this much older than the newest one re-anchors the grid [s].
+    time_jump_s : a stamp this much before or after the newest one starts a new timeline [s],
+        once the next message confirms it (a time jump back, a gap forward; module docstring).
 
     Raises
     ------
@@ -313,12 +261,14 @@ class SampleGrid:
         return len(self._sources)
 
     def reset(self) -> None:
-        """Forget the grid, pending slots and counters."""
+        """Forget the grid, pending slots, a held candidate timeline and the counters."""
         self.counters = GridCounters()
         for src in self._sources:
             src.counters = GridCounters()
             src.last_slot = None
             src.before_jump = False
+        self._candidate: _Candidate | None = None
+        self._old_side = 1  # where before_jump stamps lie (_side): +1 after a jump back, -1 a step on
         self._clear_grid()
 
     def _clear_grid(self) -> None:
@@ -364,17 +314,69 @@ class SampleGrid:
         if not math.isfinite(stamp_s) or not np.isfinite(vals).all():
             self._count(src, "nonfinite")
             return []
-        dt = self.sample_time_s
-        out: list[GridSample] = []
         if self._anchor is None:
             self._anchor = stamp_s
-        elif src.before_jump:
-            if stamp_s > self._newest_stamp + self.time_jump_s:
-                self._count(src, "late")  # stamped before the time jump the other sources made
-                return out
+        return self._follow_timeline(source, stamp_s, vals)
+
+    def _follow_timeline(self, source: int, stamp_s: float, vals: np.ndarray) -> list[GridSample]:
+        """Place a message on the timeline; hold, confirm or reject one off it (module docstring)."""
+        src = self._sources[source]
+        side = self._side(stamp_s)
+        if src.before_jump and side == self._old_side:
+            self._count(src, "late")  # stamped before the jump or step the other sources made
+            return []
+        cand = self._candidate
+        if side == 0:
             src.before_jump = False
-        elif stamp_s < self._newest_stamp - self.time_jump_s:
-            out += self._time_jump(src, stamp_s)
+            if cand is not None and (cand.source == source or stamp_s > cand.old_newest_s + self.time_jump_s):
+                self._reject_candidate()  # the old timeline goes on: the candidate was a lone stamp
+            # The timeline follows the stream also where the grid refuses it (off its phase).
+            self._newest_stamp = max(self._newest_stamp, stamp_s)
+            return self._place(src, stamp_s, vals)
+        if cand is not None and abs(stamp_s - cand.stamp_s) <= self.time_jump_s:
+            if cand.source == source:
+                # A source confirms its own candidate only by stepping on from it: a repeat of
+                # one corrupt stamp is no timeline.
+                step = classify_step((stamp_s - cand.stamp_s) / self.sample_time_s)
+                if step in (StampStep.DUPLICATE, StampStep.OUT_OF_ORDER):
+                    self._count(src, step.value)
+                    return []
+            self._candidate = None
+            return self._take_candidate(cand) + self._follow_timeline(source, stamp_s, vals)
+        self._reject_candidate()  # another stamp off both timelines: the candidate was alone
+        self._candidate = _Candidate(source, stamp_s, vals.copy(), self._newest_stamp)
+        return []
+
+    def _side(self, stamp_s: float) -> int:
+        """-1 / +1 for a stamp more than time_jump_s before / after the timeline, else (or none yet) 0."""
+        step = stamp_s - self._newest_stamp
+        if not math.isfinite(self._newest_stamp) or abs(step) <= self.time_jump_s:
+            return 0
+        return 1 if step > 0 else -1
+
+    def _reject_candidate(self) -> None:
+        cand, self._candidate = self._candidate, None
+        if cand is not None:
+            self._count(self._sources[cand.source], "off_timeline")
+
+    def _take_candidate(self, cand: _Candidate) -> list[GridSample]:
+        """Act on a confirmed candidate: the time jump or forward step, then its own message."""
+        src = self._sources[cand.source]
+        back = cand.stamp_s < self._newest_stamp
+        out = self._time_jump(src, cand.stamp_s) if back else []
+        out += self._place(src, cand.stamp_s, cand.values)
+        # The timeline moves there even if the grid refused the message (a forward step off the
+        # grid's phase: the off-grid run then re-anchors the grid as it would without the hold).
+        self._newest_stamp = max(self._newest_stamp, cand.stamp_s)
+        self._old_side = 1 if back else -1
+        for s in self._sources:
+            s.before_jump = s is not src
+        return out
+
+    def _place(self, src: _Source, stamp_s: float, vals: np.ndarray) -> list[GridSample]:
+        """Put a message of the timeline into its slot; return the samples that became complete."""
+        dt = self.sample_time_s
+        out: list[GridSample] = []
         if not math.isfinite((stamp_s - self._anchor) / dt):
             self._count(src, "nonfinite")  # a stamp so far ahead its slot number is not a number
             return out
@@ -432,7 +434,6 @@ class SampleGrid:
         self._anchor = stamp_s
         for s in self._sources:
             s.last_slot = None
-            s.before_jump = s is not src
         return out
 
     def _drop_all_pending(self) -> list[GridSample]:
@@ -447,7 +448,11 @@ class SampleGrid:
         return out
 
     def flush(self) -> list[GridSample]:
-        """Emit every complete pending slot and drop the incomplete ones (end of a record)."""
+        """Emit every complete pending slot and drop the incomplete ones (end of a record).
+
+        A candidate timeline still held is rejected (``off_timeline``): nothing confirmed it.
+        """
+        self._reject_candidate()
         return self._drop_all_pending()
 
     # ------------------------------------------------------------------ output

@@ -110,3 +110,26 @@ def test_stamp_sequence_classifies_any_step(steps) -> None:
             sequence.accept(candidate)
             stamp = candidate
     assert math.isnan(sequence.newest_stamp_s) or math.isfinite(sequence.newest_stamp_s)
+
+
+@given(n=st.integers(2, 60), at=st.integers(0, 1000), source=st.integers(0, 1),
+       stamp=st.sampled_from([0.0, -1e9, 50.0, 1e6, 1e9, 1e300]), jitter=st.floats(-0.2, 0.2))
+def test_a_lone_stamp_off_the_timeline_changes_nothing_but_its_count(n, at, source, stamp, jitter) -> None:
+    """One message with a stray stamp, anywhere after the first, in a clean stream of two sources."""
+    clean = [(s, 10.0 + (k + jitter) * DT, [float(k)] if s == 0 else [2.0 * k, -float(k)])
+             for k in range(n) for s in (0, 1)]
+    at = 1 + at % len(clean)  # before the first message there is no timeline to be off
+    stray = (source, stamp, [7.0] * len(SOURCES[source]))
+
+    def run(batch):
+        grid = SampleGrid(DT, 1, 2, SOURCES, latency_samples=3)
+        out = [sample for message in batch for sample in grid.add(*message)] + grid.flush()
+        return grid.counters.as_dict(), [(s.slot, s.stamp_s, s.skipped, s.restart, s.time_jump, list(s.u), list(s.y))
+                                         for s in out]
+
+    expected_counts, expected = run(clean)
+    counts, samples = run(clean[:at] + [stray] + clean[at:])
+    assert samples == expected
+    expected_counts.update(messages=expected_counts["messages"] + 1, off_timeline=1,
+                           rejected_messages=expected_counts["rejected_messages"] + 1)
+    assert counts == expected_counts

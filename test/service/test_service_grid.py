@@ -125,13 +125,18 @@ def test_time_jump_back_restarts_the_grid_and_drops_pre_jump_messages_of_other_s
     for k in range(10):
         feed(grid, k)
     back = T0 - 5.0  # a bag replayed from its start
-    out = grid.add(0, back, [7.0])
-    assert grid.counters.time_jumps == 1 and out == []
-    assert grid.add(1, T0 + 10 * DT, [0.0]) == []  # source 1 still at the old time: late
+    assert grid.add(0, back, [7.0]) == []  # held: one stamp alone is no new timeline yet
+    assert grid.counters.time_jumps == 0
+    assert grid.add(1, T0 + 10 * DT, [0.0]) == []  # source 1 has not looped yet: taken on the old grid
+    assert grid.add(1, back, [8.0]) == []  # source 1 looped too: the jump is confirmed
+    assert grid.counters.time_jumps == 1 and grid.counters.missing == 1  # slot 10, incomplete
+    assert grid.add(2, T0 + 10 * DT, [0.0]) == []  # source 2 still at the old time: late
     assert grid.counters.late == 1
-    out = grid.add(1, back, [8.0]) + grid.add(2, back, [9.0])
-    assert len(out) == 1 and out[0].restart and out[0].slot == 0
+    out = grid.add(2, back, [9.0])
+    assert len(out) == 1 and out[0].restart and out[0].time_jump and out[0].slot == 0
+    np.testing.assert_array_equal(out[0].u, [7.0])  # the first message after the loop is kept
     np.testing.assert_array_equal(out[0].y, [8.0, 9.0])
+    assert grid.counters.off_timeline == 0
 
 
 def test_flush_emits_complete_and_drops_incomplete_slots():
@@ -175,3 +180,172 @@ def test_source_specifications():
         parse_sources(["io_sample /a", "imu /b linear_acceleration.x=y0"], 2, 2)
     with pytest.raises(ValueError, match="u1"):
         parse_sources(["wrench /a force.x=u0", "imu /b linear_acceleration.x=y0"], 2, 1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The timeline: one IoSample or Imu message stamped 0, or 1e6 s ahead, in a steady stream used to
+# restart the grid as a looped bag does (both nodes then forgot their window and model), or to
+# strand the grid's newest stamp so that every later message looked like a jump back. Such a
+# stamp is now held: refused and counted ``off_timeline`` when the stream goes on where it was,
+# taken as a time jump or a forward gap when the next message confirms it.
+
+OUTLIERS = {"at_0": 0.0, "1e6_s_ahead": T0 + 1e6}
+
+
+def grid_of(n_sources: int) -> SampleGrid:
+    """One source (an IoSample topic) or two (u0 from one, y0 and y1 from the other); m = 1, p = 2."""
+    return SampleGrid(DT, 1, 2, [[0, 1, 2]] if n_sources == 1 else [[0], [1, 2]])
+
+
+def values(grid: SampleGrid, source: int, k: int) -> list[float]:
+    """Slot k's values of one source: u0 = k, y0 = 10 + k, y1 = 20 + k."""
+    whole = [float(k), 10.0 + k, 20.0 + k]
+    return whole if grid.n_sources == 1 else whole[:1] if source == 0 else whole[1:]
+
+
+def feed_slots(grid: SampleGrid, slots, *, t0: float = T0) -> list:
+    out = []
+    for k in slots:
+        for s in range(grid.n_sources):
+            out += grid.add(s, t0 + k * DT, values(grid, s, k))
+    return out
+
+
+def assert_steady(out: list, slots) -> None:
+    """The samples of a clean stream: every slot once, values as sent, no gap after the first."""
+    slots = list(slots)
+    assert [s.slot for s in out] == [k - slots[0] for k in slots]
+    assert not any(s.restart or s.time_jump or s.skipped for s in out[1:])
+    np.testing.assert_array_equal([s.u[0] for s in out], slots)
+    np.testing.assert_array_equal([s.y for s in out], [[10.0 + k, 20.0 + k] for k in slots])
+
+
+@pytest.mark.parametrize("stamp", OUTLIERS.values(), ids=OUTLIERS.keys())
+@pytest.mark.parametrize(("n_sources", "source", "after"), [(1, 0, 0), (2, 0, 0), (2, 0, 1), (2, 1, 0), (2, 1, 1)],
+                         ids=["one_source", "two_src0_mid_slot", "two_src0", "two_src1_mid_slot", "two_src1"])
+def test_a_lone_stamp_off_the_timeline_is_refused_and_the_stream_goes_on(stamp, n_sources, source, after):
+    """The stray message comes right after source ``after``'s message of slot 10."""
+    grid = grid_of(n_sources)
+    out = feed_slots(grid, range(10))
+    for s in range(n_sources):
+        out += grid.add(s, T0 + 10 * DT, values(grid, s, 10))
+        if s == after:
+            assert grid.add(source, stamp, np.full(len(values(grid, source, 0)), 99.0)) == []
+    out += feed_slots(grid, range(11, 20))
+    assert_steady(out, range(20))
+    c = grid.counters
+    assert (c.off_timeline, c.time_jumps, c.reanchors, c.missing, c.late) == (1, 0, 0, 0, 0)
+    assert c.rejections() == {"off_timeline": 1} and c.rejected_messages == 1
+    assert grid.source_counters(source).off_timeline == 1
+    assert sum(grid.source_counters(s).off_timeline for s in range(n_sources)) == 1
+
+
+@pytest.mark.parametrize("n_sources", [1, 2])
+def test_a_looped_bag_restarts_on_its_first_sample_one_message_later(n_sources):
+    grid = grid_of(n_sources)
+    feed_slots(grid, range(10))
+    back = T0 - 5.0
+    assert grid.add(0, back, values(grid, 0, 0)) == []  # held until the next message
+    assert grid.counters.time_jumps == 0
+    out = grid.add(n_sources - 1, back + (n_sources == 1) * DT, values(grid, n_sources - 1, n_sources == 1))
+    assert grid.counters.time_jumps == 1
+    out += feed_slots(grid, range(1 + (n_sources == 1), 8), t0=back)
+    assert out[0].restart and out[0].time_jump and out[0].stamp_s == back
+    assert_steady(out, range(8))  # the first message after the loop is kept
+    c = grid.counters
+    assert (c.off_timeline, c.missing, c.late) == (0, 0, 0)
+
+
+def test_sources_that_loop_one_after_another_restart_once():
+    """Source 1 sends once more on the old timeline after source 0 looped (two topics in flight)."""
+    grid = grid_of(2)
+    feed_slots(grid, range(10))
+    back = T0 - 5.0
+    assert grid.add(0, back, [0.0]) == []
+    assert grid.add(1, T0 + 10 * DT, [20.0, 30.0]) == []  # the old timeline, another source: taken
+    assert grid.add(0, back + DT, [1.0]) == []  # source 0 steps on: the jump is confirmed
+    assert grid.counters.time_jumps == 1 and grid.counters.missing == 1  # slot 10 lacks source 0
+    assert grid.add(1, T0 + 11 * DT, [21.0, 31.0]) == []  # source 1's last old message: late
+    out = grid.add(1, back, [10.0, 20.0]) + grid.add(1, back + DT, [11.0, 21.0])  # source 1 looped
+    out += feed_slots(grid, range(2, 8), t0=back)
+    assert out[0].restart and out[0].time_jump
+    assert_steady(out, range(8))  # both of source 0's first messages after the loop are kept
+    c = grid.counters
+    assert (c.time_jumps, c.late, c.off_timeline) == (1, 1, 0)
+
+
+@pytest.mark.parametrize("n_sources", [1, 2])
+def test_a_forward_gap_is_still_a_gap(n_sources):
+    grid = grid_of(n_sources)
+    out = feed_slots(grid, range(10))
+    gap = 6000  # 60 s: a clock set forward
+    out += feed_slots(grid, range(10 + gap, 20 + gap))
+    assert [s.slot for s in out] == [*range(10), *range(10 + gap, 20 + gap)]
+    assert out[10].skipped == gap and not out[10].restart and not out[10].time_jump
+    assert not any(s.skipped or s.restart for s in out[11:])
+    np.testing.assert_array_equal(out[10].u, [10.0 + gap])  # the first message after the step is kept
+    c = grid.counters
+    assert (c.missing, c.time_jumps, c.off_timeline, c.late) == (gap, 0, 0, 0)
+
+
+def test_after_a_forward_step_old_messages_of_the_other_source_are_late():
+    grid = grid_of(2)
+    feed_slots(grid, range(10))
+    ahead = T0 + 60.0
+    assert grid.add(0, ahead, [0.0]) == []
+    assert grid.add(1, T0 + 10 * DT, [0.0, 0.0]) == []  # source 1 not stepped yet: the old timeline
+    assert grid.add(0, ahead + DT, [1.0]) == []  # confirmed
+    assert grid.add(1, T0 + 11 * DT, [0.0, 0.0]) == []  # late, not a jump back
+    out = grid.add(1, ahead, [10.0, 20.0]) + grid.add(1, ahead + DT, [11.0, 21.0])
+    assert [s.u[0] for s in out] == [0.0, 1.0] and not any(s.restart for s in out)
+    c = grid.counters
+    assert (c.time_jumps, c.late, c.off_timeline) == (0, 1, 0)
+
+
+def test_a_candidate_followed_by_another_outlier_is_refused_and_so_is_that_one():
+    grid = grid_of(1)
+    out = feed_slots(grid, range(10))
+    assert grid.add(0, 0.0, [1.0, 2.0, 3.0]) == []
+    assert grid.add(0, T0 + 1e6, [1.0, 2.0, 3.0]) == []  # off both timelines: the new candidate
+    assert grid.counters.off_timeline == 1
+    out += feed_slots(grid, range(10, 20))
+    assert_steady(out, range(20))
+    assert (grid.counters.off_timeline, grid.counters.time_jumps) == (2, 0)
+
+
+def test_a_repeated_stray_stamp_is_no_timeline():
+    """The same corrupt stamp twice from one source: a duplicate, not the confirmation of a jump."""
+    grid = grid_of(1)
+    out = feed_slots(grid, range(10))
+    for _ in range(2):
+        assert grid.add(0, 0.0, [1.0, 2.0, 3.0]) == []
+    out += feed_slots(grid, range(10, 20))
+    assert_steady(out, range(20))
+    c = grid.counters
+    assert (c.off_timeline, c.duplicate, c.time_jumps) == (1, 1, 0)
+
+
+def test_a_candidate_whose_source_falls_silent_is_refused_once_the_old_timeline_moves_on():
+    grid = grid_of(2)
+    feed_slots(grid, range(10))
+    grid.add(1, 0.0, [1.0, 2.0])
+    for k in range(10, 10 + round(1.0 / DT)):
+        grid.add(0, T0 + k * DT, [float(k)])  # source 1 silent for 1 s: still held
+    assert grid.counters.off_timeline == 0
+    grid.add(0, T0 + (11 + round(1.0 / DT)) * DT, [0.0])  # more than time_jump_s on
+    assert (grid.counters.off_timeline, grid.counters.time_jumps) == (1, 0)
+
+
+def test_a_candidate_still_held_at_the_end_is_refused_by_flush_and_forgotten_by_reset():
+    grid = grid_of(1)
+    out = feed_slots(grid, range(10))
+    grid.add(0, 0.0, [1.0, 2.0, 3.0])
+    assert grid.flush() == [] and grid.counters.off_timeline == 1
+    assert_steady(out, range(10))
+    grid = grid_of(1)
+    feed_slots(grid, range(10))
+    grid.add(0, 0.0, [1.0, 2.0, 3.0])
+    grid.reset()
+    out = feed_slots(grid, range(10, 15))  # starts afresh where the stream is, the stray stamp forgotten
+    assert out[0].restart and not out[0].time_jump and grid.counters.off_timeline == 0
+    assert_steady(out, range(10, 15))
