@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     fits = prediction_fits(model, u_used, record.y)
     document = model.to_json_dict()
     document["uncertainty"] = {"computed": uncertainty.computed, "reason": uncertainty.reason or None,
-                               "method": _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])}
+                               "method": _uncertainty_method(model)}
     document["fit_one_step_pct"] = fits["one_step_pct"]
     document["fit_simulation_pct"] = fits["simulation_pct"]
     document["fit_burn_in_samples"] = fits["burn_in_samples"]
@@ -191,12 +191,20 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
         print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
 
 
+_JACKKNIFE = "delete-one jackknife over consecutive segments of the record"
 _UNCERTAINTY_METHODS = {
     "okid": "first-order propagation of the prediction-error covariance",
     "paper": "first-order propagation of the prediction-error covariance",
-    "ssi-cov": "delete-one jackknife over consecutive segments of the record",
+    "ssi-cov": _JACKKNIFE,
     "var": "spread of the mode's poles across model orders",
 }
+
+
+def _uncertainty_method(model) -> str:
+    """How the modes' standard deviations were computed (the JSON's ``uncertainty.method``)."""
+    if model.uncertainty.method == "jackknife":  # an okid model with too many outputs for the covariance
+        return _JACKKNIFE
+    return _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])
 
 
 def _identify(record, args: argparse.Namespace, output_only: bool):

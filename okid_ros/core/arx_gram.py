@@ -20,7 +20,7 @@ import numpy as np
 from okid_ros.core.least_squares import NormalEquations
 from okid_ros.core.regressors import valid_regressor_rows
 
-__all__ = ["arx_normal_equations", "arx_regressor_product", "lagged_gram"]
+__all__ = ["arx_normal_equations", "arx_regressor_product", "lagged_gram", "segment_lagged_grams"]
 
 #: Below this many rows per lag a run of samples is summed from its row matrix (the end
 #: corrections would be most of the work).
@@ -60,6 +60,29 @@ def lagged_gram(u: np.ndarray, y: np.ndarray, order: int, valid: np.ndarray | No
         gram += part_gram
         sums += part_sums
     return gram, sums, rows
+
+
+def segment_lagged_grams(u: np.ndarray, y: np.ndarray, order: int, bounds: np.ndarray,
+                         valid: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """:func:`lagged_gram` of the rows ``k`` in each segment ``bounds[j] <= k < bounds[j + 1]``.
+
+    The segments partition the rows of ``lagged_gram(u, y, order, valid)``: their Grams and sums
+    add up to it (each row's lagged samples are read whatever segment they fall in).
+
+    Returns
+    -------
+    One ``(gram, sums, n_rows)`` per segment.
+    """
+    n_samples = np.shape(y)[0]
+    present = np.ones(n_samples, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    parts = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        # Samples lo - q .. hi - 1: exactly the rows lo .. hi - 1 have their whole past in them.
+        inside = np.zeros(n_samples, dtype=bool)
+        inside[max(int(lo) - order, 0) : int(hi)] = True
+        gram, sums, rows = lagged_gram(u, y, order, present & inside)
+        parts.append((gram, sums, int(rows.size)))
+    return parts
 
 
 def arx_normal_equations(u: np.ndarray, y: np.ndarray, order: int, valid: np.ndarray | None = None

@@ -148,6 +148,9 @@ class RealizationOptions:
     max_radius : eigenvalues of ``A`` on or outside the unit circle are moved inside, to at
         most this modulus (unstable poles of a realization are not structural modes).
     ar_order : AR order of the whitening gain (None: the ARX order).
+    jackknife_segments : where the prediction-error covariance of the modes is out of reach (tens
+        of outputs), their standard deviations come from a jackknife over this many segments of
+        the window (:mod:`okid_ros.core.mode_jackknife`); 0: left NaN.
     modes : :class:`ModeCriteria`.
     """
 
@@ -163,6 +166,7 @@ class RealizationOptions:
     refined_orders: int = 3
     max_radius: float = 0.9999
     ar_order: int | None = None
+    jackknife_segments: int = 8
     modes: ModeCriteria = field(default_factory=ModeCriteria)
 
     def __post_init__(self) -> None:
@@ -180,6 +184,8 @@ class RealizationOptions:
             raise ValueError(f"max_radius must be in (0, 1), got {self.max_radius}")
         if self.state_passes < 0:
             raise ValueError(f"state_passes must be >= 0, got {self.state_passes}")
+        if self.jackknife_segments < 0 or self.jackknife_segments == 1:
+            raise ValueError(f"jackknife_segments must be 0 or at least 2, got {self.jackknife_segments}")
         if self.refined_orders < 1:
             raise ValueError(f"refined_orders must be >= 1, got {self.refined_orders}")
 

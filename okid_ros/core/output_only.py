@@ -297,13 +297,13 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
                 matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
     """The jackknife's standard deviations (kept: the clusters' spread without one)."""
     if jackknife is None:
-        model.uncertainty = UncertaintyResult(True, "", 0, 0)  # the clusters' spread across orders
+        model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
     by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
     f_std, z_std = _jackknife_std(jackknife, by_pole, poles, n_model, model.sample_time_s)
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
-    model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers))
+    model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,

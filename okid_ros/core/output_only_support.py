@@ -8,6 +8,7 @@ from scipy import linalg
 from okid_ros.core.channels import channel_std
 from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
+from okid_ros.core.mode_jackknife import jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
@@ -75,19 +76,6 @@ def output_only_diagram(poles: PoleSet) -> list[StabilizationOrder]:
     return diagram
 
 
-def _modes_of(A: np.ndarray, targets: np.ndarray, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Frequency (Hz) and damping of the pole of ``A`` nearest each target eigenvalue (log distance)."""
-    ev = linalg.eigvals(A)
-    ev = ev[ev.imag > 0]
-    if ev.size == 0:
-        return np.full(targets.size, np.nan), np.full(targets.size, np.nan)
-    s_all = np.log(ev) / sample_time_s
-    s_target = np.log(targets) / sample_time_s
-    nearest = np.argmin(np.abs(s_all[None, :] - s_target[:, None]), axis=1)
-    s = s_all[nearest]
-    return np.abs(s) / (2 * np.pi), -s.real / np.abs(s)
-
-
 class Jackknife:
     """Delete-one jackknife over the record's segments: the model realized with each segment left out.
 
@@ -119,11 +107,8 @@ class Jackknife:
         damps = np.empty((n_seg, targets.size))
         for j, realizer in enumerate(self.realizers):
             A = realizer.realize(min(n_model, realizer.max_states))[0]
-            freqs[j], damps[j] = _modes_of(A, targets, sample_time_s)
-        factor = (n_seg - 1) / n_seg
-        f_std = np.sqrt(factor * np.sum((freqs - freqs.mean(axis=0)) ** 2, axis=0))
-        z_std = np.sqrt(factor * np.sum((damps - damps.mean(axis=0)) ** 2, axis=0))
-        return f_std, z_std
+            freqs[j], damps[j] = nearest_modes(linalg.eigvals(A), targets, sample_time_s)
+        return jackknife_std(freqs), jackknife_std(damps)
 
 
 def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, r0: np.ndarray,

@@ -18,7 +18,8 @@ Two methods share the steps of the paper:
        (:mod:`.refine`); the chosen order's state sequence re-estimated (:mod:`.state_completion`).
     7. Modes in normalized modal form (:mod:`.modal`), physical only when stable across the
        neighbouring orders (:mod:`.stabilization`); the full-order predictor is kept; the
-       standard deviation of each mode's frequency and damping (:mod:`.uncertainty`).
+       standard deviation of each mode's frequency and damping (:mod:`.uncertainty`; with tens
+       of outputs :mod:`.mode_jackknife`).
     8. The model is checked (stable ``A``, stable predictor, finite) before it is returned.
 
 ``method="paper"`` (the paper as published)
@@ -49,6 +50,7 @@ from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
+from okid_ros.core.mode_jackknife import attach_jackknife_std
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
 from okid_ros.core.refine import refine_prediction_error, refinement_size
@@ -295,6 +297,9 @@ def identify_from_arx(
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
         warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y),
     )
+    if not identified.uncertainty.computed and identified.modes and options.jackknife_segments:
+        identified.uncertainty = attach_jackknife_std(
+            identified, arx, u, y, hankel_size=(hankel_rows, hankel_cols), options=options, valid=valid)
     return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 

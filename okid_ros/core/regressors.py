@@ -98,13 +98,11 @@ def valid_regressor_rows(n_samples: int, order: int, valid: np.ndarray | None = 
     if valid is None:
         return np.arange(order, n_samples)
     valid = np.asarray(valid, dtype=bool)
-    # Length of the run of consecutive valid samples that ends at each index.
-    run = np.zeros(n_samples, dtype=np.int64)
-    count = 0
-    for k, ok in enumerate(valid):
-        count = count + 1 if ok else 0
-        run[k] = count
-    return np.flatnonzero(run >= order + 1)
+    # Length of the run of consecutive valid samples that ends at each index: the distance to
+    # the last invalid sample at or before it.
+    index = np.arange(n_samples)
+    last_invalid = np.maximum.accumulate(np.where(valid, -1, index))
+    return np.flatnonzero(index - last_invalid >= order + 1)
 
 
 def regressor_at(u: np.ndarray, y: np.ndarray, k: int, order: int) -> np.ndarray:

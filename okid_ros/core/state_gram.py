@@ -139,6 +139,23 @@ class StateGram:
         self._top = n
         return self
 
+    def without(self, segment_gram: np.ndarray, segment_rows: int) -> "StateGram":
+        """The Gram of the window less some of its rows (a jackknife replicate, :mod:`.mode_jackknife`).
+
+        ``segment_gram`` is the unnormalized lagged Gram of those rows (:func:`.arx_gram.lagged_gram`
+        at ``n_cols``). The state pairs take the replicate's whole Gram: the one row the data pass
+        leaves out of them is not tracked here. :meth:`set_states` is needed again.
+        """
+        other = StateGram.__new__(StateGram)
+        other.m, other.p, other.n_cols = self.m, self.p, self.n_cols
+        other._u, other._y, other.rows = self._u, self._y, self.rows
+        other.n_samples = max(self.n_samples - int(segment_rows), 1)
+        other.gram = (self.gram * self.n_samples - segment_gram) / other.n_samples
+        other._pairs = max(other.n_samples - 1, 1)
+        other._pair_gram = other.gram
+        other._base = None
+        return other
+
     def past_weight(self) -> np.ndarray:
         """Lower Cholesky factor of the past data's covariance ``z^T z / M`` (the ERA weighting)."""
         w = self.p + self.m
@@ -158,7 +175,8 @@ class StateGram:
         cols[: d - w, m + top + p :] = transform
         self._transform = transform
         self._base = cols.T @ self.gram @ cols
-        self._pair_base = cols.T @ self._pair_gram @ cols
+        # A replicate's pairs share its Gram (:meth:`without`): one product serves both.
+        self._pair_base = self._base if self._pair_gram is self.gram else cols.T @ self._pair_gram @ cols
         self._top = top
 
     @property
@@ -179,8 +197,12 @@ class StateGram:
         m, p, top = self.m, self.p, self._top
         return (np.arange(m), m + np.arange(n), m + top + np.arange(p), m + top + p + np.arange(n))
 
-    def regress(self, n: int, *, max_radius: float = 0.9999, covariances: bool = False) -> GramRegression:
+    def regress(self, n: int, *, max_radius: float = 0.9999, covariances: bool = False,
+                stabilize: bool = True) -> GramRegression:
         """Steps 1-3 of :mod:`.state_completion` at order n (and ``Q``, ``S`` if asked).
+
+        ``stabilize=False``: ``A`` as regressed, with its eigenvalues but no eigenvectors (the
+        jackknife's replicates, :mod:`.mode_jackknife`, need only the poles near the modes).
 
         Raises
         ------
@@ -214,7 +236,10 @@ class StateGram:
         reg_gram = np.vstack([g_reg[:k1], v_coef[:k2].T @ g_reg[:k2]])  # reg^T g reg
         abl = _scaled_solve(reg_gram, g_reg[k2:].T)  # targets x_next
         A, B = abl[:n].T, abl[n:k1].T
-        A, n_moved, eigen = stabilize_with_eigen(A, max_radius=max_radius)
+        if stabilize:
+            A, n_moved, eigen = stabilize_with_eigen(A, max_radius=max_radius)
+        else:
+            n_moved, eigen = 0, (linalg.eigvals(A), None)
         if n_moved:
             # [u, v] on x_next - A x: the rows [x, u, y] of g times the target's coefficients.
             g_target = g[:k2, k2:] - g[:k2, :n] @ A.T

@@ -28,7 +28,8 @@ Cost: ``H`` and ``M`` take about ``2 N p P^2`` flops for ``P`` parameters
 information; the same when the Jacobian would exceed ``MAX_JACOBIAN_ENTRIES``), and when fewer
 than ``MIN_ROWS_PER_PARAMETER`` rows per parameter would remain
 (tens of outputs, where ``P`` is in the thousands) the standard deviations are left NaN
-(``null`` in JSON) with the reason returned.
+(``null`` in JSON) with the reason returned; the identification chain then measures them by a
+jackknife instead (:mod:`okid_ros.core.mode_jackknife`).
 """
 
 from __future__ import annotations
@@ -71,12 +72,15 @@ class UncertaintyResult:
     reason : why not (empty when computed).
     n_parameters : predictor parameters in the covariance (gauge-fixed).
     rows_used : residual rows (samples x outputs) in the information matrix.
+    method : how they were computed: "prediction-error covariance" (this module) or
+        "jackknife" (:mod:`okid_ros.core.mode_jackknife`, where this module's cost is out of reach).
     """
 
     computed: bool
     reason: str = ""
     n_parameters: int = 0
     rows_used: int = 0
+    method: str = "prediction-error covariance"
 
 
 def _split_poles(eigenvalues: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
