@@ -98,9 +98,6 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.bagio import prepare_output
 
     out = Path(args.json)
-    if not args.force:
-        for path in _outputs(args):
-            prepare_output(path, force=False, kind="output")  # refuse before the work, not after
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     record, gaps = longest_present_run(record, use_inputs=not output_only)
@@ -119,6 +116,9 @@ def run(args: argparse.Namespace) -> int:
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
+    if not args.force:  # after every option is checked (no empty figure folder is left), before the work
+        for path in _outputs(args):
+            prepare_output(path, force=False, kind="output")
     started = time.perf_counter()
     model = _identify(record, args, output_only)
     uncertainty = model.uncertainty
