@@ -268,6 +268,8 @@ class OkidNode(Node):
         try:
             work()
         except Exception as exc:  # never lose the side thread: report and go on
+            if not self.context.ok():
+                return  # stopping (Ctrl-C shuts the context down first): a publish fails, nothing to report
             self.get_logger().error(f"internal error off the sample path: {exc!r}")
 
     def _on_diagnostics_timer(self) -> None:

@@ -164,7 +164,7 @@ def arx_model_msg(snapshot: ArxSnapshot, types: MessageTypes, frame_id: str = ""
     if fit is not None:
         theta = _f64(fit.theta)
         rows, cols = fit.theta.shape
-        res_cov = _f64(fit.residual_covariance)
+        res_cov = _published_covariance(np.asarray(fit.residual_covariance, dtype=float))
         markov_params = markov_from_arx(fit) if markov else np.zeros((0, p, m))
     else:
         theta, rows, cols, res_cov, markov_params = _EMPTY, 0, 0, _EMPTY, np.zeros((0, p, m))
@@ -201,7 +201,8 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
 
     Raises
     ------
-    ValueError when the coefficient array does not match its declared shape, or the sample times differ.
+    ValueError when the coefficient array does not match its declared shape, the residual
+    covariance is not a finite symmetric positive semidefinite p x p matrix, or the sample times differ.
     """
     m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
     if sample_time_s is not None and not abs(float(msg.sample_time_s) - sample_time_s) <= 1e-9 * sample_time_s:
@@ -223,8 +224,7 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
             f"ArxModel coefficients are {rows} x {cols} ({theta.size} values); order {q} with "
             f"{m} inputs and {p} outputs needs {d} x {p}"
         )
-    cov = np.asarray(msg.residual_covariance, dtype=float)
-    cov = cov.reshape(p, p) if cov.size == p * p else np.eye(p)
+    cov = _residual_covariance_from_msg(msg.residual_covariance, p)
     cond = float(msg.condition_number)
     fit = ArxFit(
         theta=theta.reshape(d, p), order=q, n_inputs=m, n_outputs=p, residual_covariance=cov,
@@ -232,6 +232,45 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
         n_rows=int(msg.window_fill),
     )
     return fit, stamp_to_seconds(msg.header.stamp), int(msg.window_fill)
+
+
+def _residual_covariance_from_msg(values: Any, p: int) -> np.ndarray:
+    """The (p, p) residual covariance of an ArxModel; ValueError unless a covariance.
+
+    Unused by the realization today, but a message carrying NaN, a non-symmetric or an
+    indefinite matrix there is malformed like one with wrong coefficients (it used to be taken,
+    and a wrong size silently became the identity). Round-off is allowed: asymmetry and negative
+    eigenvalues up to 1e-9 of the largest magnitude (:func:`arx_model_msg` publishes none below 0).
+    """
+    cov = np.asarray(values, dtype=float)
+    if cov.size != p * p:
+        raise ValueError(f"ArxModel residual_covariance has {cov.size} values; {p} outputs need {p} x {p}")
+    cov = cov.reshape(p, p)
+    if cov.size == 0:
+        return cov  # no outputs: refused by the receiver for its sizes
+    if not np.isfinite(cov).all():
+        raise ValueError("ArxModel residual_covariance is not finite")
+    tol = 1e-9 * float(np.abs(cov).max())
+    if float(np.abs(cov - cov.T).max()) > tol:
+        raise ValueError("ArxModel residual_covariance is not symmetric")
+    lowest = float(np.linalg.eigvalsh(cov)[0])
+    if lowest < -tol:
+        raise ValueError(f"ArxModel residual_covariance is not positive semidefinite (eigenvalue {lowest:.3g})")
+    return cov
+
+
+def _published_covariance(cov: np.ndarray) -> np.ndarray:
+    """``cov`` with negative eigenvalues (round-off of a near-exact fit) raised to 0, flattened.
+
+    So that node 1 never publishes what :func:`arx_fit_from_msg` refuses.
+    """
+    if cov.size == 0 or not np.isfinite(cov).all():
+        return _f64(cov)
+    w, v = np.linalg.eigh(cov)
+    if w[0] < 0:
+        cov = (v * np.maximum(w, 0.0)) @ v.T
+        cov = 0.5 * (cov + cov.T)
+    return _f64(cov)
 
 
 # ---------------------------------------------------------------------------------- modes

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import sys
 import threading
 from collections import deque
@@ -119,7 +120,14 @@ class ModalEstimatorNode(OkidNode):
                 max_workers=1, mp_context=multiprocessing.get_context("spawn"),
                 initializer=_worker_init, initargs=("okid_realize", os.getpid()),
             )
-            self._pool.submit(_worker_warm_up)  # start it (and its imports) now, not at the first model
+            # Started now (and its imports), not at the first model, with Ctrl-C blocked (the mask is
+            # inherited): a terminal's Ctrl-C reaches the whole process group, and a worker still
+            # importing the core, before _worker_init ignores it, printed a traceback.
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                self._pool.submit(_worker_warm_up)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         else:
             self._pool = ThreadPoolExecutor(
                 max_workers=1, thread_name_prefix="realization", initializer=name_thread, initargs=("okid_realize",)
@@ -278,8 +286,14 @@ class ModalEstimatorNode(OkidNode):
 
     def close(self) -> None:
         pool = getattr(self, "_pool", None)  # None: never configured (lifecycle)
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        if pool is None:
+            return
+        if isinstance(pool, ProcessPoolExecutor):
+            # A realization under way is of no use any more: without this the process waited
+            # for it at exit (seconds), and a Ctrl-C meanwhile was ignored (nodes/runner.py).
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _worker_init(name: str, node_pid: int | None = None) -> None:
@@ -288,7 +302,6 @@ def _worker_init(name: str, node_pid: int | None = None) -> None:
     A name for top/ps, Ctrl-C left to the node, an end with the node's process, lower priority
     so that the per-sample paths win when the cores are busy.
     """
-    import signal
     import warnings
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import gc
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 
 import rclpy
@@ -46,6 +48,7 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
     node = None
     input_thread: InputThread | None = None
     try:
+        _interrupt_once()  # before rclpy.init, whose handler passes the signal on to this one
         rclpy.init(args=argv)
         if managed:
             node = managed_node_class(factory)()
@@ -84,6 +87,7 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
             raise input_thread.error from None  # the input thread failed: as if in a callback
         return 0  # Ctrl-C or SIGTERM, also while starting
     finally:
+        _ignore_interrupts()  # also after a SIGTERM or an error
         if input_thread is not None:
             input_thread.stop()
         if node is not None:
@@ -92,3 +96,29 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _interrupt_once() -> None:
+    """The first Ctrl-C stops the node (KeyboardInterrupt); a further one changes nothing, prints nothing.
+
+    A second Ctrl-C (a terminal's, or ``ros2 launch`` passing one on while it stops the nodes)
+    raised KeyboardInterrupt inside the shutdown, or in the interpreter's wait for the worker
+    threads at exit, and printed a traceback (the exit status 0, or -2 when it came late). Now
+    the stop finishes as after one Ctrl-C: the same status, the realization worker and the DDS
+    participant ended properly. It waits for nothing long (node 2 ends its realization worker
+    instead of waiting for it), and SIGTERM or SIGKILL still end a process that hangs.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers are the main thread's (a test running the node on a thread)
+
+    def first(signum, frame) -> None:
+        _ignore_interrupts()  # from the first moment on: a second one may follow within microseconds
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, first)
+
+
+def _ignore_interrupts() -> None:
+    """Ignore Ctrl-C from now on (the node is stopping)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

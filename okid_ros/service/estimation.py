@@ -79,7 +79,7 @@ from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
-from okid_ros.service.options import ModalEstimationParams, check_runtime_change
+from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     ActiveModel,
@@ -151,8 +151,10 @@ class ModalEstimationService:
 
         The next realization uses them (jobs carry their options), the mode registry, the
         divergence watchdog and the change test take theirs now. Raises ValueError if an
-        option that is not ``runtime`` in the parameter table changes (it sizes the buffer).
+        option that is not ``runtime`` in the parameter table changes (it sizes the buffer), or
+        if the options do not fit together (:meth:`ModalEstimationParams.realization_options`).
         """
+        params.realization_options()
         with self._lock:
             changed = check_runtime_change(self._params, params)
             self._params = params
@@ -223,9 +225,12 @@ class ModalEstimationService:
                 st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
                 return False
         rows = int(window_rows) if window_rows else int(fit.n_rows)
-        need = rows + fit.order
-        if prm.buffer_length <= 0 and self._buffer.cap < need * 1.1 + 64:
-            self._buffer.resize(int(need * 1.1) + 64)
+        if prm.buffer_length <= 0:  # the buffer follows the ARX window, within node 2's bounds
+            problem = self._buffer.grow_for(rows + fit.order, MAX_BUFFER_SAMPLES, "estimator.buffer_length")
+            if problem:
+                st.arx_refused += 1
+                st.last_reason = f"ARX model refused: {problem}"
+                return False
         with self._lock:
             if self._request is not None:
                 st.arx_replaced += 1

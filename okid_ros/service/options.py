@@ -30,11 +30,15 @@ from okid_ros.service.params import (
     runtime_fields,
 )
 
-__all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_change", "HANDOVER_SAMPLES"]
+__all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_change", "HANDOVER_SAMPLES",
+           "MAX_BUFFER_SAMPLES"]
 
 #: Samples :meth:`~okid_ros.service.estimation.ModalEstimationService.follow` leaves to the
 #: switch on the sample path (not a parameter).
 HANDOVER_SAMPLES = 4
+#: The most samples node 2 buffers, the limit of ``estimator.buffer_length``; with 0 (the
+#: buffer follows the ARX window an ArxModel claims) the buffer grows no further.
+MAX_BUFFER_SAMPLES = int(option_specs(ESTIMATOR_NODE)["buffer_length"].high)
 
 
 def _default(node: str, option: str) -> Any:
@@ -170,11 +174,24 @@ class ModalEstimationParams:
         return cls(**option_values(ESTIMATOR_NODE, values))
 
     def realization_options(self) -> RealizationOptions:
-        """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`)."""
+        """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`).
+
+        Raises ValueError with the reason, in the parameters' names, when they do not fit together.
+        """
+        if self.max_states_limit < self.max_states:
+            # Refused, not raised to max_states: the node ran with a limit other than the one
+            # it reported, and a run-time change that says it succeeded did nothing.
+            specs = option_specs(ESTIMATOR_NODE)
+            limit, start = specs["max_states_limit"].name, specs["max_states"].name
+            raise ValueError(
+                f"{limit} {self.max_states_limit} is below {start} {self.max_states}: the automatic order "
+                f"search starts at {start} and may only grow up to {limit}; set {limit} >= {start} (at run "
+                "time: one at a time in an order that keeps it so, or both with SetParametersAtomically)"
+            )
         return RealizationOptions(
             n_states=self.n_states if self.n_states > 0 else AUTO,
             max_states=self.max_states,
-            max_states_limit=max(self.max_states, self.max_states_limit),
+            max_states_limit=self.max_states_limit,
             gain=self.gain,
             refine=self.refine,
             modes=ModeCriteria(

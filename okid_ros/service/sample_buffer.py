@@ -11,11 +11,23 @@ change. Thread-safe: the per-sample path appends while a worker reads copies.
 from __future__ import annotations
 
 import math
+import os
 import threading
 
 import numpy as np
 
-__all__ = ["SampleBuffer"]
+__all__ = ["SampleBuffer", "MEMORY_SHARE", "physical_memory_bytes"]
+
+#: The largest share of this machine's memory a buffer sized from an ARX window may take.
+MEMORY_SHARE = 0.5
+
+
+def physical_memory_bytes() -> int:
+    """Memory of this machine [bytes] (0 when the system does not say)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
 
 
 class SampleBuffer:
@@ -48,6 +60,26 @@ class SampleBuffer:
             self._alloc(cap)
             new = np.arange(first, self.count) % cap
             self.stamps[new], self.u[new], self.y[new], self.skipped[new] = old
+
+    def grow_for(self, need: int, limit: int, limit_name: str) -> str:
+        """Grow to hold ``need`` samples with 10 % (and 64) to spare; why it may not, or "".
+
+        At most ``limit`` samples (``limit_name`` says whose limit that is) and at most
+        :data:`MEMORY_SHARE` of this machine's memory. The window comes from a message anyone on
+        the domain may publish, and numpy's zeroed arrays take memory only as samples fill them:
+        an absurd window raised no allocation error, it made a node whose memory grew for days.
+        """
+        if self.cap >= need * 1.1 + 64:
+            return ""
+        if need > limit:
+            return f"its window of {need} samples (rows + order) is more than the {limit} of {limit_name}"
+        cap = min(int(need * 1.1) + 64, limit)
+        size, memory = cap * 8 * (2 + self.m + self.p), physical_memory_bytes()
+        if memory and size > MEMORY_SHARE * memory:
+            return (f"buffering its window of {need} samples takes {size / 2**30:.3g} GiB, more than "
+                    f"{MEMORY_SHARE:.0%} of this machine's {memory / 2**30:.3g} GiB")
+        self.resize(cap)
+        return ""
 
     def append(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> int:
         with self.lock:

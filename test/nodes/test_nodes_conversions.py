@@ -6,6 +6,7 @@ imports no ROS package).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace as NS
 
 import numpy as np
@@ -96,6 +97,41 @@ def test_arx_model_round_trip(identified):
     msg.coefficients = msg.coefficients[:-1]
     with pytest.raises(ValueError, match="needs 82 x 2"):
         cv.arx_fit_from_msg(msg)
+
+
+@pytest.mark.parametrize("covariance, text", [
+    ([np.nan, 0.0, 0.0, 1.0], "not finite"),
+    ([np.inf, 0.0, 0.0, 1.0], "not finite"),
+    ([1.0, 0.5, 0.0, 1.0], "not symmetric"),
+    ([-1.0, 0.0, 0.0, -1.0], "not positive semidefinite"),
+    ([1.0, 2.0, 2.0, 1.0], "not positive semidefinite"),  # eigenvalues 3 and -1
+    ([1.0, 0.0, 0.0], "has 3 values; 2 outputs need 2 x 2"),  # was replaced by the identity
+    ([], "has 0 values"),
+])
+def test_an_arx_model_whose_residual_covariance_is_no_covariance_is_malformed(identified, covariance, text):
+    msg = cv.arx_model_msg(identified[0], TYPES)
+    msg.residual_covariance = np.array(covariance, dtype=float)
+    with pytest.raises(ValueError, match=f"ArxModel residual_covariance (is )?{text}"):
+        cv.arx_fit_from_msg(msg, msg.sample_time_s)
+
+
+def test_node_1_never_publishes_a_covariance_node_2_refuses(identified):
+    snap = identified[0]
+    # Round-off of a near-exact fit: an eigenvalue a hair below 0, published as 0.
+    exact = np.array([[1e-18, 2e-18], [2e-18, 3.9999e-18]])
+    msg = cv.arx_model_msg(replace(snap, fit=replace(snap.fit, residual_covariance=exact)), TYPES)
+    fit, _, _ = cv.arx_fit_from_msg(msg, msg.sample_time_s)
+    assert np.linalg.eigvalsh(fit.residual_covariance)[0] >= -1e-30
+    np.testing.assert_allclose(fit.residual_covariance, exact, atol=1e-21)
+    zero = cv.arx_model_msg(replace(snap, fit=replace(snap.fit, residual_covariance=np.zeros((2, 2)))), TYPES)
+    assert not cv.arx_fit_from_msg(zero, zero.sample_time_s)[0].residual_covariance.any()
+
+
+@pytest.mark.parametrize("u, y", [([1.0] * 5, [3.0, 4.0]), ([1.0], [3.0, 4.0]), ([1.0, 2.0], [3.0] * 3), ([], [])])
+def test_an_io_sample_of_the_wrong_sizes_gives_no_values(u, y):
+    # No values: the sample grid counts the message as wrong_size, before it anchors anything.
+    _, values = cv.source_values(stamped(2.0, u=u, y=y), parse_source("io_sample /io", 2, 2), 2, 2)
+    assert values.size == 0
 
 
 def test_state_space_and_modal_states_round_trip(identified):

@@ -142,10 +142,11 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
         with f.lock:
             n_models = len(f.models)
         sent = 0
+        sizes = (([1.0, 2.0, 3.0], [0.5]), ([1.0] * 5, [0.5, 0.5]), ([1.0], [0.5, 0.5]), ([1.0, 2.0], [0.5] * 3))
         for i in range(100):  # 2 s at 50 Hz
             msg = IoSample()
             msg.header.stamp.sec = int(f.last_stamp)
-            msg.u, msg.y = [1.0, 2.0, 3.0], [0.5]
+            msg.u, msg.y = sizes[i % len(sizes)]  # m = p = 2: more or fewer values than that
             wrong_size.publish(msg)
             sent += 1
             wrong_type.publish(Float64MultiArray(data=[1.0, 2.0, 3.0, 4.0]))
@@ -155,11 +156,13 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
                 arx.header.stamp.sec = int(f.last_stamp)
                 malformed.publish(arx)
             if i == 50:  # well formed but claiming 4e9 rows in its window: not a buffer of that size
-                arx = ArxModel(model_id=999, valid=True, sample_time_s=DT, order=20, n_inputs=2, n_outputs=2,
-                               coefficients_rows=82, coefficients_cols=2, coefficients=[0.0] * 164,
-                               window_length=4_000_000_000, window_fill=4_000_000_000)
-                arx.header.stamp.sec = int(f.last_stamp) - 1
-                malformed.publish(arx)
+                malformed.publish(well_formed_arx(999, f.last_stamp, window_length=4_000_000_000,
+                                                  window_fill=4_000_000_000))
+            if i in (60, 65, 70):  # a residual covariance that is none: NaN, not symmetric, negative
+                malformed.publish(well_formed_arx(900 + i, f.last_stamp, residual_covariance=BAD_COVARIANCES[i]))
+            if i == 75:  # 1e8 rows, node 1's limit: beyond what node 2 may buffer (it sized 1.1e8)
+                malformed.publish(well_formed_arx(998, f.last_stamp - 0.5, window_length=100_000_000,
+                                                  window_fill=100_000_000))  # another window end
             time.sleep(0.02)
         rate_during = f.states_rate_hz(1.0)
         after = {name: counters(f, name) for name in MODULES}
@@ -178,16 +181,36 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
                                  r"of another type .*/okid_fault_wrong_type \(std_msgs/msg/Float64MultiArray\)", 10)
             assert int(inputs["/okid/io_sample wrong_type_publishers"]) == 1, inputs
         malformed_count = int(est_after["arx_models_malformed"]) - int(est_before["arx_models_malformed"])
-        figures("bad publishers estimator", malformed_arx_sent=5, malformed_arx_counted=malformed_count,
+        figures("bad publishers estimator", malformed_arx_sent=8, malformed_arx_counted=malformed_count,
+                buffer_capacity=int(est_after["buffer_capacity"]),
                 states_hz_during=rate_during)
-        assert malformed_count >= 4, (est_before, est_after)
-        rig.nodes["okid_modal_estimator"].wait_for_output(r"ArxModel 999 ignored: .*window", 5)
-        rig.nodes["okid_modal_estimator"].wait_for_output(r"ArxModel 9\d\d ignored: ArxModel coefficients", 5)
+        assert malformed_count >= 7, (est_before, est_after)
+        estimator = rig.nodes["okid_modal_estimator"]
+        estimator.wait_for_output(r"ArxModel 999 ignored: .*window", 5)
+        estimator.wait_for_output(r"ArxModel 9\d\d ignored: ArxModel coefficients", 5)
+        for reason in ("is not finite", "is not symmetric", "is not positive semidefinite"):
+            estimator.wait_for_output(rf"ArxModel 9[67]\d ignored: ArxModel residual_covariance {reason}", 5)
+        # The 1e8-row window: refused by node 2's own limit, the buffer as it was (not 1.1e8 samples).
+        assert int(est_after["buffer_capacity"]) == int(est_before["buffer_capacity"]) < 100_000_000, est_after
+        assert int(est_after["arx_models_refused"]) > int(est_before["arx_models_refused"]), est_after
         assert rate_during == pytest.approx(RATE_HZ, rel=0.15), rate_during  # data flow continues
     finally:
         bad.close()
         for publisher in (wrong_size, malformed):
             f.node.destroy_publisher(publisher)
+
+
+BAD_COVARIANCES = {60: [float("nan"), 0.0, 0.0, 1.0], 65: [1.0, 0.5, 0.0, 1.0], 70: [-1.0, 0.0, 0.0, -1.0]}
+
+
+def well_formed_arx(model_id: int, last_stamp: float, **fields) -> ArxModel:
+    """An ArxModel of order 20 whose sizes fit node 2 (zero coefficients), ``fields`` changed."""
+    values = dict(model_id=model_id, valid=True, sample_time_s=DT, order=20, n_inputs=2, n_outputs=2,
+                  coefficients_rows=82, coefficients_cols=2, coefficients=[0.0] * 164, window_length=800,
+                  window_fill=800, residual_covariance=[1.0, 0.0, 0.0, 1.0])
+    arx = ArxModel(**{**values, **fields})
+    arx.header.stamp.sec, arx.header.stamp.nanosec = divmod(int(round((last_stamp - 1.0) * 1e9)), 1_000_000_000)
+    return arx
 
 
 def test_a_node_killed_and_restarted_while_data_flows(rig):

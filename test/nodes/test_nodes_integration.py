@@ -429,6 +429,8 @@ def test_imu_and_wrench_topics_converge_and_a_silent_topic_is_diagnosed(probe, r
      r"parameter tracking\.min_mac = 1\.5 is out of range; valid range \[0, 1\]"),
     ("okid_arx_identifier", "arx:\n      regularization: lasso",
      r"parameter arx\.regularization = 'lasso' is not valid; valid: one of none, ridge, tc"),
+    ("okid_modal_estimator", "realization:\n      max_states_limit: 10",  # the node ran, with the limit 40
+     r"error: realization\.max_states_limit 10 is below realization\.max_states 40"),
 ])
 def test_a_bad_parameter_is_refused_at_start(spawn_ros, tmp_path, node, text, message):
     bad = tmp_path / "bad.yaml"

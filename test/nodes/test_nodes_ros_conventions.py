@@ -16,7 +16,7 @@ import time
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
+from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters, SetParametersAtomically
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 from std_srvs.srv import Trigger
@@ -200,6 +200,18 @@ def test_tunables_change_at_run_time_with_the_start_checks_and_structure_stays(p
     assert get_param(probe, est, "tracking.min_mac").double_value == 0.8
     [bad] = set_params(probe, est, realization__gain=("string", "kalman"))
     assert not bad.successful and "refit, riccati, whitening" in bad.reason
+    # Options that do not fit together are refused with the reason, the old value kept (the
+    # limit of the order search was taken, and the node ran with it raised to max_states).
+    [bad] = set_params(probe, est, realization__max_states_limit=("integer", 10))
+    assert not bad.successful and "realization.max_states_limit 10 is below realization.max_states 40" in bad.reason
+    assert get_param(probe, est, "realization.max_states_limit").integer_value == 160
+    for start, limit in ((30, 30), (40, 160)):  # both at once: checked together
+        params = [Parameter(name="realization.max_states", value=value("integer", start)),
+                  Parameter(name="realization.max_states_limit", value=value("integer", limit))]
+        result = probe.call(SetParametersAtomically, f"{est}/set_parameters_atomically",
+                            SetParametersAtomically.Request(parameters=params)).result
+        assert result.successful, result.reason
+    assert get_param(probe, est, "realization.max_states_limit").integer_value == 160
     [bad] = set_params(probe, arx, arx__order=("integer", 50))
     assert not bad.successful and "read-only" in bad.reason
     assert get_param(probe, arx, "arx.order").integer_value == 10

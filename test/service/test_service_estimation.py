@@ -283,3 +283,32 @@ def test_a_window_with_too_many_lost_samples_is_refused_with_the_reason():
     diagnostics, found = _modes_with_sample_loss(0.3, 1, node_1_loses=False)  # node 1 would fit no window
     assert diagnostics["models_accepted"] == 0 and not found
     assert "are missing; at most 10% are filled" in diagnostics["last_reason"], diagnostics["last_reason"]
+
+
+def test_the_buffer_follows_the_arx_window_only_within_node_2s_bounds(pipeline, monkeypatch):
+    from okid_ros.service import sample_buffer
+    from okid_ros.service.params import ESTIMATOR_NODE, option_specs
+
+    limit = int(option_specs(ESTIMATOR_NODE)["buffer_length"].high)  # options.MAX_BUFFER_SAMPLES
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    capacity = est.diagnostics()["buffer_capacity"]
+    assert est.submit_arx(fit, 0.792, 1, 20_000)  # a larger window than the first buffer: it grows
+    assert est.diagnostics()["buffer_capacity"] == int(20_040 * 1.1) + 64 > capacity
+    # A window of 1e8 rows (node 1's limit) sized the buffer for 1.1e8 samples (5 GB reserved,
+    # filled over 10 days): now at most what estimator.buffer_length may be, or refused.
+    assert not est.submit_arx(fit, 0.8, 2, limit)
+    d = est.diagnostics()
+    assert d["buffer_capacity"] == int(20_040 * 1.1) + 64 and d["arx_models_refused"] == 1
+    assert f"more than the {limit} of estimator.buffer_length" in d["last_reason"]
+    # Within that limit but beyond what this machine's memory holds: refused, nothing allocated.
+    monkeypatch.setattr(sample_buffer, "physical_memory_bytes", lambda: 2**30, raising=False)
+    assert not est.submit_arx(fit, 0.808, 3, 50_000_000)
+    d = est.diagnostics()
+    assert d["buffer_capacity"] == int(20_040 * 1.1) + 64 and d["arx_models_refused"] == 2
+    assert "more than 50% of this machine's 1 GiB" in d["last_reason"]
+    # A buffer of fixed length (estimator.buffer_length > 0) never follows the window.
+    fixed = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6, buffer_length=1000))
+    assert fixed.submit_arx(fit, 0.8, 1, 20_000) and fixed.diagnostics()["buffer_capacity"] == 1000

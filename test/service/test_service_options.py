@@ -83,6 +83,16 @@ def test_a_structural_option_may_not_change_on_a_running_service():
     assert check_runtime_change(arx, dataclasses.replace(arx, publish_period_s=0.5)) == ["publish_period_s"]
 
 
+def test_a_limit_of_the_order_search_below_its_start_is_refused_with_both_names():
+    # It was raised to realization.max_states without a word: node 2 started, and took the value
+    # at run time, while it searched up to another limit than the one it reported.
+    values = resolve_parameters(ESTIMATOR_NODE, {"realization.max_states": 40, "realization.max_states_limit": 10})
+    with pytest.raises(ValueError, match=r"realization\.max_states_limit 10 is below realization\.max_states 40"):
+        ModalEstimationParams.from_parameters(values).realization_options()
+    equal = ModalEstimationParams(max_states=40, max_states_limit=40).realization_options()
+    assert (equal.max_states, equal.max_states_limit) == (40, 40)
+
+
 @pytest.mark.parametrize("values, text", [
     ({"arx.order": 5000}, "d = m + q (p + m) = 20002 coefficients; at most 2500"),
     ({"arx.order": 150, "arx.regularization": "none", "arx.window_length": 500},

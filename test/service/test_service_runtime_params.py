@@ -178,6 +178,17 @@ def test_an_option_that_sizes_the_buffer_is_refused_and_nothing_changes(running)
     assert running.est.params is params
 
 
+def test_a_limit_of_the_order_search_below_its_start_is_refused_and_nothing_changes(running):
+    params = running.est.params
+    with pytest.raises(ValueError, match=r"realization\.max_states_limit 10 is below realization\.max_states 40"):
+        running.change(max_states_limit=10)  # was taken, and realized with the limit raised to 40
+    with pytest.raises(ValueError, match="max_states_limit 160 is below realization.max_states 200"):
+        running.change(max_states=200)
+    assert running.est.params is params
+    running.change(max_states=200, max_states_limit=200)  # both at once: the order the limit allows
+    assert running.est.params.realization_options().max_states_limit == 200
+
+
 def test_node_1_takes_its_run_time_options_at_the_next_solve():
     pipe = Pipeline(n_samples=2000)
     for _ in range(1500):
