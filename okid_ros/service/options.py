@@ -145,6 +145,7 @@ class ModalEstimationParams:
     max_states_limit: int = _est("max_states_limit")
     gain: str = _est("gain")
     refine: bool = _est("refine")
+    jackknife_segments: int = _est("jackknife_segments")  # 0: off (the live realization's budget)
     output_only_method: str = _est("output_only_method")  # with n_inputs 0
     max_damping: float = _est("max_damping")
     min_msv: float = _est("min_msv")
@@ -194,6 +195,7 @@ class ModalEstimationParams:
             max_states_limit=self.max_states_limit,
             gain=self.gain,
             refine=self.refine,
+            jackknife_segments=self.jackknife_segments,
             modes=ModeCriteria(
                 max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
                 min_msv=self.min_msv, min_mpc=self.min_mpc, min_dominance=self.min_dominance,

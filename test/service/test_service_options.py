@@ -93,6 +93,17 @@ def test_a_limit_of_the_order_search_below_its_start_is_refused_with_both_names(
     assert (equal.max_states, equal.max_states_limit) == (40, 40)
 
 
+def test_the_jackknife_is_off_in_the_windowed_service_and_passed_on_when_asked():
+    # The live realization's budget (docs/benchmarks-uncertainty.md): identify's core default is 8.
+    assert ModalEstimationParams().realization_options().jackknife_segments == 0
+    assert RealizationOptions().jackknife_segments == 8
+    values = resolve_parameters(ESTIMATOR_NODE, {"realization.jackknife_segments": 8})
+    assert ModalEstimationParams.from_parameters(values).realization_options().jackknife_segments == 8
+    one = resolve_parameters(ESTIMATOR_NODE, {"realization.jackknife_segments": 1})
+    with pytest.raises(ValueError, match="jackknife_segments must be 0 or at least 2"):
+        ModalEstimationParams.from_parameters(one).realization_options()
+
+
 @pytest.mark.parametrize("values, text", [
     ({"arx.order": 5000}, "d = m + q (p + m) = 20002 coefficients; at most 2500"),
     ({"arx.order": 150, "arx.regularization": "none", "arx.window_length": 500},
