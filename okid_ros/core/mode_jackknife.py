@@ -234,9 +234,13 @@ def attach_jackknife_std(identified, arx: ArxFit, u: np.ndarray, y: np.ndarray, 
     modes keep NaN and the result gives both reasons.
     """
     targets = np.array([mode.eigenvalue for mode in identified.modes], dtype=complex)
-    f_std, z_std, reason = realization_jackknife(
-        arx, u, y, targets, identified.A.shape[0], identified.sample_time_s, hankel_rows=hankel_size[0],
-        hankel_cols=hankel_size[1], valid=valid, n_segments=options.jackknife_segments)
+    try:
+        f_std, z_std, reason = realization_jackknife(
+            arx, u, y, targets, identified.A.shape[0], identified.sample_time_s, hankel_rows=hankel_size[0],
+            hankel_cols=hankel_size[1], valid=valid, n_segments=options.jackknife_segments)
+    except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:  # never fails the identification
+        f_std = z_std = None
+        reason = f"not computed: {exc}"
     if reason:
         return UncertaintyResult(False, f"{identified.uncertainty.reason}; jackknife {reason}")
     for mode, fs, zs in zip(identified.modes, f_std, z_std):
