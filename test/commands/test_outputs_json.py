@@ -108,3 +108,21 @@ def test_identify_with_the_papers_method_writes_its_modes_and_their_standard_dev
     assert document["method"] == "paper" and document["uncertainty"]["computed"] is True
     assert len(document["modes"]) == 3
     assert all(mode["frequency_hz_std"] > 0 for mode in document["modes"])
+
+
+def test_identify_names_the_jackknife_when_it_gives_the_standard_deviations(tmp_path, capsys):
+    """16 outputs: beyond the covariance's budget, the modes' stds come from the jackknife."""
+    from okid_bench.cases import benchmark_case
+    from okid_ros.sim.simulators import simulate
+
+    case = benchmark_case("many-outputs")
+    u = case.make_input(3000, 0)
+    y = simulate(case.system, u, seed=1)
+    record, out = tmp_path / "many.npz", tmp_path / "many.json"
+    save_record(record, u, y, case.sample_time_s)
+    assert main(["identify", str(record), "--order", "20", "--json", str(out)]) == 0, capsys.readouterr().err
+    document = strict_loads(out.read_text())
+    assert document["uncertainty"] == {"computed": True, "reason": None,
+                                       "method": "delete-one jackknife over consecutive segments of the record"}
+    assert document["modes"] and all(mode["frequency_hz_std"] > 0 and mode["damping_ratio_std"] > 0
+                                     for mode in document["modes"])
