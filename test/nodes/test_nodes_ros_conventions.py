@@ -170,6 +170,8 @@ def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
                 assert 0.8 * n[ns] <= int(inputs[f"{ns}/io_sample messages"]) <= n[ns], (ns, node, inputs)
         assert probe.default_ns_messages == 0, "a rig published on /okid/arx_model"
     # Services moved with the namespace: resetting rig1's node 1 leaves rig2's alone.
+    with probe.lock:
+        rig2_window = probe.arx["/rig2"][-1].samples_used
     answer = probe.call(Trigger, "/rig1/okid_arx_identifier/reset", Trigger.Request())
     assert answer.success
     with probe.lock:
@@ -178,7 +180,9 @@ def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
                      lambda: len(probe.arx["/rig1"]) > n1 + 1 and len(probe.arx["/rig2"]) > n2 + 1, 10)
     with probe.lock:
         assert probe.arx["/rig1"][-1].samples_used == 0  # forgotten
-        assert probe.arx["/rig2"][-1].samples_used >= 0.9 * n["/rig2"]  # untouched
+        # Untouched: the window it had (what best-effort delivery left of its 1100 samples: 982
+        # in one loaded full run, below the 0.9 x 1100 this compared with once).
+        assert probe.arx["/rig2"][-1].samples_used >= rig2_window >= 0.8 * n["/rig2"]
 
 
 def set_params(probe: RigProbe, node: str, **values) -> list:
