@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
 from okid_ros.errors import DataError, write_atomically
 
@@ -125,6 +126,58 @@ def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Rec
     note = (f"{n - int(present.sum())} of the {n} samples hold NaN/Inf: identified on the longest run without "
             f"them, samples {lo} to {hi - 1} ({hi - lo} samples)")
     return Record(record.u[lo:hi], record.y[lo:hi], record.sample_time_s), note
+
+
+def bridged_bounds(present: np.ndarray) -> tuple[int, int]:
+    """Bounds ``lo, hi`` of the longest stretch of ``present`` (N,) whose missing samples can be filled.
+
+    A stretch ends at a run of more than :data:`~okid_ros.core.gap_fill.MAX_GAP_SAMPLES` missing
+    samples; one with more than :data:`~okid_ros.core.gap_fill.MAX_FILLED_FRACTION` of them
+    missing is not used. Where the longest run without a missing sample is as long, its bounds
+    (so ``present[lo:hi].all()``); ``(0, 0)`` where nothing is present.
+    """
+    starts, ends = present_runs(present)
+    if not starts.size:
+        return 0, 0
+    joined = np.flatnonzero(starts[1:] - ends[:-1] > MAX_GAP_SAMPLES) + 1  # the first run of each stretch
+    first, last = np.concatenate([[0], joined]), np.concatenate([joined, [starts.size]]) - 1
+    spans = ends[last] - starts[first]
+    spans[spans - np.add.reduceat(ends - starts, first) > MAX_FILLED_FRACTION * spans] = 0
+    best, run = int(np.argmax(spans)), int(np.argmax(ends - starts))
+    if spans[best] <= ends[run] - starts[run]:
+        return int(starts[run]), int(ends[run])
+    return int(starts[first[best]]), int(ends[last[best]])
+
+
+def bridged_run(record: Record) -> tuple[Record, np.ndarray | None, str]:
+    """The longest stretch whose missing samples (NaN/Inf) the identification can fill (:func:`bridged_bounds`).
+
+    The core's ``identify(valid=...)`` fills them by the ARX prediction, as node 2 fills its
+    window; a record whose longest run without them is as long gets :func:`longest_present_run`.
+
+    Returns
+    -------
+    record : the stretch (NaN/Inf kept at the missing samples); valid : (N,) bool, False at them,
+    or None when none is missing; note : a sentence on what was filled or left out ("" if nothing).
+
+    Raises
+    ------
+    DataError as :func:`longest_present_run`.
+    """
+    present = np.isfinite(record.y).all(axis=1) & np.isfinite(record.u).all(axis=1)
+    n = present.size
+    if present.all():
+        return record, None, ""
+    lo, hi = bridged_bounds(present)
+    if present[lo:hi].all():
+        run, note = longest_present_run(record)  # DataError where nothing is measured
+        return run, None, note
+    filled = int(hi - lo - present[lo:hi].sum())
+    where = "the whole record" if (lo, hi) == (0, n) else (
+        f"samples {lo} to {hi - 1} (the longest stretch without a gap of more than {MAX_GAP_SAMPLES} of them)")
+    note = (f"{n - int(present.sum())} of the {n} samples hold NaN/Inf: identified on {where}, its {filled} missing "
+            f"samples filled by the ARX prediction (as node 2 fills its window)")
+    return Record(record.u[lo:hi], record.y[lo:hi], record.sample_time_s), present[lo:hi].copy(), note
 
 
 def _sample_time(value: object) -> float:

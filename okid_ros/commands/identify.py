@@ -93,14 +93,22 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.jsonio import write_json
-    from okid_ros.records import longest_present_run
+    from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.bagio import prepare_output
 
     out = Path(args.json)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
-    record, gaps = longest_present_run(record, use_inputs=not output_only)
+    valid = None
+    if output_only or args.method == "paper":  # these need contiguous samples
+        record, gaps = longest_present_run(record, use_inputs=not output_only)
+    else:  # missing samples in short gaps are filled, as on node 2
+        record, valid, gaps = bridged_run(record)
+    measured = record
+    if valid is not None:  # the fits and figures need contiguous samples
+        measured = longest_present_run(record)[0]
+        gaps += f"; the fits and figures on its longest run without them ({measured.u.shape[0]} samples)"
     if gaps:
         print(f"okid-ros identify: warning: {gaps}", file=sys.stderr)
         source = f"{source}; {gaps}"
@@ -120,11 +128,11 @@ def run(args: argparse.Namespace) -> int:
         for path in _outputs(args):
             prepare_output(path, force=False, kind="output")
     started = time.perf_counter()
-    model = _identify(record, args, output_only)
+    model = _identify(record, args, output_only, valid)
     uncertainty = model.uncertainty
     elapsed = time.perf_counter() - started
-    u_used = record.u[:, :0] if output_only else record.u
-    fits = prediction_fits(model, u_used, record.y)
+    u_used = measured.u[:, :0] if output_only else measured.u
+    fits = prediction_fits(model, u_used, measured.y)
     document = model.to_json_dict()
     document["uncertainty"] = {"computed": uncertainty.computed, "reason": uncertainty.reason or None,
                                "method": _uncertainty_method(model)}
@@ -141,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
     print(_fit_line(fits, output_only=output_only))
-    _write_exports(args, model, record, reference=reference, pairs=pairs)
+    _write_exports(args, model, measured, reference=reference, pairs=pairs)
     return 0
 
 
@@ -207,8 +215,11 @@ def _uncertainty_method(model) -> str:
     return _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])
 
 
-def _identify(record, args: argparse.Namespace, output_only: bool):
-    """The model of the record: the chain of the core, or its outputs alone (:func:`_identify_output_only`)."""
+def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
+    """The model of the record: the chain of the core, or its outputs alone (:func:`_identify_output_only`).
+
+    ``valid``: False at the record's missing samples, which the core fills (None: none missing).
+    """
     from okid_ros.core.pipeline import IdentificationError, identify
     from okid_ros.errors import DataError
 
@@ -229,6 +240,7 @@ def _identify(record, args: argparse.Namespace, output_only: bool):
             max_states_limit=max(args.max_states, RealizationOptions.max_states_limit),
             refine=not args.no_refine,
             offsets=args.offsets,
+            valid=valid,
         )
     except IdentificationError as exc:
         raise DataError(str(exc)) from None

@@ -258,7 +258,7 @@ OUTPUT_ONLY_ORDER = 10
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
-    from okid_ros.core.pipeline import IdentificationError, choose_arx_order
+    from okid_ros.core.arx_order import choose_arx_order
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
 
@@ -270,7 +270,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         lo = _first_finite_run(u, y, window + 200)
         try:
             q, _ = choose_arx_order(u[lo : lo + window + 200], y[lo : lo + window + 200], options=options)
-        except IdentificationError as exc:
+        except ValueError as exc:
             raise DataError(str(exc)) from None
     else:
         q = args.order

@@ -1,4 +1,8 @@
-"""Choice of the ARX order by generalized cross-validation (split from :mod:`okid_ros.core.arx`)."""
+"""Choice of the ARX order by generalized cross-validation (split from :mod:`okid_ros.core.arx`).
+
+:func:`select_arx_order` scores candidate orders; :func:`arx_order_for_realization` (and
+:func:`choose_arx_order`) adds the floor the realization's Hankel matrix needs.
+"""
 
 from __future__ import annotations
 
@@ -14,9 +18,14 @@ from okid_ros.core.least_squares import (
     prior_precision,
     solve_normal_equations,
 )
+from okid_ros.core.options import ArxOrderOptions, RealizationOptions
 from okid_ros.core.regressors import check_io_arrays, regressor_length
 
-__all__ = ["ArxOrderChoice", "longest_arx_order", "select_arx_order"]
+__all__ = ["ArxOrderChoice", "arx_order_for_realization", "choose_arx_order", "longest_arx_order",
+           "select_arx_order"]
+
+#: A record too short for the whole state search still gets a search of at least one mode.
+MIN_SEARCH_STATES = 2
 
 
 @dataclass
@@ -54,6 +63,7 @@ def select_arx_order(
     min_rows_per_coefficient: float = 2.0,
     patience: int = 2,
     center: bool = False,
+    valid: np.ndarray | None = None,
 ) -> ArxOrderChoice:
     """Choose the ARX order by generalized cross-validation of the ridge fit.
 
@@ -70,6 +80,8 @@ def select_arx_order(
     candidates : ARX orders to try.
     min_order : smallest order allowed (e.g. what the realization's Hankel matrix needs).
     center : score the fits with an intercept (signals with offsets).
+    valid : (N,) bool, optional: False at missing samples (finite placeholders in ``u``, ``y``);
+        the regressor rows that reach one are left out (:func:`.arx_gram.arx_normal_equations`).
 
     Raises
     ------
@@ -83,7 +95,8 @@ def select_arx_order(
     scores: dict[int, float] = {}
     limited_by = ""
     best_q, best_score, since_best = 0, np.inf, 0
-    longest = longest_arx_order(u.shape[0], p, m, min_rows_per_coefficient=min_rows_per_coefficient)
+    n_present = u.shape[0] if valid is None else int(np.count_nonzero(valid))
+    longest = longest_arx_order(n_present, p, m, min_rows_per_coefficient=min_rows_per_coefficient)
     best_normal = None
     for q in tried:
         d = regressor_length(q, p, m)
@@ -93,7 +106,10 @@ def select_arx_order(
         if q > longest:
             limited_by = f"record length: ARX order {q} needs {int(min_rows_per_coefficient * d) + q} samples"
             break
-        uncentered = arx_normal_equations(u, y, q)
+        uncentered = arx_normal_equations(u, y, q, valid)
+        if uncentered.n_rows < min_rows_per_coefficient * d:  # the rows gaps leave (exact without gaps above)
+            limited_by = f"record length: ARX order {q} has {uncentered.n_rows} regressor rows between the gaps"
+            break
         normal = center_normal_equations(uncentered) if center else uncentered
         precision = prior_precision(q, p, m, channel_mean_square(normal, p, m, q), "ridge")
         _, _, dof, gcv = solve_normal_equations(normal, precision, "gcv")
@@ -110,3 +126,70 @@ def select_arx_order(
             f"no ARX order can be fitted to {u.shape[0]} samples with {m} inputs and {p} outputs ({limited_by})"
         )
     return ArxOrderChoice(best_q, scores, limited_by if best_q == max(scores) else "", best_normal)
+
+
+def choose_arx_order(
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    options: RealizationOptions | None = None,
+    arx_orders: ArxOrderOptions | None = None,
+    center: bool = True,
+) -> tuple[int, dict]:
+    """Step 2a: the ARX order by GCV, at least what the realization's Hankel matrix needs.
+
+    ``center``: the fits take the offsets as an intercept (as ``offsets="remove"`` does).
+
+    Returns
+    -------
+    order : the chosen q; scores : GCV score per row of each order tried.
+
+    Raises
+    ------
+    ValueError when no order fits the record.
+    """
+    choice, _ = arx_order_for_realization(u, y, options=options, arx_orders=arx_orders, center=center)
+    return choice.order, choice.scores
+
+
+def min_arx_order(states: int, n_outputs: int) -> int:
+    """The smallest ARX order whose Hankel matrix holds ``states`` (rows about half the lags)."""
+    return 2 * int(np.ceil(states / n_outputs)) + 1
+
+
+def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
+                              arx_orders: ArxOrderOptions | None, center: bool, valid: np.ndarray | None = None
+                              ) -> tuple[ArxOrderChoice, list[str]]:
+    """:func:`choose_arx_order` with the chosen order's normal equations (for its fit), and warnings.
+
+    With an automatic state order, a record too short for the order that the whole state search
+    needs falls back to the orders it can fit (down to one mode's worth): the search then stops
+    at that Hankel matrix's rank, and the warning says so. ``valid``: as :func:`select_arx_order`.
+    Raises ValueError when no order fits.
+    """
+    options = options or RealizationOptions()
+    arx_orders = arx_orders or ArxOrderOptions()
+    p = y.shape[1]
+    states = options.max_states if options.automatic_order else int(options.n_states)
+    min_order = min_arx_order(states, p)
+
+    def choose(floor: int, candidates: tuple[int, ...] = arx_orders.candidates) -> ArxOrderChoice:
+        return select_arx_order(
+            u, y, candidates=candidates, min_order=floor, max_coefficients=arx_orders.max_coefficients,
+            min_rows_per_coefficient=arx_orders.min_rows_per_coefficient, center=center, valid=valid,
+        )
+
+    try:
+        return choose(min_order), []
+    except ValueError:
+        n_present = u.shape[0] if valid is None else int(np.count_nonzero(valid))
+        longest = longest_arx_order(n_present, p, u.shape[1],
+                                    min_rows_per_coefficient=arx_orders.min_rows_per_coefficient)
+        if not options.automatic_order or longest < min_arx_order(MIN_SEARCH_STATES, p):
+            raise
+    choice = choose(longest, (longest,))
+    return choice, [
+        f"{n_present} samples are too few for the ARX order a search up to {states} states needs "
+        f"({min_order}): ARX order {choice.order}, the largest the record fits; the state search stops at "
+        f"its Hankel matrix's rank"
+    ]

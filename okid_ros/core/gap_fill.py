@@ -27,11 +27,16 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.regressors import regressor_at
 
-__all__ = ["MAX_FILLED_FRACTION", "RealizationWindow", "fill_short_gaps", "realization_window"]
+__all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
+           "mark_missing", "missing_problem", "realization_window"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
 MAX_FILLED_FRACTION = 0.1
+#: Longest run of missing samples bridged by prediction (node 2's ``estimator.max_gap_samples``
+#: default; a whole record in ``identify``): the prediction of a lightly damped structure stays
+#: close over a few samples, not over a decay time.
+MAX_GAP_SAMPLES = 10
 
 
 def fill_short_gaps(u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -142,3 +147,72 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
                          f"{max_gap} samples; the realization needs at least {minimum}")
     return RealizationWindow(u, y, valid, filled)
+
+
+def mark_missing(u: np.ndarray, y: np.ndarray, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A record whose missing samples (``valid`` False) hold 0 instead of whatever they held (NaN).
+
+    Parameters
+    ----------
+    u : (N, m) or (N,); y : (N, p) or (N,) the record; valid : (N,) bool, False at missing samples.
+
+    Returns
+    -------
+    u, y as float arrays with 0 at the missing samples; valid as a bool array, None when no
+    sample is missing.
+
+    Raises
+    ------
+    ValueError if ``valid`` is not one flag per sample.
+    """
+    u, y, valid = np.asarray(u, dtype=float), np.asarray(y, dtype=float), np.asarray(valid, dtype=bool)
+    lengths = {np.shape(a)[0] if np.ndim(a) else -1 for a in (u, y)}
+    if valid.ndim != 1 or lengths != {valid.size}:
+        raise ValueError(f"valid must hold one flag per sample: shape {valid.shape} for u{u.shape} and y{y.shape}")
+    if valid.all():
+        return u, y, None
+    return (np.where(valid.reshape((-1,) + (1,) * (u.ndim - 1)), u, 0.0),
+            np.where(valid.reshape((-1,) + (1,) * (y.ndim - 1)), y, 0.0), valid)
+
+
+def missing_problem(valid: np.ndarray, *, max_gap: int = MAX_GAP_SAMPLES) -> str:
+    """Why the missing samples of a record (``valid`` (N,) False) cannot be filled ("" if they can).
+
+    Filled: runs of at most ``max_gap`` missing samples, at most :data:`MAX_FILLED_FRACTION` of
+    the record, its first and last sample measured.
+    """
+    present = np.flatnonzero(valid)
+    if present.size < 2 or present[0] != 0 or present[-1] != valid.size - 1:
+        return "a record with missing samples must start and end with a measured one"
+    skipped = np.diff(present, prepend=0) - 1
+    if skipped.max() > max_gap:
+        return (f"{int(skipped.max())} samples are missing in a row before sample {int(present[np.argmax(skipped)])}; "
+                f"at most {max_gap} are filled by prediction: identify the part before or after that gap")
+    if valid.size - present.size > MAX_FILLED_FRACTION * valid.size:
+        return (f"{valid.size - present.size} of the {valid.size} samples are missing; at most "
+                f"{MAX_FILLED_FRACTION:.0%} are filled by prediction")
+    return ""
+
+
+def fill_missing(u: np.ndarray, y: np.ndarray, valid: np.ndarray, fit: ArxFit, *,
+                 max_gap: int = MAX_GAP_SAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`fill_short_gaps` for a whole record whose missing samples ``valid`` marks.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) the record (any values at the missing samples); valid : (N,) bool;
+    fit : its ARX fit (rows reaching a missing sample left out); max_gap : as :func:`missing_problem`.
+
+    Returns
+    -------
+    u, y : (N, m), (N, p) with the missing samples filled; valid : (N,) as given.
+
+    Raises
+    ------
+    ValueError with :func:`missing_problem`'s reason.
+    """
+    if problem := missing_problem(valid, max_gap=max_gap):
+        raise ValueError(problem)
+    present = np.flatnonzero(valid)
+    u_full, y_full, _ = fill_short_gaps(u[present], y[present], np.diff(present, prepend=0) - 1, fit)
+    return u_full, y_full, valid

@@ -35,18 +35,14 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import (
-    ArxFit,
-    ArxOrderChoice,
-    fit_from_normal_equations,
-    longest_arx_order,
-    select_arx_order,
-)
+from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
+from okid_ros.core.arx_order import arx_order_for_realization, choose_arx_order
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.excitation import unexplained_warnings
 from okid_ros.core.gain import gain_by_whitening
+from okid_ros.core.gap_fill import fill_missing, mark_missing, missing_problem
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
@@ -70,8 +66,6 @@ METHODS = ("okid", "paper")
 # took 3 minutes); the paper case needs 4e7 flops per iteration.
 MAX_REFINE_PARAMETERS = 400
 MAX_REFINE_FLOPS_PER_ITERATION = 2e9
-# A record too short for the whole state search still gets a search of at least one mode.
-MIN_SEARCH_STATES = 2
 # An offset this large against the channel's standard deviation is worth a warning.
 LARGE_OFFSET_FRACTION = 0.1
 
@@ -337,69 +331,6 @@ def _identify_paper(
     return identified
 
 
-def choose_arx_order(
-    u: np.ndarray,
-    y: np.ndarray,
-    *,
-    options: RealizationOptions | None = None,
-    arx_orders: ArxOrderOptions | None = None,
-    center: bool = True,
-) -> tuple[int, dict]:
-    """Step 2a: the ARX order by GCV, at least what the realization's Hankel matrix needs.
-
-    ``center``: the fits take the offsets as an intercept (as ``offsets="remove"`` does).
-
-    Returns
-    -------
-    order : the chosen q; scores : GCV score per row of each order tried.
-    """
-    choice, _ = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
-    return choice.order, choice.scores
-
-
-def _min_arx_order(states: int, n_outputs: int) -> int:
-    """The smallest ARX order whose Hankel matrix holds ``states`` (rows about half the lags)."""
-    return 2 * int(np.ceil(states / n_outputs)) + 1
-
-
-def _arx_order_choice(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
-                      arx_orders: ArxOrderOptions | None, center: bool) -> tuple[ArxOrderChoice, list[str]]:
-    """:func:`choose_arx_order` with the chosen order's normal equations (for its fit), and warnings.
-
-    With an automatic state order, a record too short for the order that the whole state search
-    needs falls back to the orders it can fit (down to one mode's worth): the search then stops
-    at that Hankel matrix's rank, and the warning says so.
-    """
-    options = options or RealizationOptions()
-    arx_orders = arx_orders or ArxOrderOptions()
-    p = y.shape[1]
-    states = options.max_states if options.automatic_order else int(options.n_states)
-    min_order = _min_arx_order(states, p)
-
-    def choose(floor: int, candidates: tuple[int, ...] = arx_orders.candidates) -> ArxOrderChoice:
-        return select_arx_order(
-            u, y, candidates=candidates, min_order=floor, max_coefficients=arx_orders.max_coefficients,
-            min_rows_per_coefficient=arx_orders.min_rows_per_coefficient, center=center,
-        )
-
-    try:
-        return choose(min_order), []
-    except ValueError as exc:
-        longest = longest_arx_order(u.shape[0], p, u.shape[1],
-                                    min_rows_per_coefficient=arx_orders.min_rows_per_coefficient)
-        if not options.automatic_order or longest < _min_arx_order(MIN_SEARCH_STATES, p):
-            raise IdentificationError(str(exc)) from None
-    try:
-        choice = choose(longest, (longest,))
-    except ValueError as exc:
-        raise IdentificationError(str(exc)) from None
-    return choice, [
-        f"{u.shape[0]} samples are too few for the ARX order a search up to {states} states needs "
-        f"({min_order}): ARX order {choice.order}, the largest the record fits; the state search stops at "
-        f"its Hankel matrix's rank"
-    ]
-
-
 def identify(
     u: np.ndarray,
     y: np.ndarray,
@@ -411,6 +342,7 @@ def identify(
     offsets: str = "remove",
     options: RealizationOptions | None = None,
     arx_orders: ArxOrderOptions | None = None,
+    valid: np.ndarray | None = None,
     **option_changes: Any,
 ) -> IdentifiedModel:
     """Identify an innovation-form model in modal form from one input/output record.
@@ -424,38 +356,36 @@ def identify(
     offsets : "remove" (the record's means, kept with the model; default) or "none".
     options : :class:`~okid_ros.core.options.RealizationOptions` of the realization.
     arx_orders : :class:`~okid_ros.core.options.ArxOrderOptions` of ``order="auto"``.
+    valid : (N,) bool, optional: False at missing samples (their values, NaN too, ignored), which the
+        ARX fit leaves out and the realization fills by its prediction as node 2 does
+        (:mod:`.gap_fill`: gaps of at most 10, a tenth of the record). Not for "paper".
     option_changes : individual realization options (``n_states=6``, ``refine=False``, ...).
 
     Raises
     ------
     IdentificationError with a one-line reason on bad data or options.
     """
-    if method not in METHODS:
-        raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
-    if problem := sample_time_problem(sample_time_s):
-        raise IdentificationError(problem)
-    try:
-        options = (options or RealizationOptions()).with_changes(**option_changes)
-        u, y = check_io_arrays(u, y)
-    except (TypeError, ValueError) as exc:
-        raise IdentificationError(str(exc)) from None
-    m, p = u.shape[1], y.shape[1]
-    if offsets not in OFFSETS:
-        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    options, u, y, valid = _checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
+                                           options=options or RealizationOptions(), changes=option_changes)
+    p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
-    frame = IdentificationFrame.of(u, y, refuse_unexcited=False)  # refused below, after the size checks
+    present = (u, y) if valid is None else (u[valid], y[valid])
+    frame = IdentificationFrame.of(*present, refuse_unexcited=False)  # refused below, after the size checks
     u, y = frame.enter(u, y)
     m = u.shape[1]
-    # The ARX fit takes the offsets as an intercept and identify_from_arx removes the record's
-    # means before the completion, exactly as the live window does: same samples, same model.
+    # An intercept in the ARX fit, as identify_from_arx removes the means: the live window's model.
     center = offsets == "remove"
     arx_scores: dict = {}
     normal = None
     order_warnings: list[str] = []
     if order == AUTO:
         # The order search's normal equations of the chosen order serve its fit (not formed twice).
-        choice, order_warnings = _arx_order_choice(u, y, options=options, arx_orders=arx_orders, center=center)
+        try:
+            choice, order_warnings = arx_order_for_realization(u, y, options=options, arx_orders=arx_orders,
+                                                               center=center, valid=valid)
+        except ValueError as exc:
+            raise IdentificationError(str(exc)) from None
         order, arx_scores, normal = choice.order, choice.scores, choice.normal
     order = int(order)
     _check_record_length(u.shape[0], order, p, m)
@@ -464,9 +394,11 @@ def identify(
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
     if normal is None:
-        normal = arx_normal_equations(u, y, order)
+        normal = arx_normal_equations(u, y, order, valid)
     try:
         arx = fit_from_normal_equations(normal, order, p, m, regularization, center=center)
+        if valid is not None:
+            u, y, valid = fill_missing(u, y, valid, arx)
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
     if method == "paper":
@@ -474,11 +406,38 @@ def identify(
         model = _identify_paper(arx, u, y, sample_time_s, options=options, u_offset=u_offset, y_offset=y_offset,
                                 warnings=warnings)
     else:
-        model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets)
+        model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets, valid=valid)
     model.arx_order_scores = arx_scores
     # frame.warnings: the dead inputs (identify_from_arx saw only the live ones)
     model.warnings += order_warnings + frame.warnings
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
+
+
+def _checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
+                    changes: dict) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`identify`'s arguments checked, or IdentificationError.
+
+    Returns ``options`` with the ``changes``, ``u`` and ``y`` as (N, m) and (N, p) float arrays
+    with 0 at the missing samples, and ``valid`` (None when no sample is missing).
+    """
+    if method not in METHODS:
+        raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
+    if problem := sample_time_problem(sample_time_s):
+        raise IdentificationError(problem)
+    try:
+        options = options.with_changes(**changes)
+        if valid is not None:
+            u, y, valid = mark_missing(u, y, valid)
+        u, y = check_io_arrays(u, y)
+    except (TypeError, ValueError) as exc:
+        raise IdentificationError(str(exc)) from None
+    if offsets not in OFFSETS:
+        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    if valid is not None and method == "paper":
+        raise IdentificationError("the paper's method needs contiguous samples: identify a run without missing ones")
+    if valid is not None and (problem := missing_problem(valid)):
+        raise IdentificationError(problem)
+    return options, u, y, valid
 
 
 def _check_record_length(n_samples: int, order: int, p: int, m: int) -> None:

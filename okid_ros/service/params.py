@@ -37,6 +37,7 @@ from okid_ros.core.change_detection import (
     DEFAULT_VARIANCE_RATIO,
     DivergenceMonitor,
 )
+from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.core.modal import match_modes
 from okid_ros.core.options import GAINS, OFFSETS, SAMPLE_TIME_RANGE_S, RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS
@@ -221,7 +222,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("tracking.max_consecutive_rejections", 3, "after this many models rejected in a row for lost modes the next stable one is accepted (0: never)", "models", 0, 1_000_000, field="max_consecutive_rejections", runtime=True),
     ParamSpec("tracking.mode_memory", 10, "model updates a mode that disappeared keeps its id for", "models", 0, 1_000_000, field="mode_memory", runtime=True),
     ParamSpec("estimator.buffer_length", 0, "samples kept for realization and warm start; 0: ARX window + order + 10 %", "samples", 0, 100_000_000, field="buffer_length", fixed=SIZES),
-    ParamSpec("estimator.max_gap_samples", 10, "missing samples the estimator bridges by prediction; a longer gap restarts it", "samples", 0, 1_000_000, field="max_gap_samples", runtime=True),
+    ParamSpec("estimator.max_gap_samples", MAX_GAP_SAMPLES, "missing samples the estimator bridges by prediction; a longer gap restarts it", "samples", 0, 1_000_000, field="max_gap_samples", runtime=True),
     ParamSpec("estimator.divergence_window_samples", _DIVERGENCE_WINDOW, "samples of the moving mean of the normalized innovation squared that detects divergence, and samples of divergence in a row that restart the estimator from the buffer", "samples", 1, 100_000, field="divergence_window_samples"),
     ParamSpec("estimator.divergence_nis_ratio", _DIVERGENCE_RATIO, "the estimator diverged when the moving mean of the normalized innovation squared exceeds this many times its expectation p (or an innovation is not finite); diverged samples are not published", "", 2.0, 1e12, field="divergence_nis_ratio", runtime=True),
     ParamSpec("change.enabled", True, "detect structural changes from the innovations of a reference model (CUSUM, see okid_ros/core/change_detection.py)", field="change_detection", runtime=True),

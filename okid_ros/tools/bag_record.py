@@ -6,7 +6,9 @@ load_node_parameters`, with ``--params``, ``--param`` and ``--source`` as for `p
 `identify`, `track` and `export` see the same samples as the live nodes and `process`.
 
 The batch methods need contiguous samples: the record is the longest run of samples without a
-dropped slot or a time jump; the samples left out are counted (:class:`BagRecord`).
+dropped slot or a time jump; the samples left out are counted (:class:`BagRecord`). For the
+commands that fill short gaps (`identify`, `track`) the dropped slots of short gaps are NaN rows
+instead, in the longest stretch :func:`okid_ros.records.bridged_run` takes.
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ from typing import Sequence
 
 import numpy as np
 
+from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.errors import DataError
-from okid_ros.records import Record, load_record
+from okid_ros.records import Record, bridged_bounds, load_record
 
 __all__ = ["BagRecord", "RECORD_SUFFIXES", "record_from_bag", "load_any_record"]
 
@@ -31,10 +34,11 @@ class BagRecord:
 
     Attributes
     ----------
-    record : u (N, m), y (N, p), sample_time_s.
-    stamp_s : (N,) the samples' stamps [s].
+    record : u (N, m), y (N, p), sample_time_s (NaN rows at dropped slots with ``missing_as_nan``).
+    stamp_s : (N,) the samples' stamps [s] (of the slots, for the dropped ones).
     samples_total : samples assembled from the whole bag.
-    runs : contiguous runs found (1 without gaps).
+    runs : contiguous runs found (1 without gaps; with ``missing_as_nan`` the stretches between time
+        jumps and gaps longer than ``MAX_GAP_SAMPLES``).
     messages : messages read on the source topics.
     rejected : messages the sample grid refused, by reason (only reasons that occurred).
     """
@@ -48,13 +52,21 @@ class BagRecord:
 
     @property
     def samples_left_out(self) -> int:
-        return self.samples_total - self.record.u.shape[0]
+        return self.samples_total - self.samples_used
+
+    @property
+    def samples_used(self) -> int:
+        """Samples of the bag in the record (its NaN rows are dropped slots, not samples)."""
+        return int(np.count_nonzero(np.isfinite(self.record.y).all(axis=1)))
 
     def summary(self) -> str:
-        n = self.record.u.shape[0]
+        n, rows = self.samples_used, self.record.u.shape[0]
         text = f"{n} samples of {self.record.sample_time_s:g} s"
+        if rows > n:
+            text += f" and {rows - n} dropped slots between them"
         if self.runs > 1:
-            text += f" (longest of {self.runs} contiguous runs; {self.samples_left_out} samples left out)"
+            kind = "stretches" if rows > n else "contiguous runs"
+            text += f" (longest of {self.runs} {kind}; {self.samples_left_out} samples left out)"
         return text
 
     def rejection_note(self) -> str:
@@ -73,8 +85,12 @@ class BagRecord:
         return note
 
 
-def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
+def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:
     """Assemble the samples of ``bag_path`` with the estimator node's sources and grid.
+
+    ``missing_as_nan``: the record is the stretch :func:`okid_ros.records.bridged_run` takes
+    between time jumps and gaps of more than ``MAX_GAP_SAMPLES`` dropped slots, with a NaN row
+    at each dropped slot; else the longest contiguous run.
 
     Raises
     ------
@@ -94,15 +110,46 @@ def record_from_bag(bag_path: str | Path, est_values: dict) -> BagRecord:
         samples += inputs.grid.flush()
     if not samples:
         raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}")
+    dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
+    if missing_as_nan:
+        record, stamps, runs = _longest_stretch(samples, dt)
+        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections())
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
-    record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]),
-                    float(est_values["sample_time_s"])).validate()
-    grid = inputs.grid.counters
+    record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
                      grid.rejections())
+
+
+def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:
+    """The stretch of ``samples`` that :func:`okid_ros.records.bridged_bounds` takes, NaN at dropped slots.
+
+    Stretches end at a time jump (or restart) and at more than ``MAX_GAP_SAMPLES`` dropped slots.
+    Returns the record, the slots' stamps and the number of stretches.
+    """
+    breaks = [0] + [k for k in range(1, len(samples))
+                    if samples[k].restart or samples[k].skipped > MAX_GAP_SAMPLES] + [len(samples)]
+    best = (0, 0, 0, 0)  # rows, stretch, lo, hi
+    for index, (lo, hi) in enumerate(zip(breaks[:-1], breaks[1:])):
+        rows = np.arange(hi - lo) + np.cumsum([0] + [s.skipped for s in samples[lo + 1 : hi]])
+        present = np.zeros(rows[-1] + 1, dtype=bool)
+        present[rows] = True
+        first, last = bridged_bounds(present)
+        if last - first > best[0]:
+            best = (last - first, index, first, last)
+    lo, hi = breaks[best[1]], breaks[best[1] + 1]
+    chosen = samples[lo:hi]
+    rows = np.arange(hi - lo) + np.cumsum([0] + [s.skipped for s in chosen[1:]])
+    u = np.full((rows[-1] + 1, chosen[0].u.size), np.nan)
+    y = np.full((rows[-1] + 1, chosen[0].y.size), np.nan)
+    u[rows], y[rows] = [s.u for s in chosen], [s.y for s in chosen]
+    stamps = chosen[0].stamp_s + dt * np.arange(rows[-1] + 1)  # the dropped slots' stamps on the grid
+    stamps[rows] = [s.stamp_s for s in chosen]
+    first, last = best[2], best[3]
+    record = Record(u[first:last], y[first:last], dt).validate(allow_nonfinite=True)
+    return record, stamps[first:last], len(breaks) - 1
 
 
 def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Sequence[str] = (),
@@ -121,6 +168,6 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     from okid_ros.tools.process import load_node_parameters
 
     est_values = load_node_parameters(params, overrides, sources)[1]
-    from_bag = record_from_bag(path, est_values)
+    from_bag = record_from_bag(path, est_values, missing_as_nan=allow_nonfinite)
     note = from_bag.rejection_note()
     return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

@@ -86,7 +86,7 @@ def test_hostile_npz_is_one_line_naming_the_file(tmp_path: Path, case: str,
         load_record(path)
     assert str(path) in str(raised.value) and HOSTILE_CASES[case] in str(raised.value)
     if case == "nan":
-        return  # identify takes the longest run without it (test_identify_uses_the_longest_run_without_nan)
+        return  # identify fills it (test_identify_fills_dropped_samples_where_the_method_allows)
     out = tmp_path / "model.json"
     assert cli.main(["identify", str(path), "--json", str(out)]) == 2
     err = capsys.readouterr().err
@@ -237,7 +237,8 @@ def test_warnings_are_one_line_naming_the_command(capsys: pytest.CaptureFixture[
     assert err.count("\n") == 1 and err.startswith("okid-ros track: warning: overflow")
 
 
-def test_identify_uses_the_longest_run_without_nan(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_identify_fills_dropped_samples_where_the_method_allows(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
     from okid_ros.sim.inputs import white_input
     from okid_ros.sim.paper_model import paper_model
     from okid_ros.sim.simulators import simulate_innovation
@@ -249,14 +250,39 @@ def test_identify_uses_the_longest_run_without_nan(tmp_path: Path, capsys: pytes
     save_record(tmp_path / "gaps.npz", u, y, 0.008)
     save_record(tmp_path / "run.npz", u[903:], y[903:], 0.008)
     common = ["--order", "20", "--states", "6"]
+    # The chain fills the 4 missing samples and identifies the whole record (as node 2 its window).
+    assert cli.main(["identify", str(tmp_path / "gaps.npz"), *common, "--json", str(tmp_path / "filled.json")]) == 0
+    assert ("warning: 4 of the 3000 samples hold NaN/Inf: identified on the whole record, its 4 missing samples "
+            "filled by the ARX prediction (as node 2 fills its window); the fits and figures on its longest run "
+            "without them (2097 samples)") in capsys.readouterr().err
+    filled = json.loads((tmp_path / "filled.json").read_text())
+    assert "filled by the ARX prediction" in filled["source"] and filled["n_states"] == 6
+    # Output-only identification needs contiguous samples: the longest run without them, as identify
+    # of that run; it ignores u, so u's NaN does not count.
     for name in ("gaps", "run"):
-        out = tmp_path / f"{name}.json"
-        assert cli.main(["identify", str(tmp_path / f"{name}.npz"), *common, "--json", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "warning: 4 of the 3000 samples hold NaN/Inf: identified on the longest run without them, samples 903 to " \
-           "2999 (2097 samples)" in err
-    gaps, run = (json.loads((tmp_path / f"{name}.json").read_text()) for name in ("gaps", "run"))
+        out = tmp_path / f"oo-{name}.json"
+        assert cli.main(["identify", str(tmp_path / f"{name}.npz"), "--output-only", "--json", str(out)]) == 0
+    assert ("3 of the 3000 samples hold NaN/Inf: identified on the longest run without them, samples 903 to 2999 "
+            "(2097 samples)") in capsys.readouterr().err
+    gaps, run = (json.loads((tmp_path / f"oo-{name}.json").read_text()) for name in ("gaps", "run"))
     assert gaps["modes"] == run["modes"] and "longest run without them" in gaps["source"]
-    # Output-only identification ignores u, so its NaN does not count.
-    assert cli.main(["identify", str(tmp_path / "gaps.npz"), "--output-only", "--json", str(tmp_path / "oo.json")]) == 0
-    assert "3 of the 3000 samples hold NaN/Inf" in capsys.readouterr().err
+
+
+def test_the_stretch_identify_fills_ends_at_a_long_gap() -> None:
+    from okid_ros.records import Record, bridged_run
+
+    u, y = np.ones((1000, 1)), np.arange(1000.0)[:, None]
+    y[[100, 101, 700]] = np.nan  # short gaps
+    y[300:320] = np.nan  # a long one: the stretch after it is the longest
+    stretch, valid, note = bridged_run(Record(u, y, 0.01))
+    assert stretch.y.shape[0] == 680 and stretch.y[0, 0] == 320 and valid.sum() == 679
+    assert note.startswith("23 of the 1000 samples hold NaN/Inf: identified on samples 320 to 999 (the longest "
+                           "stretch without a gap of more than 10 of them), its 1 missing samples filled")
+    y[320:1000:8] = np.nan  # now too much to fill there (1 in 8): the stretch before the long gap
+    stretch, valid, note = bridged_run(Record(u, y, 0.01))
+    assert stretch.y.shape[0] == 300 and valid.sum() == 298 and "identified on samples 0 to 299" in note
+    y[:300:5] = np.nan  # too much everywhere: the longest run without any missing sample
+    stretch, valid, note = bridged_run(Record(u, y, 0.01))
+    assert valid is None and stretch.y.shape[0] == 7 and "longest run without them, samples 321 to 327" in note
+    clean = Record(u, np.arange(1000.0)[:, None], 0.01)
+    assert bridged_run(clean) == (clean, None, "")

@@ -56,3 +56,33 @@ def test_a_window_without_gaps_comes_back_unchanged(record):
     assert valid.all()
     np.testing.assert_array_equal(u_full, u)
     np.testing.assert_array_equal(y_full, y)
+
+
+def test_fill_missing_fills_a_whole_record_as_fill_short_gaps_does(record):
+    from okid_ros.core.gap_fill import fill_missing, mark_missing
+
+    _, u, y, fit = record
+    y_lost = y.copy()
+    y_lost[[50, 51, 900]] = np.nan
+    u_marked, y_marked, valid = mark_missing(u, y_lost, np.isfinite(y_lost).all(axis=1))
+    assert np.all(np.isfinite(y_marked)) and valid.sum() == 2997
+    u_full, y_full, same = fill_missing(u_marked, y_marked, valid, fit)
+    keep = np.flatnonzero(valid)
+    expected = fill_short_gaps(u[keep], y[keep], np.diff(keep, prepend=0) - 1, fit)
+    np.testing.assert_array_equal(y_full, expected[1])
+    np.testing.assert_array_equal(same, valid)
+    assert mark_missing(u, y, np.ones(3000, dtype=bool))[2] is None  # nothing missing: no mask
+
+
+def test_fill_missing_refuses_a_long_gap_and_a_missing_end(record):
+    from okid_ros.core.gap_fill import MAX_GAP_SAMPLES, fill_missing
+
+    _, u, y, fit = record
+    valid = np.ones(3000, dtype=bool)
+    valid[1000 : 1001 + MAX_GAP_SAMPLES] = False
+    with pytest.raises(ValueError, match=f"{MAX_GAP_SAMPLES + 1} samples are missing in a row before sample 1011"):
+        fill_missing(u, y, valid, fit)
+    valid = np.ones(3000, dtype=bool)
+    valid[-1] = False
+    with pytest.raises(ValueError, match="start and end with a measured one"):
+        fill_missing(u, y, valid, fit)

@@ -300,3 +300,45 @@ def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s:
     for run in (lambda: identify(u, y, sample_time_s), lambda: identify_output_only(y, sample_time_s)):
         with pytest.raises(IdentificationError, match="between 1e-06 and 3600 s"):
             run()
+
+
+def test_a_record_with_dropped_samples_is_identified_whole_with_them_filled():
+    """1 % of the samples lost at random: the whole record, the lost samples filled.
+
+    The longest run without a loss is a few hundred samples; the ARX fit leaves out the rows that
+    reach a lost sample, the realization runs with them filled by the ARX prediction.
+    """
+    errors = []
+    for seed in range(3):
+        truth, u, y, u_val, y_val = _paper_record(3750, 15.0, seed)
+        lost = np.random.default_rng(seed).random(3750) < 0.01
+        lost[[0, -1]] = False
+        y_lost = y.copy()
+        y_lost[lost, seed % 2] = np.nan
+        model = identify(u, y_lost, DT, order=100, valid=~lost)
+        assert not model.stability_problem()
+        assert _ratio(model, truth, u_val, y_val) < 1.10
+        errors.append([100 * (_closest(model.modes, f).frequency_rad_s / f - 1) for f, _ in PAPER_MODES]
+                      + [100 * (_closest(model.modes, f).damping_ratio - z) for f, z in PAPER_MODES])
+    rms = np.sqrt(np.mean(np.square(errors), axis=0))
+    assert rms[0] < 0.5 and rms[1] < 1.2 and rms[2] < 0.3 and rms[3] < 1.0  # as the whole records
+    # Nothing missing: the same model as without the mask.
+    plain = identify(u, y, DT, order=100, n_states=6)
+    masked = identify(u, y, DT, order=100, n_states=6, valid=np.ones(3750, dtype=bool))
+    np.testing.assert_array_equal(masked.A, plain.A)
+
+
+def test_dropped_samples_beyond_what_can_be_filled_are_one_line_reasons():
+    _, u, y, _, _ = _paper_record(3000, 15.0, 0)
+    valid = np.ones(3000, dtype=bool)
+    valid[1000:1020] = False
+    with pytest.raises(IdentificationError, match="20 samples are missing in a row before sample 1020"):
+        identify(u, y, DT, order=40, valid=valid)
+    valid[1000:1020], valid[::5] = True, False
+    valid[[0, -1]] = True
+    with pytest.raises(IdentificationError, match="599 of the 3000 samples are missing; at most 10% are filled"):
+        identify(u, y, DT, order=40, valid=valid)
+    with pytest.raises(IdentificationError, match="the paper's method needs contiguous samples"):
+        identify(u, y, DT, order=40, method="paper", valid=valid)
+    with pytest.raises(IdentificationError, match="one flag per sample"):
+        identify(u, y, DT, order=40, valid=valid[:10])
