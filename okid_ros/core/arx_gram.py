@@ -20,7 +20,8 @@ import numpy as np
 from okid_ros.core.least_squares import NormalEquations
 from okid_ros.core.regressors import valid_regressor_rows
 
-__all__ = ["arx_normal_equations", "arx_regressor_product", "lagged_gram", "segment_lagged_grams"]
+__all__ = ["arx_normal_equations", "arx_regressor_product", "lagged_gram", "segment_lagged_gram",
+           "segment_lagged_grams"]
 
 #: Below this many rows per lag a run of samples is summed from its row matrix (the end
 #: corrections would be most of the work).
@@ -71,18 +72,30 @@ def segment_lagged_grams(u: np.ndarray, y: np.ndarray, order: int, bounds: np.nd
 
     Returns
     -------
-    One ``(gram, sums, n_rows)`` per segment.
+    One ``(gram, sums, n_rows)`` per segment (:func:`segment_lagged_gram`).
+    """
+    return [segment_lagged_gram(u, y, order, (lo, hi), valid) for lo, hi in zip(bounds[:-1], bounds[1:])]
+
+
+def segment_lagged_gram(u: np.ndarray, y: np.ndarray, order: int, segment: tuple[int, int],
+                        valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`lagged_gram` of the rows ``k`` with ``lo <= k < hi`` (``segment = (lo, hi)``).
+
+    One segment at a time: a caller that needs each segment's Gram once holds one of them,
+    not one per segment (tens of them of tens of megabytes at many outputs).
+
+    Returns
+    -------
+    gram, sums : as :func:`lagged_gram`; n_rows : the rows summed.
     """
     n_samples = np.shape(y)[0]
     present = np.ones(n_samples, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
-    parts = []
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
-        # Samples lo - q .. hi - 1: exactly the rows lo .. hi - 1 have their whole past in them.
-        inside = np.zeros(n_samples, dtype=bool)
-        inside[max(int(lo) - order, 0) : int(hi)] = True
-        gram, sums, rows = lagged_gram(u, y, order, present & inside)
-        parts.append((gram, sums, int(rows.size)))
-    return parts
+    lo, hi = int(segment[0]), int(segment[1])
+    # Samples lo - q .. hi - 1: exactly the rows lo .. hi - 1 have their whole past in them.
+    inside = np.zeros(n_samples, dtype=bool)
+    inside[max(lo - order, 0) : hi] = True
+    gram, sums, rows = lagged_gram(u, y, order, present & inside)
+    return gram, sums, int(rows.size)
 
 
 def arx_normal_equations(u: np.ndarray, y: np.ndarray, order: int, valid: np.ndarray | None = None

@@ -28,13 +28,13 @@ De Roeck (2008).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.arx_gram import segment_lagged_grams
+from okid_ros.core.arx_gram import lagged_gram, segment_lagged_gram
 from okid_ros.core.era import block_hankel, decompose_hankel
 from okid_ros.core.least_squares import (
     NormalEquations,
@@ -119,25 +119,43 @@ def _arx_replicates(arx: ArxFit, gram: np.ndarray, sums: np.ndarray, n_rows: int
     ``gram``, ``sums`` are the lagged Gram and sums of the ARX rows (:func:`.arx_gram.lagged_gram`
     at the ARX order, or more lags: the leading block is taken), ``parts`` the segments' own.
     """
-    q, p, m = arx.order, arx.n_outputs, arx.n_inputs
-    size = (q + 1) * (p + m)
-    gram, sums = gram[:size, :size], sums[:size]
-    whole = NormalEquations(gram[p:, p:], gram[p:, :p], gram[:p, :p], n_rows, sums[p:], sums[:p])
-    kind = "tc" if arx.regularization == "tc" and arx.decay else "ridge"
-    # The prior of the window's fit (fit_from_normal_equations: channel scales of the centered rows).
-    scales = channel_mean_square(center_normal_equations(whole), p, m, q)
-    precision = prior_precision(q, p, m, scales, kind, arx.decay or 0.95)
-    penalty = float(arx.penalty) if arx.regularization != "none" else 0.0
-    base = _arx_theta(whole, precision, penalty)
-    if not np.all(np.isfinite(base)):
-        return None
-    fits = []
-    for part_gram, part_sums, part_rows in parts:
-        kept = n_rows - part_rows
-        less = _less(whole, part_gram[:size, :size], part_sums[:size], part_rows, p)
-        theta = _arx_theta(less, precision, penalty * kept / n_rows)
-        fits.append(replace(arx, theta=arx.theta + (theta - base)))
-    return fits
+    window = _ArxWindow.of(arx, gram, sums, n_rows)
+    return None if window is None else [window.without(*part) for part in parts]
+
+
+@dataclass
+class _ArxWindow:
+    """The window's ARX fit as the replicates change it (:func:`_arx_replicates`)."""
+
+    arx: ArxFit
+    whole: NormalEquations
+    precision: np.ndarray
+    penalty: float
+    base: np.ndarray
+
+    @classmethod
+    def of(cls, arx: ArxFit, gram: np.ndarray, sums: np.ndarray, n_rows: int) -> "_ArxWindow | None":
+        """The window's normal equations, prior and fit (None when that fit is not finite)."""
+        q, p, m = arx.order, arx.n_outputs, arx.n_inputs
+        size = (q + 1) * (p + m)
+        gram, sums = gram[:size, :size], sums[:size]
+        whole = NormalEquations(gram[p:, p:], gram[p:, :p], gram[:p, :p], n_rows, sums[p:], sums[:p])
+        kind = "tc" if arx.regularization == "tc" and arx.decay else "ridge"
+        # The prior of the window's fit (fit_from_normal_equations: channel scales of the centered rows).
+        scales = channel_mean_square(center_normal_equations(whole), p, m, q)
+        precision = prior_precision(q, p, m, scales, kind, arx.decay or 0.95)
+        penalty = float(arx.penalty) if arx.regularization != "none" else 0.0
+        base = _arx_theta(whole, precision, penalty)
+        return cls(arx, whole, precision, penalty, base) if np.all(np.isfinite(base)) else None
+
+    def without(self, part_gram: np.ndarray, part_sums: np.ndarray, part_rows: int) -> ArxFit:
+        """The replicate without one segment (its lagged Gram, sums and row count)."""
+        arx = self.arx
+        size = self.whole.R.shape[0] + arx.n_outputs
+        kept = self.whole.n_rows - part_rows
+        less = _less(self.whole, part_gram[:size, :size], part_sums[:size], part_rows, arx.n_outputs)
+        theta = _arx_theta(less, self.precision, self.penalty * kept / self.whole.n_rows)
+        return replace(arx, theta=arx.theta + (theta - self.base))
 
 
 def _leading_subspace(h0: np.ndarray, weight: np.ndarray, start: np.ndarray, n_states: int
@@ -199,19 +217,22 @@ def realization_jackknife(
     rows = valid_regressor_rows(u.shape[0], lags, valid)
     if rows.size < 2 * MIN_SEGMENT_ROWS:
         return nan, nan, f"not computed: {rows.size} rows are too few for the jackknife"
-    parts = segment_lagged_grams(u, y, lags, _segment_bounds(rows, n_segments), valid)
-    gram, sums = sum(part[0] for part in parts), sum(part[1] for part in parts)
-    fits = _arx_replicates(arx, gram, sums, rows.size, parts)
-    if fits is None:
+    bounds = _segment_bounds(rows, n_segments)
+    window = _ArxWindow.of(arx, *lagged_gram(u, y, lags, valid)[:2], rows.size)
+    if window is None:
         return nan, nan, "not computed: the ARX normal equations of the window are singular"
     whole = StateGram(u, y, hankel_cols, valid)
     state_size = whole.gram.shape[0]
     spare = min(n_states + SPARE_COLUMNS, hankel_rows * arx.n_outputs)
     start = decompose_hankel(arx.observer_markov, hankel_rows, hankel_cols, whole.past_weight()).U[:, :spare]
-    freqs = np.empty((len(fits), nan.size))
-    damps = np.empty((len(fits), nan.size))
-    for j, (fit, (part_gram, _, part_rows)) in enumerate(zip(fits, parts)):
+    freqs = np.empty((bounds.size - 1, nan.size))
+    damps = np.empty((bounds.size - 1, nan.size))
+    for j in range(bounds.size - 1):
+        # Each segment's Gram when its replicate needs it: one at a time in memory, not S of them.
+        part_gram, part_sums, part_rows = segment_lagged_gram(u, y, lags, bounds[j : j + 2], valid)
+        fit = window.without(part_gram, part_sums, part_rows)
         replicate = whole.without(part_gram[:state_size, :state_size], part_rows)
+        del part_gram, part_sums
         try:
             h0 = block_hankel(fit.observer_markov, hankel_rows, hankel_cols)
             left, values = _leading_subspace(h0, replicate.past_weight(), start, n_states)
@@ -221,6 +242,9 @@ def realization_jackknife(
         except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
             return nan, nan, f"not computed: jackknife replicate {j} failed ({exc})"
         freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
+        if not (np.isfinite(freqs[j]).all() and np.isfinite(damps[j]).all()):
+            # No oscillating pole at all: a NaN here would make every mode's std NaN, "computed".
+            return nan, nan, f"not computed: jackknife replicate {j} has no complex pole near the modes"
     return jackknife_std(freqs), jackknife_std(damps), ""
 
 

@@ -212,8 +212,11 @@ class SlidingWindowArx:
         row[: self.n_outputs] = y
         row[self.n_outputs :] = u
         # One dot product catches NaN/Inf and huge values (NaN <= x is False); only then look
-        # closer. The slot is only taken (n advanced) once the sample is accepted.
-        if not row @ row <= MAX_SQUARED_NORM:
+        # closer. The slot is only taken (n advanced) once the sample is accepted. Beyond 1e154
+        # the square overflows to inf, which is the rejection itself, not a warning to print.
+        with np.errstate(over="ignore", invalid="ignore"):
+            square = row @ row
+        if not square <= MAX_SQUARED_NORM:
             count_rejection(row, st)
             self.mark_gap()
             return False

@@ -15,8 +15,9 @@ copy of the normal equations, so a caller with a sample stream to serve can spli
 
 :meth:`ArxIdentificationService.snapshot` does the three in a row.
 
-Sample policy (:meth:`ArxIdentificationService.push`): a sample with NaN/Inf or the wrong size is
-rejected and counted; its stamp is checked by the sample grid's rule
+Sample policy (:meth:`ArxIdentificationService.push`): a sample with NaN/Inf, the wrong size or
+a value beyond the window's bound (1e150, :mod:`okid_ros.core.window_samples`) is rejected and
+counted; its stamp is checked by the sample grid's rule
 (:class:`okid_ros.service.sample_grid.StampSequence`: it must advance by more than half a sample
 time over the previous accepted one, else duplicate or out of order: rejected and counted); a
 step of more than 1.5 sample times, or ``gap_before``, breaks the lag history so that no
@@ -199,6 +200,7 @@ class _Counters:
     rejected_wrong_size: int = 0
     rejected_duplicate: int = 0
     rejected_out_of_order: int = 0
+    rejected_magnitude: int = 0  # a value beyond the window's bound (core.window_samples.MAX_SAMPLE_MAGNITUDE)
     gaps: int = 0
     window_restarts: int = 0
     restarts_ignored: int = 0
@@ -207,7 +209,8 @@ class _Counters:
 
     @property
     def rejected(self) -> int:
-        return self.rejected_nonfinite + self.rejected_wrong_size + self.rejected_duplicate + self.rejected_out_of_order
+        return (self.rejected_nonfinite + self.rejected_wrong_size + self.rejected_duplicate
+                + self.rejected_out_of_order + self.rejected_magnitude)
 
 
 @dataclass
@@ -315,8 +318,10 @@ class ArxIdentificationService:
         if step is StampStep.GAP:
             self._est.mark_gap()
             c.gaps += 1
+        if not self._est.push(u, y):  # the window's bound on magnitudes (it breaks its lag history)
+            c.rejected_magnitude += 1
+            return False
         self._stamps.accept(stamp_s)
-        self._est.push(u, y)
         self._recent.append(stamp_s, u, y, int(c.gaps != gaps_before))
         c.samples_used += 1
         return True
@@ -441,6 +446,7 @@ class ArxIdentificationService:
             "rejected_wrong_size": c.rejected_wrong_size,
             "rejected_duplicate": c.rejected_duplicate,
             "rejected_out_of_order": c.rejected_out_of_order,
+            "rejected_magnitude": c.rejected_magnitude,
             "gaps": c.gaps,
             "window_restarts": c.window_restarts,
             "window_restarts_ignored": c.restarts_ignored,

@@ -189,19 +189,25 @@ class ModalEstimationParams:
                 f"search starts at {start} and may only grow up to {limit}; set {limit} >= {start} (at run "
                 "time: one at a time in an order that keeps it so, or both with SetParametersAtomically)"
             )
-        return RealizationOptions(
-            n_states=self.n_states if self.n_states > 0 else AUTO,
-            max_states=self.max_states,
-            max_states_limit=self.max_states_limit,
-            gain=self.gain,
-            refine=self.refine,
-            jackknife_segments=self.jackknife_segments,
-            modes=ModeCriteria(
-                max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
-                min_msv=self.min_msv, min_mpc=self.min_mpc, min_dominance=self.min_dominance,
-                min_stable_fraction=self.min_stable_fraction,
-            ),
-        )
+        try:
+            return RealizationOptions(
+                n_states=self.n_states if self.n_states > 0 else AUTO,
+                max_states=self.max_states,
+                max_states_limit=self.max_states_limit,
+                gain=self.gain,
+                refine=self.refine,
+                jackknife_segments=self.jackknife_segments,
+                modes=ModeCriteria(
+                    max_damping=self.max_damping, max_nyquist_fraction=self.max_nyquist_fraction,
+                    min_msv=self.min_msv, min_mpc=self.min_mpc, min_dominance=self.min_dominance,
+                    min_stable_fraction=self.min_stable_fraction,
+                ),
+            )
+        except ValueError as exc:
+            # The core's rules name its fields ("jackknife_segments must be 0 or at least 2"); the
+            # node's user sets parameters (realization.jackknife_segments 1 passed the table's range).
+            spec = option_specs(ESTIMATOR_NODE).get(str(exc).split(" ", 1)[0])
+            raise ValueError(f"parameter {spec.name}: {exc}" if spec else str(exc)) from None
 
 
 _NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}

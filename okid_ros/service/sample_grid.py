@@ -42,9 +42,10 @@ timeline
     restart the grid and the nodes, nor strand the timeline where every later message looks
     like a jump. Then:
 
-    - a stamp off the old timeline within ``time_jump_s`` of the candidate, from any source,
-      confirms it: the candidate is taken as the first message of the new timeline (a time jump
-      or a forward step, below), then the confirming one. The candidate's own source must step
+    - a stamp off the old timeline within ``time_jump_s`` of the candidate, from any source
+      (one still before the last jump or step too), confirms it: the candidate is taken as the
+      first message of the new timeline (a time jump or a forward step, below), then the
+      confirming one. The candidate's own source must step
       on from it (a repeat of its slot is a ``duplicate``, an earlier slot ``out_of_order``);
     - a stamp on the old timeline from the candidate's source, or one taking the old timeline
       more than ``time_jump_s`` on, rejects the candidate: counted ``off_timeline``. The other
@@ -322,10 +323,13 @@ class SampleGrid:
         """Place a message on the timeline; hold, confirm or reject one off it (module docstring)."""
         src = self._sources[source]
         side = self._side(stamp_s)
-        if src.before_jump and side == self._old_side:
-            self._count(src, "late")  # stamped before the jump or step the other sources made
-            return []
         cand = self._candidate
+        agrees = cand is not None and abs(stamp_s - cand.stamp_s) <= self.time_jump_s
+        if src.before_jump and side == self._old_side and not agrees:
+            # Stamped before the jump or step the other sources made. One that agrees with a held
+            # candidate confirms it instead (a source that stepped on alone and now comes back).
+            self._count(src, "late")
+            return []
         if side == 0:
             src.before_jump = False
             if cand is not None and (cand.source == source or stamp_s > cand.old_newest_s + self.time_jump_s):
@@ -333,7 +337,7 @@ class SampleGrid:
             # The timeline follows the stream also where the grid refuses it (off its phase).
             self._newest_stamp = max(self._newest_stamp, stamp_s)
             return self._place(src, stamp_s, vals)
-        if cand is not None and abs(stamp_s - cand.stamp_s) <= self.time_jump_s:
+        if agrees:
             if cand.source == source:
                 # A source confirms its own candidate only by stepping on from it: a repeat of
                 # one corrupt stamp is no timeline.

@@ -349,3 +349,26 @@ def test_a_candidate_still_held_at_the_end_is_refused_by_flush_and_forgotten_by_
     out = feed_slots(grid, range(10, 15))  # starts afresh where the stream is, the stray stamp forgotten
     assert out[0].restart and not out[0].time_jump and grid.counters.off_timeline == 0
     assert_steady(out, range(10, 15))
+
+
+def test_a_source_that_stepped_on_alone_and_comes_back_loses_no_sample_of_the_others():
+    """Source 0's clock 60 s ahead for two messages (a step it confirmed itself), then back.
+
+    Source 1 never moved: its message of the slot source 0 returns to agrees with source 0's
+    held candidate and confirms it (it was dropped as ``late``, before the step, and with it the
+    sample of that slot).
+    """
+    grid = grid_of(2)
+    out = feed_slots(grid, range(10))
+    ahead = T0 + 60.0
+    assert grid.add(0, ahead, [0.0]) == [] and grid.add(0, ahead + DT, [1.0]) == []  # confirmed
+    assert grid.add(0, T0 + 10 * DT, [10.0]) == []  # back: held as a candidate
+    out += grid.add(1, T0 + 10 * DT, [20.0, 30.0])  # confirms it, not late
+    out += feed_slots(grid, range(11, 20))
+    assert [s.u[0] for s in out] == list(range(20))
+    back = out[10]
+    assert back.restart and back.time_jump and back.stamp_s == T0 + 10 * DT
+    np.testing.assert_array_equal(back.y, [20.0, 30.0])
+    assert_steady(out[10:], range(10, 20))
+    c = grid.counters
+    assert (c.late, c.off_timeline, c.time_jumps) == (0, 0, 1)

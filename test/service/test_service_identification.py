@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -134,3 +135,25 @@ def test_a_structural_change_stamped_in_the_future_is_ignored(record):
     assert d["window_restarts"] == 0 and d["window_restarts_ignored"] == 1
     assert svc.restart_at(newest - 100 * dt) == 101  # a real change still restarts the window
     assert svc.restart_at(newest + 1.0) == 0  # within node 1's lag behind node 2: an empty window for now
+
+
+@pytest.mark.parametrize("value", [1e151, 1e300])
+def test_a_sample_beyond_the_window_bound_is_a_counted_rejection_without_warnings(record, value):
+    """As a NaN sample: refused, counted, a gap.
+
+    1e300 printed numpy's overflow warning into node 1's log, and both values counted as used
+    and were kept for a restart's replay.
+    """
+    dt, u, y = record
+    n, bad = 500, 100
+    with_nan, with_huge = make_service(dt), make_service(dt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for k in range(n):
+            y_nan, y_huge = (y[k], y[k]) if k != bad else ([math.nan, 0.0], [value, 0.0])
+            assert with_nan.push(k * dt, u[k], y_nan) == with_huge.push(k * dt, u[k], y_huge) == (k != bad)
+        d = with_huge.diagnostics()
+        snapshot = with_huge.snapshot()
+    assert d["rejected_magnitude"] == 1 and d["samples_rejected"] == 1 and d["samples_used"] == n - 1
+    assert d["gaps"] == with_nan.diagnostics()["gaps"] == 1
+    np.testing.assert_array_equal(snapshot.fit.theta, with_nan.snapshot().fit.theta)

@@ -104,6 +104,13 @@ def test_the_jackknife_is_off_in_the_windowed_service_and_passed_on_when_asked()
         ModalEstimationParams.from_parameters(one).realization_options()
 
 
+def test_a_core_rule_the_parameter_table_lets_through_names_the_parameter():
+    """``process --param realization.jackknife_segments=1`` said only "jackknife_segments must be ..."."""
+    one = resolve_parameters(ESTIMATOR_NODE, {"realization.jackknife_segments": 1})
+    with pytest.raises(ValueError, match=r"^parameter realization\.jackknife_segments: .* 0 or at least 2, got 1"):
+        ModalEstimationParams.from_parameters(one).realization_options()
+
+
 @pytest.mark.parametrize("values, text", [
     ({"arx.order": 5000}, "d = m + q (p + m) = 20002 coefficients; at most 2500"),
     ({"arx.order": 150, "arx.regularization": "none", "arx.window_length": 500},
