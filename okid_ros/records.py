@@ -149,11 +149,12 @@ def bridged_bounds(present: np.ndarray) -> tuple[int, int]:
     return int(starts[first[best]]), int(ends[last[best]])
 
 
-def bridged_run(record: Record) -> tuple[Record, np.ndarray | None, str]:
+def bridged_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, np.ndarray | None, str]:
     """The longest stretch whose missing samples (NaN/Inf) the identification can fill (:func:`bridged_bounds`).
 
     The core's ``identify(valid=...)`` fills them by the ARX prediction, as node 2 fills its
     window; a record whose longest run without them is as long gets :func:`longest_present_run`.
+    ``use_inputs`` False: only ``y`` counts (output-only identification ignores ``u``).
 
     Returns
     -------
@@ -164,13 +165,15 @@ def bridged_run(record: Record) -> tuple[Record, np.ndarray | None, str]:
     ------
     DataError as :func:`longest_present_run`.
     """
-    present = np.isfinite(record.y).all(axis=1) & np.isfinite(record.u).all(axis=1)
+    present = np.isfinite(record.y).all(axis=1)
+    if use_inputs:
+        present &= np.isfinite(record.u).all(axis=1)
     n = present.size
     if present.all():
         return record, None, ""
     lo, hi = bridged_bounds(present)
     if present[lo:hi].all():
-        run, note = longest_present_run(record)  # DataError where nothing is measured
+        run, note = longest_present_run(record, use_inputs=use_inputs)  # DataError where nothing is measured
         return run, None, note
     filled = int(hi - lo - present[lo:hi].sum())
     where = "the whole record" if (lo, hi) == (0, n) else (

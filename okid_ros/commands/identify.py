@@ -101,13 +101,13 @@ def run(args: argparse.Namespace) -> int:
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     valid = None
-    if output_only or args.method == "paper":  # these need contiguous samples
-        record, gaps = longest_present_run(record, use_inputs=not output_only)
+    if args.method == "paper" and not output_only:  # the paper's method needs contiguous samples
+        record, gaps = longest_present_run(record)
     else:  # missing samples in short gaps are filled, as on node 2
-        record, valid, gaps = bridged_run(record)
+        record, valid, gaps = bridged_run(record, use_inputs=not output_only)
     measured = record
     if valid is not None:  # the fits and figures need contiguous samples
-        measured = longest_present_run(record)[0]
+        measured = longest_present_run(record, use_inputs=not output_only)[0]
         gaps += f"; the fits and figures on its longest run without them ({measured.u.shape[0]} samples)"
     if gaps:
         print(f"okid-ros identify: warning: {gaps}", file=sys.stderr)
@@ -225,7 +225,7 @@ def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
 
     try:
         if output_only:
-            return _identify_output_only(record, args)
+            return _identify_output_only(record, args, valid)
         return identify(
             record.u,
             record.y,
@@ -246,15 +246,22 @@ def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
         raise DataError(str(exc)) from None
 
 
-def _identify_output_only(record, args: argparse.Namespace):
+def _identify_output_only(record, args: argparse.Namespace, valid=None):
     """The output-only identification of ``record.y`` (its ``u``, if any, ignored).
 
     Covariance-driven SSI: the paper's VAR route (``method="var"`` of the core) lost on every
-    record of ``docs/benchmarks-output-only.md``, so it is not offered here.
+    record of ``docs/benchmarks-output-only.md``, so it is not offered here. ``valid``: False at
+    missing samples, filled first by a VAR's prediction as node 2 fills its window.
     """
+    from okid_ros.core.gap_fill import fill_missing_outputs
     from okid_ros.core.output_only import identify_output_only
+    from okid_ros.errors import DataError
 
-    return identify_output_only(record.y, record.sample_time_s, offsets=args.offsets)
+    try:
+        y = record.y if valid is None else fill_missing_outputs(record.y, valid)
+    except ValueError as exc:
+        raise DataError(f"the missing samples cannot be filled: {exc}") from None
+    return identify_output_only(y, record.sample_time_s, offsets=args.offsets)
 
 
 def _fit_line(fits: dict, *, output_only: bool) -> str:

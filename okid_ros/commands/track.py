@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 
 from okid_ros.commands._args import add_bag_arguments, penalty_or_gcv, positive_int, states_or_auto
+from okid_ros.core.gap_fill import OUTPUT_ONLY_VAR_ORDER
 from okid_ros.core.options import GAINS, RealizationOptions
 
 
@@ -251,9 +252,9 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     return out, (u, y, record.sample_time_s)
 
 
-#: The VAR order of an output-only window (``--order auto`` with no input): the VAR only frames
-#: the window (its model comes from the outputs, service/realization.identify_window), so small.
-OUTPUT_ONLY_ORDER = 10
+#: The VAR order of an output-only window (``--order auto`` with no input; the core's, which also
+#: fills an output-only record's gaps for ``identify``).
+OUTPUT_ONLY_ORDER = OUTPUT_ONLY_VAR_ORDER
 
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:

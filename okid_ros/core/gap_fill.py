@@ -24,11 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from okid_ros.core.arx import ArxFit
+from okid_ros.core.arx import ArxFit, fit_from_normal_equations
+from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.regressors import regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
-           "mark_missing", "missing_problem", "realization_window"]
+           "fill_missing_outputs", "mark_missing", "missing_problem", "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
@@ -37,6 +38,10 @@ MAX_FILLED_FRACTION = 0.1
 #: default; a whole record in ``identify``): the prediction of a lightly damped structure stays
 #: close over a few samples, not over a decay time.
 MAX_GAP_SAMPLES = 10
+#: Order of the vector autoregression that frames an output-only window (``track --order auto``
+#: without an input) and fills an output-only record's gaps: its model comes from the output
+#: correlations, the VAR only predicts a sample or a few, so it stays small.
+OUTPUT_ONLY_VAR_ORDER = 10
 
 
 def fill_short_gaps(u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -216,3 +221,31 @@ def fill_missing(u: np.ndarray, y: np.ndarray, valid: np.ndarray, fit: ArxFit, *
     present = np.flatnonzero(valid)
     u_full, y_full, _ = fill_short_gaps(u[present], y[present], np.diff(present, prepend=0) - 1, fit)
     return u_full, y_full, valid
+
+
+def fill_missing_outputs(y: np.ndarray, valid: np.ndarray, *, order: int = OUTPUT_ONLY_VAR_ORDER) -> np.ndarray:
+    """An output-only record with its missing samples filled, as node 2 fills its window.
+
+    The prediction of a vector autoregression of ``order`` (ridge, with an intercept) fitted on
+    the record's rows that reach no missing sample (:func:`fill_missing`).
+
+    Parameters
+    ----------
+    y : (N, p) outputs (any values at the missing samples); valid : (N,) bool, False at them.
+
+    Returns
+    -------
+    (N, p) outputs with the missing samples filled.
+
+    Raises
+    ------
+    ValueError as :func:`missing_problem`, or when too few rows remain for the VAR.
+    """
+    u, y, valid = mark_missing(np.zeros((np.shape(y)[0], 0)), y, valid)
+    if valid is None:
+        return y
+    if problem := missing_problem(valid):
+        raise ValueError(problem)
+    p = y.shape[1]
+    fit = fit_from_normal_equations(arx_normal_equations(u, y, order, valid), order, p, 0, center=True)
+    return fill_missing(u, y, valid, fit)[1]

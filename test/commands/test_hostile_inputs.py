@@ -257,15 +257,20 @@ def test_identify_fills_dropped_samples_where_the_method_allows(tmp_path: Path,
             "without them (2097 samples)") in capsys.readouterr().err
     filled = json.loads((tmp_path / "filled.json").read_text())
     assert "filled by the ARX prediction" in filled["source"] and filled["n_states"] == 6
-    # Output-only identification needs contiguous samples: the longest run without them, as identify
-    # of that run; it ignores u, so u's NaN does not count.
+    # The paper's method needs contiguous samples: the longest run without them, as identify of that run.
     for name in ("gaps", "run"):
-        out = tmp_path / f"oo-{name}.json"
-        assert cli.main(["identify", str(tmp_path / f"{name}.npz"), "--output-only", "--json", str(out)]) == 0
-    assert ("3 of the 3000 samples hold NaN/Inf: identified on the longest run without them, samples 903 to 2999 "
+        out = tmp_path / f"paper-{name}.json"
+        assert cli.main(["identify", str(tmp_path / f"{name}.npz"), "--order", "40", "--states", "6",
+                         "--method", "paper", "--json", str(out)]) == 0
+    assert ("4 of the 3000 samples hold NaN/Inf: identified on the longest run without them, samples 903 to 2999 "
             "(2097 samples)") in capsys.readouterr().err
-    gaps, run = (json.loads((tmp_path / f"oo-{name}.json").read_text()) for name in ("gaps", "run"))
+    gaps, run = (json.loads((tmp_path / f"paper-{name}.json").read_text()) for name in ("gaps", "run"))
     assert gaps["modes"] == run["modes"] and "longest run without them" in gaps["source"]
+    # Output-only identification ignores u, so its NaN does not count; y's are filled by a VAR.
+    assert cli.main(["identify", str(tmp_path / "gaps.npz"), "--output-only", "--json", str(tmp_path / "oo.json")]) == 0
+    assert ("3 of the 3000 samples hold NaN/Inf: identified on the whole record, its 3 missing samples filled"
+            in capsys.readouterr().err)
+    assert json.loads((tmp_path / "oo.json").read_text())["n_inputs"] == 0
 
 
 def test_the_stretch_identify_fills_ends_at_a_long_gap() -> None:

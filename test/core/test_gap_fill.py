@@ -86,3 +86,18 @@ def test_fill_missing_refuses_a_long_gap_and_a_missing_end(record):
     valid[-1] = False
     with pytest.raises(ValueError, match="start and end with a measured one"):
         fill_missing(u, y, valid, fit)
+
+
+def test_an_output_only_record_is_filled_by_its_vars_prediction(record):
+    from okid_ros.core.gap_fill import fill_missing_outputs
+
+    _, _, y, _ = record
+    lost = np.zeros(3000, dtype=bool)
+    lost[[300, 301, 1700]] = True
+    filled = fill_missing_outputs(np.where(lost[:, None], np.nan, y), ~lost)
+    np.testing.assert_array_equal(filled[~lost], y[~lost])
+    # Within a fraction of the signal's spread (measured: 0.02-0.13 of it; the lost samples
+    # themselves lie 0.7-1.9 spreads from zero).
+    assert np.all(np.abs(filled[lost] - y[lost]) < 0.3 * y.std(axis=0))
+    with pytest.raises(ValueError, match="missing in a row"):
+        fill_missing_outputs(np.where(np.arange(3000)[:, None] // 100 == 5, np.nan, y), np.arange(3000) // 100 != 5)
