@@ -18,6 +18,7 @@ from okid_ros.core.stochastic_realization import (
     covariance_decomposition,
     forward_innovation,
     hankel_grams,
+    leading_eigh,
     stochastic_markov_from_var,
 )
 from okid_ros.sim.models import modal_structure
@@ -75,6 +76,25 @@ def test_hankel_grams_equal_the_products_of_the_formed_hankels(block_rows, p, re
     assert np.abs(cross - h0.T @ h1).max() <= 1e-13 * scale
     with pytest.raises(ValueError, match="block rows need"):
         hankel_grams(blocks[:-1], block_rows)
+
+
+@pytest.mark.parametrize(("size", "k"), [(1, 1), (2, 1), (9, 4), (60, 60), (240, 40)])
+def test_leading_eigh_gives_the_leading_pairs_of_scipy_eigh(size, k) -> None:
+    """The tridiagonal route's k largest eigenpairs equal ``scipy.linalg.eigh``'s, largest first (signs aside)."""
+    rows = np.random.default_rng(size).standard_normal((size + 3, size)) * np.logspace(0, -6, size)
+    matrix = rows.T @ rows  # a Gram whose spectrum spans 12 decades, like a Hankel's
+    values, vectors = leading_eigh(matrix, k)
+    expected, expected_vectors = linalg.eigh(matrix)
+    expected, expected_vectors = expected[::-1][:k], expected_vectors[:, ::-1][:, :k]
+    assert values.shape == (k,) and vectors.shape == (size, k)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-13 * expected[0])
+    signs = np.sign(np.sum(vectors * expected_vectors, axis=0))
+    separated = np.abs(expected - np.roll(expected, 1)) > 1e-6 * expected[0]  # vectors of distinct values
+    separated &= np.abs(expected - np.roll(expected, -1)) > 1e-6 * expected[0]
+    if k == 1:
+        separated[:] = True
+    np.testing.assert_allclose((vectors * signs)[:, separated], expected_vectors[:, separated], atol=1e-9)
+    np.testing.assert_allclose(matrix @ vectors, vectors * values, atol=1e-12 * expected[0])
 
 
 def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
