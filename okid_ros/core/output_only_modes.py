@@ -100,7 +100,8 @@ class ModeCluster:
     group: int = -1
 
 
-def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float) -> PoleSet:
+def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float,
+                  eigen=None) -> PoleSet:
     """Stable complex poles of the model of each order.
 
     Parameters
@@ -109,12 +110,14 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
     orders : the orders to realize.
     max_damping : poles with a larger damping ratio are left out; max_frequency_hz : so are
         poles at or above this frequency.
+    eigen : ``eigen(n) -> (eigenvalues, right eigenvectors)`` of that ``A`` (e.g.
+        :meth:`OrderRealizer.eigen`, which keeps them); default ``numpy.linalg.eig``.
     """
     parts: dict[str, list] = {"order": [], "f": [], "z": [], "ev": [], "shape": [], "energy": []}
     unstable = set()
     for n in orders:
         A, C, G = realize(n)
-        ev, vec = np.linalg.eig(A)
+        ev, vec = np.linalg.eig(A) if eigen is None else eigen(n)
         if np.max(np.abs(ev)) >= 1.0:
             unstable.add(int(n))
         # Modal share of the correlations (the MSV): |C psi| |chi G| / sqrt(1 - |z|^2), relative.

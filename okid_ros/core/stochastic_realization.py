@@ -120,6 +120,10 @@ class OrderRealizer:
         d, n = self.decomposition, self.max_states
         self._sq = np.sqrt(d.s[:n])
         self._projected = d.projected(n)  # (n, n), A of every order is a corner
+        # An order's poles are read more than once (the diagram, then the spectral share or the
+        # jackknife at a candidate's home order): each eigendecomposition is made once.
+        self._eigen: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._eigenvalues: dict[int, np.ndarray] = {}
 
     def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``A`` (n, n), ``C`` (p, n) and the first block column ``G`` (n, r) of order n."""
@@ -128,6 +132,20 @@ class OrderRealizer:
         C = self.decomposition.left_block_row(n_states) * sq
         G = sq[:, None] * self.decomposition.Vt[:n_states, : self.decomposition.n_block_inputs]
         return A, C, G
+
+    def eigen(self, n_states: int) -> tuple[np.ndarray, np.ndarray]:
+        """Eigenvalues (n,) and unit right eigenvectors (n, n) of ``A`` of order n (``numpy.linalg.eig``)."""
+        if n_states not in self._eigen:
+            self._eigen[n_states] = np.linalg.eig(self.realize(n_states)[0])
+        return self._eigen[n_states]
+
+    def eigenvalues(self, n_states: int) -> np.ndarray:
+        """Eigenvalues (n,) of ``A`` of order n (those of :meth:`eigen` when it was asked for)."""
+        if n_states in self._eigen:
+            return self._eigen[n_states][0]
+        if n_states not in self._eigenvalues:
+            self._eigenvalues[n_states] = linalg.eigvals(self.realize(n_states)[0])
+        return self._eigenvalues[n_states]
 
     def observability(self, n_states: int) -> np.ndarray:
         """``Gamma`` (p b, n) of order n (``b`` block rows)."""

@@ -13,6 +13,7 @@ from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_only import identify_output_only
+from okid_ros.core.output_only_modes import collect_poles
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
@@ -113,6 +114,29 @@ def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
         assert np.allclose(G, G0 * signs[:, None], rtol=1e-8, atol=1e-10 * np.abs(G0).max())
         gamma, gamma0 = fast.observability(n), full.observability(n)
         assert np.allclose(gamma, gamma0 * signs, rtol=1e-8, atol=1e-10 * np.abs(gamma0).max())
+
+
+def test_the_kept_eigendecompositions_are_those_of_each_order() -> None:
+    """``OrderRealizer.eigen`` / ``eigenvalues`` (made once per order) are each order's, and so are the poles.
+
+    The poles collected with the kept decompositions equal those collected without.
+    """
+    correlations, references = _decaying_correlations(40, 5, seed=4), np.array([0, 2, 3])
+    realizer = OrderRealizer(covariance_decomposition(correlations, references, 15, max_states=14), 14)
+    for n in (4, 10, 4):
+        A = realizer.realize(n)[0]
+        values, vectors = realizer.eigen(n)
+        np.testing.assert_allclose(A @ vectors, vectors * values, atol=1e-12 * np.abs(A).max())
+        assert np.array_equal(realizer.eigenvalues(n), values)
+    fresh = np.sort_complex(linalg.eigvals(realizer.realize(12)[0]))
+    np.testing.assert_allclose(np.sort_complex(realizer.eigenvalues(12)), fresh, rtol=1e-12)
+    options = {"max_damping": 0.5, "max_frequency_hz": 0.5}
+    kept = collect_poles(realizer.realize, range(2, 15, 2), 1.0, eigen=realizer.eigen, **options)
+    direct = collect_poles(realizer.realize, range(2, 15, 2), 1.0, **options)
+    assert len(kept) == len(direct) > 0
+    np.testing.assert_allclose(kept.eigenvalue, direct.eigenvalue, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(kept.shape), np.abs(direct.shape), rtol=1e-9)
+    np.testing.assert_allclose(kept.energy, direct.energy, rtol=1e-9)
 
 
 def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() -> None:
