@@ -153,6 +153,23 @@ def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() 
     np.testing.assert_allclose(h, expected, atol=1e-8 * np.abs(expected).max())
 
 
+@pytest.mark.parametrize(("order", "n_terms"), [(5, 40), (40, 12), (1, 3)])
+def test_okid_recursion_equals_its_sum_term_by_term(order, n_terms) -> None:
+    """The stacked recursion equals ``h_k = Ybar_k + sum_(i<k) Ybar_i h_(k-i)`` summed one term at a time."""
+    coefficients = 0.2 * np.random.default_rng(order).standard_normal((order, 3, 3))
+
+    class Var:
+        output_coefficients = coefficients
+
+    expected = np.zeros((n_terms, 3, 3))
+    for k in range(1, n_terms + 1):
+        expected[k - 1] = coefficients[k - 1] if k <= order else 0.0
+        for i in range(1, min(k - 1, order) + 1):
+            expected[k - 1] += coefficients[i - 1] @ expected[k - i - 1]
+    np.testing.assert_allclose(stochastic_markov_from_var(Var, n_terms), expected, rtol=1e-12,
+                               atol=1e-14 * np.abs(expected).max())
+
+
 @pytest.fixture(scope="module")
 def close_pair_result():
     case = OutputOnlyCase("test", _system(), 20_000, "close pair")
