@@ -194,14 +194,16 @@ def hankel_grams(blocks: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarra
     if n_blocks < 2 * n_rows:
         raise ValueError(f"{n_rows} block rows need {2 * n_rows} blocks, got {n_blocks}")
     row = blocks[: 2 * n_rows].transpose(1, 0, 2).reshape(p, 2 * n_rows * r)
-    m = 2 * n_rows
-    running = np.zeros((m + 1, r, m + 1, r))  # running[s, :, t, :] = sum_d T[s-1-d, t-1-d]
-    running[1:, :, 1:, :] = (row.T @ row).reshape(m, r, m, r)
-    for s in range(2, m + 1):
-        running[s, :, 2:, :] += running[s - 1, :, 1:-1, :]
-    i = n_rows
-    gram = running[i:m, :, i:m, :] - running[:i, :, :i, :]
-    cross = running[i:m, :, i + 1 : m + 1, :] - running[:i, :, 1 : i + 1, :]
+    m, i = 2 * n_rows, n_rows
+    # In place, no second array: sums[s, :, t, :] = sum_(d >= 0) T[s-d, :, t-d, :] (the running sums
+    # along the block diagonals; the same additions in the same order as into a zero-padded copy).
+    sums = (row.T @ row).reshape(m, r, m, r)
+    for s in range(1, m):
+        sums[s, :, 1:, :] += sums[s - 1, :, :-1, :]
+    gram = sums[i - 1 : m - 1, :, i - 1 : m - 1, :].copy()
+    gram[1:, :, 1:, :] -= sums[: i - 1, :, : i - 1, :]
+    cross = sums[i - 1 : m - 1, :, i:m, :].copy()
+    cross[1:] -= sums[: i - 1, :, :i, :]
     return gram.reshape(i * r, i * r), cross.reshape(i * r, i * r)
 
 
