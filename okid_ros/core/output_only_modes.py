@@ -149,7 +149,8 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
 
 def _mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """MAC of every pair of unit-norm shapes (rows of a and b)."""
-    return np.abs(np.conj(a) @ b.T) ** 2
+    mac = np.abs(np.conj(a) @ b.T)
+    return np.square(mac, out=mac)  # in place: the clustering's is a million entries
 
 
 def mark_stable(poles: PoleSet) -> None:
@@ -190,10 +191,9 @@ def _robust_spread(values: np.ndarray) -> float:
 def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
     """One pole per order (nearest the median frequency), outliers in damping dropped."""
     f_med = _median(poles.frequency_hz[index])
-    members: dict[int, int] = {}
-    for i in index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]:
-        members.setdefault(int(poles.order[i]), int(i))
-    chosen = np.array(sorted(members.values()))
+    ranked = index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]
+    _, first = np.unique(poles.order[ranked], return_index=True)  # each order's first, i.e. nearest, pole
+    chosen = np.sort(ranked[first])
     z = poles.damping_ratio[chosen]
     spread = _robust_spread(z)
     inliers = np.abs(z - _median(z)) <= 3.0 * max(spread, 1e-12) + 1e-12
@@ -220,8 +220,10 @@ def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> lis
     the split kept when the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR`, and each
     part is looked at again.
     """
+    if depth == 0 or index.size < 2 * MIN_ORDERS:  # too few poles for two at MIN_ORDERS orders
+        return [index]
     _, counts = np.unique(poles.order[index], return_counts=True)
-    if depth == 0 or np.sum(counts >= 2) < MIN_ORDERS:
+    if np.sum(counts >= 2) < MIN_ORDERS:
         return [index]
     zeta = poles.damping_ratio[index]
     features = np.column_stack([np.log(poles.frequency_hz[index]) / max(_median(zeta), MIN_DAMPING), np.log(zeta)])
@@ -243,10 +245,14 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
     if index.size < 2:
         return [], []
     f = poles.frequency_hz[index]
-    distance = np.abs(f[:, None] - f[None, :]) / np.maximum(f[:, None], f[None, :])
-    distance += 1.0 - _mac_matrix(poles.shape[index], poles.shape[index])
+    # In place (the same operations): a thousand stable poles make million-entry matrices.
+    distance = np.subtract.outer(f, f)
+    np.abs(distance, out=distance)
+    distance /= np.maximum.outer(f, f)
+    shape_distance = _mac_matrix(poles.shape[index], poles.shape[index])
+    distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
-    tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0), checks=False), method="average")
+    tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
     labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]

@@ -139,6 +139,27 @@ def test_the_kept_eigendecompositions_are_those_of_each_order() -> None:
     np.testing.assert_allclose(kept.energy, direct.energy, rtol=1e-9)
 
 
+def test_a_cluster_keeps_at_each_order_its_pole_nearest_the_median_frequency() -> None:
+    """``_cluster``'s members (one ``np.unique`` of the ranked poles) equal the pole-by-pole choice."""
+    from okid_ros.core.output_only_modes import PoleSet, _cluster
+
+    rng = np.random.default_rng(5)
+    orders = rng.choice(np.arange(2, 40, 2), 60)  # up to several poles per order, unsorted
+    f = 5.0 * (1 + 0.01 * rng.standard_normal(60))
+    z = 0.02 * (1 + 0.05 * rng.standard_normal(60))
+    shape = rng.standard_normal((60, 3)) + 1j * rng.standard_normal((60, 3))
+    poles = PoleSet(orders, f, z, np.exp(2j * np.pi * f * 0.01), shape, np.ones(60), np.ones(60, bool))
+    index = rng.permutation(60)[:45]
+    median = np.median(f[index])
+    nearest: dict[int, int] = {}
+    for i in index:
+        if int(orders[i]) not in nearest or abs(f[i] - median) < abs(f[nearest[int(orders[i])]] - median):
+            nearest[int(orders[i])] = int(i)
+    cluster = _cluster(poles, index, 3)
+    assert set(cluster.members.items()) <= set(nearest.items())
+    assert len(cluster.members) >= 0.8 * len(nearest)  # only damping outliers (3 spreads) are dropped
+
+
 def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() -> None:
     oracle = _system().to_innovation_form()
     A, C, L = oracle.A, oracle.C, oracle.A @ oracle.K
