@@ -218,6 +218,7 @@ def leading_eigh(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     10 of them for the tridiagonal vectors), or every vector back-transformed (``driver="evd"``:
     16 ms); this takes 11 ms. The same pairs to rounding (test/core/test_core_output_only.py).
     """
+    matrix = np.asarray_chkfinite(matrix)  # ValueError on NaN or Inf, as scipy.linalg.eigh's check
     m = matrix.shape[0]
     if m < 2:
         values, vectors = linalg.eigh(matrix)
