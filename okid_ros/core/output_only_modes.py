@@ -185,7 +185,15 @@ def _median(values) -> float:
 
 def _robust_spread(values: np.ndarray) -> float:
     """Normalized median absolute deviation (the standard deviation of a normal sample)."""
-    return float(1.4826 * _median(np.abs(values - _median(values)))) if values.size else float("nan")
+    return _median_and_spread(values)[1]
+
+
+def _median_and_spread(values: np.ndarray) -> tuple[float, float]:
+    """:func:`_median` and :func:`_robust_spread` of ``values``, the median taken once (NaN, NaN if empty)."""
+    if not values.size:
+        return float("nan"), float("nan")
+    median = _median(values)
+    return median, float(1.4826 * _median(np.abs(values - median)))
 
 
 def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
@@ -195,17 +203,19 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
     _, first = np.unique(poles.order[ranked], return_index=True)  # each order's first, i.e. nearest, pole
     chosen = np.sort(ranked[first])
     z = poles.damping_ratio[chosen]
-    spread = _robust_spread(z)
-    inliers = np.abs(z - _median(z)) <= 3.0 * max(spread, 1e-12) + 1e-12
+    z_median, spread = _median_and_spread(z)
+    inliers = np.abs(z - z_median) <= 3.0 * max(spread, 1e-12) + 1e-12
     chosen = chosen[inliers]
-    members = {int(poles.order[i]): int(i) for i in chosen}
+    members = dict(zip(poles.order[chosen].tolist(), chosen.tolist()))
     shapes_mpc = [mpc(poles.shape[i]) for i in chosen] if n_outputs >= MIN_OUTPUTS_FOR_MPC else [1.0]
+    frequency, frequency_spread = _median_and_spread(poles.frequency_hz[chosen])
+    damping, damping_spread = _median_and_spread(poles.damping_ratio[chosen])
     return ModeCluster(
         members=members,
-        frequency_hz=float(_median(poles.frequency_hz[chosen])),
-        damping_ratio=float(_median(poles.damping_ratio[chosen])),
-        frequency_hz_spread=_robust_spread(poles.frequency_hz[chosen]),
-        damping_ratio_spread=_robust_spread(poles.damping_ratio[chosen]),
+        frequency_hz=frequency,
+        damping_ratio=damping,
+        frequency_hz_spread=frequency_spread,
+        damping_ratio_spread=damping_spread,
         mpc=float(_median(shapes_mpc)),
         energy=float(_median(poles.energy[chosen])),
     )

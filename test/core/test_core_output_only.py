@@ -96,6 +96,8 @@ def test_leading_eigh_gives_the_leading_pairs_of_scipy_eigh(size, k) -> None:
         separated[:] = True
     np.testing.assert_allclose((vectors * signs)[:, separated], expected_vectors[:, separated], atol=1e-9)
     np.testing.assert_allclose(matrix @ vectors, vectors * values, atol=1e-12 * expected[0])
+    with pytest.raises(ValueError):
+        leading_eigh(np.where(np.eye(size) > 0, np.nan, matrix), k)
 
 
 def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
@@ -158,6 +160,20 @@ def test_a_cluster_keeps_at_each_order_its_pole_nearest_the_median_frequency() -
     cluster = _cluster(poles, index, 3)
     assert set(cluster.members.items()) <= set(nearest.items())
     assert len(cluster.members) >= 0.8 * len(nearest)  # only damping outliers (3 spreads) are dropped
+
+
+@pytest.mark.parametrize("size", [0, 1, 2, 7, 30])
+def test_median_and_spread_equal_numpy_median_and_the_normalized_mad(size) -> None:
+    from okid_ros.core.output_only_modes import _median_and_spread, _robust_spread
+
+    values = np.random.default_rng(size).standard_normal(size) ** 3
+    median, spread = _median_and_spread(values)
+    if size == 0:
+        assert np.isnan(median) and np.isnan(spread) and np.isnan(_robust_spread(values))
+        return
+    assert median == np.median(values)
+    assert spread == pytest.approx(1.4826 * np.median(np.abs(values - np.median(values))), rel=1e-15, abs=0)
+    assert spread == _robust_spread(values)
 
 
 def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() -> None:
