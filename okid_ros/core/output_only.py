@@ -222,7 +222,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     top = _usable_order(top, decomposition.max_states)
     realizer = OrderRealizer(decomposition, top)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
-                          max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s)
+                          max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s, eigen=realizer.eigen)
     mark_stable(poles)
     modes, _ = cluster_modes(poles)
     jackknife = None

@@ -100,7 +100,8 @@ class ModeCluster:
     group: int = -1
 
 
-def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float) -> PoleSet:
+def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, max_frequency_hz: float,
+                  eigen=None) -> PoleSet:
     """Stable complex poles of the model of each order.
 
     Parameters
@@ -109,12 +110,14 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
     orders : the orders to realize.
     max_damping : poles with a larger damping ratio are left out; max_frequency_hz : so are
         poles at or above this frequency.
+    eigen : ``eigen(n) -> (eigenvalues, right eigenvectors)`` of that ``A`` (e.g.
+        :meth:`OrderRealizer.eigen`, which keeps them); default ``numpy.linalg.eig``.
     """
     parts: dict[str, list] = {"order": [], "f": [], "z": [], "ev": [], "shape": [], "energy": []}
     unstable = set()
     for n in orders:
         A, C, G = realize(n)
-        ev, vec = np.linalg.eig(A)
+        ev, vec = np.linalg.eig(A) if eigen is None else eigen(n)
         if np.max(np.abs(ev)) >= 1.0:
             unstable.add(int(n))
         # Modal share of the correlations (the MSV): |C psi| |chi G| / sqrt(1 - |z|^2), relative.
@@ -146,7 +149,8 @@ def collect_poles(realize, orders, sample_time_s: float, *, max_damping: float, 
 
 def _mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """MAC of every pair of unit-norm shapes (rows of a and b)."""
-    return np.abs(np.conj(a) @ b.T) ** 2
+    mac = np.abs(np.conj(a) @ b.T)
+    return np.square(mac, out=mac)  # in place: the clustering's is a million entries
 
 
 def mark_stable(poles: PoleSet) -> None:
@@ -181,28 +185,37 @@ def _median(values) -> float:
 
 def _robust_spread(values: np.ndarray) -> float:
     """Normalized median absolute deviation (the standard deviation of a normal sample)."""
-    return float(1.4826 * _median(np.abs(values - _median(values)))) if values.size else float("nan")
+    return _median_and_spread(values)[1]
+
+
+def _median_and_spread(values: np.ndarray) -> tuple[float, float]:
+    """:func:`_median` and :func:`_robust_spread` of ``values``, the median taken once (NaN, NaN if empty)."""
+    if not values.size:
+        return float("nan"), float("nan")
+    median = _median(values)
+    return median, float(1.4826 * _median(np.abs(values - median)))
 
 
 def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
     """One pole per order (nearest the median frequency), outliers in damping dropped."""
     f_med = _median(poles.frequency_hz[index])
-    members: dict[int, int] = {}
-    for i in index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]:
-        members.setdefault(int(poles.order[i]), int(i))
-    chosen = np.array(sorted(members.values()))
+    ranked = index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]
+    _, first = np.unique(poles.order[ranked], return_index=True)  # each order's first, i.e. nearest, pole
+    chosen = np.sort(ranked[first])
     z = poles.damping_ratio[chosen]
-    spread = _robust_spread(z)
-    inliers = np.abs(z - _median(z)) <= 3.0 * max(spread, 1e-12) + 1e-12
+    z_median, spread = _median_and_spread(z)
+    inliers = np.abs(z - z_median) <= 3.0 * max(spread, 1e-12) + 1e-12
     chosen = chosen[inliers]
-    members = {int(poles.order[i]): int(i) for i in chosen}
+    members = dict(zip(poles.order[chosen].tolist(), chosen.tolist()))
     shapes_mpc = [mpc(poles.shape[i]) for i in chosen] if n_outputs >= MIN_OUTPUTS_FOR_MPC else [1.0]
+    frequency, frequency_spread = _median_and_spread(poles.frequency_hz[chosen])
+    damping, damping_spread = _median_and_spread(poles.damping_ratio[chosen])
     return ModeCluster(
         members=members,
-        frequency_hz=float(_median(poles.frequency_hz[chosen])),
-        damping_ratio=float(_median(poles.damping_ratio[chosen])),
-        frequency_hz_spread=_robust_spread(poles.frequency_hz[chosen]),
-        damping_ratio_spread=_robust_spread(poles.damping_ratio[chosen]),
+        frequency_hz=frequency,
+        damping_ratio=damping,
+        frequency_hz_spread=frequency_spread,
+        damping_ratio_spread=damping_spread,
         mpc=float(_median(shapes_mpc)),
         energy=float(_median(poles.energy[chosen])),
     )
@@ -217,8 +230,10 @@ def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> lis
     the split kept when the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR`, and each
     part is looked at again.
     """
+    if depth == 0 or index.size < 2 * MIN_ORDERS:  # too few poles for two at MIN_ORDERS orders
+        return [index]
     _, counts = np.unique(poles.order[index], return_counts=True)
-    if depth == 0 or np.sum(counts >= 2) < MIN_ORDERS:
+    if np.sum(counts >= 2) < MIN_ORDERS:
         return [index]
     zeta = poles.damping_ratio[index]
     features = np.column_stack([np.log(poles.frequency_hz[index]) / max(_median(zeta), MIN_DAMPING), np.log(zeta)])
@@ -240,10 +255,14 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
     if index.size < 2:
         return [], []
     f = poles.frequency_hz[index]
-    distance = np.abs(f[:, None] - f[None, :]) / np.maximum(f[:, None], f[None, :])
-    distance += 1.0 - _mac_matrix(poles.shape[index], poles.shape[index])
+    # In place (the same operations): a thousand stable poles make million-entry matrices.
+    distance = np.subtract.outer(f, f)
+    np.abs(distance, out=distance)
+    distance /= np.maximum.outer(f, f)
+    shape_distance = _mac_matrix(poles.shape[index], poles.shape[index])
+    distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
-    tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0), checks=False), method="average")
+    tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
     labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]

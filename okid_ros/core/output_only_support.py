@@ -106,8 +106,8 @@ class Jackknife:
         freqs = np.empty((n_seg, targets.size))
         damps = np.empty((n_seg, targets.size))
         for j, realizer in enumerate(self.realizers):
-            A = realizer.realize(min(n_model, realizer.max_states))[0]
-            freqs[j], damps[j] = nearest_modes(linalg.eigvals(A), targets, sample_time_s)
+            eigenvalues = realizer.eigenvalues(min(n_model, realizer.max_states))
+            freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
         return jackknife_std(freqs), jackknife_std(damps)
 
 
@@ -129,9 +129,9 @@ def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, 
     target : the pole (discrete, upper half plane); r0 : (p, p) ``R_0``; references : (r,) the
     reference channels (the Hankel's columns).
     """
-    A, C, G = realizer.realize(n_states)
+    _, C, G = realizer.realize(n_states)
     C, r0 = C[references], r0[np.ix_(references, references)]
-    eigenvalues, vectors = linalg.eig(A)
+    eigenvalues, vectors = realizer.eigen(n_states)  # the diagram's decomposition of this order
     left = linalg.solve(vectors, G)  # (n, r)
     j = int(np.argmin(np.abs(eigenvalues - target)))
     pair = [j, int(np.argmin(np.abs(eigenvalues - np.conj(eigenvalues[j]))))]

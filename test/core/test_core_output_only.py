@@ -13,11 +13,13 @@ from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_only import identify_output_only
+from okid_ros.core.output_only_modes import collect_poles
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
     forward_innovation,
     hankel_grams,
+    leading_eigh,
     stochastic_markov_from_var,
 )
 from okid_ros.sim.models import modal_structure
@@ -77,6 +79,27 @@ def test_hankel_grams_equal_the_products_of_the_formed_hankels(block_rows, p, re
         hankel_grams(blocks[:-1], block_rows)
 
 
+@pytest.mark.parametrize(("size", "k"), [(1, 1), (2, 1), (9, 4), (60, 60), (240, 40)])
+def test_leading_eigh_gives_the_leading_pairs_of_scipy_eigh(size, k) -> None:
+    """The tridiagonal route's k largest eigenpairs equal ``scipy.linalg.eigh``'s, largest first (signs aside)."""
+    rows = np.random.default_rng(size).standard_normal((size + 3, size)) * np.logspace(0, -6, size)
+    matrix = rows.T @ rows  # a Gram whose spectrum spans 12 decades, like a Hankel's
+    values, vectors = leading_eigh(matrix, k)
+    expected, expected_vectors = linalg.eigh(matrix)
+    expected, expected_vectors = expected[::-1][:k], expected_vectors[:, ::-1][:, :k]
+    assert values.shape == (k,) and vectors.shape == (size, k)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-13 * expected[0])
+    signs = np.sign(np.sum(vectors * expected_vectors, axis=0))
+    separated = np.abs(expected - np.roll(expected, 1)) > 1e-6 * expected[0]  # vectors of distinct values
+    separated &= np.abs(expected - np.roll(expected, -1)) > 1e-6 * expected[0]
+    if k == 1:
+        separated[:] = True
+    np.testing.assert_allclose((vectors * signs)[:, separated], expected_vectors[:, separated], atol=1e-9)
+    np.testing.assert_allclose(matrix @ vectors, vectors * values, atol=1e-12 * expected[0])
+    with pytest.raises(ValueError):
+        leading_eigh(np.where(np.eye(size) > 0, np.nan, matrix), k)
+
+
 def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
     """Every order's (A, C, G, Gamma) from the Gram sums equal the formed Hankel's SVD (up to signs)."""
     correlations, references, block_rows = _decaying_correlations(40, 5, seed=3), np.array([0, 2, 3]), 15
@@ -95,6 +118,64 @@ def test_the_gram_decomposition_realizes_what_the_hankel_svd_does() -> None:
         assert np.allclose(gamma, gamma0 * signs, rtol=1e-8, atol=1e-10 * np.abs(gamma0).max())
 
 
+def test_the_kept_eigendecompositions_are_those_of_each_order() -> None:
+    """``OrderRealizer.eigen`` / ``eigenvalues`` (made once per order) are each order's, and so are the poles.
+
+    The poles collected with the kept decompositions equal those collected without.
+    """
+    correlations, references = _decaying_correlations(40, 5, seed=4), np.array([0, 2, 3])
+    realizer = OrderRealizer(covariance_decomposition(correlations, references, 15, max_states=14), 14)
+    for n in (4, 10, 4):
+        A = realizer.realize(n)[0]
+        values, vectors = realizer.eigen(n)
+        np.testing.assert_allclose(A @ vectors, vectors * values, atol=1e-12 * np.abs(A).max())
+        assert np.array_equal(realizer.eigenvalues(n), values)
+    fresh = np.sort_complex(linalg.eigvals(realizer.realize(12)[0]))
+    np.testing.assert_allclose(np.sort_complex(realizer.eigenvalues(12)), fresh, rtol=1e-12)
+    options = {"max_damping": 0.5, "max_frequency_hz": 0.5}
+    kept = collect_poles(realizer.realize, range(2, 15, 2), 1.0, eigen=realizer.eigen, **options)
+    direct = collect_poles(realizer.realize, range(2, 15, 2), 1.0, **options)
+    assert len(kept) == len(direct) > 0
+    np.testing.assert_allclose(kept.eigenvalue, direct.eigenvalue, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(kept.shape), np.abs(direct.shape), rtol=1e-9)
+    np.testing.assert_allclose(kept.energy, direct.energy, rtol=1e-9)
+
+
+def test_a_cluster_keeps_at_each_order_its_pole_nearest_the_median_frequency() -> None:
+    """``_cluster``'s members (one ``np.unique`` of the ranked poles) equal the pole-by-pole choice."""
+    from okid_ros.core.output_only_modes import PoleSet, _cluster
+
+    rng = np.random.default_rng(5)
+    orders = rng.choice(np.arange(2, 40, 2), 60)  # up to several poles per order, unsorted
+    f = 5.0 * (1 + 0.01 * rng.standard_normal(60))
+    z = 0.02 * (1 + 0.05 * rng.standard_normal(60))
+    shape = rng.standard_normal((60, 3)) + 1j * rng.standard_normal((60, 3))
+    poles = PoleSet(orders, f, z, np.exp(2j * np.pi * f * 0.01), shape, np.ones(60), np.ones(60, bool))
+    index = rng.permutation(60)[:45]
+    median = np.median(f[index])
+    nearest: dict[int, int] = {}
+    for i in index:
+        if int(orders[i]) not in nearest or abs(f[i] - median) < abs(f[nearest[int(orders[i])]] - median):
+            nearest[int(orders[i])] = int(i)
+    cluster = _cluster(poles, index, 3)
+    assert set(cluster.members.items()) <= set(nearest.items())
+    assert len(cluster.members) >= 0.8 * len(nearest)  # only damping outliers (3 spreads) are dropped
+
+
+@pytest.mark.parametrize("size", [0, 1, 2, 7, 30])
+def test_median_and_spread_equal_numpy_median_and_the_normalized_mad(size) -> None:
+    from okid_ros.core.output_only_modes import _median_and_spread, _robust_spread
+
+    values = np.random.default_rng(size).standard_normal(size) ** 3
+    median, spread = _median_and_spread(values)
+    if size == 0:
+        assert np.isnan(median) and np.isnan(spread) and np.isnan(_robust_spread(values))
+        return
+    assert median == np.median(values)
+    assert spread == pytest.approx(1.4826 * np.median(np.abs(values - np.median(values))), rel=1e-15, abs=0)
+    assert spread == _robust_spread(values)
+
+
 def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() -> None:
     oracle = _system().to_innovation_form()
     A, C, L = oracle.A, oracle.C, oracle.A @ oracle.K
@@ -107,6 +188,23 @@ def test_okid_recursion_turns_the_predictor_markov_into_the_stochastic_markov() 
     h = stochastic_markov_from_var(Var, 30)
     expected = np.stack([C @ np.linalg.matrix_power(A, k) @ L for k in range(30)])
     np.testing.assert_allclose(h, expected, atol=1e-8 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize(("order", "n_terms"), [(5, 40), (40, 12), (1, 3)])
+def test_okid_recursion_equals_its_sum_term_by_term(order, n_terms) -> None:
+    """The stacked recursion equals ``h_k = Ybar_k + sum_(i<k) Ybar_i h_(k-i)`` summed one term at a time."""
+    coefficients = 0.2 * np.random.default_rng(order).standard_normal((order, 3, 3))
+
+    class Var:
+        output_coefficients = coefficients
+
+    expected = np.zeros((n_terms, 3, 3))
+    for k in range(1, n_terms + 1):
+        expected[k - 1] = coefficients[k - 1] if k <= order else 0.0
+        for i in range(1, min(k - 1, order) + 1):
+            expected[k - 1] += coefficients[i - 1] @ expected[k - i - 1]
+    np.testing.assert_allclose(stochastic_markov_from_var(Var, n_terms), expected, rtol=1e-12,
+                               atol=1e-14 * np.abs(expected).max())
 
 
 @pytest.fixture(scope="module")
