@@ -33,8 +33,9 @@ duplicates / out of order
     ``duplicate``, one that maps to an earlier slot is ``out_of_order``; both are rejected
     (the first value received for a slot is kept).
 bad values
-    A message whose values are not finite (NaN/Inf), whose stamp is not finite, or whose value
-    count is not the source's channel count (``wrong_size``) is rejected as a whole.
+    A message whose values are not finite (NaN/Inf), whose stamp is not finite or beyond any ROS 2
+    time (:data:`MAX_STAMP_S`; an array source's stamp field may hold anything), both counted
+    ``nonfinite``, or whose value count is not the source's (``wrong_size``) is rejected as a whole.
 timeline
     The *timeline* is the newest stamp of the stream (taken, or confirmed as below). A stamp
     more than ``time_jump_s`` (default 1 s) before or after it is held as the *candidate* of a
@@ -80,10 +81,10 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.options import sample_time_problem
-from okid_ros.service.stamp_steps import StampSequence, StampStep, classify_step
+from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step
 
-__all__ = ["GridSample", "GridCounters", "SampleGrid", "RESTART_SKIP", "REJECTION_REASONS", "StampStep",
-           "StampSequence", "classify_step"]
+__all__ = ["GridSample", "GridCounters", "SampleGrid", "MAX_STAMP_S", "RESTART_SKIP", "REJECTION_REASONS",
+           "StampStep", "StampSequence", "classify_step"]
 
 #: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
 RESTART_SKIP = -1
@@ -312,7 +313,7 @@ class SampleGrid:
             self._count(src, "wrong_size")
             return []
         stamp_s = float(stamp_s)
-        if not math.isfinite(stamp_s) or not np.isfinite(vals).all():
+        if not abs(stamp_s) <= MAX_STAMP_S or not np.isfinite(vals).all():  # NaN fails the comparison too
             self._count(src, "nonfinite")
             return []
         if self._anchor is None:

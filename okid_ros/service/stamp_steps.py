@@ -18,7 +18,7 @@ from enum import Enum
 
 from okid_ros.core.options import sample_time_problem
 
-__all__ = ["GAP_STEP", "StampStep", "StampSequence", "classify_step"]
+__all__ = ["GAP_STEP", "MAX_STAMP_S", "StampStep", "StampSequence", "classify_step"]
 
 
 class StampStep(Enum):
@@ -32,6 +32,8 @@ class StampStep(Enum):
 
 #: Largest step, in sample times, that is still the next sample; a longer step is a gap.
 GAP_STEP = 1.5
+#: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32): no stamp lies further from 0.
+MAX_STAMP_S = 2**31 - 1
 
 
 def classify_step(step_samples: float) -> StampStep:

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from okid_ros.jsonio import dumps
+from okid_ros.service.sample_grid import MAX_STAMP_S
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
 from okid_ros.tools.errors import ToolParameterError
 
@@ -57,8 +58,6 @@ THRUSTER_FRAMES = ("thruster1", "thruster2")
 IMU_FRAMES = ("accel_tip1", "accel_tip2")
 RIG_FRAME = "truss_tip"
 DEFAULT_CUTOFF_HZ = 15.0
-#: Largest ``sec`` of a ROS 2 stamp (builtin_interfaces/Time.sec is an int32).
-MAX_STAMP_S = 2**31 - 1
 
 
 @dataclass

@@ -372,3 +372,18 @@ def test_a_source_that_stepped_on_alone_and_comes_back_loses_no_sample_of_the_ot
     assert_steady(out[10:], range(10, 20))
     c = grid.counters
     assert (c.late, c.off_timeline, c.time_jumps) == (0, 0, 1)
+
+
+@pytest.mark.parametrize("stamp", [-1e306, 1e300, -(2.0**31), 2.0**31])
+@pytest.mark.parametrize("n_sources", [1, 2])
+def test_a_stamp_beyond_any_ros_time_is_refused_even_first(stamp, n_sources):
+    """An array source's stamp field can hold anything: such a stamp is refused.
+
+    Taken first, it anchored the grid where every later slot looked the same (all duplicates,
+    for ever) or every later stamp a step of decades.
+    """
+    grid = grid_of(n_sources)
+    assert grid.add(0, stamp, values(grid, 0, 0)) == []
+    out = feed_slots(grid, range(20))
+    assert_steady(out, range(20))
+    assert grid.counters.rejections() == {"nonfinite": 1}
