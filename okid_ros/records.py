@@ -100,6 +100,14 @@ def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges[::2], edges[1::2]
 
 
+def _present(record: Record, use_inputs: bool) -> np.ndarray:
+    """(N,) True at the samples without NaN/Inf (in ``y``, and in ``u`` when ``use_inputs``)."""
+    present = np.isfinite(record.y).all(axis=1)
+    if use_inputs:
+        present &= np.isfinite(record.u).all(axis=1)
+    return present
+
+
 def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, str]:
     """The longest run of samples without NaN/Inf, and a sentence on what was left out ("" if nothing).
 
@@ -112,9 +120,7 @@ def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Rec
     DataError
         no two samples in a row are free of NaN/Inf.
     """
-    present = np.isfinite(record.y).all(axis=1)
-    if use_inputs:
-        present &= np.isfinite(record.u).all(axis=1)
+    present = _present(record, use_inputs)
     n = present.size
     if present.all():
         return record, ""
@@ -165,9 +171,7 @@ def bridged_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, np.
     ------
     DataError as :func:`longest_present_run`.
     """
-    present = np.isfinite(record.y).all(axis=1)
-    if use_inputs:
-        present &= np.isfinite(record.u).all(axis=1)
+    present = _present(record, use_inputs)
     n = present.size
     if present.all():
         return record, None, ""

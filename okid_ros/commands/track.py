@@ -252,11 +252,6 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     return out, (u, y, record.sample_time_s)
 
 
-#: The VAR order of an output-only window (``--order auto`` with no input; the core's, which also
-#: fills an output-only record's gaps for ``identify``).
-OUTPUT_ONLY_ORDER = OUTPUT_ONLY_VAR_ORDER
-
-
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
     from okid_ros.core.arx_order import choose_arx_order
@@ -265,7 +260,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
 
     window, (n_samples, m), p = args.window, u.shape, y.shape[1]
     if args.order == "auto" and m == 0:
-        q = OUTPUT_ONLY_ORDER
+        q = OUTPUT_ONLY_VAR_ORDER  # the VAR only frames the window; its model comes from the outputs
     elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
         lo = _first_finite_run(u, y, window + 200)

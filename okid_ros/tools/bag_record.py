@@ -131,23 +131,20 @@ def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]
     """
     breaks = [0] + [k for k in range(1, len(samples))
                     if samples[k].restart or samples[k].skipped > MAX_GAP_SAMPLES] + [len(samples)]
-    best = (0, 0, 0, 0)  # rows, stretch, lo, hi
-    for index, (lo, hi) in enumerate(zip(breaks[:-1], breaks[1:])):
+    best: tuple = (0,)  # (its length, its samples, their rows, its bounds in those rows)
+    for lo, hi in zip(breaks[:-1], breaks[1:]):
         rows = np.arange(hi - lo) + np.cumsum([0] + [s.skipped for s in samples[lo + 1 : hi]])
         present = np.zeros(rows[-1] + 1, dtype=bool)
         present[rows] = True
         first, last = bridged_bounds(present)
         if last - first > best[0]:
-            best = (last - first, index, first, last)
-    lo, hi = breaks[best[1]], breaks[best[1] + 1]
-    chosen = samples[lo:hi]
-    rows = np.arange(hi - lo) + np.cumsum([0] + [s.skipped for s in chosen[1:]])
+            best = (last - first, samples[lo:hi], rows, first, last)
+    _, chosen, rows, first, last = best
     u = np.full((rows[-1] + 1, chosen[0].u.size), np.nan)
     y = np.full((rows[-1] + 1, chosen[0].y.size), np.nan)
     u[rows], y[rows] = [s.u for s in chosen], [s.y for s in chosen]
     stamps = chosen[0].stamp_s + dt * np.arange(rows[-1] + 1)  # the dropped slots' stamps on the grid
     stamps[rows] = [s.stamp_s for s in chosen]
-    first, last = best[2], best[3]
     record = Record(u[first:last], y[first:last], dt).validate(allow_nonfinite=True)
     return record, stamps[first:last], len(breaks) - 1
 
