@@ -92,6 +92,7 @@ def _running(pid: int) -> bool:
     """Whether process ``pid`` exists and has not ended (a zombie has ended)."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
-    except FileNotFoundError:
+    except OSError:
+        # The process can be reaped between opening its stat file and reading it (ESRCH).
         return False
     return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")
