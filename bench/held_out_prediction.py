@@ -20,6 +20,13 @@ the same split. Every method gets the same data: the training part's means remov
 order as its default run): how far the state order chosen by BIC is from the best one on data
 it did not see.
 
+``--held-out-choice F`` adds the method ``okid-held-out``: the state order chosen by held-out
+prediction instead of BIC, within the training part alone. The first fraction ``F`` of the
+training part is identified at each state order of ``--order-grid`` (default 2, 4, .., 40; the
+ARX order of identify's default run on that part), each model is scored on the rest of the
+training part, and the best order is identified on the whole training part (the ARX order of
+the ``okid`` row) and scored on the held-out part like every other method.
+
 Records: an ``identify`` ``.npz`` (``u``, ``y``, ``sample_time_s``), or a whitespace-separated
 text file with the input columns first, named ``path.dat:M[:DT]`` (``M`` inputs, sample time
 ``DT`` seconds, default 1; the DaISy layout).
@@ -28,6 +35,7 @@ Usage::
 
     python bench/held_out_prediction.py rec.npz flutter.dat:1 CD_player_arm.dat:2
     python bench/held_out_prediction.py rec.npz --train-fractions 0.5 0.67 0.8 --order-grid 2,4,8,16
+    python bench/held_out_prediction.py rec.npz --held-out-choice 0.75
     python bench/held_out_prediction.py rec.npz --out /tmp/held-out.md [--force]
 """
 
@@ -51,6 +59,7 @@ from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.statespace import simulate, spectral_radius  # noqa: E402
 
 PEER_METHODS = ("sippy-n4sid", "sippy-moesp", "sippy-cva")
+HELD_OUT_GRID = list(range(2, 42, 2))  # identify's automatic search covers 2..40
 
 
 def load_record(spec: str) -> tuple[str, np.ndarray, np.ndarray, float]:
@@ -94,8 +103,31 @@ def _okid(u, y, dt, **options):
     return model, {"arx_order": model.arx.order}
 
 
+def _okid_held_out_order(u, y, dt, *, inner_fraction: float, order_grid: list[int], arx_order: int):
+    """identify at the state order that predicts the last ``1 - inner_fraction`` of ``u, y`` best.
+
+    The orders are fitted on the first ``inner_fraction`` (its means removed, as for the record).
+    """
+    fit = int(inner_fraction * u.shape[0])
+    u_in, y_in = u - u[:fit].mean(axis=0), y - y[:fit].mean(axis=0)
+    inner_arx_order = identify(u_in[:fit], y_in[:fit], dt).arx.order
+    scores = {}
+    for n in order_grid:
+        try:
+            model = identify(u_in[:fit], y_in[:fit], dt, order=inner_arx_order, n_states=n)
+            scores[n] = held_out_score(model, u_in, y_in, fit)["one_step"]
+        except IdentificationError:
+            continue
+    if not scores or not np.isfinite(min(scores.values())):
+        raise RuntimeError("no state order predicts the validation part")
+    chosen = min(scores, key=scores.get)
+    model = identify(u, y, dt, order=arx_order, n_states=chosen)
+    return model, {"arx_order": arx_order, "validation_states": chosen}
+
+
 def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: float, *, peer_horizon: int,
-              peer_max_order: int, order_grid: list[int], log=print) -> list[dict]:
+              peer_max_order: int, order_grid: list[int], held_out_choice: float | None = None,
+              log=print) -> list[dict]:
     """Every method on one split of one record: a row each (a failure is a row too)."""
     train = int(fraction * u.shape[0])
     u = u - u[:train].mean(axis=0)
@@ -114,6 +146,18 @@ def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: floa
             row.update(failed=str(exc)[:160])
         row["seconds"] = time.perf_counter() - started
         rows.append(row)
+    if held_out_choice is not None and "failed" not in rows[0]:
+        row = {"record": name, "fraction": fraction, "train": train, "method": "okid-held-out"}
+        started = time.perf_counter()
+        try:
+            model, info = _okid_held_out_order(u[:train], y[:train], dt, inner_fraction=held_out_choice,
+                                               order_grid=order_grid or HELD_OUT_GRID,
+                                               arx_order=rows[0]["arx_order"])
+            row.update(held_out_score(model, u, y, train), **info)
+        except (IdentificationError, RuntimeError) as exc:
+            row.update(failed=str(exc)[:160])
+        row["seconds"] = time.perf_counter() - started
+        rows.insert(1, row)
     peers = [r["one_step"] for r in rows if r["method"] in PEER_METHODS and np.isfinite(r.get("one_step", np.inf))]
     best = min(peers) if peers else float("nan")
     for row in rows:
@@ -178,6 +222,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-horizon", type=int, default=20)
     parser.add_argument("--peer-max-order", type=int, default=20)
     parser.add_argument("--order-grid", default="", help="comma-separated state orders for okid (e.g. 2,4,8,16)")
+    parser.add_argument("--held-out-choice", type=float, default=None, metavar="F",
+                        help="add okid-held-out: the state order by held-out prediction on the last 1-F of "
+                             "the training part (e.g. 0.75)")
     parser.add_argument("--out", type=Path, help="also write the markdown table here")
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     args = parser.parse_args(argv)
@@ -185,13 +232,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{args.out} exists; add --force to replace it")
     if not all(0.1 <= f <= 0.9 for f in args.train_fractions):
         parser.error("train fractions must be within [0.1, 0.9]")
+    if args.held_out_choice is not None and not 0.3 <= args.held_out_choice <= 0.95:
+        parser.error("--held-out-choice must be within [0.3, 0.95]")
     grid = [int(n) for n in args.order_grid.split(",") if n.strip()]
     rows = []
     for spec in args.records:
         name, u, y, dt = load_record(spec)
         for fraction in args.train_fractions:
             rows += run_split(name, u, y, dt, fraction, peer_horizon=args.peer_horizon,
-                              peer_max_order=args.peer_max_order, order_grid=grid)
+                              peer_max_order=args.peer_max_order, order_grid=grid,
+                              held_out_choice=args.held_out_choice)
     table = markdown(rows)
     print()
     print(table)
