@@ -62,19 +62,30 @@ class OutputCorrelations:
         return np.tensordot(w / w.sum(), self.segments, axes=1)
 
 
-def _correlations(y: np.ndarray, max_lag: int) -> np.ndarray:
-    """(max_lag + 1, p, p) unbiased correlations of centred ``y`` (N, p), by FFT (N log N per pair)."""
+def _correlations(y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> np.ndarray:
+    """(max_lag + 1, p, p) unbiased correlations of centred ``y`` (N, p), by FFT (N log N per pair).
+
+    ``present`` (N,) bool: only the products of two present samples count (the lag's sum divided
+    by the number of such pairs); ``y`` may hold anything at the other rows.
+    """
     n, p = y.shape
     nfft = int(2 ** np.ceil(np.log2(n + max_lag + 1)))
+    if present is None:
+        pairs = n - np.arange(max_lag + 1.0)
+    else:
+        y = np.where(present[:, None], y, 0.0)
+        mask = np.fft.rfft(present.astype(float), nfft)
+        pairs = np.maximum(np.rint(np.fft.irfft(mask * np.conj(mask), nfft)[: max_lag + 1]), 1.0)
     spectrum = np.fft.rfft(y, nfft, axis=0)  # (F, p)
     out = np.empty((max_lag + 1, p, p))
     for j in range(p):
         cross = np.fft.irfft(spectrum * np.conj(spectrum[:, j : j + 1]), nfft, axis=0)
         out[:, :, j] = cross[: max_lag + 1]
-    return out / (n - np.arange(max_lag + 1))[:, None, None]
+    return out / pairs[:, None, None]
 
 
-def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8) -> OutputCorrelations:
+def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8, *,
+                        present: np.ndarray | None = None) -> OutputCorrelations:
     """Correlations ``R_0 .. R_max_lag`` of each of ``n_segments`` consecutive segments.
 
     Parameters
@@ -83,13 +94,22 @@ def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8) -> Out
     max_lag : largest lag L (samples).
     n_segments : segments (at least 1; fewer when a segment would be shorter than
         ``max_lag / MAX_LAG_FRACTION_OF_SEGMENT``).
+    present : (N,) bool, False at missing samples (a record with dropped readings): their
+        lagged products are left out of every sum, so a filled value never enters the
+        correlations (a prediction lacks the innovation's spread, which biases them), and each
+        segment weighs by its present samples. None: every sample present.
     """
     n = y.shape[0]
     longest = int(n // max(max_lag / MAX_LAG_FRACTION_OF_SEGMENT, 1))
     n_segments = int(max(1, min(n_segments, longest)))
     bounds = np.linspace(0, n, n_segments + 1).astype(int)
-    segments = np.stack([_correlations(y[lo:hi], max_lag) for lo, hi in zip(bounds[:-1], bounds[1:])])
-    return OutputCorrelations(segments, np.diff(bounds).astype(float))
+    if present is not None and present.all():
+        present = None
+    spans = list(zip(bounds[:-1], bounds[1:]))
+    segments = np.stack([_correlations(y[lo:hi], max_lag, None if present is None else present[lo:hi])
+                         for lo, hi in spans])
+    weights = np.diff(bounds) if present is None else np.array([present[lo:hi].sum() for lo, hi in spans])
+    return OutputCorrelations(segments, weights.astype(float))
 
 
 def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:

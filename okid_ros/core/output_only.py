@@ -126,6 +126,7 @@ def identify_output_only(
     offsets: str = "remove",
     harmonics: str = "remove",
     low_band: bool = True,
+    valid: np.ndarray | None = None,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -143,6 +144,11 @@ def identify_output_only(
         before identification) or "keep" (the record as it is).
     low_band : (ssi-cov) re-estimate the modes far below the sampling rate from the record
         decimated, with longer lags (:mod:`.output_only_low_band`; default True).
+    valid : (N,) bool, False at samples that were missing and are filled in ``y`` by
+        prediction (:func:`.gap_fill.fill_missing_outputs`, or node 2's window): the steps that
+        need an unbroken record (spectrum, harmonics, gain, decimated band) use the filled
+        values, the output correlations (ssi-cov) leave them out (a prediction lacks the
+        innovation's spread and would bias them). None: every sample measured.
 
     Returns
     -------
@@ -153,6 +159,7 @@ def identify_output_only(
     IdentificationError with a one-line reason.
     """
     _check_options(method, harmonics)
+    present = _present(valid, np.shape(y)[0])
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
@@ -162,7 +169,7 @@ def identify_output_only(
     if harmonics == "remove":
         y = _without_harmonics(y, sample_time_s, warnings)
     chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
-                           block_rows=block_rows)
+                           block_rows=block_rows, present=present)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
     if method == "ssi-cov" and chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
@@ -203,15 +210,16 @@ class _Selection:
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                  once: bool = True) -> _Selection:
+                  once: bool = True, present: np.ndarray | None = None) -> _Selection:
     """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
 
     ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
-    where a true pair of one shape was taken for twins).
+    where a true pair of one shape was taken for twins). ``present``: (N,) False at samples
+    filled in gaps, left out of the correlations (the VAR route fits the filled record).
     """
     references = reference_channels(y, MAX_REFERENCES)
     block_rows = _block_rows(y, sample_time_s, references, top, block_rows)
-    correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS)
+    correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS, present=present)
     r_mean = correlations.mean
     var = None
     if method == "ssi-cov":
@@ -235,6 +243,16 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
     return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+
+
+def _present(valid, n_samples: int) -> np.ndarray | None:
+    """``valid`` as a bool mask of the record's samples, None when every one was measured."""
+    if valid is None:
+        return None
+    present = np.asarray(valid, dtype=bool)
+    if present.shape != (n_samples,):
+        raise IdentificationError(f"valid must hold one flag per sample: shape {present.shape} for {n_samples} samples")
+    return None if present.all() else present
 
 
 def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:

@@ -72,8 +72,8 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     fit : the window's ARX fit; u : (N, m) inputs; y : (N, p) outputs of the window.
     sample_time_s : dt [s]; options : the realization's options; offsets : "remove" or "none".
     valid : (N,) bool, False at samples filled in short gaps (:mod:`okid_ros.core.gap_fill`):
-        left out of the Gram of past data (input-output route; the output-only route uses the
-        filled outputs).
+        left out of the Gram of past data (input-output route) or of the output correlations
+        (output-only route).
     order_hint : the order of the model in use, which warm-starts the order search.
 
     Raises
@@ -81,7 +81,7 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     IdentificationError, ValueError or numpy.linalg.LinAlgError with the reason.
     """
     if u.shape[1] == 0:
-        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets)
+        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid)
     return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid,
                              order_hint=order_hint)
 

@@ -12,6 +12,7 @@ from scipy import linalg
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
+from okid_ros.core.output_covariance import output_correlations
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_modes import collect_poles
 from okid_ros.core.stochastic_realization import (
@@ -274,6 +275,32 @@ def test_koma_frame_modes_within_half_a_percent() -> None:
     for mode, true in zip(model.modes, truth):
         assert abs(mode.frequency_hz / true["discrete_frequency_hz"] - 1) < 0.005
         assert mode.mpc > 0.9
+
+
+def test_correlations_leave_out_the_products_of_missing_samples() -> None:
+    # Each lag's sum over the pairs of measured samples, divided by their count, per segment;
+    # what the missing rows hold (a fill, garbage) must not matter.
+    rng = np.random.default_rng(5)
+    y = rng.standard_normal((900, 3))
+    present = rng.random(900) > 0.05
+    present[0] = present[-1] = True
+    garbage = np.where(present[:, None], y, 1e3)
+    got = output_correlations(garbage, 12, 3, present=present)
+    bounds = np.linspace(0, 900, 4).astype(int)
+    for s, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+        ys, ps = y[lo:hi], present[lo:hi]
+        for k in (0, 1, 7, 12):
+            pairs = ps[k:] & ps[: ps.size - k]
+            expected = ys[k:][pairs].T @ ys[: ys.shape[0] - k][pairs] / pairs.sum()
+            np.testing.assert_allclose(got.segments[s, k], expected, rtol=1e-10, atol=1e-12)
+        assert got.weights[s] == ps.sum()
+    every = output_correlations(y, 12, 3)
+    np.testing.assert_allclose(output_correlations(y, 12, 3, present=np.ones(900, bool)).segments, every.segments)
+
+
+def test_a_mask_of_missing_samples_must_fit_the_record() -> None:
+    with pytest.raises(IdentificationError, match="one flag per sample"):
+        identify_output_only(_three_modes(3000, 2, seed=0), 0.02, valid=np.ones(2999, bool))
 
 
 @pytest.mark.parametrize(("y", "reason"), [
