@@ -104,7 +104,7 @@ def _okid(u, y, dt, **options):
 
 
 def _okid_held_out_order(u, y, dt, *, inner_fraction: float, order_grid: list[int], arx_order: int):
-    """identify at the state order that predicts the last ``1 - inner_fraction`` of ``u, y`` best.
+    """The model identified at the state order that predicts the last ``1 - inner_fraction`` of ``u, y`` best.
 
     The orders are fitted on the first ``inner_fraction`` (its means removed, as for the record).
     """
