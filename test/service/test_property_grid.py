@@ -14,7 +14,7 @@ from _hypothesis_profiles import settings  # noqa: F401 - registers and loads th
 from hypothesis import given
 from hypothesis import strategies as st
 
-from okid_ros.service.sample_grid import MAX_STAMP_S, SampleGrid, StampSequence, StampStep
+from okid_ros.service.sample_grid import MAX_STAMP_S, REJECTION_REASONS, SampleGrid, StampSequence, StampStep
 
 DT = 0.01
 SOURCES = [[0], [1, 2]]  # one input (u0), two outputs (y0, y1) from a second source
@@ -135,3 +135,91 @@ def test_a_lone_stamp_off_the_timeline_changes_nothing_but_its_count(n, at, sour
     expected_counts.update({"messages": expected_counts["messages"] + 1, reason: 1,
                             "rejected_messages": expected_counts["rejected_messages"] + 1})
     assert counts == expected_counts
+
+
+LATENCY = 3  # the grids' latency_samples in the test below
+# Stray offsets either way, from just over time_jump_s to beyond any ROS 2 time, on the grid's phase or off it.
+stray_offset = st.builds(lambda sign, size, phase: sign * size + phase * DT, st.sampled_from([1.0, -1.0]),
+                         st.one_of(st.sampled_from([1.2, 60.0, 1e9, 3e9, 1e300]), st.floats(1.1, 1e6)),
+                         st.sampled_from([0.0, 0.37]))
+
+
+# Seven parameters, and the corner that matters most (r >= 2 off the grid's phase) is rare: more examples.
+@settings(max_examples=4 * settings().max_examples)
+@given(r=st.integers(1, 5), burst=st.booleans(), k0=st.integers(1, 15), half=st.integers(0, 1),
+       source=st.integers(0, 1), jitter=st.floats(-0.2, 0.2), offset=stray_offset)
+def test_a_source_off_the_timeline_for_r_messages_then_back(r, burst, k0, half, source, jitter, offset) -> None:
+    """One source's stamps ``offset`` off the timeline for ``r`` messages in a row, then back on it.
+
+    The stray messages are ``r`` extra ones in a burst (before message ``half`` of slot ``k0``), or
+    the source's own messages of slots k0 .. k0+r-1 while the other source goes on. One (r = 1) is
+    refused: the samples are those of the stream without it, only a count changes. Two or more
+    confirm each other, a step the grid cannot tell from a real one, and coming back is a second
+    step: one time jump, the first sample after both marked as a gap, and samples lost only from
+    k0 until the grid has taken the timeline back. For any r: no exception, no stray or mixed
+    value in a sample, samples in order, every message counted.
+    """
+    n = 30  # slots: at least LATENCY + 6 of them after the source is back
+    stream = []  # (source, stamp_s, values, stray)
+    for k in range(n):
+        for s in (0, 1):
+            stamp = 10.0 + (k + jitter) * DT
+            values = [float(k)] if s == 0 else [2.0 * k, -float(k)]
+            if burst and (k, s) == (k0, half):
+                stream += [(source, 10.0 + (k0 + i + jitter) * DT + offset, [1000.0 + i] * len(SOURCES[source]), True)
+                           for i in range(r)]
+            if not burst and s == source and k0 <= k < k0 + r:
+                stream.append((s, stamp + offset, [1000.0 + k] * len(values), True))
+            else:
+                stream.append((s, stamp, values, False))
+    back = k0 if burst else k0 + r  # the first slot of the source's messages on the timeline again
+    last_stray = max(i for i, message in enumerate(stream) if message[3])
+
+    def run(batch):
+        grid = SampleGrid(DT, 1, 2, SOURCES, latency_samples=LATENCY)
+        out = [(i, sample) for i, (s, stamp, values, _) in enumerate(batch) for sample in grid.add(s, stamp, values)]
+        unflushed = grid.counters.as_dict()
+        return grid, out + [(len(batch), sample) for sample in grid.flush()], unflushed
+
+    def fields(s):
+        return s.slot, s.stamp_s, s.skipped, s.restart, s.time_jump, list(s.u), list(s.y)
+
+    clean_grid, clean_out, clean_unflushed = run([message for message in stream if not message[3]])
+    grid, out, unflushed = run(stream)  # never raises
+    samples = [sample for _, sample in out]
+    c, per_source = grid.counters, [grid.source_counters(s) for s in range(2)]
+    assert grid.pending_slots == 0 and c.samples_emitted == len(samples)
+    assert c.messages == len(stream) == sum(sc.messages for sc in per_source)
+    for reason in REJECTION_REASONS:
+        assert getattr(c, reason) == sum(getattr(sc, reason) for sc in per_source)
+    # A message not refused fills a slot, which is emitted (one message of each source) or counted
+    # missing; missing counts the slots a step skips too, hence a bound, not an equality.
+    placed = [sc.messages - sc.rejected_messages for sc in per_source]
+    assert min(placed) >= c.samples_emitted and sum(placed) <= 2 * c.samples_emitted + c.missing
+    for sample in samples:
+        k = sample.u[0]  # slot k of the clean stream, whole: no stray value, none mixed with a clean one
+        assert np.isfinite(sample.u).all() and np.isfinite(sample.y).all() and math.isfinite(sample.stamp_s)
+        assert k in range(n) and list(sample.y) == [2.0 * k, -k] and sample.skipped >= 0
+    assert [s.u[0] for s in samples] == sorted({s.u[0] for s in samples})
+    for a, b in zip(samples, samples[1:]):
+        assert b.restart or (b.slot > a.slot and b.skipped == b.slot - a.slot - 1)
+
+    beyond = abs(offset) > MAX_STAMP_S  # refused as nonfinite before the timeline is asked, any r
+    if r == 1 or beyond:
+        assert [fields(s) for _, s in out] == [fields(s) for _, s in clean_out]
+        expected = clean_grid.counters.as_dict()
+        reason = "nonfinite" if beyond else "off_timeline"
+        expected.update({"messages": expected["messages"] + r, reason: expected[reason] + r,
+                         "rejected_messages": expected["rejected_messages"] + r})
+        assert c.as_dict() == expected
+        # Refused on arrival or when its source goes on on the old timeline, not only by the final flush.
+        assert unflushed[reason] - clean_unflushed[reason] == r
+        return
+    # Of the step there and the step back, one is backward: a time jump. Each was confirmed by the
+    # next message, so nothing was refused as a lone stamp.
+    assert c.time_jumps == 1 and c.off_timeline == 0
+    assert next(sample for i, sample in out if i > last_stray).gap_before
+    # Back on a timeline off the grid's phase (after a step back), the grid refuses up to LATENCY
+    # slots of both sources as off_grid before it re-anchors, plus the slot it came back in.
+    lost = {sample.u[0] for _, sample in clean_out} - {sample.u[0] for sample in samples}
+    assert all(k0 <= k < back + LATENCY + 1 for k in lost), sorted(lost)
