@@ -16,8 +16,8 @@ grid
     nearest slot if it is within ``tolerance`` sample times of it (default 0.25), otherwise the
     message is rejected (``off_grid``). The phase ``t_0`` follows slow drifts of the stamps (it
     moves by 1 % of each accepted stamp's offset). If only off-grid messages arrive for more than
-    ``latency_samples`` messages in a row, the grid is re-anchored at the newest stamp (the
-    sensors' clock phase changed).
+    ``latency_samples`` times the number of sources messages in a row (at least one per source),
+    the grid is re-anchored at the newest stamp (the sensors' clock phase changed).
 order
     A sample is emitted when all its channels have arrived, and samples are emitted in slot
     order: a complete slot waits for older incomplete slots until they complete or expire.
