@@ -259,6 +259,10 @@ def identify_from_arx(
     rows, cols = default_hankel_size(blocks.shape[0] - 1)
     hankel_rows = options.hankel_rows or rows
     hankel_cols = options.hankel_cols or cols
+    if hankel_rows + hankel_cols > blocks.shape[0]:
+        raise IdentificationError(
+            f"an ERA Hankel of {hankel_rows} x {hankel_cols} blocks needs an ARX order of at least "
+            f"{hankel_rows + hankel_cols}; this ARX model has order {blocks.shape[0]}")
     # One Gram of the window's past data: the ERA weighting and every order's state regressions.
     gram = StateGram(u, y, hankel_cols, valid)
     decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, gram.past_weight())

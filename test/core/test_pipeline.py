@@ -342,3 +342,19 @@ def test_dropped_samples_beyond_what_can_be_filled_are_one_line_reasons():
         identify(u, y, DT, order=40, method="paper", valid=valid)
     with pytest.raises(IdentificationError, match="one flag per sample"):
         identify(u, y, DT, order=40, valid=valid[:10])
+
+
+def test_an_era_hankel_larger_than_the_arx_model_is_refused_with_its_reason():
+    # Was a ValueError from the Gram of past data (the API's options are not checked against
+    # the ARX model they are used with).
+    from okid_ros.core.options import RealizationOptions
+    from okid_ros.core.pipeline import identify_from_arx
+
+    truth = paper_model()
+    u = lowpass_input(3000, 2, 15.0, truth.sample_time_s, seed=1)
+    y, _ = simulate_innovation(truth, u, seed=2)
+    arx = identify(u, y, truth.sample_time_s, order=40).arx
+    with pytest.raises(IdentificationError, match="needs an ARX order of at least 60"):
+        identify_from_arx(arx, u, y, truth.sample_time_s, options=RealizationOptions(hankel_rows=30, hankel_cols=30))
+    model = identify_from_arx(arx, u, y, truth.sample_time_s, options=RealizationOptions(hankel_rows=20, hankel_cols=20))
+    assert model.stability_problem() == ""
