@@ -147,3 +147,41 @@ def test_impulse_rows_by_blocks_equal_the_lag_by_lag_recursion(radius, length):
     got, got_filled = _impulse_rows(Abar, C, length)
     assert got_filled == filled
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * np.abs(C).max())
+
+
+@pytest.mark.parametrize("fit_initial_state", [True, False])
+def test_refit_by_modal_filters_equals_the_refit_by_convolutions(fit_initial_state, monkeypatch):
+    """The refit's normal equations from each pole's filtered data equal the convolved regressors'.
+
+    A predictor with pole pairs and real poles (the paper model's 4 states and 2 real ones), 3
+    outputs; the same fit to rounding, and the convolution route where the basis is too
+    ill-conditioned.
+    """
+    import okid_ros.core.refit as refit
+
+    truth, u, y = _paper_record(2500, seed=3)
+    rng = np.random.default_rng(7)
+    n = truth.n_states + 2
+    Abar = linalg.block_diag(truth.predictor()[0], np.diag([0.6, -0.3]))
+    C = np.hstack([truth.C, rng.standard_normal((2, 2))])
+    C = np.vstack([C, rng.standard_normal((1, n))])
+    y3 = np.column_stack([y, y @ rng.standard_normal(2) + 0.1 * rng.standard_normal(y.shape[0])])
+    modal = refit_predictor(Abar, C, u, y3, fit_initial_state)
+    assert refit._modal_normal_equations(Abar, C, u, y3, [np.zeros((len(u), 0))] * 3, 10) is not None
+    monkeypatch.setattr(refit, "_modal_normal_equations", lambda *args: None)
+    convolved = refit_predictor(Abar, C, u, y3, fit_initial_state)
+    for mine, theirs in ((modal.model.B, convolved.model.B), (modal.model.K, convolved.model.K),
+                         (modal.model.D, convolved.model.D), (modal.innovations, convolved.innovations),
+                         (modal.x0, convolved.x0)):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-8, atol=1e-10 * max(np.abs(theirs).max(), 1e-300))
+
+
+def test_refit_of_a_defective_predictor_takes_the_convolution_route():
+    import okid_ros.core.refit as refit
+
+    truth, u, y = _paper_record(1500, seed=5)
+    Abar = np.array([[0.8, 1.0], [0.0, 0.8]])  # a Jordan block: no eigenvector basis
+    C = np.array([[1.0, 0.0], [0.0, 1.0]])
+    assert refit._modal_normal_equations(Abar, C, u, y, [np.zeros((len(u), 0))] * 2, 10) is None
+    fit = refit_predictor(Abar, C, u, y)
+    assert np.all(np.isfinite(fit.innovations)) and fit.model.B.shape == (2, 2)
