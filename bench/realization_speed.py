@@ -5,7 +5,9 @@ Three cases (issue 17): the paper size (the published model, 2 inputs, 2 outputs
 low-passed at 15 Hz, 3750 samples, ``--order 100``) and the steel subframe's samples 0-5999
 (2 inputs, 28 outputs, ``--order 20``; ``../shared/data/real/daisy-steel-subframe``), the
 latter also with identify's defaults (no ``--order``: the ARX order by GCV; the realization
-and SVD columns then at the order it chose). For each
+and SVD columns then at the order it chose). ``--cases more-outputs`` adds a mid-size case:
+the ``more-outputs`` benchmark structure (2 inputs, 6 accelerometers), 15000 samples, identify's
+defaults, where the order search's least-squares refits are the cost. For each
 case and each code version the command runs in a fresh worker process with one BLAS thread
 (``python bench/realization_speed.py --worker``, with ``PYTHONPATH`` at that version's tree);
 the worker times ``okid_ros.cli.main(["identify", ...])`` in-process (interpreter start and
@@ -24,6 +26,7 @@ Usage::
     python bench/realization_speed.py                      # 3 rounds x 3 runs, ~2 min here
     python bench/realization_speed.py --rounds 5 --runs 3
     python bench/realization_speed.py --old-ref eb72dbe    # the base commit to compare with
+    python bench/realization_speed.py --cases paper,more-outputs --old-ref HEAD~1
 """
 
 from __future__ import annotations
@@ -46,7 +49,8 @@ REPO = Path(__file__).resolve().parents[1]
 RECORD = REPO.parent / "shared" / "data" / "real" / "daisy-steel-subframe" / "steel_subframe.npz"
 # name -> (label, ARX order; 0: identify's default, the order chosen by GCV)
 CASES = {"paper": ("paper size: p = m = 2, N = 3750", 100), "subframe": ("steel subframe 0-5999: p = 28, m = 2", 20),
-         "subframe-default": ("steel subframe 0-5999: p = 28, m = 2", 0)}
+         "subframe-default": ("steel subframe 0-5999: p = 28, m = 2", 0),
+         "more-outputs": ("more-outputs: p = 6, m = 2, N = 15000", 0)}
 
 
 def _write_case_data(name: str, folder: Path) -> Path:
@@ -61,6 +65,14 @@ def _write_case_data(name: str, folder: Path) -> Path:
         u = lowpass_input(3750, 2, 15.0, truth.sample_time_s, seed=3)
         y, _ = simulate_innovation(truth, u, seed=4)
         np.savez(path, u=u, y=y, sample_time_s=truth.sample_time_s)
+    elif name == "more-outputs":  # a mid-size case: a few outputs, a long record (the refit's size)
+        from identification_accuracy import simulate_record
+
+        from okid_bench.cases import benchmark_case
+
+        case = benchmark_case("more-outputs")
+        u, y, _, _ = simulate_record(case, 15000, 0, 10)
+        np.savez(path, u=u, y=y, sample_time_s=case.sample_time_s)
     else:  # the subframe cases
         data = np.load(RECORD)
         np.savez(path, u=data["u"][:6000], y=data["y"][:6000], sample_time_s=float(data["sample_time_s"]))
@@ -194,7 +206,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="timed runs per worker (default 3, plus one warm-up)")
     ap.add_argument("--rounds", type=int, default=3, help="old/new worker pairs per case (default 3)")
     ap.add_argument("--old-ref", default=None, help="git ref of the old code (default: merge base with main)")
-    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: paper,subframe,subframe-default")
+    ap.add_argument("--cases", default="paper,subframe,subframe-default",
+                    help=f"comma-separated, of {','.join(CASES)} (default: the first three)")
     args = ap.parse_args()
     if args.worker:
         print(json.dumps(_worker(Path(args.worker), args.order, args.runs)))
