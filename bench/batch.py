@@ -35,9 +35,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import checkout
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "test"))
+checkout.add("", "test")  # the repository first, then its test helpers (as before)
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from batch_helpers import PARAMS, write_good_bag  # noqa: E402

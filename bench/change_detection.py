@@ -43,6 +43,8 @@ import argparse
 import os
 import sys
 
+import checkout
+
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--part", nargs="+",
                      choices=("track", "delay", "stationary", "jump", "calibration", "short-reference"),
@@ -82,7 +84,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+checkout.add()
 from okid_bench.changes import change_case  # noqa: E402
 from okid_bench.switching import settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402

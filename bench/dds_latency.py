@@ -42,6 +42,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import checkout
+
 REPO = Path(__file__).resolve().parent.parent
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -261,7 +263,7 @@ def main() -> int:
 
     from okid_msgs.msg import IoSample
 
-    sys.path.insert(0, str(REPO))
+    checkout.add()
     from okid_ros.sim import lowpass_input, modal_structure, simulate
 
     dt = 1.0 / args.rate

@@ -49,9 +49,10 @@ from pathlib import Path
 from typing import Callable, Optional
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
+import checkout
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+checkout.add()
 
 from okid_bench.cases import BenchmarkCase, benchmark_cases  # noqa: E402
 from okid_bench.peers import PEERS, available_peers, peer_identify  # noqa: E402

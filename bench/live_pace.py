@@ -55,6 +55,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import checkout
+
 REPO = Path(__file__).resolve().parent.parent
 _spec = importlib.util.spec_from_file_location("dds_latency", REPO / "bench" / "dds_latency.py")
 dds_latency = importlib.util.module_from_spec(_spec)
@@ -500,7 +502,7 @@ def main() -> int:
         os.environ.setdefault(var, "1")  # one BLAS thread, in the nodes too (set before the copy)
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    sys.path.insert(0, str(REPO))
+    checkout.add()
     print(f"load average (1 min) before starting: {os.getloadavg()[0]:.2f}", flush=True)
     record = Path(args.record)
     if args.synthetic > 0:

@@ -25,6 +25,8 @@ import sys
 import time
 from pathlib import Path
 
+import checkout
+
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # as in the nodes' worker (before numpy is imported)
 
@@ -68,7 +70,7 @@ def make_job(args: argparse.Namespace):
 
 def main() -> int:
     args = parse_args()
-    sys.path.insert(0, str(REPO))
+    checkout.add()
     import numpy as np
 
     from okid_ros.service.realization import realize

@@ -34,9 +34,10 @@ import time
 from pathlib import Path
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
+import checkout
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+checkout.add()
 
 from okid_bench.cases import benchmark_case  # noqa: E402
 from okid_bench.scoring import modes_of  # noqa: E402

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
+
+import checkout
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
@@ -29,7 +30,7 @@ import tracemalloc  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.signal import lfilter  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+checkout.add()
 from okid_ros.core.arx import normal_equations, scaled_condition_number, solve_fixed_penalty  # noqa: E402
 from okid_ros.core.recursive import SlidingWindowArx  # noqa: E402
 from okid_ros.core.regressors import arx_regressors  # noqa: E402

@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
+
+import checkout
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1)")
@@ -40,7 +41,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.linalg import blas  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+checkout.add()
 from okid_ros.core.arx import fit_from_normal_equations, solve_fixed_penalty  # noqa: E402
 from okid_ros.core.recursive import SlidingWindowArx  # noqa: E402
 from okid_ros.core.regressors import arx_regressors, regressor_length  # noqa: E402

@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import checkout
+
 REPO = Path(__file__).resolve().parent.parent
 _spec = importlib.util.spec_from_file_location("dds_latency", REPO / "bench" / "dds_latency.py")
 dds_latency = importlib.util.module_from_spec(_spec)
@@ -185,7 +187,7 @@ def main() -> int:
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    sys.path.insert(0, str(REPO))
+    checkout.add()
     tmp = Path(tempfile.mkdtemp(prefix="okid_rigs_"))
     rows = [run_n(args, n, env, tmp) for n in args.rigs]
     print(f"\nbench/rigs.py: {args.rate:g} Hz per rig, p = m = 2, q = 100, window 4000, ArxModel 1 Hz, "

@@ -28,6 +28,8 @@ import argparse
 import os
 import sys
 
+import checkout
+
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="noise seeds (default 0 1 2)")
 _parser.add_argument("--offset", type=int, default=1,
@@ -48,7 +50,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+checkout.add()
 from okid_bench.switching import added_mass_case, settling  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.records import save_record  # noqa: E402

@@ -356,5 +356,6 @@ def test_an_era_hankel_larger_than_the_arx_model_is_refused_with_its_reason():
     arx = identify(u, y, truth.sample_time_s, order=40).arx
     with pytest.raises(IdentificationError, match="needs an ARX order of at least 60"):
         identify_from_arx(arx, u, y, truth.sample_time_s, options=RealizationOptions(hankel_rows=30, hankel_cols=30))
-    model = identify_from_arx(arx, u, y, truth.sample_time_s, options=RealizationOptions(hankel_rows=20, hankel_cols=20))
+    model = identify_from_arx(arx, u, y, truth.sample_time_s,
+                              options=RealizationOptions(hankel_rows=20, hankel_cols=20))
     assert model.stability_problem() == ""
