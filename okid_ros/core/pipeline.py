@@ -49,7 +49,7 @@ from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import attach_jackknife_std
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
-from okid_ros.core.refine import refine_prediction_error, refinement_size
+from okid_ros.core.refine import refine_prediction_error, refinement_flops, refinement_size
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import check_io_arrays, regressor_length
 from okid_ros.core.scaling import IdentificationFrame
@@ -61,9 +61,10 @@ from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
 METHODS = ("okid", "paper")
-# The prediction-error refinement forms J^T J (N p residuals x parameters^2 flops) per iteration:
-# skip it for models where that gets slow (measured: 6 outputs, 15000 samples, 312 parameters
-# took 3 minutes); the paper case needs 4e7 flops per iteration.
+# The prediction-error refinement's cost per iteration (core/refine.refinement_flops: the Gram of
+# its filtered signals and the normal equations from it): skip it for models where that gets
+# slow; the paper case needs 3e7 flops per iteration. (The bound was first set for the tall
+# Jacobian's J^T J, N p x parameters^2 flops, which skipped 6 outputs at 15000 samples.)
 MAX_REFINE_PARAMETERS = 400
 MAX_REFINE_FLOPS_PER_ITERATION = 2e9
 # An offset this large against the channel's standard deviation is worth a warning.
@@ -101,7 +102,8 @@ def _refine(
     """Step 6: the prediction-error refinement, when affordable (None: not run or no gain)."""
     model = best.model
     n_par = refinement_size(model.n_states, model.n_outputs, model.n_inputs)
-    if not options.refine or n_par > MAX_REFINE_PARAMETERS or y.size * n_par**2 > MAX_REFINE_FLOPS_PER_ITERATION:
+    flops = refinement_flops(model.n_states, model.n_outputs, model.n_inputs, y.shape[0])
+    if not options.refine or n_par > MAX_REFINE_PARAMETERS or flops > MAX_REFINE_FLOPS_PER_ITERATION:
         return None
     return refine_prediction_error(model, u, y, burn_in=arx.order)
 

@@ -30,7 +30,7 @@ from scipy import linalg, signal
 from okid_ros.core.refit import PredictorFit, gain_from_predictor, innovation_covariance
 from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius
 
-__all__ = ["refine_prediction_error", "refinement_size"]
+__all__ = ["refine_prediction_error", "refinement_flops", "refinement_size"]
 
 
 def _split_poles(eigenvalues: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -42,6 +42,19 @@ def refinement_size(n_states: int, n_outputs: int, n_inputs: int) -> int:
     """Number of real parameters the refinement adjusts (upper bound, all poles complex)."""
     w = n_outputs + n_inputs
     return n_states * (1 + w + n_outputs) + n_outputs * n_inputs
+
+
+def refinement_flops(n_states: int, n_outputs: int, n_inputs: int, n_samples: int) -> float:
+    """Flops of one Levenberg-Marquardt iteration (upper bound, all poles complex).
+
+    The Gram of the filtered signals (``N s^2``, ``s`` signals), the normal equations assembled
+    from it per output and their solution (:meth:`_Objective.normal`); the Jacobian itself is
+    never formed.
+    """
+    p, m = n_outputs, n_inputs
+    n_par = refinement_size(n_states, p, m)
+    s = n_states * (2 + p + m) + m
+    return 2.0 * n_samples * s * s + 2.0 * p * (n_par * s * s + s * n_par * n_par) + n_par**3 / 3.0
 
 
 class _Predictor:
