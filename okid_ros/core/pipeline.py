@@ -182,6 +182,19 @@ def _completed(search: OrderSearch, completer: Completer, n: int, options: Reali
     return fit
 
 
+def _hankel_size(n_blocks: int, options: RealizationOptions) -> tuple[int, int]:
+    """ERA block rows and columns: the options', else all ``n_blocks`` Markov blocks split in two.
+
+    Raises IdentificationError when the options ask for more blocks than the ARX model has.
+    """
+    rows, cols = default_hankel_size(n_blocks - 1)
+    rows, cols = options.hankel_rows or rows, options.hankel_cols or cols
+    if rows + cols > n_blocks:
+        raise IdentificationError(f"an ERA Hankel of {rows} x {cols} blocks needs an ARX order of at least "
+                                  f"{rows + cols}; this ARX model has order {n_blocks}")
+    return rows, cols
+
+
 def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray, y: np.ndarray, arx: ArxFit,
                         options: RealizationOptions) -> tuple[int, PredictorFit, bool]:
     """Steps 5b-6: the chosen order completed and refined; the lowest BIC after refinement wins.
@@ -258,13 +271,7 @@ def identify_from_arx(
     (u, y), arx = frame.enter(u, y), frame.enter_arx(arx)
     u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
     blocks = arx.observer_markov  # (q, p, p + m): C Abar^{i-1} [L, Bbar]
-    rows, cols = default_hankel_size(blocks.shape[0] - 1)
-    hankel_rows = options.hankel_rows or rows
-    hankel_cols = options.hankel_cols or cols
-    if hankel_rows + hankel_cols > blocks.shape[0]:
-        raise IdentificationError(
-            f"an ERA Hankel of {hankel_rows} x {hankel_cols} blocks needs an ARX order of at least "
-            f"{hankel_rows + hankel_cols}; this ARX model has order {blocks.shape[0]}")
+    hankel_rows, hankel_cols = _hankel_size(blocks.shape[0], options)
     # One Gram of the window's past data: the ERA weighting and every order's state regressions.
     gram = StateGram(u, y, hankel_cols, valid)
     decomposition = decompose_hankel(blocks, hankel_rows, hankel_cols, gram.past_weight())

@@ -175,6 +175,38 @@ def refit_predictor(
 MAX_MODAL_CONDITION = 1e6
 
 
+def _modal_signals(Abar: np.ndarray, C: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The data filtered by each pole of ``Abar`` and each output's weights of them.
+
+    Returns ``R`` (N, w, n): for each data channel ``j`` of ``v`` (N, w), the real and imaginary
+    parts of its filtering by each pole pair, then by each real pole; ``B`` (p, n, n):
+    ``B[c, i, r]`` the weight of signal ``r`` in the regressor of ``Gam[i, j]`` for output c.
+    None when ``Abar`` has no well-conditioned eigenvector basis (:data:`MAX_MODAL_CONDITION`).
+    """
+    n, p = Abar.shape[0], C.shape[0]
+    lam, W = linalg.eig(Abar)
+    with np.errstate(all="ignore"):
+        condition = np.linalg.cond(W)
+    if not np.isfinite(condition) or condition > MAX_MODAL_CONDITION:
+        return None
+    tol = 1e-9 * max(1.0, float(np.abs(lam).max()))
+    upper, real = np.flatnonzero(lam.imag > tol), np.flatnonzero(np.abs(lam.imag) <= tol)
+    if 2 * upper.size + real.size != n:
+        return None
+    R = np.empty((v.shape[0], v.shape[1], n))
+    for r, pole in enumerate(lam[upper]):
+        g = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
+        R[:, :, 2 * r], R[:, :, 2 * r + 1] = g.real, g.imag
+    for r, pole in enumerate(lam[real].real, start=2 * upper.size):
+        R[:, :, r] = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
+    a = (C @ W)[:, :, None] * linalg.inv(W)[None, :, :]  # a[c, l, i] = (C W)[c, l] W^-1[l, i]
+    B = np.empty((p, n, n))
+    B[:, :, 0 : 2 * upper.size : 2] = 2.0 * a[:, upper, :].real.transpose(0, 2, 1)
+    B[:, :, 1 : 2 * upper.size : 2] = -2.0 * a[:, upper, :].imag.transpose(0, 2, 1)
+    B[:, :, 2 * upper.size :] = a[:, real, :].real.transpose(0, 2, 1)
+    return R, B
+
+
 def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: np.ndarray,
                             x0_rows: list[np.ndarray], filled: int):
     """The refit's normal equations from the data filtered by each pole of ``Abar`` once.
@@ -190,34 +222,14 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
     Returns ``(normal, rhs, predict)`` as :func:`_convolution_normal_equations`, or None when
     ``Abar`` has no well-conditioned eigenvector basis (:data:`MAX_MODAL_CONDITION`).
     """
-    n = Abar.shape[0]
     n_samples, m = u.shape
     p = y.shape[1]
-    v = np.hstack([y, u])
     w = p + m
-    lam, W = linalg.eig(Abar)
-    with np.errstate(all="ignore"):
-        condition = np.linalg.cond(W)
-    if not np.isfinite(condition) or condition > MAX_MODAL_CONDITION:
+    signals = _modal_signals(Abar, C, np.hstack([y, u]))
+    if signals is None:
         return None
-    tol = 1e-9 * max(1.0, float(np.abs(lam).max()))
-    upper, real = np.flatnonzero(lam.imag > tol), np.flatnonzero(np.abs(lam.imag) <= tol)
-    if 2 * upper.size + real.size != n:
-        return None
-    W_inv = linalg.inv(W)
-    # Real signals R[k, j, r]: a pair's real and imaginary part, then the real poles.
-    R = np.empty((n_samples, w, n))
-    for r, pole in enumerate(lam[upper]):
-        g = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
-        R[:, :, 2 * r], R[:, :, 2 * r + 1] = g.real, g.imag
-    for r, pole in enumerate(lam[real].real, start=2 * upper.size):
-        R[:, :, r] = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
-    # B[c, i, r]: the weight of signal r in the regressor of Gam[i, j] for output c.
-    a = (C @ W)[:, :, None] * W_inv[None, :, :]  # a[c, l, i] = (C W)[c, l] W^-1[l, i]
-    B = np.empty((p, n, n))
-    B[:, :, 0 : 2 * upper.size : 2] = 2.0 * a[:, upper, :].real.transpose(0, 2, 1)
-    B[:, :, 1 : 2 * upper.size : 2] = -2.0 * a[:, upper, :].imag.transpose(0, 2, 1)
-    B[:, :, 2 * upper.size :] = a[:, real, :].real.transpose(0, 2, 1)
+    R, B = signals
+    n = Abar.shape[0]
     flat = R.reshape(n_samples, w * n)
     gram = (flat.T @ flat).reshape(w, n, w, n)
     signals_u = np.einsum("kjr,km->jrm", R, u)  # (w, n, m)
