@@ -28,14 +28,9 @@ import numpy as np
 from scipy import linalg, signal
 
 from okid_ros.core.refit import PredictorFit, gain_from_predictor, innovation_covariance
-from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius
+from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius, split_poles
 
 __all__ = ["refine_prediction_error", "refinement_flops", "refinement_size"]
-
-
-def _split_poles(eigenvalues: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    tol = 1e-9 * max(1.0, np.abs(eigenvalues).max())
-    return np.flatnonzero(eigenvalues.imag > tol), np.flatnonzero(np.abs(eigenvalues.imag) <= tol)
 
 
 def refinement_size(n_states: int, n_outputs: int, n_inputs: int) -> int:
@@ -299,7 +294,7 @@ def _diagonal_parameters(model: InnovationModel) -> tuple[_Predictor, np.ndarray
         return None
     g_all = W_inv @ G  # (n, w)
     c_all = C @ W  # (p, n)
-    upper, real = _split_poles(lam)
+    upper, real = split_poles(lam)
     pairs = [(lam[i], g_all[i], c_all[:, i]) for i in upper]
     reals = [(lam[i].real, g_all[i].real, c_all[:, i].real) for i in real]
     if 2 * len(pairs) + len(reals) != n:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft, linalg, signal
 
-from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius
+from okid_ros.core.statespace import InnovationModel, free_parameters, spectral_radius, split_poles
 
 __all__ = ["PredictorFit", "refit_predictor", "gain_from_predictor", "innovation_covariance"]
 
@@ -189,8 +189,7 @@ def _modal_signals(Abar: np.ndarray, C: np.ndarray, v: np.ndarray) -> tuple[np.n
         condition = np.linalg.cond(W)
     if not np.isfinite(condition) or condition > MAX_MODAL_CONDITION:
         return None
-    tol = 1e-9 * max(1.0, float(np.abs(lam).max()))
-    upper, real = np.flatnonzero(lam.imag > tol), np.flatnonzero(np.abs(lam.imag) <= tol)
+    upper, real = split_poles(lam)
     if 2 * upper.size + real.size != n:
         return None
     R = np.empty((v.shape[0], v.shape[1], n))

@@ -24,6 +24,7 @@ __all__ = [
     "predictor_states",
     "simulate",
     "spectral_radius",
+    "split_poles",
 ]
 
 
@@ -164,6 +165,17 @@ class InnovationModel(StateSpaceDimensions):
 def spectral_radius(A: np.ndarray) -> float:
     """Largest eigenvalue modulus of a square matrix (0 for an empty one)."""
     return float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
+
+
+def split_poles(eigenvalues: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the upper members of complex pairs and of the real eigenvalues of a real matrix.
+
+    An eigenvalue within 1e-9 (relative to the largest modulus, at least 1) of the real axis is
+    real; the lower members of the pairs are in neither. Each complex-diagonal parametrization
+    (refit, refinement, mode uncertainty) takes a pair's upper member and its conjugate.
+    """
+    tol = 1e-9 * max(1.0, float(np.abs(eigenvalues).max()))
+    return np.flatnonzero(eigenvalues.imag > tol), np.flatnonzero(np.abs(eigenvalues.imag) <= tol)
 
 
 def _run_states(F: np.ndarray, G: np.ndarray, w: np.ndarray, x0: np.ndarray) -> np.ndarray:

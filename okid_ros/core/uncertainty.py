@@ -40,6 +40,7 @@ import numpy as np
 from scipy import linalg, signal
 
 from okid_ros.core.regressors import check_io_arrays
+from okid_ros.core.statespace import split_poles
 
 __all__ = ["UncertaintyResult", "attach_mode_uncertainty", "n_parameters", "steady_poles", "same_pole",
            "uncertainty_problem", "DEFAULT_MAX_FLOPS", "STEADY_STD_PER_WIDTH"]
@@ -81,11 +82,6 @@ class UncertaintyResult:
     n_parameters: int = 0
     rows_used: int = 0
     method: str = "prediction-error covariance"
-
-
-def _split_poles(eigenvalues: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    tol = 1e-9 * max(1.0, float(np.abs(eigenvalues).max()))
-    return np.flatnonzero(eigenvalues.imag > tol), np.flatnonzero(np.abs(eigenvalues.imag) <= tol)
 
 
 def _set_nan(modes: list) -> None:
@@ -286,7 +282,7 @@ def _diagonal_predictor(A, B, C, D, K) -> tuple | str:
     """The predictor ``A - A K C`` in its eigenbasis: (poles, upper pairs, reals, G, C W), or why not."""
     L = A @ K
     lam, W = linalg.eig(A - L @ C)
-    upper, real = _split_poles(lam)
+    upper, real = split_poles(lam)
     if 2 * upper.size + real.size != A.shape[0] or np.max(np.abs(lam)) >= 1.0:
         return "the predictor has repeated or unstable poles"
     try:
