@@ -29,7 +29,8 @@ from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.regressors import regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
-           "fill_missing_outputs", "mark_missing", "missing_problem", "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
+           "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem", "realization_window",
+           "OUTPUT_ONLY_VAR_ORDER"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
@@ -154,6 +155,19 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     return RealizationWindow(u, y, valid, filled)
 
 
+def missing_mask(valid, n_samples: int) -> np.ndarray | None:
+    """``valid`` as a bool mask of ``n_samples`` samples, None when none is missing.
+
+    Raises
+    ------
+    ValueError if ``valid`` is not one flag per sample.
+    """
+    valid = np.asarray(valid, dtype=bool)
+    if valid.shape != (n_samples,):
+        raise ValueError(f"valid must hold one flag per sample: shape {valid.shape} for {n_samples} samples")
+    return None if valid.all() else valid
+
+
 def mark_missing(u: np.ndarray, y: np.ndarray, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """A record whose missing samples (``valid`` False) hold 0 instead of whatever they held (NaN).
 
@@ -170,11 +184,12 @@ def mark_missing(u: np.ndarray, y: np.ndarray, valid) -> tuple[np.ndarray, np.nd
     ------
     ValueError if ``valid`` is not one flag per sample.
     """
-    u, y, valid = np.asarray(u, dtype=float), np.asarray(y, dtype=float), np.asarray(valid, dtype=bool)
+    u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
     lengths = {np.shape(a)[0] if np.ndim(a) else -1 for a in (u, y)}
-    if valid.ndim != 1 or lengths != {valid.size}:
-        raise ValueError(f"valid must hold one flag per sample: shape {valid.shape} for u{u.shape} and y{y.shape}")
-    if valid.all():
+    if len(lengths) != 1:
+        raise ValueError(f"valid must hold one flag per sample: u{u.shape} and y{y.shape} differ in length")
+    valid = missing_mask(valid, lengths.pop())
+    if valid is None:
         return u, y, None
     return (np.where(valid.reshape((-1,) + (1,) * (u.ndim - 1)), u, 0.0),
             np.where(valid.reshape((-1,) + (1,) * (y.ndim - 1)), y, 0.0), valid)

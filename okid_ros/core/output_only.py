@@ -42,6 +42,7 @@ from scipy import linalg
 from okid_ros.core.arx_gram import arx_regressor_product
 from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
+from okid_ros.core.gap_fill import missing_mask
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
@@ -159,7 +160,10 @@ def identify_output_only(
     IdentificationError with a one-line reason.
     """
     _check_options(method, harmonics)
-    present = _present(valid, np.shape(y)[0])
+    try:
+        present = None if valid is None else missing_mask(valid, np.shape(y)[0])
+    except ValueError as exc:
+        raise IdentificationError(str(exc)) from None
     y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
@@ -243,16 +247,6 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
     return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
-
-
-def _present(valid, n_samples: int) -> np.ndarray | None:
-    """``valid`` as a bool mask of the record's samples, None when every one was measured."""
-    if valid is None:
-        return None
-    present = np.asarray(valid, dtype=bool)
-    if present.shape != (n_samples,):
-        raise IdentificationError(f"valid must hold one flag per sample: shape {present.shape} for {n_samples} samples")
-    return None if present.all() else present
 
 
 def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:

@@ -233,6 +233,7 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
     gram = (flat.T @ flat).reshape(w, n, w, n)
     signals_u = np.einsum("kjr,km->jrm", R, u)  # (w, n, m)
     signals_y = np.einsum("kjr,kc->jrc", R, y)  # (w, n, p)
+    gram_u = u.T @ u
     n_x0 = x0_rows[0].shape[1]
     n_gam = n * w
     n_par = n_gam + n_x0 + p * m
@@ -246,7 +247,7 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
         cross_u = np.einsum("ir,jrm->ijm", Bc, signals_u).reshape(n_gam, m)
         normal[gam, d] += cross_u
         normal[d, gam] += cross_u.T
-        normal[d, d] += u.T @ u
+        normal[d, d] += gram_u
         rhs[gam] += np.einsum("ir,jr->ij", Bc, signals_y[:, :, c]).reshape(n_gam)
         rhs[d] += u.T @ y[:, c]
         if n_x0:
