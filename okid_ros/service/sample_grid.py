@@ -58,8 +58,8 @@ timeline
     :meth:`SampleGrid.flush` rejects a candidate still held; :meth:`SampleGrid.reset` forgets it.
 time jumps
     A confirmed timeline before the old one (a bag replayed in a loop, a simulation restarted)
-    re-anchors the grid there: incomplete slots are dropped (``missing``), the jump is counted,
-    and the first sample after it has ``restart`` and ``time_jump`` set. A confirmed timeline
+    re-anchors the grid there: incomplete slots are dropped (``missing``), the jump is counted, and
+    the first sample after it (even after a re-anchoring) has ``restart`` and ``time_jump`` set. A confirmed timeline
     after the old one (a clock set forward) is an ordinary gap (``missing``, ``skipped > 0``).
     After either, the messages of the other sources still on the old side are dropped
     (``late``) until each source has moved too.
@@ -270,6 +270,7 @@ class SampleGrid:
             src.last_slot = None
             src.before_jump = False
         self._candidate: _Candidate | None = None
+        self._jumped = False  # a time jump the next sample is to carry (kept by _clear_grid)
         self._old_side = 1  # where before_jump stamps lie (_side): +1 after a jump back, -1 a step on
         self._clear_grid()
 
@@ -281,7 +282,6 @@ class SampleGrid:
         self._horizon: int | None = None  # newest slot emitted or dropped
         self._last_emitted: int | None = None
         self._restart = True
-        self._jumped = False
         self._off_grid_run = 0
 
     def source_counters(self, source: int) -> GridCounters:
@@ -395,7 +395,7 @@ class SampleGrid:
             out += self._drop_all_pending()
             if self._horizon is not None:  # the slots up to this stamp are lost too: count them
                 self.counters.missing += max(0, math.floor((stamp_s - self._anchor) / dt) - self._horizon)
-            self._clear_grid()
+            self._clear_grid()  # keeps a time jump no sample has carried yet (_jumped) to be marked
             self._anchor = stamp_s
             for s in self._sources:
                 s.last_slot = None

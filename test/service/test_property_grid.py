@@ -155,7 +155,7 @@ def test_a_source_off_the_timeline_for_r_messages_then_back(r, burst, k0, half, 
     the source's own messages of slots k0 .. k0+r-1 while the other source goes on. One (r = 1) is
     refused: the samples are those of the stream without it, only a count changes. Two or more
     confirm each other, a step the grid cannot tell from a real one, and coming back is a second
-    step: one time jump, the first sample after both marked as a gap, and samples lost only from
+    step: one time jump, the first sample after both marked as a time jump, and samples lost only from
     k0 until the grid has taken the timeline back. For any r: no exception, no stray or mixed
     value in a sample, samples in order, every message counted.
     """
@@ -218,7 +218,10 @@ def test_a_source_off_the_timeline_for_r_messages_then_back(r, burst, k0, half, 
     # Of the step there and the step back, one is backward: a time jump. Each was confirmed by the
     # next message, so nothing was refused as a lone stamp.
     assert c.time_jumps == 1 and c.off_timeline == 0
-    assert next(sample for i, sample in out if i > last_stray).gap_before
+    first_back = next(sample for i, sample in out if i > last_stray)
+    # The jump is marked on the first sample after it, whether or not the grid had to re-anchor
+    # on the way (a return off its phase): the nodes restart on that mark.
+    assert first_back.gap_before and first_back.time_jump and first_back.restart
     # Back on a timeline off the grid's phase (after a step back), the grid refuses up to LATENCY
     # slots of both sources as off_grid before it re-anchors, plus the slot it came back in.
     lost = {sample.u[0] for _, sample in clean_out} - {sample.u[0] for sample in samples}
