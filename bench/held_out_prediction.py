@@ -20,6 +20,9 @@ the same split. Every method gets the same data: the training part's means remov
 order as its default run): how far the state order chosen by BIC is from the best one on data
 it did not see.
 
+``--unrefined`` adds the method ``okid-unrefined``: identify's defaults without the
+prediction-error refinement (``refine=False``), to see what the refinement does out of sample.
+
 ``--held-out-choice F`` adds the method ``okid-held-out``: the state order chosen by held-out
 prediction instead of BIC, within the training part alone. The first fraction ``F`` of the
 training part is identified at each state order of ``--order-grid`` (default 2, 4, .., 40; the
@@ -28,8 +31,9 @@ training part, and the best order is identified on the whole training part (the 
 the ``okid`` row) and scored on the held-out part like every other method.
 
 Records: an ``identify`` ``.npz`` (``u``, ``y``, ``sample_time_s``), or a whitespace-separated
-text file with the input columns first, named ``path.dat:M[:DT]`` (``M`` inputs, sample time
-``DT`` seconds, default 1; the DaISy layout).
+text file with the input columns first, named ``path.dat:M[:DT[:K]]`` (``M`` inputs, sample time
+``DT`` seconds, default 1; the DaISy layout), where ``K`` leading columns (a time column, as in
+several DaISy files) are dropped first.
 
 Usage::
 
@@ -63,7 +67,7 @@ HELD_OUT_GRID = list(range(2, 42, 2))  # identify's automatic search covers 2..4
 
 
 def load_record(spec: str) -> tuple[str, np.ndarray, np.ndarray, float]:
-    """(name, u (N, m), y (N, p), sample_time_s) of ``path.npz`` or ``path.dat:M[:DT]``."""
+    """(name, u (N, m), y (N, p), sample_time_s) of ``path.npz`` or ``path.dat:M[:DT[:K]]``."""
     path, _, rest = spec.partition(":")
     name = Path(path).stem
     if path.endswith(".npz"):
@@ -76,7 +80,8 @@ def load_record(spec: str) -> tuple[str, np.ndarray, np.ndarray, float]:
     if not fields:
         raise SystemExit(f"{spec}: give the number of input columns, e.g. {path}:1")
     n_inputs, dt = int(fields[0]), float(fields[1]) if len(fields) > 1 else 1.0
-    table = np.loadtxt(path, ndmin=2)
+    skip = int(fields[2]) if len(fields) > 2 else 0
+    table = np.loadtxt(path, ndmin=2)[:, skip:]
     return name, table[:, :n_inputs], table[:, n_inputs:], dt
 
 
@@ -127,6 +132,7 @@ def _okid_held_out_order(u, y, dt, *, inner_fraction: float, order_grid: list[in
 
 def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: float, *, peer_horizon: int,
               peer_max_order: int, order_grid: list[int], held_out_choice: float | None = None,
+              unrefined: bool = False,
               log=print) -> list[dict]:
     """Every method on one split of one record: a row each (a failure is a row too)."""
     train = int(fraction * u.shape[0])
@@ -134,6 +140,8 @@ def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: floa
     y = y - y[:train].mean(axis=0)
     rows = []
     methods = [("okid", lambda: _okid(u[:train], y[:train], dt))]
+    if unrefined:
+        methods.append(("okid-unrefined", lambda: _okid(u[:train], y[:train], dt, refine=False)))
     methods += [(peer, lambda peer=peer: _peer(peer, u[:train], y[:train], dt, peer_horizon, peer_max_order))
                 for peer in PEER_METHODS]
     for method, fit in methods:
@@ -217,7 +225,8 @@ def markdown(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("records", nargs="+", help="path.npz, or path.dat:M[:DT] (M input columns first)")
+    parser.add_argument("records", nargs="+",
+                        help="path.npz, or path.dat:M[:DT[:K]] (M input columns first, after K columns dropped)")
     parser.add_argument("--train-fractions", type=float, nargs="+", default=[0.67])
     parser.add_argument("--peer-horizon", type=int, default=20)
     parser.add_argument("--peer-max-order", type=int, default=20)
@@ -225,6 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--held-out-choice", type=float, default=None, metavar="F",
                         help="add okid-held-out: the state order by held-out prediction on the last 1-F of "
                              "the training part (e.g. 0.75)")
+    parser.add_argument("--unrefined", action="store_true",
+                        help="add okid-unrefined: identify's defaults without the prediction-error refinement")
     parser.add_argument("--out", type=Path, help="also write the markdown table here")
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     args = parser.parse_args(argv)
@@ -241,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         for fraction in args.train_fractions:
             rows += run_split(name, u, y, dt, fraction, peer_horizon=args.peer_horizon,
                               peer_max_order=args.peer_max_order, order_grid=grid,
-                              held_out_choice=args.held_out_choice)
+                              held_out_choice=args.held_out_choice, unrefined=args.unrefined)
     table = markdown(rows)
     print()
     print(table)
