@@ -138,6 +138,10 @@ def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: floa
     train = int(fraction * u.shape[0])
     u = u - u[:train].mean(axis=0)
     y = y - y[:train].mean(axis=0)
+    flat = np.flatnonzero(np.var(y[train:], axis=0) <= 1e-12 * np.var(y[:train], axis=0))
+    if flat.size:  # var(e) / var(y) means nothing there (flutter.dat's last samples are constant)
+        log(f"{name} {fraction:.2f}: skipped, output(s) {flat.tolist()} constant over the held-out part")
+        return []
     rows = []
     methods = [("okid", lambda: _okid(u[:train], y[:train], dt))]
     if unrefined:
