@@ -194,11 +194,11 @@ class RealizationOptions:
         return self.n_states == AUTO
 
     def with_changes(self, **changes: Any) -> "RealizationOptions":
-        """A copy with some options changed (mode criteria by their own names too)."""
+        """A copy with some options changed (``modes`` whole, or mode criteria by their own names)."""
         mode_names = {f.name for f in fields(ModeCriteria)}
         mode_changes = {k: changes.pop(k) for k in list(changes) if k in mode_names}
-        modes = replace(self.modes, **mode_changes) if mode_changes else self.modes
-        return replace(self, modes=modes, **changes)
+        modes = changes.pop("modes", self.modes)
+        return replace(self, modes=replace(modes, **mode_changes) if mode_changes else modes, **changes)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> "RealizationOptions":

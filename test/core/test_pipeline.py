@@ -380,3 +380,15 @@ def test_a_few_outputs_over_a_long_record_are_refined():
     n_par = refinement_size(model.n_states, 6, 2)
     assert y.size * n_par**2 > MAX_REFINE_FLOPS_PER_ITERATION >= refinement_flops(model.n_states, 6, 2, 8000)
     assert model.refined and model.stability_problem() == ""
+
+
+def test_the_mode_criteria_are_given_whole_or_by_name():
+    """``identify(..., modes=ModeCriteria(...))`` was refused ("multiple values for 'modes'")."""
+    from okid_ros.core.options import ModeCriteria, RealizationOptions
+
+    whole = RealizationOptions().with_changes(modes=ModeCriteria(min_mpc=0.1))
+    assert whole.modes.min_mpc == 0.1 and whole.modes.min_dominance == ModeCriteria().min_dominance
+    both = RealizationOptions().with_changes(modes=ModeCriteria(min_mpc=0.1), min_dominance=0.3, refine=False)
+    assert (both.modes.min_mpc, both.modes.min_dominance, both.refine) == (0.1, 0.3, False)
+    by_name = RealizationOptions().with_changes(min_mpc=0.2)
+    assert by_name.modes.min_mpc == 0.2
