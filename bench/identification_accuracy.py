@@ -9,7 +9,10 @@ case's ARX order where the method has one), and the models are scored against th
 * frequency error (%) and damping error (percentage points) per true mode, RMS over seeds
   (over the seeds where the mode was found);
 * missed true modes and spurious physical modes (stable, damping < 20 %, below Nyquist,
-  not matched within 5 % in frequency), totals over seeds;
+  not matched within 5 % in frequency), totals over seeds: these score every pole of ``A``;
+* ``listed: missed / spurious``: the same for the modes the model lists (okid_ros's physical
+  modes after its selection: what ``identify`` reports), paired one to one, totals over seeds;
+  ``n/a`` for peers, which list none;
 * one-step prediction-error power on the held-out record divided by the oracle Kalman
   predictor's (1.0 is the limit), median and max over seeds; ``n/a`` for methods without a
   noise model (python-control's ERA);
@@ -57,6 +60,7 @@ checkout.add()
 from okid_bench.cases import BenchmarkCase, benchmark_cases  # noqa: E402
 from okid_bench.peers import PEERS, available_peers, peer_identify  # noqa: E402
 from okid_bench.scoring import (  # noqa: E402
+    assign_by_frequency,
     match_modes,
     modes_of,
     physical_modes,
@@ -146,6 +150,8 @@ class RunResult:
     ratio: Optional[float] = None
     markov_err: Optional[float] = None
     n_states: Optional[int] = None
+    listed_missed: Optional[int] = None  # of the modes the model lists (okid_ros: what a user reads)
+    listed_spurious: Optional[int] = None
 
 
 def _has_gain(model) -> bool:
@@ -182,6 +188,11 @@ def score_model(model, case: BenchmarkCase, u_val, y_val, burn_in: int) -> dict:
         "ratio": None,
         "markov_err": None,
     }
+    listed = getattr(model, "modes", None)
+    if listed is not None:  # okid_ros's listed (physical) modes, paired one to one with the true ones
+        pairs = assign_by_frequency([md.frequency_hz for md in listed], [md.frequency_hz for md in true], MODE_TOL)
+        out["listed_missed"] = sum(c is None for c in pairs)
+        out["listed_spurious"] = len(listed) - sum(c is not None for c in pairs)
     if _has_gain(model):
         out["ratio"] = prediction_error_ratio(model, case.system, u_val, y_val, burn_in)
         out["markov_err"] = stochastic_markov_error(model, case.system, N_MARKOV_TERMS)
@@ -250,6 +261,8 @@ def aggregate(results: list[RunResult], n_modes: int) -> dict[str, dict]:
         row["damp_rms_pp"] = [_rms([r.damp_err_pp[i] for r in ok]) for i in range(n_modes)]
         row["missed"] = sum(r.missed for r in ok)
         row["spurious"] = sum(r.spurious for r in ok)
+        listed = [r for r in ok if r.listed_missed is not None]
+        row["listed"] = (sum(r.listed_missed for r in listed), sum(r.listed_spurious for r in listed)) if listed else None
         ratios = [r.ratio for r in ok if r.ratio is not None]
         row["ratio_median"] = float(np.median(ratios)) if ratios else None
         row["ratio_max"] = float(np.max(ratios)) if ratios else None
@@ -272,8 +285,8 @@ def markdown_table(case: BenchmarkCase, n_samples: int, seeds: list[int], table:
     lines.append("")
     mode_hdr = " / ".join(f"m{i + 1}" for i in range(len(true)))
     lines.append(f"| method | f err % RMS ({mode_hdr}) | zeta err pp RMS ({mode_hdr}) | missed | "
-                 f"spurious | ratio median | ratio max | C A^i K err | time s | failed |")
-    lines.append("|---|---|---|---|---|---|---|---|---|---|")
+                 f"spurious | ratio median | ratio max | C A^i K err | time s | failed | listed: missed / spurious |")
+    lines.append("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, row in table.items():
         f = " / ".join(_fmt(v, 3) for v in row["freq_rms_pct"])
         z = " / ".join(_fmt(v, 3) for v in row["damp_rms_pp"])
@@ -281,7 +294,8 @@ def markdown_table(case: BenchmarkCase, n_samples: int, seeds: list[int], table:
             f"| {name} | {f} | {z} | {row['missed']} | {row['spurious']} | "
             f"{_fmt(row['ratio_median'], 4)} | {_fmt(row['ratio_max'], 4)} | "
             f"{_fmt(row['markov_median'], 3)} | {_fmt(row['time_median_s'], 2)} | "
-            f"{row['failures']}/{row['runs']} |")
+            f"{row['failures']}/{row['runs']} | "
+            f"{'n/a' if row['listed'] is None else '{} / {}'.format(*row['listed'])} |")
     reasons = {name: row["reasons"] for name, row in table.items() if row["reasons"]}
     if reasons:
         lines.append("")

@@ -4,8 +4,9 @@
 For each case and seed, one record is simulated, identified with the default chain
 (``okid_ros.core.pipeline.identify``, the case's ARX order, automatic model order), and
 :func:`okid_ros.core.uncertainty.attach_mode_uncertainty` gives every mode a frequency and a
-damping standard deviation. Each true mode is matched to the nearest identified mode (within 5 %
-in frequency). Per true mode the table gives:
+damping standard deviation. True and identified modes are paired one to one by frequency
+(within 5 %; a close pair realized as one mode is one mode found, not two). Per true mode the
+table gives:
 
 * ``found``: records where the mode was identified (out of the seeds);
 * ``f in 2 std``, ``zeta in 2 std``: fraction of those with ``|estimate - truth| <= 2 std``
@@ -40,7 +41,7 @@ import numpy as np  # noqa: E402
 checkout.add()
 
 from okid_bench.cases import benchmark_case  # noqa: E402
-from okid_bench.scoring import modes_of  # noqa: E402
+from okid_bench.scoring import assign_by_frequency, modes_of  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
 from okid_ros.sim.simulators import simulate  # noqa: E402
@@ -77,12 +78,12 @@ def run_case(name: str, seeds: int, length: int, first_seed: int = 0) -> dict:
         if not result.computed:
             not_computed.append(result.reason)
             continue
-        for true, row in zip(truth, rows):
-            if not model.modes:
-                break
-            mode = min(model.modes, key=lambda md: abs(md.frequency_hz - true.frequency_hz))
-            if abs(mode.frequency_hz / true.frequency_hz - 1) > MATCH_TOL:
+        pairs = assign_by_frequency([md.frequency_hz for md in model.modes], [t.frequency_hz for t in truth],
+                                    MATCH_TOL)
+        for true, row, index in zip(truth, rows, pairs):
+            if index is None:
                 continue
+            mode = model.modes[index]
             row["f_err"].append(mode.frequency_hz - true.frequency_hz)
             row["f_std"].append(mode.frequency_hz_std)
             row["z_err"].append(mode.damping_ratio - true.damping_ratio)

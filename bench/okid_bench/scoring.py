@@ -29,6 +29,7 @@ __all__ = [
     "ModeMatch",
     "modes_of",
     "physical_modes",
+    "assign_by_frequency",
     "match_modes",
     "prediction_error_ratio",
     "stochastic_markov_error",
@@ -128,6 +129,32 @@ class ModeMatch:
         return len(self.spurious)
 
 
+def assign_by_frequency(identified_hz, true_hz, tol: float = 0.05) -> list[Optional[int]]:
+    """One-to-one pairing of identified with true modes by frequency: the index paired with each true mode.
+
+    The assignment minimizes the total relative distance ``|f_id - f_true| / f_true`` (Hungarian
+    algorithm); a pair is kept only within ``tol``. One identified mode never stands for two true
+    ones (a close pair realized as one mode leaves one true mode unpaired).
+
+    Parameters
+    ----------
+    identified_hz : (ni,) identified frequencies; true_hz : (nt,) true ones (any one unit).
+
+    Returns
+    -------
+    list of nt entries: the index into ``identified_hz``, or None.
+    """
+    fi, ft = np.asarray(identified_hz, float), np.asarray(true_hz, float)
+    pairs: list[Optional[int]] = [None] * ft.size
+    if ft.size and fi.size:
+        cost = np.abs(fi[None, :] - ft[:, None]) / ft[:, None]
+        rows, cols = scipy.optimize.linear_sum_assignment(np.where(cost <= tol, cost, 1e6))
+        for r, c in zip(rows, cols):
+            if cost[r, c] <= tol:
+                pairs[r] = int(c)
+    return pairs
+
+
 def match_modes(identified: list[Mode], true: list[Mode], tol: float = 0.05) -> ModeMatch:
     """One-to-one matching of identified modes to true modes by frequency.
 
@@ -147,18 +174,10 @@ def match_modes(identified: list[Mode], true: list[Mode], tol: float = 0.05) -> 
     ModeMatch
     """
     nt, ni = len(true), len(identified)
-    matched: list[Optional[Mode]] = [None] * nt
+    pairs = assign_by_frequency([md.frequency_rad_s for md in identified], [md.frequency_rad_s for md in true], tol)
+    matched: list[Optional[Mode]] = [None if c is None else identified[c] for c in pairs]
     used = np.zeros(ni, dtype=bool)
-    if nt and ni:
-        ft = np.array([md.frequency_rad_s for md in true])
-        fi = np.array([md.frequency_rad_s for md in identified])
-        cost = np.abs(fi[None, :] - ft[:, None]) / ft[:, None]
-        big = 1e6
-        rows, cols = scipy.optimize.linear_sum_assignment(np.where(cost <= tol, cost, big))
-        for r, c in zip(rows, cols):
-            if cost[r, c] <= tol:
-                matched[r] = identified[c]
-                used[c] = True
+    used[[c for c in pairs if c is not None]] = True
     ferr = np.full(nt, np.nan)
     derr = np.full(nt, np.nan)
     for i, (t, m) in enumerate(zip(true, matched)):
