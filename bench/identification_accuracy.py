@@ -262,7 +262,8 @@ def aggregate(results: list[RunResult], n_modes: int) -> dict[str, dict]:
         row["missed"] = sum(r.missed for r in ok)
         row["spurious"] = sum(r.spurious for r in ok)
         listed = [r for r in ok if r.listed_missed is not None]
-        row["listed"] = (sum(r.listed_missed for r in listed), sum(r.listed_spurious for r in listed)) if listed else None
+        row["listed"] = ((sum(r.listed_missed for r in listed), sum(r.listed_spurious for r in listed))
+                         if listed else None)
         ratios = [r.ratio for r in ok if r.ratio is not None]
         row["ratio_median"] = float(np.median(ratios)) if ratios else None
         row["ratio_max"] = float(np.max(ratios)) if ratios else None
