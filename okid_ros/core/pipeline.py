@@ -53,7 +53,7 @@ from okid_ros.core.refine import refine_prediction_error, refinement_flops, refi
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import check_io_arrays, regressor_length
 from okid_ros.core.scaling import IdentificationFrame
-from okid_ros.core.stabilization import stabilization_diagram, stable_fraction
+from okid_ros.core.stabilization import refined_stable_fraction, stabilization_diagram, stable_fraction
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady_poles, uncertainty_problem
@@ -296,7 +296,8 @@ def identify_from_arx(
     system_markov = markov_from_arx(arx)
     identified = _package_judged(
         model, best.x0, sample_time_s, arx, u, y, reference_markov=system_markov[1:], options=options,
-        stability=lambda mode: stable_fraction(mode, diagram, n_best, options.modes),
+        stability=lambda mode: (refined_stable_fraction if refined else stable_fraction)(
+            mode, diagram, n_best, options.modes),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
         completed_orders=sorted(search.fits), stabilization=diagram,
