@@ -115,9 +115,12 @@ def test_a_mode_the_neighbouring_orders_lose_is_kept_when_its_pole_is_steady() -
 
 
 def test_a_weak_mode_the_refinement_moves_is_listed() -> None:
-    """Separate-noise benchmark case, identify's defaults: the 6.8 Hz mode (weakly seen by the
-    displacement sensors) is 6.6 Hz in every order's model and 6.77 Hz once refined; it was in ``A``
-    but not listed (stable fraction 0 against the unrefined orders)."""
+    """A weak mode the refinement moves is listed (separate-noise case, identify's defaults).
+
+    The 6.8 Hz mode, weakly seen by the displacement sensors, is 6.6 Hz in every order's model and
+    6.77 Hz once refined; it was in ``A`` but not listed (stable fraction 0 against the unrefined
+    orders).
+    """
     from okid_bench.cases import benchmark_case
     from okid_bench.scoring import assign_by_frequency, modes_of
     from okid_ros.sim.simulators import simulate
