@@ -58,9 +58,9 @@ timeline
     :meth:`SampleGrid.flush` rejects a candidate still held; :meth:`SampleGrid.reset` forgets it.
 time jumps
     A confirmed timeline before the old one (a bag replayed in a loop, a simulation restarted)
-    re-anchors the grid there: incomplete slots are dropped (``missing``), the jump is counted, and
-    the first sample after it (even after a re-anchoring) has ``restart`` and ``time_jump`` set. A confirmed timeline
-    after the old one (a clock set forward) is an ordinary gap (``missing``, ``skipped > 0``).
+    re-anchors the grid there: incomplete slots are dropped (``missing``), the jump is counted,
+    and the next sample (also after a re-anchoring) has ``restart`` and ``time_jump`` set. A
+    confirmed timeline after the old one (a clock set forward) is a gap (``missing``, ``skipped > 0``).
     After either, the messages of the other sources still on the old side are dropped
     (``late``) until each source has moved too.
 
