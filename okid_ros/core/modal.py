@@ -339,6 +339,7 @@ def modal_form(
     criteria: ModeCriteria | None = None,
     stability: Callable[[Mode], float] | None = None,
     steady: Callable[[Mode], bool] | None = None,
+    noisy: Callable[[Mode], bool] | None = None,
     D: np.ndarray | None = None,
 ) -> ModalForm:
     """Transform an innovation-form model to the normalized real modal form.
@@ -346,7 +347,8 @@ def modal_form(
     ``criteria`` are passed to :func:`identify_modes`. ``stability(mode)`` gives the fraction
     of neighbouring model orders in which the mode is found (:mod:`okid_ros.core.stabilization`;
     NaN: not judged); a physical mode below ``criteria.min_stable_fraction`` is listed as
-    non-physical unless ``steady(mode)`` (its pole known precisely from the data). ``D`` (p, m),
+    non-physical unless ``steady(mode)`` (its pole known precisely from the data); so is one for
+    which ``noisy(mode)`` (its pole not placed by the data: a noise pole). ``D`` (p, m),
     the feedthrough, is part of the response the dominance of each mode is judged against.
     """
     n = A.shape[0]
@@ -358,6 +360,9 @@ def modal_form(
                 mode.stability = float(stability(mode))
                 confirmed = not mode.stability < criteria.min_stable_fraction
                 mode.physical = confirmed or bool(steady and steady(mode))
+    if noisy is not None:
+        for mode in modes:
+            mode.physical = mode.physical and not noisy(mode)
     physical = [i for i, m in enumerate(modes) if m.physical]
     others = [i for i, m in enumerate(modes) if not m.physical]
     columns = []

@@ -56,7 +56,13 @@ from okid_ros.core.scaling import IdentificationFrame
 from okid_ros.core.stabilization import refined_stable_fraction, stabilization_diagram, stable_fraction
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
-from okid_ros.core.uncertainty import attach_mode_uncertainty, same_pole, steady_poles, uncertainty_problem
+from okid_ros.core.uncertainty import (
+    attach_mode_uncertainty,
+    noisy_poles,
+    same_pole,
+    steady_poles,
+    uncertainty_problem,
+)
 
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
@@ -118,11 +124,12 @@ def _package(
     options: RealizationOptions,
     stability=None,
     steady=None,
+    noisy=None,
     **fields: Any,
 ) -> IdentifiedModel:
     """Step 7-8: normalized modal form, physical modes, the final checks."""
     form = modal_form(model.A, model.B, model.C, model.K, sample_time_s, reference_markov,
-                      criteria=options.modes, stability=stability, steady=steady, D=model.D)
+                      criteria=options.modes, stability=stability, steady=steady, noisy=noisy, D=model.D)
     for i, mode in enumerate(form.modes):
         mode.id = i
     identified = IdentifiedModel(
@@ -137,12 +144,14 @@ def _package(
 
 
 def _package_judged(model: InnovationModel, x0: np.ndarray, sample_time_s: float, arx: ArxFit, u: np.ndarray,
-                    y: np.ndarray, *, stability, **fields: Any) -> IdentifiedModel:
+                    y: np.ndarray, *, stability, jackknife=None, **fields: Any) -> IdentifiedModel:
     """:func:`_package` with the stabilization fraction ``stability`` and the modes' standard deviations (step 7b).
 
-    A mode refused by the stabilization fraction alone is kept when its standard deviations
-    (:func:`.uncertainty.attach_mode_uncertainty`, on the offset-free data) say its pole is
-    steady (:func:`.uncertainty.steady_poles`).
+    The standard deviations (:func:`.uncertainty.attach_mode_uncertainty` on the offset-free
+    data, or where that is out of reach ``jackknife(identified)``, of the listed modes only)
+    judge the modes once more: a mode refused by the stabilization fraction alone is kept when
+    they say its pole is steady (:func:`.uncertainty.steady_poles`), and a listed mode is refused
+    when they say its pole is noise (:func:`.uncertainty.noisy_poles`).
     """
     refused: list[complex] = []
 
@@ -153,21 +162,29 @@ def _package_judged(model: InnovationModel, x0: np.ndarray, sample_time_s: float
         return fraction
 
     identified = _package(model, x0, sample_time_s, arx, stability=judged, **fields)
-    # Without standard deviations (tens of outputs) no refused mode can be shown steady.
-    if not refused or uncertainty_problem(model.A.shape[0], *model.D.shape, y.shape[0], burn_in=arx.order):
-        identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)
-        return identified
-    every = _package(model, x0, sample_time_s, arx, **fields)  # the refused modes too, to know their scatter
-    uncertainty = attach_mode_uncertainty(every, u, y, burn_in=arx.order)
-    steady = steady_poles(every.modes)
-    if any(same_pole(ev, steady) for ev in refused):
+    steady: list[complex] = []
+    if uncertainty_problem(model.A.shape[0], *model.D.shape, y.shape[0], burn_in=arx.order):
+        every = identified  # tens of outputs: the refused modes stay refused
+        identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)  # NaN, the reason
+        if identified.modes and jackknife is not None:
+            identified.uncertainty = jackknife(identified)
+    else:
+        every = _package(model, x0, sample_time_s, arx, **fields) if refused else identified  # the refused too
+        every.uncertainty = attach_mode_uncertainty(every, u, y, burn_in=arx.order)
+        if not every.uncertainty.computed and every.modes and jackknife is not None:
+            every.uncertainty = jackknife(every)  # e.g. a predictor with repeated poles
+        steady = steady_poles(every.modes)
+    noisy = noisy_poles(every.modes, y.shape[0] * sample_time_s)
+    if any(same_pole(ev, steady) for ev in refused) or any(same_pole(m.eigenvalue, noisy) for m in identified.modes):
         identified = _package(model, x0, sample_time_s, arx, stability=stability,
-                              steady=lambda mode: same_pole(mode.eigenvalue, steady), **fields)
-    stds = {mode.eigenvalue: (mode.frequency_hz_std, mode.damping_ratio_std) for mode in every.modes}
-    for mode in identified.modes:
-        mode.frequency_hz_std, mode.damping_ratio_std = next(
-            (v for ev, v in stds.items() if same_pole(mode.eigenvalue, [ev])), (float("nan"), float("nan")))
-    identified.uncertainty = uncertainty
+                              steady=lambda mode: same_pole(mode.eigenvalue, steady),
+                              noisy=lambda mode: same_pole(mode.eigenvalue, noisy), **fields)
+    if identified is not every:
+        stds = {mode.eigenvalue: (mode.frequency_hz_std, mode.damping_ratio_std) for mode in every.modes}
+        for mode in identified.modes:
+            mode.frequency_hz_std, mode.damping_ratio_std = next(
+                (v for ev, v in stds.items() if same_pole(mode.eigenvalue, [ev])), (float("nan"), float("nan")))
+    identified.uncertainty = every.uncertainty
     return identified
 
 
@@ -304,10 +321,9 @@ def identify_from_arx(
         system_markov=system_markov, completion=completion, refined=refined,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
         warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y),
+        jackknife=None if not options.jackknife_segments else lambda identified: attach_jackknife_std(
+            identified, arx, u, y, hankel_size=(hankel_rows, hankel_cols), options=options, valid=valid),
     )
-    if not identified.uncertainty.computed and identified.modes and options.jackknife_segments:
-        identified.uncertainty = attach_jackknife_std(
-            identified, arx, u, y, hankel_size=(hankel_rows, hankel_cols), options=options, valid=valid)
     return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
