@@ -26,9 +26,10 @@ Life of a model update::
 The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
 realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
 ids (:mod:`~okid_ros.service.model_switch`), the divergence and change watch
-(:mod:`~okid_ros.service.watch`); this module is the service that holds them, with all its
-locking (one lock, around what the realization's thread and the sample path share: the
-waiting request, the job in flight, the delivered outcome and a change of options).
+(:mod:`~okid_ros.service.watch`), the diagnostics dict
+(:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them,
+with all its locking (one lock, around what the realization's thread and the sample path
+share: the waiting request, the job in flight, the delivered outcome and a change of options).
 
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
 :meth:`diagnostics`, naming the check):
@@ -78,6 +79,7 @@ from okid_ros.core.gap_fill import realization_window
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
+from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
 from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
@@ -445,51 +447,7 @@ class ModalEstimationService:
         return [] if self._active is None else list(self._active.modes)
 
     def diagnostics(self) -> dict[str, Any]:
-        """Counters and health as a flat dict."""
-        st = self._stats
-        buf = self._buffer
-        model = self.current_model
-        watch = self._watch.diagnostics()
-        return {
-            "samples": st.samples,
-            "rejected_samples": st.rejected_samples,
-            "buffer_samples": min(buf.count, buf.cap),
-            "buffer_capacity": buf.cap,
-            "arx_models_received": st.arx_received,
-            "arx_models_replaced": st.arx_replaced,
-            "arx_models_refused": st.arx_refused,
-            "arx_models_unchanged": st.arx_unchanged,
-            "realizations": st.realizations,
-            "models_accepted": st.models_accepted,
-            "models_rejected": st.models_rejected,
-            "consecutive_rejections": st.consecutive_rejections,
-            "last_model_accepted": st.last_accepted,
-            "forced_accepts": st.forced_accepts,
-            "last_reason": st.last_reason,
-            "last_realization_time_s": st.last_realization_time_s,
-            "last_window_samples": st.last_window_samples,
-            "last_switch_jump": st.last_switch_jump,
-            "max_switch_jump": st.max_switch_jump,
-            "switches_measured": st.switches_measured,
-            "gaps_bridged": st.gaps_bridged,
-            "window_samples_filled": st.window_samples_filled,
-            "estimator_restarts": st.estimator_restarts,
-            "diverged_samples": st.diverged_samples,
-            "divergence_restarts": st.divergence_restarts,
-            "state_jumps": st.state_jumps,
-            **watch,  # the change test's state (service/watch.py)
-            "changes_detected": st.changes_detected,
-            "last_change_stamp_s": st.last_change_stamp_s,
-            "last_change_statistic": st.last_change_statistic,
-            "last_change_delay_samples": st.last_change_delay_samples,
-            "windows_refused_for_change": st.windows_refused_for_change,
-            "modes_retired": st.modes_retired,
-            "model_id": self._model_id,
-            "n_modes": 0 if self._active is None else self._active.n_modes,
-            "n_states": 0 if self._active is None else self._active.model.n_states,
-            "busy": self._busy,
-            "arx_request_waiting": self._request is not None,
-            "enabled": self.enabled,
-            "order_limit_reached": bool(model is not None and model.max_states_reached),
-            "model_warnings": "" if model is None else "; ".join(model.warnings),
-        }
+        """Counters and health as a flat dict (:mod:`okid_ros.service.estimation_diagnostics`)."""
+        return estimation_diagnostics(self._stats, self._buffer, self._watch.diagnostics(), self._active,
+                                      model_id=self._model_id, busy=self._busy,
+                                      request_waiting=self._request is not None, enabled=self.enabled)
