@@ -20,16 +20,23 @@ Life of a model update::
                                    meanwhile, so the state is converged when it takes over
     deliver(outcome)               hands the result back
     step(...)                      the next sample switches models at a sample boundary
+    apply_ready_if_idle()          or, when no sample came for a while (the end of a bag, a
+                                   sensor pause; :mod:`~okid_ros.service.idle`), a timer does,
+                                   after the newest buffered sample; then the next request
+                                   can be taken
 
-``process_pending()`` runs the last three synchronously (offline processing).
+``process_pending()`` runs take_job, realize and deliver synchronously (offline processing,
+where the next sample always comes or the record has ended: no idle switch).
 
 The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
 realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
 ids (:mod:`~okid_ros.service.model_switch`), the divergence and change watch
 (:mod:`~okid_ros.service.watch`), the diagnostics dict
 (:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them,
-with all its locking (one lock, around what the realization's thread and the sample path
-share: the waiting request, the job in flight, the delivered outcome and a change of options).
+with all its locking: one lock, around what the realization's thread and the sample path share
+(the waiting request, the job in flight, the delivered outcome and a change of options), held
+by :meth:`~ModalEstimationService.step` and :meth:`~ModalEstimationService.apply_ready_if_idle`
+throughout, so that a delivered outcome is applied once, by one of them, between two samples.
 
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
 :meth:`diagnostics`, naming the check):
@@ -67,7 +74,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import replace
+import time
 from typing import Any
 
 import numpy as np
@@ -80,12 +87,14 @@ from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
+from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
 from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     ActiveModel,
     EstimationStats,
+    IdleSwitch,
     ModalStatesResult,
     ModelUpdate,
     RealizationJob,
@@ -97,6 +106,7 @@ from okid_ros.service.watch import InnovationWatch
 
 __all__ = [
     "realize",
+    "IdleSwitch",
     "ModalEstimationParams",
     "ModalEstimationService",
     "ModalStatesResult",
@@ -119,7 +129,8 @@ class ModalEstimationService:
         self._params = params
         params.realization_options()  # raises ValueError with the reason on a bad option
         # The one lock: the waiting request, the job in flight, the delivered outcome and the
-        # options, which the realization's thread and the sample path share.
+        # options, which the realization's thread and the sample path share; held by step() and
+        # apply_ready_if_idle() throughout, so that a model switches between two samples.
         self._lock = threading.Lock()
         cap = params.buffer_length if params.buffer_length > 0 else 8192
         self._buffer = SampleBuffer(cap, params.n_inputs, params.n_outputs)
@@ -147,6 +158,7 @@ class ModalEstimationService:
             self._held_update: ModelUpdate | None = None  # outputs of withheld samples, passed on
             self._held_change: StructuralChangeEvent | None = None
             self._accepted_change: StructuralChangeEvent | None = None  # set by _apply, reported by step
+            self._idle = IdleWatch()
 
     def set_params(self, params: ModalEstimationParams) -> list[str]:
         """Take new options at once; returns the changed fields.
@@ -290,31 +302,13 @@ class ModalEstimationService:
     def follow(self, outcome: RealizationOutcome) -> RealizationOutcome:
         """Continue a realized outcome's warm start over the samples buffered since its window.
 
-        Runs (on any thread) until at most ``handover_samples`` are left for :meth:`step`, and
-        makes the new model's estimator there, so that the switch in :meth:`step` has less to do.
+        On any thread, before :meth:`deliver` (:func:`okid_ros.service.realization.follow`):
+        the switch then has at most ``handover_samples`` left to catch up.
         """
-        if outcome.model is None:
-            return outcome
-        prm = outcome.job.params
-        x, u_prev, last, count = outcome.state, outcome.last_input, outcome.last_index, outcome.warm_start_samples
-        for _ in range(50):
-            # Never the newest buffered sample: step() may be applying this outcome to it.
-            available = self._buffer.count - 1
-            if available - 1 - last <= prm.handover_samples:
-                break
-            _, u, y, skipped = self._buffer.get(last + 1, available)
-            if u.shape[0] == 0:
-                break
-            x, u_prev = realization.advance_state(outcome.model, x, u, y, skipped, u_prev,
-                                                     max_gap=prm.max_gap_samples, chunked=True)
-            last += u.shape[0]
-            count += u.shape[0]
-        estimator = outcome.estimator or ModalStateEstimator.from_model(outcome.model)
-        return replace(outcome, state=x, last_input=u_prev, last_index=last, warm_start_samples=count,
-                       estimator=estimator)
+        return realization.follow(outcome, self._buffer)
 
     def deliver(self, outcome: RealizationOutcome) -> None:
-        """Hand a job's outcome back; it is applied at the next :meth:`step`."""
+        """Hand a job's outcome back; it is applied at the next :meth:`step` (or :meth:`apply_ready_if_idle`)."""
         with self._lock:
             if outcome.job.generation != self._generation:
                 return  # taken before a reset
@@ -350,21 +344,27 @@ class ModalEstimationService:
             st.rejected_samples += 1
             return None
         st.samples += 1
-        index = self._buffer.append(float(stamp_s), u, y, int(skipped))
+        with self._lock:  # the sample appended and stepped with no idle switch in between
+            return self._step(float(stamp_s), u, y, int(skipped))
+
+    def _step(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> ModalStatesResult | None:
+        prm, st = self.params, self._stats
+        index = self._buffer.append(stamp_s, u, y, skipped)
         update = None
         if self._ready is not None:
-            with self._lock:
-                outcome, self._ready = self._ready, None
-            update = self._apply(outcome, index, u, y, int(skipped))
+            outcome, self._ready = self._ready, None
+            update = self._apply(outcome, index, u, y, skipped)
         active = self._active
         if active is None:
             self._u_prev = u
             return None
         est = active.estimator
+        # A switch made while the stream was idle has its jump measured at this sample.
+        switched = update is not None or self._jump.measure_deferred(u, y, skipped, self._u_prev,
+                                                                     prm.max_gap_samples)
         if skipped:
-            self._watch.gap(self._u_prev, int(skipped))
-            bridged = realization.bridge_state(active.model, est.state, self._u_prev, int(skipped),
-                                               prm.max_gap_samples)
+            self._watch.gap(self._u_prev, skipped)
+            bridged = realization.bridge_state(active.model, est.state, self._u_prev, skipped, prm.max_gap_samples)
             if 0 < skipped <= prm.max_gap_samples:
                 st.gaps_bridged += 1
             else:
@@ -372,7 +372,7 @@ class ModalEstimationService:
             est.set_state(bridged)
         x_post, y_est, innov = est.step(u, y)
         self._u_prev = u
-        diverged, change, u_restart = self._watch.observe(active, float(stamp_s), index, u, y, innov)
+        diverged, change, u_restart = self._watch.observe(active, stamp_s, index, u, y, innov)
         change, self._accepted_change = change or self._accepted_change, None
         if u_restart is not None:
             self._u_prev = u_restart
@@ -383,15 +383,50 @@ class ModalEstimationService:
             return None
         n = active.n_modes
         coords = x_post[: 2 * n].reshape(n, 2)
-        self._jump.after_sample(active, coords, update is not None)
+        self._jump.after_sample(active, coords, switched)
         update, self._held_update = update or self._held_update, None
         change, self._held_change = change or self._held_change, None
-        return ModalStatesResult(float(stamp_s), active.model_id, active.modes, coords, y_est, innov, update, change)
+        return ModalStatesResult(stamp_s, active.model_id, active.modes, coords, y_est, innov, update, change)
+
+    def apply_ready_if_idle(self, *, now_s: float | None = None) -> IdleSwitch | None:
+        """Apply a delivered outcome when no sample came for a while (:mod:`okid_ros.service.idle`).
+
+        Call it now and then (the node: from a timer). At the end of a replayed bag or in a
+        sensor pause no next sample comes to apply the outcome in :meth:`step`: this makes the
+        switch :meth:`step` would make before the sample after the newest buffered one (the same
+        checks and mode ids; the new estimator caught up through the newest sample, which the
+        next sample steps once and measures the jump at). Then the next request can be taken.
+
+        Parameters
+        ----------
+        now_s : the time on a monotonic clock [s] (default: ``time.monotonic()``).
+
+        Returns
+        -------
+        The :class:`IdleSwitch` to publish if a model was accepted; else None (not idle, nothing
+        delivered, or the model refused: the reason in :meth:`diagnostics`).
+        """
+        now_s = time.monotonic() if now_s is None else float(now_s)
+        with self._lock:
+            count = self._buffer.count
+            if not self._idle.idle(count, now_s, self.params.sample_time_s) or self._ready is None:
+                return None
+            outcome, self._ready = self._ready, None
+            update = self._apply(outcome, count, None, None, 0)
+            if update is None:
+                return None
+            self._stats.models_applied_idle += 1
+            self._held_update = None  # superseded: one withheld at a diverged sample is older
+            change, self._accepted_change = self._accepted_change, None
+            return IdleSwitch(update, change, self._buffer.newest_stamp())
 
     # ------------------------------------------------------------------ model switch
-    def _apply(self, outcome: RealizationOutcome, index: int, u: np.ndarray, y: np.ndarray,
+    def _apply(self, outcome: RealizationOutcome, index: int, u: np.ndarray | None, y: np.ndarray | None,
                skipped: int) -> ModelUpdate | None:
-        """Check an outcome and switch to its model before sample ``index`` (``u``, ``y``, ``skipped``)."""
+        """Check an outcome and switch to its model before sample ``index`` (``u``, ``y``, ``skipped``).
+
+        ``u`` None: sample ``index`` has not arrived (the stream is idle); the jump is measured when it does.
+        """
         st = self._stats
         self._busy = False
         self._jump.cancel()
@@ -412,12 +447,14 @@ class ModalEstimationService:
         if change is not None:
             self._watch.change = None
             self._accepted_change = change
-        x, u_prev = self._catch_up(outcome, index)
+        x, u_prev = realization.catch_up(outcome, self._buffer, index, max_gap=self.params.max_gap_samples)
         estimator = outcome.estimator or ModalStateEstimator.from_model(model)
         estimator.set_state(x)
         whiten = outcome.whiten if outcome.whiten is not None else whitening_matrix(model.innovation_covariance)
         self._model_id += 1
-        if self._active is not None:
+        if self._active is not None and u is None:
+            self._jump.defer(self._active)
+        elif self._active is not None:
             self._jump.before_switch(self._active, u, y, skipped, self._u_prev, self.params.max_gap_samples)
         rows = int(job.u.shape[0])
         self._active = ActiveModel(model, estimator, self._model_id, modes, len(modes), whiten, rows)
@@ -427,15 +464,6 @@ class ModalEstimationService:
             model=model, model_id=self._model_id, arx_model_id=job.arx_model_id, stamp_s=job.stamp_end_s,
             modes=modes, realization_time_s=outcome.realization_time_s, window_samples=rows,
         )
-
-    def _catch_up(self, outcome: RealizationOutcome, index: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """The new model's state for sample ``index``: its warm start run over the samples since."""
-        x, u_prev = outcome.state, outcome.last_input
-        if outcome.last_index < index - 1:
-            _, u, y, skipped = self._buffer.get(outcome.last_index + 1, index)
-            x, u_prev = realization.advance_state(outcome.model, x, u, y, skipped, u_prev,
-                                                  max_gap=self.params.max_gap_samples)
-        return x, u_prev
 
     # ------------------------------------------------------------------ inspection
     @property

@@ -41,6 +41,7 @@ def estimation_diagnostics(stats: EstimationStats, buffer: SampleBuffer, watch: 
         "realizations": st.realizations,
         "models_accepted": st.models_accepted,
         "models_rejected": st.models_rejected,
+        "models_applied_idle": st.models_applied_idle,
         "consecutive_rejections": st.consecutive_rejections,
         "last_model_accepted": st.last_accepted,
         "forced_accepts": st.forced_accepts,

@@ -13,7 +13,8 @@ ids (:class:`okid_ros.service.mode_registry.ModeRegistry`):
 
 :class:`SwitchJump` measures the step of the matched modes' coordinates at each switch,
 relative to their RMS amplitude (``last_switch_jump``): there should be none, since the new
-estimator starts from the state its own predictor reaches over the buffered samples.
+estimator starts from the state its own predictor reaches over the buffered samples. A switch
+made while no samples arrive (an idle switch) is measured at the next sample (:meth:`SwitchJump.defer`).
 """
 
 from __future__ import annotations
@@ -105,10 +106,29 @@ class SwitchJump:
         self._stats = stats
         self._power: dict[int, float] = {}
         self._reference: dict[int, np.ndarray] | None = None
+        self._deferred: ActiveModel | None = None  # the model before an idle switch
 
     def cancel(self) -> None:
         """Forget the reference of a switch not measured (an outcome is being applied)."""
         self._reference = None
+        self._deferred = None
+
+    def defer(self, old: ActiveModel) -> None:
+        """A switch from ``old`` between samples: its reference is taken at the next sample.
+
+        ``old``'s estimator has stepped the newest sample, so it holds its state for the next
+        one, where :meth:`measure_deferred` compares it as :meth:`before_switch` does at a sample.
+        """
+        self._deferred = old
+
+    def measure_deferred(self, u: np.ndarray, y: np.ndarray, skipped: int, u_prev: np.ndarray | None,
+                         max_gap: int) -> bool:
+        """At the first sample after a deferred switch, its reference (:meth:`before_switch`); whether there was one."""
+        old, self._deferred = self._deferred, None
+        if old is None:
+            return False
+        self.before_switch(old, u, y, skipped, u_prev, max_gap)
+        return True
 
     def before_switch(self, old: ActiveModel, u: np.ndarray, y: np.ndarray, skipped: int,
                       u_prev: np.ndarray | None, max_gap: int) -> None:

@@ -12,24 +12,28 @@ the window. Pure: runs on any thread or in a worker process.
 
 :func:`advance_state` and :func:`bridge_state` move a model's predicted state over samples
 and gaps, as the estimator would (same state to rounding): the warm start, the catch-up of a
-new model over the samples that arrived during its realization, the restart after divergence.
+new model over the samples that arrived during its realization (:func:`follow` off the sample
+path, :func:`catch_up` at the switch), the restart after divergence.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
+from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.options import RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS, identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
+from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["advance_state", "bridge_state", "identify_window", "realize"]
+__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "realize"]
 
 
 def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -44,6 +48,45 @@ def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.nd
     predictor = InnovationPredictor(model, x)
     u_prev = predictor.run_with_gaps(u, y, skipped, u_prev, max_gap, chunked=chunked)
     return predictor.x, u_prev
+
+
+def follow(outcome: RealizationOutcome, buffer: SampleBuffer) -> RealizationOutcome:
+    """Continue a realized outcome's warm start over the samples buffered since its window.
+
+    Runs (on any thread) until at most ``handover_samples`` are left for the switch, and makes
+    the new model's estimator there, so that the switch on the sample path has less to do.
+    """
+    if outcome.model is None:
+        return outcome
+    prm = outcome.job.params
+    x, u_prev, last, count = outcome.state, outcome.last_input, outcome.last_index, outcome.warm_start_samples
+    for _ in range(50):
+        # Never the newest buffered sample: step() may be applying this outcome to it.
+        available = buffer.count - 1
+        if available - 1 - last <= prm.handover_samples:
+            break
+        _, u, y, skipped = buffer.get(last + 1, available)
+        if u.shape[0] == 0:
+            break
+        x, u_prev = advance_state(outcome.model, x, u, y, skipped, u_prev, max_gap=prm.max_gap_samples, chunked=True)
+        last += u.shape[0]
+        count += u.shape[0]
+    estimator = outcome.estimator or ModalStateEstimator.from_model(outcome.model)
+    return replace(outcome, state=x, last_input=u_prev, last_index=last, warm_start_samples=count,
+                   estimator=estimator)
+
+
+def catch_up(outcome: RealizationOutcome, buffer: SampleBuffer, index: int, *,
+             max_gap: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """A realized model's state for sample ``index``: its warm start run over the buffered samples since.
+
+    Returns the predicted state (n,) and the last input (m,) (the outcome's if no sample is left).
+    """
+    x, u_prev = outcome.state, outcome.last_input
+    if outcome.last_index < index - 1:
+        _, u, y, skipped = buffer.get(outcome.last_index + 1, index)
+        x, u_prev = advance_state(outcome.model, x, u, y, skipped, u_prev, max_gap=max_gap)
+    return x, u_prev
 
 
 def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | None, skipped: int,

@@ -1,8 +1,9 @@
 """What the modal estimation service hands out and passes between its parts (node 2).
 
 :class:`ModalStatesResult` per sample (with a :class:`ModelUpdate` when a model was accepted
-at it and a :class:`StructuralChangeEvent` when a change was declared or re-identified), and
-the :class:`RealizationJob` / :class:`RealizationOutcome` of a model update, which cross to a
+at it and a :class:`StructuralChangeEvent` when a change was declared or re-identified), an
+:class:`IdleSwitch` when a model is accepted while no samples arrive, and the
+:class:`RealizationJob` / :class:`RealizationOutcome` of a model update, which cross to a
 worker thread or process. The serialized shapes of these (JSON lines, messages, CSV):
 :mod:`okid_ros.service.records`.
 """
@@ -23,6 +24,7 @@ from okid_ros.service.options import ModalEstimationParams
 __all__ = [
     "ActiveModel",
     "EstimationStats",
+    "IdleSwitch",
     "ModalStatesResult",
     "ModelUpdate",
     "RealizationJob",
@@ -42,6 +44,22 @@ class ModelUpdate:
     modes: list[Mode]  # physical modes with persistent ids, in state order
     realization_time_s: float
     window_samples: int
+
+
+@dataclass
+class IdleSwitch:
+    """A model accepted while no samples arrived (``ModalEstimationService.apply_ready_if_idle``).
+
+    Attributes
+    ----------
+    update : the accepted model, to publish as one accepted at a sample.
+    change : the structural change it is the first model after, if any (``modes_after`` set).
+    stamp_s : stamp of the newest buffered sample; the switch is after it [s].
+    """
+
+    update: ModelUpdate
+    change: StructuralChangeEvent | None
+    stamp_s: float
 
 
 @dataclass
@@ -173,6 +191,7 @@ class EstimationStats:
     realizations: int = 0
     models_accepted: int = 0
     models_rejected: int = 0
+    models_applied_idle: int = 0  # accepted while no samples arrived (apply_ready_if_idle)
     consecutive_rejections: int = 0
     forced_accepts: int = 0
     estimator_restarts: int = 0
