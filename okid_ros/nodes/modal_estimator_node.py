@@ -16,6 +16,12 @@ publishes:
   again when the first model of the new structure is accepted; node 1 restarts its window at
   the change.
 
+A model realized from a window is applied at the next sample; when no sample comes (the end of a
+replayed bag, a sensor pause) a timer applies it after half a second or so
+(:meth:`~okid_ros.service.estimation.ModalEstimationService.apply_ready_if_idle`), publishes it and
+starts the realization of the ArxModel that waited meanwhile, so that the model of the last
+window is published too.
+
 Models that fail their checks (unstable, modes lost) are not used; the last good one stays and
 the reason is in the diagnostics. Services: ``~/reset`` (std_srvs/Trigger) forgets the model,
 the mode ids and the buffer; ``~/enable`` (std_srvs/SetBool) with false freezes the current
@@ -60,10 +66,13 @@ from okid_ros.nodes.conversions import (
 )
 from okid_ros.nodes.runner import run_node
 from okid_ros.service.estimation import (
+    IdleSwitch,
     ModalEstimationParams,
     ModalEstimationService,
+    ModelUpdate,
     RealizationJob,
     RealizationOutcome,
+    StructuralChangeEvent,
     realize,
 )
 from okid_ros.service.params import ESTIMATOR_NODE
@@ -72,6 +81,9 @@ from okid_ros.service.windowed import estimation_step
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
+#: Period of the look for an idle sample stream [s]: a model delivered after the last sample is
+#: published within :func:`okid_ros.service.idle.idle_after_s` plus this.
+IDLE_CHECK_PERIOD_S = 0.25
 
 
 class ModalEstimatorNode(OkidNode):
@@ -143,6 +155,9 @@ class ModalEstimatorNode(OkidNode):
         self._arx_malformed = 0
         self._last_logged_reason = ""
         self._lock = threading.Lock()
+        # A timer of its own, not the diagnostics timer: that one's rate is a parameter (down to
+        # 0.01 Hz). Each look costs a lock and a comparison while samples flow.
+        self.create_timer(IDLE_CHECK_PERIOD_S, self._on_idle_timer)
         self.start_inputs()
         order = "auto" if params.n_states == 0 else str(params.n_states)
         if params.n_inputs == 0:  # the realization's order options do not apply
@@ -158,20 +173,41 @@ class ModalEstimatorNode(OkidNode):
         result = estimation_step(self.service, sample)
         if result is not None:
             if result.update is not None:
-                update = result.update
-                self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
-                # The StateSpaceModel (matrices, modes) is built and published off the sample path.
-                self.off_sample_path(lambda update=update: self.model_publisher.publish(
-                    state_space_model_msg(update, self.types, frame_id=self.frame_id)))
-                self._updates_to_log.append(update)  # logged with the diagnostics: a log call costs ~1 ms
+                self._publish_update(result.update)
             if result.change is not None:
-                change = result.change
-                self.off_sample_path(lambda change=change, stamp_s=result.stamp_s: self.change_publisher.publish(
-                    structural_change_msg(change, stamp_s, self.types, frame_id=self.frame_id)))
-                self._changes_to_log.append(change)
+                self._publish_change(result.change, result.stamp_s)
             self.states_publisher.publish(fill_modal_states(self._states_msg, result, self._mode_msgs))
         if self._job is None and self.service.has_request:
             self._start_job()
+
+    def _on_idle_timer(self) -> None:
+        """With no samples coming, apply and publish a delivered model, then start the waiting job."""
+        if not self.active:
+            return
+        with self.state_lock:  # the input thread may be handling samples, starting a job
+            switch = self.service.apply_ready_if_idle()
+            if switch is not None:
+                self._publish_update(switch.update, switch)
+                if switch.change is not None:
+                    self._publish_change(switch.change, switch.stamp_s)
+            if self._job is None and self.service.has_request:
+                self._start_job()
+
+    def _publish_update(self, update: ModelUpdate, idle: IdleSwitch | None = None) -> None:
+        """An accepted model: its modes for the ModalStates, its StateSpaceModel, its log line.
+
+        ``idle``: the switch was made while no samples arrived (noted in the log).
+        """
+        self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
+        # The StateSpaceModel (matrices, modes) is built and published off the sample path.
+        self.off_sample_path(lambda: self.model_publisher.publish(
+            state_space_model_msg(update, self.types, frame_id=self.frame_id)))
+        self._updates_to_log.append((update, idle))  # logged with the diagnostics: a log call costs ~1 ms
+
+    def _publish_change(self, change: StructuralChangeEvent, stamp_s: float) -> None:
+        self.off_sample_path(lambda: self.change_publisher.publish(
+            structural_change_msg(change, stamp_s, self.types, frame_id=self.frame_id)))
+        self._changes_to_log.append(change)
 
     # ------------------------------------------------------------------ models
     def _on_arx_model(self, msg) -> None:
@@ -244,11 +280,12 @@ class ModalEstimatorNode(OkidNode):
                 f"(statistic {change.statistic:.1f} > {change.threshold:.1f}) {what}: {modes}"
             )
         while self._updates_to_log:
-            update = self._updates_to_log.popleft()
+            update, idle = self._updates_to_log.popleft()
             modes = ", ".join(f"#{m.id} {m.frequency_hz:.3f} Hz {100 * m.damping_ratio:.2f} %" for m in update.modes)
+            when = "" if idle is None else f", applied after the last sample at {idle.stamp_s:.3f} s"
             self.get_logger().info(
                 f"model {update.model_id} (ARX {update.arx_model_id}, {update.model.n_states} states, "
-                f"realized in {update.realization_time_s:.2f} s): {modes}"
+                f"realized in {update.realization_time_s:.2f} s{when}): {modes}"
             )
 
     def diagnostic_statuses(self) -> list:

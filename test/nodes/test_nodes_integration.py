@@ -271,6 +271,27 @@ def test_io_sample_stream_converges_to_the_true_modes_without_jumps(probe, conve
     assert jump < 0.5, jump
 
 
+def test_the_model_of_the_last_window_is_published_after_the_stream_ends(probe, converged):
+    # The stream ends with a realization running and node 1's next windows waiting (a model
+    # takes longer than the 250 samples of node 1's period at this pace). With no sample to
+    # apply them at, node 2 applies them once the stream is idle (okid_ros/service/idle.py),
+    # ending with the model of node 1's last window, which ends at the last sample.
+    last = T0 + (N_CONVERGE - 1) * DT
+
+    def last_window_published() -> bool:
+        if not probe.models or not probe.arx or stamp_s(probe.arx[-1]) < last - 5 * DT:
+            return False
+        return abs(stamp_s(probe.models[-1]) - stamp_s(probe.arx[-1])) < 0.25 * DT
+
+    probe.wait_until("the StateSpaceModel of the last ArxModel's window", last_window_published, 20)
+    probe.wait_until("node 2 to report the models applied while idle", lambda: int(probe.diagnostics.get(
+        "okid_modal_estimator: estimation", {}).get("models_applied_idle", "0")) >= 1, 5)
+    with probe.lock:
+        assert stamp_s(probe.states[-1]) == pytest.approx(last)  # no ModalStates without a sample
+        assert probe.models[-1].model_id > converged[0][-1].model_id
+        check_modes(probe.states)
+
+
 def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io_nodes, converged):
     """NaN, wrong sizes, duplicate and out-of-order stamps, silence, then an unexcited window."""
     with probe.lock:
