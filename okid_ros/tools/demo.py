@@ -3,7 +3,8 @@
 1. simulate the paper-like experiment into a bag (:mod:`.simulate_bag`, truth in its metadata);
 2. start both nodes as ``okid-ros up --params config/okid.yaml`` (separate processes);
 3. replay the bag live (``okid-ros replay``, its own process) while this process records the
-   nodes' outputs (:class:`.recorder.LiveRecorder`) and shows the modes (:mod:`.monitor`);
+   nodes' outputs (:class:`.recorder.LiveRecorder`) and shows the modes (:mod:`.monitor`), then
+   wait for node 2 to publish the model of node 1's last window (at most :data:`SETTLE_TIMEOUT_S`);
 4. stop the nodes, draw the figures from the recording (:mod:`.plots`);
 5. print the modes of the last live model against the true ones.
 
@@ -44,6 +45,10 @@ OUTPUT_TOPICS = {
     "/okid/modal_states": "okid_msgs/msg/ModalStates",
 }
 
+
+#: Longest wait after the replay for node 2 to apply the model of node 1's last window [s].
+SETTLE_TIMEOUT_S = 30.0
+_ESTIMATION_STATUS = "okid_modal_estimator: estimation"  # node 2's DiagnosticStatus (after its namespace)
 
 #: The output-only demo's window [samples] (60 s at 200 Hz; config/okid_output_only.yaml has 120 s).
 OUTPUT_ONLY_DEMO_WINDOW = 12000
@@ -363,6 +368,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
 def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: Path,
                        truth: dict) -> tuple[dict, Path]:
     """Step 3: replay the experiment live, record the nodes' outputs and show the modes."""
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
     from okid_msgs.msg import ModalStates
@@ -386,6 +392,15 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         elif topic == "/okid/state_space_model":
             counts["models"] += 1
 
+    node_2: dict[str, str] = {}  # the values of node 2's last estimation status
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(_ESTIMATION_STATUS):
+                node_2.clear()
+                node_2.update((kv.key, kv.value) for kv in status.values)
+
+    run.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     live_bag = run.run_dir / "live"
     input_topics = _input_topics(run.options)
     rate = run.options.rate
@@ -406,12 +421,33 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
                                 f"see {run.run_dir / 'nodes.log'}")
         if replay.returncode != 0:
             raise OkidError(f"the replay failed with status {replay.returncode}; see {run.run_dir / 'replay.log'}")
+        if not _wait_for_last_model(run, nodes, node_2):
+            run.say(f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last "
+                    "window may be missing")
         settle = time.monotonic() + 5.0  # let the last outputs arrive
         while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
             run.executor.spin_once(timeout_sec=0.05)
         monitor.draw()
     run.say(f"recorded {counts['models']} StateSpaceModel and {counts['states']} ModalStates messages")
     return counts, live_bag
+
+
+def _wait_for_last_model(run: _DemoRun, nodes: subprocess.Popen, node_2: dict[str, str]) -> bool:
+    """After the replay, until node 2 has applied the model of node 1's last window; False on timeout.
+
+    Node 2 applies the models due after the last sample once its input is idle, one after the
+    other. Node 1 republishes its last window while no samples come: once node 2 has ignored
+    that as unchanged, with no job running and no request waiting, the last window's model has
+    been applied (or refused) and published. ``node_2``: its estimation status, kept current.
+    """
+    baseline = int(node_2.get("arx_models_unchanged", "0"))
+    deadline = time.monotonic() + SETTLE_TIMEOUT_S
+    while time.monotonic() < deadline and nodes.poll() is None:
+        if (int(node_2.get("arx_models_unchanged", "0")) > baseline and node_2.get("busy") == "false"
+                and node_2.get("arx_request_waiting") == "false"):
+            return True
+        run.executor.spin_once(timeout_sec=0.05)
+    return False
 
 
 def _draw_figures(run: _DemoRun, live_bag: Path, experiment_bag: Path) -> list:

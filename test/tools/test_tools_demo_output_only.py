@@ -11,10 +11,12 @@ from okid_ros.tools.simulate_ambient import AMBIENT_FREQUENCIES_HZ
 
 
 def test_output_only_demo_identifies_the_ambient_modes_live(ros_domain_id, tmp_path):
-    # 90 s, so that the last live model is of a full window (12000 samples). Which ArxModel is
-    # realized last before the replay ends is a race of node 1's 1 Hz timer with the replay; on
-    # 60 s the candidates are growing windows, and the one of ~50 s (ArxModel 17) loses the 12.8 Hz
-    # mode in the output-only selection (CI, 2026-11-28: twice in a row; an open fragility of issue 18).
+    # 90 s, so that the last live model is of a full window (12000 samples). It is the model of
+    # node 1's last window, which ends at the last sample: node 2 applies the models due after the
+    # last sample once its input is idle, and the demo waits for them (asserted below). Before,
+    # which ArxModel was realized last was a race with the end of the replay; on 60 s the
+    # candidates were growing windows, and the one of ~50 s (ArxModel 17) lost the 12.8 Hz mode in
+    # the output-only selection (CI, 2026-11-28: twice in a row; an open fragility of issue 18).
     out_dir = tmp_path / "demo"
     proc = RosProcess([sys.executable, "-m", "okid_ros.cli", "demo", "--output-only", "--out-dir", str(out_dir),
                        "--duration", "90", "--rate", "4", "--no-ansi"], subprocess_env(ros_domain_id), REPO_ROOT)
@@ -33,10 +35,20 @@ def test_output_only_demo_identifies_the_ambient_modes_live(ros_domain_id, tmp_p
     assert "fig4_modal_states.png" in figures and "fig2_system_markov.png" not in figures  # no input: no Fig. 2
     with AnyReader([run / "live"]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        models = [c for c in reader.connections if c.topic == "/okid/state_space_model"]
-        _, _, raw = next(reader.messages(connections=models))
-        msg = reader.deserialize(raw, "okid_msgs/msg/StateSpaceModel")
+        models = [reader.deserialize(raw, "okid_msgs/msg/StateSpaceModel") for _, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/okid/state_space_model"])]
+        arx = [reader.deserialize(raw, "okid_msgs/msg/ArxModel") for _, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/okid/arx_model"])]
+    msg = models[0]
     assert msg.n_inputs == 0 and len(msg.b) == 0 and len(msg.d) == 0
+
+    def stamp(m) -> tuple[int, int]:
+        return m.header.stamp.sec, m.header.stamp.nanosec
+
+    # The last model is of node 1's last window (republished unchanged after the replay: its first id).
+    last_window = [m.model_id for m in arx if stamp(m) == stamp(arx[-1])]
+    assert stamp(models[-1]) == stamp(arx[-1]) and models[-1].arx_model_id == last_window[0], (
+        [(m.model_id, stamp(m)) for m in arx[-5:]], [(m.arx_model_id, stamp(m)) for m in models[-3:]])
     # ModalStates flow from the first model on: 4700-5300 of the 12000 samples in runs alone, 2870
     # once in a full run whose load delayed the first model (the window's half-fill is at 30 s).
     assert counts["/okid/state_space_model"] >= 2 and counts["/okid/modal_states"] > 1500
