@@ -26,7 +26,7 @@ Life of a model update::
                                    can be taken
 
 ``process_pending()`` runs take_job, realize and deliver synchronously (offline processing,
-where the next sample always comes or the record has ended: no idle switch).
+which makes no idle switch: a model delivered after a record's last sample is not applied).
 
 The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
 realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
