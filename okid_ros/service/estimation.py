@@ -255,15 +255,19 @@ class ModalEstimationService:
         """A realization job for the waiting ARX fit, once the buffer covers its window.
 
         Returns None when there is nothing to do, a job is running, or the buffer has not yet
-        received the window's last sample. A request whose window is not in the buffer (too
-        few samples after the last long gap, too many missing) is dropped with a reason.
+        received the window's last sample (when the stream is idle, its newest sample ends the
+        window if at most ``max_gap_samples`` short: the last ones were lost). A request whose
+        window is not in the buffer (too few samples after the last long gap, too many missing)
+        is dropped with a reason.
         """
         with self._lock:
             if self._busy or self._request is None or not self.enabled:
                 return None
             fit, stamp_end, arx_id, rows = self._request
             dt = self.params.sample_time_s
-            if self._buffer.count > 0 and self._buffer.newest_stamp() < stamp_end - 0.5 * dt:
+            short = (stamp_end - self._buffer.newest_stamp()) / dt if self._buffer.count > 0 else 0.0
+            if short > 0.5 and not (self._idle.still_idle(self._buffer.count)
+                                    and short <= self.params.max_gap_samples + 0.5):
                 return None  # the window's last sample has not arrived here yet
             self._request = None
             self._last_request_end = stamp_end

@@ -35,10 +35,17 @@ class IdleWatch:
     def __init__(self) -> None:
         self._count = -1
         self._since_s = math.nan
+        self._idle = False  # what the last look found
 
     def idle(self, count: int, now_s: float, sample_time_s: float) -> bool:
         """Whether the stream is idle at ``now_s`` [s], ``count`` samples having arrived in all."""
         if count != self._count:
             self._count, self._since_s = count, float(now_s)
-            return False
-        return now_s - self._since_s >= idle_after_s(sample_time_s)
+            self._idle = False
+        else:
+            self._idle = now_s - self._since_s >= idle_after_s(sample_time_s)
+        return self._idle
+
+    def still_idle(self, count: int) -> bool:
+        """Whether the last look found the stream idle and no sample came since (``count`` samples in all)."""
+        return self._idle and count == self._count

@@ -246,3 +246,25 @@ def test_a_sample_arriving_during_an_idle_switch_is_stepped_after_it_once(record
     assert switches[0] is not None and switches[0].update.model_id == 1 and results[0].update is None
     (expected,) = _feed(record, None, [reference], k, k + 1)  # the reference switches at the sample
     np.testing.assert_allclose(results[0].coordinates, expected[0].coordinates, rtol=1e-12, atol=1e-12)
+
+
+def test_a_window_whose_last_samples_never_came_is_taken_once_the_stream_is_idle(record):
+    # Node 1 got two samples more than node 2 (lost at the end of the stream: sensor QoS): the
+    # request waits for them while samples may come, and ends at node 2's newest once idle.
+    ident, (est,) = _services()
+    _feed(record, ident, [est], 0, FIRST_WINDOW)
+    _feed(record, ident, [], FIRST_WINDOW, FIRST_WINDOW + 2)
+    _submit(ident, [est], 1)
+    assert est.take_job() is None and est.has_request
+    assert est.apply_ready_if_idle(now_s=0.0) is None and est.take_job() is None
+    assert est.apply_ready_if_idle(now_s=1.0) is None  # idle, nothing delivered
+    job = est.take_job()
+    assert job is not None and job.stamp_end_s == pytest.approx(T0 + (FIRST_WINDOW - 1) * DT)
+    est.deliver(est.run_job(job))
+    switch = est.apply_ready_if_idle(now_s=1.5)
+    assert switch is not None and switch.update.arx_model_id == 1
+    # Further than max_gap_samples short: not a loss at the end (node 2 lost its input); it waits.
+    _feed(record, ident, [], FIRST_WINDOW + 2, FIRST_WINDOW + 60)
+    _submit(ident, [est], 2)
+    est.apply_ready_if_idle(now_s=5.0)
+    assert est.take_job() is None and est.has_request

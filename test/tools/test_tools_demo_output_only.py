@@ -45,9 +45,10 @@ def test_output_only_demo_identifies_the_ambient_modes_live(ros_domain_id, tmp_p
     def stamp(m) -> tuple[int, int]:
         return m.header.stamp.sec, m.header.stamp.nanosec
 
-    # The last model is of node 1's last window (republished unchanged after the replay: its first id).
+    # The last model is of node 1's last window (republished unchanged after the replay: its first
+    # id). Its stamp may be a sample or two earlier: the last samples may not reach node 2 (sensor QoS).
     last_window = [m.model_id for m in arx if stamp(m) == stamp(arx[-1])]
-    assert stamp(models[-1]) == stamp(arx[-1]) and models[-1].arx_model_id == last_window[0], (
+    assert models[-1].arx_model_id == last_window[0], (
         [(m.model_id, stamp(m)) for m in arx[-5:]], [(m.arx_model_id, stamp(m)) for m in models[-3:]])
     # ModalStates flow from the first model on: 4700-5300 of the 12000 samples in runs alone, 2870
     # once in a full run whose load delayed the first model (the window's half-fill is at 30 s).
