@@ -84,6 +84,8 @@ SWITCH_INTERVAL_S = 2e-4
 #: Period of the look for an idle sample stream [s]: a model delivered after the last sample is
 #: published within :func:`okid_ros.service.idle.idle_after_s` plus this.
 IDLE_CHECK_PERIOD_S = 0.25
+#: Longest wait at shutdown for the realization pool's manager thread to end [s] (:meth:`close`).
+MANAGER_JOIN_TIMEOUT_S = 2.0
 
 
 class ModalEstimatorNode(OkidNode):
@@ -331,6 +333,13 @@ class ModalEstimatorNode(OkidNode):
             for process in list((getattr(pool, "_processes", None) or {}).values()):
                 process.terminate()
         pool.shutdown(wait=False, cancel_futures=True)
+        # Python 3.11's exit handler wakes the pool's manager thread without the pool's lock, and
+        # printed "OSError: Bad file descriptor" when that thread was closing its wake-up pipe at
+        # the same moment (fixed in 3.12). Once the thread has ended (quickly: no worker is left
+        # to wait for) the handler finds the pipe closed and does nothing.
+        manager = getattr(pool, "_executor_manager_thread", None)
+        if manager is not None and manager is not threading.current_thread():
+            manager.join(timeout=MANAGER_JOIN_TIMEOUT_S)
 
 
 def _worker_init(name: str, node_pid: int | None = None) -> None:
