@@ -213,19 +213,20 @@ def _hankel_size(n_blocks: int, options: RealizationOptions) -> tuple[int, int]:
 
 
 def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray, y: np.ndarray, arx: ArxFit,
-                        options: RealizationOptions) -> tuple[int, PredictorFit, bool]:
+                        options: RealizationOptions) -> tuple[int, PredictorFit, dict[int, InnovationModel]]:
     """Steps 5b-6: the chosen order completed and refined; the lowest BIC after refinement wins.
 
     In an automatic search the next best orders by BIC (``options.refined_orders`` in all, none
     the search had to repair) are completed and refined too: the refinement moves each order's
     fit by a different amount, so the winner before it is not always the winner after it.
-    Returns the order, its fit and whether that fit is refined.
+    Returns the order, its fit and every refined model by order (empty: the fit is not refined).
     """
     n_best = search.best_order() if options.automatic_order else int(options.n_states)
     best = _completed(search, completer, n_best, options)
     refined = _refine(best, u, y, arx, options)
     if refined is None:
-        return n_best, best, False
+        return n_best, best, {}
+    models = {n_best: refined.model}
     if options.automatic_order:
         others = sorted((n for n in search.fits if n != n_best and n not in search.repaired),
                         key=lambda n: (search.fits[n].bic(), n))
@@ -234,9 +235,27 @@ def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray
                 alternative = _refine(_completed(search, completer, n, options), u, y, arx, options)
             except IdentificationError:
                 continue
-            if alternative is not None and alternative.bic() < refined.bic():
+            if alternative is None:
+                continue
+            models[n] = alternative.model
+            if alternative.bic() < refined.bic():
                 n_best, refined = n, alternative
-    return n_best, refined, True
+    return n_best, refined, models
+
+
+def _stability(diagram: list, n_best: int, options: RealizationOptions, refined_models: dict[int, InnovationModel],
+               sample_time_s: float):
+    """The stable fraction of each mode of the model of order ``n_best`` (its stability across orders).
+
+    A refined model's mode is judged by the diagram (models before the refinement), by its pole
+    before the refinement, and by the other orders' refined models
+    (:func:`.stabilization.refined_stable_fraction`).
+    """
+    if not refined_models:
+        return lambda mode: stable_fraction(mode, diagram, n_best, options.modes)
+    others = {n: model for n, model in refined_models.items() if n != n_best}
+    refined_diagram = stabilization_diagram(others, sample_time_s, options.modes) if others else []
+    return lambda mode: refined_stable_fraction(mode, diagram, n_best, options.modes, refined=refined_diagram)
 
 
 def _diagram(search: OrderSearch, completer: Completer, sample_time_s: float, options: RealizationOptions) -> list:
@@ -296,7 +315,8 @@ def identify_from_arx(
     completion = choose_completion(options.completion, u.shape[0], y.shape[1], u.shape[1], search_top)
     completer = Completer(decomposition, gram, u, y, completion, options=options, burn_in=arx.order)
     search = search_orders(completer, options, order_hint=order_hint)
-    n_best, best, refined = _refine_best_orders(search, completer, u, y, arx, options)
+    n_best, best, refined_models = _refine_best_orders(search, completer, u, y, arx, options)
+    refined = bool(refined_models)
     model = best.model
     gain_method = options.gain
     if options.gain == "whitening":
@@ -313,8 +333,7 @@ def identify_from_arx(
     system_markov = markov_from_arx(arx)
     identified = _package_judged(
         model, best.x0, sample_time_s, arx, u, y, reference_markov=system_markov[1:], options=options,
-        stability=lambda mode: (refined_stable_fraction if refined else stable_fraction)(
-            mode, diagram, n_best, options.modes),
+        stability=_stability(diagram, n_best, options, refined_models, sample_time_s),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
         completed_orders=sorted(search.fits), stabilization=diagram,
