@@ -24,9 +24,13 @@ Life of a model update::
                                    sensor pause; :mod:`~okid_ros.service.idle`), a timer does,
                                    after the newest buffered sample; then the next request
                                    can be taken
+    apply_ready_at_end()           or, when the caller knows the stream has ended (the end of
+                                   a record offline), the same switch at once
 
-``process_pending()`` runs take_job, realize and deliver synchronously (offline processing,
-which makes no idle switch: a model delivered after a record's last sample is not applied).
+``process_pending()`` runs take_job, realize and deliver synchronously. Offline processing
+(:class:`~okid_ros.service.windowed.WindowedPipeline`) realizes each model at once and ends the
+record with :meth:`~ModalEstimationService.apply_ready_at_end`, so that a model delivered after
+its last sample is applied and published as live.
 
 The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
 realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
@@ -35,8 +39,9 @@ ids (:mod:`~okid_ros.service.model_switch`), the divergence and change watch
 (:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them,
 with all its locking: one lock, around what the realization's thread and the sample path share
 (the waiting request, the job in flight, the delivered outcome and a change of options), held
-by :meth:`~ModalEstimationService.step` and :meth:`~ModalEstimationService.apply_ready_if_idle`
-throughout, so that a delivered outcome is applied once, by one of them, between two samples.
+by :meth:`~ModalEstimationService.step` and the switches without a sample (``apply_ready_if_idle``,
+``apply_ready_at_end``) throughout, so that a delivered outcome is applied once, by one of them,
+between two samples.
 
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
 :meth:`diagnostics`, naming the check):
@@ -104,17 +109,8 @@ from okid_ros.service.results import (
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.watch import InnovationWatch
 
-__all__ = [
-    "realize",
-    "IdleSwitch",
-    "ModalEstimationParams",
-    "ModalEstimationService",
-    "ModalStatesResult",
-    "ModelUpdate",
-    "RealizationJob",
-    "RealizationOutcome",
-    "StructuralChangeEvent",
-]
+__all__ = ["realize", "IdleSwitch", "ModalEstimationParams", "ModalEstimationService", "ModalStatesResult",
+           "ModelUpdate", "RealizationJob", "RealizationOutcome", "StructuralChangeEvent"]
 
 
 class ModalEstimationService:
@@ -130,7 +126,7 @@ class ModalEstimationService:
         params.realization_options()  # raises ValueError with the reason on a bad option
         # The one lock: the waiting request, the job in flight, the delivered outcome and the
         # options, which the realization's thread and the sample path share; held by step() and
-        # apply_ready_if_idle() throughout, so that a model switches between two samples.
+        # the switches without a sample (apply_ready_*) throughout: a model switches between two samples.
         self._lock = threading.Lock()
         cap = params.buffer_length if params.buffer_length > 0 else 8192
         self._buffer = SampleBuffer(cap, params.n_inputs, params.n_outputs)
@@ -312,7 +308,7 @@ class ModalEstimationService:
         return realization.follow(outcome, self._buffer)
 
     def deliver(self, outcome: RealizationOutcome) -> None:
-        """Hand a job's outcome back; it is applied at the next :meth:`step` (or :meth:`apply_ready_if_idle`)."""
+        """Hand a job's outcome back; applied at the next :meth:`step` (or ``apply_ready_if_idle``, ``_at_end``)."""
         with self._lock:
             if outcome.job.generation != self._generation:
                 return  # taken before a reset
@@ -412,17 +408,34 @@ class ModalEstimationService:
         """
         now_s = time.monotonic() if now_s is None else float(now_s)
         with self._lock:
-            count = self._buffer.count
-            if not self._idle.idle(count, now_s, self.params.sample_time_s) or self._ready is None:
+            if not self._idle.idle(self._buffer.count, now_s, self.params.sample_time_s):
                 return None
-            outcome, self._ready = self._ready, None
-            update = self._apply(outcome, count, None, None, 0)
-            if update is None:
-                return None
-            self._stats.models_applied_idle += 1
-            self._held_update = None  # superseded: one withheld at a diverged sample is older
-            change, self._accepted_change = self._accepted_change, None
-            return IdleSwitch(update, change, self._buffer.newest_stamp())
+            return self._switch_after_newest()
+
+    def apply_ready_at_end(self) -> IdleSwitch | None:
+        """The stream has ended (a record processed offline): apply a delivered outcome now.
+
+        The switch of :meth:`apply_ready_if_idle` without waiting for the quiet time: the stream
+        is idle from here on (:meth:`IdleWatch.end <okid_ros.service.idle.IdleWatch.end>`), so
+        :meth:`take_job` also takes a request whose window's last samples never came. Returns as
+        :meth:`apply_ready_if_idle`.
+        """
+        with self._lock:
+            self._idle.end(self._buffer.count)
+            return self._switch_after_newest()
+
+    def _switch_after_newest(self) -> IdleSwitch | None:
+        """The delivered outcome switched in after the newest buffered sample (the stream idle; lock held)."""
+        if self._ready is None:
+            return None
+        outcome, self._ready = self._ready, None
+        update = self._apply(outcome, self._buffer.count, None, None, 0)
+        if update is None:
+            return None
+        self._stats.models_applied_idle += 1
+        self._held_update = None  # superseded: one withheld at a diverged sample is older
+        change, self._accepted_change = self._accepted_change, None
+        return IdleSwitch(update, change, self._buffer.newest_stamp())
 
     # ------------------------------------------------------------------ model switch
     def _apply(self, outcome: RealizationOutcome, index: int, u: np.ndarray | None, y: np.ndarray | None,

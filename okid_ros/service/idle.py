@@ -5,6 +5,8 @@ A delivered model is applied at the next sample
 :meth:`~okid_ros.service.estimation.ModalEstimationService.apply_ready_if_idle` applies it once
 :class:`IdleWatch` says the stream is idle. While samples flow an outcome waits at most one
 sample period, so the criterion only has to tell a pause from the spacing of the samples.
+When the caller knows that the stream has ended (the end of a record processed offline),
+:meth:`IdleWatch.end` makes it idle at once.
 """
 
 from __future__ import annotations
@@ -45,6 +47,14 @@ class IdleWatch:
         else:
             self._idle = now_s - self._since_s >= idle_after_s(sample_time_s)
         return self._idle
+
+    def end(self, count: int) -> None:
+        """The stream has ended after ``count`` samples: idle from now on, with no quiet time to wait.
+
+        As if the quiet time had run out at the last look: a later look at the same count finds it
+        idle too; a sample after all makes it busy again.
+        """
+        self._count, self._since_s, self._idle = int(count), -math.inf, True
 
     def still_idle(self, count: int) -> bool:
         """Whether the last look found the stream idle and no sample came since (``count`` samples in all)."""

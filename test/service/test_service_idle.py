@@ -268,3 +268,26 @@ def test_a_window_whose_last_samples_never_came_is_taken_once_the_stream_is_idle
     _submit(ident, [est], 2)
     est.apply_ready_if_idle(now_s=5.0)
     assert est.take_job() is None and est.has_request
+
+
+def test_at_the_end_of_the_stream_the_delivered_model_is_applied_at_once(record):
+    # What offline processing does after a record's last sample: the idle switch without the
+    # quiet time, and a request a sample short taken at once too (the stream has ended).
+    ident, (est,) = _services()
+    _feed(record, ident, [est], 0, FIRST_WINDOW)
+    _submit(ident, [est], 1)
+    est.deliver(_realized(est))
+    _feed(record, ident, [], FIRST_WINDOW, FIRST_WINDOW + 1)  # node 2 never gets this one
+    _submit(ident, [est], 2)
+    assert est.take_job() is None  # busy until the outcome is applied
+    switch = est.apply_ready_at_end()
+    assert switch is not None and switch.update.arx_model_id == 1 and est.model_id == 1
+    assert switch.stamp_s == pytest.approx(T0 + (FIRST_WINDOW - 1) * DT)
+    job = est.take_job()  # one sample short: taken, the stream having ended
+    assert job is not None and job.stamp_end_s == pytest.approx(T0 + (FIRST_WINDOW - 1) * DT)
+    est.deliver(est.run_job(job))
+    assert est.apply_ready_if_idle(now_s=0.0) is not None  # still idle at the first look: ended
+    assert est.model_id == 2 and est.apply_ready_at_end() is None  # applied once
+    assert est.diagnostics()["models_applied_idle"] == 2
+    (after,) = _feed(record, None, [est], FIRST_WINDOW, FIRST_WINDOW + 3)  # samples after all: stepped as usual
+    assert all(r.model_id == 2 and r.update is None for r in after)
