@@ -72,10 +72,13 @@ def change_record(change: Any) -> dict:
     }
 
 
-def update_record(update: Any, applied_at_stamp_s: float, change: dict | None = None) -> dict:
+def update_record(update: Any, applied_at_stamp_s: float, change: dict | None = None, *,
+                  after_last_sample: bool = False) -> dict:
     """JSON line of an accepted model (:class:`~okid_ros.service.results.ModelUpdate`).
 
     ``change``: the :func:`change_record` of a change declared since the previous update.
+    ``after_last_sample``: the model was switched in after the record's last sample (at its end;
+    ``applied_at_stamp_s`` is that sample's stamp), so it produced no modal states.
     """
     record = {
         "stamp_s": float(update.stamp_s),
@@ -88,6 +91,7 @@ def update_record(update: Any, applied_at_stamp_s: float, change: dict | None = 
         "realization_time_s": float(update.realization_time_s),
         "modes": [mode_record(m) for m in update.modes],
         "change_detected": change is not None,
+        "applied_after_last_sample": bool(after_last_sample),
     }
     if change is not None:
         record.update(change_stamp_s=change["change_stamp_s"], change_detection_stamp_s=change["detection_stamp_s"],

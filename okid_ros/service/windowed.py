@@ -10,6 +10,10 @@ process`` runs them over a bag:
   of *sample* time (the live node: its timer on the node clock);
 - node 2: the sample steps the estimator; a valid snapshot handed back (:meth:`WindowedPipeline.realize_now`)
   is realized at once and takes over at the next sample (live: in a worker while samples go on);
+- the end of the record (:meth:`WindowedPipeline.finish`): a model still delivered (a snapshot at or
+  near the last sample), or realized now from a request whose window's last samples never reached
+  node 2, takes over after the last sample (live: the idle timer,
+  :meth:`~okid_ros.service.estimation.ModalEstimationService.apply_ready_if_idle`);
 - a structural change declared by node 2 restarts node 1's window at the change point (live:
   through the ``StructuralChange`` message);
 - a time jump resets a node when its ``reset_on_time_jump`` says so, as the live node does.
@@ -28,6 +32,7 @@ from okid_ros.service.estimation import ModalEstimationService, ModalStatesResul
 from okid_ros.service.identification import ArxIdentificationService, ArxSnapshot
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.records import change_record, update_record
+from okid_ros.service.results import IdleSwitch, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
 
 __all__ = ["WindowedPipeline", "PipelineSettings", "estimation_step", "identification_step"]
@@ -89,23 +94,52 @@ class WindowedPipeline:
         if sample.time_jump and self.settings.reset_estimator_on_time_jump:
             self.est.reset()
         result = estimation_step(self.est, sample)
-        if result is None:
-            return None
-        if result.change is not None:
+        if result is not None:
+            self._record(result.update, result.change, applied_at_stamp_s=sample.stamp_s)
+        return result
+
+    def finish(self) -> list[IdleSwitch]:
+        """The end of the record: node 2 applies the models it still holds, after the last sample.
+
+        What the live node's idle timer does once a replay has ended, without waiting
+        (:meth:`~okid_ros.service.estimation.ModalEstimationService.apply_ready_at_end`): the
+        outcome delivered since the last sample (a snapshot at or near it) is switched in; then a
+        request still waiting (its window's last samples never reached node 2, or it came while
+        the outcome was pending) is taken, realized and switched in the same way. Each accepted
+        model and its change are recorded as at a sample, applied at the newest sample's stamp
+        (``applied_after_last_sample`` true).
+
+        Returns
+        -------
+        The switches of the accepted models, in order (none if nothing was pending, or if a model
+        was refused: its reason in ``est.diagnostics()``).
+        """
+        switches = [self.est.apply_ready_at_end()]  # the delivered outcome; from here on the stream has ended
+        if self._realize_due_job() is not None:  # the waiting request: now taken even a few samples short
+            switches.append(self.est.apply_ready_at_end())
+        accepted = [switch for switch in switches if switch is not None]
+        for switch in accepted:
+            self._record(switch.update, switch.change, applied_at_stamp_s=switch.stamp_s, after_last_sample=True)
+        return accepted
+
+    def _record(self, update: ModelUpdate | None, change: StructuralChangeEvent | None, *,
+                applied_at_stamp_s: float, after_last_sample: bool = False) -> None:
+        """Keep the JSON records of a model update and a change (at a sample or after the last one)."""
+        if change is not None:
             if self.settings.restart_on_change:
-                self.arx.restart_at(result.change.change_stamp_s)  # what node 1 does with the message
-            record = change_record(result.change)
+                self.arx.restart_at(change.change_stamp_s)  # what node 1 does with the message
+            record = change_record(change)
             self.changes.append(record)
-            if not result.change.modes_after:
+            if not change.modes_after:
                 self._change_since_update = record
-        if result.update is not None:
-            line = update_record(result.update, sample.stamp_s, self._change_since_update)
+        if update is not None:
+            line = update_record(update, applied_at_stamp_s, self._change_since_update,
+                                 after_last_sample=after_last_sample)
             self._change_since_update = None
-            fits = self._fits.pop(id(result.update.model), None)
+            fits = self._fits.pop(id(update.model), None)
             if fits is not None:  # on the model's own window, after the ARX order's samples
                 line.update(fit_one_step_pct=fits["one_step_pct"], fit_simulation_pct=fits["simulation_pct"])
             self.updates.append(line)
-        return result
 
     def identify(self, sample: GridSample) -> ArxSnapshot | None:
         """Node 1 with one of its samples; the snapshot when one is due by sample time."""
@@ -122,6 +156,10 @@ class WindowedPipeline:
         Returns the outcome (None if no job was due: refused, or waiting for samples).
         """
         self.est.submit_arx(fit, stamp_end_s, arx_model_id, window_rows)
+        return self._realize_due_job()
+
+    def _realize_due_job(self) -> Any:
+        """Take node 2's job if one is due, realize it and deliver it; its outcome, or None."""
         job = self.est.take_job()
         if job is None:
             return None

@@ -4,7 +4,8 @@ Per node, exactly what the live node does with its topics, minus the middleware:
 own sample grid (:class:`NodeInputs`, what the nodes' input frontend does), then the one
 windowed pipeline of the service layer (:class:`okid_ros.service.windowed.WindowedPipeline`:
 node 1's window and its snapshots by sample time, node 2's estimator and realizations, the
-window restart at a structural change). Here only the messages are built and read: every
+window restart at a structural change, the model still pending at the end of the record,
+:meth:`OfflineNodes.finish`). Here only the messages are built and read: every
 output with :mod:`okid_ros.nodes.conversions`, and every valid ``ArxModel`` goes back into
 node 2 through the same conversion the node uses (``arx_fit_from_msg``).
 """
@@ -182,9 +183,16 @@ class OfflineNodes:
         return out
 
     def finish(self) -> list[tuple[str, Any]]:
-        """End of the record: complete samples still pending in the grids are processed too."""
+        """End of the record: complete samples still pending in the grids are processed too.
+
+        Then node 2 applies the model it still holds (:meth:`WindowedPipeline.finish
+        <okid_ros.service.windowed.WindowedPipeline.finish>`; live: its idle timer after a replay):
+        its StateSpaceModel (and StructuralChange) as at a sample, with no ModalStates.
+        """
         out = self._estimate(self.est_inputs.grid.flush())
         out += self._identify(self.arx_inputs.grid.flush())
+        for switch in self.pipeline.finish():
+            out += self._model_messages(switch.update, switch.change, switch.stamp_s)
         s = self.summary
         s.arx_diagnostics = self.arx.diagnostics()
         s.estimator_diagnostics = self.est.diagnostics()
@@ -194,7 +202,7 @@ class OfflineNodes:
 
     def _estimate(self, samples: list) -> list[tuple[str, Any]]:
         """Node 2's samples through the pipeline; its messages."""
-        from okid_ros.nodes.conversions import modal_states_msg, mode_msg, state_space_model_msg, structural_change_msg
+        from okid_ros.nodes.conversions import modal_states_msg
 
         s = self.summary
         out: list[tuple[str, Any]] = []
@@ -204,18 +212,25 @@ class OfflineNodes:
             result = self.pipeline.estimate(sample)
             if result is None:
                 continue
-            frame_id = self.frame_ids[1]
-            if result.change is not None:
-                out.append((self.structural_change_topic,
-                            structural_change_msg(result.change, sample.stamp_s, self.types, frame_id=frame_id)))
-            if result.update is not None:
-                self._mode_msgs = [mode_msg(m, self.types) for m in result.update.modes]
-                out.append((self.state_space_topic,
-                            state_space_model_msg(result.update, self.types, frame_id=frame_id)))
-                s.models += 1
-            out.append((self.modal_states_topic, modal_states_msg(result, self.types, frame_id=frame_id,
+            out += self._model_messages(result.update, result.change, sample.stamp_s)
+            out.append((self.modal_states_topic, modal_states_msg(result, self.types, frame_id=self.frame_ids[1],
                                                                   mode_msgs=self._mode_msgs)))
             s.modal_states += 1
+        return out
+
+    def _model_messages(self, update: Any, change: Any, stamp_s: float) -> list[tuple[str, Any]]:
+        """Node 2's StructuralChange and StateSpaceModel of a switch (at a sample or after the last one)."""
+        from okid_ros.nodes.conversions import mode_msg, state_space_model_msg, structural_change_msg
+
+        frame_id = self.frame_ids[1]
+        out: list[tuple[str, Any]] = []
+        if change is not None:
+            out.append((self.structural_change_topic,
+                        structural_change_msg(change, stamp_s, self.types, frame_id=frame_id)))
+        if update is not None:
+            self._mode_msgs = [mode_msg(m, self.types) for m in update.modes]
+            out.append((self.state_space_topic, state_space_model_msg(update, self.types, frame_id=frame_id)))
+            self.summary.models += 1
         return out
 
     def _identify(self, samples: list) -> list[tuple[str, Any]]:

@@ -10,7 +10,10 @@ Per node, exactly what the live node does with its topics, minus the middleware:
   :class:`ModalEstimationService` ``step`` per sample -> ``ModalStates`` (and
   ``StateSpaceModel`` on each accepted model); every valid ``ArxModel`` goes back in through
   the same message conversion the node uses (``arx_fit_from_msg``) and is realized at once
-  (``process_pending``), so it takes over at the next sample. A structural change declared by
+  (``WindowedPipeline.realize_now``), so it takes over at the next sample; at the end of the
+  record, one realized at (or near) the last sample takes over after it
+  (``WindowedPipeline.finish``, as the live node's idle timer once a replay has ended): its
+  ``StateSpaceModel`` and JSON line are written, with no ``ModalStates``. A structural change declared by
   the estimation service is written as ``StructuralChange`` and restarts the identification's
   window at the change point, as node 1 does when it receives the message. Live, the realization runs on a
   worker thread while samples go on, and a model that arrives while one is being realized
