@@ -53,7 +53,7 @@ from okid_ros.core.refine import refine_prediction_error, refinement_flops, refi
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import check_io_arrays, regressor_length
 from okid_ros.core.scaling import IdentificationFrame
-from okid_ros.core.stabilization import refined_stable_fraction, stabilization_diagram, stable_fraction
+from okid_ros.core.stabilization import stability_judge, stabilization_diagram
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
 from okid_ros.core.uncertainty import (
@@ -243,21 +243,6 @@ def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray
     return n_best, refined, models
 
 
-def _stability(diagram: list, n_best: int, options: RealizationOptions, refined_models: dict[int, InnovationModel],
-               sample_time_s: float):
-    """The stable fraction of each mode of the model of order ``n_best`` (its stability across orders).
-
-    A refined model's mode is judged by the diagram (models before the refinement), by its pole
-    before the refinement, and by the other orders' refined models
-    (:func:`.stabilization.refined_stable_fraction`).
-    """
-    if not refined_models:
-        return lambda mode: stable_fraction(mode, diagram, n_best, options.modes)
-    others = {n: model for n, model in refined_models.items() if n != n_best}
-    refined_diagram = stabilization_diagram(others, sample_time_s, options.modes) if others else []
-    return lambda mode: refined_stable_fraction(mode, diagram, n_best, options.modes, refined=refined_diagram)
-
-
 def _diagram(search: OrderSearch, completer: Completer, sample_time_s: float, options: RealizationOptions) -> list:
     """The stabilization diagram of every order searched (screened or completed).
 
@@ -333,7 +318,7 @@ def identify_from_arx(
     system_markov = markov_from_arx(arx)
     identified = _package_judged(
         model, best.x0, sample_time_s, arx, u, y, reference_markov=system_markov[1:], options=options,
-        stability=_stability(diagram, n_best, options, refined_models, sample_time_s),
+        stability=stability_judge(diagram, n_best, options.modes, refined_models, sample_time_s),
         hankel_singular_values=decomposition.s, method="okid", gain_method=gain_method,
         order_scores={n: fit.bic() for n, fit in sorted({**search.screened, **search.fits}.items())},
         completed_orders=sorted(search.fits), stabilization=diagram,

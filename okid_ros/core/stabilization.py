@@ -25,6 +25,7 @@ a structural mode's frequency, while a pole that fits noise does not keep its fr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,7 @@ from okid_ros.core.options import ModeCriteria
 from okid_ros.core.statespace import InnovationModel
 
 __all__ = ["NEIGHBOURS", "StabilizationPole", "StabilizationOrder", "stabilization_diagram", "stable_fraction",
-           "refined_stable_fraction"]
+           "refined_stable_fraction", "stability_judge"]
 
 #: Neighbouring orders (on each side of the chosen one) a mode is looked for in.
 NEIGHBOURS = 4
@@ -174,6 +175,23 @@ def stabilization_diagram(
         diagram.append(StabilizationOrder(n, poles))
         previous = poles
     return diagram
+
+
+def stability_judge(diagram: list[StabilizationOrder], n_states: int, criteria: ModeCriteria,
+                    refined_models: dict[int, InnovationModel], sample_time_s: float) -> Callable[[Mode], float]:
+    """The stable fraction of each mode of the chosen model of order ``n_states``, as a function.
+
+    Parameters
+    ----------
+    diagram : the diagram of the models before the refinement (:func:`stabilization_diagram`).
+    refined_models : every refined model by order (empty: the chosen model is not refined); a
+        refined model's mode is judged by :func:`refined_stable_fraction`, with the other orders'.
+    """
+    if not refined_models:
+        return lambda mode: stable_fraction(mode, diagram, n_states, criteria)
+    others = {n: model for n, model in refined_models.items() if n != n_states}
+    refined = stabilization_diagram(others, sample_time_s, criteria) if others else []
+    return lambda mode: refined_stable_fraction(mode, diagram, n_states, criteria, refined=refined)
 
 
 def refined_stable_fraction(
