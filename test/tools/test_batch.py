@@ -48,6 +48,8 @@ def test_serial_run_reports_the_corrupt_bag_and_tracks_modes_across_the_bags(cam
         assert float(summary[name]["duration_s"]) == pytest.approx(8.0, abs=0.02)
         out = campaign["serial"] / summary[name]["outputs"]
         assert (out / "output" / "metadata.yaml").is_file() and (out / "models.jsonl").stat().st_size > 0
+        updates = json.loads((out / "result.json").read_text())["updates"]
+        assert all(isinstance(update["applied_after_last_sample"], bool) for update in updates)
     rows = table_rows(campaign["serial"])
     assert {"bag", "stamp_s", "model_id", "mode_id", "frequency_hz", "damping_ratio", "frequency_hz_std",
             "damping_ratio_std", "mpc"} <= set(rows[0])

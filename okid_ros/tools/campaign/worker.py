@@ -28,7 +28,7 @@ __all__ = ["BagJob", "run_bag_job", "failed_result"]
 #: Fields of a model update (a JSON line of `process`) kept in the result; wall-clock timings are
 #: left out so that every engine gives the same result.
 _UPDATE_FIELDS = ("stamp_s", "applied_at_stamp_s", "model_id", "arx_model_id", "n_states", "window_samples",
-                  "change_detected")
+                  "change_detected", "applied_after_last_sample")
 
 
 @dataclass
