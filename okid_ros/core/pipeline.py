@@ -162,18 +162,13 @@ def _package_judged(model: InnovationModel, x0: np.ndarray, sample_time_s: float
         return fraction
 
     identified = _package(model, x0, sample_time_s, arx, stability=judged, **fields)
-    steady: list[complex] = []
-    if uncertainty_problem(model.A.shape[0], *model.D.shape, y.shape[0], burn_in=arx.order):
-        every = identified  # tens of outputs: the refused modes stay refused
-        identified.uncertainty = attach_mode_uncertainty(identified, u, y, burn_in=arx.order)  # NaN, the reason
-        if identified.modes and jackknife is not None:
-            identified.uncertainty = jackknife(identified)
-    else:
-        every = _package(model, x0, sample_time_s, arx, **fields) if refused else identified  # the refused too
-        every.uncertainty = attach_mode_uncertainty(every, u, y, burn_in=arx.order)
-        if not every.uncertainty.computed and every.modes and jackknife is not None:
-            every.uncertainty = jackknife(every)  # e.g. a predictor with repeated poles
-        steady = steady_poles(every.modes)
+    # Tens of outputs (no prediction-error covariance): the refused modes stay refused.
+    affordable = not uncertainty_problem(model.A.shape[0], *model.D.shape, y.shape[0], burn_in=arx.order)
+    every = _package(model, x0, sample_time_s, arx, **fields) if refused and affordable else identified
+    every.uncertainty = attach_mode_uncertainty(every, u, y, burn_in=arx.order)  # else NaN, with the reason
+    if not every.uncertainty.computed and every.modes and jackknife is not None:
+        every.uncertainty = jackknife(every)
+    steady = steady_poles(every.modes) if affordable else []
     noisy = noisy_poles(every.modes, y.shape[0] * sample_time_s)
     if any(same_pole(ev, steady) for ev in refused) or any(same_pole(m.eigenvalue, noisy) for m in identified.modes):
         identified = _package(model, x0, sample_time_s, arx, stability=stability,

@@ -196,7 +196,7 @@ def stability_judge(diagram: list[StabilizationOrder], n_states: int, criteria: 
 
 def refined_stable_fraction(
     mode: Mode, diagram: list[StabilizationOrder], n_states: int, criteria: ModeCriteria, *,
-    refined: list[StabilizationOrder] = (),
+    refined: list[StabilizationOrder] | None = None,
 ) -> float:
     """:func:`stable_fraction` of a mode of the refined model of order ``n_states``.
 
@@ -218,7 +218,7 @@ def refined_stable_fraction(
         before = min(own, key=lambda pole: abs(pole.frequency_hz - mode.frequency_hz))
         if abs(before.frequency_hz / mode.frequency_hz - 1) <= MAX_REFINEMENT_SHIFT:
             fractions.append(stable_fraction(before, diagram, n_states, criteria))
-    if refined and stable_fraction(mode, list(refined), n_states, criteria) == 1.0:
+    if refined and stable_fraction(mode, refined, n_states, criteria) == 1.0:
         fractions.append(1.0)
     judged = [fraction for fraction in fractions if not np.isnan(fraction)]
     return max(judged) if judged else float("nan")
