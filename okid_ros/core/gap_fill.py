@@ -29,8 +29,8 @@ from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.regressors import regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
-           "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem", "realization_window",
-           "OUTPUT_ONLY_VAR_ORDER"]
+           "fit_and_fill", "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem",
+           "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
@@ -264,3 +264,16 @@ def fill_missing_outputs(y: np.ndarray, valid: np.ndarray, *, order: int = OUTPU
     p = y.shape[1]
     fit = fit_from_normal_equations(arx_normal_equations(u, y, order, valid), order, p, 0, center=True)
     return fill_missing(u, y, valid, fit)[1]
+
+
+def fit_and_fill(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, order: int, normal, *, regularization: str,
+                 center: bool) -> tuple[ArxFit, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The ARX fit of ``order`` and the record with its missing samples filled by it (:func:`fill_missing`).
+
+    ``normal``: the order's normal equations when already formed (None: formed here); ``valid``
+    None: no sample missing (the record is returned as it is). Raises ValueError when the fit fails.
+    """
+    if normal is None:
+        normal = arx_normal_equations(u, y, order, valid)
+    arx = fit_from_normal_equations(normal, order, y.shape[1], u.shape[1], regularization, center=center)
+    return (arx, *fill_missing(u, y, valid, arx)) if valid is not None else (arx, u, y, None)

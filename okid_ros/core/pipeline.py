@@ -35,24 +35,25 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx import ArxFit, fit_from_normal_equations
-from okid_ros.core.arx_gram import arx_normal_equations
+from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_order import arx_order_for_realization, choose_arx_order
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.excitation import unexplained_warnings
 from okid_ros.core.gain import gain_by_whitening
-from okid_ros.core.gap_fill import fill_missing, mark_missing, missing_problem
+from okid_ros.core.gap_fill import fit_and_fill
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import attach_jackknife_std
-from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
+from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
+from okid_ros.core.record_checks import check_record_length, checked_record
 from okid_ros.core.refine import refine_prediction_error, refinement_flops, refinement_size
 from okid_ros.core.refit import PredictorFit
-from okid_ros.core.regressors import check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays
 from okid_ros.core.scaling import IdentificationFrame
+from okid_ros.core.slow_pole_span import spanning_slowest_pole
 from okid_ros.core.stabilization import stability_judge, stabilization_diagram
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.statespace import InnovationModel, spectral_radius
@@ -66,7 +67,6 @@ from okid_ros.core.uncertainty import (
 
 __all__ = ["IdentifiedModel", "IdentificationError", "choose_arx_order", "identify", "identify_from_arx"]
 
-METHODS = ("okid", "paper")
 # The prediction-error refinement's cost per iteration (core/refine.refinement_flops: the Gram of
 # its filtered signals and the normal equations from it): skip it for models where that gets
 # slow; the paper case needs 3e7 flops per iteration. (The bound was first set for the tall
@@ -394,8 +394,8 @@ def identify(
     ------
     IdentificationError with a one-line reason on bad data or options.
     """
-    options, u, y, valid = _checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
-                                           options=options or RealizationOptions(), changes=option_changes)
+    options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
+                                          options=options or RealizationOptions(), changes=option_changes)
     p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
@@ -417,66 +417,51 @@ def identify(
             raise IdentificationError(str(exc)) from None
         order, arx_scores, normal = choice.order, choice.scores, choice.normal
     order = int(order)
-    _check_record_length(u.shape[0], order, p, m)
+    check_record_length(u.shape[0], order, p, m)
     if not frame.excited:
         raise IdentificationError(frame.warnings[0])
     if regularization is None:
         regularization = "none" if method == "paper" else "ridge"
-    if normal is None:
-        normal = arx_normal_equations(u, y, order, valid)
-    try:
-        arx = fit_from_normal_equations(normal, order, p, m, regularization, center=center)
-        if valid is not None:
-            u, y, valid = fill_missing(u, y, valid, arx)
-    except ValueError as exc:
-        raise IdentificationError(str(exc)) from None
+
+    def fitted(q: int) -> tuple[ArxFit, np.ndarray, np.ndarray, np.ndarray | None]:
+        return _fit_or_refuse(u, y, valid, q, normal if q == order else None, regularization=regularization,
+                              center=center)
+
     if method == "paper":
-        u, y, u_offset, y_offset, warnings = _remove_offsets(u, y, offsets)
-        model = _identify_paper(arx, u, y, sample_time_s, options=options, u_offset=u_offset, y_offset=y_offset,
-                                warnings=warnings)
+        arx, u_fit, y_fit, _ = fitted(order)
+        u_fit, y_fit, u_offset, y_offset, warnings = _remove_offsets(u_fit, y_fit, offsets)
+        model = _identify_paper(arx, u_fit, y_fit, sample_time_s, options=options, u_offset=u_offset,
+                                y_offset=y_offset, warnings=warnings)
     else:
-        model = identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets, valid=valid)
+        model = _identify_okid(fitted, order, sample_time_s, options=options, offsets=offsets,
+                               order_by_gcv=bool(arx_scores), arx_orders=arx_orders, n_samples=y.shape[0])
     model.arx_order_scores = arx_scores
     # frame.warnings: the dead inputs (identify_from_arx saw only the live ones)
     model.warnings += order_warnings + frame.warnings
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
-def _checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
-                    changes: dict) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
-    """:func:`identify`'s arguments checked, or IdentificationError.
-
-    Returns ``options`` with the ``changes``, ``u`` and ``y`` as (N, m) and (N, p) float arrays
-    with 0 at the missing samples, and ``valid`` (None when no sample is missing).
-    """
-    if method not in METHODS:
-        raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
-    if problem := sample_time_problem(sample_time_s):
-        raise IdentificationError(problem)
+def _fit_or_refuse(u, y, valid, order: int, normal, *, regularization: str, center: bool):
+    """:func:`.gap_fill.fit_and_fill`, a failed fit refused (IdentificationError)."""
     try:
-        options = options.with_changes(**changes)
-        if valid is not None:
-            u, y, valid = mark_missing(u, y, valid)
-        u, y = check_io_arrays(u, y)
-    except (TypeError, ValueError) as exc:
+        return fit_and_fill(u, y, valid, order, normal, regularization=regularization, center=center)
+    except ValueError as exc:
         raise IdentificationError(str(exc)) from None
-    if offsets not in OFFSETS:
-        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
-    if valid is not None and method == "paper":
-        raise IdentificationError("the paper's method needs contiguous samples: identify a run without missing ones")
-    if valid is not None and (problem := missing_problem(valid)):
-        raise IdentificationError(problem)
-    return options, u, y, valid
 
 
-def _check_record_length(n_samples: int, order: int, p: int, m: int) -> None:
-    """IdentificationError unless an ARX model of ``order`` can be fitted to ``n_samples``."""
-    if order < 2:
-        raise IdentificationError(f"ARX order must be >= 2, got {order}")
-    d = regressor_length(order, p, m)
-    needed = order + d + 1
-    if n_samples < needed:
-        raise IdentificationError(
-            f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {n_samples} "
-            f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
-        )
+def _identify_okid(fitted, order: int, sample_time_s: float, *, options: RealizationOptions, offsets: str,
+                   order_by_gcv: bool, arx_orders: ArxOrderOptions | None, n_samples: int) -> IdentifiedModel:
+    """:func:`identify_from_arx` of ``fitted(order)`` (ARX fit, record); unrefined, perhaps again from a longer order.
+
+    :func:`.slow_pole_span.spanning_slowest_pole`, where GCV chose the order.
+    """
+
+    def identify_at(q: int) -> IdentifiedModel:
+        arx, u, y, valid = fitted(q)
+        return identify_from_arx(arx, u, y, sample_time_s, options=options, offsets=offsets, valid=valid)
+
+    model = identify_at(order)
+    if order_by_gcv and not model.refined:
+        model = spanning_slowest_pole(model, identify_at, sample_time_s, max_damping=options.modes.max_damping,
+                                      n_samples=n_samples, arx_orders=arx_orders)
+    return model

@@ -1,0 +1,54 @@
+"""The checks of :func:`okid_ros.core.pipeline.identify`'s record and arguments (one-line refusals)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from okid_ros.core.gap_fill import mark_missing, missing_problem
+from okid_ros.core.identified_model import IdentificationError
+from okid_ros.core.options import OFFSETS, RealizationOptions, sample_time_problem
+from okid_ros.core.regressors import check_io_arrays, regressor_length
+
+__all__ = ["METHODS", "check_record_length", "checked_record"]
+
+METHODS = ("okid", "paper")
+
+
+def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
+                   changes: dict) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`~okid_ros.core.pipeline.identify`'s arguments checked, or IdentificationError.
+
+    Returns ``options`` with the ``changes``, ``u`` and ``y`` as (N, m) and (N, p) float arrays
+    with 0 at the missing samples, and ``valid`` (None when no sample is missing).
+    """
+    if method not in METHODS:
+        raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
+    if problem := sample_time_problem(sample_time_s):
+        raise IdentificationError(problem)
+    try:
+        options = options.with_changes(**changes)
+        if valid is not None:
+            u, y, valid = mark_missing(u, y, valid)
+        u, y = check_io_arrays(u, y)
+    except (TypeError, ValueError) as exc:
+        raise IdentificationError(str(exc)) from None
+    if offsets not in OFFSETS:
+        raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
+    if valid is not None and method == "paper":
+        raise IdentificationError("the paper's method needs contiguous samples: identify a run without missing ones")
+    if valid is not None and (problem := missing_problem(valid)):
+        raise IdentificationError(problem)
+    return options, u, y, valid
+
+
+def check_record_length(n_samples: int, order: int, p: int, m: int) -> None:
+    """IdentificationError unless an ARX model of ``order`` can be fitted to ``n_samples``."""
+    if order < 2:
+        raise IdentificationError(f"ARX order must be >= 2, got {order}")
+    d = regressor_length(order, p, m)
+    needed = order + d + 1
+    if n_samples < needed:
+        raise IdentificationError(
+            f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {n_samples} "
+            f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
+        )
