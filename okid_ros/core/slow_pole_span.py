@@ -18,7 +18,11 @@ from okid_ros.core.arx_order import longest_arx_order
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.options import ArxOrderOptions
 
-__all__ = ["arx_order_spanning_slowest_pole", "spanning_slowest_pole"]
+__all__ = ["MIN_PERIODS_IN_RECORD", "arx_order_spanning_slowest_pole", "spanning_slowest_pole"]
+
+#: A pole with fewer periods than this in the record is no mode to span (a drift, an offset's
+#: pole): it would only raise the order to the cost limit. Random structures hold 300 or more.
+MIN_PERIODS_IN_RECORD = 10
 
 
 def arx_order_spanning_slowest_pole(A: np.ndarray, sample_time_s: float, order: int, *, n_outputs: int,
@@ -37,7 +41,8 @@ def arx_order_spanning_slowest_pole(A: np.ndarray, sample_time_s: float, order: 
     A : (n, n) the identified model's state matrix; sample_time_s : its sample time.
     order : the ARX order the model came from.
     n_outputs, n_inputs, n_samples : the record's size.
-    max_damping : poles damped more than this (fraction) are not modes and do not count.
+    max_damping : poles damped more than this (fraction) are not modes and do not count, nor are
+        poles with fewer than :data:`MIN_PERIODS_IN_RECORD` periods in the record.
 
     Returns
     -------
@@ -48,7 +53,8 @@ def arx_order_spanning_slowest_pole(A: np.ndarray, sample_time_s: float, order: 
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.log(np.linalg.eigvals(A).astype(complex)) / sample_time_s
         frequency_hz = np.abs(s) / (2.0 * np.pi)  # undamped, as the modes report it
-        light = frequency_hz[(s.imag > 0) & (-s.real < max_damping * np.abs(s))]
+        light = frequency_hz[(s.imag > 0) & (-s.real < max_damping * np.abs(s))
+                             & (frequency_hz * n_samples * sample_time_s >= MIN_PERIODS_IN_RECORD)]
     if not light.size:
         return 0, float("nan")
     slowest = float(light.min())
