@@ -34,7 +34,7 @@ import numpy as np
 from scipy.cluster import hierarchy
 from scipy.spatial.distance import squareform
 
-from okid_ros.core.modal import mpc
+from okid_ros.core.modal import modes_listed_once, mpc
 
 __all__ = ["PoleSet", "ModeCluster", "collect_poles", "mark_stable", "cluster_modes", "lowest_complete_order",
            "drop_listed_twice"]
@@ -295,36 +295,15 @@ def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset())
     return next(n for n, c in zip(orders, counts) if c == best)
 
 
-#: Two selected modes closer than this many of their summed half-power half-widths
-#: (``|f1 - f2| < LISTED_TWICE_BAND (zeta1 f1 + zeta2 f2)``) and of one shape (MAC above
-#: :data:`LISTED_TWICE_MAC`; always with one output) are one mode listed twice: a mode and a
-#: noise pole beside it that clustered apart. Measured on the random records 0-359 of
-#: ``bench/output_only.py --cases random``: such twins are 0.27-0.75 apart at MAC >= 0.975 (4 of
-#: the 8 spurious modes); the closest true pairs are 0.35 apart at MAC 0.906 and, with one
-#: output, 1.00 apart. Records 360-479, checked once afterwards: 1 of 3 spurious modes removed,
-#: no mode lost.
-LISTED_TWICE_BAND = 0.85
-LISTED_TWICE_MAC = 0.95
-
-
 def drop_listed_twice(modes: list[ModeCluster], shares: list[float], shapes: list[np.ndarray]) -> list[ModeCluster]:
     """The modes with each mode listed once: of two twins the one with the smaller spectral share goes.
+
+    :func:`.modal.modes_listed_once` (its band and MAC measured on the output-only records).
 
     Parameters
     ----------
     modes : selected modes; shares : (M,) their spectral shares; shapes : (M,) their (p,) complex
         output shapes at their home orders.
     """
-    kept: list[int] = []
-    for i in sorted(range(len(modes)), key=lambda j: -shares[j]):
-        a, twin = modes[i], False
-        for j in kept:
-            b = modes[j]
-            band = a.damping_ratio * a.frequency_hz + b.damping_ratio * b.frequency_hz
-            if abs(a.frequency_hz - b.frequency_hz) < LISTED_TWICE_BAND * band:
-                mac = abs(np.vdot(shapes[i], shapes[j])) ** 2 / (
-                    np.vdot(shapes[i], shapes[i]).real * np.vdot(shapes[j], shapes[j]).real)
-                twin = twin or mac > LISTED_TWICE_MAC
-        if not twin:
-            kept.append(i)
+    kept = modes_listed_once(modes, shares, shapes)
     return sorted((modes[i] for i in kept), key=lambda mode: mode.frequency_hz)

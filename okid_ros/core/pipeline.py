@@ -129,7 +129,8 @@ def _package(
 ) -> IdentifiedModel:
     """Step 7-8: normalized modal form, physical modes, the final checks."""
     form = modal_form(model.A, model.B, model.C, model.K, sample_time_s, reference_markov,
-                      criteria=options.modes, stability=stability, steady=steady, noisy=noisy, D=model.D)
+                      criteria=options.modes, stability=stability, steady=steady, noisy=noisy, once=True,
+                      D=model.D)
     for i, mode in enumerate(form.modes):
         mode.id = i
     identified = IdentifiedModel(

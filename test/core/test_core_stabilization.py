@@ -175,3 +175,25 @@ def test_a_slow_mode_the_unrefined_orders_misplace_is_listed() -> None:
     truth = [mode["frequency_hz"] for mode in system_modes(case.system)]
     listed = [mode.frequency_hz for mode in model.modes]
     assert None not in assign_by_frequency(listed, truth, 0.005), (listed, truth)
+
+
+def test_a_mode_listed_twice_is_listed_once() -> None:
+    """Random structure 329 (7 modes, 8 accelerometers, 256 Hz): 81.10 and 85.92 Hz listed once each.
+
+    From ARX order 100 (its slow 2.7 Hz mode's period) the model lists both twice, each as two
+    poles of one shape 0.10-0.16 summed half-power half-widths apart (MAC 0.988-0.996); of such
+    twins the one of smaller modal singular value is not listed (``modal.modes_listed_once``).
+    """
+    from okid_bench.cases import random_case
+    from okid_bench.output_only_cases import system_modes
+    from okid_ros.sim.simulators import simulate_noisy
+
+    case = random_case(329)
+    u = case.make_input(case.n_samples[0], 329)
+    model = identify(u, simulate_noisy(case.system, u, seed=329), case.sample_time_s)
+    truth = [mode["frequency_hz"] for mode in system_modes(case.system)]
+    listed = [mode.frequency_hz for mode in model.modes]
+    for true in (81.10, 85.92):
+        near = [f for f in listed if abs(f / true - 1) < 0.01]
+        assert len(near) == 1, (true, listed)
+    assert len(listed) == len(truth), (listed, truth)
