@@ -365,9 +365,7 @@ def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarr
             b = modes[j]
             band = a.damping_ratio * a.frequency_hz + b.damping_ratio * b.frequency_hz
             if abs(a.frequency_hz - b.frequency_hz) < LISTED_TWICE_BAND * band:
-                mac = abs(np.vdot(shapes[i], shapes[j])) ** 2 / (
-                    np.vdot(shapes[i], shapes[i]).real * np.vdot(shapes[j], shapes[j]).real)
-                twin = twin or mac > LISTED_TWICE_MAC
+                twin = twin or mac(shapes[i], shapes[j]) > LISTED_TWICE_MAC
         if not twin:
             kept.append(i)
     return kept

@@ -16,6 +16,7 @@ import numpy as np
 
 from okid_ros.core.arx_order import longest_arx_order
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
+from okid_ros.core.modal import continuous_poles
 from okid_ros.core.options import ArxOrderOptions
 
 __all__ = ["MIN_PERIODS_IN_RECORD", "arx_order_spanning_slowest_pole", "spanning_slowest_pole"]
@@ -50,8 +51,8 @@ def arx_order_spanning_slowest_pole(A: np.ndarray, sample_time_s: float, order: 
     frequency_hz : the slowest lightly damped pole's frequency (NaN when there is none).
     """
     arx_orders = arx_orders or ArxOrderOptions()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.log(np.linalg.eigvals(A).astype(complex)) / sample_time_s
+    s = continuous_poles(np.linalg.eigvals(A), sample_time_s)
+    with np.errstate(invalid="ignore"):
         frequency_hz = np.abs(s) / (2.0 * np.pi)  # undamped, as the modes report it
         light = frequency_hz[(s.imag > 0) & (-s.real < max_damping * np.abs(s))
                              & (frequency_hz * n_samples * sample_time_s >= MIN_PERIODS_IN_RECORD)]
@@ -63,6 +64,7 @@ def arx_order_spanning_slowest_pole(A: np.ndarray, sample_time_s: float, order: 
         return 0, slowest
     wanted = min([q for q in arx_orders.candidates if q >= period], default=int(np.ceil(period)))
     p, m = n_outputs, n_inputs
+    # The largest order within GCV's own limits: m + q (p + m) coefficients, rows per coefficient.
     affordable = min((arx_orders.max_coefficients - m) // (p + m),
                      longest_arx_order(n_samples, p, m, min_rows_per_coefficient=arx_orders.min_rows_per_coefficient))
     longer = int(min(wanted, affordable))
