@@ -53,11 +53,28 @@ def refinement_flops(n_states: int, n_outputs: int, n_inputs: int, n_samples: in
 
 
 class _Predictor:
-    """Packs and unpacks the parameter vector; evaluates the one-step prediction errors."""
+    """Packs and unpacks the parameter vector; evaluates the one-step prediction errors.
+
+    Layout of ``theta``: per pair ``[Re lambda, Im lambda, Re g (w), Im g (w), Re c (p), Im c (p)]``,
+    per real pole ``[lambda, g (w), c (p)]``, then ``D`` (p m) row by row. The index arrays of
+    that layout are built once, so every evaluation reads the parameters as arrays.
+    """
 
     def __init__(self, n_pairs: int, n_real: int, p: int, m: int):
         self.n_pairs, self.n_real, self.p, self.m = n_pairs, n_real, p, m
-        self.w = p + m
+        self.w = w = p + m
+        pair = n_pairs * (2 + 2 * w + 2 * p)
+        start = np.arange(n_pairs) * (2 + 2 * w + 2 * p)
+        self._lam = start
+        self._g = start[:, None] + 2 + np.arange(w)  # Re g; Im g at + w
+        self._c = start[:, None] + 2 + 2 * w + np.arange(p)  # Re c; Im c at + p
+        real = pair + np.arange(n_real) * (1 + w + p)
+        self._real_lam = real
+        self._real_g = real[:, None] + 1 + np.arange(w)
+        self._real_c = real[:, None] + 1 + w + np.arange(p)
+        self._d = pair + n_real * (1 + w + p) + np.arange(p * m)
+        self.size = pair + n_real * (1 + w + p) + p * m
+        self._coef_template = self._constant_coefficients()
 
     def pack(self, pairs, reals, D) -> np.ndarray:
         parts = []
@@ -69,84 +86,131 @@ class _Predictor:
         return np.concatenate([np.ravel(x) for x in parts])
 
     def unpack(self, theta: np.ndarray):
-        w, p, m = self.w, self.p, self.m
-        pos = 0
-        pairs, reals = [], []
-
-        def take(k: int) -> np.ndarray:
-            nonlocal pos
-            out = theta[pos : pos + k]
-            pos += k
-            return out
-
-        for _ in range(self.n_pairs):
-            re, im = take(2)
-            g = take(w) + 1j * take(w)
-            c = take(p) + 1j * take(p)
-            pairs.append((complex(re, im), g, c))
-        for _ in range(self.n_real):
-            lam = take(1)[0]
-            reals.append((lam, take(w).copy(), take(p).copy()))
-        D = take(p * m).reshape(p, m)
+        lam, g, c, real_lam, real_g, real_c, D = self.arrays(theta)
+        pairs = [(complex(lam[i]), g[i], c[i]) for i in range(self.n_pairs)]
+        reals = [(float(real_lam[i]), real_g[i].copy(), real_c[i].copy()) for i in range(self.n_real)]
         return pairs, reals, D
+
+    def arrays(self, theta: np.ndarray):
+        """The parameters as arrays.
+
+        Returns
+        -------
+        lam (P,), g (P, w), c (P, p) of the pairs (complex); real_lam (R,), real_g (R, w),
+        real_c (R, p) of the real poles; D (p, m).
+        """
+        w, p = self.w, self.p
+        lam = theta[self._lam] + 1j * theta[self._lam + 1]
+        g = theta[self._g] + 1j * theta[self._g + w]
+        c = theta[self._c] + 1j * theta[self._c + p]
+        return (lam, g, c, theta[self._real_lam], theta[self._real_g], theta[self._real_c],
+                theta[self._d].reshape(p, self.m))
+
+    def radius(self, theta: np.ndarray) -> float:
+        """Spectral radius of the predictor ``Abar``: its eigenvalues are the parameters ``lambda``."""
+        lam, _, _, real_lam, _, _, _ = self.arrays(theta)
+        return float(max(np.max(np.abs(lam), initial=0.0), np.max(np.abs(real_lam), initial=0.0)))
+
+    def _signal_columns(self) -> tuple[np.ndarray, ...]:
+        """Columns of :meth:`signals`: per pair ``d xi`` (2), ``f`` (2 w), ``xi`` (2); per real pole 1, w, 1; ``u``."""
+        w, n_pairs, n_real = self.w, self.n_pairs, self.n_real
+        pair = np.arange(n_pairs) * (4 + 2 * w)
+        real = n_pairs * (4 + 2 * w) + np.arange(n_real) * (2 + w)
+        inputs = n_pairs * (4 + 2 * w) + n_real * (2 + w) + np.arange(self.m)
+        return pair, real, inputs
+
+    def _constant_coefficients(self) -> np.ndarray:
+        """The entries of ``coefficients`` that do not depend on ``theta``: those of ``c`` and ``D``."""
+        p, m, w = self.p, self.m, self.w
+        pair, real, inputs = self._signal_columns()
+        n_signals = self.n_pairs * (4 + 2 * w) + self.n_real * (2 + w) + m
+        coef = np.zeros((p, n_signals, self.size))
+        outputs = np.arange(p)
+        for i in range(self.n_pairs):  # 2 Re(c xi) = 2 Re c Re xi - 2 Im c Im xi
+            xi = pair[i] + 2 + 2 * w
+            coef[outputs, xi, self._c[i]] = 2.0
+            coef[outputs, xi + 1, self._c[i] + p] = -2.0
+        for i in range(self.n_real):
+            coef[outputs, real[i] + 1 + w, self._real_c[i]] = 1.0
+        for k in range(p):
+            coef[k, inputs, self._d[k * m : (k + 1) * m]] = 1.0
+        return coef
 
     def signals(self, theta: np.ndarray, v: np.ndarray, u: np.ndarray, burn_in: int
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The Jacobian in factored form: ``d yhat[k, out] / d theta = signals[k] @ coefficients[out]``.
 
         With ``f_j = z^-1 / (1 - lambda z^-1) v_j`` and ``xi = sum_j g_j f_j``:
-        ``d xi / d lambda = z^-2 / (1 - lambda z^-1)^2 (v g)``, ``d xi / d g_j = f_j``; a pair's
+        ``d xi / d lambda = z^-1 / (1 - lambda z^-1) xi``, ``d xi / d g_j = f_j``; a pair's
         real parameters enter through ``2 Re(c xi)`` (an imaginary part through ``-2 Im``).
         Every column of the Jacobian is a combination of the real and imaginary parts of these
         filtered signals weighted by one output's ``c``, so ``J^T J`` follows from the Gram of
         the signals (N' s^2 flops, s about the parameters per output) instead of the tall
         Jacobian's (N' p P^2).
 
+        ``f`` of a pair is run as one real all-pole filter of the real ``v``, ``q = v / ((1 -
+        lambda z^-1)(1 - conj(lambda) z^-1))``, then ``f = z^-1 (1 - conj(lambda) z^-1) q``: the
+        same signal as the complex first-order filter, at a third of its cost (scipy's
+        ``lfilter`` has no batch of filters with different coefficients). The difference of
+        ``q`` terms loses digits only for a predictor pole very near the unit circle (about
+        ``-2 log10(1 - |lambda|)``), which a Jacobian can spare; the cost itself
+        (:meth:`predict`) keeps the first-order filter.
+
         Returns
         -------
         signals : (N', s) real, rows ``burn_in:``; coefficients : (p, s, len(theta)).
         """
-        pairs, reals, _ = self.unpack(theta)
-        p, m, w = self.p, self.m, self.w
-        n_rows = v.shape[0] - burn_in
-        n_sig = len(pairs) * (4 + 2 * w) + len(reals) * (2 + w) + m
-        sig = np.empty((n_rows, n_sig))
-        coef = np.zeros((p, n_sig, theta.size))
-        outputs = np.arange(p)
-        col = s = 0
-        for lam, g, c in pairs:
-            f = signal.lfilter([0.0, 1.0], [1.0, -lam], v, axis=0)[burn_in:]  # (N', w)
-            dxi = signal.lfilter([0.0, 0.0, 1.0], [1.0, -2.0 * lam, lam * lam], v @ g)[burn_in:]
-            xi = f @ g
-            sig[:, s], sig[:, s + 1] = dxi.real, dxi.imag
-            sig[:, s + 2 : s + 2 + w], sig[:, s + 2 + w : s + 2 + 2 * w] = f.real, f.imag
-            sig[:, s + 2 + 2 * w], sig[:, s + 3 + 2 * w] = xi.real, xi.imag
-            cr, ci = 2.0 * c.real, 2.0 * c.imag
-            # 2 Re(c s) = 2 cr Re s - 2 ci Im s;  -2 Im(c s) = -2 cr Im s - 2 ci Re s
-            coef[:, s, col], coef[:, s + 1, col] = cr, -ci
-            coef[:, s + 1, col + 1], coef[:, s, col + 1] = -cr, -ci
-            for j in range(w):
-                re_s, im_s = s + 2 + j, s + 2 + w + j
-                coef[:, re_s, col + 2 + j], coef[:, im_s, col + 2 + j] = cr, -ci
-                coef[:, im_s, col + 2 + w + j], coef[:, re_s, col + 2 + w + j] = -cr, -ci
-            start = col + 2 + 2 * w
-            coef[outputs, s + 2 + 2 * w, start + outputs] = 2.0
-            coef[outputs, s + 3 + 2 * w, start + p + outputs] = -2.0
-            col, s = start + 2 * p, s + 4 + 2 * w
-        for lam, g, c in reals:
-            f = signal.lfilter([0.0, 1.0], [1.0, -lam], v, axis=0)[burn_in:]
-            dxi = signal.lfilter([0.0, 0.0, 1.0], [1.0, -2.0 * lam, lam * lam], v @ g)[burn_in:]
-            sig[:, s], sig[:, s + 1 : s + 1 + w], sig[:, s + 1 + w] = dxi, f, f @ g
-            coef[:, s, col] = c
-            for j in range(w):
-                coef[:, s + 1 + j, col + 1 + j] = c
-            start = col + 1 + w
-            coef[outputs, s + 1 + w, start + outputs] = 1.0
-            col, s = start + p, s + 2 + w
-        sig[:, s:] = u[burn_in:]
-        for k in range(p):
-            coef[k, s + np.arange(m), col + k * m + np.arange(m)] = 1.0
-        return sig, coef
+        lam, g, c, real_lam, real_g, real_c, _ = self.arrays(theta)
+        w, n = self.w, v.shape[0]
+        pair, real, inputs = self._signal_columns()
+        # Rows of the transpose are the signals: contiguous writes, and the Gram is as fast.
+        sig = np.empty((self._coef_template.shape[1], n - burn_in))
+        coef = self._coef_template.copy()
+        v_rows = np.ascontiguousarray(v.T)  # (w, N)
+        for i in range(self.n_pairs):
+            re, im = lam[i].real, lam[i].imag
+            q = signal.lfilter([1.0], [1.0, -2.0 * re, re * re + im * im], v_rows, axis=-1)
+            f_re = np.zeros_like(q)  # f = z^-1 (1 - conj(lambda) z^-1) q
+            f_re[:, 1:] = q[:, :-1]
+            f_re[:, 2:] -= re * q[:, :-2]
+            f_im = np.zeros_like(q)
+            f_im[:, 2:] = im * q[:, :-2]
+            xi = (g[i].real @ f_re - g[i].imag @ f_im) + 1j * (g[i].imag @ f_re + g[i].real @ f_im)
+            dxi = signal.lfilter([0.0, 1.0], [1.0, -lam[i]], xi)
+            s = pair[i]
+            sig[s], sig[s + 1] = dxi.real[burn_in:], dxi.imag[burn_in:]
+            sig[s + 2 : s + 2 + w], sig[s + 2 + w : s + 2 + 2 * w] = f_re[:, burn_in:], f_im[:, burn_in:]
+            sig[s + 2 + 2 * w], sig[s + 3 + 2 * w] = xi.real[burn_in:], xi.imag[burn_in:]
+        self._pair_coefficients(coef, c, pair)
+        for i in range(self.n_real):
+            f = signal.lfilter([0.0, 1.0], [1.0, -real_lam[i]], v_rows, axis=-1)
+            xi = real_g[i] @ f
+            dxi = signal.lfilter([0.0, 1.0], [1.0, -real_lam[i]], xi)
+            s = real[i]
+            sig[s], sig[s + 1 : s + 1 + w], sig[s + 1 + w] = dxi[burn_in:], f[:, burn_in:], xi[burn_in:]
+            coef[:, s, self._real_lam[i]] = real_c[i]
+            coef[:, s + 1 + np.arange(w), self._real_g[i]] = real_c[i][:, None]
+        sig[inputs] = v_rows[self.p :, burn_in:]
+        return sig.T, coef
+
+    def _pair_coefficients(self, coef: np.ndarray, c: np.ndarray, pair: np.ndarray) -> None:
+        """The pairs' ``c``-dependent entries of ``coefficients`` (in place), all pairs at once.
+
+        ``2 Re(c s) = 2 Re c Re s - 2 Im c Im s`` and ``-2 Im(c s) = -2 Re c Im s - 2 Im c Re s``
+        for ``s`` each pair's ``d xi`` (parameters ``lambda``) and ``f_j`` (parameters ``g_j``).
+        """
+        if not self.n_pairs:
+            return
+        w = self.w
+        cr, ci = 2.0 * c.real.T, 2.0 * c.imag.T  # (p, P)
+        lam, dxi = self._lam, pair
+        coef[:, dxi, lam], coef[:, dxi + 1, lam] = cr, -ci
+        coef[:, dxi + 1, lam + 1], coef[:, dxi, lam + 1] = -cr, -ci
+        f_re = pair[:, None] + 2 + np.arange(w)  # (P, w)
+        f_im, g_re, g_im = f_re + w, self._g, self._g + w
+        cr, ci = cr[:, :, None], ci[:, :, None]
+        coef[:, f_re, g_re], coef[:, f_im, g_re] = cr, -ci
+        coef[:, f_im, g_im], coef[:, f_re, g_im] = -cr, -ci
 
     def jacobian(self, theta: np.ndarray, v: np.ndarray, u: np.ndarray, burn_in: int) -> np.ndarray:
         """D yhat / d theta, (N' p, len(theta)), rows ordered like ``yhat[burn_in:].ravel()``."""
@@ -154,15 +218,19 @@ class _Predictor:
         return np.einsum("ks,osj->koj", sig, coef).reshape(sig.shape[0] * self.p, theta.size)
 
     def predict(self, theta: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
-        pairs, reals, D = self.unpack(theta)
+        lam, g, c, real_lam, real_g, real_c, D = self.arrays(theta)
         y_hat = u @ D.T
-        for lam, g, c in pairs:
-            drive = v @ g  # (N,) complex
-            xi = signal.lfilter([0.0, 1.0], [1.0, -lam], drive)
-            y_hat += 2.0 * np.real(np.outer(xi, c))
-        for lam, g, c in reals:
-            xi = signal.lfilter([0.0, 1.0], [1.0, -lam], v @ g)
-            y_hat += np.outer(xi, c)
+        if self.n_pairs:
+            drive = g @ v.T  # (P, N)
+            xi = np.empty_like(drive)
+            for i in range(self.n_pairs):
+                xi[i] = signal.lfilter([0.0, 1.0], [1.0, -lam[i]], drive[i])
+            y_hat += 2.0 * (xi.T @ c).real
+        if self.n_real:
+            drive = real_g @ v.T  # (R, N)
+            for i in range(self.n_real):
+                drive[i] = signal.lfilter([0.0, 1.0], [1.0, -real_lam[i]], drive[i])
+            y_hat += drive.T @ real_c
         return y_hat
 
 
@@ -319,7 +387,8 @@ class _Objective:
 
     def errors(self, theta: np.ndarray) -> np.ndarray | None:
         """(N, p) one-step prediction errors, None if A or the predictor is unstable."""
-        if not _stable(*_to_real(self.predictor, theta)[:3], self.radii):
+        if not _stable(*_to_real(self.predictor, theta)[:3], self.radii,
+                       predictor_radius=self.predictor.radius(theta)):
             return None
         with np.errstate(all="ignore"):
             e = self.y - self.predictor.predict(theta, self.v, self.u)
@@ -342,9 +411,10 @@ class _Objective:
         with np.errstate(all="ignore"):
             sig, coef = self.predictor.signals(theta, self.v, self.u, self.burn_in)
             sig = sig[: self.n_fitted // p]
-            if not np.all(np.isfinite(sig)):
-                sig = np.where(np.isfinite(sig), sig, 0.0)
             gram = sig.T @ sig
+            if not np.all(np.isfinite(np.diag(gram))):  # a signal holds Inf or NaN: zeroed there
+                sig = np.where(np.isfinite(sig), sig, 0.0)
+                gram = sig.T @ sig
             cross = sig.T @ r.reshape(-1, p)  # (s, p)
             H = sum(coef[k].T @ gram @ coef[k] for k in range(p))
             g = -sum(coef[k].T @ cross[:, k] for k in range(p))
@@ -385,28 +455,30 @@ def _fit_of(predictor: _Predictor, theta: np.ndarray, u: np.ndarray, y: np.ndarr
 
 def _to_real(predictor: _Predictor, theta: np.ndarray):
     """``(Abar, L, C, Bbar, D)`` in real coordinates: a 2x2 block per pair, one state per real pole."""
-    pairs, reals, D = predictor.unpack(theta)
-    p, m = predictor.p, predictor.m
-    n = 2 * len(pairs) + len(reals)
+    lam, g, c, real_lam, real_g, real_c, D = predictor.arrays(theta)
+    p, n_pairs = predictor.p, predictor.n_pairs
+    n = 2 * n_pairs + predictor.n_real
     Abar = np.zeros((n, n))
-    G = np.zeros((n, p + m))
-    C = np.zeros((p, n))
-    pos = 0
-    for lam_i, g, c in pairs:
-        Abar[pos : pos + 2, pos : pos + 2] = [[lam_i.real, -lam_i.imag], [lam_i.imag, lam_i.real]]
-        G[pos], G[pos + 1] = g.real, g.imag
-        C[:, pos], C[:, pos + 1] = 2 * c.real, -2 * c.imag
-        pos += 2
-    for lam_i, g, c in reals:
-        Abar[pos, pos] = lam_i
-        G[pos], C[:, pos] = g, c
-        pos += 1
+    first, second = np.arange(0, 2 * n_pairs, 2), np.arange(1, 2 * n_pairs, 2)
+    Abar[first, first], Abar[first, second] = lam.real, -lam.imag
+    Abar[second, first], Abar[second, second] = lam.imag, lam.real
+    reals = np.arange(2 * n_pairs, n)
+    Abar[reals, reals] = real_lam
+    G = np.empty((n, predictor.w))
+    G[first], G[second], G[reals] = g.real, g.imag, real_g
+    C = np.empty((p, n))
+    C[:, first], C[:, second], C[:, reals] = 2 * c.real.T, -2 * c.imag.T, real_c.T
     return Abar, G[:, :p], C, G[:, p:], D
 
 
-def _stable(Abar: np.ndarray, L: np.ndarray, C: np.ndarray, radii: tuple[float, float]) -> bool:
-    """``A = Abar + L C`` inside ``radii[0]`` and the predictor ``Abar`` inside ``radii[1]``."""
+def _stable(Abar: np.ndarray, L: np.ndarray, C: np.ndarray, radii: tuple[float, float], *,
+            predictor_radius: float | None = None) -> bool:
+    """``A = Abar + L C`` inside ``radii[0]`` and the predictor ``Abar`` inside ``radii[1]``.
+
+    ``predictor_radius``: ``Abar``'s spectral radius when known (:meth:`_Predictor.radius`).
+    """
     with np.errstate(all="ignore"):
         if not (np.all(np.isfinite(Abar)) and np.all(np.isfinite(L)) and np.all(np.isfinite(C))):
             return False
-        return spectral_radius(Abar) < radii[1] and spectral_radius(Abar + L @ C) < radii[0]
+        radius = spectral_radius(Abar) if predictor_radius is None else predictor_radius
+        return radius < radii[1] and spectral_radius(Abar + L @ C) < radii[0]
