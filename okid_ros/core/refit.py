@@ -178,8 +178,9 @@ MAX_MODAL_CONDITION = 1e6
 def _modal_signals(Abar: np.ndarray, C: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The data filtered by each pole of ``Abar`` and each output's weights of them.
 
-    Returns ``R`` (N, w, n): for each data channel ``j`` of ``v`` (N, w), the real and imaginary
-    parts of its filtering by each pole pair, then by each real pole; ``B`` (p, n, n):
+    Returns ``R`` (w, n, N): for each data channel ``j`` of ``v`` (N, w), the real and imaginary
+    parts of its filtering by each pole pair, then by each real pole (time last: contiguous
+    rows, no strided writes); ``B`` (p, n, n):
     ``B[c, i, r]`` the weight of signal ``r`` in the regressor of ``Gam[i, j]`` for output c.
     None when ``Abar`` has no well-conditioned eigenvector basis (:data:`MAX_MODAL_CONDITION`).
     """
@@ -192,12 +193,13 @@ def _modal_signals(Abar: np.ndarray, C: np.ndarray, v: np.ndarray) -> tuple[np.n
     upper, real = split_poles(lam)
     if 2 * upper.size + real.size != n:
         return None
-    R = np.empty((v.shape[0], v.shape[1], n))
+    v_rows = np.ascontiguousarray(v.T)  # (w, N)
+    R = np.empty((v.shape[1], n, v.shape[0]))
     for r, pole in enumerate(lam[upper]):
-        g = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
-        R[:, :, 2 * r], R[:, :, 2 * r + 1] = g.real, g.imag
+        g = signal.lfilter([0.0, 1.0], [1.0, -pole], v_rows, axis=-1)
+        R[:, 2 * r], R[:, 2 * r + 1] = g.real, g.imag
     for r, pole in enumerate(lam[real].real, start=2 * upper.size):
-        R[:, :, r] = signal.lfilter([0.0, 1.0], [1.0, -pole], v, axis=0)
+        R[:, r] = signal.lfilter([0.0, 1.0], [1.0, -pole], v_rows, axis=-1)
     a = (C @ W)[:, :, None] * linalg.inv(W)[None, :, :]  # a[c, l, i] = (C W)[c, l] W^-1[l, i]
     B = np.empty((p, n, n))
     B[:, :, 0 : 2 * upper.size : 2] = 2.0 * a[:, upper, :].real.transpose(0, 2, 1)
@@ -229,10 +231,10 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
         return None
     R, B = signals
     n = Abar.shape[0]
-    flat = R.reshape(n_samples, w * n)
-    gram = (flat.T @ flat).reshape(w, n, w, n)
-    signals_u = np.einsum("kjr,km->jrm", R, u)  # (w, n, m)
-    signals_y = np.einsum("kjr,kc->jrc", R, y)  # (w, n, p)
+    flat = R.reshape(w * n, n_samples)  # row j n + r: channel j filtered by pole r
+    gram = (flat @ flat.T).reshape(w, n, w, n)
+    signals_u = (flat @ u).reshape(w, n, m)
+    signals_y = (flat @ y).reshape(w, n, p)
     gram_u = u.T @ u
     n_x0 = x0_rows[0].shape[1]
     n_gam = n * w
@@ -251,7 +253,7 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
         rhs[gam] += np.einsum("ir,jr->ij", Bc, signals_y[:, :, c]).reshape(n_gam)
         rhs[d] += u.T @ y[:, c]
         if n_x0:
-            signals_x = (flat[:filled].T @ X).reshape(w, n, n_x0)
+            signals_x = (flat[:, :filled] @ X).reshape(w, n, n_x0)
             cross_x = np.einsum("ir,jrl->ijl", Bc, signals_x).reshape(n_gam, n_x0)
             normal[gam, init] += cross_x
             normal[init, gam] += cross_x.T
@@ -266,7 +268,7 @@ def _modal_normal_equations(Abar: np.ndarray, C: np.ndarray, u: np.ndarray, y: n
         out = np.empty((n_samples, p))
         for c in range(p):
             weights = np.einsum("ij,ir->jr", gam_theta, B[c])  # (w, n)
-            out[:, c] = flat @ weights.ravel() + u @ theta[n_gam + n_x0 + c * m : n_gam + n_x0 + (c + 1) * m]
+            out[:, c] = weights.ravel() @ flat + u @ theta[n_gam + n_x0 + c * m : n_gam + n_x0 + (c + 1) * m]
             if n_x0:
                 out[:, c] += x0_rows[c] @ theta[init]
         return out
