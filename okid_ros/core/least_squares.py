@@ -15,6 +15,7 @@ import numpy as np
 from scipy import linalg, optimize
 
 from okid_ros.core.regressors import regressor_length
+from okid_ros.core.symmetric_eigen import SymmetricEigen
 
 __all__ = [
     "NormalEquations",
@@ -141,9 +142,9 @@ def solve_normal_equations(
     r_t = linalg.solve_triangular(chol, r, lower=True)
     R_t = linalg.solve_triangular(chol, linalg.solve_triangular(chol, R, lower=True).T, lower=True)
     R_t = 0.5 * (R_t + R_t.T)
-    s, V = linalg.eigh(R_t)
-    s = np.maximum(s, 0.0)
-    g = V.T @ r_t  # (d, p)
+    eigen = SymmetricEigen(R_t)  # V kept factored: only V^T r_t and V theta are needed
+    s = np.maximum(eigen.values, 0.0)
+    g = eigen.project(r_t)  # (d, p)
     # GCV on outputs of equal weight (each divided by its root mean square): with the per-channel
     # prior the penalty, hence the fit, does not depend on the units of any channel.
     yy = np.diag(normal.yy)
@@ -172,7 +173,7 @@ def solve_normal_equations(
         # Unregularized: a pseudo-inverse that drops numerically null directions.
         keep = s > s.max() * d * np.finfo(float).eps
         denom = np.where(keep, s, np.inf)
-    theta_t = V @ (g / denom[:, None])
+    theta_t = eigen.expand(g / denom[:, None])
     theta = linalg.solve_triangular(chol.T, theta_t, lower=False)
     return theta, lam, dof, gcv
 

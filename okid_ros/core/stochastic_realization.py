@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
-from scipy.linalg import lapack
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.era import HankelDecomposition, decompose_hankel
+from okid_ros.core.symmetric_eigen import SymmetricEigen
 
 __all__ = [
     "CovarianceDecomposition",
@@ -211,31 +211,17 @@ def leading_eigh(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` largest eigenvalues (descending) and their eigenvectors of a symmetric matrix.
 
     ``matrix`` (m, m) -> values (k,), vectors (m, k). LAPACK's divide-and-conquer route
-    (``dsyevd``: Householder tridiagonal form, ``dstevd`` on it, the reflectors applied back)
-    with the reflectors applied to the ``k`` vectors kept only. ``scipy.linalg.eigh`` offers a
-    subset only through MRRR or inverse iteration (``subset_by_index``: ``dsyevr`` / ``dsyevx``),
-    slow on the clustered noise-floor eigenvalues of a Hankel Gram (500 x 500, k = 100: 19 ms,
-    10 of them for the tridiagonal vectors), or every vector back-transformed (``driver="evd"``:
-    16 ms); this takes 11 ms. The same pairs to rounding (test/core/test_core_output_only.py).
+    (:class:`~okid_ros.core.symmetric_eigen.SymmetricEigen`: Householder tridiagonal form,
+    ``dstevd`` on it) with the reflectors applied to the ``k`` vectors kept only.
+    ``scipy.linalg.eigh`` offers a subset only through MRRR or inverse iteration
+    (``subset_by_index``: ``dsyevr`` / ``dsyevx``), slow on the clustered noise-floor eigenvalues
+    of a Hankel Gram (500 x 500, k = 100: 19 ms, 10 of them for the tridiagonal vectors), or
+    every vector back-transformed (``driver="evd"``: 16 ms); this takes 11 ms. The same pairs
+    to rounding (test/core/test_core_output_only.py). ValueError on NaN or Inf.
     """
-    matrix = np.asarray_chkfinite(matrix)  # ValueError on NaN or Inf, as scipy.linalg.eigh's check
-    m = matrix.shape[0]
-    if m < 2:
-        values, vectors = linalg.eigh(matrix)
-        return values[::-1][:k], vectors[:, ::-1][:, :k]
-    lwork = int(lapack.dsytrd_lwork(m, lower=1)[0])
-    reflectors, diagonal, off_diagonal, tau, info = lapack.dsytrd(matrix, lower=1, lwork=lwork)
-    values, tridiagonal_vectors, info_d = lapack.dstevd(diagonal, off_diagonal)
-    if info or info_d:
-        raise np.linalg.LinAlgError(f"symmetric eigendecomposition failed (dsytrd {info}, dstevd {info_d})")
-    vectors = np.asfortranarray(tridiagonal_vectors[:, ::-1][:, :k])
-    # Q = H(1) .. H(m-1) of dsytrd (lower) is the Q of a QR factorization of reflectors[1:, :m-1]
-    # acting on rows 1.. (what dormtr does): dormqr applies it to the kept vectors only.
-    applied, _, info = lapack.dormqr(b"L", b"N", reflectors[1:, : m - 1], tau, vectors[1:], max(1, 64 * k))
-    if info:
-        raise np.linalg.LinAlgError(f"symmetric eigendecomposition failed (dormqr {info})")
-    vectors[1:] = applied
-    return values[::-1][:k], vectors
+    eigen = SymmetricEigen(matrix)
+    top = np.arange(eigen.size - 1, eigen.size - 1 - min(k, eigen.size), -1)
+    return eigen.values[top], eigen.vectors(top)
 
 
 def _block_hankel(blocks: np.ndarray, n_rows: int, shift: int) -> np.ndarray:

@@ -1,0 +1,39 @@
+"""The factored symmetric eigendecomposition against scipy.linalg.eigh, and the ridge fit built on it."""
+
+import numpy as np
+import pytest
+from scipy import linalg
+
+from okid_ros.core.least_squares import NormalEquations, solve_normal_equations
+from okid_ros.core.symmetric_eigen import SymmetricEigen
+
+
+@pytest.mark.parametrize("size", [1, 2, 7, 60])
+def test_values_and_products_equal_those_of_eigh(size):
+    rng = np.random.default_rng(size)
+    x = rng.standard_normal((2 * size + 3, size))
+    matrix = x.T @ x
+    eigen = SymmetricEigen(matrix)
+    values, vectors = linalg.eigh(matrix)
+    np.testing.assert_allclose(eigen.values, values, rtol=0, atol=1e-12 * values.max())
+    # Vectors are unique up to sign (the spectrum here is simple): compare V^T b and V c through V.
+    signs = np.sign(np.sum(eigen.vectors(np.arange(size)) * vectors, axis=0))
+    b, c = rng.standard_normal((size, 3)), rng.standard_normal(size)
+    np.testing.assert_allclose(eigen.project(b), signs[:, None] * (vectors.T @ b), atol=1e-10)
+    np.testing.assert_allclose(eigen.expand(c), vectors @ (signs * c), atol=1e-10)
+    np.testing.assert_allclose(eigen.expand(eigen.project(b)), b, atol=1e-10)
+
+
+def test_a_matrix_with_nan_is_refused_like_eigh():
+    with pytest.raises(ValueError):
+        SymmetricEigen(np.array([[1.0, np.nan], [np.nan, 1.0]]))
+
+
+def test_the_ridge_fit_solves_its_own_regularized_equations():
+    rng = np.random.default_rng(3)
+    phi, y = rng.standard_normal((400, 12)), rng.standard_normal((400, 2))
+    normal = NormalEquations(phi.T @ phi, phi.T @ y, y.T @ y, 400)
+    precision = np.diag(rng.uniform(0.5, 2.0, 12))
+    theta, penalty, _, _ = solve_normal_equations(normal, precision, "gcv")
+    expected = linalg.solve(normal.R + penalty * precision, normal.r)  # the precision is the penalty's matrix
+    np.testing.assert_allclose(theta, expected, rtol=1e-9, atol=1e-12)
