@@ -190,7 +190,7 @@ class _Predictor:
             sig[s], sig[s + 1 : s + 1 + w], sig[s + 1 + w] = dxi[burn_in:], f[:, burn_in:], xi[burn_in:]
             coef[:, s, self._real_lam[i]] = real_c[i]
             coef[:, s + 1 + np.arange(w), self._real_g[i]] = real_c[i][:, None]
-        sig[inputs] = v_rows[self.p :, burn_in:]
+        sig[inputs] = u[burn_in:].T
         return sig.T, coef
 
     def _pair_coefficients(self, coef: np.ndarray, c: np.ndarray, pair: np.ndarray) -> None:
