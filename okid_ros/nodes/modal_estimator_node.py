@@ -328,18 +328,28 @@ class ModalEstimatorNode(OkidNode):
         if pool is None:
             return
         if isinstance(pool, ProcessPoolExecutor):
-            # A realization under way is of no use any more: without this the process waited
-            # for it at exit (seconds), and a Ctrl-C meanwhile was ignored (nodes/runner.py).
-            for process in list((getattr(pool, "_processes", None) or {}).values()):
-                process.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
-        # Python 3.11's exit handler wakes the pool's manager thread without the pool's lock, and
-        # printed "OSError: Bad file descriptor" when that thread was closing its wake-up pipe at
-        # the same moment (fixed in 3.12). Once the thread has ended (quickly: no worker is left
-        # to wait for) the handler finds the pipe closed and does nothing.
-        manager = getattr(pool, "_executor_manager_thread", None)
-        if manager is not None and manager is not threading.current_thread():
-            manager.join(timeout=MANAGER_JOIN_TIMEOUT_S)
+            stop_process_pool(pool)
+        else:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+def stop_process_pool(pool: ProcessPoolExecutor, *, timeout_s: float = MANAGER_JOIN_TIMEOUT_S) -> None:
+    """End the realization worker now and wait (at most ``timeout_s``) for the pool's manager thread.
+
+    A realization under way is of no use any more: without the terminate the process waited for
+    it at exit (seconds), and a Ctrl-C meanwhile was ignored (nodes/runner.py). Python 3.11's exit
+    handler wakes the pool's manager thread without the pool's lock, and printed "OSError: Bad
+    file descriptor" when that thread was closing its wake-up pipe at the same moment (fixed in
+    3.12); once the thread has ended (quickly: no worker is left to wait for) the handler no
+    longer sees it. ``shutdown(wait=False)`` drops the pool's reference to the thread, so it is
+    taken first.
+    """
+    manager = getattr(pool, "_executor_manager_thread", None)
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
+    if manager is not None and manager is not threading.current_thread():
+        manager.join(timeout=timeout_s)
 
 
 def _worker_init(name: str, node_pid: int | None = None) -> None:
