@@ -74,6 +74,11 @@ class _Predictor:
         self._real_c = real[:, None] + 1 + w + np.arange(p)
         self._d = pair + n_real * (1 + w + p) + np.arange(p * m)
         self.size = pair + n_real * (1 + w + p) + p * m
+        # Columns of signals(): per pair d xi (2), f (2 w), xi (2); per real pole 1, w, 1; then u (m).
+        self._pair_columns = np.arange(n_pairs) * (4 + 2 * w)
+        self._real_columns = n_pairs * (4 + 2 * w) + np.arange(n_real) * (2 + w)
+        self._input_columns = n_pairs * (4 + 2 * w) + n_real * (2 + w) + np.arange(m)
+        self._n_signals = n_pairs * (4 + 2 * w) + n_real * (2 + w) + m
         self._coef_template = self._constant_coefficients()
 
     def pack(self, pairs, reals, D) -> np.ndarray:
@@ -111,20 +116,11 @@ class _Predictor:
         lam, _, _, real_lam, _, _, _ = self.arrays(theta)
         return float(max(np.max(np.abs(lam), initial=0.0), np.max(np.abs(real_lam), initial=0.0)))
 
-    def _signal_columns(self) -> tuple[np.ndarray, ...]:
-        """Columns of :meth:`signals`: per pair ``d xi`` (2), ``f`` (2 w), ``xi`` (2); per real pole 1, w, 1; ``u``."""
-        w, n_pairs, n_real = self.w, self.n_pairs, self.n_real
-        pair = np.arange(n_pairs) * (4 + 2 * w)
-        real = n_pairs * (4 + 2 * w) + np.arange(n_real) * (2 + w)
-        inputs = n_pairs * (4 + 2 * w) + n_real * (2 + w) + np.arange(self.m)
-        return pair, real, inputs
-
     def _constant_coefficients(self) -> np.ndarray:
         """The entries of ``coefficients`` that do not depend on ``theta``: those of ``c`` and ``D``."""
         p, m, w = self.p, self.m, self.w
-        pair, real, inputs = self._signal_columns()
-        n_signals = self.n_pairs * (4 + 2 * w) + self.n_real * (2 + w) + m
-        coef = np.zeros((p, n_signals, self.size))
+        pair, real, inputs = self._pair_columns, self._real_columns, self._input_columns
+        coef = np.zeros((p, self._n_signals, self.size))
         outputs = np.arange(p)
         for i in range(self.n_pairs):  # 2 Re(c xi) = 2 Re c Re xi - 2 Im c Im xi
             xi = pair[i] + 2 + 2 * w
@@ -162,9 +158,9 @@ class _Predictor:
         """
         lam, g, c, real_lam, real_g, real_c, _ = self.arrays(theta)
         w, n = self.w, v.shape[0]
-        pair, real, inputs = self._signal_columns()
+        pair, real, inputs = self._pair_columns, self._real_columns, self._input_columns
         # Rows of the transpose are the signals: contiguous writes, and the Gram is as fast.
-        sig = np.empty((self._coef_template.shape[1], n - burn_in))
+        sig = np.empty((self._n_signals, n - burn_in))
         coef = self._coef_template.copy()
         v_rows = np.ascontiguousarray(v.T)  # (w, N)
         for i in range(self.n_pairs):
