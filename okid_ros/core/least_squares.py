@@ -9,6 +9,7 @@ split from it so each module keeps to one concern.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,10 +138,9 @@ def solve_normal_equations(
     d, p = r.shape
     if precision is None:
         precision = np.diag(np.maximum(np.diag(R), np.finfo(float).tiny) / max(n_rows, 1))
-    # Whiten with the Cholesky factor of the precision: P^{-1} = L L^T.
-    chol = linalg.cholesky(precision, lower=True)
-    r_t = linalg.solve_triangular(chol, r, lower=True)
-    R_t = linalg.solve_triangular(chol, linalg.solve_triangular(chol, R, lower=True).T, lower=True)
+    whiten, unwhiten = _whitening(precision)
+    r_t = whiten(r)
+    R_t = whiten(whiten(R).T)
     R_t = 0.5 * (R_t + R_t.T)
     eigen = SymmetricEigen(R_t)  # V kept factored: only V^T r_t and V theta are needed
     s = np.maximum(eigen.values, 0.0)
@@ -173,9 +173,41 @@ def solve_normal_equations(
         # Unregularized: a pseudo-inverse that drops numerically null directions.
         keep = s > s.max() * d * np.finfo(float).eps
         denom = np.where(keep, s, np.inf)
-    theta_t = eigen.expand(g / denom[:, None])
-    theta = linalg.solve_triangular(chol.T, theta_t, lower=False)
+    theta = unwhiten(eigen.expand(g / denom[:, None]))
     return theta, lam, dof, gcv
+
+
+def _whitening(precision: np.ndarray) -> tuple[Callable, Callable]:
+    """``x -> L^-1 x`` and ``x -> L^-T x`` for the Cholesky factor ``L`` of the precision, ``P^-1 = L L^T``.
+
+    The ridge prior is diagonal: then ``L`` is the square root of its diagonal and both are a
+    scaling of the rows, ``d^2`` operations per column instead of the triangular solves' ``d^3``
+    for ``R`` (0.2 s of the steel subframe's ARX order search, where ``d`` is 602-1202). As
+    OpenBLAS's triangular solve, one column is divided by the diagonal and several are multiplied
+    by its reciprocals: the fits are the same to the last bit as by the solves.
+    """
+    diagonal = np.diag(precision)
+    if np.count_nonzero(precision) == np.count_nonzero(diagonal):  # nothing off the diagonal
+        if not np.all(np.isfinite(diagonal)):
+            raise ValueError("the prior precision must not contain infs or NaNs")
+        if not np.all(diagonal > 0):
+            raise linalg.LinAlgError("the prior precision is not positive definite")
+        root = np.sqrt(diagonal)[:, None]
+        inverse = 1.0 / root
+
+        def scale(x: np.ndarray) -> np.ndarray:
+            return x / root if x.shape[1] == 1 else x * inverse
+
+        return scale, scale
+    chol = linalg.cholesky(precision, lower=True)
+
+    def solve(x: np.ndarray) -> np.ndarray:
+        return linalg.solve_triangular(chol, x, lower=True)
+
+    def solve_transposed(x: np.ndarray) -> np.ndarray:
+        return linalg.solve_triangular(chol.T, x, lower=False)
+
+    return solve, solve_transposed
 
 
 def scaled_condition_number(R: np.ndarray) -> float:

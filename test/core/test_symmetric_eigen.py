@@ -29,11 +29,32 @@ def test_a_matrix_with_nan_is_refused_like_eigh():
         SymmetricEigen(np.array([[1.0, np.nan], [np.nan, 1.0]]))
 
 
-def test_the_ridge_fit_solves_its_own_regularized_equations():
+def _full_precision(rng) -> np.ndarray:
+    """A correlated prior's precision (the "tc" kind's shape: nothing is zero off the diagonal)."""
+    x = rng.standard_normal((30, 12))
+    return x.T @ x / 30 + np.eye(12)
+
+
+@pytest.mark.parametrize("kind", ["diagonal", "full"])
+def test_the_ridge_fit_solves_its_own_regularized_equations(kind):
+    # The diagonal precision is whitened by a scaling, the full one by triangular solves.
     rng = np.random.default_rng(3)
     phi, y = rng.standard_normal((400, 12)), rng.standard_normal((400, 2))
     normal = NormalEquations(phi.T @ phi, phi.T @ y, y.T @ y, 400)
-    precision = np.diag(rng.uniform(0.5, 2.0, 12))
+    precision = np.diag(rng.uniform(0.5, 2.0, 12)) if kind == "diagonal" else _full_precision(rng)
     theta, penalty, _, _ = solve_normal_equations(normal, precision, "gcv")
     expected = linalg.solve(normal.R + penalty * precision, normal.r)  # the precision is the penalty's matrix
     np.testing.assert_allclose(theta, expected, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("bad, error", [(0.0, linalg.LinAlgError), (-1.0, linalg.LinAlgError),
+                                        (np.nan, ValueError), (np.inf, ValueError)])
+def test_a_diagonal_precision_that_is_not_positive_is_refused_as_cholesky_refuses_it(bad, error):
+    rng = np.random.default_rng(4)
+    phi, y = rng.standard_normal((50, 3)), rng.standard_normal((50, 1))
+    normal = NormalEquations(phi.T @ phi, phi.T @ y, y.T @ y, 50)
+    precision = np.diag([1.0, bad, 2.0])
+    with pytest.raises(error):
+        linalg.cholesky(precision, lower=True)
+    with pytest.raises(error):
+        solve_normal_equations(normal, precision, 1.0)
