@@ -2,7 +2,8 @@
 
 The nodes, ``process`` and ``track`` pass the order of the model in use; the search screens the
 orders around it and widens the band until BIC has its minimum inside, with the winner's
-stabilization neighbours. Where the minimum is the full search's, the model is the same.
+stabilization neighbours. Where the minimum is the full search's, the model is the same. The
+least-squares refit stops a few orders past its own minimum: the same model again.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from okid_ros.core import order_search
 from okid_ros.core.pipeline import identify, identify_from_arx
 from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
@@ -67,3 +69,16 @@ def test_the_service_hints_the_order_of_the_model_in_use(monkeypatch):
                 est.process_pending()
     assert len(hints) >= 3
     assert hints[0] is None and hints == in_use
+
+
+def test_the_refit_stops_past_its_minimum_with_the_model_of_every_order_refitted(monkeypatch):
+    # 6 outputs: the Gram screening prefers orders above the refit's minimum (14 states here).
+    u, y, dt = _record(6, seed=3)
+    arx = identify(u, y, dt, order=40).arx
+    stopped = identify_from_arx(arx, u, y, dt)
+    monkeypatch.setattr(order_search, "REFIT_PATIENCE", 10**6)  # every order up to the screening's choice
+    every = identify_from_arx(arx, u, y, dt)
+    assert set(stopped.completed_orders) < set(every.completed_orders)
+    assert stopped.n_states == every.n_states
+    np.testing.assert_array_equal(stopped.A, every.A)
+    assert [m.frequency_hz for m in stopped.modes] == [m.frequency_hz for m in every.modes]
