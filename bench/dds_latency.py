@@ -65,6 +65,12 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--compare", action="store_true",
                         help="run --control, then the nodes, and print last a line "
                         "p99_ms=<nodes> control_p99_ms=<echo> ratio=<nodes/echo>")
+    parser.add_argument("--probe-fifo", type=int, default=0, metavar="PRIORITY",
+                        help="run the benchmark's own publisher and receiver (not the nodes, not the echo node) "
+                        "at this SCHED_FIFO priority (1-99; needs CAP_SYS_NICE): the probe is then not held back "
+                        "by the load of what it measures (default 0: ordinary scheduling)")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="PRIORITY",
+                        help="node 2's realtime_priority parameter (default 0: ordinary scheduling)")
     parser.add_argument("--role", default="bench", choices=("bench", "receiver", "echo"), help=argparse.SUPPRESS)
     parser.add_argument("--out", default="", help=argparse.SUPPRESS)
     return parser.parse_args()
@@ -239,11 +245,18 @@ def compare(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------ bench
+def _probe_priority(priority: int) -> None:
+    """Put the calling thread (and the threads it starts from now on) at SCHED_FIFO ``priority``; children not."""
+    if priority:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+
+
 def main() -> int:
     args = parse_args()
     if args.compare and args.role == "bench":
         return compare(args)
     if args.role == "receiver":
+        _probe_priority(args.probe_fifo)  # before rclpy starts the DDS threads, which inherit it
         receiver(args.out)
         return 0
     if args.role == "echo":
@@ -273,7 +286,8 @@ def main() -> int:
         f"/**:\n  ros__parameters:\n    sample_time_s: {dt!r}\n"
         f"okid_arx_identifier:\n  ros__parameters:\n    publish_rate_hz: {args.publish_rate!r}\n"
         f"    arx:\n      order: {args.order}\n      window_length: {args.window}\n"
-        f"okid_modal_estimator:\n  ros__parameters:\n    realization:\n      n_states: {args.states}\n"
+        f"okid_modal_estimator:\n  ros__parameters:\n    realtime_priority: {args.realtime_priority}\n"
+        f"    realization:\n      n_states: {args.states}\n"
         f"      worker: {args.worker}\n"
     )
     params = ["--ros-args", "--params-file", str(REPO / "config" / "okid.yaml"), "--params-file", str(overrides)]
@@ -286,9 +300,11 @@ def main() -> int:
     procs = {
         "arx": subprocess.Popen(nodes[0], env=env, cwd=REPO, stdout=logs["arx"], stderr=subprocess.STDOUT),
         "est": subprocess.Popen(nodes[1], env=env, cwd=REPO, stdout=logs["est"], stderr=subprocess.STDOUT),
-        "receiver": subprocess.Popen([sys.executable, __file__, "--role", "receiver", "--out", str(tmp / "rx.json")],
+        "receiver": subprocess.Popen([sys.executable, __file__, "--role", "receiver", "--out", str(tmp / "rx.json"),
+                                      "--probe-fifo", str(args.probe_fifo)],
                                      env=env, cwd=REPO, stdout=logs["receiver"], stderr=subprocess.STDOUT),
     }
+    _probe_priority(args.probe_fifo)  # the publisher; the nodes started above keep ordinary scheduling
     try:
         return run_bench(args, procs, tmp, dt, np, rclpy, IoSample, Node, QoSProfile, ReliabilityPolicy,
                          lowpass_input, modal_structure, simulate)

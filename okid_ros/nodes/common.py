@@ -31,6 +31,8 @@ from okid_ros.service.sample_grid import GridSample
 
 __all__ = [
     "lower_priority",
+    "ordinary_scheduling",
+    "realtime_threads",
     "request_short_slice",
     "name_thread",
     "declare_parameters",
@@ -74,6 +76,43 @@ def lower_priority(nice: int) -> None:
             pass
 
 
+def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
+    """Threads of this process at SCHED_FIFO ``priority`` (1-99); "" or why not (Linux).
+
+    Every thread that runs now (the executor, the DDS threads), or ``only_this_thread``. With
+    ``SCHED_RESET_ON_FORK`` nothing started from them later is real-time (Linux resets threads
+    as well as processes): not the realization worker, not the side thread; the input thread
+    asks for it itself. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least ``priority``
+    (``ulimit -r``, /etc/security/limits.conf); without, nothing changes and the reason is
+    returned.
+    """
+    policy = getattr(os, "SCHED_FIFO", None)
+    if policy is None or not sys.platform.startswith("linux"):
+        return "real-time scheduling is not available on this platform"
+    try:
+        tasks = [0] if only_this_thread else [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError as exc:
+        return f"the threads of this process cannot be listed ({exc})"
+    for tid in tasks:
+        try:
+            os.sched_setscheduler(tid, policy | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+        except ProcessLookupError:
+            continue  # the thread ended meanwhile
+        except OSError as exc:
+            for done in tasks[: tasks.index(tid)]:  # all or none
+                ordinary_scheduling(done)
+            return f"SCHED_FIFO priority {priority} refused ({exc.strerror or exc}; needs CAP_SYS_NICE or ulimit -r)"
+    return ""
+
+
+def ordinary_scheduling(tid: int = 0) -> None:
+    """A thread (default: the calling one) back to SCHED_OTHER."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
 #: sched_setattr(2) system call numbers by machine (Linux).
 _SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}
 
@@ -90,6 +129,8 @@ def request_short_slice(slice_s: float) -> bool:
     number = _SCHED_SETATTR.get(os.uname().machine)
     if number is None or not sys.platform.startswith("linux"):
         return False
+    if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK != os.SCHED_OTHER:
+        return False  # real-time (realtime_priority): a slice would make it ordinary again
     try:
         import ctypes
         import struct

@@ -14,7 +14,7 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.guard_condition import GuardCondition
 
-from okid_ros.nodes.common import name_thread, request_short_slice
+from okid_ros.nodes.common import name_thread, realtime_threads, request_short_slice
 
 if TYPE_CHECKING:
     from okid_ros.nodes.base import OkidNode
@@ -107,7 +107,10 @@ class InputThread:
 
     def _run(self) -> None:
         name_thread("okid_samples")
-        if self.node.input_slice_s:
+        priority = int(self.node.values.get("realtime_priority", 0))
+        if priority:  # node 2's realtime_priority: the node's other threads have it already
+            realtime_threads(priority, only_this_thread=True)
+        elif self.node.input_slice_s:
             request_short_slice(self.node.input_slice_s)
         node, context = self.node, self.node.context
         subs: tuple = ()

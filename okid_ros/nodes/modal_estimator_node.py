@@ -55,7 +55,13 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.base import OkidNode
-from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
+from okid_ros.nodes.common import (
+    lower_priority,
+    make_status,
+    name_thread,
+    realtime_threads,
+    reliable_qos,
+)
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
     fill_modal_states,
@@ -160,6 +166,12 @@ class ModalEstimatorNode(OkidNode):
         # A timer of its own, not the diagnostics timer: that one's rate is a parameter (down to
         # 0.01 Hz). Each look costs a lock and a comparison while samples flow.
         self.create_timer(IDLE_CHECK_PERIOD_S, self._on_idle_timer)
+        if values["realtime_priority"]:
+            # The node's own threads (samples, executor, DDS) before the realization worker
+            # and node 1 on a loaded machine; the worker process keeps its ordinary scheduling.
+            refused = realtime_threads(int(values["realtime_priority"]))
+            if refused:
+                self.get_logger().warning(f"realtime_priority not applied: {refused}; ordinary scheduling")
         self.start_inputs()
         order = "auto" if params.n_states == 0 else str(params.n_states)
         if params.n_inputs == 0:  # the realization's order options do not apply

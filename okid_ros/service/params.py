@@ -82,7 +82,7 @@ _DIVERGENCE_RATIO = _keyword_default(DivergenceMonitor, "nis_ratio")
 #: Why a parameter is read at the start only (``ParamSpec.fixed``; the default: ``AT_START``).
 SIZES = "structural: it sizes the window, the buffers and the model; restart the node to change it"
 WIRING = "the subscriptions and publishers are created at the start; restart the node to change it"
-WORKER = "the worker is started with the node; restart the node to change it"
+WORKER = "the worker and the node's threads are started with the node; restart the node to change it"
 AT_START = "read at the start only; restart the node to change it"
 
 
@@ -207,6 +207,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("realization.max_states_limit", _REALIZATION.max_states_limit, "hard upper limit of the automatic order search, at least realization.max_states (reaching it is reported in the diagnostics)", "states", 2, 1000, field="max_states_limit", runtime=True),
     ParamSpec("realization.refine", True, "finish each realization with the prediction-error refinement of the core (skipped for large models)", field="refine", runtime=True),
     ParamSpec("realization.jackknife_segments", 0, "modes' standard deviations where the prediction-error covariance is out of reach (tens of outputs): a jackknife over this many segments of the window (8 as identify and track do; it adds about 60 % to each realization at 28 outputs); 0: left NaN, or at least 2", "segments", 0, 64, field="jackknife_segments", runtime=True),
+    ParamSpec("realtime_priority", 0, "SCHED_FIFO priority of the node's own threads (samples, executor, DDS), not of the realization worker: at 1 kHz on a loaded machine they then get a core first (needs CAP_SYS_NICE or ulimit -r; refused: a warning, ordinary scheduling); 0: ordinary scheduling", "", 0, 99, fixed=WORKER),
     ParamSpec("realization.worker", "process", "where realizations run: a worker process (never competes with the per-sample path for the interpreter lock) or a thread", choices=("process", "thread"), fixed=WORKER),
     ParamSpec("realization.gain", _REALIZATION.gain, "estimator gain: refit (least squares where the predictor is stable by construction, else the Riccati gain), riccati (always the Kalman gain of the Riccati equation on the residual covariances) or whitening (the paper's)", choices=GAINS, field="gain", runtime=True),
     ParamSpec("realization.output_only_method", OUTPUT_ONLY_METHODS[0], "with n_inputs 0 (output-only): how each window's model is realized from its outputs: ssi-cov (covariance-driven SSI / NExT-ERA, the measured winner) or var (a vector AR and the OKID recursion, the paper's route); see okid_ros/core/output_only.py", choices=OUTPUT_ONLY_METHODS, field="output_only_method", runtime=True),
