@@ -248,7 +248,10 @@ def compare(args: argparse.Namespace) -> int:
 def _probe_priority(priority: int) -> None:
     """Put the calling thread (and the threads it starts from now on) at SCHED_FIFO ``priority``; children not."""
     if priority:
-        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+        except OSError as exc:
+            raise SystemExit(f"--probe-fifo {priority}: {exc.strerror or exc} (needs CAP_SYS_NICE or ulimit -r)")
 
 
 def main() -> int:
