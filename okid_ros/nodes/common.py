@@ -58,6 +58,11 @@ def name_thread(name: str) -> None:
         pass
 
 
+def _thread_ids() -> list[int]:
+    """The ids of this process's threads (Linux; OSError elsewhere)."""
+    return [int(t) for t in os.listdir("/proc/self/task")]
+
+
 def lower_priority(nice: int) -> None:
     """Nice every thread of this process to at least ``nice`` (Linux; else nothing).
 
@@ -66,7 +71,7 @@ def lower_priority(nice: int) -> None:
     starts them.
     """
     try:
-        tasks = [int(t) for t in os.listdir("/proc/self/task")]
+        tasks = _thread_ids()
     except OSError:
         tasks = [0]
     for tid in tasks:
@@ -90,7 +95,7 @@ def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
     if policy is None or not sys.platform.startswith("linux"):
         return "real-time scheduling is not available on this platform"
     try:
-        tasks = [0] if only_this_thread else [int(t) for t in os.listdir("/proc/self/task")]
+        tasks = [0] if only_this_thread else _thread_ids()
     except OSError as exc:
         return f"the threads of this process cannot be listed ({exc})"
     for tid in tasks:
