@@ -32,10 +32,11 @@ def regressor_length(order: int, n_outputs: int, n_inputs: int) -> int:
     return n_inputs + order * (n_outputs + n_inputs)
 
 
-def check_io_arrays(u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def check_io_arrays(u: np.ndarray, y: np.ndarray, *, allow_no_inputs: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Return ``u`` and ``y`` as 2-D float arrays ``(N, m)`` and ``(N, p)``, or raise ValueError.
 
     One-dimensional arrays are taken as a single channel. The reason names the offending array.
+    ``allow_no_inputs``: ``u`` may have no columns (an output-only model, m = 0).
     """
     u = np.asarray(u, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -49,7 +50,7 @@ def check_io_arrays(u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarra
         raise ValueError(
             f"u and y have different lengths: {u.shape[0]} and {y.shape[0]} samples"
         )
-    if u.shape[1] == 0 or y.shape[1] == 0:
+    if (u.shape[1] == 0 and not allow_no_inputs) or y.shape[1] == 0:
         raise ValueError(f"u and y need at least one channel each; got u{u.shape}, y{y.shape}")
     for name, arr in (("u", u), ("y", y)):
         if not np.all(np.isfinite(arr)):

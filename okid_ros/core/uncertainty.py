@@ -214,7 +214,8 @@ def attach_mode_uncertainty(
         ``D`` (p, m), ``K`` (n, p) (paper convention, predictor gain ``A K``),
         ``sample_time_s`` and ``modes`` (each with ``eigenvalue``), e.g.
         :class:`okid_ros.core.pipeline.IdentifiedModel`.
-    u : (N, m); y : (N, p) the record the model was identified from.
+    u : (N, m); y : (N, p) the record the model was identified from (an output-only model,
+        m = 0: ``u`` of shape (N, 0)).
     burn_in : first samples left out (the predictor starts from zero); default the ARX order
         ``model.arx.order`` if there is one, else 100, at most N / 4.
     max_flops : budget for the information matrices (see the module docstring).
@@ -224,8 +225,8 @@ def attach_mode_uncertainty(
     :class:`UncertaintyResult`; when not computed, both standard deviations are NaN.
     """
     modes = list(model.modes)
-    u, y = check_io_arrays(u, y)
     A, B, C, D, K = (np.asarray(getattr(model, k), dtype=float) for k in ("A", "B", "C", "D", "K"))
+    u, y = check_io_arrays(u, y, allow_no_inputs=B.shape[1] == 0)
     n, p, m = A.shape[0], C.shape[0], B.shape[1]
     if not modes:
         return UncertaintyResult(True)

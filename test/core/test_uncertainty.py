@@ -228,3 +228,47 @@ def test_noise_poles_of_a_many_output_record_are_not_listed():
     listed = [mode.frequency_hz for mode in model.modes]
     pairs = assign_by_frequency(listed, truth, 0.02)
     assert None not in pairs and len(listed) == len(truth), (listed, truth)
+
+
+def test_an_output_only_model_gets_calibrated_standard_deviations():
+    """No inputs (m = 0, ``u`` with no columns): the prediction-error optimum's scatter is what the stds say.
+
+    The one-channel output-only case (3 modes at 1 % damping, white forces, 6000 samples): from
+    the true Kalman predictor, the refinement's optimum on each of 8 records, its modes against
+    the truth in units of the standard deviations computed at that optimum.
+    """
+    from okid_bench.output_only_cases import output_only_case
+    from okid_ros.core.refine import refine_prediction_error
+    from okid_ros.core.statespace import InnovationModel
+
+    case = output_only_case("one-channel")
+    inner = case.system.to_innovation_form()
+    n, p = inner.A.shape[0], inner.C.shape[0]
+    truth = InnovationModel(inner.A, np.zeros((n, 0)), inner.C, np.zeros((p, 0)), inner.K,
+                            inner.innovation_covariance, inner.sample_time_s)
+    true_modes = modes_of(truth.A, case.sample_time_s)
+    z_f, z_d = [], []
+    for seed in range(8):
+        y = case.simulate(seed)
+        y = y - y.mean(axis=0)
+        u = np.zeros((y.shape[0], 0))
+        fit = refine_prediction_error(truth, u, y, burn_in=200, max_evaluations=100)
+        assert fit is not None
+        estimate = modes_of(fit.model.A, case.sample_time_s)
+        modes = [SimpleNamespace(eigenvalue=min(estimate, key=lambda e: abs(e.z - t.z)).z,
+                                 frequency_hz_std=np.nan, damping_ratio_std=np.nan) for t in true_modes]
+        carrier = SimpleNamespace(A=fit.model.A, B=fit.model.B, C=fit.model.C, D=fit.model.D, K=fit.model.K,
+                                  sample_time_s=case.sample_time_s, modes=modes)
+        assert attach_mode_uncertainty(carrier, u, y, burn_in=200).computed
+        for true, mode in zip(true_modes, modes):
+            found = min(estimate, key=lambda e: abs(e.z - mode.eigenvalue))
+            z_f.append((found.frequency_hz - true.frequency_hz) / mode.frequency_hz_std)
+            z_d.append((found.damping_ratio - true.damping_ratio) / mode.damping_ratio_std)
+    for z in (np.array(z_f), np.array(z_d)):
+        assert np.all(np.isfinite(z)), z
+        assert np.mean(np.abs(z) <= 2) >= 0.85, z
+        assert 0.6 < np.sqrt(np.mean(z**2)) < 1.5, z
+    # An output-only model with an input column offered is refused, not read wrongly.
+    carrier.modes = [SimpleNamespace(eigenvalue=true_modes[0].z, frequency_hz_std=0.0, damping_ratio_std=0.0)]
+    result = attach_mode_uncertainty(carrier, np.zeros((y.shape[0], 1)), y)
+    assert not result.computed and math.isnan(carrier.modes[0].frequency_hz_std)
