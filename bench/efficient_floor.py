@@ -35,6 +35,7 @@ Usage::
     python bench/efficient_floor.py                                        # close-pair, 15000 samples, 40 seeds
     python bench/efficient_floor.py --cases paper-lp15,more-outputs --length 3750 --seeds 20
     python bench/efficient_floor.py --output-only --cases low-modes,close-pair --seeds 20
+    python bench/efficient_floor.py --output-only --cases random --seeds 120     # structures 0-119, one record each
     python bench/efficient_floor.py --out /tmp/floor.md [--force]
 
 BLAS threads default to 1 (``--threads``).
@@ -61,7 +62,7 @@ checkout.add()
 from identification_accuracy import simulate_record  # noqa: E402
 
 from okid_bench.cases import benchmark_case  # noqa: E402
-from okid_bench.output_only_cases import output_only_case  # noqa: E402
+from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
@@ -128,9 +129,16 @@ def input_output_case(name: str, length: int) -> FloorCase:
 def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     """An output-only case of ``bench/output_only.py`` driven by white forces alone (a finite-order truth).
 
-    The product's estimate: the modes ``identify_output_only`` lists with its defaults.
+    ``random-K``: structure K of ``bench/output_only.py --cases random``, its record the one that
+    bench draws for it (seed K). The product's estimate: the modes ``identify_output_only`` lists
+    with its defaults.
     """
-    case = output_only_case(name)
+    first_seed = 0
+    if name.startswith("random-") and name[len("random-"):].isdigit():
+        first_seed = int(name[len("random-"):])
+        case = random_case(first_seed)
+    else:
+        case = output_only_case(name)
     if case.coloured_cutoff_hz is not None or case.harmonic_hz is not None:
         raise ValueError(f"{name}: its unmeasured force is not white, so no innovation model of finite order is "
                          "its truth")
@@ -142,7 +150,7 @@ def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     true_hz = [mode["frequency_hz"] for mode in case.truth()]
 
     def record(seed: int):
-        y = case.simulate(seed, length)
+        y = case.simulate(first_seed + seed, length)
         return np.zeros((length, 0)), y - y.mean(axis=0)
 
     def estimate(u, y):
@@ -193,6 +201,7 @@ def run_case(case: FloorCase, *, seeds: int, log=print) -> dict:
     out = {key: np.full((seeds, len(true_modes)), np.nan)
            for key in ("floor_f", "floor_z", "okid_f", "okid_z", "bound_f", "bound_z")}
     out.update(case=case.name, length=case.length, truth=true_modes, relative_damping=case.relative_damping,
+               n_outputs=case.truth.C.shape[0],
                floor_kept_truth=0, okid_failed=0)
     for seed in range(seeds):
         u, y = case.record(seed)
@@ -254,12 +263,35 @@ def table(results: list[dict], *, f_goal: float, zeta_goal: float) -> str:
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
+def random_summary(results: list[dict], *, f_goal: float) -> str:
+    """Structures drawn at random, one record each: the true modes within ``f_goal`` % for the floor and for okid.
+
+    A mode the floor does not place within the goal is beyond what its record holds; one the
+    floor places and okid does not is the method's loss.
+    """
+    floor = np.concatenate([r["floor_f"][0] for r in results])
+    okid = np.concatenate([r["okid_f"][0] for r in results])
+    outputs = np.concatenate([[r["n_outputs"]] * r["floor_f"].shape[1] for r in results])
+    lines = [f"| outputs | true modes | within {f_goal} %: floor / okid | both | floor only | okid only | neither "
+             f"| f RMS % where both: floor / okid |", "|---|---|---|---|---|---|---|---|"]
+    for label, rows in [("all", np.ones(floor.size, bool))] + [(str(p), outputs == p) for p in np.unique(outputs)]:
+        f_in = np.abs(np.nan_to_num(floor[rows], nan=np.inf)) <= f_goal
+        o_in = np.abs(np.nan_to_num(okid[rows], nan=np.inf)) <= f_goal
+        both = f_in & o_in
+        lines.append(f"| {label} | {rows.sum()} | {f_in.sum()} / {o_in.sum()} | {both.sum()} | {(f_in & ~o_in).sum()} "
+                     f"| {(~f_in & o_in).sum()} | {(~f_in & ~o_in).sum()} "
+                     f"| {_rms(floor[rows][both]):.3f} / {_rms(okid[rows][both]):.3f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", default="close-pair", help="comma-separated case names (default: %(default)s)")
     parser.add_argument("--output-only", action="store_true",
                         help="the cases of bench/output_only.py (white forces only), scored as issue 18 does")
-    parser.add_argument("--seeds", type=int, default=40, help="records per case (default: %(default)s)")
+    parser.add_argument("--seeds", type=int, default=40,
+                        help="records per case (default: %(default)s); with --cases random: structures")
+    parser.add_argument("--first-seed", type=int, default=0, help="--cases random: the first structure")
     parser.add_argument("--length", type=int, default=None,
                         help="samples per record (default: 15000; output-only: each case's own)")
     parser.add_argument("--f-goal", type=float, default=None,
@@ -271,7 +303,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no per-seed lines on stderr")
     parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
     args = parser.parse_args(argv)
-    if args.seeds < 3 or (args.length is not None and args.length < 500):
+    drawn = args.cases.strip() == "random"
+    if drawn and not args.output_only:
+        parser.error("--cases random is an output-only family: add --output-only")
+    if drawn:  # one record per structure, as bench/output_only.py --cases random draws them
+        args.cases = ",".join(f"random-{k}" for k in range(args.first_seed, args.first_seed + args.seeds))
+    if args.seeds < (1 if drawn else 3) or (args.length is not None and args.length < 500):
         parser.error("give at least 3 seeds and 500 samples")
     if args.out is not None and args.out.exists() and not args.force:
         parser.error(f"{args.out} exists; add --force to replace it")
@@ -290,11 +327,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.quiet:
             print(line, file=sys.stderr, flush=True)
 
-    results = [run_case(case, seeds=args.seeds, log=log) for case in cases]
+    results = [run_case(case, seeds=1 if drawn else args.seeds, log=log) for case in cases]
     command = " ".join(["python bench/efficient_floor.py", *(argv if argv is not None else sys.argv[1:])])
     header = (f"`{command}` ({platform.machine()}, Python {platform.python_version()}, "
               f"{time.strftime('%Y-%m-%d')}, {time.perf_counter() - started:.0f} s)\n\n")
-    text = header + table(results, f_goal=f_goal, zeta_goal=zeta_goal)
+    text = header + (random_summary(results, f_goal=f_goal) if drawn else table(results, f_goal=f_goal,
+                                                                                  zeta_goal=zeta_goal))
     print(text)
     if args.out is not None:
         args.out.write_text(text + "\n")

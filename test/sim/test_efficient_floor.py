@@ -38,8 +38,23 @@ def test_the_bound_and_the_floor_agree_on_a_few_records():
     assert len(result["truth"]) == len(modes_of(case.truth.A, case.truth.sample_time_s)) == 3
 
 
+def test_a_random_structure_is_scored_on_the_record_the_output_only_bench_draws(capsys):
+    """``--cases random``: structure K's record is ``random_case(K).simulate(K)``; the summary counts its modes."""
+    from okid_bench.output_only_cases import random_case
+
+    case = efficient_floor.output_only_floor_case("random-3", None)
+    _, y = case.record(0)
+    drawn = random_case(3).simulate(3)
+    assert np.allclose(y, drawn - drawn.mean(axis=0))
+    assert efficient_floor.main(["--output-only", "--cases", "random", "--first-seed", "3", "--seeds", "1",
+                                 "--quiet"]) == 0
+    summary = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| all |")]
+    assert summary and summary[0].split("|")[2].strip() == str(len(random_case(3).truth())), summary
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--cases", "no-such-case"], "unknown case"),
+    (["--cases", "random", "--seeds", "3"], "add --output-only"),
     (["--output-only", "--cases", "harmonic"], "not white"),
     (["--seeds", "2"], "at least 3 seeds"),
 ])
