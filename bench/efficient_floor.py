@@ -3,8 +3,8 @@
 
 A goal like "every mode within 0.2 %" is only reachable if the record holds that much
 information. For each case and seed this script takes the identification record of
-``bench/identification_accuracy.py`` (the same seeds give the same records) and computes two
-estimates of the modes:
+``bench/identification_accuracy.py`` (the same seeds give the same records) and puts two
+estimates of the modes beside a bound:
 
 * ``floor``: the maximum-likelihood estimate at the true order, started from the true system's
   Kalman predictor: the outputs whitened by the true innovation covariance (the modes do not
