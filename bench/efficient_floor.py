@@ -28,14 +28,18 @@ paired as in the accuracy benchmark (``okid_bench.scoring.match_modes`` over eve
 With ``--output-only`` the cases are those of ``bench/output_only.py`` whose unmeasured force is
 white (a coloured or harmonic force has no finite-order truth), the product's estimate is the
 modes ``identify_output_only`` lists (a listed mode within 2 % of a true one), the damping is
-scored in % of the true damping and the goals are issue 18's (0.5 %, 30 %).
+scored in % of the true damping and the goals are issue 18's (0.5 %, 30 %). ``--cases random``
+takes the structures drawn at random by ``bench/random_structures.py`` (or with
+``--output-only`` by ``bench/output_only.py``), one record each, the product's listed modes as
+its estimate, and prints how many true modes the floor and the product place within the goal.
 
 Usage::
 
     python bench/efficient_floor.py                                        # close-pair, 15000 samples, 40 seeds
     python bench/efficient_floor.py --cases paper-lp15,more-outputs --length 3750 --seeds 20
     python bench/efficient_floor.py --output-only --cases low-modes,close-pair --seeds 20
-    python bench/efficient_floor.py --output-only --cases random --seeds 120     # structures 0-119, one record each
+    python bench/efficient_floor.py --cases random --seeds 120                   # bench/random_structures.py's 0-119
+    python bench/efficient_floor.py --output-only --cases random --seeds 120     # bench/output_only.py's
     python bench/efficient_floor.py --out /tmp/floor.md [--force]
 
 BLAS threads default to 1 (``--threads``).
@@ -62,6 +66,7 @@ checkout.add()
 from identification_accuracy import simulate_record  # noqa: E402
 
 from okid_bench.cases import benchmark_case  # noqa: E402
+from okid_bench.cases import random_case as io_random_case  # noqa: E402
 from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
@@ -69,6 +74,7 @@ from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.refine import refine_prediction_error  # noqa: E402
 from okid_ros.core.statespace import InnovationModel  # noqa: E402
 from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
+from okid_ros.sim.simulators import simulate_noisy  # noqa: E402
 
 MODE_TOL = 0.05
 #: Residual evaluations of the optimizer from the truth: enough to converge (the product's
@@ -76,8 +82,9 @@ MODE_TOL = 0.05
 FLOOR_EVALUATIONS = 300
 BURN_IN = 200
 VALIDATION_SAMPLES = 2000  # simulate_record's held-out part; unused here, drawn to keep the seeds aligned
-#: Output-only scoring (issue 18): a listed mode within 2 % of a true one is its estimate.
-OUTPUT_ONLY_MATCH = 0.02
+#: Where the product's estimate is its listed modes (output-only, random structures): a listed
+#: mode within 2 % of a true one is its estimate.
+LISTED_MATCH = 0.02
 
 
 @dataclass
@@ -126,6 +133,35 @@ def input_output_case(name: str, length: int) -> FloorCase:
     return FloorCase(name, length, truth, record, estimate)
 
 
+def _listed_values(listed: list, true_hz: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Frequency and damping of the listed mode paired with each true mode (within 2 %; NaN: none)."""
+    pairs = assign_by_frequency([mode.frequency_hz for mode in listed], true_hz, LISTED_MATCH)
+    return (np.array([np.nan if i is None else listed[i].frequency_hz for i in pairs]),
+            np.array([np.nan if i is None else listed[i].damping_ratio for i in pairs]))
+
+
+def random_input_output_case(index: int) -> FloorCase:
+    """Structure ``index`` of ``bench/random_structures.py``, its record the one that bench draws.
+
+    The product's estimate there: the modes ``identify`` lists with its defaults (that bench's
+    score), not every pole of its ``A``.
+    """
+    case = io_random_case(index)
+    system = case.system
+    truth = system if isinstance(system, InnovationModel) else system.to_innovation_form()
+    true_hz = [mode.frequency_hz for mode in modes_of(truth.A, truth.sample_time_s)]
+    length = int(case.n_samples[0])
+
+    def record(seed: int):
+        u = case.make_input(length, index + seed)
+        return u, simulate_noisy(system, u, seed=index + seed)
+
+    def estimate(u, y):
+        return _listed_values(identify(u, y, case.sample_time_s).modes, true_hz)
+
+    return FloorCase(f"random-{index}", length, truth, record, estimate)
+
+
 def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     """An output-only case of ``bench/output_only.py`` driven by white forces alone (a finite-order truth).
 
@@ -147,17 +183,14 @@ def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     truth = InnovationModel(inner.A, np.zeros((n, 0)), inner.C, np.zeros((p, 0)), inner.K,
                             inner.innovation_covariance, inner.sample_time_s)
     length = int(length or case.n_samples)
-    true_hz = [mode["frequency_hz"] for mode in case.truth()]
+    true_hz = [mode.frequency_hz for mode in modes_of(truth.A, truth.sample_time_s)]
 
     def record(seed: int):
         y = case.simulate(first_seed + seed, length)
         return np.zeros((length, 0)), y - y.mean(axis=0)
 
     def estimate(u, y):
-        listed = identify_output_only(y, sample_time_s=case.sample_time_s).modes
-        pairs = assign_by_frequency([mode.frequency_hz for mode in listed], true_hz, OUTPUT_ONLY_MATCH)
-        return (np.array([np.nan if i is None else listed[i].frequency_hz for i in pairs]),
-                np.array([np.nan if i is None else listed[i].damping_ratio for i in pairs]))
+        return _listed_values(identify_output_only(y, sample_time_s=case.sample_time_s).modes, true_hz)
 
     return FloorCase(name, length, truth, record, estimate, relative_damping=True)
 
@@ -290,12 +323,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-only", action="store_true",
                         help="the cases of bench/output_only.py (white forces only), scored as issue 18 does")
     parser.add_argument("--seeds", type=int, default=40,
-                        help="records per case (default: %(default)s); with --cases random: structures")
+                        help="records per case (default: %(default)s); --cases random: structures")
     parser.add_argument("--first-seed", type=int, default=0, help="--cases random: the first structure")
     parser.add_argument("--length", type=int, default=None,
                         help="samples per record (default: 15000; output-only: each case's own)")
     parser.add_argument("--f-goal", type=float, default=None,
-                        help="frequency goal in %% (default: 0.2; output-only 0.5)")
+                        help="frequency goal in %% (default: 0.2; output-only and random: 0.5, their 'found')")
     parser.add_argument("--zeta-goal", type=float, default=None,
                         help="damping goal in points (default: 0.3); output-only in %% of the true damping (30)")
     parser.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
@@ -304,21 +337,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
     args = parser.parse_args(argv)
     drawn = args.cases.strip() == "random"
-    if drawn and not args.output_only:
-        parser.error("--cases random is an output-only family: add --output-only")
-    if drawn:  # one record per structure, as bench/output_only.py --cases random draws them
+    if drawn:  # one record per structure, as bench/random_structures.py and bench/output_only.py draw them
         args.cases = ",".join(f"random-{k}" for k in range(args.first_seed, args.first_seed + args.seeds))
     if args.seeds < (1 if drawn else 3) or (args.length is not None and args.length < 500):
         parser.error("give at least 3 seeds and 500 samples")
     if args.out is not None and args.out.exists() and not args.force:
         parser.error(f"{args.out} exists; add --force to replace it")
-    f_goal = args.f_goal if args.f_goal is not None else (0.5 if args.output_only else 0.2)
+    f_goal = args.f_goal if args.f_goal is not None else (0.5 if args.output_only or drawn else 0.2)
     zeta_goal = args.zeta_goal if args.zeta_goal is not None else (30.0 if args.output_only else 0.3)
     cases = []
     for name in (name.strip() for name in args.cases.split(",")):
         try:
-            cases.append(output_only_floor_case(name, args.length) if args.output_only
-                         else input_output_case(name, args.length or 15000))
+            if args.output_only:
+                cases.append(output_only_floor_case(name, args.length))
+            elif drawn:
+                cases.append(random_input_output_case(int(name[len("random-"):])))
+            else:
+                cases.append(input_output_case(name, args.length or 15000))
         except (KeyError, ValueError) as exc:
             parser.error(str(exc.args[0]))
     started = time.perf_counter()

@@ -52,9 +52,23 @@ def test_a_random_structure_is_scored_on_the_record_the_output_only_bench_draws(
     assert summary and summary[0].split("|")[2].strip() == str(len(random_case(3).truth())), summary
 
 
+def test_an_input_output_random_structure_is_scored_on_the_record_of_random_structures():
+    """``--cases random`` without ``--output-only``: bench/random_structures.py's record of structure K."""
+    from okid_bench.cases import random_case
+    from okid_ros.sim.simulators import simulate_noisy
+
+    case = efficient_floor.random_input_output_case(5)
+    u, y = case.record(0)
+    drawn = random_case(5)
+    u_drawn = drawn.make_input(drawn.n_samples[0], 5)
+    assert np.array_equal(u, u_drawn) and np.array_equal(y, simulate_noisy(drawn.system, u_drawn, seed=5))
+    result = efficient_floor.run_case(case, seeds=1, log=lambda line: None)
+    assert result["floor_f"].shape == (1, len(modes_of(drawn.system.A, drawn.sample_time_s)))
+    assert np.nanmax(np.abs(result["floor_f"])) < 1.0  # the floor places every mode of this record
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--cases", "no-such-case"], "unknown case"),
-    (["--cases", "random", "--seeds", "3"], "add --output-only"),
     (["--output-only", "--cases", "harmonic"], "not white"),
     (["--seeds", "2"], "at least 3 seeds"),
 ])
