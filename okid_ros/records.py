@@ -29,25 +29,18 @@ import numpy as np
 
 from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
+from okid_ros.core.regressors import real_array
 from okid_ros.errors import DataError, write_atomically
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
 
 
-#: numpy dtype kinds a record array may have: bool, signed/unsigned integer, real float.
-_REAL_KINDS = "biuf"
-
-
 def _as_real_array(name: str, value: object) -> np.ndarray:
     """``value`` as a float64 array, or DataError saying why it is not a real numeric array."""
-    arr = np.asarray(value)
-    if arr.dtype.kind not in _REAL_KINDS:
-        kinds = {"c": "complex", "O": "object", "U": "string", "S": "bytes", "V": "structured",
-                 "M": "datetime", "m": "timedelta"}
-        raise DataError(f"{name} must hold real numbers, got a {kinds.get(arr.dtype.kind, str(arr.dtype))} "
-                        f"array (dtype {arr.dtype})")
-    with np.errstate(over="ignore"):  # float128 beyond float64's range becomes inf, reported below
-        return arr.astype(float)
+    try:
+        return real_array(name, value)
+    except ValueError as exc:
+        raise DataError(str(exc)) from None
 
 
 @dataclass

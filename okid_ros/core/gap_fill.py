@@ -26,7 +26,7 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
-from okid_ros.core.regressors import regressor_at
+from okid_ros.core.regressors import real_array, regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
            "fit_and_fill", "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem",
@@ -160,7 +160,7 @@ def missing_mask(valid, n_samples: int) -> np.ndarray | None:
 
     Raises
     ------
-    ValueError if ``valid`` is not one flag per sample.
+    ValueError if ``valid`` is not one flag per sample, or ``u`` or ``y`` not real numbers.
     """
     valid = np.asarray(valid, dtype=bool)
     if valid.shape != (n_samples,):
@@ -182,9 +182,9 @@ def mark_missing(u: np.ndarray, y: np.ndarray, valid) -> tuple[np.ndarray, np.nd
 
     Raises
     ------
-    ValueError if ``valid`` is not one flag per sample.
+    ValueError if ``valid`` is not one flag per sample, or ``u`` or ``y`` not real numbers.
     """
-    u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+    u, y = real_array("u", u), real_array("y", y)
     lengths = {np.shape(a)[0] if np.ndim(a) else -1 for a in (u, y)}
     if len(lengths) != 1:
         raise ValueError(f"valid must hold one flag per sample: u{u.shape} and y{y.shape} differ in length")

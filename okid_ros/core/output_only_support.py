@@ -12,6 +12,7 @@ from okid_ros.core.mode_jackknife import jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
+from okid_ros.core.regressors import real_array
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
 from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
 
@@ -29,7 +30,10 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
     """
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
-    y = np.asarray(y, dtype=float)
+    try:
+        y = real_array("y", y)
+    except ValueError as exc:
+        raise IdentificationError(str(exc)) from None
     if y.ndim == 1:
         y = y[:, None]
     if y.ndim != 2 or y.shape[1] == 0:

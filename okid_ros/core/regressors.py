@@ -24,7 +24,28 @@ __all__ = [
     "regressor_at",
     "valid_regressor_rows",
     "check_io_arrays",
+    "real_array",
 ]
+
+#: numpy dtype kinds a record array may have: bool, signed/unsigned integer, real float.
+REAL_KINDS = "biuf"
+_KIND_NAMES = {"c": "complex", "O": "object", "U": "string", "S": "bytes", "V": "structured", "M": "datetime",
+               "m": "timedelta"}
+
+
+def real_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float64 array, or ValueError saying why it is not a real numeric array.
+
+    ``np.asarray(value, dtype=float)`` alone would drop the imaginary part of a complex array
+    (with a warning only) and parse numeric strings.
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind not in REAL_KINDS:
+        kind = _KIND_NAMES.get(arr.dtype.kind, str(arr.dtype))
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise ValueError(f"{name} must hold real numbers, got {article} {kind} array (dtype {arr.dtype})")
+    with np.errstate(over="ignore"):  # float128 beyond float64's range becomes inf, reported by the caller
+        return arr.astype(float)
 
 
 def regressor_length(order: int, n_outputs: int, n_inputs: int) -> int:
@@ -38,8 +59,7 @@ def check_io_arrays(u: np.ndarray, y: np.ndarray, *, allow_no_inputs: bool = Fal
     One-dimensional arrays are taken as a single channel. The reason names the offending array.
     ``allow_no_inputs``: ``u`` may have no columns (an output-only model, m = 0).
     """
-    u = np.asarray(u, dtype=float)
-    y = np.asarray(y, dtype=float)
+    u, y = real_array("u", u), real_array("y", y)
     if u.ndim == 1:
         u = u[:, None]
     if y.ndim == 1:

@@ -290,6 +290,25 @@ def test_a_record_too_short_for_the_whole_state_search_is_still_identified():
         identify(u[:12], y[:12], dt)
 
 
+@pytest.mark.parametrize("kind, convert", [
+    ("complex", lambda a: a + 1j * a),  # the imaginary part was dropped with a warning only
+    ("string", lambda a: a.astype(str)),  # numeric strings were parsed
+    ("object", lambda a: a.astype(object)),
+])
+def test_records_of_other_than_real_numbers_are_refused_by_every_path(kind, convert) -> None:
+    from okid_ros.core.output_only import identify_output_only
+
+    rng = np.random.default_rng(0)
+    u, y = rng.standard_normal((1000, 1)), rng.standard_normal((1000, 2))
+    runs = {"u": lambda: identify(convert(u), y, 0.01),
+            "y": lambda: identify(u, convert(y), 0.01),
+            "valid": lambda: identify(convert(u), y, 0.01, valid=np.ones(1000, bool)),
+            "output-only": lambda: identify_output_only(convert(y), 0.01)}
+    for name, run in runs.items():
+        with pytest.raises(IdentificationError, match=f"must hold real numbers, got an? {kind} array"):
+            run()
+
+
 @pytest.mark.parametrize("sample_time_s", [1e-300, 1e308, 0.0, float("nan")])
 def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s: float) -> None:
     """1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations, 1e308 s frequencies of 0."""
