@@ -65,7 +65,7 @@ checkout.add()
 
 from identification_accuracy import simulate_record  # noqa: E402
 
-from okid_bench.cases import benchmark_case  # noqa: E402
+from okid_bench.cases import benchmark_case, random_record  # noqa: E402
 from okid_bench.cases import random_case as io_random_case  # noqa: E402
 from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
@@ -74,7 +74,6 @@ from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.refine import refine_prediction_error  # noqa: E402
 from okid_ros.core.statespace import InnovationModel  # noqa: E402
 from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
-from okid_ros.sim.simulators import simulate_noisy  # noqa: E402
 
 MODE_TOL = 0.05
 #: Residual evaluations of the optimizer from the truth: enough to converge (the product's
@@ -150,16 +149,14 @@ def random_input_output_case(index: int) -> FloorCase:
     system = case.system
     truth = system if isinstance(system, InnovationModel) else system.to_innovation_form()
     true_hz = [mode.frequency_hz for mode in modes_of(truth.A, truth.sample_time_s)]
-    length = int(case.n_samples[0])
 
-    def record(seed: int):
-        u = case.make_input(length, index + seed)
-        return u, simulate_noisy(system, u, seed=index + seed)
+    def record(seed: int):  # the structure's one record (run with seeds=1), drawn when scored
+        return random_record(index)[1:]
 
     def estimate(u, y):
         return _listed_values(identify(u, y, case.sample_time_s).modes, true_hz)
 
-    return FloorCase(f"random-{index}", length, truth, record, estimate)
+    return FloorCase(f"random-{index}", int(case.n_samples[0]), truth, record, estimate)
 
 
 def output_only_floor_case(name: str, length: int | None) -> FloorCase:

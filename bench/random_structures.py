@@ -26,17 +26,14 @@ from multiprocessing import Pool
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np
 
-from okid_bench.cases import random_case
+from okid_bench.cases import random_record
 from okid_bench.output_only_cases import score_modes, system_modes
-from okid_ros.sim.simulators import simulate_noisy
 
 
 def _run(index: int) -> dict:
     from okid_ros.core.pipeline import IdentificationError, identify
 
-    case = random_case(index)
-    u = case.make_input(case.n_samples[0], index)
-    y = simulate_noisy(case.system, u, seed=index)
+    case, u, y = random_record(index)
     started = time.perf_counter()
     try:
         model = identify(u, y, case.sample_time_s)

@@ -15,8 +15,9 @@ from okid_bench.oracle import kalman_predictor
 from okid_ros.sim.inputs import lowpass_input, white_input
 from okid_ros.sim.models import TrueSystem, modal_structure
 from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_noisy
 
-__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case", "random_case",
+__all__ = ["BenchmarkCase", "suggested_arx_order", "benchmark_cases", "benchmark_case", "random_case", "random_record",
            "random_frequencies"]
 
 
@@ -219,6 +220,16 @@ def random_case(index: int) -> BenchmarkCase:
     desc = f"{n_modes} modes, {m} white input(s), {p} {output} outputs, fs {fs:g} Hz, {n_samples / fs:.0f} s"
     return BenchmarkCase(f"random-{index}", desc, system, lambda N, seed: white_input(N, m, seed), (n_samples,),
                          suggested_arx_order(system))
+
+
+def random_record(index: int) -> tuple[BenchmarkCase, np.ndarray, np.ndarray]:
+    """Structure ``index`` of :func:`random_case` and its record: ``u`` (N, m), ``y`` (N, p).
+
+    The input's and the noise's seeds are the index (``bench/random_structures.py``).
+    """
+    case = random_case(index)
+    u = case.make_input(case.n_samples[0], index)
+    return case, u, simulate_noisy(case.system, u, seed=index)
 
 
 _CASES = {

@@ -45,7 +45,7 @@ def real_array(name: str, value: object) -> np.ndarray:
         article = "an" if kind[0] in "aeiou" else "a"
         raise ValueError(f"{name} must hold real numbers, got {article} {kind} array (dtype {arr.dtype})")
     with np.errstate(over="ignore"):  # float128 beyond float64's range becomes inf, reported by the caller
-        return arr.astype(float)
+        return arr.astype(float, copy=False)  # float64 as given, as np.asarray did: no copy per check
 
 
 def regressor_length(order: int, n_outputs: int, n_inputs: int) -> int:
