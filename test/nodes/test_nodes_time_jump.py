@@ -130,9 +130,12 @@ def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
         log = up.output()
         assert len(re.findall(r"okid_arx_identifier\]: time jump back to .* restarted", log)) == passes - 1, log
         assert len(re.findall(r"okid_modal_estimator\]: time jump back to .* restarted", log)) == passes - 1, log
-        # Nothing once per second: at most one line about a refused model per pass.
+        # Nothing once per second: at most one line about a refused model per pass, and one more
+        # in the first: `replay --wait-for-subscribers` starts once one subscription matched (the
+        # probe's may be the first), so node 2 may miss the first samples that node 1 has and
+        # refuse a window for that before its buffer holds one (seen once in CI-like runs).
         refused = re.findall(r"model not used", log)
-        assert len(refused) <= passes, log
+        assert len(refused) <= passes + 1, log
     finally:
         if replay is not None:
             replay.stop()
