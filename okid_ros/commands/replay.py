@@ -31,6 +31,13 @@ def _queue_depth(text: str) -> int:
     return int_between(1, MAX_QUEUE_DEPTH)(text)
 
 
+def _subscriptions(text: str) -> int:
+    """A number of subscriptions from 1 to MAX_SUBSCRIBERS."""
+    from okid_ros.tools.replay import MAX_SUBSCRIBERS
+
+    return int_between(1, MAX_SUBSCRIBERS)(text)
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `replay`."""
     parser = subparsers.add_parser(
@@ -53,8 +60,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--delay", type=_delay_s, default=0.5, metavar="S",
                         help="wait after creating the publishers so subscribers discover them "
                         "(default: %(default)s s)")
-    parser.add_argument("--wait-for-subscribers", action="store_true",
-                        help="before playing, wait until every replayed topic has a subscriber (then --delay)")
+    parser.add_argument("--wait-for-subscribers", nargs="?", type=_subscriptions, const=1, default=0, metavar="N",
+                        help="before playing, wait until every replayed topic has N matched subscriptions "
+                        "(default N: 1; then --delay)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds of playback (default: the whole bag, or forever with --loop)")
     parser.add_argument("--clock", nargs="?", type=_clock_hz, const=100.0, default=None, metavar="HZ",

@@ -407,7 +407,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     with BagWriter(live_bag) as writer:
         writer.set_custom_data(TRUTH_KEY, dumps(truth))
         LiveRecorder(run.node, writer, OUTPUT_TOPICS, on_message=on_output)
-        replay = run.start(["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers",
+        replay = run.start(["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers", "2",
                             "--delay", "0.5", "--topics", *input_topics], "replay.log")
         run.say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
                 f"({run.options.duration_s / rate:.0f} s); recording the nodes' outputs -> {live_bag}")

@@ -29,7 +29,7 @@ from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
 
 __all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class", "MIN_RATE", "MAX_DELAY_S",
-           "CLOCK_HZ_RANGE", "MAX_QUEUE_DEPTH"]
+           "CLOCK_HZ_RANGE", "MAX_QUEUE_DEPTH", "MAX_SUBSCRIBERS"]
 
 #: Slowest playback factor: slower, a short bag would play for days (a hang to the user).
 MIN_RATE = 1e-3
@@ -40,6 +40,8 @@ CLOCK_HZ_RANGE = (1e-3, 1e6)
 #: Deepest publisher history: as the nodes' inputs.queue_depth. The rmw takes a size_t, but Fast
 #: DDS keeps the depth in an int32 and preallocates for it; rclpy refuses beyond 64 bits (a TypeError).
 MAX_QUEUE_DEPTH = 100_000
+#: Most subscriptions --wait-for-subscribers waits for (more than any graph here has).
+MAX_SUBSCRIBERS = 1000
 
 
 @dataclass
@@ -89,7 +91,7 @@ def message_class(msgtype: str) -> type:
 
 
 def _check_options(rate: float, delay_s: float, duration_s: float | None, queue_depth: int,
-                   clock_hz: float) -> None:
+                   clock_hz: float, wait_for_subscribers: int) -> None:
     """ToolParameterError naming the first option of :class:`BagPlayer` out of its range.
 
     The comparisons are written so that NaN fails them (``nan < 0`` is False: a NaN delay
@@ -106,6 +108,9 @@ def _check_options(rate: float, delay_s: float, duration_s: float | None, queue_
     if not CLOCK_HZ_RANGE[0] <= clock_hz <= CLOCK_HZ_RANGE[1]:
         raise ToolParameterError(f"--clock rate must be from {CLOCK_HZ_RANGE[0]:g} to {CLOCK_HZ_RANGE[1]:g} Hz, "
                                  f"got {clock_hz}")
+    if not 0 <= wait_for_subscribers <= MAX_SUBSCRIBERS:
+        raise ToolParameterError(f"--wait-for-subscribers must be from 0 to {MAX_SUBSCRIBERS} subscriptions, "
+                                 f"got {wait_for_subscribers}")
 
 
 def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> None:
@@ -138,7 +143,9 @@ class BagPlayer:
     remaps : output topic per bag topic.
     delay_s : wait after creating the publishers (and after the subscribers, with
         ``wait_for_subscribers``), before the first message (discovery).
-    wait_for_subscribers : before playing, wait until every publisher has a subscription.
+    wait_for_subscribers : before playing, wait until every publisher has matched this many
+        subscriptions (0: do not wait; True counts as 1). Waiting for one lets a fast
+        subscriber (a probe) start the replay before a slower node has matched.
     duration_s : stop after this much wall time of playback (None: no limit).
     queue_depth : depth of each publisher's history.
     clock : publish the bag time on /clock.
@@ -166,16 +173,16 @@ class BagPlayer:
         clock_hz: float = 100.0,
         node_name: str = "okid_replay",
         log: Callable[[str], None] | None = None,
-        wait_for_subscribers: bool = False,
+        wait_for_subscribers: int = 0,
         namespace: str | None = None,
     ) -> None:
-        _check_options(rate, delay_s, duration_s, queue_depth, clock_hz)
+        _check_options(rate, delay_s, duration_s, queue_depth, clock_hz, int(wait_for_subscribers))
         self.path = Path(path)
         self.rate = float(rate)
         self.loop = bool(loop)
         self.remaps = dict(remaps or {})
         self.delay_s = float(delay_s)
-        self.wait_for_subscribers = bool(wait_for_subscribers)
+        self.wait_for_subscribers = int(wait_for_subscribers)
         self.duration_s = duration_s
         self.queue_depth = int(queue_depth)
         self.clock = bool(clock)
@@ -281,6 +288,21 @@ class BagPlayer:
                 stats.published[self.remaps.get(topic, topic)] += 1
         return first_ns is not None
 
+    def _wait_for_subscriptions(self, publishers) -> None:
+        """Block until every publisher has matched ``wait_for_subscribers`` subscriptions (or stop())."""
+        wanted = self.wait_for_subscribers
+
+        def short() -> list:
+            return [p for p in publishers if p.get_subscription_count() < wanted]
+
+        waiting = short()
+        if waiting:
+            self.log(f"replay: waiting for {wanted} subscription{'s' if wanted != 1 else ''} on "
+                     + ", ".join(f"{p.topic_name} ({p.get_subscription_count()} matched)" for p in waiting))
+        while short():
+            if not self._sleep_until(time.monotonic() + 0.05, None):
+                break
+
     def run(self, context=None) -> ReplayStats:
         """Play the bag (blocks). ``context``: an initialized rclpy Context, else one is made."""
         try:
@@ -298,13 +320,7 @@ class BagPlayer:
             publishers, clock_pub = self._publishers(node)
             self.log(f"replay {self.path}: {self.message_count} messages on {len(self.topics)} topics, "
                      f"{self.duration_bag_s:.1f} s at rate {self.rate:g}{' (loop)' if self.loop else ''}")
-            if self.wait_for_subscribers:
-                waiting = [p for p in publishers.values() if p.get_subscription_count() == 0]
-                if waiting:
-                    self.log(f"replay: waiting for subscribers on {', '.join(p.topic_name for p in waiting)}")
-                while any(p.get_subscription_count() == 0 for p in publishers.values()):
-                    if not self._sleep_until(time.monotonic() + 0.05, None):
-                        break
+            self._wait_for_subscriptions(publishers.values())
             if self.delay_s:
                 self._sleep_until(time.monotonic() + self.delay_s, None)
             started = time.monotonic()

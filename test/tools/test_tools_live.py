@@ -1,6 +1,7 @@
 """Replay over real DDS.
 
-Every message with its recorded stamps and spacing on (remapped) topics; a looped replay (stamps
+Every message with its recorded stamps and spacing on (remapped) topics, started once the
+subscriptions asked for have matched; a looped replay (stamps
 jump back) through both live nodes, which keep running and keep publishing modal states.
 ROS_DOMAIN_ID is this session's (conftest.py).
 """
@@ -121,6 +122,31 @@ def test_replay_publishes_every_message_with_its_stamps_and_timing(ros_domain_id
         listener.close()
 
 
+def test_replay_waits_for_the_number_of_subscriptions_asked(ros_domain_id, short_bag):
+    # One subscription matched is not enough with N = 2: a fast probe must not start the replay
+    # before a slower node has matched (a looped-bag test once lost its first samples so). A
+    # topic of its own: the other tests' listeners on /okid/io_sample may linger in this process.
+    first = Listener({"/test/wait": IoSample})
+    second = None
+    try:
+        proc = replay(ros_domain_id, str(short_bag), "--topics", IO_SAMPLE_TOPIC, "--remap",
+                      f"{IO_SAMPLE_TOPIC}:=/test/wait", "--wait-for-subscribers", "2", "--delay", "0.3")
+        proc.wait_for_output(r"waiting for 2 subscriptions on /test/wait \([01] matched\)", 30)
+        time.sleep(3.0)  # the first subscription matches well within it
+        assert proc.proc.poll() is None and not first.received["/test/wait"], proc.output()
+        second = Listener({"/test/wait": IoSample})
+        assert wait_exit(proc, 60) == 0, proc.output()
+        deadline = time.monotonic() + 5
+        while min(len(first.received["/test/wait"]), len(second.received["/test/wait"])) < 250:
+            assert time.monotonic() < deadline, (len(first.received["/test/wait"]),
+                                                 len(second.received["/test/wait"]))
+            time.sleep(0.05)
+    finally:
+        first.close()
+        if second is not None:
+            second.close()
+
+
 def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
     for args, fragment in (
         ([str(short_bag), "--topics", "/nope"], "no topic /nope"),
@@ -157,7 +183,7 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
             proc.wait_for_output(r"ready:", timeout_s=60)
         listener.wait_for_publishers(["/okid/modal_states"])
         player = replay(ros_domain_id, str(bag), "--rate", "2", "--loop", "--duration", "13",
-                        "--topics", IO_SAMPLE_TOPIC, "--wait-for-subscribers", "--delay", "0.5")
+                        "--topics", IO_SAMPLE_TOPIC, "--wait-for-subscribers", "2", "--delay", "0.5")
         assert wait_exit(player, 90) == 0, player.output()
         assert "pass 2 (stamps jump back" in player.output()
         time.sleep(1.0)
