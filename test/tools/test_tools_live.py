@@ -73,6 +73,7 @@ class Listener:
         self._stop = True
         self.thread.join(timeout=5)
         self.executor.shutdown()
+        self.node.destroy_node()  # its subscriptions end here, not when the process does
         self.context.try_shutdown()
 
 
@@ -125,7 +126,7 @@ def test_replay_publishes_every_message_with_its_stamps_and_timing(ros_domain_id
 def test_replay_waits_for_the_number_of_subscriptions_asked(ros_domain_id, short_bag):
     # One subscription matched is not enough with N = 2: a fast probe must not start the replay
     # before a slower node has matched (a looped-bag test once lost its first samples so). A
-    # topic of its own: the other tests' listeners on /okid/io_sample may linger in this process.
+    # topic of its own: no other test's subscription can count.
     first = Listener({"/test/wait": IoSample})
     second = None
     try:
