@@ -11,6 +11,7 @@ import math
 import os
 import re
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -63,6 +64,23 @@ def _thread_ids() -> list[int]:
     return [int(t) for t in os.listdir("/proc/self/task")]
 
 
+def _threads_before_nodes() -> frozenset[int]:
+    """Threads that run when this module loads, besides the loading one: BLAS worker pools.
+
+    OpenBLAS starts its pool when numpy loads (OPENBLAS_NUM_THREADS > 1); nothing of ROS runs
+    yet. Those threads stay ordinary under ``realtime_priority``: at SCHED_FIFO a BLAS call of
+    any ordinary thread would run real-time, and OpenBLAS workers spin while they wait for work.
+    """
+    try:
+        return frozenset(_thread_ids()) - {threading.get_native_id()}
+    except OSError:
+        return frozenset()
+
+
+#: numpy is loaded by the imports above: the threads of its BLAS pool run already.
+_BLAS_POOL = _threads_before_nodes()
+
+
 def lower_priority(nice: int) -> None:
     """Nice every thread of this process to at least ``nice`` (Linux; else nothing).
 
@@ -84,7 +102,8 @@ def lower_priority(nice: int) -> None:
 def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
     """Threads of this process at SCHED_FIFO ``priority`` (1-99); "" or why not (Linux).
 
-    Every thread that runs now (the executor, the DDS threads), or ``only_this_thread``. With
+    Every thread that runs now (the executor, the DDS threads) but a BLAS pool's
+    (:data:`_BLAS_POOL`), or ``only_this_thread``. With
     ``SCHED_RESET_ON_FORK`` nothing started from them later is real-time (Linux resets threads
     as well as processes): not the realization worker, not the side thread; the input thread
     asks for it itself. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least ``priority``
@@ -95,7 +114,7 @@ def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
     if policy is None or not sys.platform.startswith("linux"):
         return "real-time scheduling is not available on this platform"
     try:
-        tasks = [0] if only_this_thread else _thread_ids()
+        tasks = [0] if only_this_thread else [tid for tid in _thread_ids() if tid not in _BLAS_POOL]
     except OSError as exc:
         return f"the threads of this process cannot be listed ({exc})"
     for tid in tasks:

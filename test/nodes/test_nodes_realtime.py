@@ -63,6 +63,32 @@ def test_every_running_thread_becomes_fifo_and_nothing_started_later_does():
     assert result["child"] == os.SCHED_OTHER  # a process started afterwards
 
 
+BLAS_PROBE = r"""
+import json, os, threading
+from okid_ros.nodes.common import realtime_threads
+
+main = threading.get_native_id()
+pool = [int(t) for t in os.listdir("/proc/self/task") if int(t) != main]
+refused = realtime_threads(7)
+policy = lambda tid: os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK
+print(json.dumps({"refused": refused, "main": policy(main), "pool": [policy(t) for t in pool]}))
+"""
+
+
+def test_a_blas_pool_stays_ordinary():
+    # With OPENBLAS_NUM_THREADS > 1 OpenBLAS runs worker threads from the moment numpy loads; at
+    # SCHED_FIFO they would run any thread's BLAS call real-time (and they spin for work).
+    if not _fifo_allowed():
+        return
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+    run = subprocess.run([sys.executable, "-c", BLAS_PROBE], capture_output=True, text=True, timeout=60,
+                         cwd=REPO_ROOT, env=env)
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout)
+    assert result["refused"] == "" and result["main"] == os.SCHED_FIFO, result
+    assert result["pool"] and set(result["pool"]) == {os.SCHED_OTHER}, result  # OpenBLAS's second thread
+
+
 def _thread_policies(pid: int) -> dict[str, tuple[int, int]]:
     """Policy and nice of each named thread of a process."""
     out = {}
