@@ -22,6 +22,8 @@ it did not see.
 
 ``--unrefined`` adds the method ``okid-unrefined``: identify's defaults without the
 prediction-error refinement (``refine=False``), to see what the refinement does out of sample.
+``--tc`` adds ``okid-tc``: identify's defaults with the TC kernel for the ARX fit
+(``regularization="tc"``, its decay by GCV) instead of the ridge prior.
 
 ``--held-out-choice F`` adds the method ``okid-held-out``: the state order chosen by held-out
 prediction instead of BIC, within the training part alone. The first fraction ``F`` of the
@@ -132,7 +134,7 @@ def _okid_held_out_order(u, y, dt, *, inner_fraction: float, order_grid: list[in
 
 def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: float, *, peer_horizon: int,
               peer_max_order: int, order_grid: list[int], held_out_choice: float | None = None,
-              unrefined: bool = False,
+              unrefined: bool = False, tc: bool = False,
               log=print) -> list[dict]:
     """Every method on one split of one record: a row each (a failure is a row too)."""
     train = int(fraction * u.shape[0])
@@ -146,6 +148,8 @@ def run_split(name: str, u: np.ndarray, y: np.ndarray, dt: float, fraction: floa
     methods = [("okid", lambda: _okid(u[:train], y[:train], dt))]
     if unrefined:
         methods.append(("okid-unrefined", lambda: _okid(u[:train], y[:train], dt, refine=False)))
+    if tc:
+        methods.append(("okid-tc", lambda: _okid(u[:train], y[:train], dt, regularization="tc")))
     methods += [(peer, lambda peer=peer: _peer(peer, u[:train], y[:train], dt, peer_horizon, peer_max_order))
                 for peer in PEER_METHODS]
     for method, fit in methods:
@@ -240,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
                              "the training part (e.g. 0.75)")
     parser.add_argument("--unrefined", action="store_true",
                         help="add okid-unrefined: identify's defaults without the prediction-error refinement")
+    parser.add_argument("--tc", action="store_true", help="add okid-tc: identify's defaults with the TC kernel")
     parser.add_argument("--out", type=Path, help="also write the markdown table here")
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     args = parser.parse_args(argv)
@@ -256,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
         for fraction in args.train_fractions:
             rows += run_split(name, u, y, dt, fraction, peer_horizon=args.peer_horizon,
                               peer_max_order=args.peer_max_order, order_grid=grid,
-                              held_out_choice=args.held_out_choice, unrefined=args.unrefined)
+                              held_out_choice=args.held_out_choice, unrefined=args.unrefined, tc=args.tc)
     table = markdown(rows)
     print()
     print(table)
