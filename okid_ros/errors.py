@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
@@ -34,9 +35,15 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
     """Call ``write(stream)`` on a temporary file beside ``path``, then rename it to ``path``.
 
     On any failure the temporary file is removed and ``path`` is left as it was: readers never
-    see a truncated output, and a failed command leaves nothing half-written behind.
+    see a truncated output, and a failed command leaves nothing half-written behind. A device,
+    FIFO or socket (``/dev/null``, ``/dev/stdout``) is written into instead: a rename would put a
+    regular file in its place.
     """
     target = Path(path)
+    if is_special_file(target):
+        with open(target, "wb") as stream:
+            write(stream)
+        return
     # open(..., "x") rather than mkstemp: the file gets the usual permissions (umask), not 0600.
     temporary = target.with_name(f".{target.name}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
     try:
@@ -46,3 +53,17 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def is_special_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` (through symlinks) is a device, FIFO or socket: written into, never replaced."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def one_line(text: object) -> str:
+    """``text`` as one line (an OS error's message may hold line breaks)."""
+    return " ".join(str(text).split())

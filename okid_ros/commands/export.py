@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.errors import DataError
     from okid_ros.records import save_record
     from okid_ros.tools.bag_record import record_from_bag
-    from okid_ros.tools.bagio import prepare_output
+    from okid_ros.tools.output_paths import prepare_output
     from okid_ros.tools.process import load_node_parameters
 
     out = Path(args.npz)

@@ -70,18 +70,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def _outputs(args: argparse.Namespace) -> list:
-    """Every file this run will write (checked before the work: no output is replaced without --force)."""
+    """``(path, kind)`` of every file this run will write.
+
+    Checked before the work: none over the record or another output, none replaced without --force.
+    """
     from pathlib import Path
 
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES
 
-    paths = [Path(args.json)]
+    paths = [(Path(args.json), "JSON model")]
     if args.csv:
-        paths.append(Path(args.csv))
+        paths.append((Path(args.csv), "modes CSV"))
     if args.uff:
-        paths.append(Path(args.uff))
+        paths.append((Path(args.uff), "UFF file"))
     if args.plot_dir:
-        paths += [Path(args.plot_dir) / name for name in VALIDATION_FIGURES]
+        paths += [(Path(args.plot_dir) / name, "figure") for name in VALIDATION_FIGURES]
     return paths
 
 
@@ -95,9 +98,10 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.bagio import prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
     out = Path(args.json)
+    check_output_paths(args.data, "record", _outputs(args))
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     valid = None
@@ -125,8 +129,8 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
     if not args.force:  # after every option is checked (no empty figure folder is left), before the work
-        for path in _outputs(args):
-            prepare_output(path, force=False, kind="output")
+        for path, kind in _outputs(args):
+            prepare_output(path, force=False, kind=kind)
     started = time.perf_counter()
     model = _identify(record, args, output_only, valid)
     uncertainty = model.uncertainty

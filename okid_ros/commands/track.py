@@ -44,7 +44,13 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import add_bag_arguments, penalty_or_gcv, positive_int, states_or_auto
+from okid_ros.commands._args import (
+    add_bag_arguments,
+    node_parameter_high,
+    penalty_or_gcv,
+    positive_int,
+    states_or_auto,
+)
 from okid_ros.core.gap_fill import OUTPUT_ONLY_VAR_ORDER
 from okid_ros.core.options import GAINS, RealizationOptions
 
@@ -61,13 +67,14 @@ def _fraction(text: str) -> float:
 
 
 def _samples(text: str) -> float:
-    """A number of samples > 1 (may be written 1e7)."""
+    """A number of samples > 1 (may be written 1e7), at most the node parameter's bound."""
+    high = node_parameter_high("change.false_alarm_samples")
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of samples > 1, got {text!r}") from None
-    if not value > 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number of samples > 1, got {value}")
+    if not 1.0 < value <= high:
+        raise argparse.ArgumentTypeError(f"expected a number of samples > 1 and at most {high:g}, got {value}")
     return value
 
 
@@ -148,8 +155,6 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.change_monitor import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
-    from okid_ros.errors import DataError
-    from okid_ros.jsonio import dumps
     from okid_ros.service.identification import restart_window
     from okid_ros.service.watch import is_new_reference
 
@@ -170,10 +175,7 @@ def run(args: argparse.Namespace) -> int:
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
     changes: list = []
-    try:
-        handle = out.open("w")
-    except OSError as exc:
-        raise DataError(f"cannot write {out}: {exc}") from None
+    handle = _JsonLines(out)
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
     failures = 0
@@ -196,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
             if rows < restart_rows:
                 entry.update(n_states=None, modes=[], waiting=_waiting(estimator.status, changes, rows, restart_rows))
                 entry["elapsed_s"] = time.perf_counter() - t0
-                handle.write(dumps(entry) + "\n")
+                handle.write(entry)
                 continue
             try:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
@@ -209,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
-            handle.write(dumps(entry) + "\n")
+            handle.write(entry)
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
@@ -222,6 +224,40 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+class _JsonLines:
+    """The JSON lines output, written as the updates come; failing to write it (a full disk) is an OutputError."""
+
+    def __init__(self, path) -> None:
+        self.path = path
+        try:
+            self.stream = path.open("w")
+        except OSError as exc:
+            raise self._error(exc) from None
+
+    def _error(self, exc: OSError):
+        from okid_ros.errors import OutputError
+
+        return OutputError(f"{self.path}: cannot write the JSON lines file ({exc.strerror or exc})")
+
+    def write(self, entry: dict) -> None:
+        from okid_ros.jsonio import dumps
+
+        try:
+            self.stream.write(dumps(entry) + "\n")
+        except OSError as exc:
+            raise self._error(exc) from None
+
+    def __enter__(self) -> _JsonLines:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        try:
+            self.stream.close()
+        except OSError as exc:
+            if kind is None:  # else the first error stands
+                raise self._error(exc) from None
+
+
 def _output_and_record(args: argparse.Namespace) -> tuple:
     """The JSON lines path (refused if it exists, unless --force) and the record: u (N, m), y (N, p), dt."""
     import sys
@@ -231,9 +267,10 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
     from okid_ros.core.channels import group_scales
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.bagio import prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
     out = Path(args.jsonl)
+    check_output_paths(args.data, "record", [(out, "JSON lines file")])
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
     # NaN/Inf samples are missing samples, as on the nodes' topics (_TrackedRecord).

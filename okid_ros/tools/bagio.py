@@ -27,7 +27,6 @@ store JSON documents there under keys starting with ``okid_ros.`` (the simulated
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import shutil
@@ -38,8 +37,10 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from okid_ros.errors import one_line
 from okid_ros.tools import mcap_salvage
-from okid_ros.tools.errors import BagReadError, BagWriteError, OutputExistsError
+from okid_ros.tools.errors import BagReadError, BagWriteError
+from okid_ros.tools.output_paths import prepare_output
 
 __all__ = [
     "OKID_MSGS_PACKAGE",
@@ -50,8 +51,6 @@ __all__ = [
     "message_definition_dir",
     "okid_typestore",
     "open_bag",
-    "output_exists",
-    "prepare_output",
 ]
 
 OKID_MSGS_PACKAGE = "okid_msgs"
@@ -66,11 +65,6 @@ STABILIZATION_KEY = "okid_ros.stabilization"
 
 _REPO_MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 # Files a rosbag2 directory may hold; --force removes nothing else.
-_BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
-
-
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split())
 
 
 def message_definition_dir() -> Path:
@@ -177,7 +171,7 @@ class BagReader:
         try:
             return json.loads(text)
         except ValueError as exc:
-            raise BagReadError(f"{self.path}: custom_data {key!r} is not valid JSON ({_one_line(exc)})") from None
+            raise BagReadError(f"{self.path}: custom_data {key!r} is not valid JSON ({one_line(exc)})") from None
 
     def require_topic(self, topic: str, msgtypes: Sequence[str]) -> str:
         """Check that ``topic`` exists with one of ``msgtypes``; return its type.
@@ -208,14 +202,14 @@ class BagReader:
         except BagReadError:
             raise
         except Exception as exc:  # corrupt chunk, truncated file, bad compression ...
-            raise BagReadError(f"{self.path}: cannot read messages ({type(exc).__name__}: {_one_line(exc)})") from None
+            raise BagReadError(f"{self.path}: cannot read messages ({type(exc).__name__}: {one_line(exc)})") from None
 
     def _decode(self, connection: Any, stamp_ns: int, raw: bytes) -> Any:
         try:
             return self._reader.deserialize(raw, connection.msgtype)
         except Exception as exc:
             raise BagReadError(f"{self.path}: cannot decode a {connection.msgtype} message on {connection.topic} "
-                               f"at {stamp_ns} ns ({_one_line(exc)})") from None
+                               f"at {stamp_ns} ns ({one_line(exc)})") from None
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
         """Yield ``(topic, msgtype, log_time_ns, cdr_bytes)`` in log-time order.
@@ -270,7 +264,7 @@ class _OpenBag:
         try:
             found = path.exists()
         except OSError as exc:  # a name too long, a folder we may not enter ...
-            raise BagReadError(f"{path}: cannot open the bag ({_one_line(exc.strerror or exc)})") from None
+            raise BagReadError(f"{path}: cannot open the bag ({one_line(exc.strerror or exc)})") from None
         if not found:
             raise BagReadError(f"{path}: no such bag")
         note = ""
@@ -280,7 +274,7 @@ class _OpenBag:
             self._reader, note, self._scratch = mcap_salvage.read_unclosed(path, _try_open_reader)
             if self._reader is None:
                 raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
-                                   f"({type(exc).__name__}: {_one_line(exc)})") from None
+                                   f"({type(exc).__name__}: {one_line(exc)})") from None
             warnings.warn(note, stacklevel=2)
         return BagReader(path, self._reader, note)
 
@@ -315,93 +309,6 @@ def open_bag(path: str | os.PathLike) -> _OpenBag:
 # --------------------------------------------------------------------------------------------
 # writing
 # --------------------------------------------------------------------------------------------
-
-
-def _is_bag_directory(path: Path) -> bool:
-    entries = list(path.iterdir())
-    return (path / "metadata.yaml").is_file() and all(
-        e.is_file() and (e.suffix in _BAG_SUFFIXES or "".join(e.suffixes[-2:]) in {".db3.zstd", ".mcap.zstd"})
-        for e in entries
-    )
-
-
-def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> Path:
-    """Make sure ``path`` can be created: refuse an existing one unless ``force``.
-
-    With ``force`` an existing file is removed, and an existing directory only if it is a
-    rosbag2 directory (``metadata.yaml`` and storage files, nothing else) or empty; anything
-    else is refused even with ``force``, so a typo cannot delete a folder of other work.
-
-    Parameters
-    ----------
-    path : output path.
-    force : allow replacing an existing output.
-    kind : what the output is, for the message ("bag", "JSON lines file", ...).
-
-    Returns
-    -------
-        The path.
-
-    Raises
-    ------
-    OutputExistsError
-        it exists and may not be replaced.
-    BagWriteError
-        the path cannot be checked or replaced, or its parent folder cannot be created.
-    """
-    out = Path(path)
-    if output_exists(out):
-        if not force:
-            raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
-        try:
-            if out.is_dir() and not out.is_symlink():
-                if any(out.iterdir()) and not _is_bag_directory(out):
-                    raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
-                                            f"with --force")
-                shutil.rmtree(out)
-            else:
-                out.unlink()
-        except OSError as exc:
-            raise BagWriteError(f"{out}: cannot replace the {kind} ({_one_line(exc.strerror or exc)})") from None
-    _make_folder(out.parent, out)
-    return out
-
-
-def _make_folder(folder: Path, out: Path) -> None:
-    """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
-    todo = []
-    while not _is_dir(folder) and folder != folder.parent:
-        todo.append(folder)
-        folder = folder.parent
-    made: list[Path] = []
-    try:
-        for folder in reversed(todo):
-            folder.mkdir(exist_ok=True)
-            made.append(folder)
-    except OSError as exc:
-        for folder in reversed(made):
-            with contextlib.suppress(OSError):
-                folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
-        raise BagWriteError(f"{out}: cannot create the parent folder ({_one_line(exc.strerror or exc)})") from None
-
-
-def _is_dir(path: Path) -> bool:
-    try:
-        return path.is_dir()
-    except OSError:  # a name too long: not there, its mkdir says why
-        return False
-
-
-def output_exists(path: str | os.PathLike) -> bool:
-    """Whether ``path`` exists (a dangling symlink too); BagWriteError when that cannot be checked.
-
-    ``Path.exists`` raises OSError for a name too long or a folder that may not be entered.
-    """
-    out = Path(path)
-    try:
-        return out.exists() or out.is_symlink()
-    except OSError as exc:
-        raise BagWriteError(f"{out}: cannot write there ({_one_line(exc.strerror or exc)})") from None
 
 
 class BagWriter:
@@ -444,7 +351,7 @@ class BagWriter:
         try:
             self._writer.open()
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot create the bag ({_one_line(exc)})") from None
+            raise BagWriteError(f"{self.path}: cannot create the bag ({one_line(exc)})") from None
         self._open = True
         return self
 
@@ -459,7 +366,7 @@ class BagWriter:
             try:
                 self._writer.close()
             except Exception as exc:
-                raise BagWriteError(f"{self.path}: cannot finish the bag ({_one_line(exc)})") from None
+                raise BagWriteError(f"{self.path}: cannot finish the bag ({one_line(exc)})") from None
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store a string in the metadata's ``custom_data``."""
@@ -481,7 +388,7 @@ class BagWriter:
             raw = self.typestore.serialize_cdr(msg, msgtype)
             self._writer.write(connection, int(stamp_ns), raw)
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({_one_line(exc)})") from None
+            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
         self.counts[topic] += 1
 
     def write_raw(self, topic: str, stamp_ns: int, data: bytes) -> None:
@@ -490,7 +397,7 @@ class BagWriter:
         try:
             self._writer.write(connection, int(stamp_ns), data)
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({_one_line(exc)})") from None
+            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
         self.counts[topic] += 1
 
     def msg_class(self, msgtype: str) -> type:

@@ -40,7 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import OutputError, ParameterError
+from okid_ros.errors import ParameterError
 from okid_ros.jsonio import dumps
 from okid_ros.tools.bagio import (
     PROCESS_KEY,
@@ -48,12 +48,11 @@ from okid_ros.tools.bagio import (
     TRUTH_KEY,
     BagWriter,
     open_bag,
-    output_exists,
-    prepare_output,
 )
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
+from okid_ros.tools.output_paths import check_output_paths, output_exists, prepare_output
 
 __all__ = [
     "NodeInputs",
@@ -170,7 +169,8 @@ def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None
         raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
     _check_topic_types(nodes)
     jsonl_path = None if jsonl_path is None else Path(jsonl_path)
-    _check_output_paths(bag_path, out_path, jsonl_path)
+    outputs = [(out_path, "output bag")] + ([(jsonl_path, "JSON lines file")] if jsonl_path is not None else [])
+    check_output_paths(bag_path, "input bag", outputs)
     if jsonl_path is not None and output_exists(jsonl_path) and not force:
         prepare_output(jsonl_path, force=False, kind="JSON lines file")
     if output_exists(out_path) and not force:
@@ -191,54 +191,6 @@ def _check_topic_types(nodes: OfflineNodes) -> None:
             listed = ", ".join(f"{label} ({msgtype.rsplit('/', 1)[-1]})" for label, msgtype in users)
             raise ParameterError(f"parameters {listed} all resolve to the topic {topic}: one topic cannot carry "
                                  "two message types; give them different topic names")
-
-
-def _check_output_paths(bag_path: Path, out_path: Path, jsonl_path: Path | None) -> None:
-    """Refuse an output that is, holds or lies in the input (even with --force), or --jsonl over --out.
-
-    Paths are compared resolved (symlinks, ``..``); an input file in a rosbag2 directory
-    (``run/run_0.mcap``) counts as that directory, whose metadata.yaml belongs to it.
-    """
-    bag, root = _input_root(bag_path)
-    where = f"the input bag {bag_path}" + (f" (its directory {root})" if root != bag else "")
-    outputs = [(out_path, "output bag")] + ([(jsonl_path, "JSON lines file")] if jsonl_path is not None else [])
-    for path, kind in outputs:
-        relation = _relation(_resolved(path), root)
-        if relation:
-            raise OutputError(f"{path}: the {kind} cannot {relation} {where}, not even with --force")
-    if jsonl_path is not None:
-        relation = _relation(_resolved(jsonl_path), _resolved(out_path))
-        if relation:
-            raise OutputError(f"{jsonl_path}: the JSON lines file cannot {relation} the output bag {out_path} "
-                              "(the bag would replace it)")
-
-
-def _relation(path: Path, other: Path) -> str | None:
-    """How resolved ``path`` overlaps resolved ``other``: "be", "contain", "be inside", or None."""
-    if path == other:
-        return "be"
-    if other.is_relative_to(path):
-        return "contain"
-    if path.is_relative_to(other):
-        return "be inside"
-    return None
-
-
-def _resolved(path: Path) -> Path:
-    try:
-        return path.resolve()
-    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
-        raise OutputError(f"{path}: cannot resolve the path ({' '.join(str(exc).split())})") from None
-
-
-def _input_root(bag_path: Path) -> tuple[Path, Path]:
-    """The resolved input, and what of it outputs must keep clear of (its rosbag2 directory for a file in one)."""
-    bag = _resolved(bag_path)
-    try:
-        in_bag_dir = bag.is_file() and (bag.parent / "metadata.yaml").is_file()
-    except OSError:  # unreadable: open_bag says why later
-        in_bag_dir = False
-    return bag, bag.parent if in_bag_dir else bag
 
 
 def _open_jsonl(path: Path) -> TextIO:

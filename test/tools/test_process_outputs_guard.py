@@ -1,7 +1,8 @@
 """`process` never writes over its input, keeps its outputs apart, and says why nothing came out.
 
 Offline (no DDS): outputs that are, hold or lie in the input bag (even with --force), --jsonl
-over --out, topic parameters that are not ROS 2 names or put two message types on one topic,
+over --out, a file where the bag would go (even with --force), topic parameters that are not
+ROS 2 names or put two message types on one topic,
 messages of the wrong size, a rosbag2 directory named ``*.bag``, and names too long for the
 file system.
 """
@@ -75,6 +76,14 @@ def test_jsonl_over_the_output_bag_is_refused(victim, capsys, out, jsonl, relati
     code, _, err = run_cli(capsys, "process", victim, "--out", out, "--jsonl", jsonl, "--force", "--no-progress")
     assert_one_line_error(code, err, f"{jsonl}: the JSON lines file {relation} {out}")
     assert not Path("o2").exists()
+
+
+def test_a_file_at_the_output_bag_is_not_removed_even_with_force(victim, capsys):
+    notes = Path("notes.txt")
+    notes.write_text("precious")
+    code, _, err = run_cli(capsys, "process", victim, "--out", notes, "--force", "--no-progress")
+    assert_one_line_error(code, err, "notes.txt: exists and is not a rosbag2 directory")
+    assert notes.read_text() == "precious"
 
 
 @pytest.mark.parametrize("name, problem", [

@@ -1,0 +1,165 @@
+"""Where a command may write.
+
+Never over its input, never two outputs on one path, nothing replaced without ``--force`` and
+nothing but an output even with it.
+
+Paths are compared resolved (symlinks, ``..``); an input file inside a rosbag2 directory
+(``run/run_0.mcap``) counts as that directory, whose metadata.yaml belongs to it.
+:func:`check_output_paths` runs in ``identify``, ``track`` and ``process`` before any work,
+whatever ``--force`` says; :func:`prepare_output` before each output is written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+
+from okid_ros.errors import OutputError, is_special_file, one_line
+from okid_ros.tools.errors import BagWriteError, OutputExistsError
+
+__all__ = ["check_output_paths", "prepare_output", "output_exists"]
+
+_BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
+
+
+def check_output_paths(input_path: str | Path, input_kind: str, outputs: Sequence[tuple[str | Path, str]]) -> None:
+    """OutputError for an output that is, holds or lies in the input, or that overlaps an earlier output.
+
+    Parameters
+    ----------
+    input_path : the record or bag read; input_kind : what it is, for the message ("input bag").
+    outputs : ``(path, kind)`` of every output the command will write, in the order given.
+    """
+    data, root = _input_root(Path(input_path))
+    where = f"the {input_kind} {input_path}" + (f" (its directory {root})" if root != data else "")
+    resolved = [(Path(path), kind, _resolved(Path(path))) for path, kind in outputs]
+    for path, kind, real in resolved:
+        relation = _relation(real, root)
+        if relation:
+            raise OutputError(f"{path}: the {kind} cannot {relation} {where}, not even with --force")
+    for i, (path, kind, real) in enumerate(resolved):
+        for earlier, earlier_kind, earlier_real in resolved[:i]:
+            relation = _relation(real, earlier_real)
+            if relation:
+                raise OutputError(f"{path}: the {kind} cannot {relation} the {earlier_kind} {earlier} "
+                                  "(one would replace the other)")
+
+
+def _relation(path: Path, other: Path) -> str | None:
+    """How resolved ``path`` overlaps resolved ``other``: "be", "contain", "be inside", or None."""
+    if path == other:
+        return "be"
+    if other.is_relative_to(path):
+        return "contain"
+    if path.is_relative_to(other):
+        return "be inside"
+    return None
+
+
+def _resolved(path: Path) -> Path:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
+        raise OutputError(f"{path}: cannot resolve the path ({' '.join(str(exc).split())})") from None
+
+
+def _input_root(path: Path) -> tuple[Path, Path]:
+    """The resolved input, and what of it outputs must keep clear of (its rosbag2 directory for a file in one)."""
+    data = _resolved(path)
+    try:
+        in_bag_dir = data.is_file() and (data.parent / "metadata.yaml").is_file()
+    except OSError:  # unreadable: the reader says why later
+        in_bag_dir = False
+    return data, data.parent if in_bag_dir else data
+
+
+def _is_bag_directory(path: Path) -> bool:
+    entries = list(path.iterdir())
+    return (path / "metadata.yaml").is_file() and all(
+        e.is_file() and (e.suffix in _BAG_SUFFIXES or "".join(e.suffixes[-2:]) in {".db3.zstd", ".mcap.zstd"})
+        for e in entries
+    )
+
+
+def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> Path:
+    """Make sure ``path`` can be created: refuse an existing one unless ``force``.
+
+    With ``force`` an existing file is removed, and an existing directory only if it is a
+    rosbag2 directory (``metadata.yaml`` and storage files, nothing else) or empty; anything
+    else is refused even with ``force``, so a typo cannot delete other work (for a bag, no file
+    either). A device or FIFO (``/dev/null``) is left for the writer to write into.
+
+    Parameters
+    ----------
+    path : output path.
+    force : allow replacing an existing output.
+    kind : what the output is, for the message ("bag", "JSON lines file", ...).
+
+    Returns
+    -------
+        The path.
+
+    Raises
+    ------
+    OutputExistsError
+        it exists and may not be replaced.
+    BagWriteError
+        the path cannot be checked or replaced, or its parent folder cannot be created.
+    """
+    out = Path(path)
+    if output_exists(out) and not (kind != "bag" and is_special_file(out)):  # /dev/null is written into
+        if not force:
+            raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
+        try:
+            if (kind == "bag" and not out.is_dir()) or (out.is_dir() and not out.is_symlink() and any(out.iterdir())
+                                                        and not _is_bag_directory(out)):
+                raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
+                                        f"with --force")
+            if out.is_dir() and not out.is_symlink():
+                shutil.rmtree(out)
+            else:
+                out.unlink()
+        except OSError as exc:
+            raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
+    _make_folder(out.parent, out)
+    return out
+
+
+def _make_folder(folder: Path, out: Path) -> None:
+    """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
+    todo = []
+    while not _is_dir(folder) and folder != folder.parent:
+        todo.append(folder)
+        folder = folder.parent
+    made: list[Path] = []
+    try:
+        for folder in reversed(todo):
+            folder.mkdir(exist_ok=True)
+            made.append(folder)
+    except OSError as exc:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
+        raise BagWriteError(f"{out}: cannot create the parent folder ({one_line(exc.strerror or exc)})") from None
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name too long: not there, its mkdir says why
+        return False
+
+
+def output_exists(path: str | os.PathLike) -> bool:
+    """Whether ``path`` exists (a dangling symlink too); BagWriteError when that cannot be checked.
+
+    ``Path.exists`` raises OSError for a name too long or a folder that may not be entered.
+    """
+    out = Path(path)
+    try:
+        return out.exists() or out.is_symlink()
+    except OSError as exc:
+        raise BagWriteError(f"{out}: cannot write there ({one_line(exc.strerror or exc)})") from None

@@ -1,0 +1,85 @@
+"""Where `identify` and `track` write.
+
+Never over the record, never two outputs on one path, into a device instead of over it, and a
+failed write is one line.
+
+`process` has the same rules for its bag and JSON lines (test/tools/test_process_outputs_guard.py).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_helpers import assert_one_line_error, run_cli
+
+from okid_ros.errors import write_atomically
+
+
+@pytest.fixture()
+def record(tmp_path: Path) -> Path:
+    """Two inputs, two outputs of a lightly damped system: enough samples for a model."""
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal((1500, 2))
+    y = np.zeros((1500, 2))
+    for k in range(2, 1500):
+        y[k] = 1.8 * y[k - 1] - 0.9 * y[k - 2] + 0.1 * u[k - 1] + 0.01 * rng.standard_normal(2)
+    path = tmp_path / "rec.npz"
+    np.savez(path, u=u, y=y, sample_time_s=0.01)
+    return path
+
+
+def test_identify_never_writes_over_its_record(record, tmp_path, capsys):
+    before = record.read_bytes()
+    for option in ("--json", "--csv"):
+        args = ["--json", str(tmp_path / "m.json")] if option == "--csv" else []
+        code, _, err = run_cli(capsys, "identify", record, option, record, *args, "--force")
+        assert_one_line_error(code, err, "cannot be the record", "not even with --force")
+        assert record.read_bytes() == before
+
+
+def test_two_outputs_on_one_path_are_refused_before_the_work(record, tmp_path, capsys):
+    out = tmp_path / "same.out"
+    code, _, err = run_cli(capsys, "identify", record, "--json", out, "--csv", out)
+    assert_one_line_error(code, err, "the modes CSV cannot be the JSON model", "one would replace the other")
+    assert not out.exists()
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", record, "--window", "500", "--force", "--no-progress")
+    assert_one_line_error(code, err, "the JSON lines file cannot be the record")
+
+
+def test_a_device_is_written_into_not_replaced(record, tmp_path, capsys):
+    # A link to /dev/null: the output goes into the device, no --force needed, the link stays.
+    sink = tmp_path / "sink"
+    sink.symlink_to("/dev/null")
+    code, _, err = run_cli(capsys, "identify", record, "--json", sink, "--csv", tmp_path / "modes.csv")
+    assert code == 0, err
+    assert sink.is_symlink() and os.readlink(sink) == "/dev/null"
+    # A FIFO: the bytes arrive through it and it is still a FIFO afterwards.
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()))
+    reader.start()
+    write_atomically(fifo, lambda stream: stream.write(b"model"))
+    reader.join(timeout=10)
+    assert received == [b"model"] and fifo.is_fifo()
+
+
+def test_a_full_disk_is_one_line(record, tmp_path, capsys):
+    assert Path("/dev/full").is_char_device()  # Linux: writes to it fail with ENOSPC
+    full = tmp_path / "full"
+    full.symlink_to("/dev/full")
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", full, "--window", "500", "--every", "500",
+                           "--no-progress")
+    assert_one_line_error(code, err, f"{full}: cannot write the JSON lines file", "No space left on device")
+
+
+@pytest.mark.parametrize("option", ["--false-alarm-samples", "--penalty"])
+def test_track_refuses_an_infinite_option(record, tmp_path, capsys, option):
+    with pytest.raises(SystemExit) as exited:
+        run_cli(capsys, "track", record, "--jsonl", tmp_path / "t.jsonl", option, "inf")
+    assert exited.value.code == 2
+    assert f"argument {option}" in capsys.readouterr().err
