@@ -9,9 +9,9 @@
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
-    appear (no ``u`` column: a record without inputs); other columns are ignored. The sample
-    time comes from a first comment line ``# sample_time_s=0.008`` or, failing that, from a
-    ``time_s`` column with uniform steps::
+    appear (no ``u`` column: a record without inputs); other columns are ignored (text too). The
+    sample time comes from a comment line ``# sample_time_s=0.008`` (two that differ are
+    refused) or, failing that, from a ``time_s`` column with uniform steps::
 
         # sample_time_s=0.008
         u1,u2,y1,y2
@@ -235,8 +235,12 @@ def _csv_sample_time(path: Path, comment: str) -> float:
         raise DataError(f"{path}: bad sample_time_s comment {comment!r}") from None
 
 
-def _csv_rows(path: Path) -> tuple[float | None, list[str], np.ndarray]:
-    """The sample time of the comment (or None), the header and the (N, columns) values."""
+def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
+    """The sample time of the comment (or None), the header and the (N, columns) values.
+
+    ``wanted(header)``: the indices of the columns read as numbers; the others are ignored
+    (a text column of labels does not stop the record), their values NaN.
+    """
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
@@ -247,7 +251,10 @@ def _csv_rows(path: Path) -> tuple[float | None, list[str], np.ndarray]:
         stripped = line.strip()
         if stripped.startswith("#"):
             if stripped.lstrip("#").partition("=")[0].strip() == "sample_time_s":
-                dt = _csv_sample_time(path, stripped)
+                given = _csv_sample_time(path, stripped)
+                if dt is not None and given != dt:  # the first must not be silently overridden
+                    raise DataError(f"{path}: two different sample_time_s comments ({dt:g} and {given:g} s)")
+                dt = given
         elif stripped:
             body.append(line)
     if not body:
@@ -257,27 +264,39 @@ def _csv_rows(path: Path) -> tuple[float | None, list[str], np.ndarray]:
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
             raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}")
-    try:
-        values = np.array([[float(x) for x in row] for row in rows[1:]], dtype=float).reshape(-1, len(header))
-    except ValueError as exc:
-        raise DataError(f"{path}: non-numeric value ({exc})") from None
+    values = np.full((len(rows) - 1, len(header)), np.nan)
+    for column in wanted(header):
+        try:
+            values[:, column] = [float(row[column]) for row in rows[1:]]
+        except ValueError as exc:
+            raise DataError(f"{path}: non-numeric value in column {header[column]!r} ({exc})") from None
     return dt, header, values
 
 
+def _csv_columns(header: list[str]) -> tuple[list[int], list[int], list[int]]:
+    """Indices of the input, output and time_s columns of a CSV header."""
+    return ([i for i, h in enumerate(header) if h.lower().startswith("u")],
+            [i for i, h in enumerate(header) if h.lower().startswith("y")],
+            [i for i, h in enumerate(header) if h == "time_s"])
+
+
 def _load_csv(path: Path) -> Record:
-    dt, header, values = _csv_rows(path)
-    u_cols = [i for i, h in enumerate(header) if h.lower().startswith("u")]
-    y_cols = [i for i, h in enumerate(header) if h.lower().startswith("y")]
+    dt, header, values = _csv_rows(path, lambda header: sorted(sum(_csv_columns(header), [])))
+    u_cols, y_cols, _ = _csv_columns(header)
     if not y_cols:
         raise DataError(f"{path}: header needs output columns 'y...' (inputs 'u...' optional), got {header}")
     if dt is None:
         if "time_s" not in header:
             raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
-        steps = np.diff(values[:, header.index("time_s")])
+        times = values[:, header.index("time_s")]
+        steps = np.diff(times)
+        # Uniform to 1e-6 of a step, or to the rounding of the stamps themselves (epoch seconds
+        # hold about 2e-7 s of float64 rounding each).
+        rounding = 4 * np.finfo(float).eps * np.max(np.abs(times)) if times.size else 0.0
         if steps.size == 0 or not np.all(np.isfinite(steps)) or np.any(steps <= 0) \
-                or np.ptp(steps) > 1e-6 * np.mean(steps):
+                or np.ptp(steps) > max(1e-6 * np.mean(steps), rounding):
             raise DataError(f"{path}: time_s is not uniformly increasing")
-        dt = float(np.mean(steps))
+        dt = float((times[-1] - times[0]) / steps.size)
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 

@@ -104,6 +104,7 @@ CSV_CASES = {
     "bad_dt": ("# sample_time_s=fast\nu1,y1\n1,2\n", "bad sample_time_s"),
     "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
     "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
+    "two_dt": ("# sample_time_s=0.01\nu1,y1\n1,2\n# sample_time_s=0.5\n3,4\n", "two different sample_time_s"),
 }
 
 
@@ -118,6 +119,23 @@ def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"okid-ros track: error: {path}: ") and reason in err, err
     assert not out.exists()
+
+
+def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
+    # Stamps in epoch seconds step by 0.01 s to within their own float64 rounding (2e-7 s), and
+    # a column of labels is one of the "other columns" the format ignores.
+    u, y = _good_arrays()
+    path = tmp_path / "epoch.csv"
+    times = 1.7e9 + 0.01 * np.arange(N)
+    rows = [f"{t!r},{a!r},{b!r},{c!r},run{k % 3}"
+            for k, (t, a, b, c) in enumerate(zip(times.tolist(), u[:, 0].tolist(), *y.T.tolist()))]
+    path.write_text("time_s,u1,y1,y2,label\n" + "\n".join(rows) + "\n")
+    record = load_record(path)
+    assert abs(record.sample_time_s - 0.01) < 1e-9
+    np.testing.assert_array_equal(record.u[:, 0], u[:, 0])
+    np.testing.assert_array_equal(record.y, y)
+    path.write_text("time_s,u1,y1,y2,label\n" + "\n".join(rows).replace(",run1", ",") + "\n")
+    assert load_record(path).y.shape == (N, 2)  # an empty cell of an ignored column too
 
 
 def test_a_value_beyond_float64_is_a_missing_sample_to_identify_and_track(tmp_path: Path,
