@@ -120,7 +120,9 @@ def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
     """
     known = {node: set(names) for node, names in nodes.items()}
     fqns = {node: node_fqn(node, namespace) for node in known}
-    problems = []
+    problems = [f"{label}: section {key!r} holds no 'ros__parameters' mapping: nothing in it is read (rcl "
+                "refuses such a file)" for key, section in tree.items()
+                if not (isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping))]
     for key, values in _sections(tree):
         applies = [node for node, fqn in fqns.items() if section_matches(key, fqn)]
         last = str(key).rstrip("/").split("/")[-1]

@@ -81,6 +81,15 @@ okid_arx_identifier:
     assert arx_ns["publish_rate_hz"] == 2.0
 
 
+def test_a_section_without_ros_parameters_is_reported():
+    # rcl refuses such a file; offline (process, identify, batch) it was passed over in silence.
+    names = {n: [s.name for s in node_params(n)] for n in (ARX_NODE, ESTIMATOR_NODE)}
+    for tree in ({"/**": {"sample_time_s": 0.01}}, {"/**": {"ros_parameters": {"sample_time_s": 0.01}}}):
+        report = file_report(tree, "f.yaml", names)
+        assert len(report) == 1 and "section '/**' holds no 'ros__parameters'" in report[0], report
+    assert file_report({"/**": {"ros__parameters": {"sample_time_s": 0.01}}}, "f.yaml", names) == []
+
+
 def test_params_files_are_found_among_ros_arguments():
     argv = ["node", "--ros-args", "--params-file", "a.yaml", "-r", "__ns:=/x", "--params-file", "b.yaml",
             "--", "--params-file", "not_ros.yaml"]
