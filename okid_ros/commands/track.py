@@ -266,6 +266,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     import numpy as np
 
     from okid_ros.core.channels import group_scales
+    from okid_ros.core.excitation import output_problem
+    from okid_ros.errors import DataError
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
@@ -277,6 +279,11 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
+    # A dead channel or one the others make up is the record's problem, as identify says (in the
+    # record's units; every window would fail on it, the first in the ARX order's search).
+    problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
+    if problem:
+        raise DataError(problem)
     # Inputs and outputs each divided by a power of two (exact: the same fits): values near
     # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
     u, y = group_scales(u, record.y).scale(u, record.y)

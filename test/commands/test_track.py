@@ -67,6 +67,23 @@ def test_track_too_few_samples_is_one_line_error(record, tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "at least 3020 needed" in err
 
 
+@pytest.mark.parametrize("offset, order", [(1e12, "auto"), (5.0, "20")])
+def test_a_dead_output_is_the_records_error_in_its_own_units(record, tmp_path, capsys, offset, order):
+    # A channel that does not vary: refused as identify refuses it, with its value as recorded
+    # (the windows saw it divided by a power of two, and --order auto blamed --order).
+    _, u, y = record
+    y = y.copy()
+    y[:, 1] = offset if order != "auto" else y[:, 1] + offset
+    path = tmp_path / "dead.npz"
+    save_record(path, u, y, DT)
+    status = okid_ros_main(["track", str(path), "--order", order, "--window", "1500",
+                            "--jsonl", str(tmp_path / "x.jsonl"), "--no-progress"])
+    assert status == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"output channel 1 carries no response (constant {offset:g})" in err, err
+    assert not (tmp_path / "x.jsonl").exists()
+
+
 def _track(path, out, *args) -> list[dict]:
     status = okid_ros_main(["track", str(path), "--jsonl", str(out), "--no-progress", *args])
     assert status == 0
