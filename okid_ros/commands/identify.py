@@ -104,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_paths(args.data, "record", _outputs(args))
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
+    if output_only and (ignored := _input_output_options(args)):
+        print(f"okid-ros identify: warning: {', '.join(ignored)} apply to input-output identification; ignored "
+              "for this output-only one", file=sys.stderr)
     valid = None
     if args.method == "paper" and not output_only:  # the paper's method needs contiguous samples
         record, gaps = longest_present_run(record)
@@ -217,6 +220,15 @@ def _uncertainty_method(model) -> str:
     if model.uncertainty.method == "jackknife":  # an okid model with too many outputs for the covariance
         return _JACKKNIFE
     return _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])
+
+
+def _input_output_options(args: argparse.Namespace) -> list[str]:
+    """The options given that only the input-output chain takes (an output-only run passes them over)."""
+    given = {"--order": args.order != "auto", "--states": args.states != "auto", "--ar-order": args.ar_order,
+             "--method": args.method != "okid", "--regularization": args.regularization, "--no-refine": args.no_refine,
+             "--gain": args.gain != RealizationOptions.gain,
+             "--max-states": args.max_states != RealizationOptions.max_states}
+    return [option for option, is_given in given.items() if is_given]
 
 
 def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):

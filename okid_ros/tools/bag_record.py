@@ -13,6 +13,7 @@ instead, in the longest stretch :func:`okid_ros.records.bridged_run` takes.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -159,6 +160,9 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     """
     path = Path(path)
     if path.suffix.lower() in RECORD_SUFFIXES:
+        if params or overrides or sources:
+            warnings.warn(f"{path}: --params, --param and --source say how to read a bag's topics; a record "
+                          "file holds its channels and sample time itself: ignored", stacklevel=2)
         return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
         raise DataError(f"{path}: no such file or bag")

@@ -50,6 +50,20 @@ def test_output_only_ignores_the_inputs_of_a_record(tmp_path: Path, koma_record,
     assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 2
 
 
+def test_options_an_output_only_run_passes_over_are_named(tmp_path: Path, koma_record, capsys) -> None:
+    # And a record file's --params / --param: they describe a bag's topics.
+    y, dt, _ = koma_record
+    record = tmp_path / "y_only.npz"
+    np.savez(record, y=y[:6000], sample_time_s=dt)
+    code = cli.main(["identify", str(record), "--method", "paper", "--gain", "whitening", "--param",
+                     "sample_time_s=0.5", "--json", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "warning: --method, --gain apply to input-output identification; ignored" in err
+    assert "--params, --param and --source say how to read a bag's topics" in err
+    assert json.loads((tmp_path / "m.json").read_text())["sample_time_s"] == dt
+
+
 @pytest.mark.parametrize("kind", ["npz", "csv"])
 def test_record_without_inputs_is_identified_output_only(tmp_path: Path, koma_record, kind: str) -> None:
     y, dt, truth = koma_record
