@@ -65,3 +65,46 @@ def write_json(path: str | Path, value: Any, *, indent: int | None = 1) -> None:
 
     text = (dumps(value, indent=indent) + "\n").encode()
     write_atomically(path, lambda stream: stream.write(text))
+
+
+class JsonLines:
+    """A JSON lines output written as its lines come (``track``, ``process --jsonl``).
+
+    One strict JSON object per line, flushed each time; failing to open or write it (a full
+    disk) is an :class:`~okid_ros.errors.OutputError` naming the file. A context manager.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self.stream = open(self.path, "w")
+        except OSError as exc:
+            raise self._error(exc) from None
+
+    def _error(self, exc: OSError) -> Exception:
+        from okid_ros.errors import OutputError
+
+        return OutputError(f"{self.path}: cannot write the JSON lines file ({exc.strerror or exc})")
+
+    def write(self, line: Any) -> None:
+        try:
+            self.stream.write(dumps(line) + "\n")
+            self.stream.flush()
+        except OSError as exc:
+            raise self._error(exc) from None
+
+    def close(self) -> None:
+        try:
+            self.stream.close()
+        except OSError as exc:
+            raise self._error(exc) from None
+
+    def __enter__(self) -> JsonLines:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        try:
+            self.close()
+        except Exception:
+            if kind is None:  # else the first error stands
+                raise

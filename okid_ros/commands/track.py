@@ -155,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.change_monitor import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
+    from okid_ros.jsonio import JsonLines
     from okid_ros.service.identification import restart_window
     from okid_ros.service.watch import is_new_reference
 
@@ -175,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
     changes: list = []
-    handle = _JsonLines(out)
+    handle = JsonLines(out)
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
     failures = 0
@@ -222,40 +223,6 @@ def run(args: argparse.Namespace) -> int:
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
     )
     return 0
-
-
-class _JsonLines:
-    """The JSON lines output, written as the updates come; failing to write it (a full disk) is an OutputError."""
-
-    def __init__(self, path) -> None:
-        self.path = path
-        try:
-            self.stream = path.open("w")
-        except OSError as exc:
-            raise self._error(exc) from None
-
-    def _error(self, exc: OSError):
-        from okid_ros.errors import OutputError
-
-        return OutputError(f"{self.path}: cannot write the JSON lines file ({exc.strerror or exc})")
-
-    def write(self, entry: dict) -> None:
-        from okid_ros.jsonio import dumps
-
-        try:
-            self.stream.write(dumps(entry) + "\n")
-        except OSError as exc:
-            raise self._error(exc) from None
-
-    def __enter__(self) -> _JsonLines:
-        return self
-
-    def __exit__(self, kind, value, traceback) -> None:
-        try:
-            self.stream.close()
-        except OSError as exc:
-            if kind is None:  # else the first error stands
-                raise self._error(exc) from None
 
 
 def _output_and_record(args: argparse.Namespace) -> tuple:

@@ -40,8 +40,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import ParameterError
-from okid_ros.jsonio import dumps
+from okid_ros.errors import ParameterError, is_special_file
+from okid_ros.jsonio import JsonLines, dumps
 from okid_ros.tools.bagio import (
     PROCESS_KEY,
     STABILIZATION_KEY,
@@ -49,7 +49,7 @@ from okid_ros.tools.bagio import (
     BagWriter,
     open_bag,
 )
-from okid_ros.tools.errors import BagReadError, BagWriteError
+from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
 from okid_ros.tools.output_paths import check_output_paths, output_exists, prepare_output
@@ -124,8 +124,8 @@ def process_bag(
             jsonl = None
             if jsonl_path is not None:
                 prepare_output(jsonl_path, force=force, kind="JSON lines file")
-                jsonl = _open_jsonl(jsonl_path)
-                created.append(jsonl_path)
+                jsonl = JsonLines(jsonl_path)
+                created += [] if is_special_file(jsonl_path) else [jsonl_path]  # never remove /dev/stdout
             writer = BagWriter(out_path, storage=storage, force=force)
             created.append(out_path)
             bar = _Progress(total, progress, progress_stream)
@@ -157,7 +157,7 @@ def _remove(paths: list[Path]) -> None:
     for path in paths:
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
-        elif path.exists():
+        elif path.exists() and not is_special_file(path):
             path.unlink()
 
 
@@ -193,13 +193,6 @@ def _check_topic_types(nodes: OfflineNodes) -> None:
                                  "two message types; give them different topic names")
 
 
-def _open_jsonl(path: Path) -> TextIO:
-    try:
-        return open(path, "w")
-    except OSError as exc:
-        raise BagWriteError(f"{path}: cannot write the JSON lines file ({exc.strerror or exc})") from None
-
-
 def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes) -> tuple[int, Any]:
     """The number of input messages and the simulation truth of the bag; BagReadError if unusable."""
     for topic, msgtype in nodes.input_topics.items():
@@ -213,7 +206,7 @@ def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes) -> tuple[int, An
 class _Emitter:
     """Writes what the offline nodes put out: messages to the bag, JSON lines, the callback."""
 
-    def __init__(self, writer: BagWriter, nodes: OfflineNodes, jsonl: TextIO | None,
+    def __init__(self, writer: BagWriter, nodes: OfflineNodes, jsonl: JsonLines | None,
                  on_update: Callable[[dict], None] | None, truth: Any) -> None:
         self.writer, self.nodes, self.jsonl, self.on_update = writer, nodes, jsonl, on_update
         self.written_updates = 0
@@ -238,8 +231,7 @@ class _Emitter:
             line = summary.updates[self.written_updates]
             self.written_updates += 1
             if self.jsonl is not None:
-                self.jsonl.write(dumps(line) + "\n")
-                self.jsonl.flush()
+                self.jsonl.write(line)
             if self.on_update is not None:
                 self.on_update(line)
 

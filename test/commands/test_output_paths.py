@@ -75,6 +75,14 @@ def test_a_full_disk_is_one_line(record, tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", record, "--jsonl", full, "--window", "500", "--every", "500",
                            "--no-progress")
     assert_one_line_error(code, err, f"{full}: cannot write the JSON lines file", "No space left on device")
+    # process too; its clean-up after the error removes the bag it began, never the device (or the link).
+    bag = tmp_path / "bag"
+    assert run_cli(capsys, "simulate", "--out", bag, "--duration", "12")[0] == 0
+    code, _, err = run_cli(capsys, "process", bag, "--out", tmp_path / "out", "--jsonl", full, "--no-progress",
+                           "--param", "publish_rate_hz=1.0", "--param", "arx.window_length=800",
+                           "--param", "arx.order=20")
+    assert_one_line_error(code, err, f"{full}: cannot write the JSON lines file", "No space left on device")
+    assert full.is_symlink() and not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("option", ["--false-alarm-samples", "--penalty"])
