@@ -110,7 +110,11 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
             samples += inputs.add(topic, msg, log_ns * 1e-9)
         samples += inputs.grid.flush()
     if not samples:
-        raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}")
+        rejected = inputs.grid.counters.rejections()
+        why = "; ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in rejected.items() if n)
+        note = f" ({why}{'; ' + inputs.wrong_size_note if inputs.wrong_size_note else ''})" if why else ""
+        raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}"
+                        + note)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)

@@ -72,6 +72,15 @@ def test_a_bag_without_the_source_topic_is_a_one_line_error(bag, tmp_path, capsy
     assert err.count("\n") == 1 and "/nowhere" in err
 
 
+def test_a_bag_of_which_no_sample_fits_says_why(bag, tmp_path, capsys):
+    # As process says it: every message of the wrong size for n_inputs / n_outputs.
+    capsys.readouterr()
+    assert main(["identify", str(bag), "--param", "n_inputs=0", "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no complete sample" in err
+    assert "wrong size; n_inputs 0, n_outputs 2 expected" in err
+
+
 @pytest.mark.parametrize("sample_time_s, reason, where", [("3600", "1499 duplicate", "in a sample time already taken"),
                                                           ("0.016", "750 off grid", "between sample times")])
 def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path, capsys, sample_time_s, reason,
