@@ -21,6 +21,11 @@ The stabilization diagram without clicks:
    than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
    across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
    bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
+   A cluster that fails only the first test still is a mode when no accepted one lies within
+   half its width ``zeta f / 2`` and the orders with a stable pole that near its frequency
+   pass it: at high orders a mode's poles may fall into other clusters (their damping and
+   shape pulled by noise poles beside them), which left no cluster of that mode at all
+   (:func:`_persists_near`).
 
 Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
 the lowest at which every mode has its pole.
@@ -272,17 +277,40 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
         for family in _families(poles, index[labels == label]):
             clusters.append(_cluster(poles, family, p))
             clusters[-1].group = int(label)
+    persisting_elsewhere = []  # clusters that fail only the persistence test
     for cluster in clusters:
-        first = min(cluster.members)
-        available = int(np.sum(orders >= first))
         count = len(cluster.members)
-        ok = (count >= max(MIN_ORDERS, MIN_TOTAL_FRACTION * orders.size) and count >= MIN_ORDER_FRACTION * available
+        ok = (count >= max(MIN_ORDERS, MIN_TOTAL_FRACTION * orders.size)
               and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC and cluster.energy >= MIN_ENERGY
               and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
               * cluster.frequency_hz)
-        (accepted if ok else rejected).append(cluster)
+        persistent = count >= MIN_ORDER_FRACTION * np.sum(orders >= min(cluster.members))
+        (accepted if ok and persistent else rejected).append(cluster)
+        if ok and not persistent:
+            persisting_elsewhere.append(cluster)
+    for cluster in persisting_elsewhere:
+        if _persists_near(cluster, poles.frequency_hz[index], poles.order[index], orders, accepted):
+            rejected.remove(cluster)
+            accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
+
+
+def _persists_near(cluster: ModeCluster, frequency_hz: np.ndarray, order: np.ndarray, orders: np.ndarray,
+                   accepted: list[ModeCluster]) -> bool:
+    """Whether a mode no accepted cluster holds persists as stable poles near its frequency (step 4).
+
+    ``frequency_hz``, ``order`` (S,): the stable poles; ``orders``: every order of the diagram.
+    Near: within half the cluster's ``zeta f``, where a close pair's other mode (two widths away
+    at 1 % apart and 0.5 % damping) does not reach.
+    """
+    width = 0.5 * cluster.damping_ratio * cluster.frequency_hz
+    if any(abs(other.frequency_hz - cluster.frequency_hz) <= width for other in accepted):
+        return False
+    first = min(cluster.members)
+    near = (np.abs(frequency_hz - cluster.frequency_hz) <= width) & (order >= first)
+    present = len(set(order[near].tolist()) | set(cluster.members))
+    return present >= MIN_ORDER_FRACTION * np.sum(orders >= first)
 
 
 def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset()) -> int | None:
