@@ -63,7 +63,7 @@ def _resolved(path: Path) -> Path:
     try:
         return path.resolve()
     except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
-        raise OutputError(f"{path}: cannot resolve the path ({' '.join(str(exc).split())})") from None
+        raise OutputError(f"{path}: cannot resolve the path ({one_line(exc)})") from None
 
 
 def _input_root(path: Path) -> tuple[Path, Path]:
