@@ -56,7 +56,13 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
 
 
 def is_special_file(path: str | os.PathLike) -> bool:
-    """Whether ``path`` (through symlinks) is a device, FIFO or socket: written into, never replaced."""
+    """Whether ``path`` is written into, never replaced: a device, FIFO or socket (through links).
+
+    Also a link in /dev or /proc (``/dev/stdout``, ``/proc/self/fd/1``): redirected to a file, it
+    resolves to a regular one, but a rename would replace the link. A file in /dev/shm is a file.
+    """
+    if os.path.abspath(path).startswith(("/dev/", "/proc/")) and os.path.islink(path):
+        return True
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 __all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "states_or_auto",
-           "penalty_or_gcv", "node_parameter_high", "add_bag_arguments", "add_progress_arguments", "namespace"]
+           "penalty_or_gcv", "node_parameter_range", "add_bag_arguments", "add_progress_arguments", "namespace"]
 
 
 def positive_int(text: str) -> int:
@@ -84,21 +84,22 @@ def penalty_or_gcv(text: str) -> float | str:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected 'gcv' or a number >= 0, got {text!r}") from None
-    high = node_parameter_high("arx.penalty")
-    if not 0.0 <= value <= high:
-        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number from 0 to {high:g}, got {value}")
+    low, high = node_parameter_range("arx.penalty")
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"expected 'gcv' or a number from {low:g} to {high:g}, got {value}")
     return value
 
 
-def node_parameter_high(name: str) -> float:
-    """The upper bound of the nodes' parameter ``name``.
+def node_parameter_range(name: str) -> tuple[float, float]:
+    """The range ``(low, high)`` of the nodes' parameter ``name``.
 
     An option of a command that does what the parameter does takes the same range (inf once
     went through to a singular matrix).
     """
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
 
-    return next(spec.high for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node) if spec.name == name)
+    spec = next(spec for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node) if spec.name == name)
+    return spec.low, spec.high
 
 
 def add_bag_arguments(parser) -> None:

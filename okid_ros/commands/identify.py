@@ -9,6 +9,7 @@ pipeline; writes the model in normalized modal form and its physical modes as JS
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 from okid_ros.commands._args import add_bag_arguments, positive_int, states_or_auto
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
@@ -94,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.errors import DataError, ParameterError
+    from okid_ros.errors import ParameterError
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
@@ -148,10 +149,8 @@ def run(args: argparse.Namespace) -> int:
     document["fit_burn_in_samples"] = fits["burn_in_samples"]
     document["source"] = source
     document["elapsed_s"] = elapsed
-    try:
+    with _writing(out, "JSON model"):
         write_json(out, document)
-    except OSError as exc:
-        raise DataError(f"cannot write {out}: {exc}") from None
     _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
@@ -183,12 +182,24 @@ def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, ou
         )
 
 
+@contextlib.contextmanager
+def _writing(path, kind: str):
+    """An OSError while writing ``path`` (a full disk, a device that refuses) as the one-line OutputError."""
+    from okid_ros.errors import OutputError
+
+    try:
+        yield
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the {kind} ({exc.strerror or exc})") from None
+
+
 def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs) -> None:
     """``--csv``, ``--uff`` and ``--plot-dir``."""
     if args.csv:
         from okid_ros.tools.exports import write_modal_csv
 
-        write_modal_csv(args.csv, model.modes)
+        with _writing(args.csv, "modes CSV"):
+            write_modal_csv(args.csv, model.modes)
         print(f"modal table -> {args.csv}")
     if args.uff:
         from okid_ros.core.validation import h1_frf, model_frf
@@ -196,7 +207,9 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
 
         freq, measured = h1_frf(record.u, record.y, record.sample_time_s)
         modelled = model_frf(model.A, model.B, model.C, model.D, freq, record.sample_time_s)
-        count = write_uff(args.uff, model.modes, frequency_hz=freq, frfs={"model": modelled, "measured H1": measured})
+        with _writing(args.uff, "UFF file"):
+            count = write_uff(args.uff, model.modes, frequency_hz=freq,
+                              frfs={"model": modelled, "measured H1": measured})
         print(f"UFF (datasets 55 and 58, {count} in all) -> {args.uff}")
     if args.plot_dir:
         from okid_ros.tools.validation_plots import ModelView, write_validation_figures

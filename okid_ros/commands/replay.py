@@ -60,9 +60,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--delay", type=_delay_s, default=0.5, metavar="S",
                         help="wait after creating the publishers so subscribers discover them "
                         "(default: %(default)s s)")
-    parser.add_argument("--wait-for-subscribers", nargs="?", type=_subscriptions, const=1, default=0, metavar="N",
-                        help="before playing, wait until every replayed topic has N matched subscriptions "
-                        "(default N: 1; then --delay)")
+    parser.add_argument("--wait-for-subscribers", action="store_true",
+                        help="before playing, wait until every replayed topic has a subscriber (then --delay)")
+    parser.add_argument("--subscribers", type=_subscriptions, default=None, metavar="N",
+                        help="with --wait-for-subscribers (implied): wait for N matched subscriptions on every "
+                        "replayed topic, e.g. 2 for both nodes (default: 1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds of playback (default: the whole bag, or forever with --loop)")
     parser.add_argument("--clock", nargs="?", type=_clock_hz, const=100.0, default=None, metavar="HZ",
@@ -80,8 +82,8 @@ def run(args: argparse.Namespace) -> int:
     player = BagPlayer(
         args.bag, rate=args.rate, loop=args.loop, topics=args.topics, remaps=remaps, delay_s=args.delay,
         duration_s=args.duration, queue_depth=args.queue_depth, clock=args.clock is not None,
-        clock_hz=100.0 if args.clock is None else args.clock, wait_for_subscribers=args.wait_for_subscribers,
-        namespace=args.namespace,
+        clock_hz=100.0 if args.clock is None else args.clock,
+        wait_for_subscribers=args.subscribers or int(args.wait_for_subscribers), namespace=args.namespace,
     )
     stats = player.run()
     print(f"replayed {stats.total} messages on {len(stats.published)} topics in {stats.wall_time_s:.1f} s "

@@ -46,7 +46,7 @@ import argparse
 
 from okid_ros.commands._args import (
     add_bag_arguments,
-    node_parameter_high,
+    node_parameter_range,
     penalty_or_gcv,
     positive_int,
     states_or_auto,
@@ -67,14 +67,14 @@ def _fraction(text: str) -> float:
 
 
 def _samples(text: str) -> float:
-    """A number of samples > 1 (may be written 1e7), at most the node parameter's bound."""
-    high = node_parameter_high("change.false_alarm_samples")
+    """A number of samples (may be written 1e7) in the range of the nodes' change.false_alarm_samples."""
+    low, high = node_parameter_range("change.false_alarm_samples")
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of samples > 1, got {text!r}") from None
-    if not 1.0 < value <= high:
-        raise argparse.ArgumentTypeError(f"expected a number of samples > 1 and at most {high:g}, got {value}")
+        raise argparse.ArgumentTypeError(f"expected a number of samples, got {text!r}") from None
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"expected a number of samples from {low:g} to {high:g}, got {value}")
     return value
 
 

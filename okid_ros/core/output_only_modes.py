@@ -288,7 +288,9 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
         (accepted if ok and persistent else rejected).append(cluster)
         if ok and not persistent:
             persisting_elsewhere.append(cluster)
-    for cluster in persisting_elsewhere:
+    # The largest first, and each one rescued counts as accepted for the next: of two pieces of
+    # one mode the one with more orders is taken.
+    for cluster in sorted(persisting_elsewhere, key=lambda c: (-len(c.members), min(c.members))):
         if _persists_near(cluster, poles.frequency_hz[index], poles.order[index], orders, accepted):
             rejected.remove(cluster)
             accepted.append(cluster)
@@ -302,13 +304,16 @@ def _persists_near(cluster: ModeCluster, frequency_hz: np.ndarray, order: np.nda
 
     ``frequency_hz``, ``order`` (S,): the stable poles; ``orders``: every order of the diagram.
     Near: within half the cluster's ``zeta f``, where a close pair's other mode (two widths away
-    at 1 % apart and 0.5 % damping) does not reach.
+    at 1 % apart and 0.5 % damping) does not reach; an accepted cluster is near within the larger
+    of the two half widths.
     """
-    width = 0.5 * cluster.damping_ratio * cluster.frequency_hz
-    if any(abs(other.frequency_hz - cluster.frequency_hz) <= width for other in accepted):
+    def width(mode: ModeCluster) -> float:
+        return 0.5 * mode.damping_ratio * mode.frequency_hz
+
+    if any(abs(other.frequency_hz - cluster.frequency_hz) <= max(width(cluster), width(other)) for other in accepted):
         return False
     first = min(cluster.members)
-    near = (np.abs(frequency_hz - cluster.frequency_hz) <= width) & (order >= first)
+    near = (np.abs(frequency_hz - cluster.frequency_hz) <= width(cluster)) & (order >= first)
     present = len(set(order[near].tolist()) | set(cluster.members))
     return present >= MIN_ORDER_FRACTION * np.sum(orders >= first)
 

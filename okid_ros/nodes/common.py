@@ -65,11 +65,14 @@ def _thread_ids() -> list[int]:
 
 
 def _threads_before_nodes() -> frozenset[int]:
-    """Threads that run when this module loads, besides the loading one: BLAS worker pools.
+    """Threads that run when this module loads, besides the loading one.
 
-    OpenBLAS starts its pool when numpy loads (OPENBLAS_NUM_THREADS > 1); nothing of ROS runs
-    yet. Those threads stay ordinary under ``realtime_priority``: at SCHED_FIFO a BLAS call of
-    any ordinary thread would run real-time, and OpenBLAS workers spin while they wait for work.
+    OpenBLAS's worker pool (started when numpy loads, OPENBLAS_NUM_THREADS > 1) and rclpy's
+    tracing listeners (LTTng-UST, started when its extension loads); no executor or DDS thread
+    yet: the nodes import this module before ``rclpy.init``. They stay ordinary under
+    ``realtime_priority``: at SCHED_FIFO a BLAS call of any ordinary thread would run real-time,
+    and OpenBLAS workers spin while they wait for work (a real-time thread's own multi-threaded
+    BLAS call then waits on ordinary workers: the nodes run one BLAS thread by default).
     """
     try:
         return frozenset(_thread_ids()) - {threading.get_native_id()}
@@ -77,8 +80,8 @@ def _threads_before_nodes() -> frozenset[int]:
         return frozenset()
 
 
-#: numpy is loaded by the imports above: the threads of its BLAS pool run already.
-_BLAS_POOL = _threads_before_nodes()
+#: numpy and rclpy are loaded by the imports above: their threads run already.
+_THREADS_AT_IMPORT = _threads_before_nodes()
 
 
 def lower_priority(nice: int) -> None:
@@ -102,8 +105,8 @@ def lower_priority(nice: int) -> None:
 def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
     """Threads of this process at SCHED_FIFO ``priority`` (1-99); "" or why not (Linux).
 
-    Every thread that runs now (the executor, the DDS threads) but a BLAS pool's
-    (:data:`_BLAS_POOL`), or ``only_this_thread``. With
+    Every thread that runs now (the executor, the DDS threads) but those that ran when this
+    module loaded (a BLAS pool's: :data:`_THREADS_AT_IMPORT`), or ``only_this_thread``. With
     ``SCHED_RESET_ON_FORK`` nothing started from them later is real-time (Linux resets threads
     as well as processes): not the realization worker, not the side thread; the input thread
     asks for it itself. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least ``priority``
@@ -114,7 +117,7 @@ def realtime_threads(priority: int, *, only_this_thread: bool = False) -> str:
     if policy is None or not sys.platform.startswith("linux"):
         return "real-time scheduling is not available on this platform"
     try:
-        tasks = [0] if only_this_thread else [tid for tid in _thread_ids() if tid not in _BLAS_POOL]
+        tasks = [0] if only_this_thread else [tid for tid in _thread_ids() if tid not in _THREADS_AT_IMPORT]
     except OSError as exc:
         return f"the threads of this process cannot be listed ({exc})"
     for tid in tasks:

@@ -87,6 +87,25 @@ def _sections(tree: Mapping) -> Iterable[tuple[str, dict[str, Any]]]:
             yield str(key), flatten(section["ros__parameters"])
 
 
+def _without_parameters(tree: Mapping, prefix: str = "") -> list[str]:
+    """Keys of the file that are neither a node section (``ros__parameters``) nor a namespace of them.
+
+    rcl reads ``ns: {node: {ros__parameters: ...}}`` as the node ``/ns/node``; a value that is not
+    a mapping on the way (``/**: {sample_time_s: 0.01}``, or under a misspelt ``ros_parameters``)
+    makes it refuse the file.
+    """
+    bad = []
+    for key, section in tree.items():
+        name = f"{prefix}/{key}" if prefix else str(key)
+        if not isinstance(section, Mapping) or not section:
+            bad.append(prefix or name)
+        elif "ros__parameters" not in section:
+            bad += _without_parameters(section, name)
+        elif not isinstance(section["ros__parameters"], Mapping):
+            bad.append(name)
+    return list(dict.fromkeys(bad))
+
+
 def node_values_from_tree(tree: Mapping, fqn: str) -> dict[str, Any]:
     """Every parameter the file sets for the node ``fqn``.
 
@@ -121,8 +140,7 @@ def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
     known = {node: set(names) for node, names in nodes.items()}
     fqns = {node: node_fqn(node, namespace) for node in known}
     problems = [f"{label}: section {key!r} holds no 'ros__parameters' mapping: nothing in it is read (rcl "
-                "refuses such a file)" for key, section in tree.items()
-                if not (isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping))]
+                "refuses such a file)" for key in _without_parameters(tree)]
     for key, values in _sections(tree):
         applies = [node for node, fqn in fqns.items() if section_matches(key, fqn)]
         last = str(key).rstrip("/").split("/")[-1]

@@ -75,8 +75,7 @@ class BagRecord:
         total = sum(self.rejected.values())
         if not total:
             return ""
-        reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in self.rejected.items())
-        note = f"{total} of the {self.messages} messages were rejected ({reasons})"
+        note = _rejected_messages(self.rejected, self.messages)
         # Several messages per slot, or stamps between slots: the grid's sample time is not the
         # stamps' spacing.
         where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
@@ -84,6 +83,14 @@ class BagRecord:
             if self.rejected.get(reason, 0) > total // 2:
                 note += f"; most fell {text}: is sample_time_s {self.record.sample_time_s:g} s right?"
         return note
+
+
+def _rejected_messages(rejected: dict[str, int], messages: int, wrong_size_note: str = "") -> str:
+    """"N of the M messages were rejected (n reason, ...)", the sizes expected after a wrong size."""
+    reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" + (f" ({wrong_size_note})" if reason == "wrong_size"
+                                                               and wrong_size_note else "")
+                        for reason, n in rejected.items() if n)
+    return f"{sum(rejected.values())} of the {messages} messages were rejected ({reasons})"
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:
@@ -110,11 +117,10 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
             samples += inputs.add(topic, msg, log_ns * 1e-9)
         samples += inputs.grid.flush()
     if not samples:
-        rejected = inputs.grid.counters.rejections()
-        why = "; ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in rejected.items() if n)
-        note = f" ({why}{'; ' + inputs.wrong_size_note if inputs.wrong_size_note else ''})" if why else ""
+        counters = inputs.grid.counters
+        why = _rejected_messages(counters.rejections(), int(counters.messages), inputs.wrong_size_note)
         raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}"
-                        + note)
+                        + (f": {why}" if any(counters.rejections().values()) else ""))
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)

@@ -48,6 +48,8 @@ OUTPUT_TOPICS = {
 
 #: Longest wait after the replay for node 2 to apply the model of node 1's last window [s].
 SETTLE_TIMEOUT_S = 30.0
+#: Subscriptions on each input topic once the nodes are up: node 1 and node 2.
+NODE_SUBSCRIPTIONS = 2
 _ESTIMATION_STATUS = "okid_modal_estimator: estimation"  # node 2's DiagnosticStatus (after its namespace)
 
 #: The output-only demo's window [samples] (60 s at 200 Hz; config/okid_output_only.yaml has 120 s).
@@ -354,7 +356,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
     run.executor.add_node(run.node)
     input_topics = _input_topics(run.options)
     deadline = time.monotonic() + run.options.startup_timeout_s
-    while not (all(run.node.count_subscribers(t) >= 2 for t in input_topics)
+    while not (all(run.node.count_subscribers(t) >= NODE_SUBSCRIPTIONS for t in input_topics)
                and all(run.node.count_publishers(t) >= 1 for t in OUTPUT_TOPICS)):
         if nodes.poll() is not None:
             raise OkidError(f"the nodes exited with status {nodes.returncode}; see {run.run_dir / 'nodes.log'}")
@@ -407,7 +409,8 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     with BagWriter(live_bag) as writer:
         writer.set_custom_data(TRUTH_KEY, dumps(truth))
         LiveRecorder(run.node, writer, OUTPUT_TOPICS, on_message=on_output)
-        replay = run.start(["replay", str(experiment_bag), "--rate", f"{rate:g}", "--wait-for-subscribers", "2",
+        replay = run.start(["replay", str(experiment_bag), "--rate", f"{rate:g}",
+                            "--subscribers", str(NODE_SUBSCRIPTIONS),
                             "--delay", "0.5", "--topics", *input_topics], "replay.log")
         run.say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
                 f"({run.options.duration_s / rate:.0f} s); recording the nodes' outputs -> {live_bag}")

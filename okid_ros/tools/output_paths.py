@@ -20,7 +20,7 @@ from pathlib import Path
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["check_output_paths", "prepare_output", "output_exists"]
+__all__ = ["check_output_paths", "check_replaceable", "prepare_output", "output_exists"]
 
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
 
@@ -43,7 +43,7 @@ def check_output_paths(input_path: str | Path, input_kind: str, outputs: Sequenc
     for i, (path, kind, real) in enumerate(resolved):
         for earlier, earlier_kind, earlier_real in resolved[:i]:
             relation = _relation(real, earlier_real)
-            if relation:
+            if relation and not (is_special_file(path) and is_special_file(earlier)):  # /dev/null twice
                 raise OutputError(f"{path}: the {kind} cannot {relation} the {earlier_kind} {earlier} "
                                   "(one would replace the other)")
 
@@ -70,7 +70,7 @@ def _input_root(path: Path) -> tuple[Path, Path]:
     """The resolved input, and what of it outputs must keep clear of (its rosbag2 directory for a file in one)."""
     data = _resolved(path)
     try:
-        in_bag_dir = data.is_file() and (data.parent / "metadata.yaml").is_file()
+        in_bag_dir = (data.suffix in _BAG_SUFFIXES and data.is_file() and (data.parent / "metadata.yaml").is_file())
     except OSError:  # unreadable: the reader says why later
         in_bag_dir = False
     return data, data.parent if in_bag_dir else data
@@ -110,14 +110,8 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
         the path cannot be checked or replaced, or its parent folder cannot be created.
     """
     out = Path(path)
-    if output_exists(out) and not (kind != "bag" and is_special_file(out)):  # /dev/null is written into
-        if not force:
-            raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
+    if check_replaceable(out, force=force, kind=kind):
         try:
-            if (kind == "bag" and not out.is_dir()) or (out.is_dir() and not out.is_symlink() and any(out.iterdir())
-                                                        and not _is_bag_directory(out)):
-                raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even "
-                                        f"with --force")
             if out.is_dir() and not out.is_symlink():
                 shutil.rmtree(out)
             else:
@@ -126,6 +120,31 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
             raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
     _make_folder(out.parent, out)
     return out
+
+
+def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag") -> bool:
+    """Whether ``path`` holds something :func:`prepare_output` will remove; raises where it may not.
+
+    Removes nothing: a command checks every output with it before it replaces any (``--force``
+    never costs one output for another's refusal).
+
+    Raises
+    ------
+    OutputExistsError, BagWriteError : as :func:`prepare_output`.
+    """
+    out = Path(path)
+    if not output_exists(out) or (kind != "bag" and is_special_file(out)):  # /dev/null is written into
+        return False
+    if not force:
+        raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
+    try:
+        if out.is_symlink():
+            return True  # the link goes, never what it points to
+        if (kind == "bag" and not out.is_dir()) or (out.is_dir() and any(out.iterdir()) and not _is_bag_directory(out)):
+            raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even with --force")
+    except OSError as exc:
+        raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
+    return True
 
 
 def _make_folder(folder: Path, out: Path) -> None:

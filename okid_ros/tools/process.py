@@ -52,7 +52,7 @@ from okid_ros.tools.bagio import (
 from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
-from okid_ros.tools.output_paths import check_output_paths, output_exists, prepare_output
+from okid_ros.tools.output_paths import check_output_paths, check_replaceable, prepare_output
 
 __all__ = [
     "NodeInputs",
@@ -121,13 +121,13 @@ def process_bag(
         with open_bag(bag_path) as bag:
             total, truth = _check_input(bag, bag_path, nodes)
             # Outputs are created only once the input is known to be usable.
+            writer = BagWriter(out_path, storage=storage, force=force)
+            created.append(out_path)
             jsonl = None
             if jsonl_path is not None:
                 prepare_output(jsonl_path, force=force, kind="JSON lines file")
                 jsonl = JsonLines(jsonl_path)
                 created += [] if is_special_file(jsonl_path) else [jsonl_path]  # never remove /dev/stdout
-            writer = BagWriter(out_path, storage=storage, force=force)
-            created.append(out_path)
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
@@ -171,10 +171,9 @@ def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None
     jsonl_path = None if jsonl_path is None else Path(jsonl_path)
     outputs = [(out_path, "output bag")] + ([(jsonl_path, "JSON lines file")] if jsonl_path is not None else [])
     check_output_paths(bag_path, "input bag", outputs)
-    if jsonl_path is not None and output_exists(jsonl_path) and not force:
-        prepare_output(jsonl_path, force=False, kind="JSON lines file")
-    if output_exists(out_path) and not force:
-        prepare_output(out_path, force=False)
+    if jsonl_path is not None:  # every output checked before any is replaced
+        check_replaceable(jsonl_path, force=force, kind="JSON lines file")
+    check_replaceable(out_path, force=force)
     return jsonl_path
 
 

@@ -109,7 +109,7 @@ def _check_options(rate: float, delay_s: float, duration_s: float | None, queue_
         raise ToolParameterError(f"--clock rate must be from {CLOCK_HZ_RANGE[0]:g} to {CLOCK_HZ_RANGE[1]:g} Hz, "
                                  f"got {clock_hz}")
     if not 0 <= wait_for_subscribers <= MAX_SUBSCRIBERS:
-        raise ToolParameterError(f"--wait-for-subscribers must be from 0 to {MAX_SUBSCRIBERS} subscriptions, "
+        raise ToolParameterError(f"--subscribers must be from 0 to {MAX_SUBSCRIBERS} subscriptions, "
                                  f"got {wait_for_subscribers}")
 
 

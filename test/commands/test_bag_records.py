@@ -78,7 +78,7 @@ def test_a_bag_of_which_no_sample_fits_says_why(bag, tmp_path, capsys):
     assert main(["identify", str(bag), "--param", "n_inputs=0", "--json", str(tmp_path / "x.json")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no complete sample" in err
-    assert "wrong size; n_inputs 0, n_outputs 2 expected" in err
+    assert "messages were rejected (1500 wrong size (n_inputs 0, n_outputs 2 expected" in err
 
 
 @pytest.mark.parametrize("sample_time_s, reason, where", [("3600", "1499 duplicate", "in a sample time already taken"),

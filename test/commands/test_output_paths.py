@@ -61,11 +61,11 @@ def test_a_device_is_written_into_not_replaced(record, tmp_path, capsys):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     received = []
-    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()))
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()), daemon=True)
     reader.start()
     write_atomically(fifo, lambda stream: stream.write(b"model"))
     reader.join(timeout=10)
-    assert received == [b"model"] and fifo.is_fifo()
+    assert not reader.is_alive() and received == [b"model"] and fifo.is_fifo()
 
 
 def test_a_full_disk_is_one_line(record, tmp_path, capsys):

@@ -92,7 +92,7 @@ def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
         up.wait_for_output(r"\[okid_modal_estimator\]: ready", 60)
         passes = 3
         replay = RosProcess([sys.executable, "-m", "okid_ros.cli", "replay", str(bag), "--topics", "/okid/io_sample",
-                             "--loop", "--rate", f"{RATE:g}", "--wait-for-subscribers", "3",
+                             "--loop", "--rate", f"{RATE:g}", "--subscribers", "3",
                              "--duration", f"{passes * BAG_S / RATE - 1.0:g}"], env)
         assert replay.proc.wait(timeout=120) == 0, replay.output()
         time.sleep(1.0)

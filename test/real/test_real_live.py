@@ -247,7 +247,7 @@ def live(tmp_path_factory, ros_domain_id):
         history = listener.parameter("/okid_modal_estimator", "qos_overrides./okid/modal_states.publisher.depth")
         own_before = _own_cpu_s()
         replay = RosProcess([sys.executable, "-m", "okid_ros.cli", "replay", str(bag), "--topics", IO_TOPIC,
-                             "--wait-for-subscribers", "2", "--delay", "1.0"], env, REPO_ROOT)
+                             "--subscribers", "2", "--delay", "1.0"], env, REPO_ROOT)
         replay.wait_for_output(r"replay .* messages on 1 topics", 60)
         time.sleep(1.0)  # the replay's --delay: CPU is measured over the playing
         cpu_before, wall_before = node_cpu_seconds(up.proc.pid), time.monotonic()

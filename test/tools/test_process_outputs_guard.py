@@ -79,11 +79,13 @@ def test_jsonl_over_the_output_bag_is_refused(victim, capsys, out, jsonl, relati
 
 
 def test_a_file_at_the_output_bag_is_not_removed_even_with_force(victim, capsys):
-    notes = Path("notes.txt")
+    notes, lines = Path("notes.txt"), Path("old.jsonl")
     notes.write_text("precious")
-    code, _, err = run_cli(capsys, "process", victim, "--out", notes, "--force", "--no-progress")
+    lines.write_text("identified before\n")
+    code, _, err = run_cli(capsys, "process", victim, "--out", notes, "--jsonl", lines, "--force", "--no-progress")
     assert_one_line_error(code, err, "notes.txt: exists and is not a rosbag2 directory")
-    assert notes.read_text() == "precious"
+    # Every output is checked before any is replaced: the JSON lines of an earlier run stay too.
+    assert notes.read_text() == "precious" and lines.read_text() == "identified before\n"
 
 
 @pytest.mark.parametrize("name, problem", [

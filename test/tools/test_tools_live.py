@@ -131,7 +131,7 @@ def test_replay_waits_for_the_number_of_subscriptions_asked(ros_domain_id, short
     second = None
     try:
         proc = replay(ros_domain_id, str(short_bag), "--topics", IO_SAMPLE_TOPIC, "--remap",
-                      f"{IO_SAMPLE_TOPIC}:=/test/wait", "--wait-for-subscribers", "2", "--delay", "0.3")
+                      f"{IO_SAMPLE_TOPIC}:=/test/wait", "--subscribers", "2", "--delay", "0.3")
         proc.wait_for_output(r"waiting for 2 subscriptions on /test/wait \([01] matched\)", 30)
         time.sleep(3.0)  # the first subscription matches well within it
         assert proc.proc.poll() is None and not first.received["/test/wait"], proc.output()
@@ -146,6 +146,15 @@ def test_replay_waits_for_the_number_of_subscriptions_asked(ros_domain_id, short
         first.close()
         if second is not None:
             second.close()
+
+
+def test_the_wait_flag_takes_no_value():
+    # `--wait-for-subscribers BAG` reads BAG as the bag (a flag with an optional count swallowed it).
+    from okid_ros.cli import build_parser
+
+    args = build_parser().parse_args(["replay", "--wait-for-subscribers", "run"])
+    assert args.bag == "run" and args.wait_for_subscribers and args.subscribers is None
+    assert build_parser().parse_args(["replay", "run", "--subscribers", "3"]).subscribers == 3
 
 
 def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
@@ -184,7 +193,7 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
             proc.wait_for_output(r"ready:", timeout_s=60)
         listener.wait_for_publishers(["/okid/modal_states"])
         player = replay(ros_domain_id, str(bag), "--rate", "2", "--loop", "--duration", "13",
-                        "--topics", IO_SAMPLE_TOPIC, "--wait-for-subscribers", "2", "--delay", "0.5")
+                        "--topics", IO_SAMPLE_TOPIC, "--subscribers", "2", "--delay", "0.5")
         assert wait_exit(player, 90) == 0, player.output()
         assert "pass 2 (stamps jump back" in player.output()
         time.sleep(1.0)
