@@ -21,11 +21,11 @@ The stabilization diagram without clicks:
    than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
    across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
    bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
-   A cluster that fails only the first test still is a mode when no accepted one lies within
-   half its width ``zeta f / 2`` and the orders with a stable pole that near its frequency
-   pass it: at high orders a mode's poles may fall into other clusters (their damping and
-   shape pulled by noise poles beside them), which left no cluster of that mode at all
-   (:func:`_persists_near`).
+   A cluster that fails only the first test still is a mode (the one with the most orders
+   first) when no accepted one lies within half a width ``zeta f / 2`` of it and the orders
+   with a stable pole that near its frequency pass it: at high orders a mode's poles may
+   fall into other clusters (their damping and shape pulled by noise poles beside them),
+   which left no cluster of that mode at all (:func:`_persists_near`).
 
 Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
 the lowest at which every mode has its pole.
