@@ -81,10 +81,20 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _sections(tree: Mapping) -> Iterable[tuple[str, dict[str, Any]]]:
+def _sections(tree: Mapping, prefix: str = "") -> Iterable[tuple[str, dict[str, Any]]]:
+    """``(key, parameters)`` of every node section, rcl's nested form too.
+
+    ``ns: {node: {ros__parameters: ...}}`` is the section ``ns/node`` (``/**: {node: ...}``:
+    ``/**/node``), as rcl reads it; the offline tools read it as the nodes do.
+    """
     for key, section in tree.items():
-        if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
-            yield str(key), flatten(section["ros__parameters"])
+        name = f"{prefix.rstrip('/')}/{str(key).strip('/')}" if prefix else str(key)
+        if not isinstance(section, Mapping):
+            continue
+        if isinstance(section.get("ros__parameters"), Mapping):
+            yield name, flatten(section["ros__parameters"])
+        elif "ros__parameters" not in section:
+            yield from _sections(section, name)
 
 
 def _without_parameters(tree: Mapping, prefix: str = "") -> list[str]:

@@ -89,9 +89,22 @@ def test_a_section_without_ros_parameters_is_reported():
         report = file_report(tree, "f.yaml", names)
         assert len(report) == 1 and f"section '{key}' holds no 'ros__parameters'" in report[0], report
     assert file_report({"/**": {"ros__parameters": {"sample_time_s": 0.01}}}, "f.yaml", names) == []
-    # rcl's nested form, a namespace holding node sections, is no problem of the file.
+    # rcl's nested form, a namespace holding node sections, is no problem of the file, and the
+    # offline tools read it as the nodes do (they read nothing of it before).
     nested = {"rig1": {"okid_arx_identifier": {"ros__parameters": {"sample_time_s": 0.01}}}}
     assert not any("holds no" in line for line in file_report(nested, "f.yaml", names))
+
+
+def test_the_nested_namespace_form_is_read_as_rcl_reads_it(tmp_path):
+    path = tmp_path / "nested.yaml"
+    path.write_text("/**:\n  okid_arx_identifier:\n    ros__parameters:\n      publish_rate_hz: 5.0\n"
+                    "rig1:\n  okid_modal_estimator:\n    ros__parameters:\n      tracking:\n        min_mac: 0.55\n")
+    reported: list[str] = []
+    arx, est = load_node_parameters([path], report=reported.append)
+    assert arx["publish_rate_hz"] == 5.0 and est["tracking.min_mac"] != 0.55  # rig1's is not the root node's
+    assert len(reported) == 1 and "'rig1/okid_modal_estimator' does not apply to /okid_modal_estimator" in reported[0]
+    _, est_rig1 = load_node_parameters([path], namespace="/rig1", strict=True)
+    assert est_rig1["tracking.min_mac"] == 0.55
 
 
 def test_params_files_are_found_among_ros_arguments():
