@@ -5,10 +5,11 @@ Also :func:`write_atomically`, so that a command failing half-way leaves no half
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import stat
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
 
@@ -73,3 +74,12 @@ def is_special_file(path: str | os.PathLike) -> bool:
 def one_line(text: object) -> str:
     """``text`` as one line (an OS error's message may hold line breaks)."""
     return " ".join(str(text).split())
+
+
+@contextlib.contextmanager
+def writing(path: str | os.PathLike, kind: str) -> Iterator[None]:
+    """An OSError while writing ``path`` (a full disk, a device that refuses) as the one-line OutputError."""
+    try:
+        yield
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the {kind} ({exc.strerror or exc})") from None

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from okid_ros.errors import write_atomically, writing
+
 __all__ = ["to_strict", "dumps", "write_json"]
 
 
@@ -61,8 +63,6 @@ def write_json(path: str | Path, value: Any, *, indent: int | None = 1) -> None:
 
     The document is made first and written atomically: a failure leaves no truncated file.
     """
-    from okid_ros.errors import write_atomically
-
     text = (dumps(value, indent=indent) + "\n").encode()
     write_atomically(path, lambda stream: stream.write(text))
 
@@ -76,28 +76,17 @@ class JsonLines:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        try:
+        with writing(self.path, "JSON lines file"):
             self.stream = open(self.path, "w")
-        except OSError as exc:
-            raise self._error(exc) from None
-
-    def _error(self, exc: OSError) -> Exception:
-        from okid_ros.errors import OutputError
-
-        return OutputError(f"{self.path}: cannot write the JSON lines file ({exc.strerror or exc})")
 
     def write(self, line: Any) -> None:
-        try:
+        with writing(self.path, "JSON lines file"):
             self.stream.write(dumps(line) + "\n")
             self.stream.flush()
-        except OSError as exc:
-            raise self._error(exc) from None
 
     def close(self) -> None:
-        try:
+        with writing(self.path, "JSON lines file"):
             self.stream.close()
-        except OSError as exc:
-            raise self._error(exc) from None
 
     def __enter__(self) -> JsonLines:
         return self

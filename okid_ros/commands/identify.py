@@ -9,7 +9,6 @@ pipeline; writes the model in normalized modal form and its physical modes as JS
 from __future__ import annotations
 
 import argparse
-import contextlib
 
 from okid_ros.commands._args import add_bag_arguments, positive_int, states_or_auto
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
@@ -95,14 +94,14 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.errors import ParameterError
+    from okid_ros.errors import ParameterError, writing
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
-    out = Path(args.json)
-    check_output_paths(args.data, "record", _outputs(args))
+    out, outputs = Path(args.json), _outputs(args)
+    check_output_paths(args.data, "record", outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if output_only and (ignored := _input_output_options(args)):
@@ -133,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
     if not args.force:  # after every option is checked (no empty figure folder is left), before the work
-        for path, kind in _outputs(args):
+        for path, kind in outputs:
             prepare_output(path, force=False, kind=kind)
     started = time.perf_counter()
     model = _identify(record, args, output_only, valid)
@@ -149,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     document["fit_burn_in_samples"] = fits["burn_in_samples"]
     document["source"] = source
     document["elapsed_s"] = elapsed
-    with _writing(out, "JSON model"):
+    with writing(out, "JSON model"):
         write_json(out, document)
     _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
     if not uncertainty.computed:
@@ -182,23 +181,14 @@ def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, ou
         )
 
 
-@contextlib.contextmanager
-def _writing(path, kind: str):
-    """An OSError while writing ``path`` (a full disk, a device that refuses) as the one-line OutputError."""
-    from okid_ros.errors import OutputError
-
-    try:
-        yield
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write the {kind} ({exc.strerror or exc})") from None
-
-
 def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs) -> None:
     """``--csv``, ``--uff`` and ``--plot-dir``."""
+    from okid_ros.errors import writing
+
     if args.csv:
         from okid_ros.tools.exports import write_modal_csv
 
-        with _writing(args.csv, "modes CSV"):
+        with writing(args.csv, "modes CSV"):
             write_modal_csv(args.csv, model.modes)
         print(f"modal table -> {args.csv}")
     if args.uff:
@@ -207,7 +197,7 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
 
         freq, measured = h1_frf(record.u, record.y, record.sample_time_s)
         modelled = model_frf(model.A, model.B, model.C, model.D, freq, record.sample_time_s)
-        with _writing(args.uff, "UFF file"):
+        with writing(args.uff, "UFF file"):
             count = write_uff(args.uff, model.modes, frequency_hz=freq,
                               frfs={"model": modelled, "measured H1": measured})
         print(f"UFF (datasets 55 and 58, {count} in all) -> {args.uff}")

@@ -290,8 +290,9 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
             persisting_elsewhere.append(cluster)
     # The largest first, and each one rescued counts as accepted for the next: of two pieces of
     # one mode the one with more orders is taken.
+    stable_hz, stable_order = poles.frequency_hz[index], poles.order[index]
     for cluster in sorted(persisting_elsewhere, key=lambda c: (-len(c.members), min(c.members))):
-        if _persists_near(cluster, poles.frequency_hz[index], poles.order[index], orders, accepted):
+        if _persists_near(cluster, stable_hz, stable_order, orders, accepted):
             rejected.remove(cluster)
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)

@@ -81,39 +81,34 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _sections(tree: Mapping, prefix: str = "") -> Iterable[tuple[str, dict[str, Any]]]:
-    """``(key, parameters)`` of every node section, rcl's nested form too.
+def _walk(tree: Mapping, prefix: str = "") -> Iterable[tuple[str, dict[str, Any] | None]]:
+    """``(key, parameters)`` of every node section as rcl reads the file, its nested form too.
 
     ``ns: {node: {ros__parameters: ...}}`` is the section ``ns/node`` (``/**: {node: ...}``:
-    ``/**/node``), as rcl reads it; the offline tools read it as the nodes do.
+    ``/**/node``). ``parameters`` is None where rcl refuses the file: a value that is not a
+    mapping on the way (``/**: {sample_time_s: 0.01}``, or under a misspelt ``ros_parameters``);
+    ``key`` is then what holds it.
     """
     for key, section in tree.items():
         name = f"{prefix.rstrip('/')}/{str(key).strip('/')}" if prefix else str(key)
-        if not isinstance(section, Mapping):
-            continue
-        if isinstance(section.get("ros__parameters"), Mapping):
-            yield name, flatten(section["ros__parameters"])
-        elif "ros__parameters" not in section:
-            yield from _sections(section, name)
-
-
-def _without_parameters(tree: Mapping, prefix: str = "") -> list[str]:
-    """Keys of the file that are neither a node section (``ros__parameters``) nor a namespace of them.
-
-    rcl reads ``ns: {node: {ros__parameters: ...}}`` as the node ``/ns/node``; a value that is not
-    a mapping on the way (``/**: {sample_time_s: 0.01}``, or under a misspelt ``ros_parameters``)
-    makes it refuse the file.
-    """
-    bad = []
-    for key, section in tree.items():
-        name = f"{prefix}/{key}" if prefix else str(key)
         if not isinstance(section, Mapping) or not section:
-            bad.append(prefix or name)
+            yield prefix or name, None
         elif "ros__parameters" not in section:
-            bad += _without_parameters(section, name)
-        elif not isinstance(section["ros__parameters"], Mapping):
-            bad.append(name)
-    return list(dict.fromkeys(bad))
+            yield from _walk(section, name)
+        elif isinstance(section["ros__parameters"], Mapping):
+            yield name, flatten(section["ros__parameters"])
+        else:
+            yield name, None
+
+
+def _sections(tree: Mapping) -> Iterable[tuple[str, dict[str, Any]]]:
+    """``(key, parameters)`` of every node section (:func:`_walk`); the offline tools read them as the nodes do."""
+    return ((key, values) for key, values in _walk(tree) if values is not None)
+
+
+def _without_parameters(tree: Mapping) -> list[str]:
+    """Keys that are neither a node section nor a namespace of them (:func:`_walk`), each once."""
+    return list(dict.fromkeys(key for key, values in _walk(tree) if values is None))
 
 
 def node_values_from_tree(tree: Mapping, fqn: str) -> dict[str, Any]:

@@ -118,9 +118,11 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         samples += inputs.grid.flush()
     if not samples:
         counters = inputs.grid.counters
-        why = _rejected_messages(counters.rejections(), int(counters.messages), inputs.wrong_size_note)
+        rejected = counters.rejections()
+        why = (f": {_rejected_messages(rejected, int(counters.messages), inputs.wrong_size_note)}"
+               if any(rejected.values()) else "")
         raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}"
-                        + (f": {why}" if any(counters.rejections().values()) else ""))
+                        + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)

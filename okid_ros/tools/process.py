@@ -127,7 +127,7 @@ def process_bag(
             if jsonl_path is not None:
                 prepare_output(jsonl_path, force=force, kind="JSON lines file")
                 jsonl = JsonLines(jsonl_path)
-                created += [] if is_special_file(jsonl_path) else [jsonl_path]  # never remove /dev/stdout
+                created.append(jsonl_path)
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
@@ -154,6 +154,7 @@ def process_bag(
 
 
 def _remove(paths: list[Path]) -> None:
+    """Remove the outputs of a failed run; a device or FIFO (``/dev/stdout``) is written into, never removed."""
     for path in paths:
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
