@@ -17,10 +17,12 @@ less the segment's. A replicate is
    of :mod:`okid_ros.core.order_search`);
 3. for each mode of the model, the replicate's pole nearest it (log distance).
 
-The jackknife variance is ``(S - 1) / S sum_j (theta_j - mean)^2``. The refit of the gain and
-the re-estimation passes of the completion are not repeated: at first order they do not move
-the poles of ``A`` the state regression gives. Calibration on simulated truth with 16 outputs
-(``bench/mode_uncertainty.py --cases many-outputs``) and the cost: docs/benchmarks-uncertainty.md.
+The jackknife variance is ``(S - 1) / S sum_j (theta_j - mean)^2``. The re-estimation passes
+of the completion (and a refit or refinement) are not repeated, but they move the poles: the
+move from the window's own state regression to the model's pole, one draw of that further
+scatter, is added to each variance. Calibration on simulated truth with 16 outputs
+(``bench/mode_uncertainty.py --cases many-outputs``), on the steel subframe's halves, and the
+cost: docs/benchmarks-uncertainty.md.
 The delete-a-group jackknife follows Efron & Tibshirani (1993), ch. 11; its use for modal
 parameters of subspace identification (segments of the record) follows Reynders, Pintelon &
 De Roeck (2008).
@@ -208,7 +210,9 @@ def realization_jackknife(
 
     Returns
     -------
-    frequency_hz_std, damping_ratio_std : (M,) each (NaN when not computed).
+    frequency_hz_std, damping_ratio_std : (M,) each (NaN when not computed): the replicates'
+        scatter and, in quadrature, each target's distance from the window's own pole (the
+        state regression the replicates repeat), which the steps after it moved.
     reason : empty, or why the standard deviations could not be computed.
     """
     nan = np.full(np.size(targets), np.nan)
@@ -224,7 +228,12 @@ def realization_jackknife(
     whole = StateGram(u, y, hankel_cols, valid)
     state_size = whole.gram.shape[0]
     spare = min(n_states + SPARE_COLUMNS, hankel_rows * arx.n_outputs)
-    start = decompose_hankel(arx.observer_markov, hankel_rows, hankel_cols, whole.past_weight()).U[:, :spare]
+    full = decompose_hankel(arx.observer_markov, hankel_rows, hankel_cols, whole.past_weight())
+    start = full.U[:, :spare]
+    try:
+        center = _regressed_poles(whole, full.h0, full.U, full.s, n_states)
+    except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
+        return nan, nan, f"not computed: the window's own realization failed ({exc})"
     freqs = np.empty((bounds.size - 1, nan.size))
     damps = np.empty((bounds.size - 1, nan.size))
     for j in range(bounds.size - 1):
@@ -236,16 +245,34 @@ def realization_jackknife(
         try:
             h0 = block_hankel(fit.observer_markov, hankel_rows, hankel_cols)
             left, values = _leading_subspace(h0, replicate.past_weight(), start, n_states)
-            top = int(np.sum(values > values[0] * 1e-12)) if values.size else 0
-            replicate.set_states((left[:, :top].T @ h0).T / np.sqrt(values[:top]))
-            eigenvalues = replicate.regress(top, stabilize=False).eigenvalues
+            eigenvalues = _regressed_poles(replicate, h0, left, values, n_states)
         except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
             return nan, nan, f"not computed: jackknife replicate {j} failed ({exc})"
         freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
         if not (np.isfinite(freqs[j]).all() and np.isfinite(damps[j]).all()):
             # No oscillating pole at all: a NaN here would make every mode's std NaN, "computed".
             return nan, nan, f"not computed: jackknife replicate {j} has no complex pole near the modes"
-    return jackknife_std(freqs), jackknife_std(damps), ""
+    # The chain's model is this estimator moved on by steps the replicates do not repeat (the
+    # re-estimation passes, a refit, a refinement): that move is the one draw of their scatter
+    # there is, added in quadrature (docs/benchmarks-uncertainty.md, "What the passes add").
+    f_center, z_center = nearest_modes(center, targets, sample_time_s)
+    s_target = np.log(targets) / sample_time_s
+    f_shift = np.nan_to_num(np.abs(s_target) / (2 * np.pi) - f_center)
+    z_shift = np.nan_to_num(-s_target.real / np.abs(s_target) - z_center)
+    return np.hypot(jackknife_std(freqs), f_shift), np.hypot(jackknife_std(damps), z_shift), ""
+
+
+def _regressed_poles(gram: StateGram, h0: np.ndarray, left: np.ndarray, values: np.ndarray, n_states: int
+                     ) -> np.ndarray:
+    """Poles (n,) of the state-equation regression of order n on the ERA states of ``h0`` (the screening's).
+
+    ``left`` (rows, >= n) and ``values`` (>= n,) are the leading singular pairs of the weighted
+    Hankel matrix; orders whose singular values fall below 1e-12 of the largest are left out.
+    """
+    values = values[:n_states]
+    top = int(np.sum(values > values[0] * 1e-12)) if values.size else 0
+    gram.set_states((left[:, :top].T @ h0).T / np.sqrt(values[:top]))
+    return gram.regress(top, stabilize=False).eigenvalues
 
 
 def attach_jackknife_std(identified, arx: ArxFit, u: np.ndarray, y: np.ndarray, *, hankel_size: tuple[int, int],
