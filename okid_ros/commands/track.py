@@ -251,9 +251,10 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
     if problem:
         raise DataError(problem)
-    # Inputs and outputs each divided by a power of two (exact: the same fits): values near
-    # 1e+-150 neither overflow nor underflow the window's sums (core/channels.py).
-    u, y = group_scales(u, record.y).scale(u, record.y)
+    # Inputs and outputs each divided by a power of two (exact: the same fits) where values near
+    # 1e+-150 would overflow or underflow the window's sums (core/channels.py); a record of
+    # ordinary size keeps its units, in which the windows' messages then speak.
+    u, y = group_scales(u, record.y).where_needed().scale(u, record.y)
     bad = ~(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1))
     if bad.any():
         k = int(np.argmax(bad))

@@ -55,6 +55,18 @@ class ChannelScales:
         """``u`` (N, m) and ``y`` (N, p) divided channel by channel by the scales."""
         return u / self.input, y / self.output
 
+    def where_needed(self, *, limit: float = 2.0**64) -> ChannelScales:
+        """These scales if one lies outside ``[1 / limit, limit]``, else ones (the units kept).
+
+        Dividing by a power of two guards sums of squares near the float64 limits (values of
+        1e+-150); a record of ordinary size needs no division and keeps its units, so that what
+        is said of its windows (``constant 5`` for a stuck channel) is said in them.
+        """
+        scales = np.concatenate([self.input, self.output])
+        if np.all((scales >= 1.0 / limit) & (scales <= limit)):
+            return ChannelScales(np.ones_like(self.input), np.ones_like(self.output))
+        return self
+
     def inverse(self) -> ChannelScales:
         """The reciprocal scales: ``inverse().restore_arx`` takes a fit to the scaled units."""
         return ChannelScales(1.0 / self.input, 1.0 / self.output)

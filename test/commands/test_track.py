@@ -84,6 +84,20 @@ def test_a_dead_output_is_the_records_error_in_its_own_units(record, tmp_path, c
     assert not (tmp_path / "x.jsonl").exists()
 
 
+def test_a_channel_dead_in_some_windows_is_named_in_its_own_units(record, tmp_path, capsys):
+    # Stuck at 5.0 from the middle on: the record passes, the windows after it fail, and their
+    # lines said "constant 0.15625" (the value divided by the power of two the windows saw).
+    _, u, y = record
+    y = y.copy()
+    y[900:, 1] = 5.0
+    path = tmp_path / "stuck.npz"
+    save_record(path, u, y, DT)
+    lines = _track(path, tmp_path / "x.jsonl", "--order", "20", "--window", "1000", "--no-change-detection")
+    errors = [line["error"] for line in lines if line.get("error")]
+    assert errors, lines
+    assert all("output channel 1 carries no response (constant 5)" in error for error in errors), errors
+
+
 def _track(path, out, *args) -> list[dict]:
     status = okid_ros_main(["track", str(path), "--jsonl", str(out), "--no-progress", *args])
     assert status == 0
