@@ -96,27 +96,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parts", type=int, default=2, help="consecutive pieces (default: %(default)s)")
     parser.add_argument("--output-only", action="store_true", help="identify from the outputs alone")
     parser.add_argument("--match", type=float, default=0.005, help="relative frequency to pair modes (0.5 %%)")
-    parser.add_argument("--out", default=None, help="also write the table (markdown) here")
-    parser.add_argument("--force", action="store_true")
+    parser.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     parser.add_argument("--threads", default="1", help="BLAS threads (read before numpy loads)")
     args = parser.parse_args(argv)
-    if args.out and Path(args.out).exists() and not args.force:
-        print(f"{args.out} exists (use --force)", file=sys.stderr)
-        return 2
+    if args.out is not None and args.out.exists() and not args.force:
+        parser.error(f"{args.out} exists; add --force to replace it")
     record, _ = load_any_record(args.record, args.params)
     n = record.y.shape[0] // max(args.parts, 1)
     if args.parts < 2 or n < MIN_PIECE:
-        print(f"--parts {args.parts}: need at least 2 pieces of {MIN_PIECE} samples ({record.y.shape[0]} "
-              f"samples)", file=sys.stderr)
-        return 2
-    output_only = args.output_only or record.u.shape[1] == 0
-    args.output_only = output_only
-    pieces = [_modes(record.u[k * n : (k + 1) * n], record.y[k * n : (k + 1) * n], record.sample_time_s, output_only)
-              for k in range(args.parts)]
-    text = _markdown(_pairs(pieces, args.match), pieces, args)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+        parser.error(f"--parts {args.parts}: need at least 2 pieces of {MIN_PIECE} samples "
+                     f"({record.y.shape[0]} samples)")
+    args.output_only = args.output_only or record.u.shape[1] == 0
+    pieces = [_modes(record.u[k * n : (k + 1) * n], record.y[k * n : (k + 1) * n], record.sample_time_s,
+                     args.output_only) for k in range(args.parts)]
+    table = _markdown(_pairs(pieces, args.match), pieces, args)
+    if args.out is not None:
+        args.out.write_text(table)
+    print(table)
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import record_parts
 
 from okid_ros.records import save_record
@@ -32,5 +33,6 @@ def test_the_halves_of_a_simulated_record_agree_within_their_standard_deviations
     assert "frequency: 3 pairs of modes (0 without a standard deviation)" in text, text
     rms = float(text.split("frequency: ")[1].split("RMS ")[1].split(",")[0])
     assert 0.1 < rms < 3.0, text
-    assert record_parts.main([str(path), "--out", str(out)]) == 2  # an existing output without --force
-    assert "exists" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # an existing output without --force
+        record_parts.main([str(path), "--out", str(out)])
+    assert refused.value.code == 2 and "exists" in capsys.readouterr().err
