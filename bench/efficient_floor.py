@@ -54,7 +54,6 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from types import SimpleNamespace
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
@@ -68,6 +67,7 @@ from identification_accuracy import simulate_record  # noqa: E402
 from okid_bench.cases import benchmark_case, random_record  # noqa: E402
 from okid_bench.cases import random_case as io_random_case  # noqa: E402
 from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
@@ -328,8 +328,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="frequency goal in %% (default: 0.2; output-only and random: 0.5, their 'found')")
     parser.add_argument("--zeta-goal", type=float, default=None,
                         help="damping goal in points (default: 0.3); output-only in %% of the true damping (30)")
-    parser.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
-    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
+    add_output_options(parser)
     parser.add_argument("--quiet", action="store_true", help="no per-seed lines on stderr")
     parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
     args = parser.parse_args(argv)
@@ -338,8 +337,7 @@ def main(argv: list[str] | None = None) -> int:
         args.cases = ",".join(f"random-{k}" for k in range(args.first_seed, args.first_seed + args.seeds))
     if args.seeds < (1 if drawn else 3) or (args.length is not None and args.length < 500):
         parser.error("give at least 3 seeds and 500 samples")
-    if args.out is not None and args.out.exists() and not args.force:
-        parser.error(f"{args.out} exists; add --force to replace it")
+    refuse_existing(parser, args)
     f_goal = args.f_goal if args.f_goal is not None else (0.5 if args.output_only or drawn else 0.2)
     zeta_goal = args.zeta_goal if args.zeta_goal is not None else (30.0 if args.output_only else 0.3)
     cases = []
@@ -366,8 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     text = header + (random_summary(results, f_goal=f_goal) if drawn else table(results, f_goal=f_goal,
                                                                                   zeta_goal=zeta_goal))
     print(text)
-    if args.out is not None:
-        args.out.write_text(text + "\n")
+    write_output(args.out, text + "\n")
     return 0
 
 

@@ -60,6 +60,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from okid_bench.peers import BIC, peer_identify  # noqa: E402
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import model_matrices  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.statespace import simulate, spectral_radius  # noqa: E402
@@ -245,11 +246,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--unrefined", action="store_true",
                         help="add okid-unrefined: identify's defaults without the prediction-error refinement")
     parser.add_argument("--tc", action="store_true", help="add okid-tc: identify's defaults with the TC kernel")
-    parser.add_argument("--out", type=Path, help="also write the markdown table here")
-    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
+    add_output_options(parser)
     args = parser.parse_args(argv)
-    if args.out is not None and args.out.exists() and not args.force:
-        parser.error(f"{args.out} exists; add --force to replace it")
+    refuse_existing(parser, args)
     if not all(0.1 <= f <= 0.9 for f in args.train_fractions):
         parser.error("train fractions must be within [0.1, 0.9]")
     if args.held_out_choice is not None and not 0.3 <= args.held_out_choice <= 0.95:
@@ -265,8 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     table = markdown(rows)
     print()
     print(table)
-    if args.out is not None:
-        args.out.write_text(table)
+    write_output(args.out, table)
     return 0
 
 

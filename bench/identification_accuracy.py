@@ -25,7 +25,7 @@ Usage::
     python bench/identification_accuracy.py                 # all cases, 3750 and 15000, 5 seeds
     python bench/identification_accuracy.py --quick         # 3 cases, 3750 samples, 2 seeds
     python bench/identification_accuracy.py --cases paper-lp15,paper-lp50 --lengths 3750 --seeds 3
-    python bench/identification_accuracy.py --out docs/benchmarks-accuracy.md --json raw.json
+    python bench/identification_accuracy.py --out /tmp/accuracy.md --json /tmp/raw.json [--force]
 
 Methods: ``okid-default`` (``okid_ros.core.pipeline.identify`` with the product's defaults: ARX
 order by GCV, model order by BIC; it is not given the true order), ``okid`` (the case's ARX
@@ -48,7 +48,6 @@ import sys
 import time
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Optional
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
@@ -59,6 +58,7 @@ checkout.add()
 
 from okid_bench.cases import BenchmarkCase, benchmark_cases  # noqa: E402
 from okid_bench.peers import PEERS, available_peers, peer_identify  # noqa: E402
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import (  # noqa: E402
     assign_by_frequency,
     match_modes,
@@ -356,11 +356,11 @@ def main(argv: Optional[list[str]] = None) -> int:
                     help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)}; also okid-auto)")
     ap.add_argument("--val-samples", type=int, default=10000, help="held-out record length")
     ap.add_argument("--burn-in", type=int, default=500, help="predictor start-up samples skipped")
-    ap.add_argument("--out", default=None, help="write the markdown report here")
-    ap.add_argument("--json", default=None, help="write all per-seed results here")
+    add_output_options(ap, json=True, out_help="write the markdown report here")
     ap.add_argument("--threads", default="1", help="BLAS threads (default 1)")
     ap.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
     args = ap.parse_args(argv)
+    refuse_existing(ap, args)
 
     available, note = all_methods()
     wanted = args.methods.split(",") if args.methods else list(DEFAULT_METHODS)
@@ -398,15 +398,13 @@ def main(argv: Optional[list[str]] = None) -> int:
             doc.append(md)
             raw.append({"case": case.name, "n_samples": n_samples,
                         "results": [r.__dict__ for r in results], "table": table})
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text("\n".join(doc))
+    write_output(args.out, "\n".join(doc))
     if args.json:
         def default(o):
             if isinstance(o, (np.floating, np.integer)):
                 return o.item()
             return str(o)
-        Path(args.json).write_text(json.dumps(raw, indent=1, default=default))
+        write_output(args.json, json.dumps(raw, indent=1, default=default))
     return 0
 
 

@@ -19,7 +19,7 @@ table gives:
 Usage::
 
     python bench/mode_uncertainty.py                                  # both cases, 50 seeds
-    python bench/mode_uncertainty.py --seeds 100 --out docs/benchmarks-uncertainty.md
+    python bench/mode_uncertainty.py --seeds 100 --out /tmp/uncertainty.md [--force]
     python bench/mode_uncertainty.py --cases close-pair --seeds 10 --length 15000
 
 BLAS threads default to 1 (``--threads``).
@@ -32,7 +32,6 @@ import json
 import platform
 import sys
 import time
-from pathlib import Path
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import checkout
@@ -41,6 +40,7 @@ import numpy as np  # noqa: E402
 checkout.add()
 
 from okid_bench.cases import benchmark_case  # noqa: E402
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, modes_of  # noqa: E402
 from okid_ros.core.pipeline import IdentificationError, identify  # noqa: E402
 from okid_ros.core.uncertainty import attach_mode_uncertainty  # noqa: E402
@@ -143,10 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=50, help="records per case (default: %(default)s)")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--length", type=int, default=3750, help="samples per record (default: %(default)s)")
-    parser.add_argument("--out", default=None, help="also write the table (markdown) here")
-    parser.add_argument("--json", default=None, help="also write the raw errors and stds here")
+    add_output_options(parser, json=True)
     parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
     args = parser.parse_args(argv)
+    refuse_existing(parser, args)
     results = []
     started = time.perf_counter()
     for name in args.cases.split(","):
@@ -157,10 +157,9 @@ def main(argv: list[str] | None = None) -> int:
               f"({platform.machine()}, Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}, "
               f"{time.perf_counter() - started:.0f} s)\n\n")
     print(header + text)
-    if args.out:
-        Path(args.out).write_text(header + text + "\n")
+    write_output(args.out, header + text + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1))
+        write_output(args.json, json.dumps(results, indent=1))
     return 0
 
 

@@ -47,6 +47,7 @@ import numpy as np
 from output_only_peers import METHODS, run_method
 
 from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, random_case, score_modes
+from okid_bench.report import add_output_options, refuse_existing, write_output
 from okid_ros.core.output_covariance import choose_block_rows, reference_channels
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -163,19 +164,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0, help="first noise seed (random: first structure)")
     parser.add_argument("--max-order", type=int, default=100)
-    parser.add_argument("--out", default=None, help="also write the table (markdown) here")
-    parser.add_argument("--force", action="store_true")
+    add_output_options(parser)
     parser.add_argument("--threads", default="1", help="BLAS threads (read before numpy loads)")
     args = parser.parse_args(argv)
     for key in ("records", "cases", "methods"):
         setattr(args, key, [] if getattr(args, key) == "none" else getattr(args, key).split(","))
-    if args.out and Path(args.out).exists() and not args.force:
-        print(f"{args.out} exists (use --force)", file=sys.stderr)
-        return 2
+    refuse_existing(parser, args)
     text = _markdown(_evaluate(args), args)
     print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+    write_output(args.out, text)
     return 0
 
 

@@ -58,6 +58,7 @@ _spec.loader.exec_module(accuracy)
 import numpy as np  # noqa: E402
 
 from okid_bench.peers import PEERS, peer_identify  # noqa: E402
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import Mode, match_modes, model_matrices, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.statespace import simulate, spectral_radius  # noqa: E402
 
@@ -287,8 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--peer-states", type=int, default=PEER_STATES, help=f"peers' model order (default {PEER_STATES})")
     ap.add_argument("--peer-horizon", type=int, default=PEER_HORIZON,
                     help=f"peers' subspace horizon (block rows, default {PEER_HORIZON})")
-    ap.add_argument("--out", default=None, help="also write the markdown here (refused if it exists, see --force)")
-    ap.add_argument("--force", action="store_true", help="replace an existing --out file")
+    add_output_options(ap)
     ap.add_argument("--repeat", type=int, default=1,
                     help="identifications per method; the time reported is the shortest (default 1)")
     ap.add_argument("--threads", default="1", help="BLAS threads (default 1)")
@@ -300,8 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [m for m in wanted if m not in available]
     if unknown:
         ap.error(f"unknown methods: {', '.join(unknown)} (known: {', '.join(available)})")
-    if args.out and Path(args.out).exists() and not args.force:
-        ap.error(f"{args.out}: exists already, not overwriting (use --force to replace it)")
+    refuse_existing(ap, args)
     folder = Path(args.record)
     if not (folder / "steel_subframe.npz").is_file() or not (folder / "truth.json").is_file():
         ap.error(f"{folder}: no steel_subframe.npz and truth.json there")
@@ -319,9 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     doc = [markdown(rows, len(reference), command.strip()), mode_table(rows, reference)]
     text = "\n".join(d for d in doc if d)
     print(text, flush=True)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+    write_output(args.out, text)
     return 0
 
 

@@ -27,7 +27,6 @@ import argparse
 import sys
 import warnings
 from itertools import combinations
-from pathlib import Path
 
 import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import checkout
@@ -36,6 +35,7 @@ checkout.add()
 
 import numpy as np  # noqa: E402
 
+from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
 from okid_ros.core.pipeline import identify  # noqa: E402
 from okid_ros.tools.bag_record import load_any_record  # noqa: E402
@@ -96,12 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parts", type=int, default=2, help="consecutive pieces (default: %(default)s)")
     parser.add_argument("--output-only", action="store_true", help="identify from the outputs alone")
     parser.add_argument("--match", type=float, default=0.005, help="relative frequency to pair modes (0.5 %%)")
-    parser.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
-    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
+    add_output_options(parser)
     parser.add_argument("--threads", default="1", help="BLAS threads (read before numpy loads)")
     args = parser.parse_args(argv)
-    if args.out is not None and args.out.exists() and not args.force:
-        parser.error(f"{args.out} exists; add --force to replace it")
+    refuse_existing(parser, args)
     record, _ = load_any_record(args.record, args.params)
     n = record.y.shape[0] // max(args.parts, 1)
     if args.parts < 2 or n < MIN_PIECE:
@@ -111,8 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     pieces = [_modes(record.u[k * n : (k + 1) * n], record.y[k * n : (k + 1) * n], record.sample_time_s,
                      args.output_only) for k in range(args.parts)]
     table = _markdown(_pairs(pieces, args.match), pieces, args)
-    if args.out is not None:
-        args.out.write_text(table)
+    write_output(args.out, table)
     print(table)
     return 0
 
