@@ -42,6 +42,8 @@ CLOCK_HZ_RANGE = (1e-3, 1e6)
 MAX_QUEUE_DEPTH = 100_000
 #: Most subscriptions --wait-for-subscribers waits for (more than any graph here has).
 MAX_SUBSCRIBERS = 1000
+#: Seconds between the reminders while --wait-for-subscribers waits (it waits without end).
+WAIT_REMINDER_S = 10.0
 
 
 @dataclass
@@ -295,11 +297,20 @@ class BagPlayer:
         def short() -> list:
             return [p for p in publishers if p.get_subscription_count() < wanted]
 
+        def matched(waiting: list) -> str:
+            return ", ".join(f"{p.topic_name} ({p.get_subscription_count()} matched)" for p in waiting)
+
         waiting = short()
         if waiting:
-            self.log(f"replay: waiting for {wanted} subscription{'s' if wanted != 1 else ''} on "
-                     + ", ".join(f"{p.topic_name} ({p.get_subscription_count()} matched)" for p in waiting))
-        while short():
+            self.log(f"replay: waiting for {wanted} subscription{'s' if wanted != 1 else ''} on {matched(waiting)}")
+        started = remind = time.monotonic()
+        while waiting := short():
+            if time.monotonic() - remind >= WAIT_REMINDER_S:
+                # It waits without end: say so now and then, so that a replay started before the
+                # nodes (or with a topic remapped wrong) is not taken for a hang.
+                remind = time.monotonic()
+                self.log(f"replay: still waiting after {remind - started:.0f} s: {matched(waiting)}; start the "
+                         f"nodes that subscribe (or check the topic names), or stop with Ctrl-C")
             if not self._sleep_until(time.monotonic() + 0.05, None):
                 break
 
