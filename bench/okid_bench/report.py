@@ -13,12 +13,17 @@ from pathlib import Path
 __all__ = ["add_output_options", "refuse_existing", "write_output"]
 
 
+def _path(text: str) -> Path | None:
+    """A path, or None for an empty argument (``--out ""``: no file, as before the paths were typed)."""
+    return Path(text) if text else None
+
+
 def add_output_options(parser: argparse.ArgumentParser, *, json: bool = False,
                        out_help: str = "also write the table (markdown) here") -> None:
     """``--out FILE``, ``--force`` and, with ``json``, ``--json FILE`` (paths, default None)."""
-    parser.add_argument("--out", type=Path, default=None, help=out_help)
+    parser.add_argument("--out", type=_path, default=None, help=out_help)
     if json:
-        parser.add_argument("--json", type=Path, default=None, help="also write the raw results (JSON) here")
+        parser.add_argument("--json", type=_path, default=None, help="also write the raw results (JSON) here")
     parser.add_argument("--force", action="store_true", help="replace existing --out/--json files")
 
 

@@ -251,10 +251,11 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
     if problem:
         raise DataError(problem)
-    # Inputs and outputs each divided by a power of two (exact: the same fits) where values near
-    # 1e+-150 would overflow or underflow the window's sums (core/channels.py); a record of
-    # ordinary size keeps its units, in which the windows' messages then speak.
-    u, y = group_scales(u, record.y).where_needed().scale(u, record.y)
+    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel lies
+    # beyond 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums
+    # (core/channels.py); a group of ordinary size keeps its units, in which the windows' messages
+    # then speak.
+    u, y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
     bad = ~(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1))
     if bad.any():
         k = int(np.argmax(bad))
@@ -394,7 +395,7 @@ class _TrackedRecord:
 
     Parameters
     ----------
-    u : (N, m); y : (N, p) the (scaled) record; order : the ARX order q.
+    u : (N, m); y : (N, p) the record (divided by its powers of two where a group needs it); order : the ARX order q.
     """
 
     def __init__(self, u, y, order: int) -> None:

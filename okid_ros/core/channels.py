@@ -55,17 +55,22 @@ class ChannelScales:
         """``u`` (N, m) and ``y`` (N, p) divided channel by channel by the scales."""
         return u / self.input, y / self.output
 
-    def where_needed(self, *, limit: float = 2.0**64) -> ChannelScales:
-        """These scales if one lies outside ``[1 / limit, limit]``, else ones (the units kept).
+    def where_needed(self, u: np.ndarray, y: np.ndarray, *, limit: float = 2.0**64) -> ChannelScales:
+        """These scales for a group (inputs, outputs) with a channel beyond ``[1 / limit, limit]``, else ones.
 
         Dividing by a power of two guards sums of squares near the float64 limits (values of
-        1e+-150); a record of ordinary size needs no division and keeps its units, so that what
-        is said of its windows (``constant 5`` for a stuck channel) is said in them.
+        1e+-150); a group of ordinary size needs no division and keeps its units, so that what is
+        said of its windows (``constant 5`` for a stuck channel) is said in them. ``u`` (N, m),
+        ``y`` (N, p): the record the scales are of (NaN/Inf and dead channels do not count).
         """
-        scales = np.concatenate([self.input, self.output])
-        if np.all((scales >= 1.0 / limit) & (scales <= limit)):
-            return ChannelScales(np.ones_like(self.input), np.ones_like(self.output))
-        return self
+        def extreme(x: np.ndarray) -> bool:
+            x = np.where(np.isfinite(x), x, 0.0)
+            peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
+            peaks = peaks[peaks > 0]
+            return bool(np.any((peaks < 1.0 / limit) | (peaks > limit)))
+
+        return ChannelScales(self.input if extreme(u) else np.ones_like(self.input),
+                             self.output if extreme(y) else np.ones_like(self.output))
 
     def inverse(self) -> ChannelScales:
         """The reciprocal scales: ``inverse().restore_arx`` takes a fit to the scaled units."""

@@ -215,7 +215,8 @@ def realization_jackknife(
         state regression the replicates repeat), which the steps after it moved.
     reason : empty, or why the standard deviations could not be computed.
     """
-    nan = np.full(np.size(targets), np.nan)
+    targets = np.asarray(targets, dtype=complex)
+    nan = np.full(targets.size, np.nan)
     lags = max(arx.order, hankel_cols)
     # One pass of lagged products serves the ARX rows and the ERA's past data (its leading block).
     rows = valid_regressor_rows(u.shape[0], lags, valid)
@@ -229,11 +230,15 @@ def realization_jackknife(
     state_size = whole.gram.shape[0]
     spare = min(n_states + SPARE_COLUMNS, hankel_rows * arx.n_outputs)
     full = decompose_hankel(arx.observer_markov, hankel_rows, hankel_cols, whole.past_weight())
-    start = full.U[:, :spare]
+    start = full.U[:, :spare].copy()
     try:
         center = _regressed_poles(whole, full.h0, full.U, full.s, n_states)
     except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
         return nan, nan, f"not computed: the window's own realization failed ({exc})"
+    del full  # its Hankel matrices are not needed in the replicates' loop
+    move = _move_from(center, targets, sample_time_s)
+    if move is None:
+        return nan, nan, "not computed: the window's own realization has no complex pole near the modes"
     freqs = np.empty((bounds.size - 1, nan.size))
     damps = np.empty((bounds.size - 1, nan.size))
     for j in range(bounds.size - 1):
@@ -252,14 +257,23 @@ def realization_jackknife(
         if not (np.isfinite(freqs[j]).all() and np.isfinite(damps[j]).all()):
             # No oscillating pole at all: a NaN here would make every mode's std NaN, "computed".
             return nan, nan, f"not computed: jackknife replicate {j} has no complex pole near the modes"
-    # The chain's model is this estimator moved on by steps the replicates do not repeat (the
-    # re-estimation passes, a refit, a refinement): that move is the one draw of their scatter
-    # there is, added in quadrature (docs/benchmarks-uncertainty.md, "What the passes add").
+    return np.hypot(jackknife_std(freqs), move[0]), np.hypot(jackknife_std(damps), move[1]), ""
+
+
+def _move_from(center: np.ndarray, targets: np.ndarray, sample_time_s: float
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each target's frequency and damping less those of its nearest pole of ``center`` (M,) each.
+
+    The chain's model is the estimator the replicates repeat (``center``: the window's own state
+    regression) moved on by steps they do not repeat (the re-estimation passes, a refit, a
+    refinement): that move is the one draw of their scatter there is, added in quadrature
+    (docs/benchmarks-uncertainty.md, "What the passes add"). None: ``center`` has no complex pole.
+    """
     f_center, z_center = nearest_modes(center, targets, sample_time_s)
+    if not (np.isfinite(f_center).all() and np.isfinite(z_center).all()):
+        return None
     s_target = np.log(targets) / sample_time_s
-    f_shift = np.nan_to_num(np.abs(s_target) / (2 * np.pi) - f_center)
-    z_shift = np.nan_to_num(-s_target.real / np.abs(s_target) - z_center)
-    return np.hypot(jackknife_std(freqs), f_shift), np.hypot(jackknife_std(damps), z_shift), ""
+    return np.abs(s_target) / (2 * np.pi) - f_center, -s_target.real / np.abs(s_target) - z_center
 
 
 def _regressed_poles(gram: StateGram, h0: np.ndarray, left: np.ndarray, values: np.ndarray, n_states: int

@@ -84,11 +84,13 @@ def test_a_dead_output_is_the_records_error_in_its_own_units(record, tmp_path, c
     assert not (tmp_path / "x.jsonl").exists()
 
 
-def test_a_channel_dead_in_some_windows_is_named_in_its_own_units(record, tmp_path, capsys):
+@pytest.mark.parametrize("input_factor", [1.0, 1e-25])
+def test_a_channel_dead_in_some_windows_is_named_in_its_own_units(record, tmp_path, capsys, input_factor):
     # Stuck at 5.0 from the middle on: the record passes, the windows after it fail, and their
-    # lines said "constant 0.15625" (the value divided by the power of two the windows saw).
+    # lines said "constant 0.15625" (the value divided by the power of two the windows saw); the
+    # outputs keep their units when only the inputs need dividing (1e-25).
     _, u, y = record
-    y = y.copy()
+    u, y = u * input_factor, y.copy()
     y[900:, 1] = 5.0
     path = tmp_path / "stuck.npz"
     save_record(path, u, y, DT)
@@ -96,6 +98,16 @@ def test_a_channel_dead_in_some_windows_is_named_in_its_own_units(record, tmp_pa
     errors = [line["error"] for line in lines if line.get("error")]
     assert errors, lines
     assert all("output channel 1 carries no response (constant 5)" in error for error in errors), errors
+
+
+def test_outputs_near_the_float64_limits_are_still_divided_and_tracked(record, tmp_path):
+    # Their powers of two average out (1e152 and 1e-140: about 2^22), but the channels do not:
+    # undivided, the 1e152 channel is beyond the window's 1e150 limit and every sample missing.
+    _, u, y = record
+    path = tmp_path / "extreme.npz"
+    save_record(path, u, y * np.array([1e152, 1e-140]), DT)
+    lines = _track(path, tmp_path / "x.jsonl", "--order", "20", "--window", "1000", "--no-change-detection")
+    assert lines and all(not line.get("error") and line["modes"] for line in lines), lines
 
 
 def _track(path, out, *args) -> list[dict]:

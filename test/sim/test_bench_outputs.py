@@ -30,6 +30,9 @@ def test_an_existing_output_is_refused_without_force_and_replaced_with_it(tmp_pa
             refuse_existing(parser, parser.parse_args(argv))
         assert refused.value.code == 2 and "add --force" in capsys.readouterr().err
     refuse_existing(parser, parser.parse_args(["--out", str(out), "--json", str(raw), "--force"]))
+    empty = parser.parse_args(["--out", ""])  # no file, as an untyped --out "" was before
+    assert empty.out is None
+    refuse_existing(parser, empty)
     write_output(None, "nothing")  # no path: nothing written
 
 
