@@ -64,9 +64,7 @@ class ChannelScales:
         ``y`` (N, p): the record the scales are of (NaN/Inf and dead channels do not count).
         """
         def extreme(x: np.ndarray) -> bool:
-            x = np.where(np.isfinite(x), x, 0.0)
-            peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
-            peaks = peaks[peaks > 0]
+            peaks = _channel_peaks(x)
             return bool(np.any((peaks < 1.0 / limit) | (peaks > limit)))
 
         return ChannelScales(self.input if extreme(u) else np.ones_like(self.input),
@@ -100,10 +98,17 @@ def group_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
     the record itself, restored, yet values near 1e+-150 neither overflow nor underflow.
     """
     def power(x: np.ndarray) -> float:
-        # NaN/Inf samples (missing samples, in ``track``) do not count.
-        x = np.where(np.isfinite(x), x, 0.0)
-        peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
-        peaks = peaks[peaks > 0]
+        peaks = _channel_peaks(x)
         return float(2.0 ** np.round(np.mean(np.log2(peaks)))) if peaks.size else 1.0
 
     return ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))
+
+
+def _channel_peaks(x: np.ndarray) -> np.ndarray:
+    """The largest magnitude of each channel of ``x`` (N, k) that is not all zeros (NaN/Inf do not count).
+
+    NaN/Inf samples are missing samples in ``track``; a dead channel has no size to scale by.
+    """
+    x = np.where(np.isfinite(x), x, 0.0)
+    peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
+    return peaks[peaks > 0]

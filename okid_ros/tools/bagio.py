@@ -64,7 +64,6 @@ PROCESS_KEY = "okid_ros.process"
 STABILIZATION_KEY = "okid_ros.stabilization"
 
 _REPO_MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
-# Files a rosbag2 directory may hold; --force removes nothing else.
 
 
 def message_definition_dir() -> Path:

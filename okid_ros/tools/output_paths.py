@@ -22,6 +22,7 @@ from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
 __all__ = ["check_output_paths", "check_replaceable", "prepare_output", "output_exists"]
 
+#: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
 
 

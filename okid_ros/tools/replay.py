@@ -304,7 +304,7 @@ class BagPlayer:
         if waiting:
             self.log(f"replay: waiting for {wanted} subscription{'s' if wanted != 1 else ''} on {matched(waiting)}")
         started = remind = time.monotonic()
-        while waiting := short():
+        while waiting:
             if time.monotonic() - remind >= WAIT_REMINDER_S:
                 # It waits without end: say so now and then, so that a replay started before the
                 # nodes (or with a topic remapped wrong) is not taken for a hang.
@@ -313,6 +313,7 @@ class BagPlayer:
                          f"nodes that subscribe (or check the topic names), or stop with Ctrl-C")
             if not self._sleep_until(time.monotonic() + 0.05, None):
                 break
+            waiting = short()
 
     def run(self, context=None) -> ReplayStats:
         """Play the bag (blocks). ``context``: an initialized rclpy Context, else one is made."""
