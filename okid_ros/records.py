@@ -230,6 +230,8 @@ def _csv_sample_time(path: Path, comment: str) -> float:
     """The value of a ``# sample_time_s=...`` comment line."""
     value = comment.lstrip("#").partition("=")[2]
     try:
+        if "_" in value or not value.isascii():  # float() reads "0_01" as 1 (see _csv_rows)
+            raise ValueError(value)
         return float(value)
     except ValueError:
         raise DataError(f"{path}: bad sample_time_s comment {comment!r}") from None
@@ -266,10 +268,17 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}")
     values = np.full((len(rows) - 1, len(header)), np.nan)
     for column in wanted(header):
+        texts = [row[column] for row in rows[1:]]
         try:
-            values[:, column] = [float(row[column]) for row in rows[1:]]
+            values[:, column] = [float(text) for text in texts]
         except ValueError as exc:
             raise DataError(f"{path}: non-numeric value in column {header[column]!r} ({exc})") from None
+        # float() also reads Python's digit separators and non-ASCII digits ("1_000" as 1000,
+        # "١٢" as 12), which no CSV writer emits: a typo or a locale's grouping, refused.
+        loose = next((number for number, text in enumerate(texts, start=1) if "_" in text or not text.isascii()), None)
+        if loose is not None:
+            raise DataError(f"{path}: data row {loose}, column {header[column]!r}: {texts[loose - 1].strip()!r} "
+                            f"is not a plain decimal number")
     return dt, header, values
 
 

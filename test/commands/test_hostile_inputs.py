@@ -100,8 +100,11 @@ CSV_CASES = {
     "header_only": ("# sample_time_s=0.01\nu1,y1\n", "no samples"),
     "ragged": ("# sample_time_s=0.01\nu1,y1\n1,2\n3\n", "data row 2 has 1 values"),
     "text": ("# sample_time_s=0.01\nu1,y1\n1,abc\n", "non-numeric"),
+    "digit_separator": ("# sample_time_s=0.01\nu1,y1\n1,2\n1_000,3\n", "row 2, column 'u1': '1_000' is not a plain"),
+    "non_ascii_digits": ("# sample_time_s=0.01\nu1,y1\n1,\u0661\u0662\n", "'\u0661\u0662' is not a plain decimal"),
     "nan_dt": ("# sample_time_s=nan\nu1,y1\n1,2\n3,4\n", "sample_time_s"),
     "bad_dt": ("# sample_time_s=fast\nu1,y1\n1,2\n", "bad sample_time_s"),
+    "separated_dt": ("# sample_time_s=0_01\nu1,y1\n1,2\n", "bad sample_time_s"),
     "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
     "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
     "two_dt": ("# sample_time_s=0.01\nu1,y1\n1,2\n# sample_time_s=0.5\n3,4\n", "two different sample_time_s"),
@@ -113,7 +116,7 @@ def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     text, reason = CSV_CASES[case]
     path = tmp_path / f"{case}.csv"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     out = tmp_path / "track.jsonl"
     assert cli.main(["track", str(path), "--jsonl", str(out)]) == 2
     err = capsys.readouterr().err
