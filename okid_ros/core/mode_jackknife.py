@@ -20,7 +20,9 @@ less the segment's. A replicate is
 The jackknife variance is ``(S - 1) / S sum_j (theta_j - mean)^2``. The re-estimation passes
 of the completion (and a refit or refinement) are not repeated, but they move the poles: the
 move from the window's own state regression to the model's pole, one draw of that further
-scatter, is added to each variance. Calibration on simulated truth with 16 outputs
+scatter, is added to each variance; so is the bias of the ARX fit's penalty, which every
+replicate shares (the same regression's move when the fit is taken one more Tikhonov step on,
+:func:`_penalty_bias`). Calibration on simulated truth with 16 outputs
 (``bench/mode_uncertainty.py --cases many-outputs``), on the steel subframe's halves, and the
 cost: docs/benchmarks-uncertainty.md.
 The delete-a-group jackknife follows Efron & Tibshirani (1993), ch. 11; its use for modal
@@ -134,6 +136,8 @@ class _ArxWindow:
     precision: np.ndarray
     penalty: float
     base: np.ndarray
+    #: Cholesky factor of the window's penalized, centered ``R + lam P`` (None: no penalty, or singular).
+    factor: tuple | None = None
 
     @classmethod
     def of(cls, arx: ArxFit, gram: np.ndarray, sums: np.ndarray, n_rows: int) -> "_ArxWindow | None":
@@ -147,8 +151,24 @@ class _ArxWindow:
         scales = channel_mean_square(center_normal_equations(whole), p, m, q)
         precision = prior_precision(q, p, m, scales, kind, arx.decay or 0.95)
         penalty = float(arx.penalty) if arx.regularization != "none" else 0.0
-        base = _arx_theta(whole, precision, penalty)
-        return cls(arx, whole, precision, penalty, base) if np.all(np.isfinite(base)) else None
+        factor = None
+        if penalty > 0:  # the factor also serves the penalty's bias (stepped)
+            centered = center_normal_equations(whole)
+            try:
+                factor = linalg.cho_factor(centered.R + penalty * precision, check_finite=False)
+                base = linalg.cho_solve(factor, centered.r, check_finite=False)
+            except linalg.LinAlgError:
+                factor = None
+        if factor is None:
+            base = _arx_theta(whole, precision, penalty)
+        return cls(arx, whole, precision, penalty, base, factor) if np.all(np.isfinite(base)) else None
+
+    def stepped(self) -> ArxFit | None:
+        """The window's fit one more Tikhonov step on (:func:`_penalty_bias`; None without a factor)."""
+        if self.factor is None:
+            return None
+        step = linalg.cho_solve(self.factor, self.penalty * (self.precision @ self.base), check_finite=False)
+        return replace(self.arx, theta=self.arx.theta + step) if np.all(np.isfinite(step)) else None
 
     def without(self, part_gram: np.ndarray, part_sums: np.ndarray, part_rows: int) -> ArxFit:
         """The replicate without one segment (its lagged Gram, sums and row count)."""
@@ -212,7 +232,8 @@ def realization_jackknife(
     -------
     frequency_hz_std, damping_ratio_std : (M,) each (NaN when not computed): the replicates'
         scatter and, in quadrature, each target's distance from the window's own pole (the
-        state regression the replicates repeat), which the steps after it moved.
+        state regression the replicates repeat), which the steps after it moved, and the
+        penalty's bias (:func:`_penalty_bias`).
     reason : empty, or why the standard deviations could not be computed.
     """
     targets = np.asarray(targets, dtype=complex)
@@ -239,6 +260,8 @@ def realization_jackknife(
     move = _move_from(center, targets, sample_time_s)
     if move is None:
         return nan, nan, "not computed: the window's own realization has no complex pole near the modes"
+    bias = _penalty_bias(window, whole, center, targets, sample_time_s, hankel_rows=hankel_rows,
+                         hankel_cols=hankel_cols, start=start, n_states=n_states)
     freqs = np.empty((bounds.size - 1, nan.size))
     damps = np.empty((bounds.size - 1, nan.size))
     for j in range(bounds.size - 1):
@@ -257,7 +280,39 @@ def realization_jackknife(
         if not (np.isfinite(freqs[j]).all() and np.isfinite(damps[j]).all()):
             # No oscillating pole at all: a NaN here would make every mode's std NaN, "computed".
             return nan, nan, f"not computed: jackknife replicate {j} has no complex pole near the modes"
-    return np.hypot(jackknife_std(freqs), move[0]), np.hypot(jackknife_std(damps), move[1]), ""
+    f_std = np.sqrt(jackknife_std(freqs) ** 2 + move[0] ** 2 + bias[0] ** 2)
+    z_std = np.sqrt(jackknife_std(damps) ** 2 + move[1] ** 2 + bias[1] ** 2)
+    return f_std, z_std, ""
+
+
+def _penalty_bias(window: "_ArxWindow", gram: StateGram, center: np.ndarray, targets: np.ndarray,
+                  sample_time_s: float, *, hankel_rows: int, hankel_cols: int, start: np.ndarray, n_states: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The regularized ARX fit's bias as the modes see it (M,) each: zero without a penalty.
+
+    The ridge (or TC) fit ``theta = (R + lam P)^-1 r`` is biased by ``-lam (R + lam P)^-1 P theta_true``,
+    to first order in the penalty; one more Tikhonov step from it (``theta + (R + lam P)^-1 lam P
+    theta``) removes that term. The modes' move from the window's own state regression
+    (``center``) to the same regression on the stepped fit estimates the bias the replicates
+    cannot see (they share the penalty), and is added in quadrature as the passes' move is.
+    Zero where the realization of the stepped fit fails (the replicates' errors are reported).
+    """
+    zero = (np.zeros(targets.size), np.zeros(targets.size))
+    if window.penalty <= 0:
+        return zero
+    stepped = window.stepped()
+    if stepped is None:
+        return zero
+    try:
+        h0 = block_hankel(stepped.observer_markov, hankel_rows, hankel_cols)
+        left, values = _leading_subspace(h0, gram.past_weight(), start, n_states)
+        moved = _regressed_poles(gram, h0, left, values, n_states)
+    except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError):
+        return zero
+    f_center, z_center = nearest_modes(center, targets, sample_time_s)
+    f_moved, z_moved = nearest_modes(moved, targets, sample_time_s)
+    bias = (f_moved - f_center, z_moved - z_center)
+    return bias if np.isfinite(bias[0]).all() and np.isfinite(bias[1]).all() else zero
 
 
 def _move_from(center: np.ndarray, targets: np.ndarray, sample_time_s: float
