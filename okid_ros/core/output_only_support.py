@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy import linalg
 
@@ -116,7 +118,7 @@ class Jackknife:
 
 
 def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, r0: np.ndarray,
-                       references: np.ndarray) -> float:
+                       references: np.ndarray, *, others: Sequence[complex] = ()) -> float:
     """Share of the output spectrum at a pole's frequency that the pole's mode accounts for.
 
     The covariance model of order ``n_states`` gives the output spectrum ``S(w) = R_0 + Z(w) +
@@ -131,7 +133,9 @@ def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, 
     ----------
     realizer : the record's :class:`OrderRealizer`; n_states : the order to read the pole at;
     target : the pole (discrete, upper half plane); r0 : (p, p) ``R_0``; references : (r,) the
-    reference channels (the Hankel's columns).
+    reference channels (the Hankel's columns); others : poles of other candidate modes (at this
+    order, the nearest eigenvalue taken with its conjugate) whose terms are left out of the
+    spectrum, so the share is of what they leave (a close mode's or a twin's, not the noise's).
     """
     _, C, G = realizer.realize(n_states)
     C, r0 = C[references], r0[np.ix_(references, references)]
@@ -150,4 +154,12 @@ def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, 
         return float(np.real(np.conj(shape) @ (matrix + matrix.conj().T) @ shape))
 
     spectrum = float(np.real(np.conj(shape) @ r0 @ shape)) + along(total)
+    if len(others):
+        rest = set()
+        for ev in others:
+            k = int(np.argmin(np.abs(eigenvalues - ev)))
+            rest.update((k, int(np.argmin(np.abs(eigenvalues - np.conj(eigenvalues[k]))))))
+        rest -= set(pair)
+        if rest:
+            spectrum -= along(terms[sorted(rest)].sum(axis=0))
     return along(own) / spectrum if spectrum > 0 else 0.0
