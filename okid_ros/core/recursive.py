@@ -417,12 +417,29 @@ class SlidingWindowArx:
         self._flush()
         G = np.triu(self._gram)
         G += np.triu(self._gram, 1).T
+        row_sum = self._row_sum.copy()
+        if self.window is not None:
+            # A channel zero on every sample the window's rows hold sums to zero exactly; the
+            # downdates leave rounding residue instead (+-1e-16 of its former level), which looked
+            # like a live channel of tiny spread and kept a dead input from being named.
+            zero = np.flatnonzero(~np.any(self._buf[self._window_first():self._n] != 0, axis=0))
+            if zero.size:
+                columns = (np.arange(self.order + 1)[:, None] * self._w + zero[None, :]).ravel()
+                G[columns, :] = 0.0
+                G[:, columns] = 0.0
+                row_sum[columns] = 0.0
         pi, yi = self._phi_index, self._y_index
         n_rows = self._n_eff if self.window is None else self._n_acc
         return NormalEquations(
             R=G[np.ix_(pi, pi)], r=G[np.ix_(pi, yi)], yy=G[np.ix_(yi, yi)], n_rows=n_rows,
-            phi_sum=self._row_sum[pi].copy(), y_sum=self._row_sum[yi].copy(),
+            phi_sum=row_sum[pi], y_sum=row_sum[yi],
         )
+
+    def _window_first(self) -> int:
+        """Buffer position of the first sample the window's rows reach (``q`` before its oldest row)."""
+        lo = self._lo if self.window is not None else self._hi
+        rows = lo + np.flatnonzero(self._elig[lo:self._n])
+        return max(int(rows[0]) - self.order, 0) if rows.size else max(self._n - self.order, 0)
 
     def window_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples stored for the window, oldest first: ``u`` (n, m), ``y`` (n, p), ``segment_start`` (n,).
@@ -432,10 +449,8 @@ class SlidingWindowArx:
         (after a gap, or where samples no row needs were dropped).
         """
         self._flush()
-        q, p, n = self.order, self.n_outputs, self._n
-        lo = self._lo if self.window is not None else self._hi
-        rows = lo + np.flatnonzero(self._elig[lo:n])
-        first = max(int(rows[0]) - q, 0) if rows.size else max(n - q, 0)
+        p, n = self.n_outputs, self._n
+        first = self._window_first()
         v = self._buf[first:n]
         start = self._start[first:n].copy()
         if start.size:
