@@ -226,11 +226,20 @@ def _load_npz(path: Path) -> Record:
         raise DataError(f"{path}: not a readable .npz file ({type(exc).__name__}: {reason})") from None
 
 
+def _plain(text: str) -> bool:
+    """Whether a number's text has neither Python's digit separator nor non-ASCII digits.
+
+    float() reads both ("1_000" as 1000, "0_01" as 1, "١٢" as 12), which no CSV writer emits: a
+    typo or a locale's grouping, refused.
+    """
+    return "_" not in text and text.isascii()
+
+
 def _csv_sample_time(path: Path, comment: str) -> float:
     """The value of a ``# sample_time_s=...`` comment line."""
     value = comment.lstrip("#").partition("=")[2]
     try:
-        if "_" in value or not value.isascii():  # float() reads "0_01" as 1 (see _csv_rows)
+        if not _plain(value):
             raise ValueError(value)
         return float(value)
     except ValueError:
@@ -273,9 +282,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             values[:, column] = [float(text) for text in texts]
         except ValueError as exc:
             raise DataError(f"{path}: non-numeric value in column {header[column]!r} ({exc})") from None
-        # float() also reads Python's digit separators and non-ASCII digits ("1_000" as 1000,
-        # "١٢" as 12), which no CSV writer emits: a typo or a locale's grouping, refused.
-        loose = next((number for number, text in enumerate(texts, start=1) if "_" in text or not text.isascii()), None)
+        loose = next((number for number, text in enumerate(texts, start=1) if not _plain(text)), None)
         if loose is not None:
             raise DataError(f"{path}: data row {loose}, column {header[column]!r}: {texts[loose - 1].strip()!r} "
                             f"is not a plain decimal number")

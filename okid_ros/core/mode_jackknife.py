@@ -104,16 +104,20 @@ def _less(normal: NormalEquations, gram: np.ndarray, sums: np.ndarray, n_rows: i
                            normal.n_rows - n_rows, normal.phi_sum - sums[p:], normal.y_sum - sums[:p])
 
 
-def _arx_theta(normal: NormalEquations, precision: np.ndarray, penalty: float) -> np.ndarray:
-    """The ARX coefficients with an intercept at a fixed penalty (Cholesky; eigh when singular)."""
+def _arx_theta(normal: NormalEquations, precision: np.ndarray, penalty: float) -> tuple[np.ndarray, tuple | None]:
+    """The ARX coefficients with an intercept at a fixed penalty, and the factor that solved them.
+
+    The factor is the Cholesky factor of the penalized, centered ``R + lam P`` (None: no penalty,
+    or singular and solved by eigh).
+    """
     centered = center_normal_equations(normal)
     if penalty > 0:
         try:
             factor = linalg.cho_factor(centered.R + penalty * precision, check_finite=False)
-            return linalg.cho_solve(factor, centered.r, check_finite=False)
+            return linalg.cho_solve(factor, centered.r, check_finite=False), factor
         except linalg.LinAlgError:
             pass
-    return solve_normal_equations(centered, precision, penalty)[0]
+    return solve_normal_equations(centered, precision, penalty)[0], None
 
 
 def _arx_replicates(arx: ArxFit, gram: np.ndarray, sums: np.ndarray, n_rows: int,
@@ -151,16 +155,7 @@ class _ArxWindow:
         scales = channel_mean_square(center_normal_equations(whole), p, m, q)
         precision = prior_precision(q, p, m, scales, kind, arx.decay or 0.95)
         penalty = float(arx.penalty) if arx.regularization != "none" else 0.0
-        factor = None
-        if penalty > 0:  # the factor also serves the penalty's bias (stepped)
-            centered = center_normal_equations(whole)
-            try:
-                factor = linalg.cho_factor(centered.R + penalty * precision, check_finite=False)
-                base = linalg.cho_solve(factor, centered.r, check_finite=False)
-            except linalg.LinAlgError:
-                factor = None
-        if factor is None:
-            base = _arx_theta(whole, precision, penalty)
+        base, factor = _arx_theta(whole, precision, penalty)  # the factor also serves stepped()
         return cls(arx, whole, precision, penalty, base, factor) if np.all(np.isfinite(base)) else None
 
     def stepped(self) -> ArxFit | None:
@@ -176,7 +171,7 @@ class _ArxWindow:
         size = self.whole.R.shape[0] + arx.n_outputs
         kept = self.whole.n_rows - part_rows
         less = _less(self.whole, part_gram[:size, :size], part_sums[:size], part_rows, arx.n_outputs)
-        theta = _arx_theta(less, self.precision, self.penalty * kept / self.whole.n_rows)
+        theta = _arx_theta(less, self.precision, self.penalty * kept / self.whole.n_rows)[0]
         return replace(arx, theta=arx.theta + (theta - self.base))
 
 
@@ -257,10 +252,11 @@ def realization_jackknife(
     except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
         return nan, nan, f"not computed: the window's own realization failed ({exc})"
     del full  # its Hankel matrices are not needed in the replicates' loop
-    move = _move_from(center, targets, sample_time_s)
-    if move is None:
+    own = nearest_modes(center, targets, sample_time_s)
+    if not (np.isfinite(own[0]).all() and np.isfinite(own[1]).all()):
         return nan, nan, "not computed: the window's own realization has no complex pole near the modes"
-    bias = _penalty_bias(window, whole, center, targets, sample_time_s, hankel_rows=hankel_rows,
+    move = _move_from(own, targets, sample_time_s)
+    bias = _penalty_bias(window, whole, own, targets, sample_time_s, hankel_rows=hankel_rows,
                          hankel_cols=hankel_cols, start=start, n_states=n_states)
     freqs = np.empty((bounds.size - 1, nan.size))
     damps = np.empty((bounds.size - 1, nan.size))
@@ -271,9 +267,7 @@ def realization_jackknife(
         replicate = whole.without(part_gram[:state_size, :state_size], part_rows)
         del part_gram, part_sums
         try:
-            h0 = block_hankel(fit.observer_markov, hankel_rows, hankel_cols)
-            left, values = _leading_subspace(h0, replicate.past_weight(), start, n_states)
-            eigenvalues = _regressed_poles(replicate, h0, left, values, n_states)
+            eigenvalues = _realized_poles(fit, replicate, start, hankel_rows, hankel_cols, n_states)
         except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError) as exc:
             return nan, nan, f"not computed: jackknife replicate {j} failed ({exc})"
         freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
@@ -285,50 +279,55 @@ def realization_jackknife(
     return f_std, z_std, ""
 
 
-def _penalty_bias(window: "_ArxWindow", gram: StateGram, center: np.ndarray, targets: np.ndarray,
-                  sample_time_s: float, *, hankel_rows: int, hankel_cols: int, start: np.ndarray, n_states: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _penalty_bias(window: "_ArxWindow", gram: StateGram, own: tuple[np.ndarray, np.ndarray],
+                  targets: np.ndarray, sample_time_s: float, *, hankel_rows: int, hankel_cols: int,
+                  start: np.ndarray, n_states: int) -> tuple[np.ndarray, np.ndarray]:
     """The regularized ARX fit's bias as the modes see it (M,) each: zero without a penalty.
 
-    The ridge (or TC) fit ``theta = (R + lam P)^-1 r`` is biased by ``-lam (R + lam P)^-1 P theta_true``,
-    to first order in the penalty; one more Tikhonov step from it (``theta + (R + lam P)^-1 lam P
-    theta``) removes that term. The modes' move from the window's own state regression
-    (``center``) to the same regression on the stepped fit estimates the bias the replicates
-    cannot see (they share the penalty), and is added in quadrature as the passes' move is.
-    Zero where the realization of the stepped fit fails (the replicates' errors are reported).
+    The ridge (or TC) fit ``theta = (R + lam P)^-1 r`` is biased by
+    ``-lam (R + lam P)^-1 P theta_true``, to first order in the penalty; one more Tikhonov step
+    from it (``theta + (R + lam P)^-1 lam P theta``) removes that term. The modes' move from the
+    window's own state regression (``own``: the frequencies and dampings of its poles nearest the
+    targets) to the same regression on the stepped fit estimates the bias the replicates cannot
+    see (they share the penalty), and is added in quadrature as the passes' move is. Zero where
+    the realization of the stepped fit fails (the replicates' errors are reported).
     """
     zero = (np.zeros(targets.size), np.zeros(targets.size))
-    if window.penalty <= 0:
-        return zero
     stepped = window.stepped()
     if stepped is None:
         return zero
     try:
-        h0 = block_hankel(stepped.observer_markov, hankel_rows, hankel_cols)
-        left, values = _leading_subspace(h0, gram.past_weight(), start, n_states)
-        moved = _regressed_poles(gram, h0, left, values, n_states)
+        moved = _realized_poles(stepped, gram, start, hankel_rows, hankel_cols, n_states)
     except (ValueError, linalg.LinAlgError, np.linalg.LinAlgError):
         return zero
-    f_center, z_center = nearest_modes(center, targets, sample_time_s)
     f_moved, z_moved = nearest_modes(moved, targets, sample_time_s)
-    bias = (f_moved - f_center, z_moved - z_center)
+    bias = (f_moved - own[0], z_moved - own[1])
     return bias if np.isfinite(bias[0]).all() and np.isfinite(bias[1]).all() else zero
 
 
-def _move_from(center: np.ndarray, targets: np.ndarray, sample_time_s: float
-               ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each target's frequency and damping less those of its nearest pole of ``center`` (M,) each.
+def _move_from(own: tuple[np.ndarray, np.ndarray], targets: np.ndarray, sample_time_s: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Each target's frequency and damping less ``own``'s (those of its nearest pole of the window's regression).
 
-    The chain's model is the estimator the replicates repeat (``center``: the window's own state
-    regression) moved on by steps they do not repeat (the re-estimation passes, a refit, a
-    refinement): that move is the one draw of their scatter there is, added in quadrature
-    (docs/benchmarks-uncertainty.md, "What the passes add"). None: ``center`` has no complex pole.
+    The chain's model is the estimator the replicates repeat (the window's own state regression)
+    moved on by steps they do not repeat (the re-estimation passes, a refit, a refinement): that
+    move is the one draw of their scatter there is, added in quadrature
+    (docs/benchmarks-uncertainty.md, "What the passes add").
     """
-    f_center, z_center = nearest_modes(center, targets, sample_time_s)
-    if not (np.isfinite(f_center).all() and np.isfinite(z_center).all()):
-        return None
     s_target = np.log(targets) / sample_time_s
-    return np.abs(s_target) / (2 * np.pi) - f_center, -s_target.real / np.abs(s_target) - z_center
+    return np.abs(s_target) / (2 * np.pi) - own[0], -s_target.real / np.abs(s_target) - own[1]
+
+
+def _realized_poles(fit: ArxFit, gram: StateGram, start: np.ndarray, hankel_rows: int, hankel_cols: int,
+                    n_states: int) -> np.ndarray:
+    """Poles (n,) of ``fit`` realized as the replicates are.
+
+    Its Hankel matrix, the leading subspace from ``start`` with the past weighting of ``gram``,
+    the state regression of order n.
+    """
+    h0 = block_hankel(fit.observer_markov, hankel_rows, hankel_cols)
+    left, values = _leading_subspace(h0, gram.past_weight(), start, n_states)
+    return _regressed_poles(gram, h0, left, values, n_states)
 
 
 def _regressed_poles(gram: StateGram, h0: np.ndarray, left: np.ndarray, values: np.ndarray, n_states: int

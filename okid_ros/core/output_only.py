@@ -241,9 +241,8 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     jackknife = None
     if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
         jackknife = Jackknife(correlations, references, block_rows, top)
-        share = partial(spectral_dominance, realizer, r0=r_mean[0], references=references)
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
-                                  dominance=lambda n, pole, others=(): share(n, pole, others=others))
+                                  dominance=partial(spectral_dominance, realizer, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
@@ -379,7 +378,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
     cluster lives, not at an order chosen for all of them). ``dominance(n, pole)`` is the
     mode's share of the output spectrum (:func:`.output_only_support.spectral_dominance`), or
-    with ``others`` of what the other candidates' poles leave of it (the second reading). Of
+    with ``others=`` of what the other candidates' poles leave of it (the second reading). Of
     the families split from one cluster (``group``: nearly one frequency and one shape, a mode
     and the noise pole beside it) the one that passes with the largest share is kept; ``once``:
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
@@ -400,7 +399,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             # Its share may be held by candidates beside it (a close mode, its own twin family), not by
             # a flat noise floor: of what their poles leave, a mode stands out again, a noise pole not.
             others = [poles.eigenvalue[m.members[n_home]] for m in modes if m is not mode and n_home in m.members]
-            stands_out = dominance(n_home, target, others) >= MIN_SPECTRAL_DOMINANCE
+            stands_out = dominance(n_home, target, others=others) >= MIN_SPECTRAL_DOMINANCE
         if (stands_out or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
             best[mode.group] = (share, mode)
     if not once:

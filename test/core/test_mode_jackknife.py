@@ -244,8 +244,8 @@ def test_the_penalty_bias_is_estimated_from_one_more_tikhonov_step():
     own = np.array([center[np.argmin(np.abs(center - np.exp((-t.damping_ratio + 1j * np.sqrt(1 - t.damping_ratio**2))
                                                               * t.frequency_rad_s * dt)))]
                     for t in modes_of(case.system.A, dt)])
-    f_bias, z_bias = jk._penalty_bias(window, whole, center, own, dt, hankel_rows=hankel, hankel_cols=hankel,
-                                      start=start, n_states=n_states)
+    f_bias, z_bias = jk._penalty_bias(window, whole, jk.nearest_modes(center, own, dt), own, dt, hankel_rows=hankel,
+                                      hankel_cols=hankel, start=start, n_states=n_states)
     window, whole, start, unregularized = _window_and_poles(u, y, fit_arx(u, y, q, regularization="none", center=True),
                                                             hankel, n_states)
     f_move, z_move = (value - base for value, base in zip(jk.nearest_modes(unregularized, own, dt),
@@ -255,6 +255,6 @@ def test_the_penalty_bias_is_estimated_from_one_more_tikhonov_step():
         ratio = np.abs(bias) / np.abs(move)
         assert np.all((ratio > 1 / 3) & (ratio < 3)), (bias, move)
 
-    zero = jk._penalty_bias(window, whole, unregularized, own, dt, hankel_rows=hankel, hankel_cols=hankel,
-                            start=start, n_states=n_states)
+    zero = jk._penalty_bias(window, whole, jk.nearest_modes(unregularized, own, dt), own, dt, hankel_rows=hankel,
+                            hankel_cols=hankel, start=start, n_states=n_states)
     assert not np.any(zero[0]) and not np.any(zero[1])
