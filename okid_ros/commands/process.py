@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
         print("no model was identified" + (f": {reason}" if reason else ""))
     note = summary.rejection_note()
-    if note and (not summary.samples or not summary.updates):  # the likely cause: say it
+    if note and not summary.updates:  # the likely cause: say it
         print(f"okid-ros process: warning: {note}", file=sys.stderr)
     return 0
 

@@ -104,7 +104,7 @@ def process_bag(
     Raises
     ------
     BagReadError
-        missing/corrupt input, a source topic missing or of another type.
+        missing/corrupt input, a source topic missing or of another type, no sample accepted.
     OutputExistsError
         an output exists and ``force`` is false.
     OutputError
@@ -137,7 +137,7 @@ def process_bag(
                     bar.close()
                     if jsonl is not None:
                         jsonl.close()
-                summary = nodes.summary
+                summary = _with_samples(nodes.summary, bag_path)
                 summary.input_note = bag.read_note
                 summary.elapsed_s = time.perf_counter() - started
                 _write_metadata(writer, nodes, {
@@ -150,6 +150,17 @@ def process_bag(
     except BaseException:
         _remove(created)  # no half-written outputs after an error
         raise
+    return summary
+
+
+def _with_samples(summary: ProcessSummary, bag_path: Path) -> ProcessSummary:
+    """``summary``; BagReadError when no input message made a sample, as `identify` refuses such a bag.
+
+    An empty output bag with exit status 0 would read as a run that found nothing to identify.
+    """
+    if not summary.samples:
+        note = summary.rejection_note()
+        raise BagReadError(f"{bag_path}: no input message made a complete sample" + (f"; {note}" if note else ""))
     return summary
 
 
