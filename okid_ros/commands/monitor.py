@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import int_between
+from okid_ros.commands._args import int_between, namespace
 
 
 def _window_samples(text: str) -> int:
@@ -26,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     parser.add_argument("--topic", default=None,
                         help="ModalStates topic (default: modal_states in the rig namespace, /okid/modal_states)")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace (nodes started with --namespace NS): shows NS/modal_states")
     parser.add_argument("--once", action="store_true",
                         help="print one table after the first message and exit (waits up to --duration, "
@@ -45,16 +45,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    from okid_ros.errors import OkidError
-    from okid_ros.service.topics import MODAL_STATES, resolve_topic, validate_namespace
+    from okid_ros.service.topics import MODAL_STATES, resolve_topic
     from okid_ros.tools.monitor import run_monitor
 
-    try:
-        namespace = None if args.namespace is None else validate_namespace(args.namespace)
-    except ValueError as exc:
-        raise OkidError(f"--namespace: {exc}") from None
     # `--topic ''` is refused by the subscription, not taken for the default in silence
-    topic = resolve_topic(MODAL_STATES, namespace) if args.topic is None else args.topic
+    topic = resolve_topic(MODAL_STATES, args.namespace) if args.topic is None else args.topic
     try:
         run_monitor(topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
                     window_samples=args.window, trend_window_s=args.trend_window,

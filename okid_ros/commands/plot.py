@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import int_between
+from okid_ros.commands._args import int_between, namespace
 
 #: Bound of --terms, equal to okid_ros.tools.plots.MAX_TERMS (not imported: every parser is built at start-up).
 MAX_TERMS = 10_000
@@ -41,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "pixels wide and the terms decay, more would not show (default: %(default)s)")
     parser.add_argument("--frf-pairs", default=None, metavar="O:I,...",
                         help="output:input pairs drawn in frf.png, 1-based, e.g. 1:1,2:1 (default: all, at most 16)")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig namespace of the bag's topics (a bag of `okid-ros record --namespace NS` or "
                         "`okid-ros process --namespace NS`; default: /okid/...)")
     parser.add_argument("--force", action="store_true", help="replace existing PNG files")
@@ -63,14 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
     bag_path = Path(args.bag)
     out_dir = Path(args.out_dir) if args.out_dir else bag_path.with_name(bag_path.name + "_figures")
-    from okid_ros.errors import OkidError
-    from okid_ros.service.topics import validate_namespace
 
-    try:
-        namespace = None if args.namespace is None else validate_namespace(args.namespace)
-    except ValueError as exc:
-        raise OkidError(f"--namespace: {exc}") from None
-    data = read_plot_data(bag_path, window_s=args.window, namespace=namespace)
+    data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
     info = data.process_info or {}
     input_bag = args.input
     if input_bag is None and info.get("source") and Path(info["source"]).exists():
@@ -78,13 +72,13 @@ def run(args: argparse.Namespace) -> int:
     note = ""
     if input_bag is not None:
         if args.params or "parameters" not in info:
-            est_values = load_node_parameters(args.params, namespace=namespace)[1]
+            est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
         else:
             est_values = info["parameters"]["okid_modal_estimator"]
         if data.truth is None:
             with open_bag(input_bag) as bag:
                 data.truth = bag.custom_json(TRUTH_KEY)
-        matched = add_measured_outputs(data, input_bag, est_values, namespace=namespace)
+        matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
         note = f"; measured outputs from {input_bag} ({matched} samples)"
     else:
         note = "; no input bag: measured output drawn as y_estimated + innovation"

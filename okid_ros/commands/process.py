@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from okid_ros.commands._args import add_progress_arguments, namespace
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `process`."""
@@ -34,7 +36,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--source", action="append", default=[], metavar="SPEC",
                         help="replace inputs.sources, one 'KIND TOPIC [FIELD=CHANNEL ...]' per option, e.g. "
                         "--source 'imu /accel/tip1/imu linear_acceleration.x=y0'")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace, as `okid-ros up --namespace NS`: relative topic names are read "
                         "and written under NS (NS/io_sample -> NS/modal_states) and the parameter file's sections "
                         "apply as to nodes in NS (default: the root namespace, topics under /okid)")
@@ -43,30 +45,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="storage plugin of the output bag (default: %(default)s)")
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
-    progress = parser.add_mutually_exclusive_group()
-    progress.add_argument("--progress", dest="progress", action="store_true", default=None,
-                          help="always show the progress bar (default: only when stderr is a terminal)")
-    progress.add_argument("--no-progress", dest="progress", action="store_false", help="never show it")
+    add_progress_arguments(parser)
     parser.set_defaults(func=run)
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
-    from okid_ros.errors import OkidError
-    from okid_ros.service.topics import validate_namespace
     from okid_ros.tools.process import load_node_parameters, process_bag
 
-    try:
-        namespace = None if args.namespace is None else validate_namespace(args.namespace)
-    except ValueError as exc:
-        raise OkidError(f"--namespace: {exc}") from None
-    arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
+    arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=args.namespace,
                                                   strict=args.strict_params)
     summary = process_bag(args.bag, args.out, arx_values, est_values, jsonl_path=args.jsonl, force=args.force,
                           storage=args.storage, progress=args.progress,
                           provenance={"params_files": args.params, "param_overrides": args.param,
-                                      "namespace": namespace or "/"},
-                          namespace=namespace)
+                                      "namespace": args.namespace or "/"},
+                          namespace=args.namespace)
     duration = summary.data_duration_s
     speed = duration / summary.elapsed_s if summary.elapsed_s > 0 else float("inf")
     print(f"processed {args.bag}: {summary.input_messages} messages, {summary.samples} samples "

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.commands._args import namespace
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `record`."""
@@ -23,7 +25,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "existing output without --force.",
     )
     parser.add_argument("out", help="output bag directory to create")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace (nodes started with --namespace NS; default: topics under /okid)")
     parser.add_argument("--inputs", action="store_true", help="also record the rig's io_sample input topic")
     parser.add_argument("--no-diagnostics", action="store_true", help="leave /diagnostics out")
@@ -55,17 +57,12 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     from okid_ros.errors import OkidError
-    from okid_ros.service.topics import validate_namespace
     from okid_ros.tools.bagio import BagWriter
     from okid_ros.tools.recorder import LiveRecorder
 
     if args.duration is not None and not args.duration > 0:
         raise OkidError(f"--duration must be a positive number of seconds, got {args.duration}")
-    try:
-        namespace = None if args.namespace is None else validate_namespace(args.namespace)
-    except ValueError as exc:
-        raise OkidError(f"--namespace: {exc}") from None
-    topics = record_topics(namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)
+    topics = record_topics(args.namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)
     context = rclpy.Context()
     rclpy.init(context=context, args=[])
     recorder = None

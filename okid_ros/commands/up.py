@@ -22,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+from okid_ros.commands._args import namespace
 from okid_ros.errors import OkidError
 
 NODE_MODULES = {
@@ -43,7 +44,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--params", action="append", required=True, metavar="FILE",
                         help="ROS 2 parameter YAML keyed by node name; repeat to layer files "
                         "(later files win), e.g. config/okid.yaml")
-    parser.add_argument("--namespace", default=None, metavar="NS",
+    parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="run both nodes in namespace NS (-r __ns:=NS): every topic and service of the rig "
                         "moves there, e.g. /rig1/io_sample, /rig1/modal_states, /rig1/okid_arx_identifier/reset "
                         "(default: the root namespace, topics under /okid)")
@@ -128,14 +129,6 @@ def run(args: argparse.Namespace) -> int:
         raise OkidError(f"--grace must be > 0 seconds, got {args.grace}")
     if args.no_autostart and not args.lifecycle:
         raise OkidError("--no-autostart needs --lifecycle")
-    namespace = None
-    if args.namespace is not None:
-        from okid_ros.service.topics import validate_namespace
-
-        try:
-            namespace = validate_namespace(args.namespace)
-        except ValueError as exc:
-            raise OkidError(f"--namespace: {exc}") from None
 
     def on_signal(signum, frame):
         raise _Stop(signal.Signals(signum).name)
@@ -148,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
             # Own session: a terminal's Ctrl-C reaches only `up`, which stops the nodes in order.
             processes[name] = subprocess.Popen(
                 node_command(module, params, args.use_sim_time, args.log_level,
-                             namespace=namespace, strict_params=args.strict_params,
+                             namespace=args.namespace, strict_params=args.strict_params,
                              lifecycle=args.lifecycle, autostart=not args.no_autostart),
                 start_new_session=True, preexec_fn=_die_with_parent,
             )

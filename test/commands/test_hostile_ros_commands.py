@@ -66,6 +66,15 @@ def test_out_of_range_options_are_usage_errors(capsys, argv, option):
     assert option in usage_error(capsys, argv)
 
 
+@pytest.mark.parametrize("command", [["process", "bag", "--out", "o"], ["plot", "bag"], ["record", "o"], ["monitor"],
+                                     ["up"], ["batch", "bags", "--out", "o"]])
+def test_every_namespace_option_refuses_an_invalid_name_before_anything_runs(capsys, tmp_path, monkeypatch, command):
+    monkeypatch.chdir(tmp_path)
+    line = usage_error(capsys, [*command, "--namespace", "rig 1!"])
+    assert "--namespace" in line and "'rig 1!' is not valid" in line
+    assert not any(tmp_path.iterdir())  # nothing was started or written
+
+
 @pytest.mark.parametrize("options", [
     {"delay_s": math.nan}, {"delay_s": math.inf}, {"rate": 1e-300}, {"queue_depth": 10**20},
     {"clock_hz": 0.0}, {"clock_hz": math.inf},
