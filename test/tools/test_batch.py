@@ -173,6 +173,15 @@ def test_exit_statuses_and_usage_errors(campaign, tmp_path, capsys):
     assert exc.value.code == 2
 
 
+def test_a_bag_of_which_no_message_makes_a_sample_is_a_failed_row(campaign, tmp_path):
+    # Every message of the wrong size for n_outputs 5: before, an `ok` row with no model and exit 0.
+    bag = campaign["bags"] / "run_000"
+    assert batch(bag, "--params", campaign["params"], "--param", "n_outputs=5", "--out", tmp_path / "c") == 1
+    row = read_summary(tmp_path / "c")["run_000"]
+    assert row["status"] == "failed", row
+    assert "no input message made a complete sample" in row["reason"] and "wrong_size" in row["reason"], row
+
+
 def test_plan_reads_metadata_only(campaign, capsys):
     assert batch(campaign["bags"], "--params", campaign["params"], "--plan") == 0
     out = capsys.readouterr().out
