@@ -301,8 +301,11 @@ def identify_from_arx(
     model = best.model
     gain_method = options.gain
     if options.gain == "whitening":
-        white = gain_by_whitening(model.A, model.B, model.C, model.D, u, y,
-                                  ar_order=options.ar_order or arx.order, x0=best.x0)
+        try:
+            white = gain_by_whitening(model.A, model.B, model.C, model.D, u, y,
+                                      ar_order=options.ar_order or arx.order, x0=best.x0)
+        except (ValueError, np.linalg.LinAlgError, linalg.LinAlgError) as exc:
+            raise IdentificationError(f"the whitening gain failed: {exc}") from None
         model = InnovationModel(model.A, model.B, model.C, model.D, white.K, white.innovation_covariance)
     if search.max_states_reached:
         warnings.append(

@@ -157,6 +157,19 @@ def test_a_value_beyond_float64_is_a_missing_sample_to_identify_and_track(tmp_pa
     assert not out.exists()
 
 
+def test_a_whitening_filter_longer_than_the_record_is_one_line(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "short.npz"
+    path.write_bytes(_npz_bytes(tmp_path))
+    out = tmp_path / "m.json"
+    code = cli.main(["identify", str(path), "--order", "4", "--gain", "whitening", "--ar-order", "100000",
+                     "--json", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"{path}: the whitening gain failed: {N} samples are too few for an AR(100000) whitening filter" in err
+    assert not out.exists()
+
+
 def test_binary_csv_and_yaml_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     noise = np.random.default_rng(3).bytes(400) + b"\xff\xfe"
     csv_path = tmp_path / "noise.csv"
