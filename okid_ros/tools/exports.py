@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import csv
 import math
+import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from okid_ros.errors import write_atomically
 from okid_ros.service.records import mode_record, mode_shape
 
 __all__ = ["MODAL_CSV_COLUMNS", "write_modal_csv", "write_uff"]
@@ -73,9 +75,6 @@ def write_uff(path: str | Path, modes: Sequence[Any], *, frequency_hz: np.ndarra
     """
     import pyuff
 
-    path = Path(path)
-    if path.exists():
-        path.unlink()  # pyuff appends to an existing file
     sets = []
     for k, mode in enumerate(modes, start=1):
         shape = np.asarray(mode.shape, complex)
@@ -106,5 +105,10 @@ def write_uff(path: str | Path, modes: Sequence[Any], *, frequency_hz: np.ndarra
                         abscissa_spec_data_type=18, ordinate_spec_data_type=0, orddenom_spec_data_type=0,
                         z_axis_spec_data_type=0, abscissa_axis_units_lab="Hz",
                     ))
-    pyuff.UFF(str(path)).write_sets(sets, mode="add")
+    # pyuff writes (appends) to a file name: a fresh file in a temporary folder, then its bytes
+    # through write_atomically, so a device is written into and a failure leaves the old file.
+    with tempfile.TemporaryDirectory() as folder:
+        staged = Path(folder) / "modes.uff"
+        pyuff.UFF(str(staged)).write_sets(sets, mode="add")
+        write_atomically(path, lambda stream: stream.write(staged.read_bytes()))
     return len(sets)

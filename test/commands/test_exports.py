@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import stat
+import threading
 
 import numpy as np
 import pytest
@@ -79,3 +82,19 @@ def test_exports_are_not_replaced_without_force(identified, capsys):
     assert "model.uff: exists already" in capsys.readouterr().err
     assert (root / "model.uff").read_bytes() == before and not (root / "m.json").exists()
     assert main([*argv, "--force"]) == 0
+
+
+def test_a_uff_to_a_fifo_is_written_into_not_replaced(identified, tmp_path):
+    # Before, write_uff unlinked whatever stood at the path and pyuff made a regular file there
+    # (as root with --uff /dev/null: the device replaced).
+    root, _, _ = identified
+    fifo = tmp_path / "uff.fifo"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    assert main(["identify", str(root / "paper.npz"), "--order", "20", "--states", "6", "--json",
+                 str(tmp_path / "m.json"), "--uff", str(fifo)]) == 0
+    reader.join(timeout=30)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert received and received[0] == (root / "model.uff").read_bytes()
