@@ -30,14 +30,12 @@ from scipy import linalg
 from okid_ros.core.arx import ArxFit, NormalEquations
 from okid_ros.core.channels import channel_std
 from okid_ros.core.identified_model import IdentifiedModel
+from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_columns
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
            "window_excitation_warnings", "window_output_problem"]
 
-#: A standard deviation at most this fraction of the channel's peak is no excitation (below the
-#: resolution of a 24-bit converter around that level).
-NEGLIGIBLE_RELATIVE_SPREAD = 1e-7
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
 #: fraction of the spread of the largest (10 copies of a channel with 1 % independent noise each:
@@ -155,9 +153,7 @@ def _window_columns(normal: NormalEquations, cols: slice
     width = square.size
     mean = normal.phi_sum[cols] / n if normal.phi_sum is not None else np.zeros(width)
     variance = np.maximum(square - mean**2, 0.0)
-    # Rounding leaves about eps * mean^2 of variance in a constant channel: that is no variation.
-    dead = (square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * square)
-    return square, mean, variance, dead
+    return square, mean, variance, constant_columns(square, variance)
 
 
 def _dead_output(channel: int, value: float) -> str:

@@ -19,8 +19,10 @@ from okid_ros.core.regressors import regressor_length
 from okid_ros.core.symmetric_eigen import SymmetricEigen
 
 __all__ = [
+    "NEGLIGIBLE_RELATIVE_SPREAD",
     "NormalEquations",
     "center_normal_equations",
+    "constant_columns",
     "channel_mean_square",
     "normal_equations",
     "prior_precision",
@@ -234,13 +236,29 @@ def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, 
     return np.maximum(diag.mean(axis=0) / max(normal.n_rows, 1), np.finfo(float).tiny)
 
 
+#: A standard deviation at most this fraction of a channel's level is no variation (below the
+#: resolution of a 24-bit converter around that level): the channel is a constant.
+NEGLIGIBLE_RELATIVE_SPREAD = 1e-7
+
+
+def constant_columns(mean_square: np.ndarray, variance: np.ndarray) -> np.ndarray:
+    """Mask of the columns that do not vary, from their mean squares and variances (each (d,)).
+
+    All zeros, or a spread of at most :data:`NEGLIGIBLE_RELATIVE_SPREAD` of their level (rounding
+    leaves ``eps * mean^2`` of variance in a constant column, a sliding window's downdates about as
+    much).
+    """
+    return (mean_square == 0) | (variance <= (NEGLIGIBLE_RELATIVE_SPREAD**2 + 64 * np.finfo(float).eps) * mean_square)
+
+
 def center_normal_equations(normal: NormalEquations) -> NormalEquations:
     """The normal equations of the column-centered rows: the fit with an intercept.
 
     Least squares with a constant term equals least squares on regressors and targets with
     their column means removed: ``R - s s^T / n``, ``r - s t^T / n``, ``Y^T Y - t t^T / n``
     with the column sums ``s`` of ``Phi`` and ``t`` of ``Y``. Used to identify records and
-    live inputs with offsets (non-zero means).
+    live inputs with offsets (non-zero means). A regressor column that is constant
+    (:func:`constant_columns`) centres to exactly zero.
 
     Raises
     ------
@@ -251,14 +269,13 @@ def center_normal_equations(normal: NormalEquations) -> NormalEquations:
         raise ValueError("these normal equations keep no column sums: cannot remove offsets")
     n = max(normal.n_rows, 1)
     s, t = normal.phi_sum, normal.y_sum
-    return NormalEquations(
-        normal.R - np.outer(s, s) / n,
-        normal.r - np.outer(s, t) / n,
-        normal.yy - np.outer(t, t) / n,
-        normal.n_rows,
-        np.zeros_like(s),
-        np.zeros_like(t),
-    )
+    R, r = normal.R - np.outer(s, s) / n, normal.r - np.outer(s, t) / n
+    # A constant regressor (a stuck input) centres to rounding residue, which the column scaling
+    # would blow up to unit spread (ARX penalties of 1e263): it is exactly zero, as a zero column.
+    constant = constant_columns(np.maximum(np.diag(normal.R), 0.0) / n, np.maximum(np.diag(R), 0.0) / n)
+    if constant.any():
+        R[constant, :], R[:, constant], r[constant, :] = 0.0, 0.0, 0.0
+    return NormalEquations(R, r, normal.yy - np.outer(t, t) / n, normal.n_rows, np.zeros_like(s), np.zeros_like(t))
 
 
 def solve_fixed_penalty(

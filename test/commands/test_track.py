@@ -100,6 +100,24 @@ def test_a_channel_dead_in_some_windows_is_named_in_its_own_units(record, tmp_pa
     assert all("output channel 1 carries no response (constant 5)" in error for error in errors), errors
 
 
+@pytest.mark.parametrize("level", [1e-3, 1.0])
+def test_a_constant_input_is_tracked_as_an_input_of_zeros(record, tmp_path, level):
+    # Before: every window "identified" with an ARX penalty near 1e263 (GCV on the rounding residue
+    # of the constant column once centred, blown up by the column scaling) and no modes, silently.
+    _, u, y = record
+    lines = {}
+    for name, value in (("zeros", 0.0), ("constant", level)):
+        stuck = u.copy()
+        stuck[:, 1] = value
+        save_record(tmp_path / f"{name}.npz", stuck, y, DT)
+        lines[name] = _track(tmp_path / f"{name}.npz", tmp_path / f"{name}.jsonl", "--order", "20", "--window",
+                             "1000", "--no-change-detection")
+    assert all(line["modes"] and line["arx_penalty"] < 1e3 for line in lines["constant"]), lines["constant"][0]
+    assert [line["modes"] for line in lines["constant"]] == [line["modes"] for line in lines["zeros"]]
+    assert all(any(f"no excitation on input 1 (constant {level:g})" in w for w in line["warnings"])
+               for line in lines["constant"])
+
+
 def test_outputs_near_the_float64_limits_are_still_divided_and_tracked(record, tmp_path):
     # Their powers of two average out (1e152 and 1e-140: about 2^22), but the channels do not:
     # undivided, the 1e152 channel is beyond the window's 1e150 limit and every sample missing.
