@@ -114,6 +114,12 @@ def test_parse_pairs():
         parse_pairs("3:1", 2, 2)
     with pytest.raises(ValueError, match="OUTPUT:INPUT"):
         parse_pairs("a", 2, 2)
+    # A list repeated 50 times drew 200 panels (139 s, a 7 MB figure); each pair is drawn once now,
+    # and a figure takes at most 64 listed pairs.
+    assert parse_pairs(",".join(["1:1", "2:2", "1:2", "2:1"] * 50), 2, 2) == [(0, 0), (1, 1), (0, 1), (1, 0)]
+    assert len(parse_pairs(",".join(f"{i}:{j}" for i in range(1, 29) for j in (1, 2)), 28, 2)) == 56
+    with pytest.raises(ValueError, match="66 FRF pairs: at most 64 in one figure"):
+        parse_pairs(",".join(f"{i}:1" for i in range(1, 67)), 66, 1)
 
 
 def _stabilization() -> list[dict]:
