@@ -71,18 +71,27 @@ class BagRecord:
         return text
 
     def rejection_note(self) -> str:
-        """One sentence on the messages the grid refused ("" if none), with the likely cause."""
+        """One sentence on the messages the grid refused ("" if none), with the likely cause.
+
+        Also said when most samples stand alone between empty sample times: a sample time finer
+        than the stamps' spacing refuses nothing but leaves every other slot empty.
+        """
         total = sum(self.rejected.values())
-        if not total:
-            return ""
-        note = _rejected_messages(self.rejected, self.messages)
-        # Several messages per slot, or stamps between slots: the grid's sample time is not the
-        # stamps' spacing.
-        where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
-        for reason, text in where.items():
-            if self.rejected.get(reason, 0) > total // 2:
-                note += f"; most fell {text}: is sample_time_s {self.record.sample_time_s:g} s right?"
-        return note
+        question = f"is sample_time_s {self.record.sample_time_s:g} s right?"
+        notes = []
+        if total:
+            note = _rejected_messages(self.rejected, self.messages)
+            # Several messages per slot, or stamps between slots: the grid's sample time is not the
+            # stamps' spacing.
+            where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
+            for reason, text in where.items():
+                if self.rejected.get(reason, 0) > total // 2:
+                    note += f"; most fell {text}: {question}"
+            notes.append(note)
+        dropped = self.record.u.shape[0] - self.samples_used
+        if self.samples_total >= 4 and (self.runs > self.samples_total // 2 or dropped > self.samples_used):
+            notes.append(f"most of the {self.samples_total} samples stand alone between empty sample times: {question}")
+        return "; ".join(notes)
 
 
 def _rejected_messages(rejected: dict[str, int], messages: int, wrong_size_note: str = "") -> str:

@@ -94,6 +94,14 @@ def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path,
     assert "rejected" not in capsys.readouterr().err
 
 
+def test_export_says_when_a_finer_sample_time_leaves_every_other_slot_empty(bag, tmp_path, capsys):
+    # Half the bag's spacing refuses no message: before, one sample was exported and nothing said.
+    capsys.readouterr()
+    assert main(["export", str(bag), "--npz", str(tmp_path / "r.npz"), "--param", "sample_time_s=0.004"]) == 0
+    err = capsys.readouterr().err
+    assert "most of the 1500 samples stand alone between empty sample times: is sample_time_s 0.004 s right?" in err
+
+
 def test_identify_and_track_fill_the_dropped_messages_of_a_bag(bag, tmp_path, capsys):
     """A best-effort topic loses messages: short gaps are missing samples, filled as on node 2.
 
