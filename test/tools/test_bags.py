@@ -290,6 +290,22 @@ def test_an_existing_output_is_refused_and_left_untouched(small_bag, tmp_path, c
     assert (small_bag / "metadata.yaml").is_file()
 
 
+def test_no_command_writes_into_a_bag(small_bag, tmp_path, capsys):
+    # plot, export and batch did (the bag then no longer counts as a rosbag2 directory).
+    before = sorted(p.name for p in small_bag.iterdir())
+    for argv, kind in ((["plot", small_bag, "--out-dir", small_bag / "figures"], "figure folder"),
+                       (["export", small_bag, "--npz", small_bag / "x.npz"], "record"),
+                       (["batch", small_bag, "--out", small_bag / "campaign", "--workers", "1"], "campaign folder")):
+        code, _, err = run_cli(capsys, *argv)
+        assert_one_line_error(code, err, f"the {kind} cannot be inside", str(small_bag))
+    assert sorted(p.name for p in small_bag.iterdir()) == before
+    # plot's default folder for a storage file of a bag directory is beside the directory, not in
+    # it (refused as above before the bag is read): here it goes on to say the bag has no outputs.
+    storage = next(p for p in small_bag.iterdir() if p.suffix == ".db3")
+    code, _, err = run_cli(capsys, "plot", storage)
+    assert_one_line_error(code, err, "none of /okid/arx_model")
+
+
 @pytest.mark.parametrize("source, fragments", [
     ("io_sample /okid/nothing", ["no topic /okid/nothing", "/okid/io_sample (okid_msgs/msg/IoSample)"]),
     ("io_sample /accel/tip1/imu", ["/accel/tip1/imu has type sensor_msgs/msg/Imu", "expected okid_msgs/msg/IoSample"]),

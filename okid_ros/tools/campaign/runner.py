@@ -24,6 +24,7 @@ from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters
 from okid_ros.tools.campaign.stored import stored_result
 from okid_ros.tools.campaign.table import campaign_order, mode_rows, write_modes, write_summary
 from okid_ros.tools.campaign.worker import BagJob
+from okid_ros.tools.output_paths import check_output_paths
 
 __all__ = ["CampaignOptions", "CampaignReport", "input_topics", "is_campaign_dir", "run_campaign"]
 
@@ -129,6 +130,8 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     bags = find_bags(options.paths, exclude=out_dir)
     if not bags:
         raise OkidError(f"no bags found in {', '.join(map(str, options.paths))}")
+    for bag in bags:  # a campaign inside a bag would fail every bag and spoil it as a bag
+        check_output_paths(bag, "input bag", [(out_dir, "campaign folder")])
     _check_out_dir(out_dir)
     params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
                                   storage=options.storage)
