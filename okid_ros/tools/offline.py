@@ -60,22 +60,27 @@ class ProcessSummary:
         return self.updates[-1]["modes"] if self.updates else []
 
     def rejection_note(self) -> str:
-        """What node 1's sample grid refused, in one sentence ("" when it refused nothing).
+        """What node 1's sample grid and window refused, in one sentence ("" when nothing).
 
         Said when no sample or no model came out, so that a wrong ``n_outputs`` does not pass
         as a record too short.
         """
         counts = self.grid_counters
         rejected, messages = counts.get("rejected_messages", 0), counts.get("messages", 0)
+        # Samples the identification window refused in turn (values it cannot square in float64).
+        values = {"NaN/Inf": self.arx_diagnostics.get("rejected_nonfinite", 0),
+                  "beyond 1e150": self.arx_diagnostics.get("rejected_magnitude", 0)}
+        refused = ", ".join(f"{n} {why}" for why, n in values.items() if n)
+        refused = f"node 1 refused {sum(values.values())} of the samples ({refused})" if refused else ""
         if not rejected and not counts.get("missing"):
-            return ""
+            return refused
         reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
                    for key in REJECTION_REASONS if counts.get(key)]
         if counts.get("missing"):
             reasons.append(f"{counts['missing']} samples dropped incomplete (missing)")
         head = (f"all {messages} input messages were rejected" if rejected and rejected >= messages
                 else f"{rejected} of the {messages} input messages were rejected")
-        return f"{head}: {', '.join(reasons)}"
+        return f"{head}: {', '.join(reasons)}" + (f"; {refused}" if refused else "")
 
 
 class NodeInputs:

@@ -10,6 +10,7 @@ file system.
 from __future__ import annotations
 
 import hashlib
+import re
 import warnings
 from pathlib import Path
 
@@ -123,6 +124,15 @@ def test_messages_of_the_wrong_size_are_named_and_refused_when_no_sample_comes_o
                           "all 250 input messages were rejected: 250 wrong_size",
                           "n_inputs 3, n_outputs 5 expected; the first on /okid/io_sample has u of 2, y of 2 values")
     assert not Path("o").exists() and not Path("m.jsonl").exists()
+
+
+def test_samples_beyond_the_windows_range_are_named_when_no_model_comes_out(tmp_path, capsys):
+    # Before: "no regressor rows in the window yet" and nothing on why.
+    bag = tmp_path / "loud"
+    assert run_cli(capsys, "simulate", "--out", bag, "--duration", "3", "--noise", "1e300")[0] == 0
+    code, out, err = run_cli(capsys, "process", bag, "--out", tmp_path / "o", "--no-progress")
+    assert code == 0 and "no model was identified" in out, err
+    assert re.search(r"okid-ros process: warning: node 1 refused \d+ of the samples \(\d+ beyond 1e150\)", err), err
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
