@@ -148,6 +148,7 @@ def _progress(total: int, disable: bool):
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     import time
 
     import numpy as np
@@ -179,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     handle = JsonLines(out)
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
-    failures = 0
+    failures, first_failure = 0, ""
     last_modes: list = []
     with handle:
         fed = 0
@@ -208,8 +209,9 @@ def run(args: argparse.Namespace) -> int:
                 if args.change_detection and is_new_reference(monitor, rows) and not model.stability_problem():
                     _arm_reference(monitor, model, u_w, y_w, rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-                failures += 1
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                first_failure = first_failure if failures else reason
+                failures += 1
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
@@ -222,6 +224,8 @@ def run(args: argparse.Namespace) -> int:
         f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed) of window {window}, "
         f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
     )
+    if failures and failures == len(points):
+        print(f"okid-ros track: warning: no update gave a model; the first: {first_failure}", file=sys.stderr)
     return 0
 
 
