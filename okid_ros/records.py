@@ -11,7 +11,9 @@
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
     appear (no ``u`` column: a record without inputs); other columns are ignored (text too). The
     sample time comes from a comment line ``# sample_time_s=0.008`` (two that differ are
-    refused) or, failing that, from a ``time_s`` column with uniform steps::
+    refused, and so is one that a ``time_s`` column of uniform steps contradicts) or, failing
+    that, from a ``time_s`` column with uniform steps. Invisible characters in the header's names
+    (zero-width spaces, NULs) are dropped::
 
         # sample_time_s=0.008
         u1,u2,y1,y2
@@ -22,6 +24,7 @@
 from __future__ import annotations
 
 import csv
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -271,7 +274,8 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     if not body:
         raise DataError(f"{path}: no header line")
     rows = list(csv.reader(body))
-    header = [h.strip() for h in rows[0]]
+    # Invisible characters (a zero-width space, a NUL, a second BOM) would hide a 'u1' from its prefix.
+    header = ["".join(c for c in h if unicodedata.category(c) not in ("Cc", "Cf")).strip() for h in rows[0]]
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
             raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}")
@@ -301,18 +305,22 @@ def _load_csv(path: Path) -> Record:
     u_cols, y_cols, _ = _csv_columns(header)
     if not y_cols:
         raise DataError(f"{path}: header needs output columns 'y...' (inputs 'u...' optional), got {header}")
-    if dt is None:
-        if "time_s" not in header:
-            raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
+    if dt is None and "time_s" not in header:
+        raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
+    if "time_s" in header:
         times = values[:, header.index("time_s")]
         steps = np.diff(times)
         # Uniform to 1e-6 of a step, or to the rounding of the stamps themselves (epoch seconds
         # hold about 2e-7 s of float64 rounding each).
         rounding = 4 * np.finfo(float).eps * np.max(np.abs(times)) if times.size else 0.0
-        if steps.size == 0 or not np.all(np.isfinite(steps)) or np.any(steps <= 0) \
-                or np.ptp(steps) > max(1e-6 * np.mean(steps), rounding):
+        uniform = steps.size > 0 and np.all(np.isfinite(steps)) and np.all(steps > 0) \
+            and np.ptp(steps) <= max(1e-6 * np.mean(steps), rounding)
+        if dt is None and not uniform:
             raise DataError(f"{path}: time_s is not uniformly increasing")
-        dt = float((times[-1] - times[0]) / steps.size)
+        step = float((times[-1] - times[0]) / steps.size) if uniform else None
+        if dt is not None and step is not None and abs(step - dt) > max(1e-6 * dt, rounding):
+            raise DataError(f"{path}: the sample_time_s comment says {dt:g} s and the time_s column steps {step:g} s")
+        dt = step if dt is None else dt
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 

@@ -124,6 +124,20 @@ def test_hostile_csv_is_one_line_naming_the_file(tmp_path: Path, case: str,
     assert not out.exists()
 
 
+def test_csv_header_names_with_invisible_characters_and_a_contradicted_sample_time(tmp_path: Path) -> None:
+    # Before: a zero-width space before 'u1' dropped the input silently, and the comment won over
+    # a time_s column stepping twice its value.
+    path = tmp_path / "r.csv"
+    path.write_text("# sample_time_s=0.01\n\u200bu1,y1\x00\n1,2\n3,4\n5,7\n", encoding="utf-8")
+    record = load_record(path)
+    assert record.u.shape == (3, 1) and record.y.shape == (3, 1)
+    path.write_text("# sample_time_s=0.01\ntime_s,u1,y1\n0,1,2\n0.02,3,4\n0.04,5,7\n")
+    with pytest.raises(DataError, match="the sample_time_s comment says 0.01 s and the time_s column steps 0.02 s"):
+        load_record(path)
+    path.write_text("# sample_time_s=0.02\ntime_s,u1,y1\n0,1,2\n0.02,3,4\n0.04,5,7\n")
+    assert load_record(path).sample_time_s == 0.02
+
+
 def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
     # Stamps in epoch seconds step by 0.01 s to within their own float64 rounding (2e-7 s), and
     # a column of labels is one of the "other columns" the format ignores.
