@@ -11,7 +11,7 @@ import time
 from importlib import metadata
 
 from okid_ros import __version__
-from okid_ros.commands._args import int_between
+from okid_ros.commands._args import int_between, positive_finite_float
 from okid_ros.errors import OkidError
 
 # Distributions whose versions `info` reports, as named on PyPI (ROS wheels: ros-jazzy-*).
@@ -41,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="publish and receive okid_msgs/IoSample over DDS")
     parser.add_argument("--count", type=_selftest_count, default=200, metavar="N",
                         help="messages sent by --selftest (default: %(default)s)")
-    parser.add_argument("--timeout", type=float, default=10.0, metavar="S",
+    parser.add_argument("--timeout", type=positive_finite_float, default=10.0, metavar="S",
                         help="seconds --selftest waits for discovery and delivery "
                         "(default: %(default)s)")
     parser.set_defaults(func=run)

@@ -54,6 +54,8 @@ def short_bag(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("argv, option", [
     (["info", "--selftest", "--count", HUGE], "--count"),
     (["info", "--selftest", "--count", "0"], "--count"),
+    (["info", "--selftest", "--timeout", "nan"], "--timeout"),  # was "received 0 of 200 messages within nan s"
+    (["info", "--selftest", "--timeout", "-1"], "--timeout"),
     (["replay", "bag", "--queue-depth", HUGE], "--queue-depth"),
     (["replay", "bag", "--delay", "nan"], "--delay"),
     (["replay", "bag", "--delay", "inf"], "--delay"),
