@@ -313,6 +313,20 @@ def validate_value(spec: ParamSpec, value: Any) -> Any:
     return value
 
 
+def rcl_type_problem(spec: ParamSpec, value: Any) -> str:
+    """Why the nodes refuse ``value`` for ``spec`` although :func:`validate_value` converts it, or "".
+
+    rclpy's typed parameters take no integer for a floating-point parameter and no floating-point
+    number for an integer one (the node does not start); the offline path converts both.
+    """
+    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return (f"is an integer: the nodes refuse it for a floating-point parameter and do not start "
+                f"(write {float(value)!r})")
+    if spec.kind is int and isinstance(value, float):
+        return "is a floating-point number: the nodes refuse it for an integer parameter and do not start"
+    return ""
+
+
 def resolve_parameters(node: str, values: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Defaults of ``node`` overridden by ``values`` (dotted names), validated.
 

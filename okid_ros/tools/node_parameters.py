@@ -27,7 +27,8 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     namespace : the nodes' namespace (None: the root namespace); decides which sections of
         the files apply, as for the live nodes.
     strict : unknown parameter names (or sections naming a node that do not apply) in the
-        files are an error instead of a report.
+        files, and values the nodes refuse for their type (``8`` for a floating-point
+        parameter: rclpy's typed parameters; read here as 8.0), are an error instead of a report.
     report : called with each such problem when not ``strict`` (default: print to stderr).
 
     Returns
@@ -69,6 +70,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         layered.append(("inputs.sources", list(sources)))
     trees = [(str(path), read_parameter_file(path)) for path in param_files]
     problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
+    problems += _typed_problems(trees, namespace)
     if problems and strict:
         raise ParameterError("; ".join(problems))
     for problem in problems:
@@ -89,3 +91,20 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
             label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
             raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
     return values[0], values[1]
+
+
+def _typed_problems(trees: list[tuple[str, Any]], namespace: str | None) -> list[str]:
+    """Values of the files that the nodes refuse for their type (read here all the same), one sentence each."""
+    from okid_ros.service.param_files import node_fqn, node_values_from_tree
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params, rcl_type_problem
+
+    found: dict[tuple[str, str], str] = {}  # a value of a section both nodes read is said once
+    for label, tree in trees:
+        for node in (ARX_NODE, ESTIMATOR_NODE):
+            specs = {spec.name: spec for spec in node_params(node)}
+            for name, value in node_values_from_tree(tree, node_fqn(node, namespace)).items():
+                why = rcl_type_problem(specs[name], value) if name in specs else ""
+                if why:
+                    found.setdefault((label, name), f"{label}: parameter {name} = {value!r} {why}")
+    return list(found.values())
+

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from okid_ros.errors import ParameterError
 from okid_ros.service.param_files import flatten, load_yaml_as_rcl
 from okid_ros.tools.node_parameters import load_node_parameters
 
@@ -63,3 +64,25 @@ def test_a_number_in_exponent_form_is_a_number_in_files_and_overrides(tmp_path: 
     from_file, _ = load_node_parameters([path])
     from_override, _ = load_node_parameters(overrides=[f"publish_rate_hz={text}"])
     assert from_file["publish_rate_hz"] == from_override["publish_rate_hz"] == expected
+
+
+def test_a_file_value_the_nodes_refuse_for_its_type_is_reported(tmp_path: Path) -> None:
+    # rclpy's typed parameters refuse 8 for sample_time_s and 20.0 for arx.order (node 1 stops with
+    # "parameter sample_time_s must be a floating-point number (e.g. 1.0, not 1)"); the offline path
+    # read them silently, so a file `process` took could not start `up`. Reported (refused with
+    # strict); --param stays lenient.
+    path = tmp_path / "loose.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    sample_time_s: 8\n"
+                    "/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 20.0}\n")
+    said: list[str] = []
+    arx, est = load_node_parameters([path], report=said.append)
+    assert arx["sample_time_s"] == est["sample_time_s"] == 8.0 and arx["arx.order"] == 20
+    assert said == [f"{path}: parameter sample_time_s = 8 is an integer: the nodes refuse it for a floating-point "
+                    "parameter and do not start (write 8.0)",
+                    f"{path}: parameter arx.order = 20.0 is a floating-point number: the nodes refuse it for an "
+                    "integer parameter and do not start"]
+    with pytest.raises(ParameterError, match="sample_time_s = 8 is an integer"):
+        load_node_parameters([path], strict=True)
+    said.clear()
+    load_node_parameters(overrides=["sample_time_s=8", "arx.order=20.0"], report=said.append)
+    assert said == []
