@@ -88,8 +88,9 @@ class BagRecord:
                 if self.rejected.get(reason, 0) > total // 2:
                     note += f"; most fell {text}: {question}"
             notes.append(note)
-        dropped = self.record.u.shape[0] - self.samples_used
-        if self.samples_total >= 4 and (self.runs > self.samples_total // 2 or dropped > self.samples_used):
+        present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
+        alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
+        if self.samples_total >= 4 and (self.runs > self.samples_total // 2 or 2 * alone.sum() > present.sum()):
             notes.append(f"most of the {self.samples_total} samples stand alone between empty sample times: {question}")
         return "; ".join(notes)
 
@@ -192,4 +193,6 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     est_values = load_node_parameters(params, overrides, sources)[1]
     from_bag = record_from_bag(path, est_values, missing_as_nan=allow_nonfinite)
     note = from_bag.rejection_note()
+    if note:  # said before anything can fail on what it explains (a sample time half the stamps' spacing)
+        warnings.warn(f"{path}: {note}", stacklevel=2)
     return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

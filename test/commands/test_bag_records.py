@@ -100,6 +100,10 @@ def test_export_says_when_a_finer_sample_time_leaves_every_other_slot_empty(bag,
     assert main(["export", str(bag), "--npz", str(tmp_path / "r.npz"), "--param", "sample_time_s=0.004"]) == 0
     err = capsys.readouterr().err
     assert "most of the 1500 samples stand alone between empty sample times: is sample_time_s 0.004 s right?" in err
+    # identify fails on such a record (its outputs look dead between the empty slots): the cause is said first
+    assert main(["identify", str(bag), "--json", str(tmp_path / "m.json"), "--param", "sample_time_s=0.004"]) == 2
+    warning = capsys.readouterr().err.splitlines()[0]
+    assert warning.startswith("okid-ros identify: warning: ") and "stand alone between empty sample times" in warning
 
 
 def test_identify_and_track_fill_the_dropped_messages_of_a_bag(bag, tmp_path, capsys):
