@@ -272,6 +272,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
     from okid_ros.core.arx_order import choose_arx_order
+    from okid_ros.core.gap_fill import realization_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
 
@@ -295,6 +296,9 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
             f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
         )
+    if window + q < realization_minimum(q, window + q):  # then every update would be refused
+        raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
+                             f"at least {realization_minimum(q, window + q)} (a window of at least {3 * q} rows)")
     if n_samples < window + q:
         raise DataError(
             f"too few samples for one window: {n_samples} given, at least {window + q} needed "

@@ -30,7 +30,7 @@ from okid_ros.core.regressors import real_array, regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
            "fit_and_fill", "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem",
-           "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
+           "realization_minimum", "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
@@ -148,11 +148,20 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         except ValueError as exc:
             raise ValueError(f"ARX window: {exc}") from None
         filled = int(np.count_nonzero(~valid))
-    minimum = max(4 * fit.order, need // 2)
+    minimum = realization_minimum(fit.order, need)
     if u.shape[0] < minimum:
         raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
                          f"{max_gap} samples; the realization needs at least {minimum}")
     return RealizationWindow(u, y, valid, filled)
+
+
+def realization_minimum(order: int, need: int) -> int:
+    """Samples a realization needs of an ARX window of ``need`` samples at ARX order ``order``.
+
+    Four times the order (the Markov parameters and the state regression after the ARX's lags),
+    and half the window's samples.
+    """
+    return max(4 * order, need // 2)
 
 
 def missing_mask(valid, n_samples: int) -> np.ndarray | None:

@@ -118,6 +118,18 @@ def test_a_constant_input_is_tracked_as_an_input_of_zeros(record, tmp_path, leve
                for line in lines["constant"])
 
 
+@pytest.mark.parametrize("order, window", [(20, 1), (500, 800)])
+def test_a_window_too_short_for_any_realization_is_refused_up_front(record, tmp_path, capsys, order, window):
+    # Before: every update failed on a gap the record does not have, numpy warnings on stderr, status 0.
+    path = record[0]
+    code = okid_ros_main(["track", str(path), "--jsonl", str(tmp_path / "x.jsonl"), "--order", str(order),
+                          "--window", str(window), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"--window {window} rows with {order} lags" in err and f"a window of at least {3 * order} rows" in err
+    assert not (tmp_path / "x.jsonl").exists()
+
+
 def test_outputs_near_the_float64_limits_are_still_divided_and_tracked(record, tmp_path):
     # Their powers of two average out (1e152 and 1e-140: about 2^22), but the channels do not:
     # undivided, the 1e152 channel is beyond the window's 1e150 limit and every sample missing.
