@@ -109,9 +109,9 @@ def _gcv_curve(s: np.ndarray, g2: np.ndarray, yy_trace: float, n_rows: int, p: i
     def parts(penalty: float) -> tuple[float, float, float]:
         # Null directions (s = 0) with no penalty contribute nothing to the fit.
         denom = s + penalty
-        inv = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
         with np.errstate(over="ignore", invalid="ignore"):
-            # s inv <= 1; a vanishing penalty on an unexcited window can still overflow g2 inv.
+            # s inv <= 1; a vanishing penalty on an unexcited window can still overflow inv and g2 inv.
+            inv = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
             rss = yy_trace - float(np.sum(g2 * inv * (2.0 - s * inv)))
         if not np.isfinite(rss):
             return math.inf, math.inf, math.nan  # this penalty is unusable: GCV looks elsewhere
@@ -163,7 +163,8 @@ def solve_normal_equations(
         best = int(np.argmin(scores))
         lo = np.log(grid[max(best - 1, 0)])
         hi = np.log(grid[min(best + 1, grid.size - 1)])
-        res = optimize.minimize_scalar(lambda t: parts(np.exp(t))[0], bounds=(lo, hi), method="bounded")
+        with np.errstate(over="ignore", invalid="ignore"):  # an unusable (infinite) score is a valid answer
+            res = optimize.minimize_scalar(lambda t: parts(np.exp(t))[0], bounds=(lo, hi), method="bounded")
         lam = float(np.exp(res.x)) if res.fun <= scores[best] else float(grid[best])
     else:
         lam = float(penalty)
