@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     from okid_ros.tools.bagio import TRUTH_KEY, open_bag
     from okid_ros.tools.errors import ToolParameterError
-    from okid_ros.tools.output_paths import check_output_paths
+    from okid_ros.tools.output_paths import bag_folder, check_output_paths
     from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
     from okid_ros.tools.process import load_node_parameters
 
@@ -63,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.window > 0:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
     bag_path = Path(args.bag)
-    # Beside the bag (its rosbag2 directory for a storage file in one), never inside it.
-    folder = bag_path.parent if bag_path.is_file() and (bag_path.parent / "metadata.yaml").is_file() else bag_path
+    folder = bag_folder(bag_path)  # the figures go beside the bag, never inside it
     out_dir = Path(args.out_dir) if args.out_dir else folder.with_name(folder.name + "_figures")
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)

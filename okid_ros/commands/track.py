@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
                     _arm_reference(monitor, model, u_w, y_w, rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                first_failure = first_failure if failures else reason
+                first_failure = first_failure or reason
                 failures += 1
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
@@ -296,9 +296,10 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
             f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
         )
-    if window + q < realization_minimum(q, window + q):  # then every update would be refused
+    minimum = realization_minimum(q, window + q)
+    if window + q < minimum:  # then every update would be refused
         raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
-                             f"at least {realization_minimum(q, window + q)} (a window of at least {3 * q} rows)")
+                             f"at least {minimum} (a window of at least {minimum - q} rows)")
     if n_samples < window + q:
         raise DataError(
             f"too few samples for one window: {n_samples} given, at least {window + q} needed "

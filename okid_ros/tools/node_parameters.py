@@ -98,13 +98,12 @@ def _typed_problems(trees: list[tuple[str, Any]], namespace: str | None) -> list
     from okid_ros.service.param_files import node_fqn, node_values_from_tree
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params, rcl_type_problem
 
+    specs = {node: {spec.name: spec for spec in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
     found: dict[tuple[str, str], str] = {}  # a value of a section both nodes read is said once
     for label, tree in trees:
-        for node in (ARX_NODE, ESTIMATOR_NODE):
-            specs = {spec.name: spec for spec in node_params(node)}
+        for node, by_name in specs.items():
             for name, value in node_values_from_tree(tree, node_fqn(node, namespace)).items():
-                why = rcl_type_problem(specs[name], value) if name in specs else ""
+                why = rcl_type_problem(by_name[name], value) if name in by_name else ""
                 if why:
                     found.setdefault((label, name), f"{label}: parameter {name} = {value!r} {why}")
     return list(found.values())
-

@@ -20,7 +20,7 @@ from pathlib import Path
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["check_output_paths", "check_replaceable", "prepare_output", "output_exists"]
+__all__ = ["bag_folder", "check_output_paths", "check_replaceable", "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -70,11 +70,16 @@ def _resolved(path: Path) -> Path:
 def _input_root(path: Path) -> tuple[Path, Path]:
     """The resolved input, and what of it outputs must keep clear of (its rosbag2 directory for a file in one)."""
     data = _resolved(path)
+    return data, bag_folder(data)
+
+
+def bag_folder(path: Path) -> Path:
+    """The rosbag2 directory of a storage file in one (``run/run.mcap`` -> ``run``), else ``path``."""
     try:
-        in_bag_dir = (data.suffix in _BAG_SUFFIXES and data.is_file() and (data.parent / "metadata.yaml").is_file())
+        in_bag_dir = path.suffix in _BAG_SUFFIXES and path.is_file() and (path.parent / "metadata.yaml").is_file()
     except OSError:  # unreadable: the reader says why later
         in_bag_dir = False
-    return data, data.parent if in_bag_dir else data
+    return path.parent if in_bag_dir else path
 
 
 def _is_bag_directory(path: Path) -> bool:
