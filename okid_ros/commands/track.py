@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     handle = JsonLines(out)
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
-    failures, first_failure = 0, ""
+    failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
     last_modes: list = []
     with handle:
         fed = 0
@@ -199,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
             if rows < restart_rows:
                 entry.update(n_states=None, modes=[], waiting=_waiting(estimator.status, changes, rows, restart_rows))
+                first_reason, waits = first_reason or entry["waiting"], waits + 1
                 entry["elapsed_s"] = time.perf_counter() - t0
                 handle.write(entry)
                 continue
@@ -210,8 +211,7 @@ def run(args: argparse.Namespace) -> int:
                     _arm_reference(monitor, model, u_w, y_w, rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                first_failure = first_failure or reason
-                failures += 1
+                first_reason, failures = first_reason or reason, failures + 1
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
@@ -221,11 +221,11 @@ def run(args: argparse.Namespace) -> int:
     _print_summary(changes, dt, last_modes)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(
-        f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed) of window {window}, "
-        f"every {args.every} samples, in {elapsed:.1f} s -> {out}"
+        f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
+        f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {out}"
     )
-    if failures and failures == len(points):
-        print(f"okid-ros track: warning: no update gave a model; the first: {first_failure}", file=sys.stderr)
+    if failures + waits == len(points):
+        print(f"okid-ros track: warning: no update gave a model; the first: {first_reason}", file=sys.stderr)
     return 0
 
 

@@ -193,3 +193,20 @@ def test_order_auto_is_chosen_on_samples_without_nan(record, tmp_path, capsys):
                             "--no-progress"])
     assert status == 2
     assert "--order auto chooses the ARX order on 1200 samples without NaN/Inf" in capsys.readouterr().err
+
+
+def test_updates_that_all_wait_for_rows_say_so_on_stderr(record, tmp_path, capsys):
+    # The first 2300 samples without outputs: no window ever holds the rows a model needs. Each line
+    # says why it waits and, as when every update is refused, one warning says no model came out
+    # (was: "3 updates (0 failed)" and nothing on stderr but the NaN count).
+    _, u, y = record
+    y = y.copy()
+    y[:2300] = np.nan
+    path = tmp_path / "late.npz"
+    save_record(path, u, y, DT)
+    lines = _track(path, tmp_path / "late.jsonl", "--order", "20", "--window", "1500", "--every", "400")
+    assert lines and all(not line["modes"] and "rows needed" in line["waiting"] for line in lines), lines
+    captured = capsys.readouterr()
+    assert "(0 failed, 3 waiting for rows)" in captured.out
+    assert "okid-ros track: warning: no update gave a model; the first: the window holds 0 of the 375 rows" in (
+        captured.err), captured.err
