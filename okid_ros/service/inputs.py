@@ -6,6 +6,7 @@ one string per topic::
     KIND TOPIC [FIELD=CHANNEL ...]
 
 ``CHANNEL`` is ``u<i>`` (input i, 0-based, i < n_inputs) or ``y<j>`` (output j < n_outputs).
+Over all sources, each channel is filled once and each field of a topic fills one channel.
 Kinds, their message types and their fields:
 
 ============  ==================================  ===========================================
@@ -169,20 +170,37 @@ def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
     )
 
 
+def _channel_name(channel: int, n_inputs: int) -> str:
+    """The name of a channel index of ``[u; y]``: ``u<i>`` or ``y<j>``."""
+    return f"u{channel}" if channel < n_inputs else f"y{channel - n_inputs}"
+
+
+def _field_name(path: tuple) -> str:
+    """A field path as written in a source: ``linear_acceleration.x``, ``data[3]``."""
+    return f"{path[0]}[{path[1]}]" if isinstance(path[-1], int) else ".".join(path)
+
+
 def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
-    """Parse every source; the channels must be covered exactly once over all sources."""
+    """Parse every source; the channels must be covered exactly once, each field of a topic read once."""
     specs = [parse_source(t, n_inputs, n_outputs) for t in texts if t.strip()]
     if not specs:
         raise ValueError("inputs.sources is empty: give at least one input source")
     owner: dict[int, str] = {}
+    reads: dict[tuple, str] = {}  # (topic, field) -> what it fills: a channel, or the stamp
     for spec in specs:
+        mapped = [(field, _channel_name(c, n_inputs)) for field, c in zip(spec.fields, spec.channels)]
+        mapped += [(("data", spec.stamp_index), "the stamp")] if spec.stamp_index is not None else []
         for c in spec.channels:
             if c in owner:
-                name = f"u{c}" if c < n_inputs else f"y{c - n_inputs}"
-                raise ValueError(f"channel {name} is mapped by two sources: {owner[c]!r} and {spec.text!r}")
+                raise ValueError(f"channel {_channel_name(c, n_inputs)} is mapped by two sources: {owner[c]!r} and "
+                                 f"{spec.text!r}")
             owner[c] = spec.text
-    missing = [f"u{c}" if c < n_inputs else f"y{c - n_inputs}"
-               for c in range(n_inputs + n_outputs) if c not in owner]
+        for field, name in mapped:
+            if (spec.topic, field) in reads:  # one value in two channels: a record that repeats itself
+                raise ValueError(f"field {_field_name(field)} of {spec.topic} is mapped twice (to "
+                                 f"{reads[spec.topic, field]} and {name}): map each field to one channel")
+            reads[spec.topic, field] = name
+    missing = [_channel_name(c, n_inputs) for c in range(n_inputs + n_outputs) if c not in owner]
     if missing:
         raise ValueError(f"no input source provides channel(s) {', '.join(missing)}")
     return specs

@@ -139,3 +139,22 @@ def test_identify_and_track_fill_the_dropped_messages_of_a_bag(bag, tmp_path, ca
     # export keeps writing the longest contiguous run (a record without missing samples).
     assert main(["export", str(lossy), "--npz", str(tmp_path / "run.npz")]) == 0
     assert load_record(tmp_path / "run.npz").u.shape[0] == 97 - 1
+
+
+@pytest.mark.parametrize("sources, fragment", [
+    # one source, the same field under its two names; two sources on one topic; an element as stamp and channel
+    (["wrench /thruster1/wrench force.x=u0 wrench.force.x=u1", "imu /accel/tip1/imu linear_acceleration.x=y0",
+      "imu /accel/tip2/imu linear_acceleration.x=y1"], "field wrench.force.x of /thruster1/wrench is mapped twice "
+     "(to u0 and u1)"),
+    (SENSORS[1:4:2] + ["imu /accel/tip1/imu linear_acceleration.x=y0", "imu /accel/tip1/imu linear_acceleration.x=y1"],
+     "field linear_acceleration.x of /accel/tip1/imu is mapped twice (to y0 and y1)"),
+    (["array /daq data[0]=stamp data[0]=u0 data[1]=u1 data[2]=y0 data[3]=y1"], "field data[0] of /daq is mapped twice"),
+])
+def test_a_message_field_mapped_to_two_channels_is_one_line_error(bag, tmp_path, capsys, sources, fragment):
+    # Was: exported with u0 == u1 (or y0 == y1), status 0.
+    out = tmp_path / "twice.npz"
+    capsys.readouterr()
+    assert main(["export", str(bag), "--npz", str(out), *[a for s in sources for a in ("--source", s)]]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("okid-ros export: error: ") and fragment in err, err
+    assert not out.exists()

@@ -180,6 +180,10 @@ def test_source_specifications():
         parse_sources(["io_sample /a", "imu /b linear_acceleration.x=y0"], 2, 2)
     with pytest.raises(ValueError, match="u1"):
         parse_sources(["wrench /a force.x=u0", "imu /b linear_acceleration.x=y0"], 2, 1)
+    with pytest.raises(ValueError, match=r"field linear_acceleration.x of /b is mapped twice \(to y0 and y1\)"):
+        parse_sources(["wrench /a force.x=u0", "imu /b linear_acceleration.x=y0 linear_acceleration.x=y1"], 1, 2)
+    # two sources on one topic reading different fields are fine
+    parse_sources(["wrench /a force.x=u0", "imu /b linear_acceleration.x=y0", "imu /b angular_velocity.z=y1"], 1, 2)
 
 
 # ---------------------------------------------------------------------------------------------
