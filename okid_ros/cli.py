@@ -10,7 +10,7 @@ import warnings
 from collections.abc import Callable, Sequence
 
 from okid_ros import __version__
-from okid_ros.errors import DataError, OkidError, OutputError
+from okid_ros.errors import DataError, OkidError, OkidWarning, OutputError
 
 PROG = "okid-ros"
 
@@ -98,11 +98,13 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
     what is wrong) gives status 2; running out of memory (a record or option too large for this
     machine) also 2; any other exception is a bug in okid-ros: one line asking to report it,
     status 70 (EX_SOFTWARE), the traceback only with ``OKID_ROS_TRACEBACK=1``. Python warnings
-    (numpy's floating-point warnings among them) are printed as one line each, naming the command.
+    (numpy's floating-point warnings among them) are printed as one line each, naming the command;
+    okid-ros's own (:class:`~okid_ros.errors.OkidWarning`: a parameter file's problems, ...) once per run.
     A data error that does not name ``source`` (the file the command reads) is prefixed with it.
     """
     with warnings.catch_warnings():
         warnings.showwarning = _one_line_warning(command)
+        warnings.simplefilter("default", OkidWarning)  # once per run: a new filter forgets earlier runs
         try:
             return work()
         except OkidError as exc:
@@ -136,8 +138,10 @@ def _one_line_warning(command: str) -> Callable[..., None]:
     """A ``warnings.showwarning`` that prints ``okid-ros COMMAND: warning: ...`` on one line."""
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
-        where = f"{os.path.basename(filename)}:{lineno}"
-        print(f"{PROG} {command}: warning: {' '.join(str(message).split())} ({category.__name__} at {where})",
+        # okid-ros's own warnings say what is wrong; another's (numpy's, scipy's) is located for a report
+        where = f" ({category.__name__} at {os.path.basename(filename)}:{lineno})"
+        where = "" if issubclass(category, OkidWarning) else where
+        print(f"{PROG} {command}: warning: {' '.join(str(message).split())}{where}",
               file=sys.stderr if file is None else file)
 
     return show

@@ -32,6 +32,10 @@ class ParameterError(OkidError):
     """A parameter or option value is invalid; the message names it and its valid range."""
 
 
+class OkidWarning(UserWarning):
+    """A problem the work goes on with (a parameter file's unknown name); `okid-ros` prints it as one line."""
+
+
 def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) -> None:
     """Call ``write(stream)`` on a temporary file beside ``path``, then rename it to ``path``.
 

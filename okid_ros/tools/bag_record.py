@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
-from okid_ros.errors import DataError
+from okid_ros.errors import DataError, OkidWarning
 from okid_ros.records import Record, bridged_bounds, load_record
 
 __all__ = ["BagRecord", "RECORD_SUFFIXES", "record_from_bag", "load_any_record"]
@@ -184,7 +184,7 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     if path.suffix.lower() in RECORD_SUFFIXES:
         if params or overrides or sources:
             warnings.warn(f"{path}: --params, --param and --source say how to read a bag's topics; a record "
-                          "file holds its channels and sample time itself: ignored", stacklevel=2)
+                          "file holds its channels and sample time itself: ignored", OkidWarning, stacklevel=2)
         return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
         raise DataError(f"{path}: no such file or bag")
@@ -194,5 +194,5 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     from_bag = record_from_bag(path, est_values, missing_as_nan=allow_nonfinite)
     note = from_bag.rejection_note()
     if note:  # said before anything can fail on what it explains (a sample time half the stamps' spacing)
-        warnings.warn(f"{path}: {note}", stacklevel=2)
+        warnings.warn(f"{path}: {note}", OkidWarning, stacklevel=2)
     return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

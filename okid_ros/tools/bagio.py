@@ -37,7 +37,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from okid_ros.errors import one_line
+from okid_ros.errors import OkidWarning, one_line
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.output_paths import prepare_output
@@ -274,7 +274,7 @@ class _OpenBag:
             if self._reader is None:
                 raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
                                    f"({type(exc).__name__}: {one_line(exc)})") from None
-            warnings.warn(note, stacklevel=2)
+            warnings.warn(note, OkidWarning, stacklevel=2)
         return BagReader(path, self._reader, note)
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from okid_ros.errors import ParameterError
+from okid_ros.errors import OkidWarning, ParameterError
 
 __all__ = ["load_node_parameters"]
 
@@ -29,7 +29,8 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     strict : unknown parameter names (or sections naming a node that do not apply) in the
         files, and values the nodes refuse for their type (``8`` for a floating-point
         parameter: rclpy's typed parameters; read here as 8.0), are an error instead of a report.
-    report : called with each such problem when not ``strict`` (default: print to stderr).
+    report : called with each such problem when not ``strict`` (default: an
+        :class:`~okid_ros.errors.OkidWarning`, which `okid-ros` prints as its command's warning line).
 
     Returns
     -------
@@ -74,7 +75,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     if problems and strict:
         raise ParameterError("; ".join(problems))
     for problem in problems:
-        (report or (lambda text: print(f"warning: {text}", file=sys.stderr, flush=True)))(problem)
+        (report or (lambda text: warnings.warn(text, OkidWarning, stacklevel=3)))(problem)
     values = []
     for node in (ARX_NODE, ESTIMATOR_NODE):
         merged: dict[str, Any] = {}

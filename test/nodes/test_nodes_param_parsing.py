@@ -86,3 +86,28 @@ def test_a_file_value_the_nodes_refuse_for_its_type_is_reported(tmp_path: Path) 
     said.clear()
     load_node_parameters(overrides=["sample_time_s=8", "arx.order=20.0"], report=said.append)
     assert said == []
+
+
+def test_the_commands_say_a_files_problems_as_their_own_warning_lines(tmp_path: Path, capsys) -> None:
+    # Each command's other warnings read "okid-ros COMMAND: warning: ..."; a parameter file's were
+    # "warning: FILE: ..." alone, and identify's "ignored" note ended in "(UserWarning at identify.py:105)".
+    from okid_ros.cli import main
+
+    bag, loose = tmp_path / "run", tmp_path / "loose.yaml"
+    loose.write_text("/**:\n  ros__parameters:\n    publish_rate_hz: 1\n    no_such_thing: 3\n")
+    assert main(["simulate", "--out", str(bag), "--duration", "2"]) == 0
+    capsys.readouterr()
+    for command, args in [("export", ["--npz", str(tmp_path / "run.npz")]),
+                          ("batch", ["--plan"]), ("process", ["--out", str(tmp_path / "out"), "--no-progress"])]:
+        main([command, str(bag), *args, "--params", str(loose)])
+        said = [line for line in capsys.readouterr().err.splitlines() if str(loose) in line]
+        assert said == [
+            f"okid-ros {command}: warning: {loose}: section '/**': unknown parameter(s) no_such_thing (not declared "
+            "by okid_arx_identifier, okid_modal_estimator)",
+            f"okid-ros {command}: warning: {loose}: parameter publish_rate_hz = 1 is an integer: the nodes refuse it "
+            "for a floating-point parameter and do not start (write 1.0)"], said
+    assert main(["identify", str(tmp_path / "run.npz"), "--json", str(tmp_path / "m.json"), "--order", "10",
+                 "--params", str(loose)]) == 0
+    assert capsys.readouterr().err.splitlines()[0] == (
+        f"okid-ros identify: warning: {tmp_path / 'run.npz'}: --params, --param and --source say how to read a bag's "
+        "topics; a record file holds its channels and sample time itself: ignored")
