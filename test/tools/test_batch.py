@@ -182,6 +182,23 @@ def test_a_bag_of_which_no_message_makes_a_sample_is_a_failed_row(campaign, tmp_
     assert "no input message made a complete sample" in row["reason"] and "wrong_size" in row["reason"], row
 
 
+def test_another_campaigns_output_bags_in_the_input_folder_are_left_out(campaign, tmp_path, capsys):
+    # A campaign written into the folder of the bags (its own --out excluded) and then searched by
+    # another campaign: before, its output bags were inputs too, each a failed row (no /okid/io_sample).
+    inputs = tmp_path / "inputs"
+    shutil.copytree(campaign["bags"] / "run_000", inputs / "run_000")
+    shutil.copytree(campaign["serial"], inputs / "old_campaign")
+    capsys.readouterr()
+    assert batch(inputs, "--params", campaign["params"], "--out", tmp_path / "new", "--workers", 1) == 0
+    assert sorted(read_summary(tmp_path / "new")) == ["run_000"]
+    err = capsys.readouterr().err
+    assert "okid-ros batch: warning: left out 3 output bag(s) of okid-ros process found in the directories" in err
+    assert f"the first {inputs / 'old_campaign' / 'bags'}" in err
+    # an output bag given by name is taken as given (and fails as a bag without inputs)
+    given = next((inputs / "old_campaign" / "bags").glob("run_000-*")) / "output"
+    assert batch(given, "--params", campaign["params"], "--out", tmp_path / "given", "--workers", 1) == 1
+
+
 def test_plan_reads_metadata_only(campaign, capsys):
     assert batch(campaign["bags"], "--params", campaign["params"], "--plan") == 0
     out = capsys.readouterr().out

@@ -3,7 +3,9 @@
 A path given is a bag (a rosbag2 directory, i.e. one holding ``metadata.yaml``; a bare
 ``.mcap`` or ``.db3`` file; a ROS 1 ``.bag``) or a directory searched recursively for them.
 Hidden entries and the campaign's own output directory are not searched, so that a campaign
-written inside the folder of its bags never picks up its own output bags.
+written inside the folder of its bags never picks up its own output bags; an output bag of
+`okid-ros process` found there (another campaign's, its metadata names ``okid_ros.process``)
+is left out with a warning.
 
 The plan of a rosbag2 directory comes from its ``metadata.yaml`` alone (the C YAML loader
 when available: about 0.3 ms a bag); other bags are opened with the rosbags reader, which
@@ -14,10 +16,11 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import OkidError
+from okid_ros.errors import OkidError, OkidWarning
 
 __all__ = ["BAG_SUFFIXES", "BagPlan", "bag_fingerprint", "bag_label", "find_bags", "plan_bag"]
 
@@ -70,6 +73,7 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
     """
     excluded = exclude.resolve() if exclude is not None else None
     found: dict[Path, Path] = {}
+    outputs: list[Path] = []
     for given in paths:
         path = Path(given)
         if not path.exists():
@@ -80,7 +84,14 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
             found.setdefault(path.resolve(), path)
             continue
         for bag in _search(path, excluded):
-            found.setdefault(bag.resolve(), bag)
+            if bag != path and _is_process_output(bag):  # found in a directory, not given
+                outputs.append(bag)
+            else:
+                found.setdefault(bag.resolve(), bag)
+    if outputs:
+        warnings.warn(f"left out {len(outputs)} output bag(s) of okid-ros process found in the directories "
+                      f"(another campaign's? their metadata.yaml names okid_ros.process), the first "
+                      f"{min(outputs, key=str)}", OkidWarning, stacklevel=2)
     return sorted(found.values(), key=lambda p: str(p))
 
 
@@ -103,6 +114,19 @@ def _search(root: Path, excluded: Path | None) -> list[Path]:
         dirnames[:] = keep
         out.extend(here / n for n in sorted(filenames) if n.endswith(BAG_SUFFIXES) and not n.startswith("."))
     return out
+
+
+def _is_process_output(path: Path) -> bool:
+    """Whether ``path`` is an output bag of `okid-ros process` (a rosbag2 directory whose metadata says so)."""
+    from okid_ros.tools.bagio import PROCESS_KEY
+
+    if not _is_rosbag2_dir(path):
+        return False
+    try:
+        custom = _metadata(path).get("custom_data")
+    except Exception:  # noqa: BLE001 - unreadable metadata: the bag is planned and fails as such
+        return False
+    return isinstance(custom, dict) and PROCESS_KEY in custom
 
 
 def bag_fingerprint(path: Path) -> tuple[int, int]:
@@ -137,7 +161,8 @@ def plan_bag(path: Path) -> BagPlan:
         return BagPlan(path=path, error=text if str(path) in text else f"{path}: {text}")
 
 
-def _plan_from_metadata(path: Path) -> BagPlan:
+def _metadata(path: Path) -> dict:
+    """The ``rosbag2_bagfile_information`` of a rosbag2 directory's metadata.yaml (ValueError if none)."""
     import yaml
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -146,6 +171,11 @@ def _plan_from_metadata(path: Path) -> BagPlan:
     info = (document or {}).get("rosbag2_bagfile_information")
     if not isinstance(info, dict):
         raise ValueError("metadata.yaml has no rosbag2_bagfile_information")
+    return info
+
+
+def _plan_from_metadata(path: Path) -> BagPlan:
+    info = _metadata(path)
     plan = BagPlan(path=path)
     for entry in info.get("topics_with_message_count") or []:
         meta = entry["topic_metadata"]
