@@ -2,7 +2,8 @@
 """Calibration of the modes' standard deviations (okid_ros.core.uncertainty) against known truth.
 
 For each case and seed, one record is simulated, identified with the default chain
-(``okid_ros.core.pipeline.identify``, the case's ARX order, automatic model order), and
+(``okid_ros.core.pipeline.identify``, the case's ARX order or with ``--arx-order auto`` identify's own,
+automatic model order), and
 :func:`okid_ros.core.uncertainty.attach_mode_uncertainty` gives every mode a frequency and a
 damping standard deviation. True and identified modes are paired one to one by frequency
 (within 5 %; a close pair realized as one mode is one mode found, not two). Per true mode the
@@ -21,6 +22,7 @@ Usage::
     python bench/mode_uncertainty.py                                  # both cases, 50 seeds
     python bench/mode_uncertainty.py --seeds 100 --out /tmp/uncertainty.md [--force]
     python bench/mode_uncertainty.py --cases close-pair --seeds 10 --length 15000
+    python bench/mode_uncertainty.py --cases many-outputs --seeds 120 --length 6000 --arx-order auto
 
 BLAS threads default to 1 (``--threads``).
 """
@@ -52,9 +54,13 @@ INPUT_SEED_OFFSET = 0
 NOISE_SEED_OFFSET = 10_000
 
 
-def run_case(name: str, seeds: int, length: int, first_seed: int = 0) -> dict:
-    """Per true mode: errors and standard deviations of every seed where it was found."""
+def run_case(name: str, seeds: int, length: int, first_seed: int = 0, *, arx_order: str = "case") -> dict:
+    """Per true mode: errors and standard deviations of every seed where it was found.
+
+    ``arx_order``: "case" (the case's ARX order) or "auto" (``identify``'s own choice, by GCV).
+    """
     case = benchmark_case(name)
+    order = case.arx_order if arx_order == "case" else "auto"
     truth = modes_of(case.system.A, case.sample_time_s)
     rows = [{"frequency_hz": t.frequency_hz, "damping_ratio": t.damping_ratio, "f_err": [], "f_std": [],
              "z_err": [], "z_std": []} for t in truth]
@@ -64,7 +70,7 @@ def run_case(name: str, seeds: int, length: int, first_seed: int = 0) -> dict:
         y = simulate(case.system, u, seed=NOISE_SEED_OFFSET + seed)
         t0 = time.perf_counter()
         try:
-            model = identify(u, y, case.sample_time_s, order=case.arx_order)
+            model = identify(u, y, case.sample_time_s, order=order)
         except IdentificationError:
             failures += 1
             continue
@@ -143,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=50, help="records per case (default: %(default)s)")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--length", type=int, default=3750, help="samples per record (default: %(default)s)")
+    parser.add_argument("--arx-order", choices=("case", "auto"), default="case",
+                        help="the case's ARX order (default) or identify's own choice (auto: by GCV)")
     add_output_options(parser, json=True)
     parser.add_argument("--threads", default="1", help="BLAS threads (default: 1)")
     args = parser.parse_args(argv)
@@ -150,10 +158,11 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     started = time.perf_counter()
     for name in args.cases.split(","):
-        results.append(run_case(name.strip(), args.seeds, args.length, args.first_seed))
+        results.append(run_case(name.strip(), args.seeds, args.length, args.first_seed, arx_order=args.arx_order))
         print(f"{name}: done after {time.perf_counter() - started:.0f} s", file=sys.stderr)
     text = table(results)
-    header = (f"`python bench/mode_uncertainty.py --cases {args.cases} --seeds {args.seeds} --length {args.length}` "
+    header = (f"`python bench/mode_uncertainty.py --cases {args.cases} --seeds {args.seeds} --length {args.length} "
+              f"--arx-order {args.arx_order}` "
               f"({platform.machine()}, Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}, "
               f"{time.perf_counter() - started:.0f} s)\n\n")
     print(header + text)
