@@ -9,6 +9,8 @@ so that the two can import each other's parts without a cycle).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import linalg
 
@@ -71,7 +73,9 @@ def _basis_inverse(V: np.ndarray) -> np.ndarray | None:
     bracket straddles the limit.
     """
     try:
-        V_inv = linalg.inv(V)
+        with warnings.catch_warnings():  # an ill-conditioned basis is refused below, by its condition number
+            warnings.simplefilter("ignore", linalg.LinAlgWarning)
+            V_inv = linalg.inv(V)
     except (linalg.LinAlgError, ValueError):
         return None
     if not np.all(np.isfinite(V_inv)):

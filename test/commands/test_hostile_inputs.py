@@ -339,3 +339,29 @@ def test_the_stretch_identify_fills_ends_at_a_long_gap() -> None:
     assert valid is None and stretch.y.shape[0] == 7 and "longest run without them, samples 321 to 327" in note
     clean = Record(u, np.arange(1000.0)[:, None], 0.01)
     assert bridged_run(clean) == (clean, None, "")
+
+
+def _paper_record(n: int, noise: bool) -> tuple[np.ndarray, np.ndarray]:
+    from okid_ros.core.statespace import simulate
+    from okid_ros.sim.inputs import white_input
+    from okid_ros.sim.paper_model import paper_model
+    from okid_ros.sim.simulators import simulate_innovation
+
+    truth, u = paper_model(), white_input(n, 2, seed=3)
+    return u, simulate_innovation(truth, u, seed=4)[0] if noise else simulate(truth.A, truth.B, truth.C, truth.D, u)
+
+
+# Conditions the code handles (an eigenbasis too ill-conditioned to use), on records a user may
+# well have: no scipy warning of them on stderr ("... (LinAlgWarning at stable_matrix.py:74)"
+# thirteen times for the noise-free record).
+@pytest.mark.parametrize("case, n, noise, args", [
+    ("noise_free", 3000, False, []),
+])
+def test_handled_conditions_put_no_scipy_warnings_on_stderr(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                            case: str, n: int, noise: bool, args: list[str]) -> None:
+    u, y = _paper_record(n, noise)
+    path = tmp_path / f"{case}.npz"
+    save_record(path, u, y, 0.008)
+    cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), *args])
+    err = capsys.readouterr().err
+    assert "Warning at" not in err, err
