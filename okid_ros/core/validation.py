@@ -18,6 +18,7 @@ The numbers behind the standard views (``tools/validation_plots.py``); no plotti
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from scipy import linalg, signal
@@ -138,11 +139,15 @@ def h1_frf(u: np.ndarray, y: np.ndarray, sample_time_s: float, *, segment_sample
     freq, S_yu = _cross_spectra(u, y, sample_time_s, nperseg)
     _, S_uu = _cross_spectra(u, u, sample_time_s, nperseg)
     H = np.full_like(S_yu, np.nan)
-    for k in range(freq.size):
-        try:
-            H[k] = linalg.solve(S_uu[k].T, S_yu[k].T).T  # S_yu S_uu^-1
-        except (linalg.LinAlgError, ValueError):
-            continue
+    with warnings.catch_warnings():
+        # S_uu singular to working precision (fewer segments than inputs: a short record; inputs
+        # that move together) does not determine H there: NaN, as for an exactly singular one.
+        warnings.simplefilter("error", linalg.LinAlgWarning)
+        for k in range(freq.size):
+            try:
+                H[k] = linalg.solve(S_uu[k].T, S_yu[k].T).T  # S_yu S_uu^-1
+            except (linalg.LinAlgError, linalg.LinAlgWarning, ValueError):
+                continue
     return freq, H * scales.output[None, :, None] / scales.input[None, None, :]
 
 
