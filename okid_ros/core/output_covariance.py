@@ -121,7 +121,8 @@ def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
     """
     n = y.shape[0]
     scaled = y / np.maximum(y.std(axis=0), np.finfo(float).tiny)
-    nperseg = int(min(max(2 ** np.ceil(np.log2(200)), 2 ** np.floor(np.log2(max(n // 8, 16)))), 8192))
+    # At most the record (what welch takes, with a UserWarning, for a record shorter than 256 samples).
+    nperseg = int(min(max(2 ** np.ceil(np.log2(200)), 2 ** np.floor(np.log2(max(n // 8, 16)))), 8192, n))
     freq, psd = signal.welch(scaled, fs=1.0 / sample_time_s, nperseg=nperseg, axis=0)
     total = np.log10(np.maximum(psd.sum(axis=1), np.finfo(float).tiny))
     peaks, _ = signal.find_peaks(total, prominence=PEAK_PROMINENCE_DECADES)
