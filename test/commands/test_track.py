@@ -206,6 +206,8 @@ def test_updates_that_all_wait_for_rows_say_so_on_stderr(record, tmp_path, capsy
     save_record(path, u, y, DT)
     lines = _track(path, tmp_path / "late.jsonl", "--order", "20", "--window", "1500", "--every", "400")
     assert lines and all(not line["modes"] and "rows needed" in line["waiting"] for line in lines), lines
+    # The reason names what was rejected, and nothing that was not (no "0 samples rejected for values beyond").
+    assert all("for NaN/Inf" in line["waiting"] and "1e150" not in line["waiting"] for line in lines), lines
     captured = capsys.readouterr()
     assert "(0 failed, 3 waiting for rows)" in captured.out
     assert "okid-ros track: warning: no update gave a model; the first: the window holds 0 of the 375 rows" in (
