@@ -107,6 +107,12 @@ def run(args: argparse.Namespace) -> int:
         note += why_not
         written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,
                                             reference=reference, reference_label="truth")
+    if not written:  # e.g. `process` refused every model: say so instead of "wrote 0 figures"
+        from okid_ros.errors import DataError
+
+        held = ", ".join(f"{count} on {topic}" for topic, count in data.counts.items())
+        raise DataError(f"{args.bag}: nothing to draw: no valid model and no modal states ({held} messages); "
+                        f"the diagnostics of the run that wrote it say why")
     print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
     for path in written:
         print(f"  {path}")

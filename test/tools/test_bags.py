@@ -522,3 +522,15 @@ def test_plot_reads_a_namespaced_output(run, tmp_path, capsys):
     code, stdout, err = run_cli(capsys, "plot", out, "--namespace", "/rig1", "--out-dir", tmp_path / "figs")
     assert code == 0, err
     assert len(list((tmp_path / "figs").glob("*.png"))) >= 4
+
+
+def test_plot_of_an_output_without_models_says_there_is_nothing_to_draw(tmp_path, capsys):
+    """An output bag whose topics hold no model (every model refused) is refused, not 'wrote 0 figures'."""
+    store = rosbags_typestore()
+    bag = tmp_path / "refused_all"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        for topic, kind in (("/okid/arx_model", "ArxModel"), ("/okid/state_space_model", "StateSpaceModel"),
+                            ("/okid/modal_states", "ModalStates")):
+            writer.add_connection(topic, f"okid_msgs/msg/{kind}", typestore=store)
+    code, _, err = run_cli(capsys, "plot", bag, "--out-dir", tmp_path / "figs")
+    assert_one_line_error(code, err, "nothing to draw", "0 on /okid/state_space_model")
