@@ -15,7 +15,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "demo",
         help="end to end: simulate, replay live through both nodes, monitor, figures, modes vs truth",
         description="Simulate the paper's experiment into a bag, start both nodes (okid-ros up), replay the "
-        "bag live while recording the nodes' outputs and showing the modes, then write the figures and "
+        "bag live while recording the nodes' outputs and showing the modes (after the replay: until node 2 has "
+        "applied the model of node 1's last window, at most 30 s, and then 1 s without a model or modal states, "
+        "at most 5 s), then write the figures and "
         "print the modes of the last live model against the true ones. Everything goes into a new run "
         "folder under --out-dir. Exit status 0 when both modes of the paper's table were identified "
         "(--output-only: an ambient experiment, every true mode).",

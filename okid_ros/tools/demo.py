@@ -387,11 +387,14 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     last_output = [time.monotonic()]
 
     def on_output(topic: str, data: bytes, receive_ns: int) -> None:
-        last_output[0] = time.monotonic()
+        # Node 1 republishes its unchanged window after the replay: no ArxModel counts as an output
+        # still on its way (it kept the settle below waiting its whole 5 s).
         if topic == "/okid/modal_states":
+            last_output[0] = time.monotonic()
             counts["states"] += 1
             view.update(deserialize_message(data, ModalStates))
         elif topic == "/okid/state_space_model":
+            last_output[0] = time.monotonic()
             counts["models"] += 1
 
     node_2: dict[str, str] = {}  # the values of node 2's last estimation status
@@ -427,7 +430,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         if not _wait_for_last_model(run, nodes, node_2):
             run.say(f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last "
                     "window may be missing")
-        settle = time.monotonic() + 5.0  # let the last outputs arrive
+        settle = time.monotonic() + 5.0  # let the last outputs arrive: until 1 s without a model or modal states
         while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
             run.executor.spin_once(timeout_sec=0.05)
         monitor.draw()
