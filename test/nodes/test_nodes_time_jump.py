@@ -77,10 +77,6 @@ class LoopProbe(ProbeNode):
 
 def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
     env = subprocess_env(ros_domain_id)
-    bag = tmp_path / "experiment"
-    sim = RosProcess([sys.executable, "-m", "okid_ros.cli", "simulate", "--out", str(bag),
-                      "--duration", f"{BAG_S:g}", "--seed", "3"], env)
-    assert sim.proc.wait(timeout=120) == 0, sim.output()
     params = tmp_path / "small.yaml"
     params.write_text(SMALL)
     up = RosProcess([sys.executable, "-m", "okid_ros.cli", "up", "--params", str(REPO_ROOT / "config" / "okid.yaml"),
@@ -88,6 +84,11 @@ def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
     probe = LoopProbe()
     replay = None
     try:
+        # The bag is simulated while the nodes start (no sample reaches them before the replay).
+        bag = tmp_path / "experiment"
+        sim = RosProcess([sys.executable, "-m", "okid_ros.cli", "simulate", "--out", str(bag),
+                          "--duration", f"{BAG_S:g}", "--seed", "3"], env)
+        assert sim.proc.wait(timeout=120) == 0, sim.output()
         up.wait_for_output(r"\[okid_arx_identifier\]: ready", 60)
         up.wait_for_output(r"\[okid_modal_estimator\]: ready", 60)
         passes = 3
@@ -95,7 +96,12 @@ def test_a_looped_bag_restarts_both_nodes_cleanly(ros_domain_id, tmp_path):
                              "--loop", "--rate", f"{RATE:g}", "--subscribers", "3",
                              "--duration", f"{passes * BAG_S / RATE - 1.0:g}"], env)
         assert replay.proc.wait(timeout=120) == 0, replay.output()
-        time.sleep(1.0)
+        deadline = time.monotonic() + 1.0  # the last pass's first model, if still on its way (was: 1 s always)
+        while time.monotonic() < deadline:
+            with probe.lock:
+                if len(probe.pass_starts) == passes and any(w >= probe.pass_starts[-1][0] for w, _, _ in probe.models):
+                    break
+            time.sleep(0.05)
         with probe.lock:
             starts, models, arx = list(probe.pass_starts), list(probe.models), list(probe.arx)
         assert len(starts) == passes, (starts, replay.output())
