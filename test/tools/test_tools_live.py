@@ -158,17 +158,25 @@ def test_the_wait_flag_takes_no_value():
 
 
 def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
-    for args, fragment in (
+    cases = (
         ([str(short_bag), "--topics", "/nope"], "no topic /nope"),
         ([str(short_bag), "--remap", "/okid/io_sample"], "must be FROM:=TO"),
         ([str(short_bag), "--rate", "0"], "--rate"),
         ([str(tmp_path / "missing")], "no such bag"),
-    ):
-        proc = replay(ros_domain_id, *args)
+    )
+    procs = [replay(ros_domain_id, *args) for args, _ in cases]  # at once: each one only starts and exits
+    for proc, (_, fragment) in zip(procs, cases):
         assert wait_exit(proc, 60) == 2
         # Fast DDS may add colored log lines of its own (e.g. a shared-memory port held elsewhere)
         lines = [line for line in proc.output().splitlines() if line.strip() and not line.startswith("\x1b")]
         assert len(lines) == 1 and lines[0].startswith("okid-ros replay: error: ") and fragment in lines[0], lines
+
+
+def _states_after_a_jump(received: list) -> int:
+    """ModalStates received after the first jump back of their stamps (0 before it)."""
+    stamps = np.array([stamp_ns(m) for _, m in list(received)], dtype=np.int64)
+    jumps = np.flatnonzero(np.diff(stamps) < -1_000_000_000)
+    return len(stamps) - int(jumps[0]) - 1 if len(jumps) else 0
 
 
 def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domain_id, tmp_path):
@@ -177,8 +185,6 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
     With reset_on_time_jump false the nodes go on with their models (the default restart at a
     jump: test_nodes_time_jump.py).
     """
-    bag = tmp_path / "loop"
-    write_experiment_bag(bag, simulate_experiment(16.0, start_ns=START_NS))
     fast = tmp_path / "fast.yaml"
     fast.write_text(FAST_PARAMS + "/**:\n  ros__parameters:\n    reset_on_time_jump: false\n")
     env = subprocess_env(ros_domain_id)
@@ -189,6 +195,8 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
     }
     listener = Listener({"/okid/modal_states": ModalStates})
     try:
+        bag = tmp_path / "loop"  # written while the nodes start
+        write_experiment_bag(bag, simulate_experiment(16.0, start_ns=START_NS))
         for proc in nodes.values():
             proc.wait_for_output(r"ready:", timeout_s=60)
         listener.wait_for_publishers(["/okid/modal_states"])
@@ -196,7 +204,9 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
                         "--topics", IO_SAMPLE_TOPIC, "--subscribers", "2", "--delay", "0.5")
         assert wait_exit(player, 90) == 0, player.output()
         assert "pass 2 (stamps jump back" in player.output()
-        time.sleep(1.0)
+        deadline = time.monotonic() + 1.0  # the states of pass 2 still on their way, if any (was: 1 s always)
+        while _states_after_a_jump(listener.received["/okid/modal_states"]) <= 200 and time.monotonic() < deadline:
+            time.sleep(0.05)
         states = [m for _, m in listener.received["/okid/modal_states"]]
         stamps = np.array([stamp_ns(m) for m in states])
         jumps = np.flatnonzero(np.diff(stamps) < -1_000_000_000)
