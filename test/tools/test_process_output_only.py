@@ -8,6 +8,8 @@ record with an unrelated u and ``--output-only``) for `track`.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -51,24 +53,34 @@ def assert_true_modes_found(updates: list[list[dict]], rtol: float = 0.02) -> No
     assert np.all(hits >= 0.5 * len(updates)), dict(zip(AMBIENT_FREQUENCIES_HZ, hits))
 
 
-def test_process_runs_the_nodes_logic_output_only(bag, tmp_path, capsys):
-    out, jsonl = tmp_path / "out", tmp_path / "updates.jsonl"
-    assert okid_ros_main(["process", str(bag), *PARAMS, "--out", str(out), "--jsonl", str(jsonl)]) == 0
-    lines = [json.loads(line) for line in jsonl.read_text().splitlines()]
+@pytest.fixture(scope="module")
+def processed(bag, tmp_path_factory) -> dict:
+    """`okid-ros process` of the bag once for the module (--jsonl only adds its file): status, paths, stdout."""
+    folder = tmp_path_factory.mktemp("process_output_only")
+    out, jsonl = folder / "out", folder / "updates.jsonl"
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:
+        status = okid_ros_main(["process", str(bag), *PARAMS, "--out", str(out), "--jsonl", str(jsonl)])
+    print(stdout.getvalue())
+    return {"status": status, "out": out, "jsonl": jsonl, "stdout": stdout.getvalue()}
+
+
+def test_process_runs_the_nodes_logic_output_only(processed):
+    assert processed["status"] == 0
+    lines = [json.loads(line) for line in processed["jsonl"].read_text().splitlines()]
     assert len(lines) >= 5
     assert all(line["n_inputs"] == 0 and line["modes"] for line in lines)
     assert_true_modes_found([line["modes"] for line in lines])
     ids = {mode["id"] for line in lines for mode in line["modes"]}
     assert len(ids) <= len(AMBIENT_FREQUENCIES_HZ) + 2  # ids kept across the windows
-    text = capsys.readouterr().out
+    text = processed["stdout"]
     assert "StateSpaceModel" in text and "ModalStates" in text
 
 
-def test_process_bag_holds_state_space_models_without_inputs(bag, tmp_path):
+def test_process_bag_holds_state_space_models_without_inputs(processed):
     from okid_ros.tools.bagio import open_bag
 
-    out = tmp_path / "out"
-    assert okid_ros_main(["process", str(bag), *PARAMS, "--out", str(out)]) == 0
+    assert processed["status"] == 0
+    out = processed["out"]
     with open_bag(out) as reader:
         models = [msg for topic, _, msg in reader.messages(["/okid/state_space_model"])]
         n_states_msgs = reader.message_count(["/okid/modal_states"])
@@ -79,7 +91,7 @@ def test_process_bag_holds_state_space_models_without_inputs(bag, tmp_path):
     samples_after = 60.0 - (first_model_s - 1_000.0)
     assert n_states_msgs >= 0.98 * samples_after / 0.005  # modal states on (nearly) every sample
     assert okid_ros_main(["plot", str(out)]) == 0  # the source bag recorded by process; no input: no FRF
-    figures = sorted(p.name for p in (tmp_path / "out_figures").iterdir())
+    figures = sorted(p.name for p in (out.parent / "out_figures").iterdir())
     assert "modes_over_time.png" in figures and "stabilization.png" in figures
     assert "frf.png" not in figures and "fig2_system_markov.png" not in figures
 
