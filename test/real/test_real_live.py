@@ -87,6 +87,7 @@ EXTRA_ESTIMATOR = """    change:
 """
 #: estimator.divergence_window_samples (the default): the unit of the drops allowed at a seam.
 SEAM_WINDOW = 25
+ESTIMATION = "okid_modal_estimator: estimation"  # node 2's DiagnosticStatus
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
@@ -103,6 +104,7 @@ class RawListener:
             msg_type = StateSpaceModel if topic.endswith("state_space_model") else ModalStates
             self.node.create_subscription(msg_type, topic, self._keep(topic), qos, raw=True)
         self.diagnostics: dict[str, dict[str, str]] = {}
+        self.previous: dict[str, dict[str, str]] = {}  # the status before each of these
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -120,17 +122,47 @@ class RawListener:
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         with self.lock:
             for status in msg.status:
+                if status.name in self.diagnostics:
+                    self.previous[status.name] = self.diagnostics[status.name]
                 self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
     def _spin(self) -> None:
         while not self._stop and self.context.ok():
             self.executor.spin_once(timeout_sec=0.05)
 
-    def wait_quiet(self, topic: str, quiet_s: float, timeout_s: float) -> None:
-        """Wait until nothing arrived on ``topic`` for ``quiet_s``, or the timeout."""
+    def unchanged_windows(self) -> int:
+        """Node 2's count of ArxModels ignored as an unchanged window, in its last status."""
+        with self.lock:
+            return int(self.diagnostics.get(ESTIMATION, {}).get("arx_models_unchanged", 0))
+
+    def wait_settled(self, up: RosProcess, unchanged_before: int, quiet_s: float, timeout_s: float) -> None:
+        """Wait until the nodes are done with what they had queued, or the timeout.
+
+        Done: no ModalStates for ``quiet_s``; each node's two last statuses count the same
+        samples (none taken for a diagnostics period, 1 s); node 2 has ignored node 1's
+        republished last window as unchanged (more than ``unchanged_before``), runs no
+        realization and has no ArxModel waiting (the last window's model is out, as
+        `okid-ros demo` waits for it); node 2 has logged "realized in" for every model received.
+        (Was: 3 s without ModalStates, then 2.5 s, two diagnostics periods, always.)
+        """
+        counted = {"okid_arx_identifier: inputs": "grid samples_emitted", ESTIMATION: "samples"}
+        states, models = self.received["/okid/modal_states"], self.received["/okid/state_space_model"]
+
+        def settled() -> bool:
+            if not states or time.monotonic() - states[-1][0] < quiet_s:
+                return False
+            with self.lock:
+                if any(name not in self.previous or self.previous[name].get(key) != self.diagnostics[name].get(key)
+                       for name, key in counted.items()):
+                    return False
+                est = self.diagnostics[ESTIMATION]
+                if (int(est.get("arx_models_unchanged", 0)) <= unchanged_before or est.get("busy") != "false"
+                        or est.get("arx_request_waiting") != "false"):
+                    return False
+            return len(re.findall(r"realized in [0-9.]+ s", up.output())) == len(models)
+
         deadline = time.monotonic() + timeout_s
-        store = self.received[topic]
-        while time.monotonic() < deadline and (not store or time.monotonic() - store[-1][0] < quiet_s):
+        while time.monotonic() < deadline and not settled():
             time.sleep(0.1)
 
     def parameter(self, node: str, name: str, timeout_s: float = 20.0):
@@ -227,8 +259,6 @@ def live(tmp_path_factory, ros_domain_id):
     u, y, dt, reference = load_record()
     n = u.shape[0]
     root = tmp_path_factory.mktemp("real_live")
-    bag = root / f"steel_subframe_x{MAX_PASSES}"
-    write_record_bag(bag, u, y, dt, passes=MAX_PASSES)
     params = root / "steel.yaml"
     params.write_text(node_parameters(**SETTINGS, sample_time_s=dt, extra_shared=EXTRA_SHARED,
                                       extra_estimator=EXTRA_ESTIMATOR))
@@ -241,6 +271,8 @@ def live(tmp_path_factory, ros_domain_id):
     states = listener.received["/okid/modal_states"]
     replay = None
     try:
+        bag = root / f"steel_subframe_x{MAX_PASSES}"  # written while the nodes start
+        write_record_bag(bag, u, y, dt, passes=MAX_PASSES)
         up.wait_for_output(r"\[okid_arx_identifier\]: ready", 60)
         up.wait_for_output(r"\[okid_modal_estimator\]: ready", 60)
         listener.wait_for_publishers(["/okid/modal_states", "/okid/state_space_model"])
@@ -259,10 +291,11 @@ def live(tmp_path_factory, ros_domain_id):
             time.sleep(0.2)
         cpu_after, wall_after = node_cpu_seconds(up.proc.pid), time.monotonic()
         own_after = _own_cpu_s()
+        unchanged = listener.unchanged_windows()
         replay.stop()
-        # The tail: ModalStates of the samples still queued in the nodes.
-        listener.wait_quiet("/okid/modal_states", quiet_s=3.0, timeout_s=30.0)
-        time.sleep(2.5)  # two diagnostics periods: the last counters and "realized in" log lines
+        # The tail: ModalStates of the samples still queued in the nodes, the model of node 1's
+        # last window, the last counters and "realized in" log lines.
+        listener.wait_settled(up, unchanged, quiet_s=1.0, timeout_s=30.0)
     finally:
         if replay is not None:
             replay.stop()
