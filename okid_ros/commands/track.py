@@ -312,10 +312,10 @@ def _waiting(status, changes: list, rows: int, needed: int) -> str:
     """Why the window holds too few rows for a model: a restart at a change, or rejected samples."""
     if changes:
         return f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the {needed} rows needed"
-    rejected = [f"{count} {what}" for count, what in (
-        (status.rejected_nonfinite, "for NaN/Inf"),
-        (status.rejected_magnitude, "for values beyond 1e150 (rescale those channels)")) if count]
-    why = f": samples rejected so far {', '.join(rejected)}" if rejected else ""
+    rejected = [f"{count} samples rejected {why}" for count, why in (
+        (status.rejected_magnitude, "for values beyond 1e150 (rescale those channels)"),
+        (status.rejected_nonfinite, "for NaN/Inf")) if count]
+    why = f": {', '.join(rejected)}" if rejected else ""
     return f"the window holds {rows} of the {needed} rows needed{why}"
 
 
