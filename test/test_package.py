@@ -68,6 +68,9 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     env = dict(os.environ)
     if "AMENT_PREFIX_PATH" not in env:  # pip route: nothing sourced, ROS lives in the venv
         env["AMENT_PREFIX_PATH"] = env["CMAKE_PREFIX_PATH"] = sys.prefix
+    # colcon runs make with -jN -lN (N cores) unless MAKEFLAGS says otherwise; -l held the build to
+    # one job whenever the load average (this test run's own processes included) was above N.
+    env.setdefault("MAKEFLAGS", f"-j{os.cpu_count() or 1}")
     build = subprocess.run(
         [colcon, "--log-base", str(tmp_path / "log"), "build",
          "--base-paths", ".", "msg_defs",
