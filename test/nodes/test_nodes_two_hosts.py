@@ -98,17 +98,23 @@ def test_nodes_on_one_host_serve_a_probe_on_another(two_hosts, tmp_path, discove
         env_a = host_env(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_STATIC_PEERS=ADDRESSES["b"])
     nodes = RosProcess(["ip", "netns", "exec", two_hosts["b"], sys.executable, "-m", "okid_ros.cli", "up",
                         "--params", str(REPO_ROOT / "config" / "okid.yaml"), "--params", str(params)], env_b)
+    probe = None
     try:
+        # The probe starts with the nodes: it publishes only once both nodes' subscriptions have matched.
+        probe = subprocess.Popen(["ip", "netns", "exec", two_hosts["a"], sys.executable,
+                                  str(REPO_ROOT / "test" / "nodes" / "netns_probe.py"), "4000", "500", "90"],
+                                 env=env_a, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         nodes.wait_for_output(r"\[okid_modal_estimator\]: ready", 60)
         nodes.wait_for_output(r"\[okid_arx_identifier\]: ready", 60)
-        probe = subprocess.run(["ip", "netns", "exec", two_hosts["a"], sys.executable,
-                                str(REPO_ROOT / "test" / "nodes" / "netns_probe.py"), "4000", "500", "90"],
-                               env=env_a, cwd=REPO_ROOT, capture_output=True, text=True, timeout=180)
-        lines = [line for line in probe.stdout.splitlines() if line.startswith("{")]
-        assert lines, (probe.stdout, probe.stderr, nodes.output())
+        stdout, stderr = probe.communicate(timeout=180)
+        lines = [line for line in stdout.splitlines() if line.startswith("{")]
+        assert lines, (stdout, stderr, nodes.output())
         summary = json.loads(lines[-1])
         assert summary["subscribers"] == 2, summary  # both nodes found across the link
         assert summary["modal_states"] > 500, (summary, nodes.output())
         assert len(summary["modes_rad_s"]) >= 2, summary
     finally:
+        if probe is not None and probe.poll() is None:
+            probe.kill()
+            probe.communicate()
         nodes.stop()
