@@ -160,7 +160,10 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
             assert probe.state(node) == State.PRIMARY_STATE_ACTIVE
         probe.refused(NODES[1], Transition.TRANSITION_ACTIVATE)  # active already
         probe.publish(600)
-        time.sleep(1.0)
+        deadline = time.monotonic() + 1.0  # the last ArxModel and diagnostics, if still on their way (was: 1 s)
+        while not (probe.arx and max(m.samples_used for m in probe.arx) >= 400 and probe.counts()[1] > 0) \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
         with probe.lock:
             used = [m.samples_used for m in probe.arx]
         assert used and max(used) >= 400, used  # identified from the samples after activate only
@@ -177,7 +180,10 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
         for node in NODES:
             probe.transition(node, Transition.TRANSITION_CLEANUP)
             assert probe.state(node) == State.PRIMARY_STATE_UNCONFIGURED
-        time.sleep(0.5)
+        deadline = time.monotonic() + 0.5  # the graph without them (was: 0.5 s)
+        while (probe.node.count_publishers(f"{NS}/arx_model") or probe.io.get_subscription_count()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert probe.node.count_publishers(f"{NS}/arx_model") == 0
         assert probe.io.get_subscription_count() == 0
         # Configure again after a cleanup, then shut down.
