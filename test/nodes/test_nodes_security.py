@@ -189,7 +189,12 @@ def test_the_sros2_policy_names_every_topic_and_service_the_nodes_create(spawn_r
                 return "/okid/io_sample" in seen["topics subscribe"] and f"/{name}/enable" in seen["services reply"]
 
             probe.wait_until(f"the graph of {name}", complete, 20)
-            time.sleep(1.0)  # discovery of the last endpoints
+            deadline = time.monotonic() + 1.0  # discovery of the last endpoints: every one the policy names
+            while time.monotonic() < deadline:  # (was: 1 s always)
+                seen = probe.endpoints(name)
+                if all(names <= seen.get(key, set()) for key, names in rules.items()):
+                    break
+                time.sleep(0.05)
             seen = probe.endpoints(name)
             print(name, {k: sorted(v) for k, v in seen.items()})
             for key, names in seen.items():
