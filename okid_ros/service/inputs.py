@@ -40,7 +40,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "channel_index"]
+__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "channel_index", "channel_name"]
 
 #: kind -> (message type, field aliases -> canonical field path)
 SOURCE_KINDS: dict[str, str] = {
@@ -170,8 +170,8 @@ def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
     )
 
 
-def _channel_name(channel: int, n_inputs: int) -> str:
-    """The name of a channel index of ``[u; y]``: ``u<i>`` or ``y<j>``."""
+def channel_name(channel: int, n_inputs: int) -> str:
+    """The name of a channel index of ``[u; y]``: ``u<i>`` or ``y<j>`` (the inverse of :func:`channel_index`)."""
     return f"u{channel}" if channel < n_inputs else f"y{channel - n_inputs}"
 
 
@@ -188,11 +188,11 @@ def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
     owner: dict[int, str] = {}
     reads: dict[tuple, str] = {}  # (topic, field) -> what it fills: a channel, or the stamp
     for spec in specs:
-        mapped = [(field, _channel_name(c, n_inputs)) for field, c in zip(spec.fields, spec.channels)]
+        mapped = [(field, channel_name(c, n_inputs)) for field, c in zip(spec.fields, spec.channels)]
         mapped += [(("data", spec.stamp_index), "the stamp")] if spec.stamp_index is not None else []
         for c in spec.channels:
             if c in owner:
-                raise ValueError(f"channel {_channel_name(c, n_inputs)} is mapped by two sources: {owner[c]!r} and "
+                raise ValueError(f"channel {channel_name(c, n_inputs)} is mapped by two sources: {owner[c]!r} and "
                                  f"{spec.text!r}")
             owner[c] = spec.text
         for field, name in mapped:
@@ -200,7 +200,7 @@ def parse_sources(texts, n_inputs: int, n_outputs: int) -> list[SourceSpec]:
                 raise ValueError(f"field {_field_name(field)} of {spec.topic} is mapped twice (to "
                                  f"{reads[spec.topic, field]} and {name}): map each field to one channel")
             reads[spec.topic, field] = name
-    missing = [_channel_name(c, n_inputs) for c in range(n_inputs + n_outputs) if c not in owner]
+    missing = [channel_name(c, n_inputs) for c in range(n_inputs + n_outputs) if c not in owner]
     if missing:
         raise ValueError(f"no input source provides channel(s) {', '.join(missing)}")
     return specs

@@ -81,6 +81,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.options import sample_time_problem
+from okid_ros.service.inputs import channel_name
 from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step
 
 __all__ = ["GridSample", "GridCounters", "SampleGrid", "MAX_STAMP_S", "RESTART_SKIP", "REJECTION_REASONS",
@@ -255,8 +256,7 @@ class SampleGrid:
 
     def channel_name(self, channel: int) -> str:
         """'u0', 'u1', ..., 'y0', ... for a channel index."""
-        m = self.n_inputs
-        return f"u{channel}" if channel < m else f"y{channel - m}"
+        return channel_name(channel, self.n_inputs)
 
     @property
     def n_sources(self) -> int:
