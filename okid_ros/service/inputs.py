@@ -40,6 +40,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from okid_ros.service.channels import channel_index, channel_name
+
 __all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "channel_index", "channel_name"]
 
 #: kind -> (message type, field aliases -> canonical field path)
@@ -66,7 +68,6 @@ _FIELDS: dict[str, dict[str, tuple]] = {
     },
 }
 _INDEXED = re.compile(r"^(u|y|data)\[(\d+)\]$")
-_CHANNEL = re.compile(r"^(u|y)(\d+)$")
 
 
 @dataclass(frozen=True)
@@ -98,19 +99,6 @@ class SourceSpec:
     @property
     def has_header(self) -> bool:
         return self.kind != "array"
-
-
-def channel_index(name: str, n_inputs: int, n_outputs: int) -> int:
-    """'u1' -> 1, 'y0' -> n_inputs; ValueError for a bad name or an index out of range."""
-    match = _CHANNEL.match(name)
-    if not match:
-        raise ValueError(f"channel {name!r} must be u<i> (input) or y<j> (output)")
-    kind, idx = match.group(1), int(match.group(2))
-    limit = n_inputs if kind == "u" else n_outputs
-    if idx >= limit:
-        what = "n_inputs" if kind == "u" else "n_outputs"
-        raise ValueError(f"channel {name} is out of range: {what} = {limit}")
-    return idx if kind == "u" else n_inputs + idx
 
 
 def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
@@ -168,11 +156,6 @@ def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
         kind, topic, SOURCE_KINDS[kind], tuple(fields), tuple(channels), stamp_index, text,
         whole_sample=kind == "io_sample" and not mappings,
     )
-
-
-def channel_name(channel: int, n_inputs: int) -> str:
-    """The name of a channel index of ``[u; y]``: ``u<i>`` or ``y<j>`` (the inverse of :func:`channel_index`)."""
-    return f"u{channel}" if channel < n_inputs else f"y{channel - n_inputs}"
 
 
 def _field_name(path: tuple) -> str:

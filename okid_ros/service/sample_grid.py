@@ -81,7 +81,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.options import sample_time_problem
-from okid_ros.service.inputs import channel_name
+from okid_ros.service.channels import channel_name
 from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step
 
 __all__ = ["GridSample", "GridCounters", "SampleGrid", "MAX_STAMP_S", "RESTART_SKIP", "REJECTION_REASONS",
