@@ -9,7 +9,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from okid_ros.commands._args import add_progress_arguments, namespace, positive_int
+from okid_ros.commands._args import add_progress_arguments, namespace, positive_finite_float, positive_int
+from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -45,6 +46,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     engine.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="address of a running Dask distributed scheduler, e.g. tcp://10.0.0.1:8786 "
                         "(needs the extra okid_ros[dask]); each bag is one task")
+    parser.add_argument("--scheduler-timeout", type=positive_finite_float, default=SCHEDULER_TIMEOUT_S,
+                        metavar="SECONDS", help="how long to try to reach --scheduler before giving up "
+                        "(default: %(default)s)")
     parser.add_argument("--max-failures", type=positive_int, default=None, metavar="K",
                         help="stop after K bags failed (bags not started are reported skipped)")
     parser.add_argument("--force", action="store_true", help="process every bag again, even when unchanged")
@@ -84,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
     options = CampaignOptions(
         paths=args.paths, out_dir=Path(args.out), arx_values=arx_values, est_values=est_values,
         namespace=namespace, storage=args.storage, workers=args.workers or os.cpu_count() or 1,
-        scheduler=args.scheduler, force=args.force, retry_failed=args.retry_failed,
-        max_failures=args.max_failures, csv=args.csv, progress=args.progress,
+        scheduler=args.scheduler, scheduler_timeout_s=args.scheduler_timeout, force=args.force,
+        retry_failed=args.retry_failed, max_failures=args.max_failures, csv=args.csv, progress=args.progress,
         provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"})
     report = run_campaign(options)
     print_summary(report, options)

@@ -135,5 +135,5 @@ def test_scheduler_and_workers_as_separate_programs_give_the_serial_table(campai
 def test_an_unreachable_scheduler_is_a_usage_error(campaign, tmp_path, capsys):
     address = f"tcp://127.0.0.1:{_free_port()}"
     assert batch(campaign["bags"] / "run_000", "--params", campaign["params"], "--out", tmp_path / "x",
-                 "--scheduler", address) == 2
-    assert "cannot connect" in capsys.readouterr().err
+                 "--scheduler", address, "--scheduler-timeout", "1") == 2
+    assert "cannot connect within 1 s" in capsys.readouterr().err

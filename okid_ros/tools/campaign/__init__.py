@@ -14,3 +14,7 @@ Modules, one role each:
 - :mod:`~okid_ros.tools.campaign.runner`: the command's orchestration and its summary;
 - :mod:`~okid_ros.tools.campaign.plot`: frequency and damping of every mode id over the campaign.
 """
+
+#: How long ``batch --scheduler`` tries to reach the cluster before giving up (Dask's own default
+#: is 30 s); here, not in the engines, so the command line reads it without importing them.
+SCHEDULER_TIMEOUT_S = 10.0

@@ -20,6 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 
 from okid_ros.errors import OkidError
+from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.worker import BagJob, failed_result, run_bag_job
 
 __all__ = ["run_jobs"]
@@ -28,7 +29,7 @@ OnResult = Callable[[BagJob, dict], bool]
 
 
 def run_jobs(jobs: list[BagJob], on_result: OnResult, *, workers: int = 1,
-             scheduler: str | None = None) -> list[BagJob]:
+             scheduler: str | None = None, scheduler_timeout_s: float = SCHEDULER_TIMEOUT_S) -> list[BagJob]:
     """Run ``jobs``; returns the jobs not run because ``on_result`` asked to stop.
 
     Parameters
@@ -37,11 +38,12 @@ def run_jobs(jobs: list[BagJob], on_result: OnResult, *, workers: int = 1,
     on_result : called in this process with each job and its result; True stops early.
     workers : local processes (1: in this process); ignored with ``scheduler``.
     scheduler : address of a running Dask distributed scheduler (``tcp://host:8786``).
+    scheduler_timeout_s : how long to try to connect to ``scheduler``.
     """
     if not jobs:
         return []
     if scheduler is not None:
-        return _run_dask(jobs, on_result, scheduler)
+        return _run_dask(jobs, on_result, scheduler, timeout_s=scheduler_timeout_s)
     if workers <= 1 or len(jobs) == 1:
         return _run_serial(jobs, on_result)
     return _run_pool(jobs, on_result, min(workers, len(jobs)))
@@ -111,12 +113,13 @@ def _import_distributed():
     return distributed
 
 
-def _run_dask(jobs: list[BagJob], on_result: OnResult, address: str) -> list[BagJob]:
+def _run_dask(jobs: list[BagJob], on_result: OnResult, address: str, *, timeout_s: float) -> list[BagJob]:
     distributed = _import_distributed()
     try:
-        client = distributed.Client(address, timeout="10s", set_as_default=False)
+        client = distributed.Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except (OSError, TimeoutError) as exc:
-        raise OkidError(f"--scheduler {address}: cannot connect ({type(exc).__name__}: {exc})") from None
+        raise OkidError(f"--scheduler {address}: cannot connect within {timeout_s:g} s "
+                        f"({type(exc).__name__}: {exc})") from None
     try:
         # pure=False: a rerun with --force must run again; the key names the bag in the dashboard.
         run = uuid.uuid4().hex[:8]  # two campaigns on one cluster never share a key

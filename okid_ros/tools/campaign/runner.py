@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TextIO
 
 from okid_ros.errors import OkidError, OutputError
+from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
 from okid_ros.tools.campaign.engines import run_jobs
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
@@ -41,6 +42,7 @@ class CampaignOptions:
     storage: str = "mcap"
     workers: int = 1
     scheduler: str | None = None
+    scheduler_timeout_s: float = SCHEDULER_TIMEOUT_S
     force: bool = False
     retry_failed: bool = False
     max_failures: int | None = None
@@ -165,7 +167,8 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
         return options.max_failures is not None and failures >= options.max_failures
 
     try:
-        not_run = run_jobs(jobs, on_result, workers=options.workers, scheduler=options.scheduler)
+        not_run = run_jobs(jobs, on_result, workers=options.workers, scheduler=options.scheduler,
+                           scheduler_timeout_s=options.scheduler_timeout_s)
     finally:
         bar.close()
         manifest.close()
