@@ -17,12 +17,13 @@ from __future__ import annotations
 import csv
 import math
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from okid_ros.errors import write_atomically
+from okid_ros.errors import OkidWarning, write_atomically
 from okid_ros.service.records import mode_record, mode_shape
 
 __all__ = ["MODAL_CSV_COLUMNS", "write_modal_csv", "write_uff"]
@@ -67,7 +68,10 @@ def write_uff(path: str | Path, modes: Sequence[Any], *, frequency_hz: np.ndarra
     frequency_hz : (F,) uniform frequency grid of the FRFs.
     frfs : label -> (F, p, m) complex FRF [output unit / input unit], e.g. ``{"model": H,
         "measured H1": H1}``; one dataset per label and output/input pair (response node =
-        output, reference node = input, label in ID line 2).
+        output, reference node = input, label in ID line 2). NaN marks a frequency the FRF
+        does not determine (a measured FRF where the inputs' cross-spectrum is singular): the
+        dataset leaves it out (uneven abscissa), a pair undetermined everywhere is not written,
+        and an :class:`~okid_ros.errors.OkidWarning` says so.
 
     Returns
     -------
@@ -91,20 +95,15 @@ def write_uff(path: str | Path, modes: Sequence[Any], *, frequency_hz: np.ndarra
         ))
     if frfs and frequency_hz is not None:
         freq = np.asarray(frequency_hz, float)
-        step = float(np.mean(np.diff(freq))) if freq.size > 1 else 0.0
         for label, frf in frfs.items():
-            frf = np.nan_to_num(np.asarray(frf, complex))
+            frf = np.asarray(frf, complex)
+            _warn_undetermined(label, np.isfinite(frf))
             for i in range(frf.shape[1]):
                 for j in range(frf.shape[2]):
-                    sets.append(pyuff.prepare_58(
-                        binary=0, id1=f"{description} FRF output {i + 1} / input {j + 1}", id2=label,
-                        id3="NONE", id4="NONE", id5="NONE", func_type=4, ver_num=0, load_case_id=0,
-                        rsp_ent_name="okid", rsp_node=i + 1, rsp_dir=1, ref_ent_name="okid", ref_node=j + 1,
-                        ref_dir=1, ord_data_type=6, num_pts=freq.size, abscissa_spacing=1,
-                        abscissa_min=float(freq[0]), abscissa_inc=step, data=frf[:, i, j], x=freq,
-                        abscissa_spec_data_type=18, ordinate_spec_data_type=0, orddenom_spec_data_type=0,
-                        z_axis_spec_data_type=0, abscissa_axis_units_lab="Hz",
-                    ))
+                    known = np.isfinite(frf[:, i, j])
+                    if known.any():
+                        sets.append(_frf_dataset(pyuff, f"{description} FRF output {i + 1} / input {j + 1}", label,
+                                                 (i + 1, j + 1), freq[known], frf[known, i, j], even=known.all()))
     # pyuff writes (appends) to a file name: a fresh file in a temporary folder, then its bytes
     # through write_atomically, so a device is written into and a failure leaves the old file.
     with tempfile.TemporaryDirectory() as folder:
@@ -112,3 +111,29 @@ def write_uff(path: str | Path, modes: Sequence[Any], *, frequency_hz: np.ndarra
         pyuff.UFF(str(staged)).write_sets(sets, mode="add")
         write_atomically(path, lambda stream: stream.write(staged.read_bytes()))
     return len(sets)
+
+
+def _frf_dataset(pyuff, name: str, label: str, nodes: tuple[int, int], freq: np.ndarray, values: np.ndarray, *,
+                 even: bool) -> dict:
+    """Dataset 58 of one output/input pair: its abscissa even (start and step) or listed point by point."""
+    step = float(np.mean(np.diff(freq))) if even and freq.size > 1 else 0.0
+    return pyuff.prepare_58(
+        binary=0, id1=name, id2=label, id3="NONE", id4="NONE", id5="NONE", func_type=4, ver_num=0,
+        load_case_id=0, rsp_ent_name="okid", rsp_node=nodes[0], rsp_dir=1, ref_ent_name="okid", ref_node=nodes[1],
+        ref_dir=1, ord_data_type=6, num_pts=freq.size, abscissa_spacing=1 if even else 0,
+        abscissa_min=float(freq[0]), abscissa_inc=step, data=values, x=freq, abscissa_spec_data_type=18,
+        ordinate_spec_data_type=0, orddenom_spec_data_type=0, z_axis_spec_data_type=0, abscissa_axis_units_lab="Hz",
+    )
+
+
+def _warn_undetermined(label: str, known: np.ndarray) -> None:
+    """One warning for an FRF (F, p, m) with undetermined frequencies (``known`` False there)."""
+    if known.all():
+        return
+    missing = int(np.sum(~known.all(axis=(1, 2))))
+    if not known.any():
+        text = f"UFF: the {label} FRF is undetermined at every frequency: not written"
+    else:
+        text = (f"UFF: the {label} FRF is undetermined at {missing} of {known.shape[0]} frequencies: "
+                f"left out of its datasets (uneven abscissa)")
+    warnings.warn(text, OkidWarning, stacklevel=3)

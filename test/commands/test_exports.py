@@ -14,10 +14,12 @@ import pyuff
 
 from okid_ros.cli import main
 from okid_ros.core.validation import h1_frf, model_frf
+from okid_ros.errors import OkidWarning
 from okid_ros.records import load_record, save_record
 from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model
 from okid_ros.sim.simulators import simulate_innovation
+from okid_ros.tools.exports import write_uff
 
 DT = 0.008
 
@@ -98,3 +100,37 @@ def test_a_uff_to_a_fifo_is_written_into_not_replaced(identified, tmp_path):
     reader.join(timeout=30)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert received and received[0] == (root / "model.uff").read_bytes()
+
+
+def test_uff_leaves_out_the_frequencies_a_measured_frf_does_not_determine(tmp_path):
+    # NaN marks them (h1_frf where the inputs' cross-spectrum is singular); they were written as 0.
+    freq = np.linspace(0.0, 10.0, 11)
+    modelled = (1.0 + 1j * freq)[:, None, None] * np.ones((1, 2, 1))
+    measured = modelled.copy()
+    measured[[3, 4]] = np.nan
+    with pytest.warns(OkidWarning, match="measured H1 FRF is undetermined at 2 of 11 frequencies"):
+        count = write_uff(tmp_path / "m.uff", [], frequency_hz=freq, frfs={"model": modelled, "measured H1": measured})
+    sets = pyuff.UFF(str(tmp_path / "m.uff")).read_sets()
+    assert count == len(sets) == 4
+    kept = np.delete(np.arange(freq.size), [3, 4])
+    for dataset in sets:
+        if dataset["id2"].strip() == "model":
+            np.testing.assert_allclose(dataset["x"], freq, atol=1e-6)
+            np.testing.assert_allclose(dataset["data"], modelled[:, 0, 0], rtol=1e-9)
+        else:
+            assert dataset["abscissa_spacing"] == 0
+            np.testing.assert_allclose(dataset["x"], freq[kept], atol=1e-6)
+            np.testing.assert_allclose(dataset["data"], measured[kept, 0, 0], rtol=1e-9)
+
+
+def test_a_measured_frf_undetermined_everywhere_is_not_written_and_said(tmp_path, capsys):
+    # 80 samples: one Welch segment, so the two inputs' 2 x 2 cross-spectrum is singular everywhere.
+    u = white_input(80, 2, seed=3)
+    save_record(tmp_path / "short.npz", u, simulate_innovation(paper_model(), u, seed=4)[0], DT)
+    assert main(["identify", str(tmp_path / "short.npz"), "--json", str(tmp_path / "m.json"),
+                 "--uff", str(tmp_path / "m.uff")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: UFF: the measured H1 FRF is undetermined at every frequency: not written" in err
+    frfs = [s for s in pyuff.UFF(str(tmp_path / "m.uff")).read_sets() if s["type"] == 58]
+    assert len(frfs) == 4 and {s["id2"].strip() for s in frfs} == {"model"}
+    assert all(np.all(np.isfinite(s["data"])) and np.any(s["data"] != 0) for s in frfs)
