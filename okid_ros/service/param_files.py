@@ -8,8 +8,9 @@ one name token and ``/**`` for any number of them. So ``/**`` applies to every n
 *only* in the root namespace (config/okid.yaml therefore keys its sections ``/**/NODE``).
 
 :func:`file_report` lists what a user most likely got wrong and rcl passes over in silence:
-parameters no node declares (``arx: {ordr: 50}``) and sections naming a node of this package
-that do not apply to it (a bare node name with a namespace). The nodes log it as warnings (or
+parameters no node declares (``arx: {ordr: 50}``), sections naming a node of this package
+that do not apply to it (a bare node name with a namespace) and a key given twice in one
+mapping (rcl, like YAML loaders, keeps the last). The nodes log it as warnings (or
 refuse to start with ``strict_parameters``), ``okid-ros process`` prints it (or refuses with
 ``--strict-params``).
 
@@ -32,6 +33,7 @@ __all__ = [
     "rcl_scalar",
     "node_fqn",
     "read_parameter_file",
+    "ParameterTree",
     "section_matches",
     "flatten",
     "node_values_from_tree",
@@ -146,6 +148,7 @@ def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
     fqns = {node: node_fqn(node, namespace) for node in known}
     problems = [f"{label}: section {key!r} holds no 'ros__parameters' mapping: nothing in it is read (rcl "
                 "refuses such a file)" for key in _without_parameters(tree)]
+    problems += [f"{label}: {note}" for note in getattr(tree, "repeated", ())]
     for key, values in _sections(tree):
         applies = [node for node, fqn in fqns.items() if section_matches(key, fqn)]
         last = str(key).rstrip("/").split("/")[-1]
@@ -255,8 +258,19 @@ def _expanded_size(root: Any) -> tuple[float, int]:
     return size[id(root)], len(size)
 
 
-def load_yaml_as_rcl(text: str, label: str = "the YAML text") -> Any:
+class ParameterTree(dict):
+    """A parameter file's YAML tree, with the keys it gives twice in one mapping (``repeated``)."""
+
+    def __init__(self, tree: Mapping, repeated: Sequence[str] = ()) -> None:
+        super().__init__(tree)
+        self.repeated = tuple(repeated)
+
+
+def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[str] | None = None) -> Any:
     """``yaml.safe_load(text)`` with each plain scalar typed by :func:`rcl_scalar`, as a node would see it.
+
+    ``repeated``: when given, a sentence for each key given twice in one mapping is appended
+    (the last value counts, as in rcl).
 
     Raises
     ------
@@ -272,9 +286,17 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text") -> Any:
 
     class Loader(yaml.SafeLoader):
         def construct_mapping(self, node, deep=False):
+            lines: dict[str, int] = {}
             for key, _ in node.value:  # keys are names, never typed
                 if isinstance(key, yaml.ScalarNode) and key.tag == tag:
                     key.tag = "tag:yaml.org,2002:str"
+                if repeated is not None and isinstance(key, yaml.ScalarNode):
+                    line = key.start_mark.line + 1
+                    if key.value in lines:
+                        where = f"line {line}" if lines[key.value] == line else f"lines {lines[key.value]} and {line}"
+                        repeated.append(f"key {key.value!r} is given twice in one mapping ({where}): the last value "
+                                        f"counts, as rcl reads it")
+                    lines[key.value] = line
             return super().construct_mapping(node, deep)
 
     Loader.yaml_implicit_resolvers = {}  # no YAML 1.1 typing; plain scalars go to rcl_scalar
@@ -305,12 +327,13 @@ def _check_aliases(root: Any, label: str) -> None:
 
 
 def read_parameter_file(path: str | Path) -> Mapping:
-    """The YAML tree of a ROS parameter file (node sections at the top), or ParameterError."""
+    """The YAML tree of a ROS parameter file (node sections at the top, keys it repeats noted), or ParameterError."""
     import yaml
 
     path = Path(path)
+    repeated: list[str] = []
     try:
-        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}")
+        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}", repeated=repeated)
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
@@ -320,7 +343,7 @@ def read_parameter_file(path: str | Path) -> Mapping:
     if not isinstance(tree, Mapping):
         raise ParameterError(f"parameter file {path} has no node sections (expected a mapping "
                              f"'NODE: {{ros__parameters: {{...}}}}', got {type(tree).__name__})")
-    return tree
+    return ParameterTree(tree, repeated)
 
 
 def read_files(paths: Sequence[str | Path]) -> list[tuple[str, Mapping]]:

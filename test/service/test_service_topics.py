@@ -121,3 +121,21 @@ def test_namespaced_parameter_file_sections(tmp_path):
     assert load_parameters(path, ARX_NODE, namespace="/rig1")["arx.order"] == 20
     assert load_parameters(path, ARX_NODE, namespace="/rig2")["arx.order"] == 30
     assert load_parameters(path, ARX_NODE)["arx.order"] == 100
+
+
+def test_a_key_given_twice_is_reported_and_the_last_value_counts(tmp_path):
+    # rcl keeps the last value of a key given twice, as YAML loaders do; nothing said so before.
+    path = tmp_path / "twice.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    publish_rate_hz: 1.0\n    arx: {order: 20}\n"
+                    "    publish_rate_hz: 4.0\n"
+                    "/**/okid_modal_estimator:\n  ros__parameters:\n    tracking: {min_mac: 0.8, min_mac: 0.7}\n")
+    reported: list[str] = []
+    arx, est = load_node_parameters([path], report=reported.append)
+    assert arx["publish_rate_hz"] == 4.0 and est["tracking.min_mac"] == 0.7
+    assert reported == [
+        f"{path}: key 'publish_rate_hz' is given twice in one mapping (lines 3 and 5): the last value counts, "
+        "as rcl reads it",
+        f"{path}: key 'min_mac' is given twice in one mapping (line 8): the last value counts, as rcl reads it",
+    ], reported
+    with pytest.raises(ParameterError, match="given twice"):
+        load_node_parameters([path], strict=True)
