@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 from okid_ros.commands._args import int_between, namespace
 
@@ -88,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES, ModelView, parse_pairs, write_validation_figures
 
     refuse_existing(out_dir, VALIDATION_FIGURES, args.force)
+    made_here = not out_dir.exists()  # removed again if nothing is drawn into it
     written = write_figures(data, out_dir, force=args.force, n_stochastic=args.terms)
     if data.state_space is not None:
         view = ModelView.of(data.state_space)
@@ -111,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
         from okid_ros.errors import DataError
 
         held = ", ".join(f"{count} on {topic}" for topic, count in data.counts.items())
+        if made_here:
+            with contextlib.suppress(OSError):  # not empty, or gone: leave it
+                out_dir.rmdir()
         raise DataError(f"{args.bag}: nothing to draw: no valid model and no modal states ({held} messages); "
                         f"the diagnostics of the run that wrote it say why")
     print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)

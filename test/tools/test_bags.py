@@ -534,3 +534,8 @@ def test_plot_of_an_output_without_models_says_there_is_nothing_to_draw(tmp_path
             writer.add_connection(topic, f"okid_msgs/msg/{kind}", typestore=store)
     code, _, err = run_cli(capsys, "plot", bag, "--out-dir", tmp_path / "figs")
     assert_one_line_error(code, err, "nothing to draw", "0 on /okid/state_space_model")
+    assert not (tmp_path / "figs").exists()  # the folder made for the figures is not left behind empty
+    (tmp_path / "mine").mkdir()
+    code, _, err = run_cli(capsys, "plot", bag, "--out-dir", tmp_path / "mine")
+    assert_one_line_error(code, err, "nothing to draw")
+    assert (tmp_path / "mine").is_dir()  # a folder that was there stays
