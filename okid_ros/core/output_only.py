@@ -387,13 +387,13 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     for mode in modes:
         n_home = _home_order(mode)
         target = poles.eigenvalue[mode.members[n_home]]
-        f_std, z_std = jackknife.std(np.array([target]), n_home, sample_time_s)
-        width = mode.damping_ratio * mode.frequency_hz
-        if _scattered(f_std[0], z_std[0], mode.frequency_hz, mode.damping_ratio):
+        stds = jackknife.screened_std(target, n_home, sample_time_s, scattered=partial(
+            _scattered, frequency_hz=mode.frequency_hz, damping_ratio=mode.damping_ratio))
+        if stds is None:  # scattered (most noise poles: after a few of the replicates)
             continue
+        (f_std, z_std), width = stds, mode.damping_ratio * mode.frequency_hz
         share = dominance(n_home, target)
-        steady = (f_std[0] <= STEADY_FREQUENCY_STD_PER_WIDTH * width
-                  and z_std[0] <= STEADY_DAMPING_CV * mode.damping_ratio)
+        steady = f_std <= STEADY_FREQUENCY_STD_PER_WIDTH * width and z_std <= STEADY_DAMPING_CV * mode.damping_ratio
         stands_out = share >= MIN_SPECTRAL_DOMINANCE
         if not (stands_out or steady):
             # Its share may be held by candidates beside it (a close mode, its own twin family), not by

@@ -116,8 +116,8 @@ def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
     modes, _ = cluster_modes(poles)
 
     class Quiet:  # every candidate passes the jackknife
-        def std(self, targets, n, dt):
-            return np.zeros(len(targets)), np.zeros(len(targets))
+        def screened_std(self, target, n, dt, *, scattered):
+            return 0.0, 0.0
 
     def share(n, pole):  # both would pass MIN_SPECTRAL_DOMINANCE on their own
         return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
@@ -256,3 +256,39 @@ def test_random_records_whose_mode_was_listed_twice_list_only_true_modes(index: 
     nearest = [int(np.argmin(abs(true_f - mode.frequency_hz))) for mode in model.modes]
     assert all(abs(mode.frequency_hz / true_f[k] - 1) < 0.02 for mode, k in zip(model.modes, nearest))
     assert len(set(nearest)) == len(nearest)  # one listed mode per true mode
+
+
+def test_the_screened_jackknife_stops_reading_replicates_once_a_pole_is_scattered() -> None:
+    """``Jackknife.screened_std``: the values of ``std`` when not scattered, None when scattered, read lazily."""
+    from okid_ros.core.output_only_support import Jackknife
+
+    dt, read = 1e-3, []
+
+    class Replicate:  # one pole per replicate, at 10 Hz plus the replicate's offset
+        def __init__(self, j: int, offset_hz: float) -> None:
+            self.j, self.offset_hz, self.max_states = j, offset_hz, 10
+
+        def eigenvalues(self, n: int) -> np.ndarray:
+            read.append(self.j)
+            s = 2 * np.pi * (10.0 + self.offset_hz) * (-0.01 + 1j)
+            return np.exp(np.array([s, np.conj(s)]) * dt)
+
+    def jackknife(offsets_hz) -> Jackknife:
+        made = Jackknife.__new__(Jackknife)
+        made.realizers = [Replicate(j, f) for j, f in enumerate(offsets_hz)]
+        return made
+
+    target = np.exp(2 * np.pi * 10.0 * (-0.01 + 1j) * dt)
+    limit = 0.05  # Hz of frequency std; the damping never scatters here
+    def scattered(f_std, z_std):
+        return f_std > limit
+
+    steady = jackknife(0.01 * np.sin(np.arange(8)))
+    f_std, z_std = steady.std(np.array([target]), 10, dt)
+    assert steady.screened_std(target, 10, dt, scattered=scattered) == (f_std[0], z_std[0])
+    read.clear()
+    noisy = jackknife([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert noisy.std(np.array([target]), 10, dt)[0][0] > limit
+    read.clear()
+    assert noisy.screened_std(target, 10, dt, scattered=scattered) is None
+    assert read == [0, 1]  # the second replicate decides: the other six are not realized
