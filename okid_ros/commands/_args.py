@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 __all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "states_or_auto",
-           "penalty_or_gcv", "node_parameter_range", "add_bag_arguments", "add_progress_arguments", "namespace"]
+           "penalty_or_gcv", "node_parameter_range", "NodeParameterDefault", "add_bag_arguments",
+           "add_progress_arguments", "namespace"]
 
 
 def positive_int(text: str) -> int:
@@ -100,6 +101,27 @@ def node_parameter_range(name: str) -> tuple[float, float]:
 
     spec = next(spec for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node) if spec.name == name)
     return spec.low, spec.high
+
+
+class NodeParameterDefault:
+    """The default of the nodes' parameter ``name`` as an option's default, looked up when used.
+
+    ``float(default)`` (a command's run) or ``str(default)`` (``%(default)s`` in its help) reads
+    the parameter table; building the parser does not, so ``okid-ros`` starts without importing
+    the numerical modules the table's defaults come from.
+    """
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __float__(self) -> float:
+        from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
+
+        return float(next(spec.default for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node)
+                          if spec.name == self.name))
+
+    def __str__(self) -> str:
+        return f"{float(self):g}"
 
 
 def add_bag_arguments(parser) -> None:

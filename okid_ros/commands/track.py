@@ -45,13 +45,13 @@ from __future__ import annotations
 import argparse
 
 from okid_ros.commands._args import (
+    NodeParameterDefault,
     add_bag_arguments,
     node_parameter_range,
     penalty_or_gcv,
     positive_int,
     states_or_auto,
 )
-from okid_ros.core.gap_fill import OUTPUT_ONLY_VAR_ORDER
 from okid_ros.core.options import GAINS, RealizationOptions
 
 
@@ -107,15 +107,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="regularization penalty: chosen by GCV per update (default) or fixed")
     parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
-    from okid_ros.core.change_detection import DEFAULT_FALSE_ALARM_SAMPLES
-    from okid_ros.service.identification import ArxIdentificationParams
-
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
                         help="do not test for structural changes (the window only slides)")
-    parser.add_argument("--false-alarm-samples", type=_samples, default=DEFAULT_FALSE_ALARM_SAMPLES, metavar="N",
+    parser.add_argument("--false-alarm-samples", type=_samples, metavar="N",
+                        default=NodeParameterDefault("change.false_alarm_samples"),
                         help="expected samples between false alarms of the change test on a stationary "
                         "structure (default: %(default)g)")
-    parser.add_argument("--restart-min-fill", type=_fraction, default=ArxIdentificationParams.restart_min_fill,
+    parser.add_argument("--restart-min-fill", type=_fraction, default=NodeParameterDefault("arx.restart_min_fill"),
                         metavar="F", help="after a change the window restarts at the change point; models "
                         "come from this fraction of W rows on (default: %(default)g)")
     parser.add_argument("--output-only", action="store_true",
@@ -171,8 +169,8 @@ def run(args: argparse.Namespace) -> int:
     q = _arx_order(args, u, y, options)
     record = _TrackedRecord(u, y, q)
     estimator = SlidingWindowArx(q, p, m, window=window)
-    monitor = StructuralChangeMonitor(p, false_alarm_samples=args.false_alarm_samples)
-    restart_rows = max(int(np.ceil(args.restart_min_fill * window)), 1)
+    monitor = StructuralChangeMonitor(p, false_alarm_samples=float(args.false_alarm_samples))
+    restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     # Update points: the window is first full at sample window + q - 1, then every S samples.
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
@@ -278,6 +276,8 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
 
     window, (n_samples, m), p = args.window, u.shape, y.shape[1]
     if args.order == "auto" and m == 0:
+        from okid_ros.core.gap_fill import OUTPUT_ONLY_VAR_ORDER
+
         q = OUTPUT_ONLY_VAR_ORDER  # the VAR only frames the window; its model comes from the outputs
     elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
