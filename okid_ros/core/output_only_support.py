@@ -120,14 +120,22 @@ class Jackknife:
                      scattered: Callable[[float, float], bool]) -> tuple[float, float] | None:
         """:meth:`std` of one pole, or None when ``scattered(frequency_hz_std, damping_ratio_std)``.
 
-        ``scattered`` must grow with both standard deviations (a limit on each). The sum of
-        squares about the mean of all S replicates is at least that about the mean of the ones
-        read so far, so once ``(S - 1) / S`` times the latter passes a limit the pole is
+        The sum of squares about the mean of all S replicates is at least that about the mean of
+        the ones read so far, so once ``(S - 1) / S`` times the latter passes a limit the pole is
         scattered whatever the other replicates hold, and their eigenvalues at ``n_model`` are
         not computed (a third of the replicates' eigenvalues on the low-mode simulation, most of
         whose candidates are noise poles). A bound within 1e-9 of a limit reads on; the full
         values are those of :meth:`std`. The one difference: a replicate not read that has no
         complex pole at all (NaN in :meth:`std`, which no limit catches) is not seen.
+
+        Parameters
+        ----------
+        target : the pole (discrete, upper half plane) of the model of order ``n_model``.
+        scattered : ``scattered(f_std, z_std) -> bool``, growing with both (a limit on each).
+
+        Returns
+        -------
+        ``(frequency_hz_std, damping_ratio_std)`` floats, or None when scattered.
         """
         n_seg = len(self.realizers)
         read = np.empty((n_seg, 2))
