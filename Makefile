@@ -5,10 +5,10 @@ SHELL := /bin/bash
 VENV := .venv
 # Interpreter for the venv (CPython 3.11); empty: the setup script picks Debian's python3.11.
 PYTHON ?=
-# One pytest worker per core, a test module's tests on one worker (its module fixtures built once);
-# each worker is a session of its own, in a ROS domain of its own (test/conftest.py).
-# `make test PYTEST_ARGS=-q` runs the suite in one process.
-PYTEST_ARGS ?= -q -n auto --dist loadscope
+# One process: with one pytest worker per core (`make test PYTEST_ARGS="-q -n auto --dist
+# loadscope"`, 7.5 instead of 15 min here) the DDS tests' fixed-rate streams lose more to the
+# load, and two of them failed in six such runs.
+PYTEST_ARGS ?= -q
 
 SETUP_STAMP := $(VENV)/.okid-stamps/setup
 # Setup reruns when one of these changes; its stages skip what is already up to date.
