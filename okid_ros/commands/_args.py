@@ -97,10 +97,15 @@ def node_parameter_range(name: str) -> tuple[float, float]:
     An option of a command that does what the parameter does takes the same range (inf once
     went through to a singular matrix).
     """
+    spec = _node_parameter(name)
+    return spec.low, spec.high
+
+
+def _node_parameter(name: str):
+    """The parameter table's spec of the nodes' parameter ``name`` (imported only when asked)."""
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
 
-    spec = next(spec for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node) if spec.name == name)
-    return spec.low, spec.high
+    return next(spec for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node) if spec.name == name)
 
 
 class NodeParameterDefault:
@@ -115,10 +120,7 @@ class NodeParameterDefault:
         self.name = name
 
     def __float__(self) -> float:
-        from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params
-
-        return float(next(spec.default for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node)
-                          if spec.name == self.name))
+        return float(_node_parameter(self.name).default)
 
     def __str__(self) -> str:
         return f"{float(self):g}"

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 from okid_ros.service.channels import channel_index, channel_name
 
-__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "channel_index", "channel_name"]
+__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources"]
 
 #: kind -> (message type, field aliases -> canonical field path)
 SOURCE_KINDS: dict[str, str] = {
