@@ -33,6 +33,7 @@ __all__ = [
     "MessageTypes",
     "ros_message_types",
     "stamp_to_seconds",
+    "stamp_parts",
     "seconds_to_stamp",
     "source_values",
     "io_sample_msg",
@@ -93,12 +94,17 @@ def stamp_to_seconds(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def seconds_to_stamp(t: float, types: MessageTypes) -> Any:
-    """Seconds -> ``builtin_interfaces/Time`` (nanoseconds rounded; negative or NaN -> 0)."""
+def stamp_parts(t: float) -> tuple[int, int]:
+    """Seconds -> ``(sec, nanosec)`` of a ``builtin_interfaces/Time`` (rounded; negative or NaN -> 0)."""
     if not math.isfinite(t) or t < 0:
-        return types.Time(sec=0, nanosec=0)
-    ns = int(round(t * 1e9))
-    return types.Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+        return 0, 0
+    return divmod(int(round(t * 1e9)), 1_000_000_000)
+
+
+def seconds_to_stamp(t: float, types: MessageTypes) -> Any:
+    """Seconds -> ``builtin_interfaces/Time`` (:func:`stamp_parts`)."""
+    sec, nanosec = stamp_parts(t)
+    return types.Time(sec=sec, nanosec=nanosec)
 
 
 def _header(t: float, frame_id: str, types: MessageTypes) -> Any:
@@ -325,9 +331,8 @@ def fill_modal_states(msg: Any, result: ModalStatesResult, mode_msgs: list) -> A
     Cheaper than building one per sample: rclpy serializes on publish, so one message object
     can be reused. Float arrays go in as ``array.array('d')``, the form rclpy stores.
     """
-    ns = int(round(result.stamp_s * 1e9)) if math.isfinite(result.stamp_s) and result.stamp_s >= 0 else 0
     stamp = msg.header.stamp
-    stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+    stamp.sec, stamp.nanosec = stamp_parts(result.stamp_s)
     msg.model_id = int(result.model_id)
     if msg.modes is not mode_msgs:
         msg.modes = mode_msgs

@@ -64,13 +64,13 @@ from okid_ros.nodes.common import (
 )
 from okid_ros.nodes.conversions import (
     arx_fit_from_msg,
-    fill_modal_states,
     mode_msg,
     ros_message_types,
     state_space_model_msg,
     structural_change_msg,
 )
 from okid_ros.nodes.runner import run_node
+from okid_ros.nodes.serialized_states import ModalStatesBytes
 from okid_ros.service.estimation import (
     IdleSwitch,
     ModalEstimationParams,
@@ -157,8 +157,7 @@ class ModalEstimatorNode(OkidNode):
         self._mode_msgs: list = []
         self._updates_to_log: deque = deque()  # appended on the executor thread, logged on the side thread
         self._changes_to_log: deque = deque()
-        self._states_msg = self.types.ModalStates()  # refilled and published for every sample
-        self._states_msg.header.frame_id = self.frame_id
+        self._states_bytes = ModalStatesBytes(self.types.ModalStates)  # a template per model, written per sample
         self._arx_invalid = 0
         self._arx_malformed = 0
         self._last_logged_reason = ""
@@ -190,7 +189,7 @@ class ModalEstimatorNode(OkidNode):
                 self._publish_update(result.update)
             if result.change is not None:
                 self._publish_change(result.change, result.stamp_s)
-            self.states_publisher.publish(fill_modal_states(self._states_msg, result, self._mode_msgs))
+            self.states_publisher.publish(self._states_bytes.message(result, self._mode_msgs, self.frame_id))
         if self._job is None and self.service.has_request:
             self._start_job()
 
@@ -281,8 +280,6 @@ class ModalEstimatorNode(OkidNode):
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
         # The service hands each option to the part that uses it: at once.
         self.service.set_params(ModalEstimationParams.from_parameters(values))
-        if "frame_id" in changed:
-            self._states_msg.header.frame_id = self.frame_id
 
     def before_diagnostics(self) -> None:
         while self._changes_to_log:
