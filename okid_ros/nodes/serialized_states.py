@@ -94,7 +94,12 @@ class ModalStatesBytes:
                 return None
             parts.append(data[start:at])
             start = at + length
-        parts.append(data[start:])
+        # The innovation is the message's last field: the CDR ends with its values. rclpy's buffer
+        # may run on past that (rmw_fastrtps sizes it by an upper bound, see tools/bagio.py), and
+        # those bytes would reach the wire and bags recorded from it, so they are cut off.
+        if sizes[-1] == 0:
+            return None
+        parts.append(b"")
         self._parts = parts
         if not self._matches(mode_msgs, frame_id, sizes):
             return None
