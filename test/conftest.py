@@ -98,3 +98,19 @@ def spawn_ros(ros_env: dict[str, str]) -> Iterator[Callable[..., RosProcess]]:
     yield spawn
     for process in reversed(started):
         process.stop()
+
+
+# The fixtures that start ROS processes: a test that takes one talks over DDS.
+_DDS_FIXTURES = frozenset({"ros_env", "spawn_ros"})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark ``dds`` every test that takes a ROS process fixture.
+
+    Modules that start nodes or rclpy otherwise say so: ``pytestmark = pytest.mark.dds``.
+    `make test` runs the ``dds`` tests after the others and in one process: their fixed-rate
+    streams lose samples to a second test worker's load.
+    """
+    for item in items:
+        if _DDS_FIXTURES & set(getattr(item, "fixturenames", ())) and item.get_closest_marker("dds") is None:
+            item.add_marker(pytest.mark.dds)

@@ -26,6 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import RosProcess, subprocess_env
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 MESSAGE_TYPES = ("IoSample", "Mode", "ModalStates", "ArxModel", "StateSpaceModel", "StructuralChange")
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 TIMEOUT_S = 30.0

@@ -22,6 +22,8 @@ from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
 from okid_ros.sim.inputs import lowpass_input
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 DT = 0.004
 T0 = 500.0
 CHANGE, N = 5000, 8500

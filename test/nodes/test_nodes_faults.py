@@ -44,6 +44,8 @@ from std_msgs.msg import Float64MultiArray
 
 from okid_msgs.msg import ArxModel, IoSample
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 
 @pytest.fixture(scope="module")
 def rig(ros_domain_id, tmp_path_factory):

@@ -40,6 +40,8 @@ from std_srvs.srv import SetBool, Trigger
 from okid_msgs.msg import ArxModel, IoSample, ModalStates, StateSpaceModel
 from okid_ros.sim import lowpass_input, paper_model, paper_modes, simulate_innovation
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 DT = 0.008
 T0 = 1000.0
 FAST = """

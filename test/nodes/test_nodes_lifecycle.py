@@ -20,6 +20,8 @@ from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 from okid_msgs.msg import ArxModel, IoSample
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 NS = "/lc"
 NODES = (f"{NS}/okid_arx_identifier", f"{NS}/okid_modal_estimator")
 SMALL = """

@@ -25,6 +25,8 @@ from okid_ros.nodes.common import sensor_qos
 from okid_ros.nodes.conversions import stamp_to_seconds as stamp_s
 from okid_ros.tools.simulate_ambient import AMBIENT_FREQUENCIES_HZ, AMBIENT_IMU_TOPICS, simulate_ambient
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 T0 = 1000.0
 N = 16_000  # 80 s of data
 SAMPLES_PER_S = 600.0

@@ -16,6 +16,8 @@ import time
 import pytest
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 PROBE = r"""
 import json, os, threading, time
 from okid_ros.nodes.common import realtime_threads

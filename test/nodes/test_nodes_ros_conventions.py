@@ -24,6 +24,8 @@ from std_srvs.srv import Trigger
 from okid_msgs.msg import ArxModel, IoSample, ModalStates
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 DT = 0.008
 RIGS = {"/rig1": 1000.0, "/rig2": 5000.0}  # namespace -> first stamp of its samples [s]
 SMALL = """

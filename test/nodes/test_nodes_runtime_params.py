@@ -25,6 +25,8 @@ from okid_msgs.msg import IoSample, StateSpaceModel, StructuralChange
 from okid_ros.core.change_detection import DEFAULT_REFERENCE_SAMPLES, calibration_scale, cusum_threshold
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 T0 = 2000.0
 RATE = 500.0  # samples per second of wall time
 N = 600_000  # 20 min at RATE: more than the module ever takes, even on a loaded machine

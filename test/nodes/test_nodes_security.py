@@ -26,6 +26,8 @@ from rcl_interfaces.srv import SetParameters
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess
 from std_srvs.srv import SetBool, Trigger
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 GRAPH_PROBE = REPO_ROOT / "test" / "nodes" / "netns_graph_probe.py"
 
 POLICY = REPO_ROOT / "config" / "sros2" / "policy.xml"

@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 from ros_helpers import REPO_ROOT
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 MODULES = ("arx_identifier_node", "modal_estimator_node")
 FAST_DIAGNOSTICS = "/**:\n  ros__parameters:\n    diagnostics_rate_hz: 100.0\n"
 

@@ -19,10 +19,13 @@ import re
 import sys
 import time
 
+import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
 
 from okid_msgs.msg import ArxModel, IoSample, StateSpaceModel
+
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
 
 SMALL = """
 /**/okid_arx_identifier:

@@ -24,6 +24,8 @@ import sys
 import pytest
 from ros_helpers import REPO_ROOT, RosProcess
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 SMALL = """
 /**/okid_arx_identifier:
   ros__parameters:

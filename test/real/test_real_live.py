@@ -75,6 +75,8 @@ from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 
 from okid_msgs.msg import ModalStates, StateSpaceModel
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 MIN_PASSES, MAX_PASSES = 2, 6
 SETTINGS = dict(order=20, window=6000, max_states=60, publish_rate_hz=1.0, n_outputs=28)
 EXTRA_SHARED = "    inputs:\n      queue_depth: 10000\n"

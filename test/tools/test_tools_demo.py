@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import sys
 
+import pytest
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 from rosbags.highlevel import AnyReader
+
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
 
 # A window of 1000 rows is valid from about 5 s of data; models twice a second.
 FAST_PARAMS = """

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import sys
 
+import pytest
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 from rosbags.highlevel import AnyReader
 
 from okid_ros.tools.simulate_ambient import AMBIENT_FREQUENCIES_HZ
+
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
 
 
 def test_output_only_demo_identifies_the_ambient_modes_live(ros_domain_id, tmp_path):

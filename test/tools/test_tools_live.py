@@ -24,6 +24,8 @@ from sensor_msgs.msg import Imu
 from okid_msgs.msg import IoSample, ModalStates
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 START_NS = 1_700_000_000 * 1_000_000_000
 DT_NS = 8_000_000
 # Fast enough for a short test: a window of 1000 rows is valid from 500 rows (about 5 s of

@@ -20,6 +20,8 @@ from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 from okid_msgs.msg import ModalStates, Mode
 from okid_ros.tools.monitor import ANSI_HOME_CLEAR, ModalStatesView, TerminalMonitor
 
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+
 ARROWS = ("UP", "DOWN", "FLAT")
 
 

@@ -8,12 +8,15 @@ from __future__ import annotations
 import sys
 import time
 
+import pytest
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 
 from okid_msgs.msg import ModalStates
 from okid_ros.tools.bagio import open_bag
+
+pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
 
 
 def test_record_writes_the_rigs_topics_and_refuses_to_overwrite(ros_domain_id, tmp_path):
