@@ -35,6 +35,7 @@ __all__ = [
     "chain_stiffness_case",
     "change_case",
     "continuous_modes",
+    "explained_fraction_by_lstsq",
     "truss_damping_case",
     "truss_frequency_case",
 ]
@@ -208,3 +209,27 @@ def change_case(kind: str, size: float) -> ChangeCase:
     if kind not in makers:
         raise ValueError(f"unknown change kind {kind!r}; kinds are {', '.join(makers)}")
     return makers[kind](size)
+
+
+def explained_fraction_by_lstsq(w: np.ndarray, u: np.ndarray, lags: int) -> tuple[float, int]:
+    """The model-error check's explained fraction by its definition: numpy's lstsq per output.
+
+    Each output of ``w`` (N, p), less its mean, on the inputs' lags 0 .. ``lags`` of ``u``
+    (N, m), less their means, and its own lags 1 .. ``lags``; explained energy over total energy
+    pooled over the outputs, and the rows n = N - lags. What
+    :func:`okid_ros.core.model_error_check.explained_fraction` computed until the
+    twenty-ninth session, kept as the reference its tests and bench/model_error_check_speed.py
+    compare with.
+    """
+    n = w.shape[0] - lags
+    w = w - w.mean(axis=0)
+    shared = [u[lags - j: lags - j + n] - u[lags - j: lags - j + n].mean(axis=0) for j in range(lags + 1)]
+    explained = total = 0.0
+    for i in range(w.shape[1]):
+        regressors = np.hstack(shared + [w[lags - j: lags - j + n, i:i + 1] for j in range(1, lags + 1)])
+        target = w[lags:, i]
+        coef, *_ = np.linalg.lstsq(regressors, target, rcond=None)
+        fitted = regressors @ coef
+        explained += float(fitted @ fitted)
+        total += float(target @ target)
+    return (explained / total if total > 0 else 0.0), n

@@ -96,23 +96,55 @@ def explained_fraction(w: np.ndarray, u: np.ndarray, lags: int) -> tuple[float, 
     -------
     (R^2 pooled over the outputs: explained energy over total energy, rows n = N - lags).
     """
-    # Plain per-output least squares (numpy lstsq): no library offers a regression of each
-    # output on shared input lags plus its own lags. Means are removed: a drifting offset is
-    # not structural (the CUSUM tracks it out too).
+    # One least-squares fit per output, all outputs at once: the inputs' lags are common to
+    # every output, so they are projected out of all outputs' own lags and targets in one
+    # matrix product (an orthonormal basis of their span from one SVD, its rank as lstsq
+    # decides it), and each output's own lags then need only the triangle of a small QR of
+    # [own lags, target] (numpy's stacked QR, mode "r"): the explained energy is the target's
+    # projection on the inputs plus the last column of that triangle. The same fits as numpy's
+    # lstsq per output (to rounding), which took 9-34 ms per judgement at 28 outputs on the
+    # sample path. An output whose own lags are rank deficient once the inputs are projected
+    # out (a residual that does not move) is fitted by lstsq. Means are removed: a drifting
+    # offset is not structural (the CUSUM tracks it out too).
     n, p = w.shape[0] - lags, w.shape[1]
     w = w - w.mean(axis=0)
     shared = [u[lags - j: lags - j + n] for j in range(lags + 1)] if u.shape[1] else []
-    shared = [s - s.mean(axis=0) for s in shared]
-    explained = total = 0.0
-    for i in range(p):
-        own = [w[lags - j: lags - j + n, i:i + 1] for j in range(1, lags + 1)]
-        regressors = np.hstack(shared + own)
-        target = w[lags:, i]
-        coef, *_ = np.linalg.lstsq(regressors, target, rcond=None)
+    shared = np.hstack([s - s.mean(axis=0) for s in shared]) if shared else np.zeros((n, 0))
+    own = np.empty((n, p, lags + 1))  # per output: its lags 1 .. lags, then its target
+    for j in range(1, lags + 1):
+        own[:, :, j - 1] = w[lags - j: lags - j + n]
+    own[:, :, lags] = w[lags:]
+    total = float(np.sum(own[:, :, lags] ** 2))
+    if total <= 0:
+        return 0.0, n
+    basis = _column_basis(shared, n_columns=shared.shape[1] + lags)
+    flat = own.reshape(n, p * (lags + 1))
+    along = basis.T @ flat  # (r, p (lags + 1))
+    explained = np.sum(along.reshape(-1, p, lags + 1)[:, :, lags] ** 2, axis=0)  # (p,) by the inputs
+    rest = (flat - basis @ along).reshape(n, p, lags + 1).transpose(1, 0, 2)  # (p, n, lags + 1)
+    r = np.linalg.qr(rest, mode="r")
+    explained += np.sum(r[:, :lags, lags] ** 2, axis=1)
+    diagonal = np.abs(np.diagonal(r[:, :lags, :lags], axis1=1, axis2=2))
+    tolerance = np.finfo(float).eps * max(n, shared.shape[1] + lags) * np.max(diagonal, axis=1, initial=0.0)
+    for i in np.flatnonzero(~np.all(diagonal > tolerance[:, None], axis=1)):
+        regressors = np.hstack([shared, own[:, i, :lags]])
+        coef, *_ = np.linalg.lstsq(regressors, own[:, i, lags], rcond=None)
         fitted = regressors @ coef
-        explained += float(fitted @ fitted)
-        total += float(target @ target)
-    return (explained / total if total > 0 else 0.0), n
+        explained[i] = fitted @ fitted
+    return float(np.sum(explained)) / total, n
+
+
+def _column_basis(columns: np.ndarray, *, n_columns: int) -> np.ndarray:
+    """Orthonormal basis (n, r) of the span of ``columns`` (n, k), rank as numpy's lstsq decides it.
+
+    ``n_columns``: the columns of the whole regression the rank threshold counts (lstsq's
+    ``rcond=None``: machine precision times the larger dimension).
+    """
+    if columns.shape[1] == 0:
+        return np.zeros((columns.shape[0], 0))
+    left, singular, _ = np.linalg.svd(columns, full_matrices=False)
+    keep = singular > np.finfo(float).eps * max(columns.shape[0], n_columns) * singular[0]
+    return left[:, keep]
 
 
 class ModelErrorCheck:
