@@ -273,7 +273,10 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             body.append(line)
     if not body:
         raise DataError(f"{path}: no header line")
-    rows = list(csv.reader(body))
+    try:
+        rows = list(csv.reader(body))
+    except csv.Error as exc:  # a field past the csv module's limit (131072 characters), e.g. an unclosed quote
+        raise DataError(f"{path}: not a CSV table the reader can take ({exc})") from None
     # Invisible characters (a zero-width space, a NUL, a second BOM) would hide a 'u1' from its prefix.
     header = ["".join(c for c in h if unicodedata.category(c) not in ("Cc", "Cf")).strip() for h in rows[0]]
     for number, row in enumerate(rows[1:], start=1):

@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.bagio import TRUTH_KEY, open_bag
     from okid_ros.tools.errors import ToolParameterError
     from okid_ros.tools.output_paths import bag_folder, check_output_paths
+    from okid_ros.tools.plot_metadata import usable_truth
     from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
     from okid_ros.tools.process import load_node_parameters
 
@@ -64,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.window > 0:
         raise ToolParameterError(f"--window must be positive, got {args.window}")
     bag_path = Path(args.bag)
-    folder = bag_folder(bag_path)  # the figures go beside the bag, never inside it
+    folder = bag_folder(bag_path).resolve()  # the figures go beside the bag, never inside it
+    if not args.out_dir and not folder.name:
+        raise ToolParameterError(f"{args.bag}: no folder to put the figures beside; give --out-dir")
     out_dir = Path(args.out_dir) if args.out_dir else folder.with_name(folder.name + "_figures")
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
@@ -78,11 +81,14 @@ def run(args: argparse.Namespace) -> int:
             est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
         else:
             est_values = info["parameters"]["okid_modal_estimator"]
+        check_output_paths(Path(input_bag), "input bag", [(out_dir, "figure folder")])
         if data.truth is None:
             with open_bag(input_bag) as bag:
-                data.truth = bag.custom_json(TRUTH_KEY)
+                data.truth, why = usable_truth(bag.custom_json(TRUTH_KEY))
+            if why:
+                note += f"; the truth in {input_bag}'s metadata left out ({why})"
         matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
-        note = f"; measured outputs from {input_bag} ({matched} samples)"
+        note += f"; measured outputs from {input_bag} ({matched} samples)"
     else:
         note = "; no input bag: measured output drawn as y_estimated + innovation"
     from okid_ros.tools.plots import refuse_existing

@@ -270,7 +270,10 @@ class _OpenBag:
         try:
             self._reader = _open_reader(path)
         except Exception as exc:  # the readers raise many kinds; all mean "not a usable bag"
-            self._reader, note, self._scratch = mcap_salvage.read_unclosed(path, _try_open_reader)
+            try:
+                self._reader, note, self._scratch = mcap_salvage.read_unclosed(path, _try_open_reader)
+            except OSError:  # a data file that cannot be read at all (a folder, no permission): the reader's error
+                self._reader = None
             if self._reader is None:
                 raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
                                    f"({type(exc).__name__}: {one_line(exc)})") from None

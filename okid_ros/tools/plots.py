@@ -50,6 +50,7 @@ from okid_ros.core.markov import markov_from_state_space, stochastic_markov_from
 from okid_ros.errors import OutputError, write_atomically
 from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
+from okid_ros.tools.plot_metadata import check_plot_metadata
 
 __all__ = [
     "FIGURES",
@@ -149,6 +150,7 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
             data.truth = bag.custom_json(TRUTH_KEY)
         data.process_info = bag.custom_json(PROCESS_KEY)
         data.stabilization = bag.custom_json(STABILIZATION_KEY)
+        check_plot_metadata(path, data)
         data.start_ns = bag.start_ns
         first_stamp_s = (data.process_info or {}).get("first_stamp_s")
         if isinstance(first_stamp_s, (int, float)):

@@ -108,6 +108,8 @@ CSV_CASES = {
     "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
     "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
     "two_dt": ("# sample_time_s=0.01\nu1,y1\n1,2\n# sample_time_s=0.5\n3,4\n", "two different sample_time_s"),
+    # A field past the csv module's limit (an unclosed quote swallows the rest of the file alike).
+    "huge_field": ("# sample_time_s=0.01\ny1,note\n1,x\n2," + "x" * 140000 + "\n", "not a CSV table the reader can take"),
 }
 
 

@@ -54,8 +54,14 @@ class BagPlan:
         return sum(n for t, n in self.counts.items() if topics is None or t in topics)
 
 
-def _is_rosbag2_dir(path: Path) -> bool:
-    return path.is_dir() and (path / "metadata.yaml").is_file()
+def _is_rosbag2_dir(path: Path, unreadable: list[Path] | None = None) -> bool:
+    """Whether ``path`` is a rosbag2 directory; a folder that cannot be looked into is not (noted in ``unreadable``)."""
+    try:
+        return path.is_dir() and (path / "metadata.yaml").is_file()
+    except OSError:  # no permission to look inside
+        if unreadable is not None:
+            unreadable.append(path)
+        return False
 
 
 def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[Path]:
@@ -97,22 +103,26 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
 
 def _search(root: Path, excluded: Path | None) -> list[Path]:
     """Bags under ``root`` (a rosbag2 directory counts as one bag, not searched further)."""
-    if _is_rosbag2_dir(root):
+    unreadable: list[Path] = []
+    if _is_rosbag2_dir(root, unreadable):
         return [root]
     out: list[Path] = []
-    for dirpath, dirnames, filenames in os.walk(root):
+    for dirpath, dirnames, filenames in os.walk(root, onerror=lambda exc: unreadable.append(Path(exc.filename))):
         here = Path(dirpath)
         keep = []
         for name in sorted(dirnames):
             sub = here / name
             if name.startswith(".") or (excluded is not None and sub.resolve() == excluded):
                 continue
-            if _is_rosbag2_dir(sub):
+            if _is_rosbag2_dir(sub, unreadable):
                 out.append(sub)
-            else:
+            elif sub not in unreadable:
                 keep.append(name)
         dirnames[:] = keep
         out.extend(here / n for n in sorted(filenames) if n.endswith(BAG_SUFFIXES) and not n.startswith("."))
+    if unreadable:
+        warnings.warn(f"left out {len(unreadable)} folder(s) under {root} that cannot be read (no permission?), "
+                      f"the first {min(unreadable, key=str)}", OkidWarning, stacklevel=3)
     return out
 
 

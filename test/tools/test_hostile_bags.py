@@ -1,0 +1,112 @@
+"""Bags and trees of bags that are odd rather than corrupt: one-line errors or warnings, never exit 70.
+
+A bag whose data file cannot be opened, `plot` given `.` or a metadata document of the wrong
+shape, `batch` searching a tree with a folder it may not enter.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import shutil
+import warnings
+from pathlib import Path
+
+import pytest
+import yaml
+from cli_helpers import assert_one_line_error, run_cli
+from ros_helpers import REPO_ROOT
+
+from okid_ros.cli import main
+from okid_ros.errors import OkidWarning
+from okid_ros.tools.campaign.discovery import find_bags
+
+CONFIG = REPO_ROOT / "config" / "okid.yaml"
+FAST = ["--param", "publish_rate_hz=0.25", "--param", "realization.max_states=8"]  # as test_bags.py
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> dict[str, Path]:
+    """A 22 s simulated bag processed once (one model)."""
+    root = tmp_path_factory.mktemp("hostile")
+    bag, out = root / "experiment", root / "out"
+    assert main(["simulate", "--out", str(bag), "--duration", "22"]) == 0
+    assert main(["process", str(bag), "--params", str(CONFIG), "--out", str(out), "--no-progress", *FAST]) == 0
+    return {"root": root, "bag": bag, "out": out}
+
+
+@pytest.mark.parametrize("command", [["export", "--npz", "x.npz"], ["identify", "--json", "x.json"],
+                                     ["process", "--out", "x_out"]])
+def test_a_bag_whose_data_file_is_a_folder_is_one_line(run, tmp_path, capsys, command):
+    bag = tmp_path / "bag"
+    shutil.copytree(run["bag"], bag)
+    data = next(bag.glob("*.mcap"))
+    data.unlink()
+    data.mkdir()
+    name, *options = command
+    code, _, err = run_cli(capsys, name, bag, *[str(tmp_path / o) if o.startswith("x") else o for o in options])
+    assert_one_line_error(code, err, f"{bag}: not a readable rosbag2", "Is a directory")
+
+
+def test_plot_dot_from_inside_the_bag_puts_the_figures_beside_it(run, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    shutil.copytree(run["out"], out)
+    monkeypatch.chdir(out)
+    code, stdout, err = run_cli(capsys, "plot", ".")
+    assert code == 0, err
+    assert f"figures to {tmp_path / 'out_figures'}" in stdout
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, "plot", "/")
+    assert_one_line_error(code, err, "no folder to put the figures beside", "--out-dir")
+
+
+def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
+    shutil.copytree(source, bag)
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+    metadata["rosbag2_bagfile_information"]["custom_data"][key] = value
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(metadata))
+
+
+@pytest.mark.parametrize(("key", "value", "reason"), [
+    ("okid_ros.truth", "[1, 2]", "not a JSON object"),
+    ("okid_ros.truth", '{"modes": [1]}', "modes is not a list of objects"),
+    ("okid_ros.truth", '{"modes": [{"frequency_hz": null, "damping_ratio": 0.1}]}', "frequency_hz"),
+    ("okid_ros.truth", '{"A": [[1, 0], [0, 1]], "B": [[1]], "C": [[1, 0]], "D": [[0]], "K": [[0], [0]]}',
+     "matrix sizes do not fit together (B (1, 1))"),
+    ("okid_ros.truth", '{"A": "x", "B": [], "C": [], "D": [], "K": []}', "A is not a matrix of numbers"),
+    ("okid_ros.stabilization", '[{"n_states": "x", "poles": []}]', "n_states is not an integer"),
+    ("okid_ros.process", '{"parameters": {"x": 1}}', "no object for okid_modal_estimator"),
+])
+def test_plot_leaves_out_a_metadata_document_of_the_wrong_shape(run, tmp_path, capsys, key, value, reason):
+    bag = tmp_path / "out"
+    _with_custom_data(run["out"], bag, key, value)
+    code, stdout, err = run_cli(capsys, "plot", bag, "--out-dir", tmp_path / "figures")
+    assert code == 0, err
+    assert f"{key} is not what plot can draw (" in err and reason in err and "left out" in err
+    assert "wrote" in stdout and (tmp_path / "figures" / "modes_over_time.png").is_file()
+
+
+def test_plot_refuses_a_figure_folder_inside_its_input_bag(run, tmp_path, capsys):
+    bag = tmp_path / "experiment"
+    shutil.copytree(run["bag"], bag)
+    code, _, err = run_cli(capsys, "plot", run["out"], "--input", bag, "--out-dir", bag / "figures")
+    assert_one_line_error(code, err, "input bag")
+    assert not (bag / "figures").exists()
+
+
+def test_a_folder_batch_may_not_enter_is_left_out_with_a_warning(run, tmp_path, monkeypatch):
+    tree = tmp_path / "tree"
+    shutil.copytree(run["bag"], tree / "ok")
+    (tree / "locked").mkdir()
+    is_file = pathlib.Path.is_file
+
+    def refused(self: Path) -> bool:  # as for a user without permission (the tests run as root)
+        if self.parent.name == "locked":
+            raise PermissionError(13, "Permission denied", str(self))
+        return is_file(self)
+
+    monkeypatch.setattr(pathlib.Path, "is_file", refused)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert find_bags([tree]) == [tree / "ok"]
+    assert any(issubclass(w.category, OkidWarning) and "left out 1 folder(s)" in str(w.message)
+               and str(tree / "locked") in str(w.message) for w in caught)
