@@ -126,6 +126,13 @@ class NodeParameterDefault:
         return f"{float(self):g}"
 
 
+def path_text(text: str) -> str:
+    """A file or folder argument: not empty (an unset shell variable would otherwise mean here)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path")
+    return text
+
+
 def add_bag_arguments(parser) -> None:
     """``--params``, ``--param`` and ``--source`` for commands that read a bag like `process`."""
     parser.add_argument("--params", action="append", default=[], metavar="FILE",

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from okid_ros.commands._args import add_progress_arguments, namespace, positive_finite_float, positive_int
+from okid_ros.commands._args import add_progress_arguments, namespace, path_text, positive_finite_float, positive_int
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 
 
@@ -25,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "JSON lines of `process` under DIR/bags/. A rerun processes only new or changed bags. Exit status: 0 "
         "when every bag is ok, 1 when one failed or was not run, 2 for a usage error.",
     )
-    parser.add_argument("paths", nargs="+", metavar="BAG_OR_DIR", help="bags, or directories to search for bags")
+    parser.add_argument("paths", nargs="+", type=path_text,
+                        metavar="BAG_OR_DIR", help="bags, or directories to search for bags")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="the nodes' parameter YAML (repeatable, later files override; default: the "
                         "built-in defaults, equal to config/okid.yaml)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import add_bag_arguments
+from okid_ros.commands._args import add_bag_arguments, path_text
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -22,7 +22,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "or --source) on the sample grid as the nodes do, and write the longest contiguous run as an .npz "
         "record: u (N, m), y (N, p), sample_time_s and the stamps stamp_s (N,).",
     )
-    parser.add_argument("bag", help="input bag directory, .mcap, .db3 or ROS 1 .bag")
+    parser.add_argument("bag", type=path_text, help="input bag directory, .mcap, .db3 or ROS 1 .bag")
     parser.add_argument("--npz", required=True, metavar="OUT.npz", help="the record to write")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing OUT.npz")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import add_bag_arguments, positive_int, states_or_auto
+from okid_ros.commands._args import add_bag_arguments, path_text, positive_int, states_or_auto
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
 
 
@@ -23,7 +23,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "gain and write A, B, C, D, K (paper convention: predictor gain A K) in normalized modal "
         "form, the innovation covariance, the Hankel singular values and the physical modes.",
     )
-    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
+    parser.add_argument("data", type=path_text,
+                        help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
                         "(samples assembled as by the nodes, see --params, --source)")
     parser.add_argument("--order", type=states_or_auto, default="auto", metavar="Q|auto",
                         help="ARX order q (paper: 100), or auto: chosen by generalized cross-validation (default)")
@@ -128,6 +129,9 @@ def run(args: argparse.Namespace) -> int:
             pairs = parse_pairs(args.frf_pairs, record.y.shape[1], record.u.shape[1])
         except ValueError as exc:
             raise ParameterError(f"--frf-pairs: {exc}") from None
+        if not args.plot_dir:
+            print("okid-ros identify: warning: --frf-pairs chooses the panels of frf.png, which only --plot-dir "
+                  "draws: nothing to choose for", file=sys.stderr)
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from okid_ros.commands._args import int_between, namespace
+from okid_ros.commands._args import int_between, namespace, path_text
 
 #: Bound of --terms, equal to okid_ros.tools.plots.MAX_TERMS (not imported: every parser is built at start-up).
 MAX_TERMS = 10_000
@@ -25,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "experiment come from the input bag: --input, or for `process` output the source bag recorded in its "
         "metadata.",
     )
-    parser.add_argument("bag", metavar="OUT", help="output bag of `okid-ros process` (or a live recording), or a "
+    parser.add_argument("bag", type=path_text,
+                        metavar="OUT", help="output bag of `okid-ros process` (or a live recording), or a "
                         "campaign directory of `okid-ros batch` (then: campaign_modes.png, frequency and damping "
                         "of every mode id over the campaign, in DIR/figures by default)")
     parser.add_argument("--out-dir", default=None, metavar="DIR",

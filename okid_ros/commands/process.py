@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from okid_ros.commands._args import add_progress_arguments, namespace
+from okid_ros.commands._args import add_progress_arguments, namespace, path_text
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -23,7 +23,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "at once) and write /okid/arx_model, /okid/state_space_model and /okid/modal_states (topic names "
         "from the parameters) to a new bag. Existing outputs are never replaced without --force.",
     )
-    parser.add_argument("bag", help="input bag directory, .mcap or .db3 file")
+    parser.add_argument("bag", type=path_text, help="input bag directory, .mcap or .db3 file")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="the nodes' parameter YAML (repeatable, later files override; default: the "
                         "built-in defaults, equal to config/okid.yaml)")

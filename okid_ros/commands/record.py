@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import namespace
+from okid_ros.commands._args import namespace, path_text
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -24,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "as received, like `ros2 bag record`. Stops on Ctrl-C or after --duration seconds. Never replaces an "
         "existing output without --force.",
     )
-    parser.add_argument("out", help="output bag directory to create")
+    parser.add_argument("out", type=path_text, help="output bag directory to create")
     parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace (nodes started with --namespace NS; default: topics under /okid)")
     parser.add_argument("--inputs", action="store_true", help="also record the rig's io_sample input topic")

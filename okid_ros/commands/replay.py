@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import float_between, int_between
+from okid_ros.commands._args import float_between, int_between, path_text
 
 
 def _delay_s(text: str) -> float:
@@ -47,7 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "topics, spaced as recorded (log time), with the header stamps as recorded. With --loop the "
         "bag starts again at its end; the stamps then jump back to the start of the bag.",
     )
-    parser.add_argument("bag", help="bag directory, .mcap or .db3 file")
+    parser.add_argument("bag", type=path_text, help="bag directory, .mcap or .db3 file")
     parser.add_argument("--rate", type=float, default=1.0, metavar="X",
                         help="playback speed factor (default: %(default)s)")
     parser.add_argument("--loop", action="store_true", help="start again at the end of the bag, until Ctrl-C")

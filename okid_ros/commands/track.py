@@ -48,6 +48,7 @@ from okid_ros.commands._args import (
     NodeParameterDefault,
     add_bag_arguments,
     node_parameter_range,
+    path_text,
     penalty_or_gcv,
     positive_int,
     states_or_auto,
@@ -87,7 +88,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "equations recursively, and every S samples (once the window is full) identify the model "
         "of the window and write its physical modes as one JSON line.",
     )
-    parser.add_argument("data", help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
+    parser.add_argument("data", type=path_text,
+                        help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "
                         "(samples assembled as by the nodes, see --params, --source)")
     parser.add_argument("--order", type=states_or_auto, default="auto", metavar="Q|auto",
                         help="ARX order q, or auto: chosen by generalized cross-validation on the first "

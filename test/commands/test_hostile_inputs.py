@@ -17,6 +17,7 @@ import pytest
 from okid_ros import cli
 from okid_ros.errors import DataError, write_atomically
 from okid_ros.records import Record, load_record, require_inputs, save_record
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 N = 400
 
@@ -109,7 +110,8 @@ CSV_CASES = {
     "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
     "two_dt": ("# sample_time_s=0.01\nu1,y1\n1,2\n# sample_time_s=0.5\n3,4\n", "two different sample_time_s"),
     # A field past the csv module's limit (an unclosed quote swallows the rest of the file alike).
-    "huge_field": ("# sample_time_s=0.01\ny1,note\n1,x\n2," + "x" * 140000 + "\n", "not a CSV table the reader can take"),
+    "huge_field": ("# sample_time_s=0.01\ny1,note\n1,x\n2," + "x" * 140000 + "\n",
+                   "not a CSV table the reader can take"),
 }
 
 
@@ -372,3 +374,22 @@ def test_handled_conditions_put_no_scipy_warnings_on_stderr(tmp_path: Path, caps
     cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), *[a.format(tmp=tmp_path) for a in args]])
     err = capsys.readouterr().err
     assert "Warning at" not in err, err
+
+
+@pytest.mark.parametrize("argv", [["identify", ""], ["track", ""], ["batch", "", "--plan"],
+                                  ["export", "", "--npz", "x"], ["plot", ""], ["process", "", "--out", "x"],
+                                  ["replay", ""], ["record", ""]])
+def test_an_empty_path_is_refused_not_taken_for_here(argv, capsys: pytest.CaptureFixture[str]) -> None:
+    """An unset shell variable (`okid-ros batch "$DIR"`) must not mean the current folder."""
+    with pytest.raises(SystemExit) as raised:
+        cli.main(argv)
+    assert raised.value.code == 2 and "an empty path" in capsys.readouterr().err
+
+
+def test_frf_pairs_without_a_figure_folder_says_it_draws_nothing(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "record.npz"
+    u = lowpass_input(1500, 2, 15.0, 0.008, seed=1)
+    np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
+    assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--frf-pairs", "1:1"]) == 0
+    assert "--frf-pairs chooses the panels of frf.png, which only --plot-dir draws" in capsys.readouterr().err
