@@ -34,7 +34,7 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
-           "window_excitation_warnings", "window_output_problem"]
+           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -50,6 +50,13 @@ SPIKE_SPREAD_RATIO = 100.0
 #: identified no dynamics (outputs of white noise, 4000 samples, ARX orders 40 and automatic:
 #: at most 0.4-1.2 % in each of 12 records; the paper model's records: above 99 %).
 MIN_EXPLAINED_VARIANCE = 0.02
+
+#: A run of samples in which every output repeats the sample before, at least this share of the
+#: record and :data:`FROZEN_MIN_SAMPLES` long, is named in a warning: a recorder that wrote zeros
+#: (or held values) before its sensors delivered, a stalled acquisition. Sensors that deliver
+#: differ in some channel from one sample to the next (noise, the least bit of a converter).
+FROZEN_SHARE = 0.05
+FROZEN_MIN_SAMPLES = 50
 
 _WHAT_TO_DO = ("check the sensor or actuator and its topic/column mapping, or, if the input is not "
                "measured, use output-only identification (identify --output-only)")
@@ -310,3 +317,28 @@ def excitation_warnings_of(report: Excitation) -> list[str]:
     listed = ", ".join(report.channel_text(i) for i in report.dead)
     return [f"no excitation on {listed} in this window: the model cannot learn "
             f"{'its' if len(report.dead) == 1 else 'their'} effect; {_WHAT_TO_DO}"]
+
+
+def frozen_output_warnings(y: np.ndarray) -> list[str]:
+    """A warning when every output holds its value over a long run of samples; [] otherwise.
+
+    ``y`` (N, p): the record's outputs. The longest run in which each sample repeats the one
+    before in every channel, counted when at least :data:`FROZEN_SHARE` of the record and
+    :data:`FROZEN_MIN_SAMPLES` samples (NaN never repeats: gaps are reported elsewhere).
+    """
+    y = np.asarray(y)
+    if y.ndim != 2 or y.shape[0] < 2 or y.shape[1] == 0:
+        return []
+    repeats = np.concatenate([[False], np.all(y[1:] == y[:-1], axis=1), [False]])
+    edges = np.flatnonzero(np.diff(repeats.astype(np.int8)))  # run starts and ends, in pairs
+    if edges.size == 0:
+        return []
+    lengths = edges[1::2] - edges[::2]
+    longest = int(np.argmax(lengths))
+    first, last = int(edges[2 * longest]), int(edges[2 * longest + 1])  # the held sample, its last repeat
+    held = last - first + 1
+    if held < max(FROZEN_MIN_SAMPLES, FROZEN_SHARE * y.shape[0]):
+        return []
+    return [f"samples {first}-{last} ({100 * held / y.shape[0]:.0f} % of the record) hold every output at one "
+            f"value: a recorder that had not started or an acquisition that stalled? They are identified with "
+            f"the rest; cut them out if they are not the structure's response"]

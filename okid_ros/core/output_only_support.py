@@ -8,7 +8,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.channels import channel_std
-from okid_ros.core.excitation import output_problem
+from okid_ros.core.excitation import frozen_output_warnings, output_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.mode_jackknife import jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
@@ -54,7 +54,7 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
     peak = np.max(np.abs(y), axis=0)
     mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
     std = channel_std(y)
-    warnings = []
+    warnings = frozen_output_warnings(y)
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:
         action = "removed" if offsets == "remove" else "NOT removed (offsets='none')"

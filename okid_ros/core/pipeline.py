@@ -39,7 +39,7 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_order import arx_order_for_realization, choose_arx_order
 from okid_ros.core.channels import channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
-from okid_ros.core.excitation import unexplained_warnings
+from okid_ros.core.excitation import frozen_output_warnings, unexplained_warnings
 from okid_ros.core.gain import gain_by_whitening
 from okid_ros.core.gap_fill import fit_and_fill
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
@@ -323,7 +323,8 @@ def identify_from_arx(
         completed_orders=sorted(search.fits), stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
-        warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y),
+        warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y)
+        + frozen_output_warnings(y),
         jackknife=None if not options.jackknife_segments else lambda identified: attach_jackknife_std(
             identified, arx, u, y, hankel_size=(hankel_rows, hankel_cols), options=options, valid=valid),
     )

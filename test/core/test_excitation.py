@@ -20,6 +20,7 @@ from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.excitation import (
     LiveInputs,
     excitation_warnings,
+    frozen_output_warnings,
     input_excitation,
     output_problem,
     window_excitation_warnings,
@@ -214,3 +215,34 @@ def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_rec
     assert window_excitation_warnings(normal_equations(phi, targets), 2) == []
     phi, targets, _ = arx_regressors(np.zeros((900, 2)), y[:900], 10)
     assert "no input carries excitation" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
+
+
+def test_a_long_run_of_repeated_outputs_is_named_and_a_short_one_or_noise_is_not():
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal((1000, 3))
+    assert frozen_output_warnings(y) == []
+    held = y.copy()
+    held[:49] = 0.0  # 49 samples: under the 50 counted
+    assert frozen_output_warnings(held) == []
+    held[:200] = 0.0
+    (warning,) = frozen_output_warnings(held)
+    assert warning.startswith("samples 0-199 (20 % of the record) hold every output at one value: a recorder")
+    stalled = y.copy()
+    stalled[700:760] = stalled[699]  # the last reading held: 61 samples alike, 6 % of the record
+    assert frozen_output_warnings(stalled)[0].startswith("samples 699-759 (6 % of the record)")
+    one_channel = y.copy()
+    one_channel[:500, 0] = 0.0  # one output silent, the others responding: not a stalled recorder
+    assert frozen_output_warnings(one_channel) == []
+
+
+@pytest.mark.parametrize("output_only", [False, True])
+def test_identify_names_a_record_that_starts_with_held_outputs(tmp_path, capsys, output_only):
+    u = lowpass_input(4000, 2, 15.0, 0.008, seed=3)
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    u[:800], y[:800] = 0.0, 0.0  # the recorder wrote zeros before the experiment began
+    path, out = tmp_path / "padded.npz", tmp_path / "model.json"
+    np.savez(path, **({} if output_only else {"u": u}), y=y, sample_time_s=0.008)
+    assert okid_ros_main(["identify", str(path), "--json", str(out)]) == 0
+    expected = "samples 0-799 (20 % of the record) hold every output at one value"
+    assert expected in capsys.readouterr().err
+    assert any(expected in w for w in json.loads(out.read_text())["warnings"])
