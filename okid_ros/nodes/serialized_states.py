@@ -29,6 +29,10 @@ __all__ = ["ModalStatesBytes"]
 
 # The encapsulation header's second byte: 1 for little-endian CDR, 0 for big-endian.
 _LITTLE_ENDIAN_CDR = 1
+# The fields a sample writes, as little-endian CDR holds them.
+_FLOAT = np.dtype("<f8")
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: int32 sec, uint32 nanosec
+_MODEL_ID = struct.Struct("<I")
 
 
 class ModalStatesBytes:
@@ -48,9 +52,6 @@ class ModalStatesBytes:
         self._modes: list | None = None
         self._key: tuple | None = None
         self._parts: list[bytes] | None = None  # the template cut at the fields a sample writes
-        self._float: np.dtype = np.dtype("<f8")
-        self._stamp = struct.Struct("<iI")
-        self._model_id = struct.Struct("<I")
 
     def message(self, result: ModalStatesResult, mode_msgs: list, frame_id: str) -> bytes | Any:
         """The sample's ``ModalStates``: serialized bytes, or the message object if no template fits."""
@@ -69,10 +70,10 @@ class ModalStatesBytes:
         sec, nanosec = stamp_parts(result.stamp_s)
         p = self._parts
         return b"".join((
-            p[0], self._stamp.pack(sec, nanosec), p[1], self._model_id.pack(int(result.model_id)), p[2],
-            np.asarray(result.coordinates, dtype=self._float).tobytes(), p[3],
-            np.asarray(result.y_estimated, dtype=self._float).tobytes(), p[4],
-            np.asarray(result.innovation, dtype=self._float).tobytes(), p[5],
+            p[0], _STAMP.pack(sec, nanosec), p[1], _MODEL_ID.pack(int(result.model_id)), p[2],
+            np.asarray(result.coordinates, dtype=_FLOAT).tobytes(), p[3],
+            np.asarray(result.y_estimated, dtype=_FLOAT).tobytes(), p[4],
+            np.asarray(result.innovation, dtype=_FLOAT).tobytes(), p[5],
         ))
 
     def _template(self, mode_msgs: list, frame_id: str, sizes: tuple[int, int, int]) -> list[bytes] | None:
@@ -85,8 +86,8 @@ class ModalStatesBytes:
         data = self._serialize(msg)
         if len(data) < 4 or data[1] != _LITTLE_ENDIAN_CDR:
             return None
-        fields = [(self._stamp.pack(*stamp), 8), (self._model_id.pack(model_id), 4)]
-        fields += [(a.astype(self._float).tobytes(), 8 * a.size) for a in arrays]
+        fields = [(_STAMP.pack(*stamp), 8), (_MODEL_ID.pack(model_id), 4)]
+        fields += [(a.astype(_FLOAT).tobytes(), 8 * a.size) for a in arrays]
         parts, start = [], 0
         for marker, length in fields:
             at = data.find(marker, start) if marker else start
