@@ -51,11 +51,11 @@ from okid_ros.errors import ParameterError
 from okid_ros.nodes.audit import log_calls
 from okid_ros.nodes.common import (
     DiagnosticsPublisher,
-    InputFrontend,
     check_parameter_files,
     declare_parameters,
     name_thread,
 )
+from okid_ros.nodes.input_frontend import InputFrontend
 from okid_ros.service.params import node_params, read_only_reason, validate_value
 from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.topics import resolve_topic

@@ -50,7 +50,7 @@ class InputThread:
     and what makes the samples queue when the cores are busy. This thread waits on the input
     subscriptions (and their QoS event handlers) only, with one wait set kept from wait to
     wait (as ``rclpy.wait_for_message`` does; about 0.06 ms per message), and hands what is
-    queued to :meth:`~okid_ros.nodes.common.InputFrontend.take_all` under
+    queued to :meth:`~okid_ros.nodes.input_frontend.InputFrontend.take_all` under
     :attr:`OkidNode.state_lock`. The executor of :meth:`executor` serves the rest and leaves
     the inputs out.
 

@@ -1,0 +1,148 @@
+"""Input messages read from their serialized bytes equal the message objects rclpy deserializes.
+
+Real rclpy message classes and rclpy's own (de)serialization, and rosbags' CDR writer as a
+second, independent one; no node (the nodes' DDS tests run the input thread on these readers).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from _hypothesis_profiles import settings  # noqa: F401 - registers and loads the profile
+from hypothesis import given
+from hypothesis import strategies as st
+from rclpy.serialization import deserialize_message, serialize_message
+
+from okid_ros.nodes import raw_inputs
+from okid_ros.nodes.conversions import source_values
+from okid_ros.nodes.input_frontend import message_class
+from okid_ros.nodes.raw_inputs import RawSourceReader, raw_reader
+from okid_ros.service.inputs import parse_source
+from okid_ros.tools.bagio import okid_typestore
+
+STORE = okid_typestore()
+
+#: (source, n_inputs, n_outputs): every kind, whole and mapped samples, output-only.
+SOURCES = [
+    ("imu /s linear_acceleration.x=y0 angular_velocity.z=y1 linear_acceleration.z=u0", 1, 2),
+    ("accel /s accel.linear.x=y0 angular.y=u0", 1, 1),
+    ("wrench /s force.x=u0 wrench.torque.z=y0 force.y=u1", 2, 1),
+    ("io_sample /s", 2, 3),
+    ("io_sample /s", 0, 4),
+    ("io_sample /s u[1]=u0 y[0]=y0 y[2]=y1", 1, 2),
+    ("array /s data[0]=stamp data[1]=u0 data[3]=y0", 1, 1),
+    ("array /s data[2]=y0 data[0]=y1", 0, 2),
+]
+
+values = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+def reader_of(text: str, m: int, p: int) -> RawSourceReader:
+    spec = parse_source(text, m, p)
+    reader = raw_reader(spec, m, p, message_class(spec.msg_type))
+    assert reader is not None, f"no reader for {text!r}"
+    return reader
+
+
+def expected(reader: RawSourceReader, data: bytes) -> tuple:
+    msg = deserialize_message(data, reader.message_type)
+    return source_values(msg, reader.spec, reader.n_inputs, reader.n_outputs)
+
+
+def assert_same(got: tuple, want: tuple) -> None:
+    assert (got[0] is None) == (want[0] is None)
+    if got[0] is not None:
+        assert got[0] == want[0] or (math.isnan(got[0]) and math.isnan(want[0]))
+    np.testing.assert_array_equal(got[1], want[1])  # NaN equal to NaN
+
+
+@st.composite
+def messages(draw, reader: RawSourceReader):
+    """A message of the reader's type: any frame_id, stamp, values and sequence lengths."""
+    msg = reader.message_type()
+    kind = reader.spec.kind
+    if kind == "array":
+        from std_msgs.msg import MultiArrayDimension
+
+        msg.layout.dim = [MultiArrayDimension(label=draw(st.text(max_size=9)), size=draw(st.integers(0, 2**32 - 1)),
+                                              stride=draw(st.integers(0, 2**32 - 1)))
+                          for _ in range(draw(st.integers(0, 3)))]
+        msg.layout.data_offset = draw(st.integers(0, 2**32 - 1))
+        msg.data = draw(st.lists(values, max_size=8))
+        return msg
+    msg.header.frame_id = draw(st.text(max_size=20))
+    msg.header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
+    msg.header.stamp.nanosec = draw(st.integers(0, 2**32 - 1))
+    if kind == "io_sample":
+        msg.u = draw(st.lists(values, max_size=5))
+        msg.y = draw(st.lists(values, max_size=5))
+        return msg
+    for path in reader.spec.fields:
+        obj = msg
+        for name in path[:-1]:
+            obj = getattr(obj, name)
+        setattr(obj, path[-1], draw(values))
+    return msg
+
+
+@pytest.mark.parametrize(("text", "m", "p"), SOURCES)
+@given(data=st.data())
+def test_the_bytes_read_as_the_object_rclpy_deserializes(text, m, p, data):
+    reader = reader_of(text, m, p)
+    msg = data.draw(messages(reader))
+    raw = serialize_message(msg)
+    assert_same(reader._parse(raw), expected(reader, raw))  # the fast path itself, no fallback
+    assert_same(reader.read(raw), expected(reader, raw))
+
+
+@pytest.mark.parametrize(("text", "m", "p"), SOURCES)
+def test_bytes_another_cdr_writer_made_read_the_same(text, m, p):
+    """Bytes of another CDR writer (rosbags', as in bags other tools wrote) read as rclpy reads them."""
+    reader = reader_of(text, m, p)
+    for msg in reader.test_messages():
+        raw = bytes(STORE.serialize_cdr(rosbags_message(serialize_message(msg), reader.spec.msg_type),
+                                        reader.spec.msg_type))
+        assert_same(reader._parse(raw), expected(reader, raw))
+
+
+def rosbags_message(raw: bytes, msgtype: str):
+    """The rosbags object of rclpy's bytes, which may run past the CDR (tools/bagio.py): cut to size."""
+    for size in range(len(raw), 3, -1):
+        try:
+            return STORE.deserialize_cdr(raw[:size], msgtype)
+        except Exception:  # noqa: BLE001 - a size mismatch: try one byte shorter
+            continue
+    raise AssertionError("rosbags reads no prefix of rclpy's bytes")
+
+
+def test_another_encoding_and_damaged_bytes_go_to_rclpy(monkeypatch):
+    reader = reader_of(*SOURCES[0])
+    raw = serialize_message(reader.test_messages()[5])
+    calls = []
+    real = reader._deserialize
+    monkeypatch.setattr(reader, "_deserialize", lambda data, kind: calls.append(data) or real(data, kind))
+    reader.read(raw)
+    assert calls == []  # plain little-endian CDR: read from the bytes
+    big_endian = b"\x00\x00" + raw[2:]
+    reader.read(big_endian)
+    assert calls == [big_endian]
+    stamp, got = reader.read(raw[:30])  # cut inside the doubles: rclpy cannot read it either
+    assert stamp is None and got.size == 0
+    assert len(calls) == 2
+
+
+def test_a_reader_that_reads_otherwise_than_rclpy_is_not_used(monkeypatch):
+    text, m, p = SOURCES[0]
+    spec = parse_source(text, m, p)
+    msg_type = message_class(spec.msg_type)
+    assert raw_reader(spec, m, p, msg_type) is not None
+    # Wrong for one frame_id length (3 characters and the NUL) is enough to refuse the reader.
+    real = RawSourceReader._fixed
+    monkeypatch.setattr(RawSourceReader, "_fixed",
+                        lambda self, data: (lambda s, v: (s, v + (data[12] == 4)))(*real(self, data)))
+    assert raw_reader(spec, m, p, msg_type) is None
+    monkeypatch.setattr(raw_inputs, "_LITTLE_ENDIAN_CDR", b"\x00\x02")  # an rmw of another encoding
+    monkeypatch.setattr(RawSourceReader, "_fixed", real)
+    assert raw_reader(spec, m, p, msg_type) is None
