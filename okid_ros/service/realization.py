@@ -8,7 +8,8 @@ end :func:`okid_ros.core.output_only.identify_output_only` on the window's outpu
 checks every model handed out passes (stable ``A`` and stable predictor,
 :meth:`okid_ros.core.statespace.InnovationModel.stability_problem`; a positive definite
 innovation covariance; a physical mode) and the warm start of the new model's predictor over
-the window. Pure: runs on any thread or in a worker process.
+the window (its last samples the state depends on, :attr:`InnovationPredictor.settle_samples`).
+Pure: runs on any thread or in a worker process.
 
 :func:`advance_state` and :func:`bridge_state` move a model's predicted state over samples
 and gaps, as the estimator would (same state to rounding): the warm start, the catch-up of a
@@ -153,6 +154,8 @@ def realize(job: RealizationJob) -> RealizationOutcome:
         return RealizationOutcome(job, None, f"check: innovation covariance: {exc}", realization_time_s=elapsed)
     if not model.modes:
         return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
-    x, u_prev = advance_state(model, np.zeros(model.n_states), job.u, job.y,
-                              np.zeros(job.u.shape[0], dtype=np.int64), None, max_gap=prm.max_gap_samples)
-    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0], whiten)
+    # The warm start from zero over the window's last samples that the state depends on.
+    first = max(0, job.u.shape[0] - InnovationPredictor(model).settle_samples)
+    x, u_prev = advance_state(model, np.zeros(model.n_states), job.u[first:], job.y[first:],
+                              np.zeros(job.u.shape[0] - first, dtype=np.int64), None, max_gap=prm.max_gap_samples)
+    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0] - first, whiten)

@@ -28,6 +28,7 @@ from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
+from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import advance_state, bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
@@ -80,6 +81,7 @@ class InnovationWatch:
         self.restart_failed = False  # no good sample since the last divergence restart or jump
         self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
+        self._settle: list[tuple[IdentifiedModel, int]] = []  # the last two models' settle_samples
 
     def configure(self, params: ModalEstimationParams) -> None:
         """Take run-time options at once: the divergence ratio and the change test's tuning.
@@ -202,10 +204,14 @@ class InnovationWatch:
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
 
-        Diverged samples may hold what made it diverge (a spike): predicted over, not used.
+        From the last samples the state depends on (:attr:`InnovationPredictor.settle_samples`,
+        a few hundred at 28 outputs), not the whole buffer: on the sample path, a restart over
+        8192 samples stalled it for tens of milliseconds, and the samples missed meanwhile
+        made the estimator diverge again. Diverged samples may hold what made it diverge (a
+        spike): predicted over, not used.
         """
         buffer, max_gap = self._buffer, self.params.max_gap_samples
-        first = buffer.first
+        first = max(buffer.first, index + 1 - self._settle_samples(model))
         _, u, y, skipped = buffer.get(first, index + 1)
         x, u_prev = np.zeros(model.n_states), None
         lo = 0
@@ -222,6 +228,15 @@ class InnovationWatch:
         if not np.all(np.isfinite(x)):
             x = np.zeros(model.n_states)
         return x, u_prev
+
+    def _settle_samples(self, model: IdentifiedModel) -> int:
+        """:attr:`InnovationPredictor.settle_samples` of the model in use or the change test's (kept)."""
+        for known, samples in self._settle:
+            if known is model:
+                return samples
+        samples = InnovationPredictor(model).settle_samples
+        self._settle = [(model, samples), *self._settle[:1]]
+        return samples
 
     def _restart_from_buffer(self, active: ActiveModel, index: int) -> np.ndarray | None:
         """Restart the estimator after sustained divergence, warm-started over the buffer up to ``index``."""

@@ -236,3 +236,24 @@ def test_predictor_run_equals_its_steps():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
     np.testing.assert_allclose(block.x, stepped.x, rtol=0, atol=1e-12 * np.abs(stepped.x).max())
     assert block.run(u[:0], y[:0]).shape == (0, 2)
+
+
+def test_a_warm_start_over_the_settle_samples_gives_the_state_of_one_over_the_whole_record():
+    """The state forgets its start after ``settle_samples``: the restart and the worker start there."""
+    from okid_ros.core.statespace import SETTLE_MEMORIES, InnovationPredictor
+    from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+    model = paper_model()
+    u = lowpass_input(6000, 2, 20.0, model.sample_time_s, seed=5)
+    y, _ = simulate_innovation(model, u, seed=6)
+    whole = InnovationPredictor(model, np.full(model.n_states, 1e3))  # far off at the start
+    whole.run(u, y)
+    settle = whole.settle_samples
+    assert settle == SETTLE_MEMORIES * whole.memory_samples and settle < 2000
+    tail = InnovationPredictor(model)
+    tail.run(u[-settle:], y[-settle:])
+    scale = np.abs(whole.x).max()
+    np.testing.assert_allclose(tail.x, whole.x, rtol=0, atol=1e-11 * scale)
+    short = InnovationPredictor(model)  # a sixth of it leaves the start's trace (e^-5)
+    short.run(u[-settle // 6:], y[-settle // 6:])
+    assert np.abs(short.x - whole.x).max() > 1e-6 * scale

@@ -193,3 +193,47 @@ def test_a_divergence_that_a_restart_does_not_cure_is_declared_a_change():
     assert d["change_waiting_for_model"] and d["change_monitor"] == "disarmed"
     # Declared by the watchdog (the diverged samples are not tested by the CUSUM).
     assert d["last_change_statistic"] < d["change_threshold"]
+
+
+def test_a_restart_warm_starts_over_the_samples_the_state_depends_on_not_the_whole_buffer(monkeypatch):
+    """On the sample path: the settle samples of the model (a few hundred), the state of the whole buffer."""
+    from okid_ros.core.statespace import InnovationPredictor
+    from okid_ros.service import watch as watch_module
+    from okid_ros.service.realization import advance_state
+
+    est, _, _, _ = run(change=False, n=3000)
+    watch, active, buffer = est._watch, est._active, est._buffer
+    index = buffer.count - 1
+    settle = InnovationPredictor(active.model).settle_samples
+    assert index + 1 - buffer.first > 3 * settle  # the buffer holds far more than the state needs
+    _, u, y, skipped = buffer.get(buffer.first, index + 1)
+    whole, _ = advance_state(active.model, np.zeros(active.model.n_states), u, y, skipped, None,
+                             max_gap=est.params.max_gap_samples)
+    lengths = []
+
+    def counted(model, x, u, *args, **kwargs):
+        lengths.append(u.shape[0])
+        return advance_state(model, x, u, *args, **kwargs)
+
+    monkeypatch.setattr(watch_module, "advance_state", counted)
+    x, _ = watch.warm_state(active.model, index)
+    assert sum(lengths) == settle
+    np.testing.assert_allclose(x, whole, rtol=0, atol=1e-11 * np.abs(whole).max())
+
+
+def test_the_worker_warm_starts_a_new_model_over_its_settle_samples():
+    """realize(): the state of a warm start over the whole window, from its last settle samples."""
+    from okid_ros.core.statespace import InnovationPredictor
+    from okid_ros.service.realization import advance_state, realize
+
+    est, ident, _, _ = run(change=False, n=2600)
+    snap = ident.snapshot()
+    est.submit_arx(snap.fit, snap.stamp_s, snap.model_id + 1, snap.window_rows)
+    job = est.take_job()
+    outcome = realize(job)
+    assert outcome.model is not None, outcome.reason
+    settle = InnovationPredictor(outcome.model).settle_samples
+    assert outcome.warm_start_samples == settle < job.u.shape[0]
+    whole, _ = advance_state(outcome.model, np.zeros(outcome.model.n_states), job.u, job.y,
+                             np.zeros(job.u.shape[0], dtype=np.int64), None, max_gap=est.params.max_gap_samples)
+    np.testing.assert_allclose(outcome.state, whole, rtol=0, atol=1e-11 * np.abs(whole).max())
