@@ -32,6 +32,11 @@ published before the next one. What it does, for each ``--window``:
    sample's ModalStates, and the CPU of each node with its workers (as bench/dds_latency.py:
    /proc, node 2 with its realization process).
 
+``--imu`` publishes the channels as sensor drivers do instead of one IoSample per sample: the
+outputs three by three as ``sensor_msgs/Imu`` (a triaxial accelerometer's
+``linear_acceleration``; 10 topics at 28 outputs), the inputs on one ``WrenchStamped``; the
+nodes read them through ``inputs.sources``.
+
 ``--output-only`` publishes the accelerations alone (``u`` empty, ``n_inputs: 0``): node 1 fits
 a vector autoregression, node 2 realizes by the output-only front end (issue 18 item 6: a model
 every publish period, at most 1 s of compute per update at 28 channels).
@@ -87,6 +92,10 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--output-only", action="store_true",
                         help="n_inputs 0: the accelerations alone, the shaker forces not published (issue 18 "
                              "item 6: node 1 a vector autoregression, node 2 the output-only realization)")
+    parser.add_argument("--imu", action="store_true",
+                        help="the outputs three by three on sensor_msgs/Imu topics (linear_acceleration.x/y/z, as "
+                             "triaxial accelerometers publish) and the inputs on a geometry_msgs/WrenchStamped "
+                             "(force.x/y): 11 messages per sample instead of one IoSample")
     parser.add_argument("--domain", type=int, default=61, help="ROS_DOMAIN_ID of the first run (default 61)")
     parser.add_argument("--role", default="bench", choices=("bench", "receiver"), help=argparse.SUPPRESS)
     parser.add_argument("--out", default="", help=argparse.SUPPRESS)
@@ -169,7 +178,8 @@ def start_chain(args: argparse.Namespace, window: int, dt: float, tmp: Path, env
     overrides.write_text(
         f"/**:\n  ros__parameters:\n    sample_time_s: {dt!r}\n    n_inputs: {0 if args.output_only else 2}\n"
         f"    n_outputs: 28\n"
-        f"/**/okid_arx_identifier:\n  ros__parameters:\n"
+        + (_sensor_sources(0 if args.output_only else 2, 28) if args.imu else "")
+        + f"/**/okid_arx_identifier:\n  ros__parameters:\n"
         f"    arx:\n      order: {args.order}\n      window_length: {window}\n"
         f"/**/okid_modal_estimator:\n  ros__parameters:\n"
         f"    qos_overrides:\n      /okid/modal_states:\n        publisher:\n          depth: 20000\n"
@@ -186,6 +196,70 @@ def start_chain(args: argparse.Namespace, window: int, dt: float, tmp: Path, env
         with open(tmp / f"{name}.log", "w") as log:
             procs[name] = subprocess.Popen(command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
     return procs
+
+
+IMU_TOPIC, WRENCH_TOPIC = "/pace/accel_{}", "/pace/force"
+AXES = ("x", "y", "z")
+
+
+def _sensor_topics(m: int, p: int) -> list[tuple[str, str, list[tuple[str, int]]]]:
+    """``--imu``: (kind, topic, [(field, channel), ...]) of each sensor topic.
+
+    The inputs on one WrenchStamped (force.x, .y, .z), the outputs three by three on Imu topics
+    (linear_acceleration.x, .y, .z), as triaxial accelerometers publish them; channels count
+    ``[u; y]``.
+    """
+    topics = [("wrench", WRENCH_TOPIC, [(f"force.{AXES[i]}", i) for i in range(m)])] if m else []
+    for first in range(0, p, 3):
+        fields = [(f"linear_acceleration.{AXES[j - first]}", m + j) for j in range(first, min(first + 3, p))]
+        topics.append(("imu", IMU_TOPIC.format(first // 3), fields))
+    return topics
+
+
+def _sensor_sources(m: int, p: int) -> str:
+    """``inputs.sources`` of both nodes for ``--imu``, as lines of the parameter file's ``/**``."""
+    sources = [f"{kind} {topic} " + " ".join(f"{field}={'u' if ch < m else 'y'}{ch if ch < m else ch - m}"
+                                            for field, ch in fields)
+               for kind, topic, fields in _sensor_topics(m, p)]
+    return "    inputs:\n      sources: [" + ", ".join(f'"{s}"' for s in sources) + "]\n"
+
+
+class SensorSender:
+    """``--imu``: a sample as a message per sensor topic, each from its topic's serialized template.
+
+    The benchmark's own CPU must stay small beside the nodes' (11 messages per sample at 28
+    outputs): each topic's message is serialized once by rclpy with marker values in its fields,
+    and a sample writes its stamp and values into those bytes, which rclpy publishes raw.
+    """
+
+    def __init__(self, node, msgs: list, m: int, p: int, qos) -> None:
+        from geometry_msgs.msg import WrenchStamped
+        from rclpy.serialization import serialize_message
+        from sensor_msgs.msg import Imu
+
+        self.values = [list(msg.u) + list(msg.y) for msg in msgs]
+        self.publishers, self.templates = [], []
+        for kind, topic, fields in _sensor_topics(m, p):
+            msg = WrenchStamped() if kind == "wrench" else Imu()
+            group = msg.wrench.force if kind == "wrench" else msg.linear_acceleration
+            markers = [1.2345678901234567e-300 * (k + 1) for k in range(len(fields))]
+            for (field, _), marker in zip(fields, markers):
+                setattr(group, field[-1], marker)
+            data = serialize_message(msg)
+            places = [(data.find(struct.pack("<d", marker)), channel) for (_, channel), marker in zip(fields, markers)]
+            self.templates.append((bytearray(data), places))
+            self.publishers.append(node.create_publisher(type(msg), topic, qos))
+
+    def ready(self) -> bool:
+        return all(pub.get_subscription_count() >= 2 for pub in self.publishers)
+
+    def send(self, k: int, sec: int, nanosec: int) -> None:
+        values = self.values[k % len(self.values)]
+        for pub, (data, places) in zip(self.publishers, self.templates):
+            struct.pack_into("<iI", data, 4, sec, nanosec)
+            for at, channel in places:
+                struct.pack_into("<d", data, at, values[channel])
+            pub.publish(bytes(data))
 
 
 def make_messages(record: Path, *, output_only: bool = False):
@@ -260,10 +334,16 @@ def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker
     from okid_msgs.msg import IoSample
 
     node = Node("okid_pace_publisher")
-    publisher = node.create_publisher(IoSample, "/okid/io_sample",
-                                      QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    sender = None
+    if args.imu:
+        sender = SensorSender(node, msgs, 0 if args.output_only else 2, 28, qos)
+        ready = sender.ready
+    else:
+        publisher = node.create_publisher(IoSample, "/okid/io_sample", qos)
+        ready = lambda: publisher.get_subscription_count() >= 2  # noqa: E731
     deadline = time.monotonic() + 30.0
-    while publisher.get_subscription_count() < 2 or node.count_subscribers("/okid/modal_states") < 1:
+    while not ready() or node.count_subscribers("/okid/modal_states") < 1:
         if time.monotonic() > deadline:
             raise RuntimeError("the nodes or the receiver did not come up within 30 s")
         time.sleep(0.1)
@@ -285,10 +365,15 @@ def publish(args: argparse.Namespace, msgs: list, dt: float, procs: dict, marker
         wait = start + k * dt_ns - clock()
         if wait > 0:
             time.sleep(wait * 1e-9)  # no busy wait: the publisher must not eat the nodes' CPU
-        msg = msgs[k % len(msgs)]
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0_ns + k * dt_ns, 1_000_000_000)
-        published[k] = clock()
-        publisher.publish(msg)
+        sec, nanosec = divmod(t0_ns + k * dt_ns, 1_000_000_000)
+        if sender is not None:
+            sender.send(k, sec, nanosec)  # the sample is complete with its last message
+            published[k] = clock()
+        else:
+            msg = msgs[k % len(msgs)]
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            published[k] = clock()
+            publisher.publish(msg)
         k += 1
         if measure_from is None and k % 64 == 0 and marker.exists():
             measure_from, before = k, snapshot(procs)
@@ -449,6 +534,7 @@ def print_table(args: argparse.Namespace, rows: list[dict], dt: float) -> None:
     """The markdown table: one column per window."""
     source = (f"the steel subframe's identified model simulated for {args.synthetic:g} s" if args.synthetic > 0
               else "steel subframe looped")
+    source += ", Imu topics (3 outputs each) and a WrenchStamped" if args.imu else ", one IoSample per sample"
     print(f"\nbench/live_pace.py: {source}, {1 / dt:g} Hz, p = 28, m = {0 if args.output_only else 2}, "
           f"q = {args.order}{' (output-only: node 1 a VAR)' if args.output_only else ''}, "
           f"defaults otherwise (ArxModel 1 Hz, automatic order, change detection "
