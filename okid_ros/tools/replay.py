@@ -1,10 +1,11 @@
 """Publish a bag on live topics with its original timing, like ``ros2 bag play``.
 
 Messages are read in log-time order and published when ``(t - t_first) / rate`` has elapsed
-on the monotonic wall clock since the start of the pass, each with the Python class of its
-type (``pkg/msg/Name`` -> ``pkg.msg.Name``, imported on demand): the stored CDR bytes are
-turned into that class by ``rclpy.serialization.deserialize_message`` and published by an rclpy
-publisher. Header stamps are not touched, so with ``loop`` every pass starts again at the
+on the monotonic wall clock since the start of the pass, by an rclpy publisher of the Python
+class of its type (``pkg/msg/Name`` -> ``pkg.msg.Name``, imported on demand). The stored bytes
+are published as they are when they are plain little-endian CDR (:data:`PLAIN_CDR_LE`, what
+rclpy itself sends); others are turned into that class by
+``rclpy.serialization.deserialize_message`` first. Header stamps are not touched, so with ``loop`` every pass starts again at the
 first stamp of the bag: subscribers see a backward time jump, as with ``ros2 bag play --loop``
 (the nodes' sample grid re-anchors on it, see :mod:`okid_ros.service.sample_grid`).
 
@@ -42,6 +43,11 @@ CLOCK_HZ_RANGE = (1e-3, 1e6)
 MAX_QUEUE_DEPTH = 100_000
 #: Most subscriptions --wait-for-subscribers waits for (more than any graph here has).
 MAX_SUBSCRIBERS = 1000
+#: The encapsulation of plain little-endian CDR (the bytes' first two): stored bytes in it are
+#: published as they are, as ``ros2 bag play`` does. Building the message object first (about
+#: 20 us for an Imu, and rclpy serializes it again) was most of a replay's CPU; bytes in another
+#: encoding (big-endian, XCDR2) are turned into the message object, which rclpy serializes.
+PLAIN_CDR_LE = b"\x00\x01"
 #: Seconds between the reminders while --wait-for-subscribers waits (it waits without end).
 WAIT_REMINDER_S = 10.0
 
@@ -286,7 +292,11 @@ class BagPlayer:
                     clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
                     clock_pub.publish(clock_msg)
                     next_clock_ns = stamp_ns + clock_step_ns
-                publishers[topic].publish(deserialize_message(bytes(raw), self.classes[topic]))
+                raw = bytes(raw)
+                if raw[:2] == PLAIN_CDR_LE:
+                    publishers[topic].publish(raw)  # as stored, without a message object
+                else:
+                    publishers[topic].publish(deserialize_message(raw, self.classes[topic]))
                 stats.published[self.remaps.get(topic, topic)] += 1
         return first_ns is not None
 

@@ -125,6 +125,40 @@ def test_replay_publishes_every_message_with_its_stamps_and_timing(ros_domain_id
         listener.close()
 
 
+def test_replay_sends_each_message_as_recorded_whatever_its_cdr_encoding(ros_domain_id, tmp_path):
+    """Little-endian CDR goes out as stored, big-endian through rclpy's message object: the same fields."""
+    from okid_ros.tools.bagio import BagWriter
+
+    bag, topic = tmp_path / "endian", "/test/endian"
+    with BagWriter(bag, storage="sqlite3") as writer:
+        writer.add_topic(topic, "sensor_msgs/msg/Imu")
+        imu, header, stamp, vector = (writer.msg_class(f"{kind}") for kind in (
+            "sensor_msgs/msg/Imu", "std_msgs/msg/Header", "builtin_interfaces/msg/Time", "geometry_msgs/msg/Vector3"))
+        quaternion = writer.msg_class("geometry_msgs/msg/Quaternion")
+        for k in range(40):
+            msg = imu(header=header(stamp=stamp(sec=1000 + k, nanosec=k), frame_id="x" * (k % 9)),
+                      orientation=quaternion(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+                      angular_velocity=vector(x=k * 0.5, y=-1.0, z=2.0), angular_velocity_covariance=np.zeros(9),
+                      linear_acceleration=vector(x=k * 1.25, y=3.0, z=-4.0), linear_acceleration_covariance=np.full(9, 0.1))
+            data = writer.typestore.serialize_cdr(msg, "sensor_msgs/msg/Imu", little_endian=bool(k % 2))
+            writer.write_raw(topic, START_NS + k * DT_NS, bytes(data))
+    listener = Listener({topic: Imu})
+    try:
+        proc = replay(ros_domain_id, str(bag), "--wait-for-subscribers", "--delay", "0.3", "--rate", "4")
+        assert wait_exit(proc, 60) == 0, proc.output()
+        deadline = time.monotonic() + 5
+        while len(listener.received[topic]) < 40:
+            assert time.monotonic() < deadline, len(listener.received[topic])
+            time.sleep(0.05)
+        got = [m for _, m in listener.received[topic]]
+        assert [(m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id) for m in got] == \
+            [(1000 + k, k, "x" * (k % 9)) for k in range(40)]
+        assert [(m.linear_acceleration.x, m.angular_velocity.x, m.linear_acceleration_covariance[8]) for m in got] == \
+            [(k * 1.25, k * 0.5, 0.1) for k in range(40)]
+    finally:
+        listener.close()
+
+
 def test_replay_waits_for_the_number_of_subscriptions_asked(ros_domain_id, short_bag):
     # One subscription matched is not enough with N = 2: a fast probe must not start the replay
     # before a slower node has matched (a looped-bag test once lost its first samples so). A
