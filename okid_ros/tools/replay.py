@@ -5,9 +5,10 @@ on the monotonic wall clock since the start of the pass, by an rclpy publisher o
 class of its type (``pkg/msg/Name`` -> ``pkg.msg.Name``, imported on demand). The stored bytes
 are published as they are when they are plain little-endian CDR (:data:`PLAIN_CDR_LE`, what
 rclpy itself sends); others are turned into that class by
-``rclpy.serialization.deserialize_message`` first. Header stamps are not touched, so with ``loop`` every pass starts again at the
-first stamp of the bag: subscribers see a backward time jump, as with ``ros2 bag play --loop``
-(the nodes' sample grid re-anchors on it, see :mod:`okid_ros.service.sample_grid`).
+``rclpy.serialization.deserialize_message`` first. Header stamps are not touched, so with
+``loop`` every pass starts again at the first stamp of the bag: subscribers see a backward
+time jump, as with ``ros2 bag play --loop`` (the nodes' sample grid re-anchors on it, see
+:mod:`okid_ros.service.sample_grid`).
 
 Publishers are reliable, keep-last with ``queue_depth``, volatile: compatible with the
 sensor-data (best effort) subscriptions of the nodes and with reliable ones. With ``clock``

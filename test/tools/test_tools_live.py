@@ -139,7 +139,8 @@ def test_replay_sends_each_message_as_recorded_whatever_its_cdr_encoding(ros_dom
             msg = imu(header=header(stamp=stamp(sec=1000 + k, nanosec=k), frame_id="x" * (k % 9)),
                       orientation=quaternion(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
                       angular_velocity=vector(x=k * 0.5, y=-1.0, z=2.0), angular_velocity_covariance=np.zeros(9),
-                      linear_acceleration=vector(x=k * 1.25, y=3.0, z=-4.0), linear_acceleration_covariance=np.full(9, 0.1))
+                      linear_acceleration=vector(x=k * 1.25, y=3.0, z=-4.0),
+                      linear_acceleration_covariance=np.full(9, 0.1))
             data = writer.typestore.serialize_cdr(msg, "sensor_msgs/msg/Imu", little_endian=bool(k % 2))
             writer.write_raw(topic, START_NS + k * DT_NS, bytes(data))
     listener = Listener({topic: Imu})
