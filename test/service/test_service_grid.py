@@ -40,6 +40,21 @@ def test_assembles_complete_samples_in_slot_order_with_jitter():
     assert grid.counters.samples_emitted == 5 and grid.counters.rejected_messages == 0
 
 
+def test_a_source_fills_its_channels_in_its_own_order_whether_or_not_they_are_a_run():
+    """Values go to the channels the source names, in its order (a run, a reversed or scattered list)."""
+    grid = SampleGrid(DT, 2, 4, [[5, 2], [3, 4], [1], [0]])  # u0 u1 | y0 y1 y2 y3
+    out = []
+    for k in range(3):
+        out += grid.add(0, T0 + k * DT, [50.0 + k, 20.0 + k])
+        out += grid.add(1, T0 + k * DT, [30.0 + k, 40.0 + k])
+        out += grid.add(3, T0 + k * DT, [0.0 + k])
+        assert out == [] or out[-1].slot == k - 1  # the slot waits for its last channel
+        out += grid.add(2, T0 + k * DT, [10.0 + k])
+    assert [s.slot for s in out] == [0, 1, 2]
+    np.testing.assert_array_equal(out[2].u, [2.0, 12.0])
+    np.testing.assert_array_equal(out[2].y, [22.0, 32.0, 42.0, 52.0])
+
+
 def test_missing_channel_drops_the_slot_after_the_latency_budget_and_late_data_is_refused():
     grid = three_sources(latency_samples=2)
     out = feed(grid, 0)
