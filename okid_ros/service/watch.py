@@ -204,14 +204,17 @@ class InnovationWatch:
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
 
-        From the last samples the state depends on (:attr:`InnovationPredictor.settle_samples`,
-        a few hundred at 28 outputs), not the whole buffer: on the sample path, a restart over
-        8192 samples stalled it for tens of milliseconds, and the samples missed meanwhile
-        made the estimator diverge again. Diverged samples may hold what made it diverge (a
-        spike): predicted over, not used.
+        Diverged samples may hold what made it diverge (a spike): predicted over (open loop),
+        not used. From the samples the state depends on, not the whole buffer: on the sample
+        path, a restart over 8192 samples stalled it for tens of milliseconds, and the samples
+        missed meanwhile made the estimator diverge again. The predictor forgets its start after
+        :attr:`InnovationPredictor.settle_samples` (a few hundred at 28 outputs); the open-loop
+        steps do not (the model's own poles), so those samples are counted before the first
+        diverged one.
         """
         buffer, max_gap = self._buffer, self.params.max_gap_samples
-        first = max(buffer.first, index + 1 - self._settle_samples(model))
+        open_loop_from = min([index + 1, *(i for i in self.diverged if i >= buffer.first)])
+        first = max(buffer.first, open_loop_from - self._settle_samples(model))
         _, u, y, skipped = buffer.get(first, index + 1)
         x, u_prev = np.zeros(model.n_states), None
         lo = 0

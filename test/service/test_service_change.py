@@ -219,6 +219,33 @@ def test_a_restart_warm_starts_over_the_samples_the_state_depends_on_not_the_who
     x, _ = watch.warm_state(active.model, index)
     assert sum(lengths) == settle
     np.testing.assert_allclose(x, whole, rtol=0, atol=1e-11 * np.abs(whole).max())
+    # Diverged samples are predicted over open loop, which does not forget: the settle samples
+    # count before the first of them, and the state is that of the whole buffer still.
+    diverged = list(range(index - 2 * settle, index + 1, 3))
+    watch.diverged, lengths[:] = list(diverged), []
+    x, _ = watch.warm_state(active.model, index)
+    watch.diverged = []
+    assert sum(lengths) == settle + (index + 1 - diverged[0]) - len(diverged)  # closed-loop samples
+    want = whole_with_open_loop(est, active.model, buffer, index, diverged)
+    np.testing.assert_allclose(x, want, rtol=0, atol=1e-9 * np.abs(want).max())
+
+
+def whole_with_open_loop(est, model, buffer, index, diverged):
+    """The restart's state over the whole buffer, the diverged samples predicted over (the rule before)."""
+    from okid_ros.service.realization import advance_state, bridge_state
+
+    first = buffer.first
+    _, u, y, skipped = buffer.get(first, index + 1)
+    x, u_prev, lo = np.zeros(model.n_states), None, 0
+    for k in sorted(i - first for i in diverged) + [u.shape[0]]:
+        if k > lo:
+            x, u_prev = advance_state(model, x, u[lo:k], y[lo:k], skipped[lo:k], u_prev,
+                                      max_gap=est.params.max_gap_samples)
+        if k < u.shape[0]:
+            x = bridge_state(model, x, u[k], 1, 1)
+            u_prev = u[k]
+        lo = k + 1
+    return x
 
 
 def test_the_worker_warm_starts_a_new_model_over_its_settle_samples():
