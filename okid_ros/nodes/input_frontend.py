@@ -6,7 +6,6 @@ one :class:`InputFrontend`; the node's input thread (:mod:`.input_thread`) takes
 
 from __future__ import annotations
 
-import importlib
 import time
 from collections.abc import Callable
 from functools import partial
@@ -18,11 +17,11 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from okid_ros.nodes.common import make_status, sensor_qos
 from okid_ros.nodes.conversions import source_values
-from okid_ros.nodes.raw_inputs import raw_reader
+from okid_ros.nodes.raw_inputs import message_class, raw_reader
 from okid_ros.service.inputs import sources_and_grid
 from okid_ros.service.sample_grid import GridSample
 
-__all__ = ["DRAIN_MAX", "InputFrontend", "message_class"]
+__all__ = ["DRAIN_MAX", "InputFrontend"]
 
 #: Rounds (one message per input topic each) an input callback takes from the queues after
 #: the message it was called with, or the input thread after a wait.
@@ -214,9 +213,3 @@ class InputFrontend:
         else:
             message = f"{len(self.specs)} input(s) receiving"
         return make_status(f"{node_name}: inputs", level, message, values)
-
-
-def message_class(name: str) -> type:
-    """'sensor_msgs/msg/Imu' -> the rclpy message class."""
-    package, kind, type_name = name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)

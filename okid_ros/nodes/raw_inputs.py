@@ -20,6 +20,7 @@ comes back without values, which the sample grid counts as ``wrong_size``.
 
 from __future__ import annotations
 
+import importlib
 import struct
 from typing import Any
 
@@ -28,7 +29,7 @@ import numpy as np
 from okid_ros.nodes.conversions import source_values
 from okid_ros.service.inputs import SourceSpec
 
-__all__ = ["RawSourceReader", "raw_reader"]
+__all__ = ["RawSourceReader", "message_class", "raw_reader"]
 
 _EMPTY = np.zeros(0)
 _LITTLE_ENDIAN_CDR = b"\x00\x01"  # the encapsulation header's first two bytes
@@ -92,14 +93,21 @@ class RawSourceReader:
             parse = self._fixed
         self._parse = parse
 
+    def parse(self, data: bytes) -> tuple[float | None, np.ndarray] | None:
+        """:meth:`read` from the bytes alone; None if they are not plain little-endian CDR of the layout."""
+        if data[:2] != _LITTLE_ENDIAN_CDR:
+            return None
+        try:
+            return self._parse(data)
+        except (struct.error, ValueError):
+            return None
+
     def read(self, data: bytes) -> tuple[float | None, np.ndarray]:
         """``(stamp_s or None, values (len(spec.channels),))`` as ``source_values`` gives them."""
-        if data[:2] == _LITTLE_ENDIAN_CDR:
-            try:
-                return self._parse(data)
-            except (struct.error, ValueError):
-                pass  # not the layout it should be: rclpy decides below
-        try:
+        parsed = self.parse(data)
+        if parsed is not None:
+            return parsed
+        try:  # another encoding, or not the layout it should be: rclpy decides
             msg = self._deserialize(data, self.message_type)
         except Exception:  # noqa: BLE001 - bytes rclpy cannot read are a message without values
             return None, _EMPTY
@@ -220,9 +228,19 @@ class RawSourceReader:
         return True
 
 
-def raw_reader(spec: SourceSpec, n_inputs: int, n_outputs: int, message_type: Any) -> RawSourceReader | None:
-    """A checked :class:`RawSourceReader` for the source, or None (take its messages as objects)."""
+def message_class(name: str) -> type:
+    """'sensor_msgs/msg/Imu' -> the rclpy message class."""
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
+
+
+def raw_reader(spec: SourceSpec, n_inputs: int, n_outputs: int, message_type: Any = None) -> RawSourceReader | None:
+    """A checked :class:`RawSourceReader` for the source, or None (take its messages as objects).
+
+    ``message_type``: the rclpy class (default: the source's, imported; none without rclpy).
+    """
     try:
+        message_type = message_type or message_class(spec.msg_type)
         reader = RawSourceReader(spec, n_inputs, n_outputs, message_type)
         return reader if reader.agrees_with_rclpy() else None
     except Exception:  # noqa: BLE001 - any surprise in the layout: the messages are taken as objects

@@ -123,7 +123,7 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     with open_bag(bag_path) as bag:
         for spec in inputs.specs:
             bag.require_topic(spec.topic, [spec.msg_type])
-        for topic, log_ns, msg in bag.messages([s.topic for s in inputs.specs]):
+        for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
             samples += inputs.add(topic, msg, log_ns * 1e-9)
         samples += inputs.grid.flush()
     if not samples:

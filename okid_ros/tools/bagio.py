@@ -32,7 +32,7 @@ import os
 import shutil
 import sys
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -48,6 +48,7 @@ __all__ = [
     "TRUTH_KEY",
     "BagReader",
     "BagWriter",
+    "StoredMessage",
     "message_definition_dir",
     "okid_typestore",
     "open_bag",
@@ -227,6 +228,32 @@ class BagReader:
         """Yield ``(topic, log_time_ns, message)``, messages deserialized by rosbags."""
         for connection, stamp_ns, raw in self._stored(topics):
             yield connection.topic, stamp_ns, self._decode(connection, stamp_ns, raw)
+
+    def stored_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, StoredMessage]]:
+        """Yield ``(topic, log_time_ns, StoredMessage)``: the bytes, deserialized by rosbags only if asked."""
+        ros1 = not getattr(self._reader, "is2", True)
+        for connection, stamp_ns, raw in self._stored(topics):
+            yield connection.topic, stamp_ns, StoredMessage(b"" if ros1 else raw,
+                                                            functools.partial(self._decode, connection, stamp_ns, raw))
+
+
+class StoredMessage:
+    """One message of a bag: its CDR bytes (empty for a ROS 1 bag's) and its object, decoded on first use.
+
+    Readers of a few fields take them from the bytes (:class:`okid_ros.nodes.raw_inputs.RawSourceReader`)
+    and ask for :attr:`message` (rosbags' object; a BagReadError if it cannot be decoded) otherwise.
+    """
+
+    __slots__ = ("raw", "_decode", "_message")
+
+    def __init__(self, raw: bytes, decode: Callable[[], Any]) -> None:
+        self.raw, self._decode, self._message = raw, decode, None
+
+    @property
+    def message(self) -> Any:
+        if self._message is None:
+            self._message = self._decode()
+        return self._message
 
 
 def _open_reader(paths: Path | list[Path]) -> Any:

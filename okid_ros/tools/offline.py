@@ -95,20 +95,43 @@ class NodeInputs:
         for i, spec in enumerate(self.specs):
             self.by_topic.setdefault(spec.topic, []).append(i)
         self.wrong_size_note = ""  # set at the first message of a wrong size
+        self._readers: list | None = None  # per source, its bytes' reader (made at the first stored message)
 
     def add(self, topic: str, msg: Any, arrival_s: float) -> list:
+        """One input message: a message object or a bag's ``StoredMessage`` (read from its bytes)."""
         from okid_ros.nodes.conversions import source_values
+        from okid_ros.tools.bagio import StoredMessage
 
+        stored = isinstance(msg, StoredMessage)
         samples = []
         for i in self.by_topic.get(topic, ()):
-            stamp, values = source_values(msg, self.specs[i], self.m, self.p)
+            reader = self._reader(i) if stored else None
+            parsed = reader.parse(msg.raw) if reader is not None else None
+            if parsed is None:
+                parsed = source_values(msg.message if stored else msg, self.specs[i], self.m, self.p)
+            stamp, values = parsed
             if not len(values) and not self.wrong_size_note:  # empty: the message has the wrong size
-                have = ", ".join(f"{name} of {len(getattr(msg, name))}" for name in ("u", "y", "data")
-                                 if hasattr(msg, name))
-                self.wrong_size_note = (f"n_inputs {self.m}, n_outputs {self.p} expected; the first on "
-                                        f"{topic} has {have or 'other'} values")
+                self._note_wrong_size(topic, msg.message if stored else msg)
             samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
         return samples
+
+    def _note_wrong_size(self, topic: str, msg: Any) -> None:
+        have = ", ".join(f"{name} of {len(getattr(msg, name))}" for name in ("u", "y", "data") if hasattr(msg, name))
+        self.wrong_size_note = (f"n_inputs {self.m}, n_outputs {self.p} expected; the first on "
+                                f"{topic} has {have or 'other'} values")
+
+    def _reader(self, index: int) -> Any:
+        """The reader of source ``index``'s bytes (:func:`okid_ros.nodes.raw_inputs.raw_reader`), or None.
+
+        Checked against rclpy's serialization of the source's type: rosbags' objects, which the
+        bytes are read instead of, hold the same values (``test_nodes_raw_inputs.py`` reads bytes
+        rosbags wrote). None without rclpy: the messages are decoded by rosbags as before.
+        """
+        if self._readers is None:
+            from okid_ros.nodes.raw_inputs import raw_reader
+
+            self._readers = [raw_reader(spec, self.m, self.p) for spec in self.specs]
+        return self._readers[index]
 
 
 class OfflineNodes:

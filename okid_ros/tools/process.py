@@ -229,7 +229,7 @@ class _Emitter:
     def run(self, bag: Any, bar: "_Progress") -> None:
         """Every input message of the bag through the nodes, then the end of the record."""
         log_ns = 0
-        for topic, log_ns, msg in bag.messages(self.nodes.input_topics):
+        for topic, log_ns, msg in bag.stored_messages(self.nodes.input_topics):
             self(self.nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
             bar.update()
         self(self.nodes.finish(), log_ns)

@@ -17,8 +17,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from okid_ros.nodes import raw_inputs
 from okid_ros.nodes.conversions import source_values
-from okid_ros.nodes.input_frontend import message_class
-from okid_ros.nodes.raw_inputs import RawSourceReader, raw_reader
+from okid_ros.nodes.raw_inputs import RawSourceReader, message_class, raw_reader
 from okid_ros.service.inputs import parse_source
 from okid_ros.tools.bagio import okid_typestore
 

@@ -199,6 +199,30 @@ def test_sensor_topics_give_the_same_models_as_io_sample(run, capsys):
         assert [m["frequency_rad_s"] for m in a["modes"]] == pytest.approx(frequencies_b, rel=1e-9)
 
 
+@pytest.mark.parametrize("extra", [None, "okid_imu_wrench.yaml"])
+def test_a_bags_samples_read_from_the_bytes_equal_those_of_the_decoded_messages(run, monkeypatch, extra):
+    """The offline readers take the stamp and channels from the stored bytes; rosbags' objects agree."""
+    from okid_ros.nodes import raw_inputs
+    from okid_ros.tools.bag_record import record_from_bag
+    from okid_ros.tools.offline import NodeInputs
+
+    files = [CONFIG] + ([REPO_ROOT / "config" / extra] if extra else [])
+    values = load_node_parameters(files)[1]
+    def readers() -> list:
+        inputs = NodeInputs(values)
+        return [inputs._reader(i) for i in range(len(inputs.specs))]
+
+    assert all(r is not None for r in readers())  # the bytes are read
+    from_bytes = record_from_bag(run["bag"], values)
+    monkeypatch.setattr(raw_inputs, "raw_reader", lambda *args, **kwargs: None)
+    assert all(r is None for r in readers())
+    decoded = record_from_bag(run["bag"], values)
+    assert from_bytes.record.u.shape[0] == decoded.record.u.shape[0] > 3000
+    np.testing.assert_array_equal(from_bytes.record.u, decoded.record.u)
+    np.testing.assert_array_equal(from_bytes.record.y, decoded.record.y)
+    np.testing.assert_array_equal(from_bytes.stamp_s, decoded.stamp_s)
+
+
 def test_a_bag_written_by_the_rosbags_writer_alone_is_processed(tmp_path, capsys):
     """A bag as other writers make it.
 
