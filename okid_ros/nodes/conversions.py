@@ -91,7 +91,12 @@ def ros_message_types() -> MessageTypes:
 # ---------------------------------------------------------------------------------- time
 def stamp_to_seconds(stamp: Any) -> float:
     """``builtin_interfaces/Time`` (``sec``, ``nanosec``) -> seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
+    return stamp_seconds(stamp.sec, stamp.nanosec)
+
+
+def stamp_seconds(sec: int, nanosec: int) -> float:
+    """A stamp's ``sec`` and ``nanosec`` -> seconds (the one rule; also for stamps read from bytes)."""
+    return sec + nanosec * 1e-9
 
 
 def stamp_parts(t: float) -> tuple[int, int]:

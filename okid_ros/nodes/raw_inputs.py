@@ -26,13 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from okid_ros.nodes.conversions import source_values
+from okid_ros.nodes.conversions import source_values, stamp_seconds
 from okid_ros.service.inputs import SourceSpec
 
-__all__ = ["RawSourceReader", "message_class", "raw_reader"]
+__all__ = ["PLAIN_CDR_LE", "RawSourceReader", "message_class", "raw_reader"]
 
 _EMPTY = np.zeros(0)
-_LITTLE_ENDIAN_CDR = b"\x00\x01"  # the encapsulation header's first two bytes
+PLAIN_CDR_LE = b"\x00\x01"  # the encapsulation header's first two bytes: plain little-endian CDR
 _DATA = 4  # bytes of the encapsulation header; CDR aligns from the end of it
 _HEADER = struct.Struct("<iII")  # std_msgs/Header: stamp sec, nanosec, frame_id length (with its NUL)
 _LENGTH = struct.Struct("<I")
@@ -62,7 +62,7 @@ def _float_sequence(data: bytes, pos: int) -> tuple[np.ndarray, int]:
 def _after_header(data: bytes) -> tuple[float, int]:
     """The header's stamp [s] and the position after its frame_id."""
     sec, nanosec, length = _HEADER.unpack_from(data, _DATA)
-    return sec + nanosec * 1e-9, _DATA + _HEADER.size + length  # the stamp rule of stamp_to_seconds
+    return stamp_seconds(sec, nanosec), _DATA + _HEADER.size + length
 
 
 class RawSourceReader:
@@ -95,7 +95,7 @@ class RawSourceReader:
 
     def parse(self, data: bytes) -> tuple[float | None, np.ndarray] | None:
         """:meth:`read` from the bytes alone; None if they are not plain little-endian CDR of the layout."""
-        if data[:2] != _LITTLE_ENDIAN_CDR:
+        if data[:2] != PLAIN_CDR_LE:
             return None
         try:
             return self._parse(data)
@@ -215,7 +215,7 @@ class RawSourceReader:
         """Whether every test message's bytes read as rclpy's object of them reads."""
         for msg in self.test_messages():
             data = self._serialize(msg)
-            if data[:2] != _LITTLE_ENDIAN_CDR:
+            if data[:2] != PLAIN_CDR_LE:
                 return False
             try:
                 stamp, values = self._parse(data)

@@ -3,8 +3,9 @@
 Messages are read in log-time order and published when ``(t - t_first) / rate`` has elapsed
 on the monotonic wall clock since the start of the pass, by an rclpy publisher of the Python
 class of its type (``pkg/msg/Name`` -> ``pkg.msg.Name``, imported on demand). The stored bytes
-are published as they are when they are plain little-endian CDR (:data:`PLAIN_CDR_LE`, what
-rclpy itself sends); others are turned into that class by
+are published as they are when they are plain little-endian CDR
+(:data:`~okid_ros.nodes.raw_inputs.PLAIN_CDR_LE`, what rclpy itself sends); others are turned
+into that class by
 ``rclpy.serialization.deserialize_message`` first. Header stamps are not touched, so with
 ``loop`` every pass starts again at the first stamp of the bag: subscribers see a backward
 time jump, as with ``ros2 bag play --loop`` (the nodes' sample grid re-anchors on it, see
@@ -18,7 +19,6 @@ for nodes run with ``use_sim_time``.
 
 from __future__ import annotations
 
-import importlib
 import sys
 import threading
 import time
@@ -44,11 +44,6 @@ CLOCK_HZ_RANGE = (1e-3, 1e6)
 MAX_QUEUE_DEPTH = 100_000
 #: Most subscriptions --wait-for-subscribers waits for (more than any graph here has).
 MAX_SUBSCRIBERS = 1000
-#: The encapsulation of plain little-endian CDR (the bytes' first two): stored bytes in it are
-#: published as they are, as ``ros2 bag play`` does. Building the message object first (about
-#: 20 us for an Imu, and rclpy serializes it again) was most of a replay's CPU; bytes in another
-#: encoding (big-endian, XCDR2) are turned into the message object, which rclpy serializes.
-PLAIN_CDR_LE = b"\x00\x01"
 #: Seconds between the reminders while --wait-for-subscribers waits (it waits without end).
 WAIT_REMINDER_S = 10.0
 
@@ -91,12 +86,13 @@ def message_class(msgtype: str) -> type:
     parts = msgtype.split("/")
     if len(parts) != 3 or parts[1] != "msg":
         raise ReplayError(f"cannot replay message type {msgtype!r}: expected pkg/msg/Name")
-    pkg, _, name = parts
+    from okid_ros.nodes.raw_inputs import message_class as rclpy_message_class
+
     try:
-        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+        return rclpy_message_class(msgtype)
     except (ImportError, AttributeError) as exc:
         raise ReplayError(f"no Python message class for {msgtype} ({exc}); build or source the package "
-                          f"{pkg}, or leave its topics out with --topics") from None
+                          f"{parts[0]}, or leave its topics out with --topics") from None
 
 
 def _check_options(rate: float, delay_s: float, duration_s: float | None, queue_depth: int,
@@ -273,6 +269,8 @@ class BagPlayer:
         """One pass over the bag at ``rate``; True when it reached the end of a non-empty bag."""
         from rclpy.serialization import deserialize_message
 
+        from okid_ros.nodes.raw_inputs import PLAIN_CDR_LE
+
         clock_step_ns = int(1e9 / self.clock_hz)
         pass_start = time.monotonic()
         first_ns = None
@@ -295,7 +293,9 @@ class BagPlayer:
                     next_clock_ns = stamp_ns + clock_step_ns
                 raw = bytes(raw)
                 if raw[:2] == PLAIN_CDR_LE:
-                    publishers[topic].publish(raw)  # as stored, without a message object
+                    # As stored, as ``ros2 bag play`` does: building the message object (about 20 us
+                    # for an Imu, then serialized again) was most of a replay's CPU.
+                    publishers[topic].publish(raw)
                 else:
                     publishers[topic].publish(deserialize_message(raw, self.classes[topic]))
                 stats.published[self.remaps.get(topic, topic)] += 1

@@ -142,6 +142,6 @@ def test_a_reader_that_reads_otherwise_than_rclpy_is_not_used(monkeypatch):
     monkeypatch.setattr(RawSourceReader, "_fixed",
                         lambda self, data: (lambda s, v: (s, v + (data[12] == 4)))(*real(self, data)))
     assert raw_reader(spec, m, p, msg_type) is None
-    monkeypatch.setattr(raw_inputs, "_LITTLE_ENDIAN_CDR", b"\x00\x02")  # an rmw of another encoding
+    monkeypatch.setattr(raw_inputs, "PLAIN_CDR_LE", b"\x00\x02")  # an rmw of another encoding
     monkeypatch.setattr(RawSourceReader, "_fixed", real)
     assert raw_reader(spec, m, p, msg_type) is None
