@@ -45,6 +45,8 @@ DEPENDENT_OUTPUT_RATIO = 1e-5
 #: A channel whose standard deviation exceeds its normalized median absolute deviation this many
 #: times holds a spike (a Gaussian record: about 1; a lightly damped response: a few).
 SPIKE_SPREAD_RATIO = 100.0
+#: ... and at most this share of its samples (at least one) lie beyond a tenth of that ratio.
+SPIKE_SHARE = 0.01
 
 #: A model whose one-step prediction explains less than this share of every output's variance
 #: identified no dynamics (outputs of white noise, 4000 samples, ARX orders 40 and automatic:
@@ -90,7 +92,7 @@ class Excitation:
 
     def channel_text(self, index: int) -> str:
         value = self.constant_value.get(index, 0.0)
-        return f"input {index} ({'all zeros' if value == 0.0 else f'constant {value:.6g}'})"
+        return f"input {index} ({_constant_text(value, float(self.std[index]))})"
 
 
 def dead_channels(x: np.ndarray) -> np.ndarray:
@@ -117,7 +119,7 @@ def output_problem(y: np.ndarray) -> str:
     dead = dead_channels(y)
     if dead.size:
         j = int(dead[0])
-        return _dead_output(j, _constant_value(y[:, j]))
+        return _dead_output(j, _constant_value(y[:, j]), float(channel_std(y[:, j : j + 1])[0]))
     if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
         return ""
     x = y / np.max(np.abs(y), axis=0)  # each channel within +-1 (no overflow near the float64 limits)
@@ -125,10 +127,14 @@ def output_problem(y: np.ndarray) -> str:
     dependent = _dependent_outputs(x.T @ x)
     if dependent:
         # One sample far beyond the rest in every channel (a glitch) also makes the outputs collinear.
-        robust = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+        deviation = np.abs(x - np.median(x, axis=0))
+        robust = 1.4826 * np.median(deviation, axis=0)
         ratio = x.std(axis=0) / np.maximum(robust, np.finfo(float).tiny)
-        if np.max(ratio) > SPIKE_SPREAD_RATIO:
-            j = int(np.argmax(ratio))
+        # A spike is a few samples far out; a channel of two levels (alternating +-1) has no
+        # median deviation either, but half its samples are "far".
+        few_far = np.sum(deviation > SPIKE_SPREAD_RATIO / 10 * robust, axis=0) <= max(1.0, SPIKE_SHARE * x.shape[0])
+        if np.max(np.where(few_far, ratio, 0.0)) > SPIKE_SPREAD_RATIO:
+            j = int(np.argmax(np.where(few_far, ratio, 0.0)))
             return (f"output channel {j} holds samples far beyond its usual range (standard deviation "
                     f"{ratio[j]:.3g} times its median absolute deviation), enough to make the outputs look "
                     f"linearly dependent: a spike or a glitch? remove or repair those samples")
@@ -145,7 +151,7 @@ def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int
     square, mean, _, dead = _window_columns(normal, cols)
     if dead.any():
         j = int(np.flatnonzero(dead)[0])
-        return _dead_output(j, float(mean[j]))
+        return _dead_output(j, float(mean[j]), None)
     if n_outputs < 2:
         return ""
     return _dependent_outputs(normal.R[cols, cols] / max(normal.n_rows, 1) - np.outer(mean, mean))
@@ -163,10 +169,28 @@ def _window_columns(normal: NormalEquations, cols: slice
     return square, mean, variance, constant_columns(square, variance)
 
 
-def _dead_output(channel: int, value: float) -> str:
-    text = "all zeros" if value == 0.0 else f"constant {value:.6g}"
-    return (f"output channel {channel} carries no response ({text}): check the sensor and its topic/column "
-            f"mapping, or leave the channel out")
+def _dead_output(channel: int, value: float, spread: float | None) -> str:
+    """Why a dead output channel is refused; ``spread`` its standard deviation (None: not known)."""
+    return (f"output channel {channel} carries no response ({_constant_text(value, spread)}): check the sensor "
+            f"and its topic/column mapping, or leave the channel out")
+
+
+def _constant_text(value: float, spread: float | None) -> str:
+    """A dead channel's value in words; a variation above rounding is named with what it suggests.
+
+    ``spread`` is the channel's standard deviation, None where only a window's sums are known
+    (their variance at such a level is rounding).
+    """
+    if value == 0.0:
+        return "all zeros"
+    if spread is None:
+        return f"constant {value:.6g}, or varying by less than {NEGLIGIBLE_RELATIVE_SPREAD:.0e} of that level"
+    relative = spread / abs(value)
+    if relative <= 64 * np.finfo(float).eps:
+        return f"constant {value:.6g}"
+    # y + 1e12 with a spread of 5 was "constant 1e+12": true to 5e-12, but it hid the variation.
+    return (f"constant {value:.6g} but for a variation of {relative:.1g} of that level, below any converter's "
+            f"resolution: a small signal on a large offset? subtract the offset before the data reach okid_ros")
 
 
 def _dependent_outputs(gram: np.ndarray) -> str:

@@ -80,7 +80,8 @@ def test_a_dead_output_is_the_records_error_in_its_own_units(record, tmp_path, c
                             "--jsonl", str(tmp_path / "x.jsonl"), "--no-progress"])
     assert status == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and f"output channel 1 carries no response (constant {offset:g})" in err, err
+    assert len(err.splitlines()) == 1 and f"output channel 1 carries no response (constant {offset:g}" in err, err
+    assert ("subtract the offset" in err) == (order == "auto"), err  # a signal on the offset: named
     assert not (tmp_path / "x.jsonl").exists()
 
 

@@ -113,6 +113,21 @@ def test_outputs_without_response_or_made_up_of_others_are_named(one_input_recor
             identify_output_only(outputs, DT)
 
 
+def test_a_two_level_channel_is_no_spike_and_an_offset_signal_is_named(one_input_record) -> None:
+    # Two channels alternating +-1 over an odd count have no median deviation: they were called a
+    # spike. A signal of spread 5 on an offset of 1e12 was "constant 1e+12", hiding its variation.
+    alternating = np.where(np.arange(4001) % 2 == 0, 1.0, -1.0)
+    found = output_problem(np.column_stack([alternating, 3.0 - 2.0 * alternating]))
+    assert "outputs 0, 1 are linearly dependent" in found and "spike" not in found.split("(")[0]
+    u, y = one_input_record
+    offset = np.column_stack([y[:, 0] + 1e12, y[:, 1]])
+    found = output_problem(offset)
+    assert found.startswith("output channel 0 carries no response (constant 1e+12 but for a variation of")
+    assert "subtract the offset" in found
+    assert "subtract the offset" in excitation_warnings(np.column_stack([u[:, 0], u[:, 0] + 1e12]))[0]
+    assert "(constant 5)" in output_problem(np.column_stack([y, np.full(y.shape[0], 5.0)]))
+
+
 def test_the_live_window_names_dead_and_dependent_outputs(one_input_record) -> None:
     # Node 1 knows its window only by the normal equations; a singular window's refusal named
     # dead inputs only, and called a dead output an "unexcited window" without saying which.
