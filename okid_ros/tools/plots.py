@@ -230,7 +230,7 @@ def add_measured_outputs(
     with open_bag(input_bag) as bag:
         for spec in inputs.specs:
             bag.require_topic(spec.topic, [spec.msg_type])
-        for topic, log_ns, msg in bag.messages([s.topic for s in inputs.specs]):
+        for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
             for sample in inputs.add(topic, msg, log_ns * 1e-9):
                 stamp_ns = sample.stamp_s * 1e9
                 if not first_ns:
