@@ -96,10 +96,14 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES, ModelView, parse_pairs, write_validation_figures
 
     refuse_existing(out_dir, VALIDATION_FIGURES, args.force)
+    view = None if data.state_space is None else ModelView.of(data.state_space)
+    try:  # before any figure is written: a wrong pair left five figures that refused the rerun
+        pairs = parse_pairs(args.frf_pairs, view.C.shape[0], view.B.shape[1]) if args.frf_pairs and view else None
+    except ValueError as exc:
+        raise ToolParameterError(f"--frf-pairs: {exc}") from None
     made_here = not out_dir.exists()  # removed again if nothing is drawn into it
     written = write_figures(data, out_dir, force=args.force, n_stochastic=args.terms)
-    if data.state_space is not None:
-        view = ModelView.of(data.state_space)
+    if view is not None:
         view.stabilization = data.stabilization
         u = y = None
         if input_bag is not None:
@@ -108,10 +112,6 @@ def run(args: argparse.Namespace) -> int:
             from_bag = record_from_bag(input_bag, est_values)
             u, y = from_bag.record.u, from_bag.record.y
             note += f"; FRF from {from_bag.summary()}"
-        try:
-            pairs = parse_pairs(args.frf_pairs, view.C.shape[0], view.B.shape[1]) if args.frf_pairs else None
-        except ValueError as exc:
-            raise ToolParameterError(f"--frf-pairs: {exc}") from None
         reference, why_not = _truth_reference(data.truth, view.C.shape[0])
         note += why_not
         written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,

@@ -505,6 +505,9 @@ def test_plot_draws_the_stabilization_diagram_that_process_recorded(run, capsys)
     orders = [entry["n_states"] for entry in stabilization]
     assert orders == sorted(orders) and len(orders) >= 3
     assert any(pole["stable_frequency"] for entry in stabilization for pole in entry["poles"])
+    # A pair out of range is refused before any figure: five figures were left, refusing the rerun.
+    code, _, err = run_cli(capsys, "plot", out, "--out-dir", figures, "--frf-pairs", "3:1")
+    assert code == 2 and "--frf-pairs" in err and not figures.exists(), err
     code, stdout, err = run_cli(capsys, "plot", out, "--out-dir", figures, "--frf-pairs", "1:1")
     assert code == 0, err
     assert {"stabilization.png", "frf.png", "mac.png"} <= {p.name for p in figures.iterdir()}
