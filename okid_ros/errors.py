@@ -50,7 +50,9 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
             write(stream)
         return
     # open(..., "x") rather than mkstemp: the file gets the usual permissions (umask), not 0600.
-    temporary = target.with_name(f".{target.name}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
+    # The name cut to 200 bytes: a legal name of 255 made a temporary one too long to create.
+    stem = os.fsdecode(os.fsencode(target.name)[:200])
+    temporary = target.with_name(f".{stem}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
     try:
         with open(temporary, "xb") as stream:
             write(stream)

@@ -91,3 +91,13 @@ def test_track_refuses_an_infinite_option(record, tmp_path, capsys, option):
         run_cli(capsys, "track", record, "--jsonl", tmp_path / "t.jsonl", option, "inf")
     assert exited.value.code == 2
     assert f"argument {option}" in capsys.readouterr().err
+
+
+def test_a_name_of_the_longest_legal_length_is_written(tmp_path):
+    # The temporary name beside it was ".{name}.{pid}.{n}.part": 255 characters made it too long
+    # ("File name too long" after a whole identification); a multi-byte name is cut on its bytes.
+    for name in ("m" * 250 + ".json", "é" * 125 + ".json"):
+        target = tmp_path / name
+        write_atomically(target, lambda stream: stream.write(b"{}"))
+        assert target.read_bytes() == b"{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["m" * 250 + ".json", "é" * 125 + ".json"])
