@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
     last_modes: list = []
+    last_row, last_update = -1, -1  # the newest row of the last window realized, its update's sample
     with handle:
         fed = 0
         for k in points:
@@ -197,12 +198,18 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
-            if rows < restart_rows:
-                entry.update(n_states=None, modes=[], waiting=_waiting(estimator.status, changes, rows, restart_rows))
+            newest = record.newest_row(k)
+            if rows < restart_rows or newest == last_row:
+                # No row since the last window realized (the data stopped: NaN to the end): its model
+                # again would read as a new one.
+                why = (_waiting(estimator.status, changes, rows, restart_rows) if rows < restart_rows else
+                       f"no sample since sample {newest}: the window is the one of the update at sample {last_update}")
+                entry.update(n_states=None, modes=[], waiting=why)
                 first_reason, waits = first_reason or entry["waiting"], waits + 1
                 entry["elapsed_s"] = time.perf_counter() - t0
                 handle.write(entry)
                 continue
+            last_row, last_update = newest, k
             try:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
@@ -466,6 +473,12 @@ class _TrackedRecord:
         skipped[0] = 0
         return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
                                   need=rows + self.order)
+
+    def newest_row(self, k: int) -> int:
+        """The last sample up to ``k`` that ends a regressor row (its ``q`` lags present), or -1."""
+        import numpy as np
+
+        return int(np.searchsorted(self._rows_before, self._rows_before[k + 1], side="left")) - 1
 
     def window_start(self, k: int, rows: int) -> int:
         """The first sample of the window of ``rows`` rows ending at sample ``k`` (its oldest row's first lag)."""

@@ -213,3 +213,23 @@ def test_updates_that_all_wait_for_rows_say_so_on_stderr(record, tmp_path, capsy
     assert "(0 failed, 3 waiting for rows)" in captured.out
     assert "okid-ros track: warning: no update gave a model; the first: the window holds 0 of the 375 rows" in (
         captured.err), captured.err
+
+
+def test_updates_after_the_data_stop_say_so_instead_of_repeating_the_last_window(record, tmp_path, capsys):
+    # NaN from the middle to the end: every later update realized the window that ended where the
+    # data stopped again, and its line read as a new model (rows full, no warning, no waiting).
+    _, u, y = record
+    y = y.copy()
+    y[2000:] = np.nan
+    path = tmp_path / "stops.npz"
+    save_record(path, u, y, DT)
+    out = tmp_path / "stops.jsonl"
+    assert okid_ros_main(["track", str(path), "--order", "20", "--window", "1000", "--every", "250",
+                          "--jsonl", str(out), "--no-progress"]) == 0
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    realized = [line for line in lines if line["modes"]]
+    assert realized and max(line["sample_index"] for line in realized) < 2250
+    after = [line for line in lines if line["sample_index"] >= 2250]
+    assert after and all(not line["modes"] and line["waiting"].startswith("no sample since sample 1999")
+                         for line in after), after[:2]
+    assert f"{len(after)} waiting for rows" in capsys.readouterr().out
