@@ -161,9 +161,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.service.watch import is_new_reference
 
     out, (u, y, dt) = _output_and_record(args)
-    n_samples, m = u.shape
-    p = y.shape[1]
-    window = args.window
+    (n_samples, m), p, window = u.shape, y.shape[1], args.window
     options = RealizationOptions(
         n_states=args.states, max_states=args.max_states,
         max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
@@ -182,7 +180,6 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
     last_modes: list = []
-    last_row, last_update = -1, -1  # the newest row of the last window realized, its update's sample
     with handle:
         fed = 0
         for k in points:
@@ -198,18 +195,13 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
-            newest = record.newest_row(k)
-            if rows < restart_rows or newest == last_row:
-                # No row since the last window realized (the data stopped: NaN to the end): its model
-                # again would read as a new one.
-                why = (_waiting(estimator.status, changes, rows, restart_rows) if rows < restart_rows else
-                       f"no sample since sample {newest}: the window is the one of the update at sample {last_update}")
+            why = record.waiting(k, rows, restart_rows, estimator.status, changes)
+            if why:
                 entry.update(n_states=None, modes=[], waiting=why)
                 first_reason, waits = first_reason or entry["waiting"], waits + 1
                 entry["elapsed_s"] = time.perf_counter() - t0
                 handle.write(entry)
                 continue
-            last_row, last_update = newest, k
             try:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
@@ -431,6 +423,7 @@ class _TrackedRecord:
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))
         self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
         self.origin = 0  # the window's first sample (the last change point)
+        self._realized = (-1, -1)  # the newest row of the last window realized, its update's sample
         # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
         missing_before = np.concatenate([[0], np.cumsum(~self.present)])
         k = np.arange(self.order, self.present.size)
@@ -474,11 +467,22 @@ class _TrackedRecord:
         return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
                                   need=rows + self.order)
 
-    def newest_row(self, k: int) -> int:
-        """The last sample up to ``k`` that ends a regressor row (its ``q`` lags present), or -1."""
+    def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
+        """Why the update at sample ``k`` gives no model, or "" (and it is the last realized).
+
+        Too few rows in the window, or no row since the last window realized: the data stopped
+        (NaN to the end), and that window's model again would read as a new one.
+        """
         import numpy as np
 
-        return int(np.searchsorted(self._rows_before, self._rows_before[k + 1], side="left")) - 1
+        if rows < needed:
+            return _waiting(status, changes, rows, needed)
+        # The last sample up to k that ends a regressor row (its q lags present).
+        newest = int(np.searchsorted(self._rows_before, self._rows_before[k + 1], side="left")) - 1
+        if newest == self._realized[0]:
+            return f"no sample since sample {newest}: the window is the one of the update at sample {self._realized[1]}"
+        self._realized = (newest, k)
+        return ""
 
     def window_start(self, k: int, rows: int) -> int:
         """The first sample of the window of ``rows`` rows ending at sample ``k`` (its oldest row's first lag)."""
