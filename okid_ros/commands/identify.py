@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.errors import ParameterError, writing
+    from okid_ros.errors import OutputError, ParameterError, writing
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
@@ -135,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
+    for path, kind in outputs:
+        if kind != "figure" and path.is_dir():  # found only after the work (IsADirectoryError)
+            raise OutputError(f"{path}: a folder; the {kind} is a file: give a file name")
     if not args.force:  # after every option is checked (no empty figure folder is left), before the work
         for path, kind in outputs:
             prepare_output(path, force=False, kind=kind)
@@ -158,7 +161,10 @@ def run(args: argparse.Namespace) -> int:
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
     print(_fit_line(fits, output_only=output_only))
-    _write_exports(args, model, measured, reference=reference, pairs=pairs)
+    try:
+        _write_exports(args, model, measured, reference=reference, pairs=pairs)
+    except OutputError as exc:  # a full disk, a device that refuses: say what is written already
+        raise OutputError(f"{exc}; the JSON model is written ({out})") from None
     return 0
 
 

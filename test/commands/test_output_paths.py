@@ -101,3 +101,18 @@ def test_a_name_of_the_longest_legal_length_is_written(tmp_path):
         write_atomically(target, lambda stream: stream.write(b"{}"))
         assert target.read_bytes() == b"{}"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["m" * 250 + ".json", "é" * 125 + ".json"])
+
+
+def test_identify_refuses_a_folder_for_a_file_before_the_work_and_names_what_it_wrote(record, tmp_path, capsys):
+    # --csv an existing folder with --force: the JSON was written, then "Is a directory", and the
+    # corrected rerun was refused for the JSON; a full disk for the CSV did not say the JSON was written.
+    folder = tmp_path / "modes"
+    folder.mkdir()
+    model = tmp_path / "m.json"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--csv", folder, "--force")
+    assert_one_line_error(code, err, f"{folder}: a folder; the modes CSV is a file")
+    assert not model.exists() and folder.is_dir()
+    full = tmp_path / "full"
+    full.symlink_to("/dev/full")
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--csv", full)
+    assert_one_line_error(code, err, "No space left on device", f"the JSON model is written ({model})")
