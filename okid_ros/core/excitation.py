@@ -201,17 +201,29 @@ def _constant_text(value: float, spread: float | None) -> str:
 
 def _dependent_outputs(gram: np.ndarray) -> str:
     """Why outputs whose (centred) Gram or covariance is ``gram`` (p, p) are linearly dependent, or ""."""
+    dependent = _dependent_columns(gram)
+    if dependent is None:
+        return ""
+    listed = ", ".join(str(int(j)) for j in dependent[0])
+    return (f"outputs {listed} are linearly dependent (one is a combination of the others: a channel recorded "
+            f"twice? a derived channel? or a spike far larger than the rest in all of them): the innovation "
+            f"covariance would be singular; leave {'one' if dependent[1] == 1 else dependent[1]} of them out")
+
+
+def _dependent_columns(gram: np.ndarray) -> tuple[np.ndarray, int] | None:
+    """The channels in a linear dependence of those whose centred Gram is ``gram`` (c, c), and how many.
+
+    None when the smallest direction of their correlation matrix holds more than
+    :data:`DEPENDENT_OUTPUT_RATIO` of the spread of the largest.
+    """
     scale = np.sqrt(np.diag(gram))
     values, vectors = linalg.eigh(gram / np.outer(scale, scale))  # the channels' correlation matrix
     null = vectors[:, values <= DEPENDENT_OUTPUT_RATIO**2 * values[-1]]
     if not null.shape[1]:
-        return ""
+        return None
     # The channels each null combination holds (a repeated channel: the two; a derived one: all).
     involved = np.flatnonzero(np.max(np.abs(null), axis=1) > 1e-3 * np.max(np.abs(null)))
-    listed = ", ".join(str(int(j)) for j in involved)
-    return (f"outputs {listed} are linearly dependent (one is a combination of the others: a channel recorded "
-            f"twice? a derived channel? or a spike far larger than the rest in all of them): the innovation "
-            f"covariance would be singular; leave {'one' if null.shape[1] == 1 else null.shape[1]} of them out")
+    return involved, int(null.shape[1])
 
 
 def unexplained_warnings(innovation_covariance: np.ndarray, y: np.ndarray) -> list[str]:
@@ -251,11 +263,27 @@ def input_excitation(u: np.ndarray) -> Excitation:
 
 
 def excitation_warnings(u: np.ndarray) -> list[str]:
-    """One warning naming the dead input channels of ``u`` (N, m) and what to do; [] if none."""
+    """Warnings naming the dead input channels of ``u`` (N, m), and live ones that are linearly dependent.
+
+    [] if none. All inputs dead: the one reason :func:`unexcited_reason`.
+    """
     report = input_excitation(u)
-    if not report.dead or not report.excited:
-        return [] if not report.dead else [unexcited_reason(report)]
-    return excitation_warnings_of(report)
+    if report.dead and not report.excited:
+        return [unexcited_reason(report)]
+    warnings = excitation_warnings_of(report) if report.dead else []
+    live = [i for i in range(report.n_inputs) if i not in report.dead]
+    if len(live) > 1 and u.shape[0] >= len(live):
+        x = np.asarray(u, dtype=float)[:, live]
+        x = x / np.max(np.abs(x), axis=0)
+        x = x - x.mean(axis=0)
+        dependent = _dependent_columns(x.T @ x)
+        if dependent is not None:
+            listed = ", ".join(str(live[j]) for j in dependent[0])
+            warnings.append(f"inputs {listed} are linearly dependent (one is a combination of the others: a channel "
+                            f"recorded twice? one command sent to two actuators?): the model cannot tell their effects "
+                            f"apart and splits them between their columns of B and D arbitrarily; leave "
+                            f"{'one' if dependent[1] == 1 else dependent[1]} of them out")
+    return warnings
 
 
 def unexcited_reason(report: Excitation) -> str:

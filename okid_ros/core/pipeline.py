@@ -441,8 +441,8 @@ def identify(
         model = _identify_okid(fitted, order, sample_time_s, options=options, offsets=offsets,
                                order_by_gcv=bool(arx_scores), arx_orders=arx_orders, n_samples=y.shape[0])
     model.arx_order_scores = arx_scores
-    # frame.warnings: the dead inputs (identify_from_arx saw only the live ones)
-    model.warnings += order_warnings + frame.warnings
+    # frame.warnings: the dead inputs (identify_from_arx saw only the live ones; the others it gave already)
+    model.warnings += [w for w in order_warnings + frame.warnings if w not in model.warnings]
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 

@@ -160,6 +160,19 @@ def test_a_model_that_explains_nothing_says_so(one_input_record) -> None:
     assert any("explains at most" in w and "no dynamics identified" in w for w in model.warnings)
 
 
+def test_inputs_made_up_of_each_other_are_named_once(one_input_record) -> None:
+    # Input 1 a scaled copy of input 0: the ridge fit split their effect between B's columns with
+    # nothing said; a dead third input is still named on its own.
+    u, y = one_input_record
+    dependent = np.column_stack([u[:, 0], 1.0 - 2.5 * u[:, 0], np.zeros(u.shape[0])])
+    text = excitation_warnings(dependent)
+    assert len(text) == 2 and "no excitation on input 2" in text[0]
+    assert text[1].startswith("inputs 0, 1 are linearly dependent") and "leave one of them out" in text[1]
+    assert excitation_warnings(u[:, :1]) == [] and excitation_warnings(np.column_stack([u[:, 0], y[:, 0]])) == []
+    model = identify(dependent, y, DT, order=40)
+    assert sum("are linearly dependent" in w for w in model.warnings) == 1, model.warnings
+
+
 def test_modes_from_a_short_window_of_white_noise_come_with_the_warning() -> None:
     # A 1000-sample window of white noise is explained up to 4 % by chance and its models list a
     # mode in about a third of the records: above the fixed 2 %, they came with no warning.
