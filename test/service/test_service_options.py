@@ -115,6 +115,9 @@ def test_a_core_rule_the_parameter_table_lets_through_names_the_parameter():
     ({"arx.order": 5000}, "d = m + q (p + m) = 20002 coefficients; at most 2500"),
     ({"arx.order": 150, "arx.regularization": "none", "arx.window_length": 500},
      "arx.window_length 500 is smaller than the d = 602 coefficients"),
+    # No model could ever come out: `process` ran to the end and said so only then.
+    ({"arx.order": 1}, "arx.order 1: node 2 realizes models from an ARX order of at least 2"),
+    ({"arx.window_length": 10}, "arx.window_length 10 with arx.order 100: node 2's realization needs at least 400"),
 ])
 def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(values, text):
     with pytest.raises(ParameterError, match=re.escape(text)):
@@ -122,3 +125,4 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     # The same order regularized, or with 28 outputs at the live configuration's order, is taken.
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
