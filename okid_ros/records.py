@@ -90,6 +90,20 @@ class Record:
         return Record(u, y, dt)
 
 
+def channel_without_values(u: np.ndarray, y: np.ndarray) -> str:
+    """Why a channel of ``u`` (N, m) or ``y`` (N, p) holds no finite sample, or "".
+
+    Such a channel makes every sample missing: the commands said "no two samples in a row are
+    free of NaN/Inf", or waited for rows on every update, without naming it.
+    """
+    for kind, values in (("output", y), ("input", u)):
+        empty = np.flatnonzero(~np.isfinite(values).any(axis=0))
+        if empty.size:
+            return (f"{kind} channel {int(empty[0])} holds no value (NaN/Inf in every sample): check its column or "
+                    f"topic mapping, or leave the channel out")
+    return ""
+
+
 def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The runs of True in ``present`` (N,): their starts and their ends (exclusive), in order."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(present, dtype=np.int8), [0]])))

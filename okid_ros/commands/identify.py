@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.errors import OutputError, ParameterError, writing
+    from okid_ros.errors import DataError, OutputError, ParameterError, writing
     from okid_ros.jsonio import write_json
-    from okid_ros.records import bridged_run, longest_present_run
+    from okid_ros.records import bridged_run, channel_without_values, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
@@ -105,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_paths(args.data, "record", outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
+    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+        raise DataError(f"{args.data}: {problem}")
     if output_only and (ignored := _input_output_options(args)):
         print(f"okid-ros identify: warning: {', '.join(ignored)} apply to input-output identification; ignored "
               "for this output-only one", file=sys.stderr)

@@ -238,6 +238,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.core.channels import group_scales
     from okid_ros.core.excitation import output_problem
     from okid_ros.errors import DataError
+    from okid_ros.records import channel_without_values
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
@@ -249,6 +250,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
+    if problem := channel_without_values(u, record.y):
+        raise DataError(problem)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
     # record's units; every window would fail on it, the first in the ARX order's search).
     problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
@@ -272,6 +275,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
     from okid_ros.core.arx_order import choose_arx_order
     from okid_ros.core.gap_fill import realization_minimum
+    from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
 
@@ -297,7 +301,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
             f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
         )
-    minimum = realization_minimum(q, window + q)
+    minimum = max(realization_minimum(q, window + q), OUTPUT_ONLY_MIN_SAMPLES if m == 0 else 0)
     if window + q < minimum:  # then every update would be refused
         raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
                              f"at least {minimum} (a window of at least {minimum - q} rows)")
@@ -468,17 +472,14 @@ class _TrackedRecord:
                                   need=rows + self.order)
 
     def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
-        """Why the update at sample ``k`` gives no model, or "" (and it is the last realized).
+        """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).
 
-        Too few rows in the window, or no row since the last window realized: the data stopped
-        (NaN to the end), and that window's model again would read as a new one.
+        Too few rows, or none since the last realized (the data stopped: that model again would read as new).
         """
-        import numpy as np
-
         if rows < needed:
             return _waiting(status, changes, rows, needed)
         # The last sample up to k that ends a regressor row (its q lags present).
-        newest = int(np.searchsorted(self._rows_before, self._rows_before[k + 1], side="left")) - 1
+        newest = int(self._rows_before.searchsorted(self._rows_before[k + 1], side="left")) - 1
         if newest == self._realized[0]:
             return f"no sample since sample {newest}: the window is the one of the update at sample {self._realized[1]}"
         self._realized = (newest, k)

@@ -185,8 +185,14 @@ def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: Realizat
         n_present = u.shape[0] if valid is None else int(np.count_nonzero(valid))
         longest = longest_arx_order(n_present, p, u.shape[1],
                                     min_rows_per_coefficient=arx_orders.min_rows_per_coefficient)
-        if not options.automatic_order or longest < min_arx_order(MIN_SEARCH_STATES, p):
+        if not options.automatic_order:
             raise
+        smallest = min_arx_order(MIN_SEARCH_STATES, p)
+        if longest < smallest:  # the order cited by select_arx_order was the search's, not the fallback's
+            needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, u.shape[1])) + smallest
+            raise ValueError(f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, "
+                             f"{smallest} ({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order "
+                             f"may fit fewer (at most {longest} here)") from None
     choice = choose(longest, (longest,))
     return choice, [
         f"{n_present} samples are too few for the ARX order a search up to {states} states needs "

@@ -58,6 +58,8 @@ MIN_EXPLAINED_VARIANCE = 0.02
 #: share times N at most 32-62, its 90th percentile 19-41; a 1000-sample window of white noise
 #: was explained up to 4.6 % and listed modes in 17-65 % of the records.
 CHANCE_EXPLAINED_SAMPLES = 100.0
+#: ... with N at least this (the calibration's shortest record: 20 % below it, not 100 / N).
+CHANCE_MIN_SAMPLES = 500
 
 #: A run of samples in which every output repeats the sample before, at least this share of the
 #: record and :data:`FROZEN_MIN_SAMPLES` long, is named in a warning: a recorder that wrote zeros
@@ -122,6 +124,9 @@ def output_problem(y: np.ndarray) -> str:
     y = np.asarray(y, dtype=float)
     if y.shape[0] == 0:
         return ""
+    if y.shape[0] < y.shape[1] + 2:  # every channel "constant", or "dependent", by the count alone
+        n, p = y.shape
+        return f"{n} sample{'s' * (n != 1)} of {p} output{'s' * (p != 1)}: far too few to identify from"
     dead = dead_channels(y)
     if dead.size:
         j = int(dead[0])
@@ -237,10 +242,11 @@ def unexplained_warnings(innovation_covariance: np.ndarray, y: np.ndarray) -> li
     variance = channel_std(y) ** 2
     explained = 1.0 - np.diag(innovation_covariance) / np.where(variance > 0, variance, np.inf)
     best = float(np.max(explained)) if explained.size else 1.0
-    chance = CHANCE_EXPLAINED_SAMPLES / max(y.shape[0], 1)
+    chance = CHANCE_EXPLAINED_SAMPLES / max(y.shape[0], CHANCE_MIN_SAMPLES)
     if best >= max(MIN_EXPLAINED_VARIANCE, chance):
         return []
-    by_chance = (f", no more than a fit explains of white noise of {y.shape[0]} samples (up to {100 * chance:.2g} %)"
+    by_chance = (f", no more than a fit explains of white noise of {y.shape[0]} samples by chance (up to "
+                 f"{100 * chance:.2g} %)"
                  if best >= MIN_EXPLAINED_VARIANCE else "")
     return [f"the model explains at most {100 * max(best, 0.0):.1f} % of any output's variance one step "
             f"ahead{by_chance}: no dynamics identified (are the outputs unrelated to the inputs and to their own "

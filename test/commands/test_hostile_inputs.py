@@ -169,9 +169,8 @@ def test_a_value_beyond_float64_is_a_missing_sample_to_identify_and_track(tmp_pa
                                                    "free of NaN/Inf (1 of 2 hold them)"), err
     out = tmp_path / "track.jsonl"
     assert cli.main(["track", str(path), "--jsonl", str(out), "--order", "2"]) == 2  # track skips it as missing
-    warning, error = capsys.readouterr().err.splitlines()
-    assert warning.startswith("okid-ros track: warning: 1 of the 2 samples hold NaN/Inf (the first at sample 0)")
-    assert error.startswith(f"okid-ros track: error: {path}: too few samples for one window")
+    error = capsys.readouterr().err
+    assert error.startswith(f"okid-ros track: error: {path}: 2 samples of 1 output: far too few to identify from")
     assert not out.exists()
 
 
@@ -393,3 +392,32 @@ def test_frf_pairs_without_a_figure_folder_says_it_draws_nothing(tmp_path: Path,
     np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
     assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--frf-pairs", "1:1"]) == 0
     assert "--frf-pairs chooses the panels of frf.png, which only --plot-dir draws" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, words", [
+    # A channel without a single value: identify said "no two samples in a row are free of NaN/Inf",
+    # track waited for rows on every update with exit 0; neither named the channel.
+    (["identify", "{y_nan}", "--json", "{out}/m.json"], "output channel 1 holds no value (NaN/Inf in every sample)"),
+    (["track", "{y_nan}", "--order", "10", "--window", "200", "--jsonl", "{out}/t.jsonl", "--no-progress"],
+     "output channel 1 holds no value"),
+    (["identify", "{u_nan}", "--json", "{out}/m.json"], "input channel 0 holds no value"),
+    # One or two samples were "carries no response" or "linearly dependent" outputs.
+    (["identify", "{two}", "--json", "{out}/m.json"], "2 samples of 2 outputs: far too few to identify from"),
+    # --order auto on 20 samples cited the search's order 50 (454 samples) while order 2 fits 20.
+    (["identify", "{twenty}", "--json", "{out}/m.json"], "20 samples are too few for an automatic ARX order"),
+    # An output-only window shorter than its identification takes: exit 0 with every update failed.
+    (["track", "{y_only}", "--output-only", "--window", "100", "--jsonl", "{out}/t.jsonl", "--no-progress"],
+     "the realization needs at least 200"),
+])
+def test_records_no_identification_can_use_are_refused_naming_why(tmp_path: Path, capsys, argv, words) -> None:
+    u, y = _good_arrays()
+    files = {"y_nan": (u, np.column_stack([y[:, 0], np.full(N, np.nan)])), "u_nan": (np.full((N, 1), np.nan), y),
+             "two": (u[:2], y[:2]), "twenty": (u[:20], y[:20]), "y_only": (u, y)}
+    paths = {}
+    for name, (inputs, outputs) in files.items():
+        paths[name] = tmp_path / f"{name}.npz"
+        np.savez(paths[name], u=inputs, y=outputs, sample_time_s=0.01)
+    assert cli.main([a.format(out=tmp_path, **paths) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err, err
+    assert not [p for p in tmp_path.iterdir() if p.suffix in (".json", ".jsonl")]
