@@ -252,9 +252,16 @@ def _plain(text: str) -> bool:
     return "_" not in text and text.isascii()
 
 
+def _comment_setting(comment: str) -> tuple[str, str]:
+    """The name and value of a ``# name=value`` (or ``# name: value``) comment line."""
+    text = comment.lstrip("#")
+    name, _, value = text.partition("=") if "=" in text else text.partition(":")
+    return name.strip(), value
+
+
 def _csv_sample_time(path: Path, comment: str) -> float:
     """The value of a ``# sample_time_s=...`` comment line."""
-    value = comment.lstrip("#").partition("=")[2]
+    value = _comment_setting(comment)[1]
     try:
         if not _plain(value):
             raise ValueError(value)
@@ -278,7 +285,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     for line in lines:
         stripped = line.strip()
         if stripped.startswith("#"):
-            if stripped.lstrip("#").partition("=")[0].strip() == "sample_time_s":
+            if _comment_setting(stripped)[0] == "sample_time_s":
                 given = _csv_sample_time(path, stripped)
                 if dt is not None and given != dt:  # the first must not be silently overridden
                     raise DataError(f"{path}: two different sample_time_s comments ({dt:g} and {given:g} s)")
@@ -295,19 +302,41 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     header = ["".join(c for c in h if unicodedata.category(c) not in ("Cc", "Cf")).strip() for h in rows[0]]
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
-            raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}")
+            raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}"
+                            f"{_separator_hint(header, body[0])}")
     values = np.full((len(rows) - 1, len(header)), np.nan)
     for column in wanted(header):
         texts = [row[column] for row in rows[1:]]
         try:
             values[:, column] = [float(text) for text in texts]
-        except ValueError as exc:
-            raise DataError(f"{path}: non-numeric value in column {header[column]!r} ({exc})") from None
+        except ValueError:
+            raise DataError(f"{path}: {_not_a_number(header, column, texts)}") from None
         loose = next((number for number, text in enumerate(texts, start=1) if not _plain(text)), None)
         if loose is not None:
             raise DataError(f"{path}: data row {loose}, column {header[column]!r}: {texts[loose - 1].strip()!r} "
                             f"is not a plain decimal number")
     return dt, header, values
+
+
+def _not_a_number(header: list[str], column: int, texts: list[str]) -> str:
+    """Where a column of a CSV holds text that is no number, with a hint for a separator not a comma."""
+    row = next(number for number, text in enumerate(texts, start=1) if not _is_float(text))
+    hint = _separator_hint(header, texts[row - 1])
+    return f"non-numeric value in column {header[column]!r} (data row {row}: {texts[row - 1].strip()!r}){hint}"
+
+
+def _separator_hint(header: list[str], text: str) -> str:
+    """A hint when a one-column table's text holds semicolons or tabs (a CSV of another locale), else ""."""
+    return next((f" (values separated by {name}? a CSV here is separated by commas)"
+                 for mark, name in ((";", "semicolons"), ("\t", "tabs")) if len(header) == 1 and mark in text), "")
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _csv_columns(header: list[str]) -> tuple[list[int], list[int], list[int]]:
@@ -326,19 +355,44 @@ def _load_csv(path: Path) -> Record:
         raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
     if "time_s" in header:
         times = values[:, header.index("time_s")]
-        steps = np.diff(times)
-        # Uniform to 1e-6 of a step, or to the rounding of the stamps themselves (epoch seconds
-        # hold about 2e-7 s of float64 rounding each).
-        rounding = 4 * np.finfo(float).eps * np.max(np.abs(times)) if times.size else 0.0
-        uniform = steps.size > 0 and np.all(np.isfinite(steps)) and np.all(steps > 0) \
-            and np.ptp(steps) <= max(1e-6 * np.mean(steps), rounding)
-        if dt is None and not uniform:
-            raise DataError(f"{path}: time_s is not uniformly increasing")
-        step = float((times[-1] - times[0]) / steps.size) if uniform else None
-        if dt is not None and step is not None and abs(step - dt) > max(1e-6 * dt, rounding):
+        step, irregular = _uniform_step(times)
+        if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
+            raise DataError(f"{path}: time_s is not uniformly increasing ({irregular})")
+        rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
+        if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
             raise DataError(f"{path}: the sample_time_s comment says {dt:g} s and the time_s column steps {step:g} s")
         dt = step if dt is None else dt
     return Record(values[:, u_cols], values[:, y_cols], dt)
+
+
+def _uniform_step(times: np.ndarray) -> tuple[float, str]:
+    """The step of a time column and, if it is not a uniform grid, where it is not ("" if it is).
+
+    Uniform: every time within 1e-6 of a step of the grid from the first to the last, or within
+    the rounding of the times as written (``0.003`` for 1/300 s written to 3 decimals) or of
+    float64 (epoch seconds hold about 2e-7 s).
+    """
+    steps = np.diff(times)
+    if steps.size == 0 or not np.all(np.isfinite(steps)) or not np.all(steps > 0):
+        bad = int(np.argmax(~(steps > 0))) if steps.size and np.isfinite(steps).all() else None
+        return 0.0, ("fewer than two times" if steps.size == 0 else
+                     "NaN/Inf in it" if bad is None else f"data row {bad + 2} is not after row {bad + 1}")
+    step = float((times[-1] - times[0]) / steps.size)
+    rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
+    off = np.abs(times - (times[0] + step * np.arange(times.size)))
+    if np.max(off) <= max(1e-6 * step, 2 * rounding):
+        return step, ""
+    row = int(np.argmax(np.abs(steps - step) > max(1e-6 * step, 2 * rounding)))
+    return step, f"data row {row + 2} follows row {row + 1} by {steps[row]:g} s, the column's mean step is {step:g} s"
+
+
+def _decimals(times: np.ndarray) -> int:
+    """The fewest decimals (0-9) every value of ``times`` is written with (to float64's rounding), else 12."""
+    for decimals in range(10):
+        scaled = times * 10.0**decimals
+        if np.all(np.abs(scaled - np.round(scaled)) <= 1e-6):
+            return decimals
+    return 12
 
 
 def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:

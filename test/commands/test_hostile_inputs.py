@@ -142,6 +142,23 @@ def test_csv_header_names_with_invisible_characters_and_a_contradicted_sample_ti
     assert load_record(path).sample_time_s == 0.02
 
 
+def test_a_csv_time_column_with_a_gap_is_refused_and_one_written_to_few_decimals_is_read(tmp_path: Path) -> None:
+    # With a sample_time_s comment the time_s column was not looked at: the samples either side of
+    # a 0.5 s gap were joined as neighbours. 300 Hz stamps written to 3 decimals were "not uniform".
+    u, y = _good_arrays()
+    times = 0.01 * np.arange(N)
+    times[200:] += 0.5
+    body = "\n".join(f"{t:.6f},{a!r},{b!r},{c!r}" for t, a, b, c in zip(times, u[:, 0].tolist(), *y.T.tolist()))
+    path = tmp_path / "gap.csv"
+    for comment in ("", "# sample_time_s=0.01\n"):
+        path.write_text(f"{comment}time_s,u1,y1,y2\n{body}\n")
+        with pytest.raises(DataError, match="not uniformly increasing .data row 201 follows row 200 by 0.51 s"):
+            load_record(path)
+    path.write_text("time_s,u1,y1,y2\n" + "\n".join(
+        f"{k / 300:.3f},{a!r},{b!r},{c!r}" for k, (a, b, c) in enumerate(zip(u[:, 0].tolist(), *y.T.tolist()))) + "\n")
+    assert abs(load_record(path).sample_time_s - 1 / 300) < 1e-5
+
+
 def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
     # Stamps in epoch seconds step by 0.01 s to within their own float64 rounding (2e-7 s), and
     # a column of labels is one of the "other columns" the format ignores.
