@@ -24,7 +24,9 @@
 from __future__ import annotations
 
 import csv
+import re
 import unicodedata
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +35,7 @@ import numpy as np
 from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
 from okid_ros.core.regressors import real_array
-from okid_ros.errors import DataError, write_atomically
+from okid_ros.errors import DataError, OkidWarning, write_atomically
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
 
@@ -351,6 +353,12 @@ def _load_csv(path: Path) -> Record:
     u_cols, y_cols, _ = _csv_columns(header)
     if not y_cols:
         raise DataError(f"{path}: header needs output columns 'y...' (inputs 'u...' optional), got {header}")
+    # 'uptime_s' or 'year' is a channel by the format's first-letter rule: say so, the user may not expect it.
+    worded = [f"{header[i]!r} ({kind} {j})" for kind, cols in (("input", u_cols), ("output", y_cols))
+              for j, i in enumerate(cols) if not re.match(r"[uy]([0-9_.\- ]|$)", header[i], re.IGNORECASE)]
+    if worded:
+        warnings.warn(f"{path}: columns read as channels by their first letter: {', '.join(worded)}; rename or "
+                      f"remove those that are not channels", OkidWarning, stacklevel=3)
     if dt is None and "time_s" not in header:
         raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
     if "time_s" in header:

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from okid_ros import cli
-from okid_ros.errors import DataError, write_atomically
+from okid_ros.errors import DataError, OkidWarning, write_atomically
 from okid_ros.records import Record, load_record, require_inputs, save_record
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
@@ -157,6 +158,19 @@ def test_a_csv_time_column_with_a_gap_is_refused_and_one_written_to_few_decimals
     path.write_text("time_s,u1,y1,y2\n" + "\n".join(
         f"{k / 300:.3f},{a!r},{b!r},{c!r}" for k, (a, b, c) in enumerate(zip(u[:, 0].tolist(), *y.T.tolist()))) + "\n")
     assert abs(load_record(path).sample_time_s - 1 / 300) < 1e-5
+
+
+def test_csv_columns_taken_by_their_first_letter_only_are_named(tmp_path: Path) -> None:
+    # 'uptime_s' became input 0 and 'year' output 2 in silence (the format's prefix rule).
+    path = tmp_path / "named.csv"
+    path.write_text("# sample_time_s=0.01\nuptime_s,u_1,y1,Y-2,year\n1,2,3,4,2024\n2,3,4,5,2024\n3,5,4,7,2024\n")
+    with pytest.warns(OkidWarning, match=r"by their first letter: 'uptime_s' \(input 0\), 'year' \(output 2\);"):
+        record = load_record(path)
+    assert record.u.shape == (3, 2) and record.y.shape == (3, 3)
+    path.write_text("# sample_time_s=0.01\nu,u_1,y1,Y-2,y.3\n1,2,3,4,5\n2,3,4,5,6\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_record(path)
 
 
 def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
