@@ -208,6 +208,9 @@ def _sample_time(value: object) -> float:
     problem = sample_time_problem(dt)
     if problem:
         raise DataError(problem)
+    if arr.dtype.kind == "f" and arr.dtype.itemsize < 4:  # float16: every frequency off by up to 5e-4
+        warnings.warn(f"sample_time_s is stored as {arr.dtype} ({dt!r} s, about 3 significant digits): the frequencies "
+                      f"are as wrong as it is; store it as float64", OkidWarning, stacklevel=2)
     return dt
 
 

@@ -173,6 +173,19 @@ def test_csv_columns_taken_by_their_first_letter_only_are_named(tmp_path: Path) 
         load_record(path)
 
 
+def test_a_sample_time_stored_in_half_precision_is_named(tmp_path: Path) -> None:
+    # float16 0.01 is 0.0100021: every frequency 2e-4 off, in silence.
+    u, y = _good_arrays()
+    path = tmp_path / "half.npz"
+    np.savez(path, u=u, y=y, sample_time_s=np.float16(0.01))
+    with pytest.warns(OkidWarning, match="sample_time_s is stored as float16"):
+        assert load_record(path).sample_time_s == float(np.float16(0.01))
+    np.savez(path, u=u, y=y, sample_time_s=np.float32(0.01))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_record(path)
+
+
 def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
     # Stamps in epoch seconds step by 0.01 s to within their own float64 rounding (2e-7 s), and
     # a column of labels is one of the "other columns" the format ignores.
