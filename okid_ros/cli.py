@@ -129,8 +129,9 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
 def _naming_source(exc: OkidError, source: str | None) -> str:
     """The message of ``exc``, prefixed with ``source`` when it is about the data and does not name it."""
     text = " ".join(str(exc).split())
-    if source and isinstance(exc, DataError) and not isinstance(exc, OutputError) and str(source) not in text:
-        return f"{source}: {text}"
+    named = " ".join(str(source).split())  # as the message holds it (a line break in a file name: a space)
+    if source and isinstance(exc, DataError) and not isinstance(exc, OutputError) and named not in text:
+        return f"{source if str(source).isprintable() else repr(str(source))}: {text}"
     return text
 
 

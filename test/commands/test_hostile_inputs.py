@@ -465,3 +465,12 @@ def test_records_no_identification_can_use_are_refused_naming_why(tmp_path: Path
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and words in err, err
     assert not [p for p in tmp_path.iterdir() if p.suffix in (".json", ".jsonl")]
+
+
+def test_a_line_break_in_a_file_name_keeps_the_error_on_one_line(tmp_path: Path, capsys) -> None:
+    u, y = _good_arrays()
+    path = tmp_path / "bad\nname.npz"
+    np.savez(path, u=u[:2], y=y[:2], sample_time_s=0.01)
+    assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"error: {str(path)!r}: 2 samples of 2 outputs" in err, err
