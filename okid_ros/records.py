@@ -9,10 +9,12 @@
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
-    appear (no ``u`` column: a record without inputs); other columns are ignored (text too). The
-    sample time comes from a comment line ``# sample_time_s=0.008`` (two that differ are
-    refused, and so is one that a ``time_s`` column of uniform steps contradicts) or, failing
-    that, from a ``time_s`` column with uniform steps. Invisible characters in the header's names
+    appear (no ``u`` column: a record without inputs; a name such as ``uptime_s`` is a channel
+    too, with a warning); other columns are ignored (text too). The sample time comes from a
+    comment line ``# sample_time_s=0.008`` (or ``: 0.008``; two that differ are refused, and so
+    is one that a ``time_s`` column contradicts) or, failing that, from a ``time_s`` column. A
+    ``time_s`` column must be a uniform grid (to the rounding of the times as written), with a
+    comment too: a gap is refused with its row. Invisible characters in the header's names
     (zero-width spaces, NULs) are dropped::
 
         # sample_time_s=0.008
