@@ -37,9 +37,16 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors are one line, as every other error (the usage is in --help)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """Return the parser with every subcommand of COMMAND_MODULES registered."""
-    parser = argparse.ArgumentParser(
+    """Return the parser with every subcommand of COMMAND_MODULES registered (their parsers of its class)."""
+    parser = _OneLineParser(
         prog=PROG,
         description="Online system identification (OKID) for ROS 2 Jazzy: "
         "ARX identification, ERA realization and modal state estimation.",

@@ -146,3 +146,18 @@ def test_an_option_that_defaults_to_a_node_parameter_reads_the_parameter_table()
     assert str(args.false_alarm_samples) == "1e+07"  # as `track --help` shows it
     given = cli.build_parser().parse_args(["track", "d.npz", "--jsonl", "o", "--false-alarm-samples", "1e5"])
     assert given.false_alarm_samples == 1e5
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["track", "x.npz", "--every", "0", "--jsonl", "x.jsonl"],
+     "okid-ros track: error: argument --every: expected a positive"),
+    (["identify"], "okid-ros identify: error: the following arguments are required: data, --json"),
+    (["bogus"], "okid-ros: error: argument COMMAND: invalid choice: 'bogus'"),
+])
+def test_a_usage_error_is_one_line_as_every_other_error(capsys: pytest.CaptureFixture[str], argv, words) -> None:
+    # argparse printed its usage (three lines) before the error line.
+    with pytest.raises(SystemExit) as exited:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and err.count("\n") == 1 and err.startswith(words), err
+    assert err.rstrip().endswith(f"(see {words.split(': error')[0]} --help)")
