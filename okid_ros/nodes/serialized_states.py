@@ -23,12 +23,11 @@ from typing import Any
 import numpy as np
 
 from okid_ros.nodes.conversions import fill_modal_states, stamp_parts
+from okid_ros.nodes.raw_inputs import PLAIN_CDR_LE
 from okid_ros.service.results import ModalStatesResult
 
 __all__ = ["ModalStatesBytes"]
 
-# The encapsulation header's second byte: 1 for little-endian CDR, 0 for big-endian.
-_LITTLE_ENDIAN_CDR = 1
 # The fields a sample writes, as little-endian CDR holds them.
 _FLOAT = np.dtype("<f8")
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: int32 sec, uint32 nanosec
@@ -84,7 +83,7 @@ class ModalStatesBytes:
         stamp, model_id = (0x1A3C96E1, 0x3C5A1E97), 0x6E1F5A3C
         msg = self._filled(mode_msgs, frame_id, stamp, model_id, arrays)
         data = self._serialize(msg)
-        if len(data) < 4 or data[1] != _LITTLE_ENDIAN_CDR:
+        if len(data) < 4 or data[:2] != PLAIN_CDR_LE:  # the fields below are written as plain little-endian CDR
             return None
         fields = [(_STAMP.pack(*stamp), 8), (_MODEL_ID.pack(model_id), 4)]
         fields += [(a.astype(_FLOAT).tobytes(), 8 * a.size) for a in arrays]
