@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 from okid_ros import __version__
 from okid_ros.errors import DataError, OkidError, OkidWarning, OutputError
@@ -109,7 +112,7 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
     okid-ros's own (:class:`~okid_ros.errors.OkidWarning`: a parameter file's problems, ...) once per run.
     A data error that does not name ``source`` (the file the command reads) is prefixed with it.
     """
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _terminate_as_interrupt():
         warnings.showwarning = _one_line_warning(command)
         warnings.simplefilter("default", OkidWarning)  # once per run: a new filter forgets earlier runs
         try:
@@ -119,6 +122,7 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
             print(f"{PROG} {command}: error: {_naming_source(exc, source)}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
+            print(f"{PROG} {command}: interrupted", file=sys.stderr)
             return 130
         except MemoryError:
             print(f"{PROG} {command}: error: out of memory (the data or the options need more memory than "
@@ -131,6 +135,26 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
                   f"({type(exc).__name__}: {' '.join(str(exc).split())}; set OKID_ROS_TRACEBACK=1 "
                   f"for the traceback)", file=sys.stderr)
             return 70
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``timeout``, ``docker stop``, systemd) ends a command as Ctrl-C does: its outputs closed.
+
+    Only in the main thread, where Python can install a handler; the previous one is restored.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _naming_source(exc: OkidError, source: str | None) -> str:

@@ -92,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         note += f"; measured outputs from {input_bag} ({matched} samples)"
     else:
         note = "; no input bag: measured output drawn as y_estimated + innovation"
+    if info.get("interrupted"):
+        note += "; the run that wrote the bag was interrupted: its models and modal states end early"
     from okid_ros.tools.plots import refuse_existing
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES, ModelView, parse_pairs, write_validation_figures
 

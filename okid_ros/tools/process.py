@@ -131,8 +131,11 @@ def process_bag(
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
+                record = {"source": str(bag_path),
+                          "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
+                          **(provenance or {})}
                 try:
-                    emit.run(bag, bar)
+                    emit.run(bag, bar, record)
                 finally:
                     bar.close()
                     if jsonl is not None:
@@ -140,11 +143,7 @@ def process_bag(
                 summary = _with_samples(nodes.summary, bag_path)
                 summary.input_note = bag.read_note
                 summary.elapsed_s = time.perf_counter() - started
-                _write_metadata(writer, nodes, {
-                    "source": str(bag_path),
-                    "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
-                    **(provenance or {}),
-                })
+                _write_metadata(writer, nodes, record)
     except KeyboardInterrupt:
         raise  # what was written stays, closed and readable
     except BaseException:
@@ -226,12 +225,20 @@ class _Emitter:
         for topic, msgtype in nodes.output_topics.items():
             writer.add_topic(topic, msgtype)
 
-    def run(self, bag: Any, bar: "_Progress") -> None:
-        """Every input message of the bag through the nodes, then the end of the record."""
+    def run(self, bag: Any, bar: "_Progress", record: dict) -> None:
+        """Every input message of the bag through the nodes, then the end of the record.
+
+        Stopped by Ctrl-C or SIGTERM, the bag's ``record`` (its ``okid_ros.process`` metadata) is
+        written, marked ``interrupted``, so that what was written stays readable and says so.
+        """
         log_ns = 0
-        for topic, log_ns, msg in bag.stored_messages(self.nodes.input_topics):
-            self(self.nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
-            bar.update()
+        try:
+            for topic, log_ns, msg in bag.stored_messages(self.nodes.input_topics):
+                self(self.nodes.feed(topic, msg, log_ns * 1e-9), log_ns)
+                bar.update()
+        except KeyboardInterrupt:
+            _write_metadata(self.writer, self.nodes, {**record, "interrupted": True})
+            raise
         self(self.nodes.finish(), log_ns)
 
     def __call__(self, outputs: list, log_ns: int) -> None:
