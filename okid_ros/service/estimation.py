@@ -87,7 +87,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
-from okid_ros.core.gap_fill import realization_window
+from okid_ros.core.gap_fill import realization_minimum, realization_window
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service import realization
@@ -226,8 +226,7 @@ class ModalEstimationService:
             )
             return False
         if not math.isfinite(stamp_end_s):
-            st.arx_refused += 1
-            st.last_reason = "ARX model without a stamp"
+            self._refuse("ARX model without a stamp")
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):
@@ -238,9 +237,12 @@ class ModalEstimationService:
         if prm.buffer_length <= 0:  # the buffer follows the ARX window, within node 2's bounds
             problem = self._buffer.grow_for(rows + fit.order, MAX_BUFFER_SAMPLES, "estimator.buffer_length")
             if problem:
-                st.arx_refused += 1
-                st.last_reason = f"ARX model refused: {problem}"
+                self._refuse(f"ARX model refused: {problem}")
                 return False
+        elif self._buffer.cap < (least := realization_minimum(fit.order, rows + fit.order)):  # else "a gap", none there
+            self._refuse(f"ARX model refused: its window of {rows + fit.order} samples (rows + order) needs at least "
+                         f"{least} buffered, more than estimator.buffer_length {self._buffer.cap} keeps")
+            return False
         with self._lock:
             if self._request is not None:
                 st.arx_replaced += 1

@@ -309,6 +309,20 @@ def test_the_buffer_follows_the_arx_window_only_within_node_2s_bounds(pipeline, 
     d = est.diagnostics()
     assert d["buffer_capacity"] == int(20_040 * 1.1) + 64 and d["arx_models_refused"] == 2
     assert "more than 50% of this machine's 1 GiB" in d["last_reason"]
-    # A buffer of fixed length (estimator.buffer_length > 0) never follows the window.
+    # A buffer of fixed length (estimator.buffer_length > 0) never follows the window; one too short
+    # for the realization refuses the window at once, naming the buffer.
     fixed = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6, buffer_length=1000))
-    assert fixed.submit_arx(fit, 0.8, 1, 20_000) and fixed.diagnostics()["buffer_capacity"] == 1000
+    assert not fixed.submit_arx(fit, 0.8, 1, 20_000) and fixed.diagnostics()["buffer_capacity"] == 1000
+    assert "estimator.buffer_length 1000" in fixed.diagnostics()["last_reason"]
+    assert fixed.submit_arx(fit, 0.8, 1, 1_500) and fixed.diagnostics()["buffer_capacity"] == 1000
+
+
+def test_a_window_longer_than_the_fixed_buffer_is_refused_naming_the_buffer(pipeline):
+    # The window was cut to the buffer and refused as one that "follows its last gap", with no gap.
+    _, _, ident = pipeline
+    fit = ident.snapshot().fit
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, buffer_length=100))
+    assert not est.submit_arx(fit, 2.0, 1, W)
+    reason = est.diagnostics()["last_reason"]
+    assert f"its window of {W + fit.order} samples (rows + order) needs at least" in reason, reason
+    assert "estimator.buffer_length 100 keeps" in reason
