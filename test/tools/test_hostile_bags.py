@@ -110,3 +110,14 @@ def test_a_folder_batch_may_not_enter_is_left_out_with_a_warning(run, tmp_path, 
         assert find_bags([tree]) == [tree / "ok"]
     assert any(issubclass(w.category, OkidWarning) and "left out 1 folder(s)" in str(w.message)
                and str(tree / "locked") in str(w.message) for w in caught)
+
+
+def test_a_bag_directory_and_its_own_storage_file_are_one_recording(run, tmp_path):
+    # `batch BAG BAG/BAG.mcap` (or a link to the file) processed one recording twice: its modes
+    # counted twice in the campaign's table.
+    storage = next(run["bag"].glob("*.mcap"))
+    link = tmp_path / "link.mcap"
+    link.symlink_to(storage)
+    with pytest.warns(OkidWarning, match="the storage file of a bag directory given or found too"):
+        assert find_bags([run["bag"], storage, link]) == [run["bag"]]
+    assert find_bags([storage]) == [storage]  # alone, the file is the bag

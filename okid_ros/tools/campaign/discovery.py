@@ -94,6 +94,11 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
                 outputs.append(bag)
             else:
                 found.setdefault(bag.resolve(), bag)
+    # A rosbag2 directory and its own storage file are one recording: its modes were counted twice.
+    inside = sorted(str(found.pop(r)) for r in [r for r in found if r.is_file() and r.parent in found])
+    if inside:
+        warnings.warn(f"left out {', '.join(inside)}: the storage file of a bag directory given or found too "
+                      f"(one recording, processed once)", OkidWarning, stacklevel=2)
     if outputs:
         warnings.warn(f"left out {len(outputs)} output bag(s) of okid-ros process found in the directories "
                       f"(another campaign's? their metadata.yaml names okid_ros.process), the first "
