@@ -111,14 +111,15 @@ class NodeInputs:
                 parsed = source_values(msg.message if stored else msg, self.specs[i], self.m, self.p)
             stamp, values = parsed
             if not len(values) and not self.wrong_size_note:  # empty: the message has the wrong size
-                self._note_wrong_size(topic, msg.message if stored else msg)
+                self._note_wrong_size(topic, msg.message if stored else msg, self.specs[i])
             samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
         return samples
 
-    def _note_wrong_size(self, topic: str, msg: Any) -> None:
+    def _note_wrong_size(self, topic: str, msg: Any, spec: Any) -> None:
         have = ", ".join(f"{name} of {len(getattr(msg, name))}" for name in ("u", "y", "data") if hasattr(msg, name))
-        self.wrong_size_note = (f"n_inputs {self.m}, n_outputs {self.p} expected; the first on "
-                                f"{topic} has {have or 'other'} values")
+        # A source mapping fields reads them, whatever n_inputs and n_outputs are ("u of 2" for u[5]).
+        wanted = f"n_inputs {self.m}, n_outputs {self.p}" if spec.whole_sample else f"the fields of {spec.text!r}"
+        self.wrong_size_note = f"{wanted} expected; the first on {topic} has {have or 'other'} values"
 
     def _reader(self, index: int) -> Any:
         """The reader of source ``index``'s bytes (:func:`okid_ros.nodes.raw_inputs.raw_reader`), or None.

@@ -124,6 +124,12 @@ def test_messages_of_the_wrong_size_are_named_and_refused_when_no_sample_comes_o
                           "all 250 input messages were rejected: 250 wrong_size",
                           "n_inputs 3, n_outputs 5 expected; the first on /okid/io_sample has u of 2, y of 2 values")
     assert not Path("o").exists() and not Path("m.jsonl").exists()
+    # A mapped field beyond the message: "n_inputs 2, n_outputs 2 expected; ... u of 2" read as 2 for 2.
+    sources = '["io_sample /okid/io_sample u[5]=u0 u[1]=u1 y[0]=y0 y[1]=y1"]'
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--param", f"inputs.sources={sources}",
+                           "--no-progress")
+    assert_one_line_error(code, err, "the fields of 'io_sample /okid/io_sample u[5]=u0 u[1]=u1 y[0]=y0 y[1]=y1' "
+                          "expected; the first on /okid/io_sample has u of 2, y of 2 values")
 
 
 def test_samples_beyond_the_windows_range_are_named_when_no_model_comes_out(tmp_path, capsys):
