@@ -157,9 +157,10 @@ def _with_samples(summary: ProcessSummary, bag_path: Path) -> ProcessSummary:
 
     An empty output bag with exit status 0 would read as a run that found nothing to identify.
     """
-    if not summary.samples:
+    if summary.samples < 2:  # one sample is no record either (stamps all equal, every other message NaN)
         note = summary.rejection_note()
-        raise BagReadError(f"{bag_path}: no input message made a complete sample" + (f"; {note}" if note else ""))
+        made = "no input message made a complete sample" if not summary.samples else "one complete sample only"
+        raise BagReadError(f"{bag_path}: {made}" + (f"; {note}" if note else ""))
     return summary
 
 
