@@ -87,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  fit on its window, per output: one-step prediction [{pred}] %{free_run}")
     else:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
+        period = 1.0 / float(arx_values["publish_rate_hz"])
+        if not reason and not summary.arx_models and duration < period:  # no ArxModel was ever due
+            reason = (f"no ArxModel was due: one every {period:g} s of sample time (publish_rate_hz), the bag's data "
+                      f"span {duration:.3g} s")
         print("no model was identified" + (f": {reason}" if reason else ""))
     note = summary.rejection_note()
     if note and not summary.updates:  # the likely cause: say it

@@ -165,3 +165,11 @@ def test_names_too_long_are_one_line_errors(victim, capsys):
         code, _, err = run_cli(capsys, "process", *argv, "--force", "--no-progress")
         assert_one_line_error(code, err, *fragments)
     assert sorted(p.name for p in Path().iterdir()) == ["v"]  # nothing half-made, not even a/b
+
+
+def test_a_publish_period_longer_than_the_bag_is_the_reason_given(victim, capsys):
+    # "no model was identified" and nothing else: the first ArxModel was never due.
+    code, out, err = run_cli(capsys, "process", victim, "--out", "o", "--param", "publish_rate_hz=0.1",
+                             "--no-progress")
+    assert code == 0, err
+    assert "no model was identified: no ArxModel was due: one every 10 s of sample time (publish_rate_hz)" in out
