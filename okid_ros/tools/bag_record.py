@@ -126,13 +126,13 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
             samples += inputs.add(topic, msg, log_ns * 1e-9)
         samples += inputs.grid.flush()
-    if len(samples) < 2:  # one sample is no record either
+    if not samples:
         counters = inputs.grid.counters
         rejected = counters.rejections()
         why = (f": {_rejected_messages(rejected, int(counters.messages), inputs.wrong_size_note)}"
                if any(rejected.values()) else "")
-        raise DataError(f"{bag_path}: {'one complete sample only' if samples else 'no complete sample'} on the "
-                        f"topics {', '.join(s.topic for s in inputs.specs)}" + why)
+        raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}"
+                        + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
@@ -140,9 +140,6 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
-    if hi - lo < 2:  # every other slot missing (a NaN message between each pair): no record to export
-        raise DataError(f"{bag_path}: no two consecutive samples among the {len(samples)} complete ones (each is "
-                        f"alone between missing sample times)")
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
