@@ -216,10 +216,6 @@ def sources_and_grid(values: dict, namespace: str | None = None):
     except ValueError as exc:
         raise ParameterError(f"parameter inputs.sources: {exc}") from None
     specs = [replace(spec, topic=resolve_topic(spec.topic, namespace, parameter="inputs.sources")) for spec in specs]
-    dt, latency = float(values["sample_time_s"]), int(values["inputs.latency_samples"])
-    if float(values["inputs.time_jump_s"]) <= (latency + 1) * dt:  # every message was off the timeline
-        raise ParameterError(f"parameter inputs.time_jump_s {values['inputs.time_jump_s']:g} s is within the grid's "
-                             f"latency of {latency} samples of {dt:g} s: every late sample would be a time jump")
     grid = SampleGrid(
         float(values["sample_time_s"]), m, p, [s.channels for s in specs],
         tolerance=float(values["inputs.stamp_tolerance"]),

@@ -128,13 +128,3 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
-
-
-def test_a_time_jump_within_the_grids_latency_is_refused():
-    # inputs.time_jump_s 0.001 on a 0.008 s grid: every message was off the timeline, and `export`
-    # wrote a record of one sample.
-    from okid_ros.service.inputs import sources_and_grid
-
-    with pytest.raises(ParameterError, match="inputs.time_jump_s 0.001 s is within the grid's latency of 5 samples"):
-        sources_and_grid(resolve_parameters(ARX_NODE, {"inputs.time_jump_s": 0.001}))
-    sources_and_grid(resolve_parameters(ARX_NODE, {"inputs.time_jump_s": 0.05}))
