@@ -123,9 +123,6 @@ class ArxIdentificationParams:
             return (f"arx.order {q} with {m} inputs and {p} outputs gives regressors of d = m + q (p + m) = {d} "
                     f"coefficients; at most {limit} (the window's normal equations are d x d, updated at every "
                     f"sample)")
-        if self.publish_period_s < self.sample_time_s * (1 - 1e-9):  # `process` realized one per sample: 100x the time
-            return (f"publish_rate_hz {1 / self.publish_period_s:g} is above the sampling rate "
-                    f"{1 / self.sample_time_s:g} Hz: more than one ArxModel per sample, each the window of the last")
         if m > 0 and q < 2:  # else every model would be refused, with nothing said at the start
             return (f"arx.order {q}: node 2 realizes models from an ARX order of at least 2 (its ERA Hankel needs "
                     f"two blocks of Markov parameters)")
