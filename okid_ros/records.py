@@ -368,18 +368,17 @@ def _load_csv(path: Path) -> Record:
         raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
     if "time_s" in header:
         times = values[:, header.index("time_s")]
-        step, irregular = _uniform_step(times)
+        step, rounding, irregular = _uniform_step(times)
         if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
             raise DataError(f"{path}: time_s is not uniformly increasing ({irregular})")
-        rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
         if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
             raise DataError(f"{path}: the sample_time_s comment says {dt:g} s and the time_s column steps {step:g} s")
         dt = step if dt is None else dt
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 
-def _uniform_step(times: np.ndarray) -> tuple[float, str]:
-    """The step of a time column and, if it is not a uniform grid, where it is not ("" if it is).
+def _uniform_step(times: np.ndarray) -> tuple[float, float, str]:
+    """The step of a time column, the rounding of its times and, if it is not a uniform grid, where not ("" if it is).
 
     Uniform: every time within 1e-6 of a step of the grid from the first to the last, or within
     the rounding of the times as written (``0.003`` for 1/300 s written to 3 decimals) or of
@@ -388,15 +387,16 @@ def _uniform_step(times: np.ndarray) -> tuple[float, str]:
     steps = np.diff(times)
     if steps.size == 0 or not np.all(np.isfinite(steps)) or not np.all(steps > 0):
         bad = int(np.argmax(~(steps > 0))) if steps.size and np.isfinite(steps).all() else None
-        return 0.0, ("fewer than two times" if steps.size == 0 else
-                     "NaN/Inf in it" if bad is None else f"data row {bad + 2} is not after row {bad + 1}")
+        return 0.0, 0.0, ("fewer than two times" if steps.size == 0 else
+                          "NaN/Inf in it" if bad is None else f"data row {bad + 2} is not after row {bad + 1}")
     step = float((times[-1] - times[0]) / steps.size)
     rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
     off = np.abs(times - (times[0] + step * np.arange(times.size)))
     if np.max(off) <= max(1e-6 * step, 2 * rounding):
-        return step, ""
+        return step, rounding, ""
     row = int(np.argmax(np.abs(steps - step) > max(1e-6 * step, 2 * rounding)))
-    return step, f"data row {row + 2} follows row {row + 1} by {steps[row]:g} s, the column's mean step is {step:g} s"
+    return step, rounding, (f"data row {row + 2} follows row {row + 1} by {steps[row]:g} s, the column's mean "
+                            f"step is {step:g} s")
 
 
 def _decimals(times: np.ndarray) -> int:

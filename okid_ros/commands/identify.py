@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
-        raise DataError(f"{args.data}: {problem}")
+        raise DataError(problem)  # named with the record by run_command
     if output_only and (ignored := _input_output_options(args)):
         print(f"okid-ros identify: warning: {', '.join(ignored)} apply to input-output identification; ignored "
               "for this output-only one", file=sys.stderr)

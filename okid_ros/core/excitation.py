@@ -133,8 +133,7 @@ def output_problem(y: np.ndarray) -> str:
         return _dead_output(j, _constant_value(y[:, j]), float(channel_std(y[:, j : j + 1])[0]))
     if y.shape[1] < 2 or y.shape[0] < y.shape[1]:
         return ""
-    x = y / np.max(np.abs(y), axis=0)  # each channel within +-1 (no overflow near the float64 limits)
-    x = x - x.mean(axis=0)
+    x = _unit_centred(y)
     dependent = _dependent_outputs(x.T @ x)
     if dependent:
         # One sample far beyond the rest in every channel (a glitch) also makes the outputs collinear.
@@ -212,7 +211,17 @@ def _dependent_outputs(gram: np.ndarray) -> str:
     listed = ", ".join(str(int(j)) for j in dependent[0])
     return (f"outputs {listed} are linearly dependent (one is a combination of the others: a channel recorded "
             f"twice? a derived channel? or a spike far larger than the rest in all of them): the innovation "
-            f"covariance would be singular; leave {'one' if dependent[1] == 1 else dependent[1]} of them out")
+            f"covariance would be singular; {_leave_out(dependent[1])}")
+
+
+def _leave_out(count: int) -> str:
+    return f"leave {'one' if count == 1 else count} of them out"
+
+
+def _unit_centred(x: np.ndarray) -> np.ndarray:
+    """The columns of ``x`` (N, c) each within +-1 (no overflow near the float64 limits), less their means."""
+    x = x / np.max(np.abs(x), axis=0)
+    return x - x.mean(axis=0)
 
 
 def _dependent_columns(gram: np.ndarray) -> tuple[np.ndarray, int] | None:
@@ -279,16 +288,13 @@ def excitation_warnings(u: np.ndarray) -> list[str]:
     warnings = excitation_warnings_of(report) if report.dead else []
     live = [i for i in range(report.n_inputs) if i not in report.dead]
     if len(live) > 1 and u.shape[0] >= len(live):
-        x = np.asarray(u, dtype=float)[:, live]
-        x = x / np.max(np.abs(x), axis=0)
-        x = x - x.mean(axis=0)
+        x = _unit_centred(np.asarray(u, dtype=float)[:, live])
         dependent = _dependent_columns(x.T @ x)
         if dependent is not None:
-            listed = ", ".join(str(live[j]) for j in dependent[0])
+            listed, leave = ", ".join(str(live[j]) for j in dependent[0]), _leave_out(dependent[1])
             warnings.append(f"inputs {listed} are linearly dependent (one is a combination of the others: a channel "
                             f"recorded twice? one command sent to two actuators?): the model cannot tell their effects "
-                            f"apart and splits them between their columns of B and D arbitrarily; leave "
-                            f"{'one' if dependent[1] == 1 else dependent[1]} of them out")
+                            f"apart and splits them between their columns of B and D arbitrarily; {leave}")
     return warnings
 
 
