@@ -165,7 +165,7 @@ def identify_output_only(
         present = None if valid is None else missing_mask(valid, np.shape(y)[0])
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
-    y, offset, warnings = prepare_outputs(y, sample_time_s, offsets)
+    y, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=present)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
     scales = group_scales(np.zeros((y.shape[0], 0)), y)

@@ -8,13 +8,14 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.channels import channel_std
-from okid_ros.core.excitation import frozen_output_warnings, output_problem
+from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.mode_jackknife import jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
 from okid_ros.core.regressors import real_array
+from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
 from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
 
@@ -24,8 +25,13 @@ __all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknif
 MIN_SAMPLES = 200
 
 
-def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """``y`` as (N, p) floats less its means (``offsets="remove"``), the means, warnings.
+def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``y`` as (N, p) floats less its means (``offsets="remove"``) and drift, the means, warnings.
+
+    ``valid`` (N,) bool: False at samples filled by prediction (the drift's line leaves them out).
+    Clipped and drifting channels are named (:mod:`.sensor_faults`; a drift is removed unless
+    ``offsets="none"``).
 
     Raises IdentificationError naming what is wrong (shape, NaN/Inf, a dead channel or one the
     others make up, too short, a bad sample time).
@@ -53,8 +59,8 @@ def prepare_outputs(y, sample_time_s: float, offsets: str) -> tuple[np.ndarray, 
     # Neither overflows nor underflows for values near the float64 limits.
     peak = np.max(np.abs(y), axis=0)
     mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
+    _, y, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
     std = channel_std(y)
-    warnings = frozen_output_warnings(y)
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:
         action = "removed" if offsets == "remove" else "NOT removed (offsets='none')"

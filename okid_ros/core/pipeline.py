@@ -3,7 +3,9 @@
 Two methods share the steps of the paper:
 
 ``method="okid"`` (default, robust; each step is a module)
-    1. Offsets: the record's means are removed (``offsets="remove"``) and kept with the model.
+    1. Offsets: the record's means are removed (``offsets="remove"``) and kept with the model;
+       a record's drift (a straight-line trend holding 2 % of a channel) is removed first, and
+       clipped channels are named (:mod:`.sensor_faults`).
     2. ARX of order q, ridge-regularized with the penalty chosen by GCV; q itself chosen by GCV
        unless given (:mod:`.arx`).
     3. Observer Markov parameters ``C Abar^{i-1} [L, Bbar]`` = the ARX lag blocks (:mod:`.markov`).
@@ -53,6 +55,7 @@ from okid_ros.core.refine import refine_prediction_error, refinement_flops, refi
 from okid_ros.core.refit import PredictorFit
 from okid_ros.core.regressors import check_io_arrays
 from okid_ros.core.scaling import IdentificationFrame
+from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.slow_pole_span import spanning_slowest_pole
 from okid_ros.core.stabilization import stability_judge, stabilization_diagram
 from okid_ros.core.state_gram import StateGram
@@ -401,6 +404,7 @@ def identify(
     """
     options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
                                           options=options or RealizationOptions(), changes=option_changes)
+    u, y, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove")
     p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
@@ -442,7 +446,7 @@ def identify(
                                order_by_gcv=bool(arx_scores), arx_orders=arx_orders, n_samples=y.shape[0])
     model.arx_order_scores = arx_scores
     # frame.warnings: the dead inputs (identify_from_arx saw only the live ones; the others it gave already)
-    model.warnings += [w for w in order_warnings + frame.warnings if w not in model.warnings]
+    model.warnings += [w for w in fault_warnings + order_warnings + frame.warnings if w not in model.warnings]
     return frame.leave(model, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
 
 
