@@ -94,6 +94,7 @@ RESTART_SKIP = -1
 #: Fraction of each accepted stamp's offset from its slot by which the grid phase follows it.
 PHASE_GAIN = 0.01
 
+
 @dataclass
 class GridSample:
     """One complete sample on the grid.
