@@ -43,7 +43,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="storage plugin of the output bags (default: %(default)s)")
     engine = parser.add_mutually_exclusive_group()
     engine.add_argument("--workers", type=positive_int, default=None, metavar="N",
-                        help="local worker processes (default: the number of cores; 1: in this process)")
+                        help="local worker processes, at most one per core and per bag (default: the number of "
+                        "cores; 1: in this process)")
     engine.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="address of a running Dask distributed scheduler, e.g. tcp://10.0.0.1:8786 "
                         "(needs the extra okid_ros[dask]); each bag is one task")
@@ -61,6 +62,27 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     add_progress_arguments(parser)
     parser.set_defaults(func=run)
     return parser
+
+
+def local_workers(requested: int | None) -> int:
+    """The local worker processes for ``--workers requested``: one per core at most (None: one per core).
+
+    Processing a bag is CPU-bound (one core each; BLAS is kept to one thread): a process more than
+    the cores adds its memory, not speed. A request above them is said, as a warning line.
+    """
+    import warnings
+
+    from okid_ros.errors import OkidWarning
+
+    cores = os.cpu_count() or 1
+    if requested is None:
+        return cores
+    if requested > cores:
+        warnings.warn(f"--workers {requested} is more than the {cores} cores of this machine: {cores} used "
+                      "(processing a bag is CPU-bound: more processes add memory, not speed)", OkidWarning,
+                      stacklevel=2)
+        return cores
+    return requested
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         raise OkidError("--out DIR is required (except with --plan)")
     options = CampaignOptions(
         paths=args.paths, out_dir=Path(args.out), arx_values=arx_values, est_values=est_values,
-        namespace=namespace, storage=args.storage, workers=args.workers or os.cpu_count() or 1,
+        namespace=namespace, storage=args.storage, workers=local_workers(args.workers),
         scheduler=args.scheduler, scheduler_timeout_s=args.scheduler_timeout, force=args.force,
         retry_failed=args.retry_failed, max_failures=args.max_failures, csv=args.csv, progress=args.progress,
         provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"})

@@ -18,7 +18,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from okid_ros.nodes.common import make_status, sensor_qos
 from okid_ros.nodes.conversions import source_values
 from okid_ros.nodes.raw_inputs import message_class, raw_reader
-from okid_ros.service.inputs import sources_and_grid
+from okid_ros.service.inputs import sources_and_grid, time_jump_note
 from okid_ros.service.sample_grid import GridSample
 
 __all__ = ["DRAIN_MAX", "InputFrontend"]
@@ -39,6 +39,8 @@ class InputFrontend:
         self.node = node
         self.m, self.p = int(values["n_inputs"]), int(values["n_outputs"])
         self.specs, self.grid = sources_and_grid(values, node.get_namespace())
+        self._time_jump_note = ""
+        self._tell_time_jump(values)
         self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
         self.on_sample = on_sample
         self._clock = node.get_clock()
@@ -130,6 +132,14 @@ class InputFrontend:
         self.grid.tolerance = float(values["inputs.stamp_tolerance"])
         self.grid.latency_samples = int(values["inputs.latency_samples"])
         self.grid.time_jump_s = float(values["inputs.time_jump_s"])
+        self._tell_time_jump(values)
+
+    def _tell_time_jump(self, values: dict[str, Any]) -> None:
+        """Warn once when the grid raises a time-jump threshold set too low (the rule of ``okid-ros process``)."""
+        note = time_jump_note(values)
+        if note and note != self._time_jump_note:
+            self.node.get_logger().warning(note)
+        self._time_jump_note = note
 
     def update_health(self) -> list[tuple[str, bool]]:
         """Recompute input rates and staleness.

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 from okid_ros.service.channels import channel_index, channel_name
 
-__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources"]
+__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "sources_and_grid", "time_jump_note"]
 
 #: kind -> (message type, field aliases -> canonical field path)
 SOURCE_KINDS: dict[str, str] = {
@@ -223,3 +223,25 @@ def sources_and_grid(values: dict, namespace: str | None = None):
         time_jump_s=float(values["inputs.time_jump_s"]),
     )
     return specs, grid
+
+
+def time_jump_note(values: dict) -> str:
+    """Why the grid takes a longer time-jump threshold than ``inputs.time_jump_s`` set to ``values`` ('' if not).
+
+    The grid's threshold is never below :func:`~okid_ros.service.stamp_steps.least_time_jump_s`
+    (``inputs.latency_samples + 2`` sample times). The default raised on a slow grid (1 s below
+    7 sample times of 1 s) is the rule working, not worth a word; a value set lower is told.
+    Shared by the nodes (a warning in their log) and the offline tools (a warning line).
+    """
+    from okid_ros.service.params import SHARED_PARAMS
+    from okid_ros.service.stamp_steps import JUMP_MARGIN_SAMPLES, least_time_jump_s
+
+    given = float(values["inputs.time_jump_s"])
+    dt, latency = float(values["sample_time_s"]), int(values["inputs.latency_samples"])
+    least = least_time_jump_s(dt, latency)
+    default = next(spec.default for spec in SHARED_PARAMS if spec.name == "inputs.time_jump_s")
+    if given >= least or given == default:
+        return ""
+    return (f"parameter inputs.time_jump_s {given:g} s raised to {least:g} s: a time jump must be longer than "
+            f"inputs.latency_samples {latency} + {JUMP_MARGIN_SAMPLES} sample times of {dt:g} s (a source lagging "
+            f"within the latency, or the next sample, is no jump)")

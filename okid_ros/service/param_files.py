@@ -12,7 +12,9 @@ parameters no node declares (``arx: {ordr: 50}``), sections naming a node of thi
 that do not apply to it (a bare node name with a namespace) and a key given twice in one
 mapping (rcl, like YAML loaders, keeps the last). The nodes log it as warnings (or
 refuse to start with ``strict_parameters``), ``okid-ros process`` prints it (or refuses with
-``--strict-params``).
+``--strict-params``). A parameter given twice in one section in two spellings, dotted and
+nested (``inputs.sources`` and ``inputs: {sources}``), is refused by :func:`read_parameter_file`
+for both: rcl keeps the later in silence, which the writer of the other one did not mean.
 
 No rclpy here.
 """
@@ -72,15 +74,38 @@ def section_matches(key: str, fqn: str) -> bool:
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested keys -> dotted names (``{arx: {order: 100}}`` -> ``{"arx.order": 100}``)."""
+    """Nested keys -> dotted names (``{arx: {order: 100}}`` -> ``{"arx.order": 100}``).
+
+    Raises
+    ------
+    ParameterError
+        A name given twice, dotted and nested (``inputs.sources: [...]`` and ``inputs: {sources:
+        [...]}``, or ``a.b: {c: 1}`` and ``a: {b.c: 2}``): one of the two values would be lost
+        without a word (a key repeated in one mapping is :func:`load_yaml_as_rcl`'s, a warning).
+    """
     out: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = value
+    spelling: dict[str, str] = {}
+    for path, value in _leaves(tree):
+        name = prefix + ".".join(path)
+        if name in spelling:
+            raise ParameterError(f"parameter {name} is given twice, as {spelling[name]} and as {_spelt(path)}: "
+                                 "give it once")
+        out[name], spelling[name] = value, _spelt(path)
     return out
+
+
+def _leaves(tree: Mapping[str, Any], path: tuple[str, ...] = ()) -> Iterable[tuple[tuple[str, ...], Any]]:
+    """``(keys from the top, value)`` of every value that is not a mapping, depth first."""
+    for key, value in tree.items():
+        if isinstance(value, Mapping):
+            yield from _leaves(value, (*path, str(key)))
+        else:
+            yield (*path, str(key)), value
+
+
+def _spelt(path: tuple[str, ...]) -> str:
+    """How a parameter file spells the keys ``path``: ``'inputs.sources'``, ``'inputs: {sources}'``."""
+    return "'" + ": {".join(path) + "}" * (len(path) - 1) + "'"
 
 
 def _walk(tree: Mapping, prefix: str = "") -> Iterable[tuple[str, dict[str, Any] | None]]:
@@ -98,7 +123,10 @@ def _walk(tree: Mapping, prefix: str = "") -> Iterable[tuple[str, dict[str, Any]
         elif "ros__parameters" not in section:
             yield from _walk(section, name)
         elif isinstance(section["ros__parameters"], Mapping):
-            yield name, flatten(section["ros__parameters"])
+            try:
+                yield name, flatten(section["ros__parameters"])
+            except ParameterError as exc:
+                raise ParameterError(f"section {name!r}: {exc}") from None
         else:
             yield name, None
 
@@ -343,6 +371,10 @@ def read_parameter_file(path: str | Path) -> Mapping:
     if not isinstance(tree, Mapping):
         raise ParameterError(f"parameter file {path} has no node sections (expected a mapping "
                              f"'NODE: {{ros__parameters: {{...}}}}', got {type(tree).__name__})")
+    try:
+        list(_walk(tree))  # a name given twice, dotted and nested, is refused here, before any use
+    except ParameterError as exc:
+        raise ParameterError(f"parameter file {path}: {exc}") from None
     return ParameterTree(tree, repeated)
 
 

@@ -173,11 +173,11 @@ SHARED_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("inputs.queue_depth", 1000, "subscription queue depth of each input topic (sensor-data QoS); covers stalls of the node of depth / rate seconds", "messages", 1, 100000, fixed=WIRING),
     ParamSpec("inputs.stamp_tolerance", 0.25, "largest distance of a stamp from its grid slot", "sample times", 0.01, 0.49, runtime=True),
     ParamSpec("inputs.latency_samples", 5, "slots newer data may be ahead before an incomplete slot is dropped as missing", "samples", 0, 100000, runtime=True),
-    ParamSpec("inputs.time_jump_s", 1.0, "a stamp this much older than the newest one is a time jump (re-anchors the grid)", "s", 1e-3, 1e6, runtime=True),
+    ParamSpec("inputs.time_jump_s", 1.0, "a stamp more than this before the newest one is a time jump (re-anchors the grid), more than this after it a step forward (a gap); never less than inputs.latency_samples + 2 sample times (a lower value is raised to that, with a warning)", "s", 1e-3, 1e6, runtime=True),
     ParamSpec("inputs.stale_timeout_s", 1.0, "an input with no message for this long is reported stale", "s", 1e-3, 1e6, runtime=True),
     ParamSpec("diagnostics_rate_hz", 1.0, "rate of the DiagnosticArray on /diagnostics", "Hz", 0.01, 100.0, runtime=True),
     ParamSpec("offsets", "remove", "remove: the ARX window fits the signals' offsets as an intercept and each realization removes the window's means (kept with the model, subtracted from live samples); none: raw signals", choices=OFFSETS, field="offsets"),
-    ParamSpec("reset_on_time_jump", True, "when the stamps jump back by more than inputs.time_jump_s (a looped bag, a restarted simulation), forget the window / model and start again as at the first start (false: keep them; the window then holds data from before the jump)", runtime=True),
+    ParamSpec("reset_on_time_jump", True, "when the stamps jump back by more than inputs.time_jump_s (at least inputs.latency_samples + 2 sample times; a looped bag, a restarted simulation), forget the window / model and start again as at the first start (false: keep them; the window then holds data from before the jump)", runtime=True),
     ParamSpec("frame_id", "base_link", "frame_id of the headers of the output messages (the structure the modes belong to)", runtime=True),
     ParamSpec("strict_parameters", False, "refuse to start when a parameter file sets a name this node does not declare, or has a section naming it that does not apply (false: a warning)"),
 )

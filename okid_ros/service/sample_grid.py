@@ -38,18 +38,19 @@ bad values
     ``nonfinite``, or whose value count is not the source's (``wrong_size``) is rejected as a whole.
 timeline
     The *timeline* is the newest stamp of the stream (taken, or confirmed as below). A stamp
-    more than ``time_jump_s`` (default 1 s) before or after it is held as the *candidate* of a
-    new timeline instead of being acted on: one corrupt stamp (0, or 1e6 s ahead) must not
-    restart the grid and the nodes, nor strand the timeline where every later message looks
-    like a jump. Then:
+    more than the *jump threshold* before or after it is held as the *candidate* of a new
+    timeline instead of being acted on: one corrupt stamp (0, or 1e6 s ahead) must not restart
+    the grid and the nodes, nor strand the timeline where every later message looks like a jump.
+    The threshold: ``time_jump_s`` (default 1 s), at least ``latency_samples + 2`` sample times
+    (:func:`least_time_jump_s`: a source lagging within the latency, the next slot). Then:
 
-    - a stamp off the old timeline within ``time_jump_s`` of the candidate, from any source
+    - a stamp off the old timeline within the threshold of the candidate, from any source
       (one still before the last jump or step too), confirms it: the candidate is taken as the
       first message of the new timeline (a time jump or a forward step, below), then the
       confirming one. The candidate's own source must step
       on from it (a repeat of its slot is a ``duplicate``, an earlier slot ``out_of_order``);
     - a stamp on the old timeline from the candidate's source, or one taking the old timeline
-      more than ``time_jump_s`` on, rejects the candidate: counted ``off_timeline``. The other
+      more than the threshold on, rejects the candidate: counted ``off_timeline``. The other
       sources' messages on the old timeline are taken meanwhile (after a loop the sources jump
       one after another);
     - a stamp off both timelines rejects the candidate and becomes the candidate.
@@ -82,10 +83,10 @@ import numpy as np
 
 from okid_ros.core.options import sample_time_problem
 from okid_ros.service.channels import channel_name
-from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step
+from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step, least_time_jump_s
 
 __all__ = ["GridSample", "GridCounters", "SampleGrid", "MAX_STAMP_S", "RESTART_SKIP", "REJECTION_REASONS",
-           "StampStep", "StampSequence", "classify_step"]
+           "StampStep", "StampSequence", "classify_step", "least_time_jump_s"]
 
 #: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
 RESTART_SKIP = -1
@@ -198,8 +199,9 @@ class SampleGrid:
     tolerance : largest distance of a stamp from its slot, as a fraction of dt, in (0, 0.5).
     latency_samples : how many slots newer data may be ahead before an incomplete slot is
         dropped (>= 0; 0 drops a slot as soon as a newer slot receives data).
-    time_jump_s : a stamp this much before or after the newest one starts a new timeline [s],
-        once the next message confirms it (a time jump back, a gap forward; module docstring).
+    time_jump_s : a stamp more than this before or after the newest one starts a new timeline [s],
+        once the next message confirms it (a time jump back, a gap forward; module docstring);
+        the grid uses at least :func:`least_time_jump_s` (:attr:`jump_threshold_s`).
 
     Raises
     ------
@@ -249,6 +251,11 @@ class SampleGrid:
     def channel_name(self, channel: int) -> str:
         """'u0', 'u1', ..., 'y0', ... for a channel index."""
         return channel_name(channel, self.n_inputs)
+
+    @property
+    def jump_threshold_s(self) -> float:
+        """The step from the newest stamp beyond which a stamp is off the timeline [s] (module docstring)."""
+        return max(self.time_jump_s, least_time_jump_s(self.sample_time_s, self.latency_samples))
 
     @property
     def n_sources(self) -> int:
@@ -315,9 +322,10 @@ class SampleGrid:
     def _follow_timeline(self, source: int, stamp_s: float, vals: np.ndarray) -> list[GridSample]:
         """Place a message on the timeline; hold, confirm or reject one off it (module docstring)."""
         src = self._sources[source]
-        side = self._side(stamp_s)
+        jump = self.jump_threshold_s
+        side = self._side(stamp_s, jump)
         cand = self._candidate
-        agrees = cand is not None and abs(stamp_s - cand.stamp_s) <= self.time_jump_s
+        agrees = cand is not None and abs(stamp_s - cand.stamp_s) <= jump
         if src.before_jump and side == self._old_side and not agrees:
             # Stamped before the jump or step the other sources made. One that agrees with a held
             # candidate confirms it instead (a source that stepped on alone and now comes back).
@@ -325,7 +333,7 @@ class SampleGrid:
             return []
         if side == 0:
             src.before_jump = False
-            if cand is not None and (cand.source == source or stamp_s > cand.old_newest_s + self.time_jump_s):
+            if cand is not None and (cand.source == source or stamp_s > cand.old_newest_s + jump):
                 self._reject_candidate()  # the old timeline goes on: the candidate was a lone stamp
             # The timeline follows the stream also where the grid refuses it (off its phase).
             self._newest_stamp = max(self._newest_stamp, stamp_s)
@@ -344,10 +352,10 @@ class SampleGrid:
         self._candidate = _Candidate(source, stamp_s, vals.copy(), self._newest_stamp)
         return []
 
-    def _side(self, stamp_s: float) -> int:
-        """-1 / +1 for a stamp more than time_jump_s before / after the timeline, else (or none yet) 0."""
+    def _side(self, stamp_s: float, jump: float) -> int:
+        """-1 / +1 for a stamp more than ``jump`` before / after the timeline, else (or none yet) 0."""
         step = stamp_s - self._newest_stamp
-        if not math.isfinite(self._newest_stamp) or abs(step) <= self.time_jump_s:
+        if not math.isfinite(self._newest_stamp) or abs(step) <= jump:
             return 0
         return 1 if step > 0 else -1
 

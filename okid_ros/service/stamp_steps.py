@@ -6,7 +6,8 @@ samples that arrive already whole (``okid_ros.service.identification`` fed by a 
 than the grid). A step of at most half a sample time from the previous accepted stamp is a
 duplicate, a step back by more than that is out of order, a step of more than
 :data:`GAP_STEP` sample times is a gap (:func:`classify_step`). This module is the only place
-that rule is written.
+that rule is written, and the one of the smallest step a grid may take for a time jump
+(:func:`least_time_jump_s`).
 
 No rclpy: the nodes and the offline tools both use this module.
 """
@@ -18,7 +19,8 @@ from enum import Enum
 
 from okid_ros.core.options import sample_time_problem
 
-__all__ = ["GAP_STEP", "MAX_STAMP_S", "StampStep", "StampSequence", "classify_step"]
+__all__ = ["GAP_STEP", "JUMP_MARGIN_SAMPLES", "MAX_STAMP_S", "StampStep", "StampSequence", "classify_step",
+           "least_time_jump_s"]
 
 
 class StampStep(Enum):
@@ -61,6 +63,27 @@ def classify_step(step_samples: float) -> StampStep:
     if step_samples > GAP_STEP:
         return StampStep.GAP
     return StampStep.NEXT
+
+
+#: Sample times beyond a grid's latency within which a stamp is never a time jump: the next
+#: slot (one) with its stamp tolerance (under half a sample time) on either side.
+JUMP_MARGIN_SAMPLES = 2
+
+
+def least_time_jump_s(sample_time_s: float, latency_samples: int) -> float:
+    """The smallest time-jump threshold of a sample grid [s]: ``latency_samples + 2`` sample times.
+
+    A source may lag the newest stamp by up to ``latency_samples`` slots (the grid waits that
+    long for it), and the next slot lies one sample time on, each stamp up to half a sample time
+    off its slot: no step of the ongoing stream is a jump. The grid
+    (:class:`okid_ros.service.sample_grid.SampleGrid`) uses ``max(time_jump_s, this)``.
+
+    Examples
+    --------
+    >>> least_time_jump_s(0.008, 5), least_time_jump_s(2.0, 5)
+    (0.056, 14.0)
+    """
+    return (int(latency_samples) + JUMP_MARGIN_SAMPLES) * float(sample_time_s)
 
 
 class StampSequence:

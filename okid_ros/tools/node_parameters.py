@@ -29,7 +29,8 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     strict : unknown parameter names (or sections naming a node that do not apply) in the
         files, and values the nodes refuse for their type (``8`` for a floating-point
         parameter: rclpy's typed parameters; read here as 8.0), are an error instead of a report.
-    report : called with each such problem when not ``strict`` (default: an
+    report : called with each such problem when not ``strict``, and with an ``inputs.time_jump_s``
+        the sample grid raises (:func:`okid_ros.service.inputs.time_jump_note`) (default: an
         :class:`~okid_ros.errors.OkidWarning`, which `okid-ros` prints as its command's warning line).
 
     Returns
@@ -42,9 +43,8 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         unreadable file, bad value, an override no node knows, or (``strict``) an unknown
         name in a file.
     """
-    import yaml
-
-    from okid_ros.service.param_files import file_report, load_yaml_as_rcl, node_fqn, node_values_from_tree
+    from okid_ros.service.inputs import time_jump_note
+    from okid_ros.service.param_files import file_report, node_fqn, node_values_from_tree
     from okid_ros.service.params import (
         ARX_NODE,
         ESTIMATOR_NODE,
@@ -54,19 +54,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     )
 
     names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
-    layered: list[tuple[str, Any]] = []
-    for item in overrides:
-        name, sep, text = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
-        try:
-            value = load_yaml_as_rcl(text)
-        except yaml.YAMLError:
-            raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
-        if not any(name in known for known in names.values()):
-            raise ParameterError(f"--param {name}: no such parameter of {ARX_NODE} or {ESTIMATOR_NODE}")
-        layered.append((name, value))
+    layered = _overrides(overrides, names)
     if sources:
         layered.append(("inputs.sources", list(sources)))
     trees = [(str(path), read_parameter_file(path)) for path in param_files]
@@ -74,8 +62,9 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     problems += _typed_problems(trees, namespace)
     if problems and strict:
         raise ParameterError("; ".join(problems))
+    say = report or (lambda text: warnings.warn(text, OkidWarning, stacklevel=3))
     for problem in problems:
-        (report or (lambda text: warnings.warn(text, OkidWarning, stacklevel=3)))(problem)
+        say(problem)
     values = []
     for node in (ARX_NODE, ESTIMATOR_NODE):
         merged: dict[str, Any] = {}
@@ -91,7 +80,32 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         except ParameterError as exc:
             label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
             raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
+    for note in dict.fromkeys(time_jump_note(v) for v in values):  # a section of each node: said once
+        if note:
+            say(note)
     return values[0], values[1]
+
+
+def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tuple[str, Any]]:
+    """``(name, value)`` of each ``NAME=VALUE`` override, its value typed as rcl types it; ParameterError if bad."""
+    import yaml
+
+    from okid_ros.service.param_files import load_yaml_as_rcl
+
+    layered: list[tuple[str, Any]] = []
+    for item in overrides:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
+        try:
+            value = load_yaml_as_rcl(text)
+        except yaml.YAMLError:
+            raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
+        if not any(name in known for known in names.values()):
+            raise ParameterError(f"--param {name}: no such parameter of {' or '.join(names)}")
+        layered.append((name, value))
+    return layered
 
 
 def _typed_problems(trees: list[tuple[str, Any]], namespace: str | None) -> list[str]:

@@ -251,3 +251,20 @@ def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros,
                        "--params-file", str(typo), "-p", "strict_parameters:=true")
     assert strict.proc.wait(timeout=30) == 2
     strict.wait_for_output(r"unknown parameter\(s\) arx\.ordr .*strict_parameters", 5)
+
+
+def test_a_parameter_given_dotted_and_nested_is_refused_and_a_low_time_jump_is_told(spawn_ros, tmp_path):
+    # rcl takes the later of `inputs.sources` and `inputs: {sources}` in silence; the node refuses
+    # the file as `okid-ros process` does. A time-jump threshold set below the grid's latency is
+    # raised, and said once in the log (service/inputs.time_jump_note).
+    both = tmp_path / "both.yaml"
+    both.write_text('/**:\n  ros__parameters:\n    inputs.sources: ["io_sample /okid/io_sample"]\n'
+                    '    inputs:\n      sources: ["imu /accel/tip1/imu linear_acceleration.x=y0"]\n')
+    refused = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "--params-file", str(both))
+    assert refused.proc.wait(timeout=30) == 2
+    refused.wait_for_output(r"both\.yaml: section '/\*\*': parameter inputs\.sources is given twice, as "
+                            r"'inputs\.sources' and as 'inputs: \{sources\}'", 5)
+    low = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "-p", "inputs.time_jump_s:=0.001",
+                    "-r", "__ns:=/rig8")
+    low.wait_for_output(r"WARN.*parameter inputs\.time_jump_s 0\.001 s raised to 0\.056 s", 30)
+    low.wait_for_output(r"ready:", 30)

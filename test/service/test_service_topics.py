@@ -139,3 +139,30 @@ def test_a_key_given_twice_is_reported_and_the_last_value_counts(tmp_path):
     ], reported
     with pytest.raises(ParameterError, match="given twice"):
         load_node_parameters([path], strict=True)
+
+
+def test_a_parameter_given_dotted_and_nested_in_one_section_is_refused(tmp_path, capsys):
+    # Hostile sweep of session 31: `inputs.sources: [...]` and `inputs: {sources: [...]}` in one
+    # section; the later one won in silence (as in rcl: a node took it too), the other was lost.
+    from cli_helpers import assert_one_line_error, run_cli
+
+    path = tmp_path / "both.yaml"
+    path.write_text('/**:\n  ros__parameters:\n    inputs.sources: ["io_sample /okid/io_sample"]\n'
+                    '    inputs:\n      sources: ["imu /accel/tip1/imu linear_acceleration.x=y0"]\n')
+    message = (f"parameter file {path}: section '/**': parameter inputs.sources is given twice, as "
+               "'inputs.sources' and as 'inputs: {sources}': give it once")
+    for read in (lambda: load_node_parameters([path]), lambda: load_parameters(path, ARX_NODE)):
+        with pytest.raises(ParameterError) as refused:
+            read()
+        assert str(refused.value) == message
+    code, _, err = run_cli(capsys, "batch", tmp_path, "--plan", "--params", path)
+    assert_one_line_error(code, err, message)
+    # Any pair, at any depth, in a node's own section too; names that only share a prefix are fine.
+    path.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 30, window_length: 500}\n"
+                    "    a.b: {c: 1}\n    a: {b.c: 2}\n")
+    with pytest.raises(ParameterError, match=r"section '/\*\*/okid_arx_identifier': parameter a.b.c is given "
+                                             r"twice, as 'a.b: \{c\}' and as 'a: \{b.c\}'"):
+        load_node_parameters([path])
+    path.write_text("/**:\n  ros__parameters:\n    arx.order: 30\n    arx: {window_length: 500}\n")
+    arx, _ = load_node_parameters([path], strict=True)
+    assert (arx["arx.order"], arx["arx.window_length"]) == (30, 500)

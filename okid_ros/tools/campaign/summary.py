@@ -16,12 +16,13 @@ def print_summary(report: CampaignReport, options: CampaignOptions, emit: Callab
     """Bags ok/failed/skipped (and reused), models, modes tracked, time, the failures, the outputs."""
     entries = report.entries
     reused = sum(1 for e in entries if e.get("reused"))
-    engine = (f"Dask scheduler {options.scheduler}" if options.scheduler
-              else f"{options.workers} local worker(s)" if options.workers > 1 else "serial")
     models = sum(int(e.get("models", 0)) for e in entries if e["status"] == "ok")
     samples = sum(int(e.get("samples", 0)) for e in entries if e["status"] == "ok")
     mode_ids = {row["mode_id"] for row in report.rows}
     processed = len(entries) - reused - report.count("skipped")
+    started = min(options.workers, processed + report.count("skipped"))  # the pool's processes (engines.run_jobs)
+    engine = (f"Dask scheduler {options.scheduler}" if options.scheduler
+              else f"{started} local worker(s)" if started > 1 else "serial")
     emit(f"batch: {len(entries)} bags: {report.count('ok')} ok, {report.count('failed')} failed, "
          f"{report.count('skipped')} skipped; {processed} processed now ({engine}), {reused} unchanged since the "
          f"last run")
