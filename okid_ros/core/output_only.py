@@ -54,7 +54,7 @@ from okid_ros.core.output_covariance import (
     output_correlations,
     reference_channels,
 )
-from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
+from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
     ModeCluster,
@@ -171,8 +171,8 @@ def identify_output_only(
     scales = group_scales(np.zeros((y.shape[0], 0)), y)
     y = y / scales.output
     _check_channel_sizes(y)
-    if harmonics == "remove":
-        y = _without_harmonics(y, sample_time_s, warnings)
+    y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
+    warnings += removed
     chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                            block_rows=block_rows, present=present)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
@@ -343,16 +343,6 @@ def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluste
             f_std[i] = np.hypot(home_f[0], f - abs(s_home) / (2 * np.pi))
             z_std[i] = np.hypot(home_z[0], zeta + s_home.real / abs(s_home))
     return f_std, z_std
-
-
-def _without_harmonics(y: np.ndarray, sample_time_s: float, warnings: list[str]) -> np.ndarray:
-    """``y`` less its harmonic lines; each one removed is named in ``warnings``."""
-    found = find_harmonics(y, sample_time_s)
-    if not found:
-        return y
-    listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
-    warnings.append(f"harmonic disturbance removed before identification (not a mode): {listed}")
-    return remove_harmonics(y, sample_time_s, found)
 
 
 def _cluster_of(eigenvalue: complex, matched: list[tuple[complex, ModeCluster]]) -> ModeCluster | None:

@@ -4,8 +4,9 @@ Two methods share the steps of the paper:
 
 ``method="okid"`` (default, robust; each step is a module)
     1. Offsets: the record's means are removed (``offsets="remove"``) and kept with the model;
-       a record's drift (a straight-line trend holding 2 % of a channel) is removed first, and
-       clipped channels are named (:mod:`.sensor_faults`).
+       a record's drift (a straight-line trend holding 2 % of a channel) is removed first,
+       clipped channels are named (:mod:`.sensor_faults`), and harmonic lines of the outputs
+       that the inputs do not hold (a disturbance) are removed (:mod:`.output_only_harmonics`).
     2. ARX of order q, ridge-regularized with the penalty chosen by GCV; q itself chosen by GCV
        unless given (:mod:`.arx`).
     3. Observer Markov parameters ``C Abar^{i-1} [L, Bbar]`` = the ARX lag blocks (:mod:`.markov`).
@@ -50,6 +51,7 @@ from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import attach_jackknife_std
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
+from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.record_checks import check_record_length, checked_record
 from okid_ros.core.refine import refine_prediction_error, refinement_flops, refinement_size
 from okid_ros.core.refit import PredictorFit
@@ -405,6 +407,9 @@ def identify(
     options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
                                           options=options or RealizationOptions(), changes=option_changes)
     u, y, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove")
+    if valid is None:  # a disturbance's harmonic lines (the spectrum wants an unbroken record)
+        y, removed = without_harmonics(y, sample_time_s, u=u)
+        fault_warnings += removed
     p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).
@@ -414,9 +419,7 @@ def identify(
     m = u.shape[1]
     # An intercept in the ARX fit, as identify_from_arx removes the means: the live window's model.
     center = offsets == "remove"
-    arx_scores: dict = {}
-    normal = None
-    order_warnings: list[str] = []
+    arx_scores, normal, order_warnings = {}, None, []
     if order == AUTO:
         # The order search's normal equations of the chosen order serve its fit (not formed twice).
         try:
@@ -429,8 +432,7 @@ def identify(
     check_record_length(u.shape[0], order, p, m)
     if not frame.excited:
         raise IdentificationError(frame.warnings[0])
-    if regularization is None:
-        regularization = "none" if method == "paper" else "ridge"
+    regularization = ("none" if method == "paper" else "ridge") if regularization is None else regularization
 
     def fitted(q: int) -> tuple[ArxFit, np.ndarray, np.ndarray, np.ndarray | None]:
         return _fit_or_refuse(u, y, valid, q, normal if q == order else None, regularization=regularization,
