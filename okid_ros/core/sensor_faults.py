@@ -79,13 +79,14 @@ def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
     if rows.size < 3 or x.shape[1] == 0:
         return x, []
     t = rows - rows.mean()
-    present = x[rows]
-    peak = np.max(np.abs(present), axis=0)
+    # Channels as contiguous rows (the reductions along a record's columns are strided, 3x slower).
+    present = np.ascontiguousarray((x if valid is None else x[rows]).T)
+    peak = np.max(np.abs(present), axis=1)
     peak = np.where(peak > 0, peak, 1.0)  # unit peaks: no sum overflows or underflows near the float limits
-    unit = present / peak
-    centred = unit - unit.mean(axis=0)
-    slope = (t @ centred) / (t @ t)
-    power = np.sum(centred**2, axis=0)
+    centred = present / peak[:, None]
+    centred -= centred.mean(axis=1, keepdims=True)
+    slope = (centred @ t) / (t @ t)
+    power = np.einsum("ij,ij->i", centred, centred)
     share = np.divide(slope**2 * (t @ t), power, out=np.zeros_like(power), where=power > 0)
     trending = np.flatnonzero(share >= TREND_SHARE)
     if trending.size == 0:
