@@ -50,10 +50,53 @@ class ProcessSummary:
     grid_counters: dict = field(default_factory=dict)
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
+    sample_time_s: float = math.nan  # node 1's grid
+    stretches: int = 0  # runs of samples between the stamps' jumps back in time (1 without)
+    stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
+    gap_s: float = 0.0  # of it, the time between samples with no sample (beyond one sample time)
+    gaps: int = 0  # samples that follow missing ones
+    longest_gap: tuple = ()  # (stamp before it [s], its length [s], samples missing in it)
+    _stretch_start_s: float = math.nan
 
     @property
     def data_duration_s(self) -> float:
-        return 0.0 if math.isnan(self.first_stamp_s) else self.last_stamp_s - self.first_stamp_s
+        """Seconds of data: the stamps the samples span, each stretch alone, without the gaps between them."""
+        return self.sample_span_s - self.gap_s
+
+    @property
+    def sample_span_s(self) -> float:
+        """Seconds of sample time the samples span (gaps included), each stretch alone."""
+        open_stretch = 0.0 if math.isnan(self._stretch_start_s) else self.last_stamp_s - self._stretch_start_s
+        return self.stamp_span_s + open_stretch
+
+    def add_sample(self, sample: Any) -> None:
+        """Count one sample of node 1's grid (a ``GridSample``): the stretches and gaps of its stamps."""
+        stamp = sample.stamp_s
+        self.samples += 1
+        if math.isnan(self.first_stamp_s):
+            self.first_stamp_s = stamp
+        if sample.restart or math.isnan(self._stretch_start_s):  # the start, or the stamps went back
+            if not math.isnan(self._stretch_start_s):
+                self.stamp_span_s += self.last_stamp_s - self._stretch_start_s
+            self._stretch_start_s = stamp
+            self.stretches += 1
+        elif sample.skipped > 0:
+            length = stamp - self.last_stamp_s
+            self.gap_s += max(0.0, length - self.sample_time_s)
+            self.gaps += 1
+            if not self.longest_gap or length > self.longest_gap[1]:
+                self.longest_gap = (self.last_stamp_s, length, int(sample.skipped))
+        self.last_stamp_s = stamp
+
+    def data_text(self) -> str:
+        """``"20.0 s of data"``, with the stretches after the stamps went back and the gaps when there are any."""
+        text = f"{self.data_duration_s:.1f} s of data"
+        if self.stretches > 1:
+            back = "once" if self.stretches == 2 else f"{self.stretches - 1} times"
+            text += f" in {self.stretches} stretches: the stamps went back in time {back}"
+        if self.gap_s >= 0.05:
+            text += f", and {self.gap_s:.1f} s of gaps without samples"
+        return text
 
     @property
     def final_modes(self) -> list[dict]:
@@ -76,11 +119,26 @@ class ProcessSummary:
             return refused
         reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
                    for key in REJECTION_REASONS if counts.get(key)]
-        if counts.get("missing"):
-            reasons.append(f"{counts['missing']} samples dropped incomplete (missing)")
-        head = (f"all {messages} input messages were rejected" if rejected and rejected >= messages
+        missing = self._missing_text(counts.get("missing", 0), rejected)
+        if not rejected:  # samples missing only: a gap in the recording, not a refusal ("0 of the ... rejected")
+            return missing + (f"; {refused}" if refused else "")
+        head = (f"all {messages} input messages were rejected" if rejected >= messages
                 else f"{rejected} of the {messages} input messages were rejected")
-        return f"{head}: {', '.join(reasons)}" + (f"; {refused}" if refused else "")
+        return f"{head}: {', '.join(reasons + ([missing] if missing else []))}" + (f"; {refused}" if refused else "")
+
+    def _missing_text(self, missing: int, rejected: int) -> str:
+        """"N samples missing", with the gaps that hold them ("" when none)."""
+        if not missing:
+            return ""
+        if not self.longest_gap:
+            return f"{missing} samples dropped incomplete (missing)"
+        before_s, length_s, skipped = self.longest_gap
+        kind = "without a sample" if rejected else "with no messages"  # rejected messages leave gaps too
+        after = f"after the stamp {before_s:.3f} s"
+        if 2 * skipped >= missing:
+            most = "" if skipped >= missing else f"{skipped} in "
+            return f"{missing} samples missing: {most}a gap of {length_s:.6g} s {kind} {after}"
+        return f"{missing} samples missing in {self.gaps} gaps {kind}, the longest {length_s:.6g} s {after}"
 
 
 class NodeInputs:
@@ -181,7 +239,8 @@ class OfflineNodes:
             raise ParameterError(str(exc)) from None
         self.arx, self.est = self.pipeline.arx, self.pipeline.est
         # The JSON lines and change records are the pipeline's (one serializer).
-        self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes)
+        self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes,
+                                      sample_time_s=self.arx_inputs.grid.sample_time_s)
         self._mode_msgs: list = []
         self.frame_ids = (str(arx_values["frame_id"]), str(est_values["frame_id"]))
 
@@ -273,10 +332,7 @@ class OfflineNodes:
         s = self.summary
         out: list[tuple[str, Any]] = []
         for sample in samples:
-            s.samples += 1
-            if math.isnan(s.first_stamp_s):
-                s.first_stamp_s = sample.stamp_s
-            s.last_stamp_s = sample.stamp_s
+            s.add_sample(sample)
             snapshot = self.pipeline.identify(sample)
             if snapshot is None:
                 continue

@@ -1,0 +1,74 @@
+"""What `process` says about a bag whose stamps or values are odd (second hostile sweep, session s31).
+
+Stamps that go back and rise again, a gap of hours, every other message NaN, a sample time that
+does not fit the stamps, a publish rate above the sampling rate: each gives an honest line or a
+warning, never a figure that reads wrong.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from cli_helpers import run_cli
+from ros_helpers import rosbags_typestore
+
+IO_TOPIC, IO_TYPE = "/okid/io_sample", "okid_msgs/msg/IoSample"
+START_NS = 1_700_000_000 * 1_000_000_000
+DT = 0.008
+N = 600
+
+
+def write_io_bag(path: Path, stamps_ns: np.ndarray, y: np.ndarray | None = None, seed: int = 0) -> Path:
+    """A bag of ``IoSample`` on /okid/io_sample with the given header stamps; 2 inputs, 2 outputs.
+
+    The log times are those of a regular recording (:func:`grid_ns`), so the messages are read in
+    the order given whatever their stamps.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    rng = np.random.default_rng(seed)
+    n = len(stamps_ns)
+    u = rng.standard_normal((n, 2))
+    y = rng.standard_normal((n, 2)) if y is None else y
+    store = rosbags_typestore()
+    time_cls, header_cls = store.types["builtin_interfaces/msg/Time"], store.types["std_msgs/msg/Header"]
+    io_cls = store.types[IO_TYPE]
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection(IO_TOPIC, IO_TYPE, typestore=store)
+        for k, (ns, log_ns) in enumerate(zip(np.asarray(stamps_ns).tolist(), grid_ns(n).tolist())):
+            header = header_cls(stamp=time_cls(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id="")
+            msg = io_cls(header=header, u=u[k].astype(np.float64), y=np.asarray(y[k], dtype=np.float64))
+            writer.write(connection, log_ns, store.serialize_cdr(msg, IO_TYPE))
+    return path
+
+
+def grid_ns(n: int = N) -> np.ndarray:
+    return START_NS + np.rint(np.arange(n) * DT * 1e9).astype(np.int64)
+
+
+def process(capsys, bag: Path, tmp_path: Path, *options: str) -> tuple[int, str, str]:
+    return run_cli(capsys, "process", bag, "--out", tmp_path / "out", "--no-progress", *options)
+
+
+def test_stamps_that_go_back_and_rise_again_give_the_data_they_hold(tmp_path, capsys):
+    # Stamps descending to mid-bag, then rising again: was "254 samples (0.0 s of data)" (sweep: 1136
+    # samples of 2500), the first sample, taken before the stamps went back, and the last having one stamp.
+    grid = grid_ns()
+    vee = np.where(np.arange(N) <= N // 2, grid[::-1], grid)
+    code, out, err = process(capsys, write_io_bag(tmp_path / "vee", vee), tmp_path)
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if x.startswith("processed "))
+    assert "(0.0 s of data" not in line and "2.0 s of data in 2 stretches" in line, line
+    assert "the stamps went back in time once" in line, line
+
+
+def test_a_gap_of_hours_is_said_to_be_a_gap(tmp_path, capsys):
+    # Was: "0 of the 600 input messages were rejected: 2250000 samples dropped incomplete (missing)".
+    stamps = grid_ns() + np.where(np.arange(N) >= N // 2, 5 * 3600 * 10**9, 0)
+    code, out, err = process(capsys, write_io_bag(tmp_path / "gap", stamps), tmp_path)
+    assert code == 0, err
+    assert "0 of the" not in err and "rejected" not in err, err
+    assert "2250000 samples missing: a gap of 18000 s with no messages after the stamp 1700000002.392 s" in err, err
+    line = next(x for x in out.splitlines() if x.startswith("processed "))
+    assert "(4.8 s of data, and 18000.0 s of gaps without samples)" in line, line
