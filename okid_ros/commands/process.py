@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
                       f"span {span:.3g} s")
         print("no model was identified" + (f": {reason}" if reason else ""))
     note = summary.rejection_note()
-    if note and not summary.updates:  # the likely cause: say it
+    if note and (not summary.updates or summary.grid_hints()):  # the likely cause, or models of a wrong grid
         print(f"okid-ros process: warning: {note}", file=sys.stderr)
     return 0
 

@@ -76,23 +76,18 @@ class BagRecord:
         Also said when most samples stand alone between empty sample times: a sample time finer
         than the stamps' spacing refuses nothing but leaves every other slot empty.
         """
-        total = sum(self.rejected.values())
-        question = f"is sample_time_s {self.record.sample_time_s:g} s right?"
+        from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
+
+        dt = self.record.sample_time_s
         notes = []
-        if total:
-            note = _rejected_messages(self.rejected, self.messages)
-            # Several messages per slot, or stamps between slots: the grid's sample time is not the
-            # stamps' spacing.
-            where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
-            for reason, text in where.items():
-                if self.rejected.get(reason, 0) > total // 2:
-                    note += f"; most fell {text}: {question}"
-            notes.append(note)
+        if sum(self.rejected.values()):
+            hint = rejection_hint(self.rejected, dt)
+            notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
-        if self.samples_total >= 4 and (self.runs > self.samples_total // 2 or 2 * alone.sum() > present.sum()):
-            notes.append(f"most of the {self.samples_total} samples stand alone between empty sample times: {question}")
-        return "; ".join(notes)
+        notes.append(stand_alone_hint(samples=self.samples_total, runs=self.runs, alone=int(alone.sum()),
+                                      present=int(present.sum()), rejected=self.rejected, sample_time_s=dt))
+        return "; ".join(note for note in notes if note)
 
 
 def _rejected_messages(rejected: dict[str, int], messages: int, wrong_size_note: str = "") -> str:

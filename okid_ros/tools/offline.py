@@ -55,6 +55,9 @@ class ProcessSummary:
     stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
     gap_s: float = 0.0  # of it, the time between samples with no sample (beyond one sample time)
     gaps: int = 0  # samples that follow missing ones
+    runs: int = 0  # contiguous runs of samples (a new one after a gap or a jump back)
+    alone: int = 0  # samples of a closed run of one (:attr:`alone_samples` counts the open one too)
+    _run_length: int = 0
     longest_gap: tuple = ()  # (stamp before it [s], its length [s], samples missing in it)
     _stretch_start_s: float = math.nan
 
@@ -86,7 +89,17 @@ class ProcessSummary:
             self.gaps += 1
             if not self.longest_gap or length > self.longest_gap[1]:
                 self.longest_gap = (self.last_stamp_s, length, int(sample.skipped))
+        if sample.gap_before:
+            self.runs += 1
+            self.alone += self._run_length == 1
+            self._run_length = 0
+        self._run_length += 1
         self.last_stamp_s = stamp
+
+    @property
+    def alone_samples(self) -> int:
+        """Samples with a gap (or the start or end) on both sides."""
+        return self.alone + (self._run_length == 1)
 
     def data_text(self) -> str:
         """``"20.0 s of data"``, with the stretches after the stamps went back and the gaps when there are any."""
@@ -120,11 +133,22 @@ class ProcessSummary:
         reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
                    for key in REJECTION_REASONS if counts.get(key)]
         missing = self._missing_text(counts.get("missing", 0), rejected)
-        if not rejected:  # samples missing only: a gap in the recording, not a refusal ("0 of the ... rejected")
-            return missing + (f"; {refused}" if refused else "")
         head = (f"all {messages} input messages were rejected" if rejected >= messages
                 else f"{rejected} of the {messages} input messages were rejected")
-        return f"{head}: {', '.join(reasons + ([missing] if missing else []))}" + (f"; {refused}" if refused else "")
+        # samples missing only: a gap in the recording, not a refusal ("0 of the ... rejected")
+        notes = [f"{head}: {', '.join(reasons + ([missing] if missing else []))}" if rejected else missing,
+                 *self.grid_hints(), refused]
+        return "; ".join(note for note in notes if note)
+
+    def grid_hints(self) -> list[str]:
+        """The likely cause when the messages do not fit node 1's grid (:mod:`okid_ros.tools.grid_hints`)."""
+        from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
+
+        by_reason = {key: self.grid_counters[key] for key in REJECTION_REASONS if self.grid_counters.get(key)}
+        hints = [rejection_hint(by_reason, self.sample_time_s),
+                 stand_alone_hint(samples=self.samples, runs=self.runs, alone=self.alone_samples,
+                                  present=self.samples, rejected=by_reason, sample_time_s=self.sample_time_s)]
+        return [hint for hint in hints if hint]
 
     def _missing_text(self, missing: int, rejected: int) -> str:
         """"N samples missing", with the gaps that hold them ("" when none)."""

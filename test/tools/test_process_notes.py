@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from cli_helpers import run_cli
 from ros_helpers import rosbags_typestore
 
@@ -72,3 +73,31 @@ def test_a_gap_of_hours_is_said_to_be_a_gap(tmp_path, capsys):
     assert "2250000 samples missing: a gap of 18000 s with no messages after the stamp 1700000002.392 s" in err, err
     line = next(x for x in out.splitlines() if x.startswith("processed "))
     assert "(4.8 s of data, and 18000.0 s of gaps without samples)" in line, line
+
+
+@pytest.mark.parametrize("sample_time_s, hint", [
+    ("0.016", "300 off_grid; most fell between sample times: is sample_time_s 0.016 s right?"),
+    ("0.004", "most of the 600 samples stand alone between empty sample times: is sample_time_s 0.004 s right?"),
+])
+def test_process_gives_the_sample_time_hint_export_gives(tmp_path, capsys, sample_time_s, hint):
+    # Was: "1250 off_grid" or "2499 samples dropped incomplete (missing)" and no word on the sample time.
+    bag = write_io_bag(tmp_path / "bag", grid_ns())
+    code, _, err = process(capsys, bag, tmp_path, "--param", f"sample_time_s={sample_time_s}")
+    assert code == 0 and hint in err, err
+    code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "r.npz", "--param",
+                           f"sample_time_s={sample_time_s}")
+    assert code == 0 and hint.split("; ")[-1] in err, err  # one rule for both
+
+
+@pytest.mark.parametrize("command", ["process", "export"])
+def test_every_other_message_nan_is_blamed_on_the_values_not_the_sample_time(tmp_path, capsys, command):
+    # Was: "most of the 300 samples stand alone between empty sample times: is sample_time_s 0.008 s right?"
+    y = np.random.default_rng(1).standard_normal((N, 2))
+    y[1::2] = np.nan
+    bag = write_io_bag(tmp_path / "halfnan", grid_ns(), y=y)
+    target = ["--out", tmp_path / "out"] if command == "process" else ["--npz", tmp_path / "r.npz"]
+    code, _, err = run_cli(capsys, command, bag, *target, *(["--no-progress"] if command == "process" else []))
+    assert code == 0, err
+    assert ("most of the 300 samples stand alone between sample times whose messages were rejected "
+            "(300 with NaN or Inf values): the values, not sample_time_s, left them empty") in err, err
+    assert "is sample_time_s" not in err, err
