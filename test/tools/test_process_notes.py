@@ -116,3 +116,27 @@ def test_a_slow_grid_with_a_short_time_jump_blames_the_time_jump(tmp_path, capsy
     code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "r.npz", *options)
     assert code == 0 and "is sample_time_s" not in err, err
     assert (hint in err) if hint else not err, err
+
+
+def test_a_publish_rate_above_the_sampling_rate_is_said_up_front(tmp_path, capsys):
+    # 1000 Hz on a 125 Hz bag took 90 times as long as the default, with nothing said when stderr is
+    # not a terminal (no progress bar).
+    bag = write_io_bag(tmp_path / "bag", grid_ns(300))
+    code, _, err = process(capsys, bag, tmp_path, "--param", "publish_rate_hz=1000.0")
+    assert code == 0, err
+    assert err.startswith("okid-ros process: warning: publish_rate_hz 1000 is above the sampling rate 125 Hz: a model "
+                          "at every sample, about 300 ArxModel solved and each valid one realized, against about 2 at "
+                          "the default 1 Hz: process may take up to 125 times as long"), err
+
+
+@pytest.mark.parametrize("sample_time_s", [0.008, 1.0, 5.0])
+def test_the_default_publish_rate_is_not_warned_about_on_any_grid(tmp_path, capsys, sample_time_s):
+    # An earlier refusal of a rate at or above the sampling rate refused the default 1 Hz on slow grids.
+    bag = write_io_bag(tmp_path / "bag", START_NS + np.rint(np.arange(40) * sample_time_s * 1e9).astype(np.int64))
+    options = ["--param", f"sample_time_s={sample_time_s}", "--param", "inputs.time_jump_s=60.0"]
+    code, _, err = process(capsys, bag, tmp_path, *options)
+    assert code == 0 and "publish_rate_hz" not in err, err
+    if sample_time_s >= 1.0:  # the default is a model at every sample there already: any rate costs the same
+        code, _, err = run_cli(capsys, "process", bag, "--out", tmp_path / "o2", "--no-progress", *options,
+                               "--param", "publish_rate_hz=1000.0")
+        assert code == 0 and "publish_rate_hz" not in err, err
