@@ -54,6 +54,7 @@ from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
 from okid_ros.tools.output_paths import check_output_paths, check_replaceable, prepare_output
+from okid_ros.tools.source_check import bag_fingerprint
 
 __all__ = [
     "NodeInputs",
@@ -132,7 +133,7 @@ def process_bag(
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
-                record = {"source": str(bag_path),
+                record = {"source": str(bag_path), "source_files": bag_fingerprint(bag_path),  # checked by plot
                           "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
                           **(provenance or {})}
                 try:
