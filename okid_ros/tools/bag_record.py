@@ -82,7 +82,7 @@ class BagRecord:
         dt = self.record.sample_time_s
         notes = []
         if sum(self.rejected.values()):
-            hint = rejection_hint(self.rejected, dt, self.time_jump_s)
+            hint = rejection_hint(self.rejected, dt, messages=self.messages, time_jump_s=self.time_jump_s)
             notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]

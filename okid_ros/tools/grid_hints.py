@@ -28,19 +28,24 @@ def _question(sample_time_s: float) -> str:
     return f"is sample_time_s {sample_time_s:g} s right?"
 
 
-def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, time_jump_s: float | None = None) -> str:
+def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, *, messages: int,
+                   time_jump_s: float | None = None) -> str:
     """``"most fell between sample times: is sample_time_s 0.016 s right?"``, or "".
+
+    Said when one of these reasons holds most of the refusals and a quarter of the messages at
+    least (a stray duplicate or a loop's few stamps off the timeline are no sign of it).
 
     Parameters
     ----------
     rejected : messages the grid refused, by reason (``GridCounters.rejections``).
     sample_time_s : the grid's sample time.
+    messages : messages the grid was given.
     time_jump_s : the grid's ``inputs.time_jump_s``: when it is not above the sample time, every
         step of the stamps is a jump, and it is the one to change.
     """
     total = sum(rejected.values())
     for reason, where in _WHERE.items():
-        if rejected.get(reason, 0) > total // 2:
+        if rejected.get(reason, 0) > total // 2 and 4 * rejected[reason] >= messages:
             if reason == "off_timeline" and time_jump_s is not None and time_jump_s <= sample_time_s:
                 return (f"most fell more than inputs.time_jump_s {time_jump_s:g} s from the stamps before them, "
                         f"which is not above sample_time_s {sample_time_s:g} s: every step is a jump; raise "

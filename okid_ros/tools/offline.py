@@ -146,7 +146,8 @@ class ProcessSummary:
         from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
 
         by_reason = {key: self.grid_counters[key] for key in REJECTION_REASONS if self.grid_counters.get(key)}
-        hints = [rejection_hint(by_reason, self.sample_time_s, self.time_jump_s),
+        hints = [rejection_hint(by_reason, self.sample_time_s, messages=self.grid_counters.get("messages", 0),
+                                time_jump_s=self.time_jump_s),
                  stand_alone_hint(samples=self.samples, runs=self.runs, alone=self.alone_samples,
                                   present=self.samples, rejected=by_reason, sample_time_s=self.sample_time_s)]
         return [hint for hint in hints if hint]

@@ -140,3 +140,12 @@ def test_the_default_publish_rate_is_not_warned_about_on_any_grid(tmp_path, caps
         code, _, err = run_cli(capsys, "process", bag, "--out", tmp_path / "o2", "--no-progress", *options,
                                "--param", "publish_rate_hz=1000.0")
         assert code == 0 and "publish_rate_hz" not in err, err
+
+
+def test_a_stray_duplicate_is_no_sign_of_a_wrong_sample_time(tmp_path, capsys):
+    # "most fell in a sample time already taken" counted the refusals only: one duplicate in 600 asked
+    # whether sample_time_s was right, and process says its hints also when models came.
+    stamps = grid_ns()
+    stamps[300] = stamps[299]
+    code, _, err = run_cli(capsys, "export", write_io_bag(tmp_path / "bag", stamps), "--npz", tmp_path / "r.npz")
+    assert code == 0 and "1 duplicate" in err and "sample_time_s" not in err, err
