@@ -105,9 +105,12 @@ class ProcessSummary:
     def data_text(self) -> str:
         """``"20.0 s of data"``, with the stretches after the stamps went back and the gaps when there are any."""
         text = f"{self.data_duration_s:.1f} s of data"
-        if self.stretches > 1:
-            back = "once" if self.stretches == 2 else f"{self.stretches - 1} times"
-            text += f" in {self.stretches} stretches: the stamps went back in time {back}"
+        if self.stretches > 1:  # the grid started again: after a jump back in time, or re-anchored
+            again = self.stretches - 1
+            times = "once" if again == 1 else f"{again} times"
+            why = ("the stamps went back in time" if self.grid_counters.get("time_jumps") == again
+                   else "the grid started again (jumps back in time, re-anchorings)")
+            text += f" in {self.stretches} stretches: {why} {times}"
         if self.gap_s >= 0.05:
             text += f", and {self.gap_s:.1f} s of gaps without samples"
         return text
