@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import warnings
+from pathlib import Path
+from typing import Any
 
 from okid_ros.commands._args import int_between, namespace, path_text
 
@@ -52,14 +55,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from okid_ros.tools.bagio import TRUTH_KEY, open_bag
     from okid_ros.tools.errors import ToolParameterError
     from okid_ros.tools.output_paths import bag_folder, check_output_paths
-    from okid_ros.tools.plot_metadata import usable_truth
-    from okid_ros.tools.plots import add_measured_outputs, read_plot_data, write_figures
-    from okid_ros.tools.process import load_node_parameters
+    from okid_ros.tools.plots import read_plot_data, write_figures
 
     if _is_campaign(args.bag):
         return _plot_campaign(args)
@@ -73,25 +71,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
     info = data.process_info or {}
-    input_bag = args.input
-    if input_bag is None and info.get("source") and Path(info["source"]).exists():
-        input_bag = info["source"]
-    note = ""
-    if input_bag is not None:
-        if args.params or "parameters" not in info:
-            est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
-        else:
-            est_values = info["parameters"]["okid_modal_estimator"]
-        check_output_paths(Path(input_bag), "input bag", [(out_dir, "figure folder")])
-        if data.truth is None:
-            with open_bag(input_bag) as bag:
-                data.truth, why = usable_truth(bag.custom_json(TRUTH_KEY))
-            if why:
-                note += f"; the truth in {input_bag}'s metadata left out ({why})"
-        matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
-        note += f"; measured outputs from {input_bag} ({matched} samples)"
-    else:
-        note = "; no input bag: measured output drawn as y_estimated + innovation"
+    input_bag, est_values, note = _read_input_bag(args, data, out_dir)
     if info.get("interrupted"):
         note += "; the run that wrote the bag was interrupted: its models and modal states end early"
     from okid_ros.tools.plots import refuse_existing
@@ -133,6 +113,60 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple[str | None, dict | None, str]:
+    """The measured outputs (and the truth) from the input bag into ``data``: the bag, its parameters, a note.
+
+    The bag is ``--input``, else the source `process` recorded. A source that changed since
+    `process` read it is drawn with a warning; one whose samples lie apart from the run's is left
+    out with a warning, and ``--input`` such a bag is refused (it is another recording).
+    """
+    from okid_ros.errors import DataError, OkidWarning
+    from okid_ros.tools.bagio import TRUTH_KEY, open_bag
+    from okid_ros.tools.output_paths import check_output_paths
+    from okid_ros.tools.plot_metadata import usable_truth
+    from okid_ros.tools.plots import add_measured_outputs
+    from okid_ros.tools.process import load_node_parameters
+    from okid_ros.tools.source_check import changed_since, stamps_apart
+
+    info = data.process_info or {}
+    input_bag = args.input
+    if input_bag is None and info.get("source") and Path(info["source"]).exists():
+        input_bag = info["source"]
+    without = "; no input bag: measured output drawn as y_estimated + innovation"
+    if input_bag is None:
+        return None, None, without
+    if args.params or "parameters" not in info:
+        est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
+    else:
+        est_values = info["parameters"]["okid_modal_estimator"]
+    check_output_paths(Path(input_bag), "input bag", [(out_dir, "figure folder")])
+    if changed := changed_since(input_bag, info.get("source_files")):
+        warnings.warn(f"{input_bag}: not the bag `process` read ({changed}): the measured outputs, the truth and "
+                      "the FRF may be of another recording", OkidWarning, stacklevel=2)
+    note, truth, start_ns, run_span_ns = "", data.truth, data.experiment_start_ns, _run_span_ns(data)
+    if data.truth is None:
+        with open_bag(input_bag) as bag:
+            data.truth, why = usable_truth(bag.custom_json(TRUTH_KEY))
+        if why:
+            note += f"; the truth in {input_bag}'s metadata left out ({why})"
+    matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
+    if not matched and (apart := stamps_apart(data.measured_span_ns, run_span_ns)):
+        if args.input is not None:
+            raise DataError(f"--input {input_bag}: {apart}: another recording?")
+        warnings.warn(f"{input_bag}: {apart}: not drawn from", OkidWarning, stacklevel=2)
+        data.measured, data.truth, data.experiment_start_ns = None, truth, start_ns
+        return None, None, without
+    return input_bag, est_values, note + f"; measured outputs from {input_bag} ({matched} samples)"
+
+
+def _run_span_ns(data: Any) -> tuple:
+    """The first sample's and the last ModalStates' stamps [ns] of the run that wrote the bag, or ()."""
+    if not data.modal_stamp_ns:
+        return ()
+    first = data.experiment_start_ns if data.experiment_start_ns is not None else data.first_stamp_log_ns[0]
+    return first, data.modal_stamp_ns[-1]
+
+
 def _is_campaign(path: str) -> bool:
     from okid_ros.tools.campaign.runner import is_campaign_dir
 
@@ -141,8 +175,6 @@ def _is_campaign(path: str) -> bool:
 
 def _plot_campaign(args: argparse.Namespace) -> int:
     """A campaign directory of `okid-ros batch`: every mode id over the campaign."""
-    from pathlib import Path
-
     from okid_ros.tools.campaign.plot import write_campaign_figures
 
     out_dir = Path(args.out_dir) if args.out_dir else Path(args.bag) / "figures"

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     duration = summary.data_duration_s
     speed = duration / summary.elapsed_s if summary.elapsed_s > 0 else float("inf")
     print(f"processed {args.bag}: {summary.input_messages} messages, {summary.samples} samples "
-          f"({duration:.1f} s of data) in {summary.elapsed_s:.1f} s ({speed:.1f}x real time)")
+          f"({summary.data_text()}) in {summary.elapsed_s:.1f} s ({speed:.1f}x real time)")
     print(f"wrote {args.out}: {summary.arx_models} ArxModel ({summary.valid_arx_models} valid), "
           f"{summary.models} StateSpaceModel, {summary.modal_states} ModalStates"
           + (f"; {args.jsonl}: {len(summary.updates)} lines" if args.jsonl else ""))
@@ -88,12 +88,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         reason = summary.estimator_diagnostics.get("last_reason") or summary.arx_diagnostics.get("last_reason")
         period = 1.0 / float(arx_values["publish_rate_hz"])
-        if not reason and not summary.arx_models and duration < period:  # no ArxModel was ever due
+        span = summary.sample_span_s  # ArxModel are due by sample time, gaps included
+        if not reason and not summary.arx_models and span < period:  # no ArxModel was ever due
             reason = (f"no ArxModel was due: one every {period:g} s of sample time (publish_rate_hz), the bag's data "
-                      f"span {duration:.3g} s")
+                      f"span {span:.3g} s")
         print("no model was identified" + (f": {reason}" if reason else ""))
     note = summary.rejection_note()
-    if note and not summary.updates:  # the likely cause: say it
+    if note and (not summary.updates or summary.grid_hints()):  # the likely cause, or models of a wrong grid
         print(f"okid-ros process: warning: {note}", file=sys.stderr)
     return 0
 

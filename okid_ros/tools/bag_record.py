@@ -50,6 +50,7 @@ class BagRecord:
     runs: int
     messages: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
+    time_jump_s: float | None = None  # the grid's inputs.time_jump_s
 
     @property
     def samples_left_out(self) -> int:
@@ -76,23 +77,18 @@ class BagRecord:
         Also said when most samples stand alone between empty sample times: a sample time finer
         than the stamps' spacing refuses nothing but leaves every other slot empty.
         """
-        total = sum(self.rejected.values())
-        question = f"is sample_time_s {self.record.sample_time_s:g} s right?"
+        from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
+
+        dt = self.record.sample_time_s
         notes = []
-        if total:
-            note = _rejected_messages(self.rejected, self.messages)
-            # Several messages per slot, or stamps between slots: the grid's sample time is not the
-            # stamps' spacing.
-            where = {"duplicate": "in a sample time already taken", "off_grid": "between sample times"}
-            for reason, text in where.items():
-                if self.rejected.get(reason, 0) > total // 2:
-                    note += f"; most fell {text}: {question}"
-            notes.append(note)
+        if sum(self.rejected.values()):
+            hint = rejection_hint(self.rejected, dt, messages=self.messages, time_jump_s=self.time_jump_s)
+            notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
-        if self.samples_total >= 4 and (self.runs > self.samples_total // 2 or 2 * alone.sum() > present.sum()):
-            notes.append(f"most of the {self.samples_total} samples stand alone between empty sample times: {question}")
-        return "; ".join(notes)
+        notes.append(stand_alone_hint(samples=self.samples_total, runs=self.runs, alone=int(alone.sum()),
+                                      present=int(present.sum()), rejected=self.rejected, sample_time_s=dt))
+        return "; ".join(note for note in notes if note)
 
 
 def _rejected_messages(rejected: dict[str, int], messages: int, wrong_size_note: str = "") -> str:
@@ -136,14 +132,15 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
-        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections())
+        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections(),
+                         inputs.grid.time_jump_s)
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     grid.rejections())
+                     grid.rejections(), inputs.grid.time_jump_s)
 
 
 def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:

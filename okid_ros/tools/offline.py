@@ -50,10 +50,70 @@ class ProcessSummary:
     grid_counters: dict = field(default_factory=dict)
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
+    sample_time_s: float = math.nan  # node 1's grid
+    time_jump_s: float = math.inf  # its inputs.time_jump_s
+    stretches: int = 0  # runs of samples between the stamps' jumps back in time (1 without)
+    stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
+    gap_s: float = 0.0  # of it, the time between samples with no sample (beyond one sample time)
+    gaps: int = 0  # samples that follow missing ones
+    runs: int = 0  # contiguous runs of samples (a new one after a gap or a jump back)
+    alone: int = 0  # samples of a closed run of one (:attr:`alone_samples` counts the open one too)
+    _run_length: int = 0
+    longest_gap: tuple = ()  # (stamp before it [s], its length [s], samples missing in it)
+    _stretch_start_s: float = math.nan
 
     @property
     def data_duration_s(self) -> float:
-        return 0.0 if math.isnan(self.first_stamp_s) else self.last_stamp_s - self.first_stamp_s
+        """Seconds of data: the stamps the samples span, each stretch alone, without the gaps between them."""
+        return self.sample_span_s - self.gap_s
+
+    @property
+    def sample_span_s(self) -> float:
+        """Seconds of sample time the samples span (gaps included), each stretch alone."""
+        open_stretch = 0.0 if math.isnan(self._stretch_start_s) else self.last_stamp_s - self._stretch_start_s
+        return self.stamp_span_s + open_stretch
+
+    def add_sample(self, sample: Any) -> None:
+        """Count one sample of node 1's grid (a ``GridSample``): the stretches and gaps of its stamps."""
+        stamp = sample.stamp_s
+        self.samples += 1
+        if math.isnan(self.first_stamp_s):
+            self.first_stamp_s = stamp
+        if sample.restart or math.isnan(self._stretch_start_s):  # the start, or the stamps went back
+            if not math.isnan(self._stretch_start_s):
+                self.stamp_span_s += self.last_stamp_s - self._stretch_start_s
+            self._stretch_start_s = stamp
+            self.stretches += 1
+        elif sample.skipped > 0:
+            length = stamp - self.last_stamp_s
+            self.gap_s += max(0.0, length - self.sample_time_s)
+            self.gaps += 1
+            if not self.longest_gap or length > self.longest_gap[1]:
+                self.longest_gap = (self.last_stamp_s, length, int(sample.skipped))
+        if sample.gap_before:
+            self.runs += 1
+            self.alone += self._run_length == 1
+            self._run_length = 0
+        self._run_length += 1
+        self.last_stamp_s = stamp
+
+    @property
+    def alone_samples(self) -> int:
+        """Samples with a gap (or the start or end) on both sides."""
+        return self.alone + (self._run_length == 1)
+
+    def data_text(self) -> str:
+        """``"20.0 s of data"``, with the stretches after the stamps went back and the gaps when there are any."""
+        text = f"{self.data_duration_s:.1f} s of data"
+        if self.stretches > 1:  # the grid started again: after a jump back in time, or re-anchored
+            again = self.stretches - 1
+            times = "once" if again == 1 else f"{again} times"
+            why = ("the stamps went back in time" if self.grid_counters.get("time_jumps") == again
+                   else "the grid started again (jumps back in time, re-anchorings)")
+            text += f" in {self.stretches} stretches: {why} {times}"
+        if self.gap_s >= 0.05:
+            text += f", and {self.gap_s:.1f} s of gaps without samples"
+        return text
 
     @property
     def final_modes(self) -> list[dict]:
@@ -76,11 +136,38 @@ class ProcessSummary:
             return refused
         reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
                    for key in REJECTION_REASONS if counts.get(key)]
-        if counts.get("missing"):
-            reasons.append(f"{counts['missing']} samples dropped incomplete (missing)")
-        head = (f"all {messages} input messages were rejected" if rejected and rejected >= messages
+        missing = self._missing_text(counts.get("missing", 0), rejected)
+        head = (f"all {messages} input messages were rejected" if rejected >= messages
                 else f"{rejected} of the {messages} input messages were rejected")
-        return f"{head}: {', '.join(reasons)}" + (f"; {refused}" if refused else "")
+        # samples missing only: a gap in the recording, not a refusal ("0 of the ... rejected")
+        notes = [f"{head}: {', '.join(reasons + ([missing] if missing else []))}" if rejected else missing,
+                 *self.grid_hints(), refused]
+        return "; ".join(note for note in notes if note)
+
+    def grid_hints(self) -> list[str]:
+        """The likely cause when the messages do not fit node 1's grid (:mod:`okid_ros.tools.grid_hints`)."""
+        from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
+
+        by_reason = {key: self.grid_counters[key] for key in REJECTION_REASONS if self.grid_counters.get(key)}
+        hints = [rejection_hint(by_reason, self.sample_time_s, messages=self.grid_counters.get("messages", 0),
+                                time_jump_s=self.time_jump_s),
+                 stand_alone_hint(samples=self.samples, runs=self.runs, alone=self.alone_samples,
+                                  present=self.samples, rejected=by_reason, sample_time_s=self.sample_time_s)]
+        return [hint for hint in hints if hint]
+
+    def _missing_text(self, missing: int, rejected: int) -> str:
+        """"N samples missing", with the gaps that hold them ("" when none)."""
+        if not missing:
+            return ""
+        if not self.longest_gap:
+            return f"{missing} samples dropped incomplete (missing)"
+        before_s, length_s, skipped = self.longest_gap
+        kind = "without a sample" if rejected else "with no messages"  # rejected messages leave gaps too
+        after = f"after the stamp {before_s:.3f} s"
+        if 2 * skipped >= missing:
+            most = "" if skipped >= missing else f"{skipped} in "
+            return f"{missing} samples missing: {most}a gap of {length_s:.6g} s {kind} {after}"
+        return f"{missing} samples missing in {self.gaps} gaps {kind}, the longest {length_s:.6g} s {after}"
 
 
 class NodeInputs:
@@ -181,7 +268,9 @@ class OfflineNodes:
             raise ParameterError(str(exc)) from None
         self.arx, self.est = self.pipeline.arx, self.pipeline.est
         # The JSON lines and change records are the pipeline's (one serializer).
-        self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes)
+        self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes,
+                                      sample_time_s=self.arx_inputs.grid.sample_time_s,
+                                      time_jump_s=self.arx_inputs.grid.time_jump_s)
         self._mode_msgs: list = []
         self.frame_ids = (str(arx_values["frame_id"]), str(est_values["frame_id"]))
 
@@ -273,10 +362,7 @@ class OfflineNodes:
         s = self.summary
         out: list[tuple[str, Any]] = []
         for sample in samples:
-            s.samples += 1
-            if math.isnan(s.first_stamp_s):
-                s.first_stamp_s = sample.stamp_s
-            s.last_stamp_s = sample.stamp_s
+            s.add_sample(sample)
             snapshot = self.pipeline.identify(sample)
             if snapshot is None:
                 continue

@@ -100,6 +100,7 @@ class PlotData:
     innovation: list = field(default_factory=list)
     measured: list | None = None  # (p,) measured outputs per recent sample (nan if not found)
     measured_source: str = ""
+    measured_span_ns: tuple = ()  # earliest and latest stamp of the input bag's samples
     process_info: dict | None = None
     truth: dict | None = None
     counts: dict = field(default_factory=dict)
@@ -226,20 +227,14 @@ def add_measured_outputs(
     wanted = sorted(set(data.modal_stamp_ns))
     tolerance_ns = 2_000
     found: dict[int, np.ndarray] = {}
-    first_ns: list[int] = []
+    first_ns, span_ns = None, [math.inf, -math.inf]  # the first sample's stamp; the earliest and the latest
     with open_bag(input_bag) as bag:
         for spec in inputs.specs:
             bag.require_topic(spec.topic, [spec.msg_type])
-        for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
-            for sample in inputs.add(topic, msg, log_ns * 1e-9):
-                stamp_ns = sample.stamp_s * 1e9
-                if not first_ns:
-                    first_ns.append(int(round(stamp_ns)))
-                i = bisect.bisect_left(wanted, stamp_ns - tolerance_ns)
-                if i < len(wanted) and abs(wanted[i] - stamp_ns) <= tolerance_ns:
-                    found[wanted[i]] = sample.y
-        for sample in inputs.grid.flush():
+        for sample in _bag_samples(bag, inputs):
             stamp_ns = sample.stamp_s * 1e9
+            first_ns = stamp_ns if first_ns is None else first_ns
+            span_ns = [min(span_ns[0], stamp_ns), max(span_ns[1], stamp_ns)]
             i = bisect.bisect_left(wanted, stamp_ns - tolerance_ns)
             if i < len(wanted) and abs(wanted[i] - stamp_ns) <= tolerance_ns:
                 found[wanted[i]] = sample.y
@@ -247,9 +242,18 @@ def add_measured_outputs(
     missing = np.full(p, np.nan)
     data.measured = [found.get(stamp, missing) for stamp in data.modal_stamp_ns]
     data.measured_source = str(input_bag)
-    if data.experiment_start_ns is None and first_ns:
-        data.experiment_start_ns = first_ns[0]
+    if first_ns is not None:
+        data.measured_span_ns = (int(round(span_ns[0])), int(round(span_ns[1])))
+        if data.experiment_start_ns is None:
+            data.experiment_start_ns = int(round(first_ns))
     return len(found)
+
+
+def _bag_samples(bag, inputs):
+    """Every sample the input sources make of the bag, those still pending at its end too."""
+    for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
+        yield from inputs.add(topic, msg, log_ns * 1e-9)
+    yield from inputs.grid.flush()
 
 
 def _truth_matrices(truth: dict | None) -> dict | None:

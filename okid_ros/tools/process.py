@@ -36,11 +36,12 @@ import math
 import shutil
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import ParameterError, is_special_file
+from okid_ros.errors import OkidWarning, ParameterError, is_special_file
 from okid_ros.jsonio import JsonLines, dumps
 from okid_ros.tools.bagio import (
     PROCESS_KEY,
@@ -53,6 +54,7 @@ from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
 from okid_ros.tools.output_paths import check_output_paths, check_replaceable, prepare_output
+from okid_ros.tools.source_check import bag_fingerprint
 
 __all__ = [
     "NodeInputs",
@@ -119,7 +121,7 @@ def process_bag(
     created: list[Path] = []
     try:
         with open_bag(bag_path) as bag:
-            total, truth = _check_input(bag, bag_path, nodes)
+            total, truth = _check_input(bag, bag_path, nodes, arx_values)
             # Outputs are created only once the input is known to be usable.
             writer = BagWriter(out_path, storage=storage, force=force)
             created.append(out_path)
@@ -131,7 +133,7 @@ def process_bag(
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
-                record = {"source": str(bag_path),
+                record = {"source": str(bag_path), "source_files": bag_fingerprint(bag_path),  # checked by plot
                           "parameters": {"okid_arx_identifier": arx_values, "okid_modal_estimator": est_values},
                           **(provenance or {})}
                 try:
@@ -150,6 +152,31 @@ def process_bag(
         _remove(created)  # no half-written outputs after an error
         raise
     return summary
+
+
+def publish_rate_warning(arx_values: dict, samples: int) -> str:
+    """What a ``publish_rate_hz`` at or above the sampling rate costs, when the default rate is below it ("" else).
+
+    Offline an ArxModel is due every ``1 / publish_rate_hz`` s of sample time, and each valid one
+    is realized: at or above the sampling rate, at every sample, which makes `process` many times
+    slower than the default rate. On a slow grid (a sample time of ``1 / default`` or more) the
+    default is a model at every sample already, and any rate costs the same: nothing said.
+
+    Parameters
+    ----------
+    arx_values : node 1's resolved parameters.
+    samples : about how many samples the bag makes (its messages on the busiest input topic).
+    """
+    from okid_ros.service.params import ARX_NODE, node_params
+
+    rate, dt = float(arx_values["publish_rate_hz"]), float(arx_values["sample_time_s"])
+    default = float(next(spec.default for spec in node_params(ARX_NODE) if spec.name == "publish_rate_hz"))
+    if default * dt >= 1.0 or rate * dt < 1.0 - 1e-9:
+        return ""
+    where = "at" if math.isclose(rate * dt, 1.0) else "above"
+    return (f"publish_rate_hz {rate:g} is {where} the sampling rate {1.0 / dt:g} Hz: a model at every sample, about "
+            f"{samples} ArxModel solved and each valid one realized, against about {samples * dt * default:.0f} at the "
+            f"default {default:g} Hz: process may take up to {1.0 / (dt * default):.3g} times as long")
 
 
 def _with_samples(summary: ProcessSummary, bag_path: Path) -> ProcessSummary:
@@ -204,13 +231,19 @@ def _check_topic_types(nodes: OfflineNodes) -> None:
                                  "two message types; give them different topic names")
 
 
-def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes) -> tuple[int, Any]:
-    """The number of input messages and the simulation truth of the bag; BagReadError if unusable."""
+def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes, arx_values: dict) -> tuple[int, Any]:
+    """The number of input messages and the simulation truth of the bag; BagReadError if unusable.
+
+    Warns up front when ``publish_rate_hz`` makes the run slow (:func:`publish_rate_warning`).
+    """
     for topic, msgtype in nodes.input_topics.items():
         bag.require_topic(topic, [msgtype])
     total = bag.message_count(nodes.input_topics)
     if total == 0:
         raise BagReadError(f"{bag_path}: the input topics {', '.join(nodes.input_topics)} have no messages")
+    samples = max(bag.message_count([topic]) for topic in nodes.input_topics)  # one message per sample
+    if warning := publish_rate_warning(arx_values, samples):
+        warnings.warn(warning, OkidWarning, stacklevel=3)
     return total, bag.custom_data.get(TRUTH_KEY)
 
 
