@@ -50,7 +50,6 @@ class BagRecord:
     runs: int
     messages: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
-    time_jump_s: float | None = None  # the grid's inputs.time_jump_s
 
     @property
     def samples_left_out(self) -> int:
@@ -82,7 +81,7 @@ class BagRecord:
         dt = self.record.sample_time_s
         notes = []
         if sum(self.rejected.values()):
-            hint = rejection_hint(self.rejected, dt, messages=self.messages, time_jump_s=self.time_jump_s)
+            hint = rejection_hint(self.rejected, dt, messages=self.messages)
             notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
@@ -132,15 +131,14 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
-        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections(),
-                         inputs.grid.time_jump_s)
+        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections())
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     grid.rejections(), inputs.grid.time_jump_s)
+                     grid.rejections())
 
 
 def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:

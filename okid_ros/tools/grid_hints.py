@@ -19,7 +19,7 @@ __all__ = ["rejection_hint", "stand_alone_hint"]
 
 #: Refusals a wrong sample_time_s causes, when they are most of them: where those messages fell.
 _WHERE = {"duplicate": "in a sample time already taken", "off_grid": "between sample times",
-          "off_timeline": "more than inputs.time_jump_s from the stamps before them"}
+          "off_timeline": "more than the time-jump threshold from the stamps before them"}
 #: Refusals for a message's values: the sample times they leave empty are the data's doing.
 _VALUES = {"nonfinite": "with NaN or Inf values", "wrong_size": "of the wrong size"}
 
@@ -28,8 +28,7 @@ def _question(sample_time_s: float) -> str:
     return f"is sample_time_s {sample_time_s:g} s right?"
 
 
-def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, *, messages: int,
-                   time_jump_s: float | None = None) -> str:
+def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, *, messages: int) -> str:
     """``"most fell between sample times: is sample_time_s 0.016 s right?"``, or "".
 
     Said when one of these reasons holds most of the refusals and a quarter of the messages at
@@ -40,16 +39,13 @@ def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, *, message
     rejected : messages the grid refused, by reason (``GridCounters.rejections``).
     sample_time_s : the grid's sample time.
     messages : messages the grid was given.
-    time_jump_s : the grid's ``inputs.time_jump_s``: when it is not above the sample time, every
-        step of the stamps is a jump, and it is the one to change.
+
+    A ``inputs.time_jump_s`` at or below the sample time is no cause: the grid's threshold is at
+    least ``inputs.latency_samples + 2`` sample times (:func:`~okid_ros.service.stamp_steps.least_time_jump_s`).
     """
     total = sum(rejected.values())
     for reason, where in _WHERE.items():
         if rejected.get(reason, 0) > total // 2 and 4 * rejected[reason] >= messages:
-            if reason == "off_timeline" and time_jump_s is not None and time_jump_s <= sample_time_s:
-                return (f"most fell more than inputs.time_jump_s {time_jump_s:g} s from the stamps before them, "
-                        f"which is not above sample_time_s {sample_time_s:g} s: every step is a jump; raise "
-                        "inputs.time_jump_s")
             return f"most fell {where}: {_question(sample_time_s)}"
     return ""
 

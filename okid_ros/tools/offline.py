@@ -51,7 +51,6 @@ class ProcessSummary:
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
     sample_time_s: float = math.nan  # node 1's grid
-    time_jump_s: float = math.inf  # its inputs.time_jump_s
     stretches: int = 0  # runs of samples between the stamps' jumps back in time (1 without)
     stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
     gap_s: float = 0.0  # of it, the time between samples with no sample (beyond one sample time)
@@ -149,8 +148,7 @@ class ProcessSummary:
         from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
 
         by_reason = {key: self.grid_counters[key] for key in REJECTION_REASONS if self.grid_counters.get(key)}
-        hints = [rejection_hint(by_reason, self.sample_time_s, messages=self.grid_counters.get("messages", 0),
-                                time_jump_s=self.time_jump_s),
+        hints = [rejection_hint(by_reason, self.sample_time_s, messages=self.grid_counters.get("messages", 0)),
                  stand_alone_hint(samples=self.samples, runs=self.runs, alone=self.alone_samples,
                                   present=self.samples, rejected=by_reason, sample_time_s=self.sample_time_s)]
         return [hint for hint in hints if hint]
@@ -269,8 +267,7 @@ class OfflineNodes:
         self.arx, self.est = self.pipeline.arx, self.pipeline.est
         # The JSON lines and change records are the pipeline's (one serializer).
         self.summary = ProcessSummary(updates=self.pipeline.updates, changes=self.pipeline.changes,
-                                      sample_time_s=self.arx_inputs.grid.sample_time_s,
-                                      time_jump_s=self.arx_inputs.grid.time_jump_s)
+                                      sample_time_s=self.arx_inputs.grid.sample_time_s)
         self._mode_msgs: list = []
         self.frame_ids = (str(arx_values["frame_id"]), str(est_values["frame_id"]))
 

@@ -103,19 +103,16 @@ def test_every_other_message_nan_is_blamed_on_the_values_not_the_sample_time(tmp
     assert "is sample_time_s" not in err, err
 
 
-@pytest.mark.parametrize("time_jump_s, hint", [
-    ("1.0", "most fell more than inputs.time_jump_s 1 s from the stamps before them, which is not above "
-            "sample_time_s 5 s: every step is a jump; raise inputs.time_jump_s"),
-    ("60.0", None),
-])
-def test_a_slow_grid_with_a_short_time_jump_blames_the_time_jump(tmp_path, capsys, time_jump_s, hint):
-    # A structure sampled at 0.2 Hz: the default inputs.time_jump_s of 1 s made every step a jump; the
-    # hint asked whether sample_time_s was right (it was).
+@pytest.mark.parametrize("time_jump_s", ["1.0", "60.0"])
+def test_a_slow_grid_takes_every_sample_whatever_the_time_jump(tmp_path, capsys, time_jump_s):
+    # A structure sampled at 0.2 Hz: the default inputs.time_jump_s of 1 s made every step a jump and the
+    # hint asked whether sample_time_s was right (it was); the grid's threshold is now at least
+    # latency + 2 sample times, so every sample is taken and nothing needs saying.
     bag = write_io_bag(tmp_path / "slow", START_NS + np.arange(40) * 5 * 10**9)
     options = ["--param", "sample_time_s=5.0", "--param", f"inputs.time_jump_s={time_jump_s}"]
     code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "r.npz", *options)
-    assert code == 0 and "is sample_time_s" not in err, err
-    assert (hint in err) if hint else not err, err
+    assert code == 0 and not err, err
+    assert np.load(tmp_path / "r.npz")["y"].shape[0] == 40
 
 
 def test_a_publish_rate_above_the_sampling_rate_is_said_up_front(tmp_path, capsys):
