@@ -124,6 +124,11 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
         except KeyboardInterrupt:
             print(f"{PROG} {command}: interrupted", file=sys.stderr)
             return 130
+        except BrokenPipeError:
+            # The reader of the output went away (`okid-ros identify ... | head -1`): end silently with
+            # 128 + SIGPIPE as a piped Unix tool does, after the outputs the command wrote so far.
+            _stdout_to_devnull()
+            return 128 + signal.SIGPIPE
         except MemoryError:
             print(f"{PROG} {command}: error: out of memory (the data or the options need more memory than "
                   f"this machine has; try a shorter record or smaller orders)", file=sys.stderr)
@@ -155,6 +160,17 @@ def _terminate_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def _stdout_to_devnull() -> None:
+    """Point the process's stdout at /dev/null: the flush at exit would meet the broken pipe again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # a captured stdout (tests): nothing to redirect
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def _naming_source(exc: OkidError, source: str | None) -> str:

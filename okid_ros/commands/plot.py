@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
 
             from_bag = record_from_bag(input_bag, est_values)
             u, y = from_bag.record.u, from_bag.record.y
-            note += f"; FRF from {from_bag.summary()}"
+            if u.shape[1]:  # output-only: no inputs, no FRF drawn
+                note += f"; FRF from {from_bag.summary()}"
         reference, why_not = _truth_reference(data.truth, view.C.shape[0])
         note += why_not
         written += write_validation_figures(view, u, y, out_dir, force=args.force, pairs=pairs,
@@ -132,7 +133,7 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
     input_bag = args.input
     if input_bag is None and info.get("source") and Path(info["source"]).exists():
         input_bag = info["source"]
-    without = "; no input bag: measured output drawn as y_estimated + innovation"
+    without = "; no input bag: measured output drawn as the one-step prediction + innovation"
     if input_bag is None:
         return None, None, without
     if args.params or "parameters" not in info:

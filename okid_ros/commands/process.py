@@ -20,7 +20,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description="Read the nodes' input topics (inputs.sources of the parameter file) from a rosbag2 "
         "(sqlite3 or MCAP, any writer) or ROS 1 bag, run the identification and estimation services as "
         "the nodes do (ArxModel every 1/publish_rate_hz seconds of sample time, each valid one realized "
-        "at once) and write /okid/arx_model, /okid/state_space_model and /okid/modal_states (topic names "
+        "at once) and write /okid/arx_model, /okid/state_space_model, /okid/modal_states and "
+        "/okid/structural_change (topic names "
         "from the parameters) to a new bag. Existing outputs are never replaced without --force.",
     )
     parser.add_argument("bag", type=path_text, help="input bag directory, .mcap or .db3 file")

@@ -1,7 +1,7 @@
 """`okid-ros record OUT [--namespace NS] [--inputs] [--duration S]`: the nodes' topics to a bag.
 
 Like ``ros2 bag record`` for one rig: subscribes the nodes' outputs (``arx_model``,
-``state_space_model``, ``modal_states`` in the rig namespace) and ``/diagnostics`` (and with
+``state_space_model``, ``modal_states``, ``structural_change`` in the rig namespace) and ``/diagnostics`` (and with
 ``--inputs`` the rig's ``io_sample``) and writes every message as it arrived (serialized bytes,
 receive time as log time) to a new rosbag2 until Ctrl-C or ``--duration``. An existing output is
 never replaced without ``--force``.
@@ -20,7 +20,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "record",
         help="record the nodes' topics (models, modal states, diagnostics) to a new bag until Ctrl-C",
         description="Subscribe the output topics of both nodes of one rig (NS/arx_model, NS/state_space_model, "
-        "NS/modal_states; NS is /okid by default) and /diagnostics, and write every message to a new rosbag2 "
+        "NS/modal_states, NS/structural_change; NS is /okid by default) and /diagnostics, and write every message "
+        "to a new rosbag2 "
         "as received, like `ros2 bag record`. Stops on Ctrl-C or after --duration seconds. Never replaces an "
         "existing output without --force.",
     )

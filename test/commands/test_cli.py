@@ -161,3 +161,25 @@ def test_a_usage_error_is_one_line_as_every_other_error(capsys: pytest.CaptureFi
     err = capsys.readouterr().err
     assert exited.value.code == 2 and err.count("\n") == 1 and err.startswith(words), err
     assert err.rstrip().endswith(f"(see {words.split(': error')[0]} --help)")
+
+
+def test_a_reader_that_goes_away_ends_the_command_as_a_piped_tool(tmp_path) -> None:
+    # `okid-ros identify ... | head -1` was "internal error ... BrokenPipeError", exit 70, after the JSON.
+    import numpy as np
+
+    from okid_ros.sim.inputs import lowpass_input
+    from okid_ros.sim.paper_model import paper_model
+    from okid_ros.sim.simulators import simulate_innovation
+
+    truth = paper_model()
+    u = lowpass_input(1500, 2, 15.0, truth.sample_time_s, seed=3)
+    y, _ = simulate_innovation(truth, u, seed=4)
+    np.savez(tmp_path / "run.npz", u=u, y=y, sample_time_s=truth.sample_time_s)
+    command = [sys.executable, "-m", "okid_ros.cli", "identify", str(tmp_path / "run.npz"), "--order", "20",
+               "--json", str(tmp_path / "model.json")]
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child.stdout.close()  # the reader is gone before the report is printed
+    _, err = child.communicate(timeout=120)
+    assert child.returncode == 141, err.decode()  # 128 + SIGPIPE, as `yes | head -1` leaves `yes`
+    assert err.decode() == ""
+    assert (tmp_path / "model.json").is_file()
