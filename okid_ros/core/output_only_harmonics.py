@@ -141,10 +141,12 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
         harmonic force, part of what the model must explain, and stays.
     """
     mean = y.mean(axis=0)
-    found = find_harmonics(y - mean, sample_time_s)
+    scale = _power_of_two(y - mean)  # exact: the spectra's squares neither overflow nor underflow
+    found = find_harmonics((y - mean) / scale, sample_time_s)
     measured = u is not None and u.shape[1] > 0
     if found and measured and u.shape[0] >= 8 * _RING_OUTER:
-        ratio = _line_ratios(u - u.mean(axis=0))[2]
+        centred = u - u.mean(axis=0)
+        ratio = _line_ratios(centred / _power_of_two(centred))[2]
         duration_s = y.shape[0] * sample_time_s
         lobe = [np.arange(round(h.frequency_hz * duration_s) - 2, round(h.frequency_hz * duration_s) + 3)
                 for h in found]
@@ -154,8 +156,14 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
         return y, []
     listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
     where = " (not a mode; the inputs hold no such line)" if measured else " (not a mode)"
-    return mean + remove_harmonics(y - mean, sample_time_s, found), [
+    return mean + scale * remove_harmonics((y - mean) / scale, sample_time_s, found), [
         f"harmonic disturbance removed before identification{where}: {listed}"]
+
+
+def _power_of_two(x: np.ndarray) -> float:
+    """The power of two nearest the largest magnitude of ``x`` (1 for an empty or all-zero ``x``)."""
+    peak = float(np.max(np.abs(x), initial=0.0))
+    return float(2.0 ** np.round(np.log2(peak))) if 0.0 < peak < np.inf else 1.0
 
 
 def _band_kurtosis(raw: np.ndarray, direction: np.ndarray, k: int, n: int) -> float:
