@@ -51,7 +51,6 @@ from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import attach_jackknife_std
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
 from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
-from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.record_checks import check_record_length, checked_record
 from okid_ros.core.refine import refine_prediction_error, refinement_flops, refinement_size
 from okid_ros.core.refit import PredictorFit
@@ -406,10 +405,8 @@ def identify(
     """
     options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
                                           options=options or RealizationOptions(), changes=option_changes)
-    u, y, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove")
-    if valid is None:  # a disturbance's harmonic lines (the spectrum wants an unbroken record)
-        y, removed = without_harmonics(y, sample_time_s, u=u)
-        fault_warnings += removed
+    u, y, valid, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove",
+                                                sample_time_s=sample_time_s, leave_out_clipped=method == "okid")
     p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).

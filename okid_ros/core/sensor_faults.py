@@ -16,7 +16,10 @@ Two faults of real records that the identification cannot tell from dynamics:
 - **Clipping**, a channel held at the end of its range (a sensor or recorder saturating): the
   flat tops are a nonlinearity whose harmonics the linear model lists as modes (an output of
   the paper's structure clipped at 80 % of its peak, 3 % of its samples: two spurious modes
-  at 18.1 and 29.7 Hz). It cannot be undone; it is named in a warning.
+  at 18.1 and 29.7 Hz). The clipped samples are no measurement of the response: ``identify``
+  leaves them out as missing samples, which the chain fills by prediction as it fills a
+  record's gaps (:mod:`.gap_fill`: runs of at most 10, a tenth of the record); beyond that,
+  and in the routes that cannot leave samples out, they are only named.
 
 ``scipy.signal.detrend`` removes a line too, but neither keeps the mean nor fits only the
 samples present; the least-squares line is two sums per channel.
@@ -27,8 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.excitation import frozen_output_warnings
+from okid_ros.core.gap_fill import missing_problem
+from okid_ros.core.output_only_harmonics import without_harmonics
 
-__all__ = ["TREND_SHARE", "clipping_warnings", "record_faults", "remove_trends"]
+__all__ = ["TREND_SHARE", "clipped_samples", "record_faults", "remove_trends"]
 
 #: A channel's least-squares line is removed (and named) when it holds this share of its variance.
 TREND_SHARE = 0.02
@@ -44,18 +49,45 @@ CLIP_PILE_UP = 5.0
 CLIP_MIN_LEVELS = 16
 
 
-def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None,
-                  detrend: bool = True) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """A record's stalled samples and clipped channels named, then its trends removed (``detrend``) or only named.
+def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None, detrend: bool = True,
+                  sample_time_s: float | None = None, leave_out_clipped: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[str]]:
+    """A record's faults named and, where the chain can, taken out: ``(u, y, valid, warnings)``.
 
-    ``u`` (N, m), ``y`` (N, p) -> ``(u, y, warnings)``; the held values and the flat tops are
-    judged on the raw values (a removed trend would tilt them).
+    In this order (each judged on what the one before leaves): stalled samples and clipped
+    channels named, on the raw values (a removed trend or sinusoid would tilt the flat tops);
+    trends removed (``detrend``) or only named, fitted without the clipped samples; with
+    ``sample_time_s`` and no missing sample, the outputs' harmonic lines that the inputs do not
+    hold removed (:func:`.output_only_harmonics.without_harmonics`); with ``leave_out_clipped``
+    the clipped samples marked missing (``valid`` False, values 0 as
+    :func:`.gap_fill.mark_missing` leaves them), for the chain to fill by prediction, when
+    :func:`.gap_fill.missing_problem` allows it (else they stay, named).
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) the record, 0 at missing samples; valid : (N,) bool or None (none missing).
     """
-    warnings = frozen_output_warnings(y) + clipping_warnings(u, "input", valid=valid)
-    warnings += clipping_warnings(y, "output", valid=valid)
-    u, u_trends = remove_trends(u, "input", valid=valid, remove=detrend)
-    y, y_trends = remove_trends(y, "output", valid=valid, remove=detrend)
-    return u, y, warnings + u_trends + y_trends
+    warnings = frozen_output_warnings(y)
+    u_clipped, u_named = clipped_samples(u, "input", valid=valid)
+    y_clipped, y_named = clipped_samples(y, "output", valid=valid)
+    clipped = u_clipped | y_clipped
+    present = valid if not clipped.any() else (np.ones(y.shape[0], dtype=bool) if valid is None else valid) & ~clipped
+    u, u_trends = remove_trends(u, "input", valid=present, remove=detrend)
+    y, y_trends = remove_trends(y, "output", valid=present, remove=detrend)
+    harmonics = []
+    if sample_time_s is not None and valid is None:
+        y, harmonics = without_harmonics(y, sample_time_s, u=u)
+    outcome = "the model may list spurious modes from it"
+    if clipped.any() and leave_out_clipped:
+        problem = missing_problem(present)
+        if not problem:
+            valid, u, y = present, np.where(present[:, None], u, 0.0), np.where(present[:, None], y, 0.0)
+            outcome = (f"its samples there are left out as missing and filled by prediction "
+                       f"({np.count_nonzero(clipped)} in all)")
+        else:
+            outcome += f" (too many to leave out: {problem})"
+    named = [f"{text}; {outcome}" for text in u_named + y_named]
+    return u, y, valid, warnings + named + u_trends + y_trends + harmonics
 
 
 def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
@@ -105,35 +137,44 @@ def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
     return out, warnings
 
 
-def clipping_warnings(x: np.ndarray, name: str, *, valid: np.ndarray | None = None) -> list[str]:
-    """A warning per channel of ``x`` (N, k) held at an end of its range in many samples; [] otherwise.
+def clipped_samples(x: np.ndarray, name: str, *, valid: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """The samples at which a channel of ``x`` (N, k) is held at an end of its range, and a description per channel.
 
     The test (module docstring): one of the channel's extreme values holds at least
     :data:`CLIP_SHARE` of the samples present and :data:`CLIP_MIN_SAMPLES`, in at least
     :data:`CLIP_MIN_RUNS` runs, :data:`CLIP_PILE_UP` times as many as the next value inward,
     in a channel of at least :data:`CLIP_MIN_LEVELS` distinct values.
+
+    Returns
+    -------
+    (N,) bool, True where a clipped channel sits at its clipped value (missing samples never);
+    ``"output 0 is clipped (...): 1.5 % of its samples sit at its largest value 57.6 (23 times)"``
+    per clipped channel, without what is done about it.
     """
-    present = x if valid is None else x[np.asarray(valid, dtype=bool)]
-    n = present.shape[0]
+    rows = np.arange(x.shape[0]) if valid is None else np.flatnonzero(valid)
+    clipped = np.zeros(x.shape[0], dtype=bool)
+    n = rows.size
     if n == 0:
-        return []
+        return clipped, []
     least = max(CLIP_MIN_SAMPLES, CLIP_SHARE * n)
-    warnings = []
-    for i in range(present.shape[1]):
-        column = present[:, i]
+    described = []
+    for i in range(x.shape[1]):
+        column = x[rows, i]
         ends = [(end, column == end) for end in (column.max(), column.min())]
         if all(np.count_nonzero(at) < least for _, at in ends):  # the common case: one pass, no sort
             continue
         levels, counts = np.unique(column, return_counts=True)
         if levels.size < CLIP_MIN_LEVELS:
             continue
-        for (end, at), inward in zip(ends, (counts[-2], counts[1])):
+        held_ends = []
+        for (end, at), inward, side in zip(ends, (counts[-2], counts[1]), ("largest", "smallest")):
             held = np.count_nonzero(at)
             runs = np.count_nonzero(np.diff(at.astype(np.int8), prepend=0) == 1)
             if held >= least and runs >= CLIP_MIN_RUNS and held >= CLIP_PILE_UP * inward:
-                warnings.append(f"{name} {i} is clipped: {100 * held / n:.1f} % of its samples sit at "
-                                f"{'its largest' if end == levels[-1] else 'its smallest'} value {end:.6g} "
-                                f"({runs} times; a sensor's or recorder's range exceeded?); the model may "
-                                f"list spurious modes from it")
-                break
-    return warnings
+                clipped[rows[at]] = True
+                held_ends.append(f"{100 * held / n:.1f} % of its samples sit at its {side} value {end:.6g} "
+                                 f"({runs} times)")
+        if held_ends:
+            described.append(f"{name} {i} is clipped (a sensor's or recorder's range exceeded?): "
+                             f"{' and '.join(held_ends)}")
+    return clipped, described

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify
-from okid_ros.core.sensor_faults import TREND_SHARE, clipping_warnings, record_faults, remove_trends
+from okid_ros.core.sensor_faults import TREND_SHARE, clipped_samples, record_faults, remove_trends
 from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.models import modal_structure
 from okid_ros.sim.paper_model import paper_model
@@ -63,7 +63,9 @@ def test_stationary_records_are_left_as_they_are(paper_record) -> None:
     for x, name in ((u, "input"), (y, "output")):
         same, warnings = remove_trends(x, name)
         assert same is x and warnings == []
-    assert clipping_warnings(u, "input") == [] and clipping_warnings(y, "output") == []
+    for x, name in ((u, "input"), (y, "output")):
+        clipped, named = clipped_samples(x, name)
+        assert not clipped.any() and named == []
 
 
 def test_the_line_is_fitted_to_the_samples_present_and_the_mean_kept() -> None:
@@ -98,17 +100,24 @@ def test_a_removed_line_leaves_no_slope_and_the_mean(n, slope, scale, seed) -> N
         assert out is x
 
 
-def test_a_clipped_output_is_named_with_its_share(paper_record) -> None:
+def test_a_clipped_output_is_named_and_its_clipped_samples_left_out(paper_record, clean_modes) -> None:
+    # Output 0 clipped at 80 % of its peak: kept, its flat tops gave modes at 18.1 and 29.7 Hz.
     u, y = paper_record
     level = 0.8 * np.abs(y[:, 0]).max()
     clipped = y.copy()
     clipped[:, 0] = np.clip(y[:, 0], -level, level)
     model = identify(u, clipped, DT)
     named = [w for w in model.warnings if "clipped" in w]
-    assert len(named) == 1 and named[0].startswith("output 0 is clipped:")
-    held = np.count_nonzero(np.abs(clipped[:, 0]) == level)
-    assert f"{100 * np.count_nonzero(clipped[:, 0] == clipped[:, 0].max()) / y.shape[0]:.1f} %" in named[0]
-    assert held >= 5
+    at_top = np.count_nonzero(clipped[:, 0] == level)
+    assert len(named) == 1 and named[0].startswith(
+        f"output 0 is clipped (a sensor's or recorder's range exceeded?): {100 * at_top / y.shape[0]:.1f} % of its "
+        "samples sit at its largest value")
+    left_out = np.count_nonzero(np.abs(clipped[:, 0]) >= level)
+    assert named[0].endswith(f"left out as missing and filled by prediction ({left_out} in all)")
+    np.testing.assert_allclose(sorted(m.frequency_hz for m in model.modes), clean_modes, rtol=5e-3)
+    # Where samples cannot be left out (the paper's method, the output-only route): named only.
+    _, _, valid, warnings = record_faults(u, clipped, leave_out_clipped=False)
+    assert valid is None and warnings[0].endswith("the model may list spurious modes from it")
 
 
 def test_two_level_and_quantized_signals_are_not_clipped() -> None:
@@ -117,20 +126,22 @@ def test_two_level_and_quantized_signals_are_not_clipped() -> None:
     slow_sine = np.round(1000 * np.sin(2 * np.pi * 0.5 * t))[:, None]  # dwells at its top count each period
     rng = np.random.default_rng(2)
     quantized = np.round(200 * rng.standard_normal((20000, 1)))
-    assert clipping_warnings(prbs, "input") == []
-    assert clipping_warnings(slow_sine, "output") == []
-    assert clipping_warnings(quantized, "output") == []
-    # The same quantized record clipped at a converter's rail is named.
+    for x, name in ((prbs, "input"), (slow_sine, "output"), (quantized, "output")):
+        clipped, named = clipped_samples(x, name)
+        assert named == [] and not clipped.any()
+    # The same quantized record clipped at a converter's rails is named at both ends.
     rail = np.clip(quantized, -300, 300)
-    assert clipping_warnings(rail, "output")[0].startswith("output 0 is clipped:")
+    clipped, named = clipped_samples(rail, "output")
+    assert len(named) == 1 and "its largest value 300" in named[0] and "its smallest value -300" in named[0]
+    np.testing.assert_array_equal(clipped, np.abs(rail[:, 0]) == 300)
 
 
 def test_clipping_is_judged_before_the_drift_tilts_the_flat_tops() -> None:
     rng = np.random.default_rng(3)
     x = np.clip(rng.standard_normal((5000, 1)), -1.5, 1.5) + _ramp(5000, 6.0)
     x = np.clip(x, -np.inf, 4.0)
-    _, _, warnings = record_faults(np.zeros((5000, 0)), x)
-    named = [w.split(":")[0] for w in warnings if w.startswith("output 0")]
+    _, _, _, warnings = record_faults(np.zeros((5000, 0)), x)
+    named = [w.split(" (")[0].split(":")[0] for w in warnings if w.startswith("output 0")]
     assert named == ["output 0 is clipped", "output 0 drifts"]
 
 
