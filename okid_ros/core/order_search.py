@@ -142,10 +142,13 @@ class Completer:
         return fit
 
     def _from_era_states(self, n: int, passes: int, screen: bool) -> PredictorFit:
-        """Completion from the ERA state sequence of the samples with a full past."""
-        rows = self.gram.rows
-        if not np.all(np.diff(rows) == 1):
-            raise ValueError("the state completion needs a contiguous record (no gaps)")
+        """Completion from the ERA state sequence of the samples with a full past.
+
+        The regressions come from the Gram, which leaves missing samples out; the predictor's
+        passes run over the window's samples from the first with a full past, contiguous (the
+        missing ones filled by prediction, as :func:`identify_from_arx` receives them).
+        """
+        rows = np.arange(self.gram.rows[0], self.gram.rows[-1] + 1)
         self.via_states.add(n)
         if screen:
             return self.screen(n)

@@ -16,10 +16,11 @@ Two faults of real records that the identification cannot tell from dynamics:
 - **Clipping**, a channel held at the end of its range (a sensor or recorder saturating): the
   flat tops are a nonlinearity whose harmonics the linear model lists as modes (an output of
   the paper's structure clipped at 80 % of its peak, 3 % of its samples: two spurious modes
-  at 18.1 and 29.7 Hz). The clipped samples are no measurement of the response: ``identify``
-  leaves them out as missing samples, which the chain fills by prediction as it fills a
-  record's gaps (:mod:`.gap_fill`: runs of at most 10, a tenth of the record); beyond that,
-  and in the routes that cannot leave samples out, they are only named.
+  at 18.1 and 29.7 Hz). It is named in a warning. Leaving the clipped samples out as missing
+  (filled by prediction as a record's gaps are) was measured and not adopted: it took the
+  spurious modes out of the paper's structure, and every mode out of the steel subframe with
+  7 of its 28 outputs clipped at 70 % (5 % of the samples missing, most ARX rows lost;
+  docs/robustness.md).
 
 ``scipy.signal.detrend`` removes a line too, but neither keeps the mean nor fits only the
 samples present; the least-squares line is two sums per channel.
@@ -30,7 +31,6 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.excitation import frozen_output_warnings
-from okid_ros.core.gap_fill import missing_problem
 from okid_ros.core.output_only_harmonics import without_harmonics
 
 __all__ = ["TREND_SHARE", "clipped_samples", "record_faults", "remove_trends"]
@@ -50,18 +50,14 @@ CLIP_MIN_LEVELS = 16
 
 
 def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None, detrend: bool = True,
-                  sample_time_s: float | None = None, leave_out_clipped: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[str]]:
-    """A record's faults named and, where the chain can, taken out: ``(u, y, valid, warnings)``.
+                  sample_time_s: float | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """A record's faults named and, where the chain can, taken out: ``(u, y, warnings)``.
 
     In this order (each judged on what the one before leaves): stalled samples and clipped
     channels named, on the raw values (a removed trend or sinusoid would tilt the flat tops);
     trends removed (``detrend``) or only named, fitted without the clipped samples; with
     ``sample_time_s`` and no missing sample, the outputs' harmonic lines that the inputs do not
-    hold removed (:func:`.output_only_harmonics.without_harmonics`); with ``leave_out_clipped``
-    the clipped samples marked missing (``valid`` False, values 0 as
-    :func:`.gap_fill.mark_missing` leaves them), for the chain to fill by prediction, when
-    :func:`.gap_fill.missing_problem` allows it (else they stay, named).
+    hold removed (:func:`.output_only_harmonics.without_harmonics`).
 
     Parameters
     ----------
@@ -77,17 +73,8 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     harmonics = []
     if sample_time_s is not None and valid is None:
         y, harmonics = without_harmonics(y, sample_time_s, u=u)
-    outcome = "the model may list spurious modes from it"
-    if clipped.any() and leave_out_clipped:
-        problem = missing_problem(present)
-        if not problem:
-            valid, u, y = present, np.where(present[:, None], u, 0.0), np.where(present[:, None], y, 0.0)
-            outcome = (f"its samples there are left out as missing and filled by prediction "
-                       f"({np.count_nonzero(clipped)} in all)")
-        else:
-            outcome += f" (too many to leave out: {problem})"
-    named = [f"{text}; {outcome}" for text in u_named + y_named]
-    return u, y, valid, warnings + named + u_trends + y_trends + harmonics
+    named = [f"{text}; the model may list spurious modes from it" for text in u_named + y_named]
+    return u, y, warnings + named + u_trends + y_trends + harmonics
 
 
 def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,

@@ -114,3 +114,39 @@ def test_the_record_looped_back_on_itself_is_a_jump_of_the_state_not_a_change(st
         assert alarm is None and monitor.state_jumps == 1
     else:  # the test can fail: without the state-jump test the seam is declared a change
         assert alarm is not None and abs(alarm.change_index - len(u)) <= 40, alarm
+
+
+def test_a_few_missing_samples_among_28_outputs_are_filled_not_refused(steel):
+    # Four samples missing (a dropped packet, two NaN rows): the state completion of many outputs
+    # refused every order ("needs a contiguous record"), though the window it is given is filled.
+    u, y, dt, reference, _ = steel
+    valid = np.ones(TRAIN, dtype=bool)
+    valid[[1000, 1001, 3000, 4500]] = False
+    holed = y[:TRAIN].copy()
+    holed[~valid] = np.nan
+    model = identify(u[:TRAIN], holed, dt, valid=valid)
+    found = np.array([mode.frequency_hz for mode in model.modes])
+    matched = [f for f in reference if np.min(np.abs(found - f)) / f <= 0.005]
+    assert len(matched) >= 14, f"matched {matched}"
+    assert model.spectral_radius() < 1.0 and model.predictor_spectral_radius() < 1.0
+
+
+def test_node_2_realizes_a_window_of_28_outputs_with_a_gap(steel):
+    # Live at 28 channels, a window holding two dropped samples failed every realization
+    # ("realization failed: ... the state completion needs a contiguous record (no gaps)").
+    from okid_ros.core.arx import fit_arx
+    from okid_ros.service.estimation import ModalEstimationService
+    from okid_ros.service.options import ModalEstimationParams
+
+    u, y, dt, *_ = steel
+    service = ModalEstimationService(ModalEstimationParams(sample_time_s=dt, n_inputs=2, n_outputs=28))
+    order, rows = 20, 6000
+    for k in range(rows + order):
+        if k not in (3000, 3001):
+            service.step(k * dt, u[k], y[k], skipped=2 if k == 3002 else 0)
+    assert service.submit_arx(fit_arx(u[: rows + order], y[: rows + order], order, "ridge", "gcv", center=True),
+                              (rows + order - 1) * dt, 1)
+    assert service.process_pending()
+    service.step((rows + order) * dt, u[rows + order], y[rows + order])
+    assert service.model_id == 1, service.diagnostics()["last_reason"]
+    assert len(service.current_modes) >= 14
