@@ -32,16 +32,15 @@ def rejection_hint(rejected: Mapping[str, int], sample_time_s: float, *, message
     """``"most fell between sample times: is sample_time_s 0.016 s right?"``, or "".
 
     Said when one of these reasons holds most of the refusals and a quarter of the messages at
-    least (a stray duplicate or a loop's few stamps off the timeline are no sign of it).
+    least (a stray duplicate or a loop's few stamps off the timeline are no sign of it). An
+    ``inputs.time_jump_s`` at or below the sample time is no cause: the grid's threshold is at
+    least ``inputs.latency_samples + 2`` sample times (:func:`~okid_ros.service.stamp_steps.least_time_jump_s`).
 
     Parameters
     ----------
     rejected : messages the grid refused, by reason (``GridCounters.rejections``).
     sample_time_s : the grid's sample time.
     messages : messages the grid was given.
-
-    A ``inputs.time_jump_s`` at or below the sample time is no cause: the grid's threshold is at
-    least ``inputs.latency_samples + 2`` sample times (:func:`~okid_ros.service.stamp_steps.least_time_jump_s`).
     """
     total = sum(rejected.values())
     for reason, where in _WHERE.items():
