@@ -1,6 +1,7 @@
-"""What a record's sensors did besides measuring the structure: drift and clipping.
+"""What a record's sensors did besides measuring the structure: drift, clipping, dropouts.
 
-Two faults of real records that the identification cannot tell from dynamics:
+Faults of real records that the identification cannot tell from dynamics (an output that drops
+out alone, holding one value while the others respond, is named by :func:`held_channel_warnings`):
 
 - **Drift**, a slow trend of a channel (a sensor warming up, a charge amplifier's leak, an
   integrated signal). A straight line is a double pole at z = 1: the realization puts poles on
@@ -30,10 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from okid_ros.core.excitation import frozen_output_warnings
+from okid_ros.core.excitation import FROZEN_MIN_SAMPLES, FROZEN_SHARE, frozen_output_warnings
 from okid_ros.core.output_only_harmonics import without_harmonics
 
-__all__ = ["TREND_SHARE", "clipped_samples", "record_faults", "remove_trends"]
+__all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_faults", "remove_trends"]
 
 #: A channel's least-squares line is removed (and named) when it holds this share of its variance.
 TREND_SHARE = 0.02
@@ -63,7 +64,7 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     ----------
     u : (N, m); y : (N, p) the record, 0 at missing samples; valid : (N,) bool or None (none missing).
     """
-    warnings = frozen_output_warnings(y)
+    warnings = frozen_output_warnings(y) + held_channel_warnings(y)
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
     y_clipped, y_named = clipped_samples(y, "output", valid=valid)
     clipped = u_clipped | y_clipped
@@ -75,6 +76,37 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
         y, harmonics = without_harmonics(y, sample_time_s, u=u)
     named = [f"{text}; the model may list spurious modes from it" for text in u_named + y_named]
     return u, y, warnings + named + u_trends + y_trends + harmonics
+
+
+def held_channel_warnings(y: np.ndarray) -> list[str]:
+    """A warning per output that alone holds one value over a long run (a sensor that dropped out).
+
+    The run counts as :func:`~okid_ros.core.excitation.frozen_output_warnings` counts one of
+    every output (at least :data:`~okid_ros.core.excitation.FROZEN_SHARE` of the record and
+    :data:`~okid_ros.core.excitation.FROZEN_MIN_SAMPLES` samples), which names the runs all
+    outputs hold; a sensor's own noise changes its reading from one sample to the next. Inputs
+    are left alone: a command may hold its value (a step, a slow pseudo-random sequence).
+    """
+    n = y.shape[0]
+    if n < 2 or y.shape[1] < 2:  # one output held is the record held: frozen_output_warnings says it
+        return []
+    repeats = y[1:] == y[:-1]  # (N - 1, p)
+    every = np.all(repeats, axis=1)
+    warnings = []
+    for i in range(y.shape[1]):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], repeats[:, i].astype(np.int8), [0]])))
+        if edges.size == 0:
+            continue
+        lengths = edges[1::2] - edges[::2]
+        k = int(np.argmax(lengths))
+        first, last = int(edges[2 * k]), int(edges[2 * k + 1])  # the held sample, its last repeat
+        held = last - first + 1
+        if held < max(FROZEN_MIN_SAMPLES, FROZEN_SHARE * n) or np.all(every[first:last]):
+            continue
+        warnings.append(f"output {i} holds the value {y[first, i]:.6g} over samples {first}-{last} "
+                        f"({100 * held / n:.0f} % of the record) while the others respond: a sensor that dropped "
+                        f"out? Those samples are identified as measured; cut them out or leave the channel out")
+    return warnings
 
 
 def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,

@@ -9,7 +9,13 @@ from hypothesis import strategies as st
 
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify
-from okid_ros.core.sensor_faults import TREND_SHARE, clipped_samples, record_faults, remove_trends
+from okid_ros.core.sensor_faults import (
+    TREND_SHARE,
+    clipped_samples,
+    held_channel_warnings,
+    record_faults,
+    remove_trends,
+)
 from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.models import modal_structure
 from okid_ros.sim.paper_model import paper_model
@@ -192,3 +198,22 @@ def test_a_measured_harmonic_force_stays_in_the_record() -> None:
     assert not any("harmonic" in w for w in model.warnings)
     found = sorted(m.frequency_hz for m in model.modes)
     np.testing.assert_allclose(found, [5.904, 7.342, 48.461], rtol=0.01)  # the published model's modes
+
+
+def test_an_output_that_drops_out_alone_is_named(paper_record) -> None:
+    # Output 1 at 0 over 600 samples (a loose cable) while output 0 responds: a spurious 48.9 Hz
+    # mode was listed with nothing said.
+    u, y = paper_record
+    dropped = y.copy()
+    dropped[1000:1600, 1] = 0.0
+    model = identify(u, dropped, DT)
+    assert [w for w in model.warnings if "dropped out" in w] == [
+        "output 1 holds the value 0 over samples 1000-1599 (16 % of the record) while the others respond: a sensor "
+        "that dropped out? Those samples are identified as measured; cut them out or leave the channel out"]
+    # Every output held is the record held (frozen_output_warnings), and a short hold is no dropout.
+    both = y.copy()
+    both[1000:1600] = 0.0
+    assert held_channel_warnings(both) == []
+    short = y.copy()
+    short[1000:1040, 1] = 0.0
+    assert held_channel_warnings(short) == []
