@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What a real record's faults do to `identify`: drift, clipping, an unmeasured harmonic.
+"""What a real record's faults do to `identify`: drift, clipping, a dropout, an unmeasured harmonic.
 
 The paper's structure (2 inputs low-passed at 15 Hz, 2 outputs, 3750 samples, its three modes
 known) identified with the product's defaults, clean and with one fault of a real record added
@@ -8,6 +8,7 @@ to the same samples:
 - ``drift``: a straight line rising by one output standard deviation over the record on both
   outputs (8-22 % of their variance);
 - ``clipped``: output 0 clipped at 80 % of its peak (a sensor's range; 1-3 % of its samples);
+- ``dropout``: output 1 at 0 over samples 1000-1599 (a loose cable), output 0 responding;
 - ``hum``: a 20 Hz sinusoid in both outputs at half their spread, not in the inputs (mains, a
   machine's rotation);
 - ``forced``: the same sinusoid in the inputs (a shaker's sine on its noise), the outputs its
@@ -41,9 +42,9 @@ from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
 from okid_ros.sim.simulators import simulate_innovation  # noqa: E402
 
-CASES = ("clean", "drift", "clipped", "hum", "forced")
+CASES = ("clean", "drift", "clipped", "dropout", "hum", "forced")
 #: A warning names the fault when it holds this word (none for the clean and forced records).
-NAMED_BY = {"drift": "drifts", "clipped": "clipped", "hum": "harmonic disturbance"}
+NAMED_BY = {"drift": "drifts", "clipped": "clipped", "dropout": "dropped out", "hum": "harmonic disturbance"}
 HUM_HZ = 20.0
 
 
@@ -60,6 +61,9 @@ def _record(case: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
     elif case == "clipped":
         level = 0.8 * np.abs(y[:, 0]).max()
         y = np.column_stack([np.clip(y[:, 0], -level, level), y[:, 1:]])
+    elif case == "dropout":
+        y = y.copy()
+        y[1000:1600, 1] = 0.0
     elif case == "hum":
         y = y + 0.5 * y.std(axis=0) * sine
     return u, y, dt
