@@ -74,10 +74,10 @@ def run(args: argparse.Namespace) -> int:
     input_bag, est_values, note = _read_input_bag(args, data, out_dir)
     if info.get("interrupted"):
         note += "; the run that wrote the bag was interrupted: its models and modal states end early"
-    from okid_ros.tools.plots import refuse_existing
+    from okid_ros.tools.plots import FIGURES, refuse_existing
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES, ModelView, parse_pairs, write_validation_figures
 
-    refuse_existing(out_dir, VALIDATION_FIGURES, args.force)
+    refuse_existing(out_dir, (*FIGURES, *VALIDATION_FIGURES), args.force)  # every figure named in one refusal
     view = None if data.state_space is None else ModelView.of(data.state_space)
     try:  # before any figure is written: a wrong pair left five figures that refused the rerun
         pairs = parse_pairs(args.frf_pairs, view.C.shape[0], view.B.shape[1]) if args.frf_pairs and view else None

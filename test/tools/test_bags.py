@@ -277,6 +277,7 @@ def test_figures_are_written_and_not_overwritten(run, capsys):
     before = (figures / "fig2_system_markov.png").stat().st_mtime_ns
     code, _, err = run_cli(capsys, "plot", run["out"], "--out-dir", figures)
     assert_one_line_error(code, err, "exist already", "--force")
+    assert all(name in err for name in names), err  # every figure in the way named (was: the last three)
     assert (figures / "fig2_system_markov.png").stat().st_mtime_ns == before
     assert run_cli(capsys, "plot", run["out"], "--out-dir", figures, "--force")[0] == 0
     # an input bag is not an output bag
