@@ -34,7 +34,7 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
-           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings"]
+           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -394,6 +394,22 @@ def excitation_warnings_of(report: Excitation) -> list[str]:
             f"{'its' if len(report.dead) == 1 else 'their'} effect; {_WHAT_TO_DO}"]
 
 
+def longest_held_run(repeats: np.ndarray) -> tuple[int, int] | None:
+    """The longest run of samples that repeat the one before, if it counts as held; else None.
+
+    ``repeats`` (N - 1,) bool: sample ``k + 1`` equals sample ``k``. Returns ``(first, last)``,
+    the held sample and its last repeat, when the run is at least :data:`FROZEN_SHARE` of the N
+    samples and :data:`FROZEN_MIN_SAMPLES` long (the rule of :func:`frozen_output_warnings`).
+    """
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], repeats.astype(np.int8), [0]])))  # starts, ends
+    if edges.size == 0:
+        return None
+    k = int(np.argmax(edges[1::2] - edges[::2]))
+    first, last = int(edges[2 * k]), int(edges[2 * k + 1])
+    n = repeats.size + 1
+    return (first, last) if last - first + 1 >= max(FROZEN_MIN_SAMPLES, FROZEN_SHARE * n) else None
+
+
 def frozen_output_warnings(y: np.ndarray) -> list[str]:
     """A warning when every output holds its value over a long run of samples; [] otherwise.
 
@@ -404,16 +420,11 @@ def frozen_output_warnings(y: np.ndarray) -> list[str]:
     y = np.asarray(y)
     if y.ndim != 2 or y.shape[0] < 2 or y.shape[1] == 0:
         return []
-    repeats = np.concatenate([[False], np.all(y[1:] == y[:-1], axis=1), [False]])
-    edges = np.flatnonzero(np.diff(repeats.astype(np.int8)))  # run starts and ends, in pairs
-    if edges.size == 0:
+    run = longest_held_run(np.all(y[1:] == y[:-1], axis=1))
+    if run is None:
         return []
-    lengths = edges[1::2] - edges[::2]
-    longest = int(np.argmax(lengths))
-    first, last = int(edges[2 * longest]), int(edges[2 * longest + 1])  # the held sample, its last repeat
+    first, last = run
     held = last - first + 1
-    if held < max(FROZEN_MIN_SAMPLES, FROZEN_SHARE * y.shape[0]):
-        return []
     return [f"samples {first}-{last} ({100 * held / y.shape[0]:.0f} % of the record) hold every output at one "
             f"value: a recorder that had not started or an acquisition that stalled? They are identified with "
             f"the rest; cut them out if they are not the structure's response"]

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from okid_ros.core.excitation import FROZEN_MIN_SAMPLES, FROZEN_SHARE, frozen_output_warnings
+from okid_ros.core.excitation import frozen_output_warnings, longest_held_run
 from okid_ros.core.output_only_harmonics import without_harmonics
 
 __all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_faults", "remove_trends"]
@@ -82,8 +82,7 @@ def held_channel_warnings(y: np.ndarray) -> list[str]:
     """A warning per output that alone holds one value over a long run (a sensor that dropped out).
 
     The run counts as :func:`~okid_ros.core.excitation.frozen_output_warnings` counts one of
-    every output (at least :data:`~okid_ros.core.excitation.FROZEN_SHARE` of the record and
-    :data:`~okid_ros.core.excitation.FROZEN_MIN_SAMPLES` samples), which names the runs all
+    every output (:func:`~okid_ros.core.excitation.longest_held_run`), which names the runs all
     outputs hold; a sensor's own noise changes its reading from one sample to the next. Inputs
     are left alone: a command may hold its value (a step, a slow pseudo-random sequence).
     """
@@ -94,15 +93,11 @@ def held_channel_warnings(y: np.ndarray) -> list[str]:
     every = np.all(repeats, axis=1)
     warnings = []
     for i in range(y.shape[1]):
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], repeats[:, i].astype(np.int8), [0]])))
-        if edges.size == 0:
+        run = longest_held_run(repeats[:, i])
+        if run is None or np.all(every[run[0] : run[1]]):
             continue
-        lengths = edges[1::2] - edges[::2]
-        k = int(np.argmax(lengths))
-        first, last = int(edges[2 * k]), int(edges[2 * k + 1])  # the held sample, its last repeat
+        first, last = run
         held = last - first + 1
-        if held < max(FROZEN_MIN_SAMPLES, FROZEN_SHARE * n) or np.all(every[first:last]):
-            continue
         warnings.append(f"output {i} holds the value {y[first, i]:.6g} over samples {first}-{last} "
                         f"({100 * held / n:.0f} % of the record) while the others respond: a sensor that dropped "
                         f"out? Those samples are identified as measured; cut them out or leave the channel out")

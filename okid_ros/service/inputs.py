@@ -233,13 +233,13 @@ def time_jump_note(values: dict) -> str:
     7 sample times of 1 s) is the rule working, not worth a word; a value set lower is told.
     Shared by the nodes (a warning in their log) and the offline tools (a warning line).
     """
-    from okid_ros.service.params import SHARED_PARAMS
+    from okid_ros.service.params import ARX_NODE, default_value
     from okid_ros.service.stamp_steps import JUMP_MARGIN_SAMPLES, least_time_jump_s
 
     given = float(values["inputs.time_jump_s"])
     dt, latency = float(values["sample_time_s"]), int(values["inputs.latency_samples"])
     least = least_time_jump_s(dt, latency)
-    default = next(spec.default for spec in SHARED_PARAMS if spec.name == "inputs.time_jump_s")
+    default = default_value(ARX_NODE, "inputs.time_jump_s")  # shared by both nodes
     if given >= least or given == default:
         return ""
     return (f"parameter inputs.time_jump_s {given:g} s raised to {least:g} s: a time jump must be longer than "

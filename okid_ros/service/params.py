@@ -53,6 +53,7 @@ __all__ = [
     "ARX_PARAMS",
     "ESTIMATOR_PARAMS",
     "node_params",
+    "default_value",
     "RUNTIME_PARAMS",
     "read_only_reason",
     "option_specs",
@@ -258,6 +259,11 @@ def node_params(node: str) -> tuple[ParamSpec, ...]:
     if node == ESTIMATOR_NODE:
         return SHARED_PARAMS + ESTIMATOR_PARAMS
     raise ValueError(f"unknown node {node!r}; nodes are {ARX_NODE}, {ESTIMATOR_NODE}")
+
+
+def default_value(node: str, name: str) -> Any:
+    """The default of ``node``'s parameter ``name`` (KeyError for a name it does not declare)."""
+    return {s.name: s for s in node_params(node)}[name].default
 
 
 def option_specs(node: str) -> dict[str, ParamSpec]:

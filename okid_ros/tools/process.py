@@ -167,10 +167,10 @@ def publish_rate_warning(arx_values: dict, samples: int) -> str:
     arx_values : node 1's resolved parameters.
     samples : about how many samples the bag makes (its messages on the busiest input topic).
     """
-    from okid_ros.service.params import ARX_NODE, node_params
+    from okid_ros.service.params import ARX_NODE, default_value
 
     rate, dt = float(arx_values["publish_rate_hz"]), float(arx_values["sample_time_s"])
-    default = float(next(spec.default for spec in node_params(ARX_NODE) if spec.name == "publish_rate_hz"))
+    default = float(default_value(ARX_NODE, "publish_rate_hz"))
     if default * dt >= 1.0 or rate * dt < 1.0 - 1e-9:
         return ""
     where = "at" if math.isclose(rate * dt, 1.0) else "above"
