@@ -151,10 +151,13 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
         if why:
             note += f"; the truth in {input_bag}'s metadata left out ({why})"
     matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
-    if not matched and (apart := stamps_apart(data.measured_span_ns, run_span_ns)):
+    # Samples apart from the run in time, or within its span but on none of its stamps (another grid).
+    unmatched = not matched and (stamps_apart(data.measured_span_ns, run_span_ns) or (
+        data.modal_stamp_ns and "none of its samples has the stamp of a ModalStates of the run"))
+    if unmatched:
         if args.input is not None:
-            raise DataError(f"--input {input_bag}: {apart}: another recording?")
-        warnings.warn(f"{input_bag}: {apart}: not drawn from", OkidWarning, stacklevel=2)
+            raise DataError(f"--input {input_bag}: {unmatched}: another recording?")
+        warnings.warn(f"{input_bag}: {unmatched}: not drawn from", OkidWarning, stacklevel=2)
         data.measured, data.truth, data.experiment_start_ns = None, truth, start_ns
         return None, None, without
     return input_bag, est_values, note + f"; measured outputs from {input_bag} ({matched} samples)"

@@ -70,3 +70,13 @@ def test_a_source_replaced_by_a_recording_apart_in_time_is_left_out(run, tmp_pat
     assert code == 0, err
     assert "experiment: its samples (2000000.000-2000007.992 s)" in err and "not drawn from" in err, err
     assert "no input bag" in stdout and "FRF from" not in stdout
+
+
+def test_an_input_within_the_run_but_on_other_stamps_is_refused(run, tmp_path, capsys):
+    # Was: "measured outputs from shifted (0 samples)": nothing drawn, the FRF from the other bag.
+    shifted = tmp_path / "shifted"
+    assert main(["simulate", "--out", str(shifted), "--duration", "8", "--start-time", "1000004.003"]) == 0
+    code, _, err = run_cli(capsys, "plot", run["out"], "--input", shifted, "--out-dir", tmp_path / "fig")
+    assert_one_line_error(code, err, f"--input {shifted}: none of its samples has the stamp of a ModalStates",
+                          "another recording?")
+    assert not (tmp_path / "fig").exists()
