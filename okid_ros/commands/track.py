@@ -38,6 +38,10 @@ nodes' ``estimator.max_gap_samples`` by prediction and starts after a longer one
 (:func:`okid_ros.core.gap_fill.realization_window`, node 2's rule), and the change test bridges
 them (:meth:`okid_ros.core.change_monitor.StructuralChangeMonitor.gap`). ``window_first_index``
 then counts the missing samples in the window's span.
+
+Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
+(:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, a drift,
+harmonic lines the inputs lack. Nothing is taken out (the windows are what node 1 sees live).
 """
 
 from __future__ import annotations
@@ -239,6 +243,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.core.excitation import output_problem
     from okid_ros.errors import DataError
     from okid_ros.records import channel_without_values
+    from okid_ros.service.tracked_record import tracked_record_warnings
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_output
 
@@ -262,12 +267,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     # (core/channels.py); a group of ordinary size keeps its units, in which the windows' messages
     # then speak.
     u, y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
-    bad = ~(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1))
-    if bad.any():
-        k = int(np.argmax(bad))
-        print(f"okid-ros track: warning: {int(bad.sum())} of the {bad.size} samples hold NaN/Inf (the first at sample "
-              f"{k}): they are skipped as missing samples, as the nodes do (short gaps bridged, the ARX rows "
-              f"that reach them left out)", file=sys.stderr)
+    for warning in tracked_record_warnings(u, y, record.sample_time_s):  # missing samples, sensor faults: once
+        print(f"okid-ros track: warning: {warning}", file=sys.stderr)
     return out, (u, y, record.sample_time_s)
 
 

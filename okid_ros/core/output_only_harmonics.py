@@ -129,7 +129,7 @@ def _line_ratios(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return windowed, power, power / np.maximum(background, np.finfo(float).tiny)
 
 
-def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | None = None
+def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | None = None, remove: bool = True
                       ) -> tuple[np.ndarray, list[str]]:
     """``y`` less its harmonic lines (a disturbance, not a mode), and a warning naming them.
 
@@ -139,6 +139,8 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
     u : (N, m) the measured inputs, if any: a line the inputs hold too (within the Hann main
         lobe, :data:`INPUT_LINE_RATIO` above their background) is the response to a measured
         harmonic force, part of what the model must explain, and stays.
+    remove : False: the lines are only named (``y`` returned as it is, the warning without an action
+        for the caller to complete).
     """
     mean = y.mean(axis=0)
     scale = _power_of_two(y - mean)  # exact: the spectra's squares neither overflow nor underflow
@@ -156,6 +158,8 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
         return y, []
     listed = ", ".join(f"{h.frequency_hz:.5g} Hz" for h in found)
     where = " (not a mode; the inputs hold no such line)" if measured else " (not a mode)"
+    if not remove:
+        return y, [f"harmonic disturbance in the outputs{where}: {listed}"]
     return mean + scale * remove_harmonics((y - mean) / scale, sample_time_s, found), [
         f"harmonic disturbance removed before identification{where}: {listed}"]
 

@@ -23,6 +23,10 @@ out alone, holding one value while the others respond, is named by :func:`held_c
   7 of its 28 outputs clipped at 70 % (5 % of the samples missing, most ARX rows lost;
   docs/robustness.md).
 
+:func:`record_faults` names the faults and takes out what it can; :func:`record_fault_warnings`
+names them by the same rules and changes nothing (``okid-ros track``, whose windows are the
+record as node 1 sees it live).
+
 ``scipy.signal.detrend`` removes a line too, but neither keeps the mean nor fits only the
 samples present; the least-squares line is two sums per channel.
 """
@@ -34,7 +38,8 @@ import numpy as np
 from okid_ros.core.excitation import frozen_output_warnings, longest_held_run
 from okid_ros.core.output_only_harmonics import without_harmonics
 
-__all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_faults", "remove_trends"]
+__all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_fault_warnings", "record_faults",
+           "remove_trends"]
 
 #: A channel's least-squares line is removed (and named) when it holds this share of its variance.
 TREND_SHARE = 0.02
@@ -64,17 +69,56 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     ----------
     u : (N, m); y : (N, p) the record, 0 at missing samples; valid : (N,) bool or None (none missing).
     """
-    warnings = frozen_output_warnings(y) + held_channel_warnings(y)
+    return _faults(u, y, valid=valid, detrend=detrend, sample_time_s=sample_time_s, kept=False)
+
+
+def record_fault_warnings(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None,
+                          sample_time_s: float | None = None) -> list[str]:
+    """The faults :func:`record_faults` names, named only: for a record fitted as recorded (``okid-ros track``).
+
+    The same rules, judged on the same values in the same order; the warnings say that the
+    record keeps what ``identify`` takes out (its trends, its harmonic lines). ``u`` and ``y``
+    are not changed.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) the record, any value (NaN) at missing samples.
+    valid : (N,) bool, False at missing samples; None: none missing.
+    sample_time_s : sample time (s), for the harmonic lines; None: they are not looked for.
+    """
+    if valid is not None:  # record_faults takes 0 at the missing samples (new arrays: the record stays)
+        u, y = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], y, 0.0)
+        valid = None if valid.all() else valid
+    return _faults(u, y, valid=valid, detrend=True, sample_time_s=sample_time_s, kept=True)[2]
+
+
+#: What a fault :func:`record_fault_warnings` names does to a record fitted as recorded.
+_KEPT_TREND = ("NOT removed: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` "
+               "removes it); it may hide the windows' modes")
+_KEPT_HARMONICS = ("kept: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` "
+                   "removes it); the windows' models may list it as a mode")
+
+
+def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: bool, sample_time_s: float | None,
+            kept: bool) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """:func:`record_faults`; ``kept``: only named, in the words of :func:`record_fault_warnings`."""
+    # A gap is no held value: NaN never repeats (the record's 0 there would read as one).
+    held = y if valid is None else np.where(valid[:, None], y, np.nan)
+    warnings = frozen_output_warnings(held) + held_channel_warnings(held)
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
     y_clipped, y_named = clipped_samples(y, "output", valid=valid)
     clipped = u_clipped | y_clipped
     present = valid if not clipped.any() else (np.ones(y.shape[0], dtype=bool) if valid is None else valid) & ~clipped
-    u, u_trends = remove_trends(u, "input", valid=present, remove=detrend)
-    y, y_trends = remove_trends(y, "output", valid=present, remove=detrend)
+    # Kept trends are still taken out of the copies the harmonic lines are looked for in, as identify does.
+    action = _KEPT_TREND if kept else None
+    u, u_trends = remove_trends(u, "input", valid=present, remove=detrend, action=action)
+    y, y_trends = remove_trends(y, "output", valid=present, remove=detrend, action=action)
     harmonics = []
     if sample_time_s is not None and valid is None:
-        y, harmonics = without_harmonics(y, sample_time_s, u=u)
-    named = [f"{text}; the model may list spurious modes from it" for text in u_named + y_named]
+        y, harmonics = without_harmonics(y, sample_time_s, u=u, remove=not kept)
+        harmonics = [f"{text}; {_KEPT_HARMONICS}" for text in harmonics] if kept else harmonics
+    model = "the windows' models" if kept else "the model"
+    named = [f"{text}; {model} may list spurious modes from it" for text in u_named + y_named]
     return u, y, warnings + named + u_trends + y_trends + harmonics
 
 
@@ -104,8 +148,8 @@ def held_channel_warnings(y: np.ndarray) -> list[str]:
     return warnings
 
 
-def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
-                  remove: bool = True) -> tuple[np.ndarray, list[str]]:
+def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None, remove: bool = True,
+                  action: str | None = None) -> tuple[np.ndarray, list[str]]:
     """``x`` less the straight-line trend of each channel that holds :data:`TREND_SHARE` of it.
 
     Parameters
@@ -115,6 +159,7 @@ def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
     valid : (N,) bool, False at missing samples: the lines are fitted to the others, and the
         missing samples keep their values.
     remove : False: the trends are only named (the raw signals were asked for).
+    action : what the warnings say is done about a trend; None: what ``remove`` does.
 
     Returns
     -------
@@ -137,8 +182,9 @@ def remove_trends(x: np.ndarray, name: str, *, valid: np.ndarray | None = None,
     trending = np.flatnonzero(share >= TREND_SHARE)
     if trending.size == 0:
         return x, []
-    action = ("removed before identification, the model keeps the channel's mean as its offset" if remove
-              else "NOT removed (offsets='none'): it may hide the modes")
+    if action is None:
+        action = ("removed before identification, the model keeps the channel's mean as its offset" if remove
+                  else "NOT removed (offsets='none'): it may hide the modes")
     change = slope * (rows[-1] - rows[0])  # over the record, in units of the peak
     warnings = [f"{name} {i} drifts: a straight line {'rising' if change[i] > 0 else 'falling'} by "
                 f"{abs(change[i]) * peak[i]:.4g} over the record holds {100 * share[i]:.0f} % of its variance "

@@ -14,4 +14,6 @@
 - :mod:`.windowed`: each node's step per sample, and both nodes in step offline
   (`WindowedPipeline`, ``okid-ros process``);
 - :mod:`.records`: the one serialized shape of a mode, a change and a model update.
+- :mod:`.tracked_record`: what ``okid-ros track`` names of a record before tracking it (missing
+  samples, sensor faults).
 """

@@ -13,6 +13,7 @@ from okid_ros.core.sensor_faults import (
     TREND_SHARE,
     clipped_samples,
     held_channel_warnings,
+    record_fault_warnings,
     record_faults,
     remove_trends,
 )
@@ -217,3 +218,31 @@ def test_an_output_that_drops_out_alone_is_named(paper_record) -> None:
     short = y.copy()
     short[1000:1040, 1] = 0.0
     assert held_channel_warnings(short) == []
+
+
+def test_faults_named_only_are_those_record_faults_names_and_the_record_stays(paper_record) -> None:
+    # One rule for both (track names what identify names and takes out): the same channels in the
+    # same order, the record not changed, and the missing samples left out whatever they hold (NaN).
+    u, y = paper_record
+    faulty = y + _ramp(y.shape[0], y.std(axis=0).max()) + 0.5 * y.std(axis=0) * _sine(y.shape[0], 20.0)
+    faulty[:, 0] = np.clip(faulty[:, 0], None, 0.8 * faulty[:, 0].max())
+    faulty[1000:1600, 1] = 0.0
+    before = faulty.copy()
+    named = record_fault_warnings(u, faulty, sample_time_s=DT)
+    np.testing.assert_array_equal(faulty, before)
+    _, _, taken_out = record_faults(u, faulty, sample_time_s=DT)
+    assert [w.split(" ")[:3] for w in named] == [
+        ["output", "1", "holds"], ["output", "0", "is"], ["output", "0", "drifts:"], ["output", "1", "drifts:"],
+        ["harmonic", "disturbance", "in"]]
+    # The same findings, up to what is done about them.
+    assert [w.split(";")[0] for w in named[:4]] == [w.split(";")[0] for w in taken_out[:4]]
+    assert "NOT removed" in named[2] and "removed before identification" in taken_out[2]
+    assert taken_out[4].endswith("line): 20 Hz") and "line): 20 Hz; kept: track fits its windows" in named[4]
+    valid = np.ones(y.shape[0], dtype=bool)
+    valid[2000:2300] = False  # zeros there would hold every output over 8 % of the record
+    missing = faulty.copy()
+    missing[~valid] = np.nan
+    _, _, with_zeros = record_faults(u, np.where(valid[:, None], faulty, 0.0), valid=valid)
+    kept = record_fault_warnings(u, missing, valid=valid, sample_time_s=DT)
+    assert [w.split(";")[0] for w in kept] == [w.split(";")[0] for w in with_zeros] and len(kept) == 4
+    assert not any("hold every output" in w for w in kept)  # a gap is no held value

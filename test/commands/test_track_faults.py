@@ -1,0 +1,120 @@
+"""`okid-ros track` names a record's sensor faults once, on stderr, and tracks the record as recorded.
+
+The faults are those `identify` names (:mod:`okid_ros.core.sensor_faults`); track used to name
+none of them: a drifting, clipped or hum-laden record was tracked with nothing said.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from okid_ros.cli import main as okid_ros_main
+from okid_ros.core.arx import fit_arx
+from okid_ros.core.pipeline import identify_from_arx
+from okid_ros.records import save_record
+from okid_ros.sim.inputs import white_input
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation
+
+DT = 0.008
+N = 2600
+Q, WINDOW, EVERY = 20, 1500, 400
+#: The words of every fault's warning (none of them on a clean record).
+FAULT_WORDS = ("drifts", "is clipped", "harmonic disturbance", "dropped out", "hold every output")
+
+
+@pytest.fixture(scope="module")
+def record():
+    u = white_input(N, 2, seed=3)
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    return u, y
+
+
+def _track(tmp_path, u, y, *args) -> tuple[list[dict], str]:
+    path, out = tmp_path / "record.npz", tmp_path / "track.jsonl"
+    save_record(path, u, y, DT)
+    status = okid_ros_main(["track", str(path), "--order", str(Q), "--window", str(WINDOW), "--every", str(EVERY),
+                            "--states", "6", "--jsonl", str(out), "--no-progress", *args])
+    assert status == 0
+    return [json.loads(line) for line in out.read_text().splitlines()]
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("okid-ros track: warning: ")]
+
+
+def test_a_clean_record_names_no_fault_and_tracks_as_before(record, tmp_path, capsys):
+    # The lines of the code before the faults were named (sample_index, n_states, modes).
+    u, y = record
+    lines = _track(tmp_path, u, y)
+    assert _warnings(capsys.readouterr().err) == []
+    assert [(line["sample_index"], line["window_first_index"], line["n_states"]) for line in lines] == [
+        (1519, 0, 6), (1919, 400, 6), (2319, 800, 6)]
+    np.testing.assert_allclose([[m["frequency_hz"] for m in line["modes"]] for line in lines], [
+        [5.901406, 7.325245, 48.459222], [5.912839, 7.319907, 48.46589], [5.912513, 7.314771, 48.459754]], rtol=1e-6)
+    np.testing.assert_allclose([[m["damping_ratio"] for m in line["modes"]] for line in lines], [
+        [0.001046, 0.026077, 0.00411], [0.000914, 0.025756, 0.004065], [0.00089, 0.031244, 0.003972]], atol=1e-6)
+    assert all("fault" not in line and line["warnings"] == [] for line in lines)  # the JSONL contract unchanged
+
+
+def test_a_drifting_record_is_named_and_tracked_as_recorded(record, tmp_path, capsys):
+    # A ramp over the record holding 8 and 19 % of the outputs' variance: named once, before the
+    # tracking, and not removed from the windows (the last update is the batch chain on the raw window).
+    u, y = record
+    drifted = y + np.linspace(0.0, y.std(axis=0).max(), N)[:, None]
+    lines = _track(tmp_path, u, drifted)
+    warnings = _warnings(capsys.readouterr().err)
+    assert [w.split(" drifts")[0] for w in warnings] == ["okid-ros track: warning: output 0",
+                                                         "okid-ros track: warning: output 1"]
+    assert all("NOT removed: track fits its windows as recorded" in w and "`okid-ros identify` removes it" in w
+               for w in warnings), warnings
+    k = lines[-1]["sample_index"]
+    u_w, y_w = u[k - WINDOW - Q + 1 : k + 1], drifted[k - WINDOW - Q + 1 : k + 1]
+    batch = identify_from_arx(fit_arx(u_w, y_w, Q, "ridge", "gcv", center=True), u_w, y_w, DT, n_states=6)
+    np.testing.assert_allclose(sorted(m["frequency_rad_s"] for m in lines[-1]["modes"]),
+                               sorted(m.frequency_rad_s for m in batch.modes), rtol=1e-6)
+
+
+def test_a_clipped_record_is_named(record, tmp_path, capsys):
+    u, y = record
+    level = 0.8 * np.abs(y[:, 0]).max()
+    clipped = y.copy()
+    clipped[:, 0] = np.clip(y[:, 0], -level, level)
+    _track(tmp_path, u, clipped)
+    warnings = _warnings(capsys.readouterr().err)
+    at_top = np.count_nonzero(clipped[:, 0] == level)
+    assert len(warnings) == 1 and warnings[0].startswith(
+        f"okid-ros track: warning: output 0 is clipped (a sensor's or recorder's range exceeded?): "
+        f"{100 * at_top / N:.1f} % of its samples sit at its largest value"), warnings
+    assert warnings[0].endswith("; the windows' models may list spurious modes from it")
+
+
+@pytest.mark.parametrize("output_only", [False, True])
+def test_hum_in_the_outputs_is_named_and_kept_in_the_windows(record, tmp_path, capsys, output_only):
+    # A 20 Hz line at half the outputs' spread, which the inputs lack (or which no input is measured for).
+    u, y = record
+    hum = y + 0.5 * y.std(axis=0) * np.sqrt(2.0) * np.sin(2 * np.pi * 20.0 * np.arange(N) * DT + 0.3)[:, None]
+    _track(tmp_path, u, hum, *(["--output-only"] if output_only else []))
+    where = "(not a mode)" if output_only else "(not a mode; the inputs hold no such line)"
+    assert _warnings(capsys.readouterr().err) == [
+        f"okid-ros track: warning: harmonic disturbance in the outputs {where}: 20 Hz; kept: track fits its windows "
+        "as recorded, as node 1 sees them live (`okid-ros identify` removes it); the windows' models may list it "
+        "as a mode"]
+
+
+def test_missing_samples_leave_the_faults_named_on_the_others(record, tmp_path, capsys):
+    # NaN from sample 2000 on (the data stop) with output 1 dropped out before: the gap is no held
+    # value (no frozen record), the dropout is named, and the drift is fitted to the samples present.
+    u, y = record
+    faulty = y + np.linspace(0.0, y.std(axis=0).max(), N)[:, None]
+    faulty[1000:1600, 1] = 0.0
+    faulty[2000:] = np.nan
+    _track(tmp_path, u, faulty, "--every", "250")
+    warnings = _warnings(capsys.readouterr().err)
+    assert warnings[0].startswith("okid-ros track: warning: 600 of the 2600 samples hold NaN/Inf")
+    assert warnings[1].startswith("okid-ros track: warning: output 1 holds the value 0 over samples 1000-1599")
+    assert not any("hold every output" in w for w in warnings), warnings
+    assert any("output 0 drifts" in w for w in warnings), warnings
