@@ -11,6 +11,8 @@ to the same samples:
 - ``dropout``: output 1 at 0 over samples 1000-1599 (a loose cable), output 0 responding;
 - ``hum``: a 20 Hz sinusoid in both outputs at half their spread, not in the inputs (mains, a
   machine's rotation);
+- ``hum-gaps``: ``hum`` with 20 output samples dropped (NaN) at random, as a real acquisition
+  drops them;
 - ``forced``: the same sinusoid in the inputs (a shaker's sine on its noise), the outputs its
   response: a harmonic the model must keep.
 
@@ -42,9 +44,12 @@ from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
 from okid_ros.sim.simulators import simulate_innovation  # noqa: E402
 
-CASES = ("clean", "drift", "clipped", "dropout", "hum", "forced")
+CASES = ("clean", "drift", "clipped", "dropout", "hum", "hum-gaps", "forced")
 #: A warning names the fault when it holds this word (none for the clean and forced records).
-NAMED_BY = {"drift": "drifts", "clipped": "clipped", "dropout": "dropped out", "hum": "harmonic disturbance"}
+NAMED_BY = {"drift": "drifts", "clipped": "clipped", "dropout": "dropped out", "hum": "harmonic disturbance",
+            "hum-gaps": "harmonic disturbance"}
+#: Output samples dropped in the ``hum-gaps`` record.
+DROPPED = 20
 HUM_HZ = 20.0
 
 
@@ -64,8 +69,11 @@ def _record(case: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
     elif case == "dropout":
         y = y.copy()
         y[1000:1600, 1] = 0.0
-    elif case == "hum":
+    elif case in ("hum", "hum-gaps"):
         y = y + 0.5 * y.std(axis=0) * sine
+    if case == "hum-gaps":
+        rng = np.random.default_rng(seed)
+        y[rng.choice(np.arange(100, y.shape[0] - 100), DROPPED, replace=False), rng.integers(0, 2)] = np.nan
     return u, y, dt
 
 
@@ -80,7 +88,9 @@ def _score(case: str, seeds: int) -> dict:
     true_hz = _true_hz()
     found, spurious, errors, named = 0, 0, [], 0
     for seed in range(seeds):
-        model = identify(*_record(case, seed))
+        u, y, dt = _record(case, seed)
+        present = np.all(np.isfinite(y), axis=1)
+        model = identify(u, y, dt, valid=None if present.all() else present)
         listed = np.array([m.frequency_hz for m in model.modes])
         for f in true_hz:
             near = listed[np.abs(listed / f - 1) <= 0.005] if listed.size else listed

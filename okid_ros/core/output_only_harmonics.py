@@ -129,8 +129,8 @@ def _line_ratios(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return windowed, power, power / np.maximum(background, np.finfo(float).tiny)
 
 
-def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | None = None, remove: bool = True
-                      ) -> tuple[np.ndarray, list[str]]:
+def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | None = None, remove: bool = True,
+                      valid: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """``y`` less its harmonic lines (a disturbance, not a mode), and a warning naming them.
 
     Parameters
@@ -141,14 +141,21 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
         harmonic force, part of what the model must explain, and stays.
     remove : False: the lines are only named (``y`` returned as it is, the warning without an action
         for the caller to complete).
+    valid : (N,) bool, False at missing samples (any value there): the spectra take them as 0
+        after the means of the others are removed, the sinusoids are fitted to the others, and
+        the missing samples keep their values. A few dropped samples spread a line's power by
+        their share only; a long gap breaks the line's constant envelope, so the line is kept
+        rather than taken for a mode's (the kurtosis test). None: every sample present.
     """
-    mean = y.mean(axis=0)
-    scale = _power_of_two(y - mean)  # exact: the spectra's squares neither overflow nor underflow
-    found = find_harmonics((y - mean) / scale, sample_time_s)
+    present = np.ones(y.shape[0], bool) if valid is None else np.asarray(valid, bool)
+    mean = y[present].mean(axis=0) if present.any() else np.zeros(y.shape[1])
+    centred = np.where(present[:, None], y - mean, 0.0)
+    scale = _power_of_two(centred)  # exact: the spectra's squares neither overflow nor underflow
+    found = find_harmonics(centred / scale, sample_time_s)
     measured = u is not None and u.shape[1] > 0
     if found and measured and u.shape[0] >= 8 * _RING_OUTER:
-        centred = u - u.mean(axis=0)
-        ratio = _line_ratios(centred / _power_of_two(centred))[2]
+        inputs = np.where(present[:, None], u - u[present].mean(axis=0), 0.0)
+        ratio = _line_ratios(inputs / _power_of_two(inputs))[2]
         duration_s = y.shape[0] * sample_time_s
         lobe = [np.arange(round(h.frequency_hz * duration_s) - 2, round(h.frequency_hz * duration_s) + 3)
                 for h in found]
@@ -160,7 +167,8 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
     where = " (not a mode; the inputs hold no such line)" if measured else " (not a mode)"
     if not remove:
         return y, [f"harmonic disturbance in the outputs{where}: {listed}"]
-    return mean + scale * remove_harmonics((y - mean) / scale, sample_time_s, found), [
+    cleaned = mean + scale * remove_harmonics(centred / scale, sample_time_s, found, valid=valid)
+    return np.where(present[:, None], cleaned, y), [
         f"harmonic disturbance removed before identification{where}: {listed}"]
 
 
@@ -194,12 +202,17 @@ def _refine(y: np.ndarray, frequency_hz: float, duration_s: float, sample_time_s
     return float(result.x)
 
 
-def remove_harmonics(y: np.ndarray, sample_time_s: float, harmonics: list[Harmonic]) -> np.ndarray:
-    """``y`` (N, p) less the least-squares sinusoids at the harmonics' frequencies (all at once)."""
+def remove_harmonics(y: np.ndarray, sample_time_s: float, harmonics: list[Harmonic], *,
+                     valid: np.ndarray | None = None) -> np.ndarray:
+    """``y`` (N, p) less the least-squares sinusoids at the harmonics' frequencies (all at once).
+
+    ``valid`` (N,) bool: the sinusoids are fitted to these samples only (None: all).
+    """
     if not harmonics:
         return y
     t = np.arange(y.shape[0]) * sample_time_s
     phase = 2 * np.pi * np.outer(t, [h.frequency_hz for h in harmonics])
     basis = np.hstack([np.cos(phase), np.sin(phase)])  # (N, 2 H)
-    coefficients = np.linalg.lstsq(basis, y, rcond=None)[0]
+    fitted = (basis, y) if valid is None else (basis[valid], y[valid])
+    coefficients = np.linalg.lstsq(*fitted, rcond=None)[0]
     return y - basis @ coefficients

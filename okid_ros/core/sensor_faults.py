@@ -62,8 +62,8 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     In this order (each judged on what the one before leaves): stalled samples and clipped
     channels named, on the raw values (a removed trend or sinusoid would tilt the flat tops);
     trends removed (``detrend``) or only named, fitted without the clipped samples; with
-    ``sample_time_s`` and no missing sample, the outputs' harmonic lines that the inputs do not
-    hold removed (:func:`.output_only_harmonics.without_harmonics`).
+    ``sample_time_s``, the outputs' harmonic lines that the inputs do not hold removed, fitted to
+    the samples present (:func:`.output_only_harmonics.without_harmonics`).
 
     Parameters
     ----------
@@ -114,8 +114,8 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
     u, u_trends = remove_trends(u, "input", valid=present, remove=detrend, action=action)
     y, y_trends = remove_trends(y, "output", valid=present, remove=detrend, action=action)
     harmonics = []
-    if sample_time_s is not None and valid is None:
-        y, harmonics = without_harmonics(y, sample_time_s, u=u, remove=not kept)
+    if sample_time_s is not None:
+        y, harmonics = without_harmonics(y, sample_time_s, u=u, remove=not kept, valid=valid)
         harmonics = [f"{text}; {_KEPT_HARMONICS}" for text in harmonics] if kept else harmonics
     model = "the windows' models" if kept else "the model"
     named = [f"{text}; {model} may list spurious modes from it" for text in u_named + y_named]
