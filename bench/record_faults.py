@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What a real record's faults do to `identify`: drift, clipping, a dropout, an unmeasured harmonic.
+"""What a real record's faults do to `identify`: drift, clipping, a dropout, an unmeasured harmonic, spikes.
 
 The paper's structure (2 inputs low-passed at 15 Hz, 2 outputs, 3750 samples, its three modes
 known) identified with the product's defaults, clean and with one fault of a real record added
@@ -13,6 +13,8 @@ to the same samples:
   machine's rotation);
 - ``hum-gaps``: ``hum`` with 20 output samples dropped (NaN) at random, as a real acquisition
   drops them;
+- ``spikes``: five samples of output 0, at random, 30 of its spreads off (glitches: interference,
+  a telemetry bit error);
 - ``forced``: the same sinusoid in the inputs (a shaker's sine on its noise), the outputs its
   response: a harmonic the model must keep.
 
@@ -44,10 +46,10 @@ from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
 from okid_ros.sim.simulators import simulate_innovation  # noqa: E402
 
-CASES = ("clean", "drift", "clipped", "dropout", "hum", "hum-gaps", "forced")
+CASES = ("clean", "drift", "clipped", "dropout", "hum", "hum-gaps", "spikes", "forced")
 #: A warning names the fault when it holds this word (none for the clean and forced records).
 NAMED_BY = {"drift": "drifts", "clipped": "clipped", "dropout": "dropped out", "hum": "harmonic disturbance",
-            "hum-gaps": "harmonic disturbance"}
+            "hum-gaps": "harmonic disturbance", "spikes": "jumps far beyond"}
 #: Output samples dropped in the ``hum-gaps`` record.
 DROPPED = 20
 HUM_HZ = 20.0
@@ -71,6 +73,10 @@ def _record(case: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
         y[1000:1600, 1] = 0.0
     elif case in ("hum", "hum-gaps"):
         y = y + 0.5 * y.std(axis=0) * sine
+    if case == "spikes":
+        rng = np.random.default_rng(seed)
+        y = y.copy()
+        y[rng.choice(np.arange(50, y.shape[0] - 50), 5, replace=False), 0] += 30 * y[:, 0].std()
     if case == "hum-gaps":
         rng = np.random.default_rng(seed)
         y[rng.choice(np.arange(100, y.shape[0] - 100), DROPPED, replace=False), rng.integers(0, 2)] = np.nan

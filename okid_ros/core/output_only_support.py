@@ -59,7 +59,7 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
     # Neither overflows nor underflows for values near the float64 limits.
     peak = np.max(np.abs(y), axis=0)
     mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
-    _, y, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
+    _, y, _, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
     std = channel_std(y)
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:

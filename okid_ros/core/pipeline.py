@@ -405,7 +405,8 @@ def identify(
     """
     options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
                                           options=options or RealizationOptions(), changes=option_changes)
-    u, y, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove", sample_time_s=sample_time_s)
+    u, y, valid, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove",
+                                                sample_time_s=sample_time_s, leave_out_spikes=method != "paper")
     p = y.shape[1]
     # Identified from the live inputs, each channel of unit spread, returned to the record's units
     # and inputs: the modes do not depend on the units, 1e+-150 does not overflow (core/scaling.py).

@@ -1,4 +1,4 @@
-"""What a record's sensors did besides measuring the structure: drift, clipping, dropouts.
+"""What a record's sensors did besides measuring the structure: drift, spikes, clipping, dropouts.
 
 Faults of real records that the identification cannot tell from dynamics (an output that drops
 out alone, holding one value while the others respond, is named by :func:`held_channel_warnings`):
@@ -14,6 +14,9 @@ out alone, holding one value while the others respond, is named by :func:`held_c
   simulated benchmark records); a pure sine over ``k`` periods reaches 2 % only for ``k < 5``
   (its line then holds up to 0.024 at ``k = 5``, 0.006 at ``k = 10``), a record too short for
   its slowest mode anyway.
+- **Spikes**, single samples of an output far beyond their neighbours (interference, a bit error):
+  :mod:`.output_spikes` finds them; ``record_faults(leave_out_spikes=True)`` (``identify``) marks
+  them missing, filled by prediction as a record's gaps are, where the gaps allow.
 - **Clipping**, a channel held at the end of its range (a sensor or recorder saturating): the
   flat tops are a nonlinearity whose harmonics the linear model lists as modes (an output of
   the paper's structure clipped at 80 % of its peak, 3 % of its samples: two spurious modes
@@ -36,7 +39,9 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.excitation import frozen_output_warnings, longest_held_run
+from okid_ros.core.gap_fill import missing_problem
 from okid_ros.core.output_only_harmonics import without_harmonics
+from okid_ros.core.output_spikes import most_spikes, output_spikes
 
 __all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_fault_warnings", "record_faults",
            "remove_trends"]
@@ -56,20 +61,25 @@ CLIP_MIN_LEVELS = 16
 
 
 def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None, detrend: bool = True,
-                  sample_time_s: float | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """A record's faults named and, where the chain can, taken out: ``(u, y, warnings)``.
+                  sample_time_s: float | None = None, leave_out_spikes: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[str]]:
+    """A record's faults named and, where the chain can, taken out: ``(u, y, valid, warnings)``.
 
-    In this order (each judged on what the one before leaves): stalled samples and clipped
-    channels named, on the raw values (a removed trend or sinusoid would tilt the flat tops);
-    trends removed (``detrend``) or only named, fitted without the clipped samples; with
-    ``sample_time_s``, the outputs' harmonic lines that the inputs do not hold removed, fitted to
-    the samples present (:func:`.output_only_harmonics.without_harmonics`).
+    In this order (each judged on what the one before leaves): stalled samples named, on the raw
+    values; output spikes (:mod:`.output_spikes`) named, and with ``leave_out_spikes`` marked
+    missing (``valid`` False, 0 in ``u`` and ``y``) when the record's gaps can take them
+    (:func:`.gap_fill.missing_problem`); clipped channels named, on the raw values (a removed
+    trend or sinusoid would tilt the flat tops); trends removed (``detrend``) or only named,
+    fitted without the clipped samples; with ``sample_time_s``, the outputs' harmonic lines that
+    the inputs do not hold removed, fitted to the samples present
+    (:func:`.output_only_harmonics.without_harmonics`).
 
     Parameters
     ----------
     u : (N, m); y : (N, p) the record, 0 at missing samples; valid : (N,) bool or None (none missing).
     """
-    return _faults(u, y, valid=valid, detrend=detrend, sample_time_s=sample_time_s, kept=False)
+    return _faults(u, y, valid=valid, detrend=detrend, sample_time_s=sample_time_s, kept=False,
+                   leave_out_spikes=leave_out_spikes)
 
 
 def record_fault_warnings(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None,
@@ -89,7 +99,8 @@ def record_fault_warnings(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | N
     if valid is not None:  # record_faults takes 0 at the missing samples (new arrays: the record stays)
         u, y = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], y, 0.0)
         valid = None if valid.all() else valid
-    return _faults(u, y, valid=valid, detrend=True, sample_time_s=sample_time_s, kept=True)[2]
+    return _faults(u, y, valid=valid, detrend=True, sample_time_s=sample_time_s, kept=True,
+                   leave_out_spikes=False)[3]
 
 
 #: What a fault :func:`record_fault_warnings` names does to a record fitted as recorded.
@@ -100,11 +111,16 @@ _KEPT_HARMONICS = ("kept: track fits its windows as recorded, as node 1 sees the
 
 
 def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: bool, sample_time_s: float | None,
-            kept: bool) -> tuple[np.ndarray, np.ndarray, list[str]]:
+            kept: bool, leave_out_spikes: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[str]]:
     """:func:`record_faults`; ``kept``: only named, in the words of :func:`record_fault_warnings`."""
     # A gap is no held value: NaN never repeats (the record's 0 there would read as one).
     held = y if valid is None else np.where(valid[:, None], y, np.nan)
     warnings = frozen_output_warnings(held) + held_channel_warnings(held)
+    spiked, spike_warnings = _spikes(u, y, valid, leave_out=leave_out_spikes, kept=kept)
+    if spiked is not valid:
+        valid = spiked
+        u, y = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], y, 0.0)
+    warnings += spike_warnings
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
     y_clipped, y_named = clipped_samples(y, "output", valid=valid)
     clipped = u_clipped | y_clipped
@@ -119,7 +135,37 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
         harmonics = [f"{text}; {_KEPT_HARMONICS}" for text in harmonics] if kept else harmonics
     model = "the windows' models" if kept else "the model"
     named = [f"{text}; {model} may list spurious modes from it" for text in u_named + y_named]
-    return u, y, warnings + named + u_trends + y_trends + harmonics
+    return u, y, valid, warnings + named + u_trends + y_trends + harmonics
+
+
+_KEPT_SPIKES = ("kept: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` leaves "
+                "them out); the windows holding them may list spurious modes")
+
+
+def _spikes(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, leave_out: bool, kept: bool
+            ) -> tuple[np.ndarray | None, list[str]]:
+    """The record's output spikes named; ``leave_out``: ``valid`` with them missing where the gaps allow."""
+    spikes, by_output = output_spikes(u, y, valid=valid)
+    if not by_output:
+        return valid, []
+    n = y.shape[0]
+    left_out = (np.ones(n, bool) if valid is None else valid) & ~spikes
+    count = int(spikes.sum())
+    if count > most_spikes(n):
+        action, leave = (f"kept: {count} such samples ({100 * count / n:.1f} % of the record) are a heavy-tailed "
+                         f"signal rather than glitches"), False
+    elif not leave_out:
+        action, leave = (_KEPT_SPIKES if kept else "kept; the model may list spurious modes from them"), False
+    elif problem := missing_problem(left_out):
+        action, leave = f"kept, as they cannot be filled: {problem}", False
+    else:
+        action, leave = "left out as missing samples, filled by the model's prediction as a record's gaps are", True
+    warnings = []
+    for i, samples in by_output.items():
+        listed = ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")
+        warnings.append(f"output {i} jumps far beyond its neighbours at {samples.size} sample(s) ({listed}): a "
+                        f"spike or glitch, not the structure's response; {action}")
+    return (left_out if leave else valid), warnings
 
 
 def held_channel_warnings(y: np.ndarray) -> list[str]:

@@ -143,7 +143,7 @@ def test_clipping_is_judged_before_the_drift_tilts_the_flat_tops() -> None:
     rng = np.random.default_rng(3)
     x = np.clip(rng.standard_normal((5000, 1)), -1.5, 1.5) + _ramp(5000, 6.0)
     x = np.clip(x, -np.inf, 4.0)
-    _, _, warnings = record_faults(np.zeros((5000, 0)), x)
+    _, _, _, warnings = record_faults(np.zeros((5000, 0)), x)
     named = [w.split(" (")[0].split(":")[0] for w in warnings if w.startswith("output 0")]
     assert named == ["output 0 is clipped", "output 0 drifts"]
 
@@ -264,7 +264,7 @@ def test_faults_named_only_are_those_record_faults_names_and_the_record_stays(pa
     before = faulty.copy()
     named = record_fault_warnings(u, faulty, sample_time_s=DT)
     np.testing.assert_array_equal(faulty, before)
-    _, _, taken_out = record_faults(u, faulty, sample_time_s=DT)
+    _, _, _, taken_out = record_faults(u, faulty, sample_time_s=DT)
     assert [w.split(" ")[:3] for w in named] == [
         ["output", "1", "holds"], ["output", "0", "is"], ["output", "0", "drifts:"], ["output", "1", "drifts:"],
         ["harmonic", "disturbance", "in"]]
@@ -276,7 +276,7 @@ def test_faults_named_only_are_those_record_faults_names_and_the_record_stays(pa
     valid[2000:2300] = False  # zeros there would hold every output over 8 % of the record
     missing = faulty.copy()
     missing[~valid] = np.nan
-    _, _, with_zeros = record_faults(u, np.where(valid[:, None], faulty, 0.0), valid=valid)
+    _, _, _, with_zeros = record_faults(u, np.where(valid[:, None], faulty, 0.0), valid=valid)
     kept = record_fault_warnings(u, missing, valid=valid, sample_time_s=DT)
     assert [w.split(";")[0] for w in kept] == [w.split(";")[0] for w in with_zeros] and len(kept) == 4
     assert not any("hold every output" in w for w in kept)  # a gap is no held value
