@@ -50,7 +50,7 @@ from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import attach_jackknife_std
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions
-from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, search_orders
+from okid_ros.core.order_search import Completer, OrderSearch, choose_completion, complete_chosen, search_orders
 from okid_ros.core.record_checks import check_record_length, checked_record
 from okid_ros.core.refine import refine_prediction_error, refinement_flops, refinement_size
 from okid_ros.core.refit import PredictorFit
@@ -219,10 +219,13 @@ def _refine_best_orders(search: OrderSearch, completer: Completer, u: np.ndarray
     In an automatic search the next best orders by BIC (``options.refined_orders`` in all, none
     the search had to repair) are completed and refined too: the refinement moves each order's
     fit by a different amount, so the winner before it is not always the winner after it.
+    A repaired order chosen by its margin (:meth:`.OrderSearch.best_order`) that cannot be completed
+    gives way to the unrepaired winner (:func:`.order_search.complete_chosen`).
     Returns the order, its fit and every refined model by order (empty: the fit is not refined).
     """
     n_best = search.best_order() if options.automatic_order else int(options.n_states)
-    best = _completed(search, completer, n_best, options)
+    n_best, best = complete_chosen(n_best, lambda n: _completed(search, completer, n, options),
+                                   fallback=search.fallback_order(n_best) if options.automatic_order else None)
     refined = _refine(best, u, y, arx, options)
     if refined is None:
         return n_best, best, {}
