@@ -260,5 +260,6 @@ class InnovationWatch:
             "change_threshold": float(self.monitor.threshold),
             "change_alarms_unconfirmed": int(self.monitor.unconfirmed_alarms),
             "change_alarms_state_jump": int(self.monitor.state_jumps),
+            "change_glitches": int(self.monitor.glitches),  # samples the test took for glitches
             "change_waiting_for_model": self.change is not None,
         }
