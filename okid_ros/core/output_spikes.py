@@ -18,8 +18,11 @@ events are no glitch and stay: a jump in every output at once (an unmeasured imp
 the whole acquisition the dependence check refuses, :func:`.excitation.output_problem`) and one
 where an input jumps too (an impact hammer's response).
 
-The second difference of a spike of height ``h`` is ``h`` at the spike and ``-h / 2`` on either
-side, so the spike's neighbours may be flagged with it: all are returned. scipy.signal offers
+A spike's value must also depart from its neighbours' median by :data:`SPIKE_DEPARTURE` robust
+standard deviations of their values: a lightly damped ringing's second differences stray far
+from their median, its values do not (impact-hammer records). :func:`spike_spreads` says how far
+each lies in its channel's standard deviations (``identify`` leaves out only the large ones,
+:mod:`.sensor_faults`). scipy.signal offers
 outlier-free filters (``medfilt``), not a detector with these two rules; the rules need the
 per-sample scales, a few lines of numpy.
 """
@@ -29,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["MAX_SPIKES_ANY_RECORD", "MAX_SPIKE_SHARE", "SPIKE_DEPARTURE", "SPIKE_NEIGHBOURHOOD", "SPIKE_RATIO",
-           "most_spikes", "output_spikes"]
+           "most_spikes", "output_spikes", "spike_spreads"]
 
 #: Robust standard deviations of the second differences beyond which a sample is a spike (clean
 #: records: at most 4.5, module docstring).
@@ -58,8 +61,8 @@ def output_spikes(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
 
     Returns
     -------
-    spikes : (N,) bool, True at the samples to leave out (a spike and the neighbours its jump
-        flags); by_output : {output: (K,) sample indices} of the spikes' samples per output.
+    spikes : (N,) bool, True at the spikes' samples; by_output : {output: (K,) sample indices}
+        of the spikes per output.
     """
     n, p = y.shape
     none = np.zeros(n, bool)
@@ -80,6 +83,28 @@ def output_spikes(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     spikes = at_sample & ~_spread((every_output | input_jumps)[:, None], 1)[:, 0]
     by_output = {i: np.flatnonzero(spikes & flagged[:, i]) for i in range(p) if np.any(spikes & flagged[:, i])}
     return spikes, by_output
+
+
+def spike_spreads(y: np.ndarray, samples: np.ndarray, *, valid: np.ndarray | None = None) -> np.ndarray:
+    """How far each spike lies from its neighbours' median, in standard deviations of its channel.
+
+    Parameters
+    ----------
+    y : (N,) one output; samples : (K,) its spikes (:func:`output_spikes`); valid : (N,) bool,
+        False at missing samples (left out of the spread), None: none missing.
+
+    Returns
+    -------
+    (K,) ``|y_k - median of the SPIKE_NEIGHBOURHOOD samples either side| / std``, the standard
+    deviation over the channel's other samples (Inf for a channel otherwise constant).
+    """
+    others = np.ones(y.shape[0], bool) if valid is None else np.asarray(valid, bool).copy()
+    others[samples] = False
+    spread = float(np.std(y[others])) if others.any() else 0.0
+    before, after = _sides(y, np.asarray(samples))
+    centre = np.nanmedian(np.hstack([before, after]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(spread > 0, np.abs(y[samples] - centre) / (spread or 1.0), np.inf)
 
 
 def most_spikes(n_samples: int) -> int:

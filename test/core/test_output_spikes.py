@@ -107,3 +107,19 @@ def test_track_names_spikes_and_keeps_them(paper_record) -> None:
     warnings = record_fault_warnings(u, _spiked(y, [2500]), sample_time_s=DT)
     assert len(warnings) == 1 and warnings[0].startswith("output 0 jumps far beyond its neighbours at 1 sample(s)")
     assert "kept: track fits its windows as recorded" in warnings[0]
+
+
+def test_a_spike_within_a_few_channel_spreads_is_named_and_kept(paper_record) -> None:
+    # One such glitch on DaISy's winding record (4 spreads): left out, its ARX rows cost more than
+    # it weighed (held-out one-step prediction 1-2 % worse).
+    u, y = paper_record
+    small = y.copy()
+    small[2000, 1] = np.median(y[1975:2026, 1]) + 7.0 * y[:, 1].std()
+    spikes, by_output = output_spikes(u, small)
+    assert by_output == {1: [2000]}
+    _, _, valid, warnings = record_faults(u, small, leave_out_spikes=True)
+    assert valid is None and len(warnings) == 1
+    assert warnings[0].endswith("kept: within 8 standard deviations of the channel, such a sample weighs less than "
+                                "the ARX rows leaving it out costs")
+    _, _, valid, warnings = record_faults(u, _spiked(small, [3000], output=1), leave_out_spikes=True)  # and a large one
+    assert np.flatnonzero(~valid).tolist() == [3000] and len(warnings) == 2
