@@ -3,24 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from okid_ros.core.output_spikes import most_spikes, output_spikes
 from okid_ros.core.pipeline import identify
 from okid_ros.core.sensor_faults import record_fault_warnings, record_faults
-from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.paper_model import paper_model
 from okid_ros.sim.simulators import simulate_innovation
 
 DT = 0.008
-
-
-@pytest.fixture(scope="module")
-def paper_record():
-    truth = paper_model()
-    u = lowpass_input(3750, 2, 15.0, DT, seed=3)
-    y, _ = simulate_innovation(truth, u, seed=4)
-    return u, y
 
 
 def _spiked(y: np.ndarray, samples, output: int = 0, height: float = 30.0) -> np.ndarray:

@@ -27,14 +27,6 @@ DT = 0.008
 
 
 @pytest.fixture(scope="module")
-def paper_record():
-    truth = paper_model()
-    u = lowpass_input(3750, 2, 15.0, DT, seed=3)
-    y, _ = simulate_innovation(truth, u, seed=4)
-    return u, y
-
-
-@pytest.fixture(scope="module")
 def clean_modes(paper_record):
     u, y = paper_record
     return sorted(m.frequency_hz for m in identify(u, y, DT).modes)
