@@ -150,7 +150,7 @@ class StructuralChangeMonitor:
         self.predictor.x = end_state
         return e
 
-    def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int] | None:
+    def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """The held sample's verdict, given the next one (u, y): its (innovation, inputs, index) to test.
 
         A glitch (the next innovation :meth:`_settled` from the predicted state): innovation 0; else

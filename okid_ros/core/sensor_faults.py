@@ -16,7 +16,8 @@ out alone, holding one value while the others respond, is named by :func:`held_c
   its slowest mode anyway.
 - **Spikes**, single samples of an output far beyond their neighbours (interference, a bit error):
   :mod:`.output_spikes` finds them; ``record_faults(leave_out_spikes=True)`` (``identify``) marks
-  them missing, filled by prediction as a record's gaps are, where the gaps allow.
+  those of :data:`SPIKE_LEAVE_OUT_SPREADS` or more missing, filled by prediction as a record's
+  gaps are, where the gaps allow; the others are named and kept.
 - **Clipping**, a channel held at the end of its range (a sensor or recorder saturating): the
   flat tops are a nonlinearity whose harmonics the linear model lists as modes (an output of
   the paper's structure clipped at 80 % of its peak, 3 % of its samples: two spurious modes
