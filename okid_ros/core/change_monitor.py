@@ -67,7 +67,7 @@ class StructuralChangeMonitor:
         self.disarm()
 
     def disarm(self) -> None:
-        self._pending: tuple | None = None  # a glitch held for the next sample's verdict: (x, u, y, index)
+        self._pending: tuple | None = None  # a glitch held for the next sample's verdict: (innovation, u, index)
         self.predictor: InnovationPredictor | None = None
         self.whiten: np.ndarray | None = None
         self.reference_rows = 0
@@ -151,21 +151,21 @@ class StructuralChangeMonitor:
         return e
 
     def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-        """The held sample's verdict, given the next one (u, y): its (innovation, inputs, index) to test.
+        """The held sample's verdict, given the next one (u, y): its (whitened innovation, inputs, index) to test.
 
         A glitch (the next innovation :meth:`_settled` from the predicted state): innovation 0; else
-        the sample's own innovation, the predictor run over it as it came.
+        the sample's own innovation, and the predictor's state that of the sample as it came.
         """
-        x0, u_held, y_held, index = self._pending
+        e_held, u_held, index = self._pending
         self._pending = None
         predicted = self.predictor.x.copy()
         settled = self._settled(self.predictor.step(u, y))
         self.predictor.x = predicted
         if settled:
             self.glitches += 1
-            return np.zeros(y_held.shape[0]), u_held, index
-        self.predictor.x = x0
-        return self.predictor.step(u_held, y_held), u_held, index
+            return np.zeros(e_held.shape[0]), u_held, index
+        self.predictor.x = predicted + self.predictor.Gy @ e_held  # the step is linear in y
+        return self.whiten @ e_held, u_held, index
 
     def _judge_jump(self, change_index: int, alarm_index: int, index: int) -> StateJump | None:
         """The detector's ``jump_test``: the excursion's innovations fitted by a jump of the state."""
@@ -222,10 +222,8 @@ class StructuralChangeMonitor:
     def _drop_pending(self) -> None:
         """A held sample run as it came, untested (no next sample judges it: a gap follows)."""
         if self._pending is not None:
-            x0, u, y, _ = self._pending
+            self.predictor.x = self.predictor.x + self.predictor.Gy @ self._pending[0]
             self._pending = None
-            self.predictor.x = x0
-            self.predictor.step(u, y)
             self.detector.gap()
 
     def process(self, u: np.ndarray, y: np.ndarray, first_index: int, *, test: bool = True) -> ChangeAlarm | None:
@@ -285,26 +283,24 @@ class StructuralChangeMonitor:
         """
         if not self.armed:
             return None
-        u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
         if self._pending is not None:
             alarm = self._test_one(*self._step_pending(u, y), test=True)
             if alarm is not None:
                 return alarm
-        x0 = self.predictor.x.copy()
         e = self.predictor.step(u, y)
         if self._hold:
             self._hold -= 1
             return None
-        if test and self._glitches(e[None, :])[0]:
-            self.predictor.x = x0
-            self.predictor.step(u, y - e)  # its prediction in its place until the next sample's verdict
-            self._pending = (x0, u, y, index)
-            return None
-        return self._test_one(e, u, index, test=test)
-
-    def _test_one(self, e: np.ndarray, u: np.ndarray, index: int, *, test: bool) -> ChangeAlarm | None:
-        """The test of one sample's innovation ``e`` (p,), the predictor's state already past it."""
         z = self.whiten @ e
+        # |z|^2 = e^T Re^-1 e bounds every (e_i / sigma_i)^2: below GLITCH_STD^2 no output is past it.
+        if test and float(z @ z) > GLITCH_STD ** 2 and self._glitches(e[None, :])[0]:
+            self.predictor.x = self.predictor.x - self.predictor.Gy @ e  # its prediction in its place
+            self._pending = (e, u, index)
+            return None
+        return self._test_one(z, u, index, test=test)
+
+    def _test_one(self, z: np.ndarray, u: np.ndarray, index: int, *, test: bool) -> ChangeAlarm | None:
+        """The test of one sample's whitened innovation ``z`` (p,), the predictor's state already past it."""
         finite = bool(np.all(np.isfinite(z)))
         if finite:
             self._record(index, z[None, :])
