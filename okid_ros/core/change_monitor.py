@@ -36,6 +36,9 @@ _ONSET_ROOM = 8  # samples before the CUSUM's change point the state-jump fit ma
 #: record looped back on itself) goes on in the next samples' innovations. Without it, ten
 #: glitches of 30 output spreads in a 20000-sample record made `track` declare 3 changes.
 GLITCH_STD = 12.0
+#: ... the level no output passes in a glitch's sample's company (every output at once: an
+#: impact) or in the sample after it (the model's own expectation again).
+_QUIET_STD = GLITCH_STD / 3
 
 
 class StructuralChangeMonitor:
@@ -118,11 +121,11 @@ class StructuralChangeMonitor:
         if e.shape[1] < 2:  # one output: a glitch and an unmeasured impact look alike
             return np.zeros(e.shape[0], bool)
         size = np.abs(e) / self._innovation_std
-        return np.any(size > GLITCH_STD, axis=1) & ~np.all(size > GLITCH_STD / 3, axis=1)
+        return np.any(size > GLITCH_STD, axis=1) & ~np.all(size > _QUIET_STD, axis=1)
 
     def _settled(self, e: np.ndarray) -> bool:
         """The innovation (p,) of the sample after a glitch, its prediction taken: as the model expects."""
-        return bool(np.all(np.abs(e) <= GLITCH_STD / 3 * self._innovation_std))
+        return bool(np.all(np.abs(e) <= _QUIET_STD * self._innovation_std))
 
     def _without_glitches(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """The innovations ``e`` of a block (u (N, m), y (N, p)) run from state ``x0``, its glitches taken out.

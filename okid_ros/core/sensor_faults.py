@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.excitation import frozen_output_warnings, longest_held_run
-from okid_ros.core.gap_fill import missing_problem
+from okid_ros.core.gap_fill import mark_missing, missing_problem
 from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_spikes import most_spikes, output_spikes, spike_spreads
 
@@ -119,8 +119,7 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
     warnings = frozen_output_warnings(held) + held_channel_warnings(held)
     spiked, spike_warnings = _spikes(u, y, valid, leave_out=leave_out_spikes, kept=kept)
     if spiked is not valid:
-        valid = spiked
-        u, y = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], y, 0.0)
+        u, y, valid = mark_missing(u, y, spiked)
     warnings += spike_warnings
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
     y_clipped, y_named = clipped_samples(y, "output", valid=valid)
