@@ -35,7 +35,7 @@ fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the r
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
 the window leaves out the regressor rows that reach them, the realization fills gaps of up to the
 nodes' ``estimator.max_gap_samples`` by prediction and starts after a longer one
-(:func:`okid_ros.core.gap_fill.realization_window`, node 2's rule), and the change test bridges
+(:func:`okid_ros.core.realization_window.realization_window`, node 2's rule), and the change test bridges
 them (:meth:`okid_ros.core.change_monitor.StructuralChangeMonitor.gap`). ``window_first_index``
 then counts the missing samples in the window's span.
 
@@ -275,8 +275,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
     from okid_ros.core.arx_order import choose_arx_order
-    from okid_ros.core.gap_fill import realization_minimum
     from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
+    from okid_ros.core.realization_window import realization_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
 
@@ -363,7 +363,7 @@ def _window_model(estimator, record: "_TrackedRecord", k: int, dt: float, args: 
     fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
                                     center=True)
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
-    u_w, y_w = samples.u, samples.y
+    u_w, y_w, fit = samples.u, samples.y, samples.fit
     model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid)  # output-only when m = 0
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
@@ -459,11 +459,11 @@ class _TrackedRecord:
         """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
 
         Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples
-        among them are filled or end the run as on node 2 (:func:`okid_ros.core.gap_fill.realization_window`).
+        among them are filled or end the run as on node 2 (:func:`okid_ros.core.realization_window.realization_window`).
         """
         import numpy as np
 
-        from okid_ros.core.gap_fill import realization_window
+        from okid_ros.core.realization_window import realization_window
 
         start = self.window_start(k, rows)
         present = np.flatnonzero(self.present[start : k + 1]) + start

@@ -20,17 +20,14 @@ No rclpy; numpy only. (No library fills gaps with the prediction of an ARX model
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.regressors import real_array, regressor_at
 
-__all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "RealizationWindow", "fill_missing", "fill_short_gaps",
-           "fit_and_fill", "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem",
-           "realization_minimum", "realization_window", "OUTPUT_ONLY_VAR_ORDER"]
+__all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "fill_missing", "fill_short_gaps", "fit_and_fill",
+           "fill_missing_outputs", "mark_missing", "missing_mask", "missing_problem", "OUTPUT_ONLY_VAR_ORDER"]
 
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
@@ -97,71 +94,6 @@ def fill_short_gaps(u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
     y_full += y_mean
     y_full[position] = y  # the measured samples exactly as measured
     return u_full, y_full, valid
-
-
-@dataclass(frozen=True)
-class RealizationWindow:
-    """The samples of an ARX window that a realization runs on (:func:`realization_window`).
-
-    Attributes
-    ----------
-    u : (N, m); y : (N, p) contiguous samples, short gaps filled.
-    valid : (N,) bool, False at filled slots; None when nothing was filled.
-    filled : slots filled by prediction.
-    """
-
-    u: np.ndarray
-    y: np.ndarray
-    valid: np.ndarray | None
-    filled: int
-
-
-def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: ArxFit, *, max_gap: int,
-                       need: int) -> RealizationWindow:
-    """The newest run of an ARX window without a long gap or a time restart, its short gaps filled.
-
-    The one rule of node 2 and ``okid-ros track`` for a window with missing samples: a gap of
-    more than ``max_gap`` slots (or a restart) ends what the realization can use, shorter ones are
-    filled by :func:`fill_short_gaps`.
-
-    Parameters
-    ----------
-    u : (N, m) received inputs; y : (N, p) received outputs, in time order.
-    skipped : (N,) missing slots just before each sample (< 0: a time restart).
-    fit : the window's ARX fit; max_gap : longest gap filled, in samples.
-    need : the window's samples (rows plus the ARX order): at least ``max(4 q, need // 2)`` of
-        them must remain.
-
-    Raises
-    ------
-    ValueError with the reason when too much is missing.
-    """
-    skipped = np.asarray(skipped, dtype=np.int64)
-    breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
-    first = int(breaks[-1]) if breaks.size else 0
-    u, y, skipped = u[first:], y[first:], skipped[first:]
-    valid = None
-    filled = 0
-    if np.any(skipped[1:]):
-        try:
-            u, y, valid = fill_short_gaps(u, y, skipped, fit)
-        except ValueError as exc:
-            raise ValueError(f"ARX window: {exc}") from None
-        filled = int(np.count_nonzero(~valid))
-    minimum = realization_minimum(fit.order, need)
-    if u.shape[0] < minimum:
-        raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
-                         f"{max_gap} samples; the realization needs at least {minimum}")
-    return RealizationWindow(u, y, valid, filled)
-
-
-def realization_minimum(order: int, need: int) -> int:
-    """Samples a realization needs of an ARX window of ``need`` samples at ARX order ``order``.
-
-    Four times the order (the Markov parameters and the state regression after the ARX's lags),
-    and half the window's samples.
-    """
-    return max(4 * order, need // 2)
 
 
 def missing_mask(valid, n_samples: int) -> np.ndarray | None:

@@ -45,7 +45,7 @@ from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_spikes import most_spikes, output_spikes, spike_spreads
 
 __all__ = ["TREND_SHARE", "clipped_samples", "held_channel_warnings", "record_fault_warnings", "record_faults",
-           "remove_trends"]
+           "remove_trends", "spikes_left_out"]
 
 #: A channel's least-squares line is removed (and named) when it holds this share of its variance.
 TREND_SHARE = 0.02
@@ -148,6 +148,16 @@ _KEPT_SPIKES = ("kept: track fits its windows as recorded, as node 1 sees them l
 #: DaISy's winding record one glitch of 4 spreads left out made the held-out one-step prediction
 #: 1-2 % worse; the glitches of bench/record_faults.py (30 spreads) cost modes when kept.
 SPIKE_LEAVE_OUT_SPREADS = 8.0
+
+
+def spikes_left_out(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray | None:
+    """``valid`` (N,) with the output spikes ``identify`` leaves out marked missing; ``valid`` itself if none.
+
+    The rule of ``record_faults(leave_out_spikes=True)``: spikes of :data:`SPIKE_LEAVE_OUT_SPREADS`
+    or more, unless the record is heavy-tailed or the gaps cannot take them. Node 2 and ``track``
+    apply it to each realization's window (:func:`okid_ros.core.realization_window.realization_window`).
+    """
+    return _spikes(u, y, valid, leave_out=True, kept=False)[0]
 
 
 def _spikes(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, leave_out: bool, kept: bool

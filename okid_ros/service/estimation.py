@@ -72,7 +72,7 @@ matched against the modes before the change (:mod:`okid_ros.service.model_switch
 Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
 predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
 time jump the estimator restarts from zero. A realization's window starts after the last longer
-gap; its short gaps are filled (:mod:`okid_ros.core.gap_fill`, ``window_samples_filled``).
+gap; short gaps, large spikes filled (:mod:`okid_ros.core.realization_window`, ``window_samples_filled``).
 """
 
 from __future__ import annotations
@@ -87,9 +87,9 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
-from okid_ros.core.gap_fill import realization_minimum, realization_window
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.core.realization_window import realization_minimum, realization_window
 from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
@@ -262,10 +262,9 @@ class ModalEstimationService:
             if self._busy or self._request is None or not self.enabled:
                 return None
             fit, stamp_end, arx_id, rows = self._request
-            dt = self.params.sample_time_s
+            dt, prm = self.params.sample_time_s, self.params
             short = (stamp_end - self._buffer.newest_stamp()) / dt if self._buffer.count > 0 else 0.0
-            if short > 0.5 and not (self._idle.still_idle(self._buffer.count)
-                                    and short <= self.params.max_gap_samples + 0.5):
+            if short > 0.5 and not (self._idle.still_idle(self._buffer.count) and short <= prm.max_gap_samples + 0.5):
                 return None  # the window's last sample has not arrived here yet
             self._request = None
             self._last_request_end = stamp_end
@@ -282,14 +281,15 @@ class ModalEstimationService:
                 )
             stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
             try:
-                window = realization_window(u, y, skipped, fit, max_gap=self.params.max_gap_samples, need=need)
+                window = realization_window(u, y, skipped, fit, max_gap=prm.max_gap_samples, need=need,
+                                            center=prm.offsets == "remove")
             except ValueError as exc:
                 return self._refuse(str(exc))
             self._stats.window_samples_filled += window.filled
             self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
-            return RealizationJob(fit, arx_id, end_stamp, window.u, window.y, end, self.params, self._generation,
-                                  window.valid, hint)
+            return RealizationJob(window.fit, arx_id, end_stamp, window.u, window.y, end, self.params,
+                                  self._generation, window.valid, hint)
 
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1

@@ -40,8 +40,10 @@ from typing import Any
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
+from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
 from okid_ros.core.recursive import SlidingWindowArx
+from okid_ros.core.window_samples import MAX_SQUARED_NORM
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
@@ -247,6 +249,7 @@ class ArxIdentificationService:
         memory = params.window_length or int(min(3.0 / max(1.0 - params.forgetting_factor, 1e-6), 100_000))
         self._recent = SampleBuffer(memory + params.order + 64, params.n_inputs, params.n_outputs)
         self._stamps = StampSequence(params.sample_time_s)
+        self._gate = ArxGlitchGate(params.order, params.n_outputs, params.n_inputs)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -258,6 +261,7 @@ class ArxIdentificationService:
         self._counters = _Counters()
         self._health = _Health()
         self._stamps.reset()
+        self._gate.forget_model()
         self._last_good: ArxFit | None = None
         self._last_good_penalty = math.nan
         self._model_id = 0
@@ -315,16 +319,28 @@ class ArxIdentificationService:
         if step is StampStep.DUPLICATE:
             c.rejected_duplicate += 1
             return False
+        with np.errstate(over="ignore"):
+            in_bound = float(u @ u + y @ y) <= MAX_SQUARED_NORM
+        if step is StampStep.GAP or not in_bound:
+            self._enter(self._gate.gap(), gap=False)  # a held sample goes in before the history breaks
         if step is StampStep.GAP:
             self._est.mark_gap()
             c.gaps += 1
-        if not self._est.push(u, y):  # the window's bound on magnitudes (it breaks its lag history)
+        if not in_bound:
+            self._est.push(u, y)  # refused and counted by the window, which breaks its lag history
             c.rejected_magnitude += 1
             return False
         self._stamps.accept(stamp_s)
-        self._recent.append(stamp_s, u, y, int(c.gaps != gaps_before))
+        self._enter(self._gate.offer(u, y, stamp_s), gap=c.gaps != gaps_before)
         c.samples_used += 1
         return True
+
+    def _enter(self, due: list, *, gap: bool) -> None:
+        """Samples ``(u, y, stamp_s)`` the glitch gate lets into the window (the first after ``gap``)."""
+        for u, y, stamp_s in due:
+            self._est.push(u, y)
+            self._recent.append(stamp_s, u, y, int(gap))
+            gap = False
 
     def restart_at(self, change_stamp_s: float) -> int:
         """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
@@ -343,6 +359,7 @@ class ArxIdentificationService:
                 or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
             c.restarts_ignored += 1
             return -1
+        self._enter(self._gate.gap(), gap=False)  # a held sample is part of the samples to replay
         first = self._recent.first_at_or_after(change_stamp_s, tol)
         if first < 0:
             first = self._recent.count  # nothing after the change yet: an empty window
@@ -380,6 +397,8 @@ class ArxIdentificationService:
         if valid:
             self._last_good = result.fit
             self._last_good_penalty = float(result.fit.penalty)
+            self._gate.set_model(result.fit, window_intercept(capture.normal, result.fit)
+                                 if capture.params.offsets == "remove" else None)
         h = self._health
         h.snapshots += 1
         h.valid_snapshots += int(valid)
@@ -448,6 +467,7 @@ class ArxIdentificationService:
             "rejected_out_of_order": c.rejected_out_of_order,
             "rejected_magnitude": c.rejected_magnitude,
             "gaps": c.gaps,
+            "glitches": self._gate.glitches,  # samples whose outputs went in as their prediction
             "window_restarts": c.window_restarts,
             "window_restarts_ignored": c.restarts_ignored,
             "last_restart_stamp_s": c.last_restart_stamp_s,

@@ -19,8 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-from okid_ros.core.gap_fill import realization_minimum
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
+from okid_ros.core.realization_window import realization_minimum
 from okid_ros.core.regressors import regressor_length
 from okid_ros.errors import ParameterError
 from okid_ros.service.params import (

@@ -9,8 +9,8 @@ import pytest
 
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.gap_fill import realization_window
 from okid_ros.core.pipeline import identify_from_arx
+from okid_ros.core.realization_window import realization_window
 from okid_ros.records import save_record
 from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model

@@ -1,0 +1,102 @@
+"""The samples of an ARX window that a realization runs on: node 2's rule, and ``okid-ros track``'s.
+
+The newest run of the window without a long gap or a time restart; its short gaps filled by the
+window's ARX prediction (:func:`.gap_fill.fill_short_gaps`); and, in an input-output window, the
+output spikes ``identify`` leaves out of a record left out as missing samples and filled the same
+way (:func:`.sensor_faults.spikes_left_out`): a glitch (interference, a bit error) read by the
+realization's passes over the samples (state completion, refit, refinement) cost most of the
+modes of the paper structure's windows, while node 1 had already kept it out of the ARX fit
+(:mod:`.arx_glitches`; docs/robustness.md).
+
+No rclpy; numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.gap_fill import fill_short_gaps, fit_and_fill
+from okid_ros.core.sensor_faults import spikes_left_out
+
+__all__ = ["RealizationWindow", "realization_minimum", "realization_window"]
+
+
+@dataclass(frozen=True)
+class RealizationWindow:
+    """The samples of an ARX window that a realization runs on (:func:`realization_window`).
+
+    Attributes
+    ----------
+    u : (N, m); y : (N, p) contiguous samples, short gaps filled.
+    valid : (N,) bool, False at filled slots (gaps, spikes); None when nothing was filled.
+    filled : slots filled by prediction.
+    fit : the ARX fit to realize: the window's, or its refit without the spikes' rows.
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    valid: np.ndarray | None
+    filled: int
+    fit: ArxFit
+
+
+def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: ArxFit, *, max_gap: int,
+                       need: int, center: bool = True) -> RealizationWindow:
+    """The newest run of an ARX window without a long gap or a time restart, short gaps and spikes filled.
+
+    The one rule of node 2 and ``okid-ros track`` for a window with missing samples: a gap of
+    more than ``max_gap`` slots (or a restart) ends what the realization can use, shorter ones are
+    filled by :func:`.gap_fill.fill_short_gaps`; then an input-output window's large output spikes
+    are filled too (the module docstring).
+
+    Parameters
+    ----------
+    u : (N, m) received inputs; y : (N, p) received outputs, in time order.
+    skipped : (N,) missing slots just before each sample (< 0: a time restart).
+    fit : the window's ARX fit; max_gap : longest gap filled, in samples.
+    need : the window's samples (rows plus the ARX order): at least ``max(4 q, need // 2)`` of
+        them must remain.
+    center : the refit without the spikes' rows has an intercept (node 2's ``offsets``: "remove").
+
+    Raises
+    ------
+    ValueError with the reason when too much is missing.
+    """
+    skipped = np.asarray(skipped, dtype=np.int64)
+    breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
+    first = int(breaks[-1]) if breaks.size else 0
+    u, y, skipped = u[first:], y[first:], skipped[first:]
+    valid = None
+    filled = 0
+    if np.any(skipped[1:]):
+        try:
+            u, y, valid = fill_short_gaps(u, y, skipped, fit)
+        except ValueError as exc:
+            raise ValueError(f"ARX window: {exc}") from None
+        filled = int(np.count_nonzero(~valid))
+    if u.shape[1]:  # output-only windows: named there, not left out (identify's rule)
+        spiked = spikes_left_out(u, y, valid)
+        if spiked is not valid:
+            # The fit to realize leaves their rows out too: the realization's passes over the samples
+            # must see the data the ARX model was fitted to (a fit holding a glitch realized over a
+            # window without it lost more modes than the glitch itself).
+            fit, u, y, valid = fit_and_fill(u, y, spiked, fit.order, None, regularization=fit.regularization,
+                                            center=center)
+            filled = int(np.count_nonzero(~valid))
+    minimum = realization_minimum(fit.order, need)
+    if u.shape[0] < minimum:
+        raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
+                         f"{max_gap} samples; the realization needs at least {minimum}")
+    return RealizationWindow(u, y, valid, filled, fit)
+
+
+def realization_minimum(order: int, need: int) -> int:
+    """Samples a realization needs of an ARX window of ``need`` samples at ARX order ``order``.
+
+    Four times the order (the Markov parameters and the state regression after the ARX's lags),
+    and half the window's samples.
+    """
+    return max(4 * order, need // 2)

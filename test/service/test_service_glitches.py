@@ -1,0 +1,101 @@
+"""Glitches (one output sample far off) kept out of node 1's window and node 2's realization windows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from okid_bench.live_chain import chain_modes
+from okid_ros.core.arx import fit_arx
+from okid_ros.core.realization_window import realization_window
+from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+from okid_ros.service.params import ARX_NODE, resolve_parameters
+from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+Q, W = 30, 2000
+GLITCHES = [3100, 3650, 4210, 4777, 5302]
+
+
+@pytest.fixture(scope="module")
+def record():
+    model = paper_model()
+    u = lowpass_input(6000, 2, 15.0, model.sample_time_s, seed=5)
+    y, _ = simulate_innovation(model, u, seed=6)
+    return model, u, y
+
+
+def _glitched(y: np.ndarray, samples, size: float = 30.0, output: int = 0) -> np.ndarray:
+    out = y.copy()
+    out[samples, output] += size * y[:, output].std()
+    return out
+
+
+def _service(dt: float) -> ArxIdentificationService:
+    values = {"sample_time_s": dt, "arx.order": Q, "arx.window_length": W}
+    return ArxIdentificationService(ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, values)))
+
+
+def _window_after(dt: float, u: np.ndarray, y: np.ndarray) -> ArxIdentificationService:
+    """Node 1 fed the record, with a model from its first 2500 samples."""
+    service = _service(dt)
+    service.push_block(dt * np.arange(2500), u[:2500], y[:2500])
+    assert service.snapshot().valid
+    service.push_block(dt * np.arange(2500, u.shape[0]), u[2500:], y[2500:])
+    return service
+
+
+def test_a_glitch_goes_into_node_1s_window_as_its_prediction(record):
+    # Five samples of output 0 thirty spreads off: the window's fit was 1.5 times its own size
+    # away from the clean record's (the glitches' squares outweigh the whole window's).
+    model, u, y = record
+    dt = model.sample_time_s
+    clean = _window_after(dt, u, y).snapshot().fit.theta
+    service = _window_after(dt, u, _glitched(y, GLITCHES))
+    theta = service.snapshot().fit.theta
+    assert service.diagnostics()["glitches"] == len(GLITCHES)
+    assert np.linalg.norm(theta - clean) < 0.1 * np.linalg.norm(clean)
+    # What went in at a glitch is the last model's prediction: close to the clean sample.
+    _, y_window, _ = service.window_samples()
+    at = np.array(GLITCHES) - (u.shape[0] - y_window.shape[0])
+    assert np.all(np.abs(y_window[at, 0] - y[GLITCHES, 0]) < 4 * y[:, 0].std())
+
+
+def test_an_impact_on_every_output_and_a_lasting_step_are_no_glitch(record):
+    model, u, y = record
+    dt = model.sample_time_s
+    impact = _glitched(_glitched(y, [4000], output=0), [4000], output=1)
+    step = y.copy()
+    step[4500:, 1] += 30 * y[:, 1].std()  # a sensor re-zeroed: the next samples stay off
+    for record_y in (impact, step):
+        service = _window_after(dt, u, record_y)
+        u_window, y_window, _ = service.window_samples()
+        assert service.diagnostics()["glitches"] == 0
+        np.testing.assert_array_equal(y_window, record_y[-y_window.shape[0]:])
+        np.testing.assert_array_equal(u_window, u[-u_window.shape[0]:])
+
+
+def test_a_realization_window_leaves_a_large_spike_out_of_its_samples_and_its_fit(record):
+    # Node 2's window of node 1's fit holding the glitch: the samples and the fit to realize are
+    # both without it (the fit refitted without the rows that reach it), as `identify` does.
+    model, u, y = record
+    spiked = _glitched(y[:3000], [1500])
+    fit = fit_arx(u[:3000], spiked, Q, center=True)
+    window = realization_window(u[:3000], spiked, np.zeros(3000, np.int64), fit, max_gap=10, need=3000)
+    assert window.filled == 1 and np.flatnonzero(~window.valid).tolist() == [1500]
+    assert abs(window.y[1500, 0] - y[1500, 0]) < 4 * y[:, 0].std()
+    np.testing.assert_array_equal(np.delete(window.y, 1500, axis=0), np.delete(y[:3000], 1500, axis=0))
+    clean_fit = fit_arx(u[:3000], y[:3000], Q, center=True)
+    residual = np.linalg.norm(window.fit.theta - clean_fit.theta)
+    assert residual < 0.2 * np.linalg.norm(fit.theta - clean_fit.theta)
+    clean = realization_window(u[:3000], y[:3000], np.zeros(3000, np.int64), clean_fit, max_gap=10, need=3000)
+    assert clean.valid is None and clean.filled == 0 and clean.fit is clean_fit
+
+
+def test_glitches_cost_the_live_chain_no_mode(record):
+    # The chain of both nodes (as `process` and the live nodes run it) on the record with the
+    # five glitches: the models of the windows holding them lost modes and listed spurious ones.
+    model, u, y = record
+    clean = chain_modes(model, u, y, order=Q, window=W, every=500)
+    glitched = chain_modes(model, u, _glitched(y, GLITCHES), order=Q, window=W, every=500)
+    assert glitched.updates == clean.updates and glitched.found >= clean.found - 1
+    assert glitched.spurious <= clean.spurious + 1 and glitched.arx_glitches == len(GLITCHES)
