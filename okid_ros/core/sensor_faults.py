@@ -1,4 +1,4 @@
-"""What a record's sensors did besides measuring the structure: drift, spikes, clipping, dropouts.
+"""What a record's sensors did besides measuring the structure: drift, level shifts, spikes, clipping, dropouts.
 
 Faults of real records that the identification cannot tell from dynamics (an output that drops
 out alone, holding one value while the others respond, is named by :func:`held_channel_warnings`):
@@ -14,6 +14,11 @@ out alone, holding one value while the others respond, is named by :func:`held_c
   simulated benchmark records); a pure sine over ``k`` periods reaches 2 % only for ``k < 5``
   (its line then holds up to 0.024 at ``k = 5``, 0.006 at ``k = 10``), a record too short for
   its slowest mode anyway.
+- **Level shifts**, one output's level stepping at one sample and staying (a sensor re-zeroed, an
+  amplifier's range switched): :mod:`.level_shifts` finds them on the raw values, before the
+  spikes (a large step's two edge samples look like spikes) and the trend (a step is no line);
+  ``record_faults`` subtracts each from its sample on (the level before kept) when it removes
+  the trends (``detrend``), and names it in any case.
 - **Spikes**, single samples of an output far beyond their neighbours (interference, a bit error):
   :mod:`.output_spikes` finds them; ``record_faults(leave_out_spikes=True)`` (``identify``) marks
   those of :data:`SPIKE_LEAVE_OUT_SPREADS` or more missing, filled by prediction as a record's
@@ -68,12 +73,14 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     """A record's faults named and, where the chain can, taken out: ``(u, y, valid, warnings)``.
 
     In this order (each judged on what the one before leaves): stalled samples named, on the raw
-    values; output spikes (:mod:`.output_spikes`) named, and with ``leave_out_spikes`` marked
-    missing (``valid`` False, 0 in ``u`` and ``y``) when the record's gaps can take them
-    (:func:`.gap_fill.missing_problem`); clipped channels named, on the raw values (a removed
-    trend or sinusoid would tilt the flat tops); trends removed (``detrend``) or only named,
-    fitted without the clipped samples; with ``sample_time_s``, the outputs' harmonic lines that
-    the inputs do not hold removed, fitted to the samples present
+    values; output level shifts (:mod:`.level_shifts`) removed (``detrend``) or only named (the
+    faults after them judged without them, but clipping); output spikes (:mod:`.output_spikes`)
+    named, and with ``leave_out_spikes`` marked missing (``valid`` False, 0 in ``u`` and ``y``)
+    when the record's gaps can take them (:func:`.gap_fill.missing_problem`); clipped channels
+    named, on the raw values (a removed step, trend or sinusoid would move or tilt the flat tops);
+    trends removed (``detrend``) or only named, fitted without the clipped samples; with
+    ``sample_time_s``, the outputs' harmonic lines that the inputs do not hold removed, fitted to
+    the samples present
     (:func:`.output_only_harmonics.without_harmonics`).
 
     Parameters
@@ -129,7 +136,7 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
         u, y, valid = mark_missing(u, y, spiked)
     warnings += spike_warnings
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
-    y_clipped, y_named = clipped_samples(y, "output", valid=valid)
+    y_clipped, y_named = clipped_samples(raw, "output", valid=valid)  # the samples marked missing are left out
     clipped = u_clipped | y_clipped
     present = valid if not clipped.any() else (np.ones(y.shape[0], dtype=bool) if valid is None else valid) & ~clipped
     # Kept trends are still taken out of the copies the harmonic lines are looked for in, as identify does.

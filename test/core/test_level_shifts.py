@@ -155,3 +155,15 @@ def test_track_names_the_shift_and_the_record_stays(paper_record) -> None:
     assert len(warnings) == 1
     assert warnings[0].startswith("output 1 changes level at sample 2000 (16 s) by +3.0 standard deviations")
     assert "NOT removed: track fits its windows as recorded" in warnings[0]
+
+
+def test_clipping_is_judged_on_the_raw_values(paper_record) -> None:
+    # The sensor's range clips its reading, the re-zeroed one too: the flat tops hold one value
+    # across the step, which the step's removal would split in two.
+    u, y = paper_record
+    shifted = _shifted(y, [(0, 2000, 3.0)])
+    level = 0.8 * np.abs(shifted[:, 0]).max()
+    shifted[:, 0] = np.clip(shifted[:, 0], -level, level)
+    warnings = record_faults(u, shifted)[3]
+    assert [w.split(" (")[0].split(" at sample")[0] for w in warnings] == ["output 0 changes level",
+                                                                          "output 0 is clipped"]
