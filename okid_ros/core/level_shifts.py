@@ -3,9 +3,9 @@
 A sensor re-zeroed, an amplifier's range switched, a connector reseated: the channel's level steps
 by some amount at one sample and stays there. Least squares takes the step for a response with
 a pole at z = 1; the trend step (:mod:`.sensor_faults`) took it for a drift and removed a line,
-which left most of the step in. On the paper's structure (3750 samples, 10 seeds) a step of 3
-output spreads in one output cost 3 of the 30 modes; one of 10 spreads listed 2 spurious modes
-and its two edge samples were named as spikes.
+which left most of the step in: on the paper's structure (3750 samples, 20 seeds) a step of 10
+output spreads in one output lost 5 of the 60 modes that the clean records find, and the two
+edge samples of one of 30 spreads were left out as spikes.
 
 The rule: at each sample ``k`` of an output, ``d_k`` is the mean of the :data:`SHIFT_WINDOW`
 samples from ``k`` on less the mean of those before it. A stationary channel's ``d`` is a
@@ -13,9 +13,12 @@ stationary signal whatever its dynamics (slow modes and lightly damped ringing m
 everywhere); a step of size ``s`` makes ``|d|`` peak at ``s`` at the step's sample. ``k`` is a
 shift when ``|d_k - median d|`` exceeds :data:`SHIFT_RATIO` robust standard deviations (1.4826
 times the median absolute deviation) of the channel's ``d``; a drift only moves ``d``'s median.
-Two events are no fault of one sensor and are not named: a shift of every output at once (p >= 2:
-the structure itself moved, an unmeasured load) and one where an input shifts or jumps too
-within the window (the response to a measured step or impact). A channel with more than
+Three events are no fault of one sensor and are not named: a shift of every output at once (p >= 2:
+the structure itself moved, an unmeasured load), one where an input shifts or jumps too within
+the window (the response to a measured step or impact), and a level that does not stay (the
+median of the samples beyond the window after less that before the step holds less than
+:data:`PERSISTENCE` of it: an impact's ringing in a quiet record lies far beyond the record's
+usual mean differences, but dies out to the level before). A channel with more than
 :data:`MAX_SHIFTS` shifts is named as unusable and kept (a loose contact, a noisy channel: no
 level to keep).
 
@@ -43,8 +46,8 @@ __all__ = ["MAX_SHIFTS", "PERSISTENCE", "SHIFT_RATIO", "SHIFT_WINDOW", "LevelShi
 #: Samples on each side of a sample whose means are compared.
 SHIFT_WINDOW = 100
 #: Robust standard deviations of a channel's mean differences beyond which a sample is a shift
-#: (clean records: at most 5.5, docs/robustness.md; a step of 3 spreads on the paper's structure:
-#: 30 and more).
+#: (records without impacts or steps: at most 6.5, docs/robustness.md; a step of 3 spreads on the
+#: paper's structure: 30 and more, of 1 spread about 12).
 SHIFT_RATIO = 12.0
 #: The level after a shift (beyond its window) differs from that before by at least this share of
 #: the shift's mean difference, with its sign: the level stays.
