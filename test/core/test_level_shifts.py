@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from okid_ros.core.level_shifts import MAX_SHIFTS, level_shifts
+from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify
 from okid_ros.core.sensor_faults import record_fault_warnings, record_faults
 from okid_ros.sim.inputs import lowpass_input
@@ -167,3 +168,18 @@ def test_clipping_is_judged_on_the_raw_values(paper_record) -> None:
     warnings = record_faults(u, shifted)[3]
     assert [w.split(" (")[0].split(" at sample")[0] for w in warnings] == ["output 0 changes level",
                                                                           "output 0 is clipped"]
+
+
+def test_output_only_identification_removes_a_shift() -> None:
+    # The offsets are the means without the step: the raw means left the step's share of the level
+    # in the channel (the 7 Hz mode at 6.9846 Hz, the clean record's at 6.9868 Hz).
+    system = modal_structure([3.0, 7.0, 12.0], 0.01, 1, 4, 1 / 50, seed=3, output="acceleration",
+                             disturbance_std=1.0)
+    y = simulate_noisy(system, np.zeros((12000, 1)), seed=5)
+    clean = identify_output_only(y, 1 / 50).modes
+    model = identify_output_only(_shifted(y, [(2, 7000, 3.0)]), 1 / 50)
+    assert len(clean) == len(model.modes) == 3
+    for attribute in ("frequency_hz", "damping_ratio"):
+        np.testing.assert_allclose([getattr(m, attribute) for m in model.modes],
+                                   [getattr(m, attribute) for m in clean], rtol=1e-4)
+    assert len(model.warnings) == 1 and model.warnings[0].startswith("output 2 changes level at sample 7000 by +3.0")
