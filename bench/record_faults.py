@@ -15,6 +15,8 @@ to the same samples:
   drops them;
 - ``spikes``: five samples of output 0, at random, 30 of its spreads off (glitches: interference,
   a telemetry bit error);
+- ``level-shift``, ``level-shift-10``: one output's level stepping by 3 (10) of its spreads at a
+  random sample and staying (a sensor re-zeroed, an amplifier's range switched);
 - ``forced``: the same sinusoid in the inputs (a shaker's sine on its noise), the outputs its
   response: a harmonic the model must keep.
 
@@ -46,10 +48,13 @@ from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
 from okid_ros.sim.simulators import simulate_innovation  # noqa: E402
 
-CASES = ("clean", "drift", "clipped", "dropout", "hum", "hum-gaps", "spikes", "forced")
+CASES = ("clean", "drift", "clipped", "dropout", "hum", "hum-gaps", "spikes", "level-shift", "level-shift-10", "forced")
 #: A warning names the fault when it holds this word (none for the clean and forced records).
 NAMED_BY = {"drift": "drifts", "clipped": "clipped", "dropout": "dropped out", "hum": "harmonic disturbance",
-            "hum-gaps": "harmonic disturbance", "spikes": "jumps far beyond"}
+            "hum-gaps": "harmonic disturbance", "spikes": "jumps far beyond", "level-shift": "changes level",
+            "level-shift-10": "changes level"}
+#: The level shifts' sizes, in output standard deviations.
+SHIFT_SPREADS = {"level-shift": 3.0, "level-shift-10": 10.0}
 #: Output samples dropped in the ``hum-gaps`` record.
 DROPPED = 20
 HUM_HZ = 20.0
@@ -77,6 +82,11 @@ def _record(case: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
         rng = np.random.default_rng(seed)
         y = y.copy()
         y[rng.choice(np.arange(50, y.shape[0] - 50), 5, replace=False), 0] += 30 * y[:, 0].std()
+    if case in SHIFT_SPREADS:
+        rng = np.random.default_rng(seed)
+        output, first = int(rng.integers(0, y.shape[1])), int(rng.integers(y.shape[0] // 10, 9 * y.shape[0] // 10))
+        y = y.copy()
+        y[first:, output] += SHIFT_SPREADS[case] * y[:, output].std()
     if case == "hum-gaps":
         rng = np.random.default_rng(seed)
         y[rng.choice(np.arange(100, y.shape[0] - 100), DROPPED, replace=False), rng.integers(0, 2)] = np.nan

@@ -40,8 +40,8 @@ them (:meth:`okid_ros.core.change_monitor.StructuralChangeMonitor.gap`). ``windo
 then counts the missing samples in the window's span.
 
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
-(:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, spikes, a
-drift, harmonic lines the inputs lack. Nothing is taken out (the windows are what node 1 sees live).
+(:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
+spikes, a drift, harmonic lines the inputs lack. Nothing is taken out (the windows are what node 1 sees live).
 """
 
 from __future__ import annotations

@@ -56,10 +56,11 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
     problem = output_problem(y)  # a dead channel, or one the others make up (the input-output rule)
     if problem:
         raise IdentificationError(problem)
-    # Neither overflows nor underflows for values near the float64 limits.
+    _, y, _, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
+    # The means of what is identified: a removed drift keeps them, a removed level shift keeps the
+    # level before it. Neither overflows nor underflows for values near the float64 limits.
     peak = np.max(np.abs(y), axis=0)
     mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
-    _, y, _, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
     std = channel_std(y)
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:

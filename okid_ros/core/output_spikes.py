@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_SPIKES_ANY_RECORD", "MAX_SPIKE_SHARE", "SPIKE_DEPARTURE", "SPIKE_NEIGHBOURHOOD", "SPIKE_RATIO",
-           "most_spikes", "output_spikes", "spike_spreads"]
+__all__ = ["MAD_TO_STD", "MAX_SPIKES_ANY_RECORD", "MAX_SPIKE_SHARE", "SPIKE_DEPARTURE", "SPIKE_NEIGHBOURHOOD",
+           "SPIKE_RATIO", "most_spikes", "output_spikes", "spike_spreads", "widened"]
 
 #: Robust standard deviations of the second differences beyond which a sample is a spike (clean
 #: records: at most 4.5, module docstring).
@@ -47,7 +47,7 @@ SPIKE_NEIGHBOURHOOD = 25
 MAX_SPIKE_SHARE = 0.001
 MAX_SPIKES_ANY_RECORD = 10
 #: Robust standard deviation of a Gaussian per median absolute value.
-_MAD_TO_STD = 1.4826
+MAD_TO_STD = 1.4826
 
 
 def output_spikes(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = None
@@ -74,13 +74,13 @@ def output_spikes(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     if not flagged.any():
         return none, {}
     at_sample = flagged.any(axis=1)
-    outputs_near = _spread(flagged, 1).sum(axis=1)
+    outputs_near = widened(flagged, 1).sum(axis=1)
     every_output = (outputs_near >= p) if p >= 2 else np.zeros(n, bool)
     if u.shape[1]:
-        input_jumps = _spread(_jump_ratio(u, present, local=False) > SPIKE_RATIO, 1).any(axis=1)
+        input_jumps = widened(_jump_ratio(u, present, local=False) > SPIKE_RATIO, 1).any(axis=1)
     else:
         input_jumps = np.zeros(n, bool)
-    spikes = at_sample & ~_spread((every_output | input_jumps)[:, None], 1)[:, 0]
+    spikes = at_sample & ~widened((every_output | input_jumps)[:, None], 1)[:, 0]
     by_output = {i: np.flatnonzero(spikes & flagged[:, i]) for i in range(p) if np.any(spikes & flagged[:, i])}
     return spikes, by_output
 
@@ -112,13 +112,12 @@ def most_spikes(n_samples: int) -> int:
     return max(MAX_SPIKES_ANY_RECORD, int(MAX_SPIKE_SHARE * n_samples))
 
 
-def _spread(mask: np.ndarray, width: int) -> np.ndarray:
-    """``mask`` (N, k) True also ``width`` samples before and after each True."""
-    out = mask.copy()
-    for shift in range(1, width + 1):
-        out[shift:] |= mask[:-shift]
-        out[:-shift] |= mask[shift:]
-    return out
+def widened(mask: np.ndarray, width: int) -> np.ndarray:
+    """``mask`` (N, k) True also ``width`` samples before and after each True (a new array)."""
+    n = mask.shape[0]
+    counts = np.cumsum(np.vstack([np.zeros((1, mask.shape[1]), int), mask.astype(int)]), axis=0)
+    samples = np.arange(n)
+    return (counts[np.minimum(samples + width + 1, n)] - counts[np.maximum(samples - width, 0)]) > 0
 
 
 def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarray:
@@ -141,7 +140,7 @@ def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarra
     size[~present] = 0.0
     usable = present.copy()
     usable[[0, -1]] = False
-    scale = _MAD_TO_STD * np.median(size[usable], axis=0)
+    scale = MAD_TO_STD * np.median(size[usable], axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         unscaled = 0.0 if local else np.where(size > 0, np.inf, 0.0)
         ratio = np.where(scale > 0, size / np.where(scale > 0, scale, 1.0), unscaled)
@@ -151,7 +150,7 @@ def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarra
     for c in np.flatnonzero(np.any(ratio > SPIKE_RATIO, axis=0)):  # the side scales only where needed
         k = np.flatnonzero(ratio[:, c] > SPIKE_RATIO)
         before_jump, after_jump = _sides(size[:, c], k)
-        jump = _MAD_TO_STD * np.maximum(np.nanmedian(before_jump, axis=1), np.nanmedian(after_jump, axis=1))
+        jump = MAD_TO_STD * np.maximum(np.nanmedian(before_jump, axis=1), np.nanmedian(after_jump, axis=1))
         # The value itself beyond the spread of the values on either side, too: a lightly damped
         # ringing (after an impact) has second differences far from their median, not values.
         before, after = _sides(bridged[:, c], k)
@@ -176,4 +175,4 @@ def _sides(x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _mad(x: np.ndarray) -> np.ndarray:
     """Robust standard deviation of each row of ``x`` (K, W): 1.4826 times its median absolute deviation."""
-    return _MAD_TO_STD * np.nanmedian(np.abs(x - np.nanmedian(x, axis=1, keepdims=True)), axis=1)
+    return MAD_TO_STD * np.nanmedian(np.abs(x - np.nanmedian(x, axis=1, keepdims=True)), axis=1)

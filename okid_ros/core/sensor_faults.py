@@ -1,4 +1,4 @@
-"""What a record's sensors did besides measuring the structure: drift, spikes, clipping, dropouts.
+"""What a record's sensors did besides measuring the structure: drift, level shifts, spikes, clipping, dropouts.
 
 Faults of real records that the identification cannot tell from dynamics (an output that drops
 out alone, holding one value while the others respond, is named by :func:`held_channel_warnings`):
@@ -14,6 +14,11 @@ out alone, holding one value while the others respond, is named by :func:`held_c
   simulated benchmark records); a pure sine over ``k`` periods reaches 2 % only for ``k < 5``
   (its line then holds up to 0.024 at ``k = 5``, 0.006 at ``k = 10``), a record too short for
   its slowest mode anyway.
+- **Level shifts**, one output's level stepping at one sample and staying (a sensor re-zeroed, an
+  amplifier's range switched): :mod:`.level_shifts` finds them on the raw values, before the
+  spikes (a large step's two edge samples look like spikes) and the trend (a step is no line);
+  ``record_faults`` subtracts each from its sample on (the level before kept) when it removes
+  the trends (``detrend``), and names it in any case.
 - **Spikes**, single samples of an output far beyond their neighbours (interference, a bit error):
   :mod:`.output_spikes` finds them; ``record_faults(leave_out_spikes=True)`` (``identify``) marks
   those of :data:`SPIKE_LEAVE_OUT_SPREADS` or more missing, filled by prediction as a record's
@@ -41,6 +46,7 @@ import numpy as np
 
 from okid_ros.core.excitation import frozen_output_warnings, longest_held_run
 from okid_ros.core.gap_fill import mark_missing, missing_problem
+from okid_ros.core.level_shifts import MAX_SHIFTS, level_shifts, without_shifts
 from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_spikes import most_spikes, output_spikes, spike_spreads
 
@@ -67,12 +73,14 @@ def record_faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = No
     """A record's faults named and, where the chain can, taken out: ``(u, y, valid, warnings)``.
 
     In this order (each judged on what the one before leaves): stalled samples named, on the raw
-    values; output spikes (:mod:`.output_spikes`) named, and with ``leave_out_spikes`` marked
-    missing (``valid`` False, 0 in ``u`` and ``y``) when the record's gaps can take them
-    (:func:`.gap_fill.missing_problem`); clipped channels named, on the raw values (a removed
-    trend or sinusoid would tilt the flat tops); trends removed (``detrend``) or only named,
-    fitted without the clipped samples; with ``sample_time_s``, the outputs' harmonic lines that
-    the inputs do not hold removed, fitted to the samples present
+    values; output level shifts (:mod:`.level_shifts`) removed (``detrend``) or only named (the
+    faults after them judged without them, but clipping); output spikes (:mod:`.output_spikes`)
+    named, and with ``leave_out_spikes`` marked missing (``valid`` False, 0 in ``u`` and ``y``)
+    when the record's gaps can take them (:func:`.gap_fill.missing_problem`); clipped channels
+    named, on the raw values (a removed step, trend or sinusoid would move or tilt the flat tops);
+    trends removed (``detrend``) or only named, fitted without the clipped samples; with
+    ``sample_time_s``, the outputs' harmonic lines that the inputs do not hold removed, fitted to
+    the samples present
     (:func:`.output_only_harmonics.without_harmonics`).
 
     Parameters
@@ -117,12 +125,18 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
     # A gap is no held value: NaN never repeats (the record's 0 there would read as one).
     held = y if valid is None else np.where(valid[:, None], y, np.nan)
     warnings = frozen_output_warnings(held) + held_channel_warnings(held)
+    # Before the spikes: a large step's two edge samples look like spikes, its size like a drift. The
+    # faults after are judged without the steps; the raw signals (not detrend) get them back at the end.
+    raw = y
+    y, shift_warnings = _shifts(u, y, valid, remove=detrend, kept=kept, sample_time_s=sample_time_s)
+    steps = raw - y if not (detrend or kept or y is raw) else None
+    warnings += shift_warnings
     spiked, spike_warnings = _spikes(u, y, valid, leave_out=leave_out_spikes, kept=kept)
     if spiked is not valid:
         u, y, valid = mark_missing(u, y, spiked)
     warnings += spike_warnings
     u_clipped, u_named = clipped_samples(u, "input", valid=valid)
-    y_clipped, y_named = clipped_samples(y, "output", valid=valid)
+    y_clipped, y_named = clipped_samples(raw, "output", valid=valid)  # the samples marked missing are left out
     clipped = u_clipped | y_clipped
     present = valid if not clipped.any() else (np.ones(y.shape[0], dtype=bool) if valid is None else valid) & ~clipped
     # Kept trends are still taken out of the copies the harmonic lines are looked for in, as identify does.
@@ -133,9 +147,39 @@ def _faults(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None, detrend: 
     if sample_time_s is not None:
         y, harmonics = without_harmonics(y, sample_time_s, u=u, remove=not kept, valid=valid)
         harmonics = [f"{text}; {_KEPT_HARMONICS}" for text in harmonics] if kept else harmonics
+    if steps is not None:  # not at the samples missing (0 there), the spikes left out among them
+        y = y + (steps if valid is None else np.where(valid[:, None], steps, 0.0))
     model = "the windows' models" if kept else "the model"
     named = [f"{text}; {model} may list spurious modes from it" for text in u_named + y_named]
     return u, y, valid, warnings + named + u_trends + y_trends + harmonics
+
+
+def _shifts(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, remove: bool, kept: bool,
+            sample_time_s: float | None) -> tuple[np.ndarray, list[str]]:
+    """``y`` with its outputs' level shifts (:mod:`.level_shifts`) removed, and a warning per output.
+
+    ``remove`` and ``kept`` choose only what the warnings say is done (the caller keeps the raw values).
+    """
+    shifts = level_shifts(u, y, valid=valid)
+    if kept:
+        action = ("NOT removed: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` "
+                  "removes it); the windows holding it may hide the modes")
+    elif remove:
+        action = "removed from that sample on before identification, the level before kept"
+    else:
+        action = "NOT removed (offsets='none'): it may hide the modes"
+    warnings = []
+    for i, (samples, sizes) in shifts.by_output.items():
+        steps = ", ".join(f"at sample {k}" + (f" ({k * sample_time_s:.6g} s)" if sample_time_s else "")
+                          + f" by {size / shifts.spread[i]:+.1f} standard deviations ({size:+.4g})"
+                          for k, size in zip(samples, sizes))
+        warnings.append(f"output {i} changes level {steps}: a sensor re-zeroed or its range switched? (no input and "
+                        f"not every output steps with it); {action}")
+    for i, samples in shifts.unusable.items():
+        listed = ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")
+        warnings.append(f"output {i} changes level at {samples.size} samples ({listed}): more than {MAX_SHIFTS} level "
+                        f"shifts, a loose contact or an unusable channel? kept as recorded; leave it out")
+    return (without_shifts(y, shifts.by_output, valid=valid) if shifts.by_output else y), warnings
 
 
 _KEPT_SPIKES = ("kept: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` leaves "

@@ -3,7 +3,7 @@
 The windows are fitted on the record as recorded: they are what node 1 sees live, so nothing
 here changes a sample. What is named: the missing samples (NaN/Inf, skipped as the nodes skip
 them) and the sensor faults ``identify`` names (:func:`okid_ros.core.sensor_faults.record_fault_warnings`:
-clipping, an output held alone, frozen outputs, spikes, drift, harmonic lines the inputs lack), on the
+clipping, an output held alone, frozen outputs, level shifts, spikes, drift, harmonic lines the inputs lack), on the
 samples the window accepts (:func:`okid_ros.core.window_samples.accepted_samples`).
 """
 

@@ -23,7 +23,7 @@ DT = 0.008
 N = 2600
 Q, WINDOW, EVERY = 20, 1500, 400
 #: The words of every fault's warning (none of them on a clean record).
-FAULT_WORDS = ("drifts", "is clipped", "harmonic disturbance", "dropped out", "hold every output")
+FAULT_WORDS = ("drifts", "is clipped", "harmonic disturbance", "dropped out", "hold every output", "changes level")
 
 
 @pytest.fixture(scope="module")
@@ -73,6 +73,24 @@ def test_a_drifting_record_is_named_and_tracked_as_recorded(record, tmp_path, ca
                for w in warnings), warnings
     k = lines[-1]["sample_index"]
     u_w, y_w = u[k - WINDOW - Q + 1 : k + 1], drifted[k - WINDOW - Q + 1 : k + 1]
+    batch = identify_from_arx(fit_arx(u_w, y_w, Q, "ridge", "gcv", center=True), u_w, y_w, DT, n_states=6)
+    np.testing.assert_allclose(sorted(m["frequency_rad_s"] for m in lines[-1]["modes"]),
+                               sorted(m.frequency_rad_s for m in batch.modes), rtol=1e-6)
+
+
+def test_a_level_shift_is_named_and_tracked_as_recorded(record, tmp_path, capsys):
+    # Output 1 re-zeroed at sample 1700 by 3 of its spreads: named once, with its sample and time,
+    # and not removed from the windows (the last update is the batch chain on the raw window).
+    u, y = record
+    shifted = y.copy()
+    shifted[1700:, 1] += 3.0 * y[:, 1].std()
+    lines = _track(tmp_path, u, shifted)
+    warnings = _warnings(capsys.readouterr().err)
+    assert len(warnings) == 1 and warnings[0].startswith(
+        "okid-ros track: warning: output 1 changes level at sample 1700 (13.6 s) by +3.0 standard deviations"), warnings
+    assert "NOT removed: track fits its windows as recorded" in warnings[0]
+    k = lines[-1]["sample_index"]
+    u_w, y_w = u[k - WINDOW - Q + 1 : k + 1], shifted[k - WINDOW - Q + 1 : k + 1]
     batch = identify_from_arx(fit_arx(u_w, y_w, Q, "ridge", "gcv", center=True), u_w, y_w, DT, n_states=6)
     np.testing.assert_allclose(sorted(m["frequency_rad_s"] for m in lines[-1]["modes"]),
                                sorted(m.frequency_rad_s for m in batch.modes), rtol=1e-6)

@@ -1,0 +1,185 @@
+"""A level shift of one output (a sensor re-zeroed) named and taken out, against records whose truth is known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from okid_ros.core.level_shifts import MAX_SHIFTS, level_shifts
+from okid_ros.core.output_only import identify_output_only
+from okid_ros.core.pipeline import identify
+from okid_ros.core.sensor_faults import record_fault_warnings, record_faults
+from okid_ros.sim.inputs import lowpass_input
+from okid_ros.sim.models import modal_structure
+from okid_ros.sim.paper_model import paper_model
+from okid_ros.sim.simulators import simulate_innovation, simulate_noisy
+
+DT = 0.008
+
+
+def _shifted(y: np.ndarray, shifts: list[tuple[int, int, float]]) -> np.ndarray:
+    """``y`` with ``(output, sample, size in the output's standard deviations)`` steps added."""
+    out = y.copy()
+    for i, k, size in shifts:
+        out[k:, i] += size * y[:, i].std()
+    return out
+
+
+def _modes(model) -> list[float]:
+    return sorted(m.frequency_hz for m in model.modes)
+
+
+@pytest.mark.parametrize(("output", "sample", "size"), [(1, 2000, 3.0), (0, 1200, 10.0)])
+def test_a_shifted_output_is_identified_as_the_record_without_it(paper_record, output, sample, size) -> None:
+    # Taken for a drift before, a line removed: 48.478 Hz and a spurious 52.8 Hz mode at 3 spreads,
+    # 48.512 Hz at 10 (the clean record: 48.490).
+    u, y = paper_record
+    clean = identify(u, y, DT)
+    model = identify(u, _shifted(y, [(output, sample, size)]), DT)
+    assert len(model.modes) == len(clean.modes) == 3
+    np.testing.assert_allclose(_modes(model), _modes(clean), rtol=5e-5)
+    assert len(model.warnings) == 1
+    assert model.warnings[0].startswith(
+        f"output {output} changes level at sample {sample} ({sample * DT:g} s) by +{size:.1f} standard deviations (")
+    assert model.warnings[0].endswith("a sensor re-zeroed or its range switched? (no input and not every output "
+                                      "steps with it); removed from that sample on before identification, the level "
+                                      "before kept")
+    # The level before kept: the offsets are the clean record's means (to the step's fitted size).
+    np.testing.assert_allclose(model.output_offset, clean.output_offset, atol=0.01 * y.std(axis=0).min())
+
+
+def test_the_shifts_samples_and_sizes_are_found(paper_record) -> None:
+    u, y = paper_record
+    shifts = level_shifts(u, _shifted(y, [(0, 900, -2.0), (0, 2600, 4.0), (1, 3100, 1.5)]))
+    assert shifts.unusable == {}
+    assert sorted(shifts.by_output) == [0, 1]
+    np.testing.assert_array_equal(shifts.by_output[0][0], [900, 2600])
+    np.testing.assert_array_equal(shifts.by_output[1][0], [3100])
+    np.testing.assert_allclose(shifts.by_output[0][1] / y[:, 0].std(), [-2.0, 4.0], atol=0.1)
+    np.testing.assert_allclose(shifts.by_output[1][1] / y[:, 1].std(), [1.5], atol=0.1)
+    np.testing.assert_allclose(shifts.spread, y.std(axis=0), rtol=0.02)
+
+
+def test_the_samples_missing_are_left_out(paper_record) -> None:
+    u, y = paper_record
+    valid = np.ones(y.shape[0], bool)
+    valid[[1500, 1995, 2001, 2300]] = False
+    shifted = _shifted(y, [(1, 2000, 3.0)])
+    shifted[~valid] = 0.0  # as checked_record leaves them
+    _, fixed, _, warnings = record_faults(u, shifted, valid=valid)
+    assert len(warnings) == 1 and warnings[0].startswith("output 1 changes level at sample 2000 by +3.0")
+    np.testing.assert_array_equal(fixed[~valid], 0.0)
+    np.testing.assert_allclose(fixed[valid, 1], y[valid, 1], atol=0.05 * y[:, 1].std())
+
+
+def test_a_clean_record_holds_no_shift(paper_record) -> None:
+    u, y = paper_record
+    shifts = level_shifts(u, y)
+    assert shifts.by_output == {} and shifts.unusable == {}
+    assert record_fault_warnings(u, y, sample_time_s=DT) == []
+
+
+def _quiet_structure() -> object:
+    # A 0.8 Hz mode at 5 % damping and displacement outputs: the response to an impact dies out
+    # between the blows, and a measured force's step holds the outputs at a new static level.
+    return modal_structure([0.8, 3.0, 9.0], 0.05, 2, 3, 0.01, seed=1, output="displacement", disturbance_std=0.05)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_impact_hammer_record_holds_no_shift(seed) -> None:
+    # Each blow's ringing lies far beyond the quiet record's mean differences (about 50 of their
+    # spreads): it is no shift because the level after it is the level before.
+    rng = np.random.default_rng(seed)
+    u = 0.01 * rng.standard_normal((12000, 2))
+    u[rng.choice(np.arange(100, 11900), 6, replace=False), rng.integers(0, 2, 6)] += 50.0
+    y = simulate_noisy(_quiet_structure(), u, seed=seed)
+    for inputs, outputs in ((u, y), (u[:, :0], y), (u, y[:, :1]), (u[:, :0], y[:, :1])):  # measured or not
+        assert level_shifts(inputs, outputs).by_output == {}
+    truth = paper_model()
+    u = 0.01 * rng.standard_normal((6000, 2))
+    u[rng.choice(np.arange(100, 5900), 6, replace=False), rng.integers(0, 2, 6)] += 50.0
+    y, _ = simulate_innovation(truth, u, seed=seed)
+    assert level_shifts(u, y).by_output == {} and level_shifts(u[:, :0], y).by_output == {}
+    # A re-zero in the same record is found.
+    found = level_shifts(u, _shifted(y, [(1, 4000, 3.0)])).by_output
+    np.testing.assert_array_equal(found[1][0], [4000])
+
+
+def test_a_step_of_a_measured_input_or_of_every_output_is_no_shift() -> None:
+    u = lowpass_input(12000, 2, 5.0, 0.01, seed=0)
+    u[6000:, 0] += 30 * u[:, 0].std()  # a static load applied, measured
+    y = simulate_noisy(_quiet_structure(), u, seed=0)
+    assert level_shifts(u, y).by_output == {}
+    assert level_shifts(u, y[:, :1]).by_output == {}  # one output: the input says it
+    assert level_shifts(u[:, 1:], y).by_output == {}  # unmeasured: every output steps, the structure moved
+    # One output alone that steps, no input with it: that is what a re-zero looks like.
+    assert list(level_shifts(u[:, 1:], y[:, :1]).by_output) == [0]
+
+
+def test_a_channel_of_many_shifts_is_named_and_kept(paper_record) -> None:
+    u, y = paper_record
+    many = [(0, k, 3.0 * (-1) ** j) for j, k in enumerate(range(500, 3500, 500))]
+    assert len(many) > MAX_SHIFTS
+    shifted = _shifted(y, many)
+    shifts = level_shifts(u, shifted)
+    assert shifts.by_output == {}
+    np.testing.assert_array_equal(shifts.unusable[0], [k for _, k, _ in many])
+    _, kept, _, warnings = record_faults(u, shifted)
+    np.testing.assert_array_equal(kept, shifted)
+    assert warnings[0].startswith(f"output 0 changes level at 6 samples (500, 1000, 1500, 2000, 2500, ...): more "
+                                  f"than {MAX_SHIFTS} level shifts")
+
+
+def test_a_large_shift_is_not_named_as_spikes_or_drift(paper_record) -> None:
+    # Before, its two edge samples were left out as spikes and a line was removed.
+    u, y = paper_record
+    _, _, valid, warnings = record_faults(u, _shifted(y, [(0, 1800, 30.0)]), leave_out_spikes=True)
+    assert valid is None
+    assert len(warnings) == 1 and "changes level" in warnings[0]
+
+
+def test_raw_signals_keep_their_shift_and_say_so(paper_record) -> None:
+    u, y = paper_record
+    shifted = _shifted(y, [(1, 2000, 10.0)])
+    _, raw, _, warnings = record_faults(u, shifted, detrend=False)
+    np.testing.assert_array_equal(raw, shifted)
+    assert len(warnings) == 1  # no drift named for it
+    assert warnings[0].startswith("output 1 changes level") and "NOT removed (offsets='none')" in warnings[0]
+
+
+def test_track_names_the_shift_and_the_record_stays(paper_record) -> None:
+    u, y = paper_record
+    shifted = _shifted(y, [(1, 2000, 3.0)])
+    before = shifted.copy()
+    warnings = record_fault_warnings(u, shifted, sample_time_s=DT)
+    np.testing.assert_array_equal(shifted, before)
+    assert len(warnings) == 1
+    assert warnings[0].startswith("output 1 changes level at sample 2000 (16 s) by +3.0 standard deviations")
+    assert "NOT removed: track fits its windows as recorded" in warnings[0]
+
+
+def test_clipping_is_judged_on_the_raw_values(paper_record) -> None:
+    # The sensor's range clips its reading, the re-zeroed one too: the flat tops hold one value
+    # across the step, which the step's removal would split in two.
+    u, y = paper_record
+    shifted = _shifted(y, [(0, 2000, 3.0)])
+    level = 0.8 * np.abs(shifted[:, 0]).max()
+    shifted[:, 0] = np.clip(shifted[:, 0], -level, level)
+    warnings = record_faults(u, shifted)[3]
+    assert [w.split(" (")[0].split(" at sample")[0] for w in warnings] == ["output 0 changes level",
+                                                                          "output 0 is clipped"]
+
+
+def test_output_only_identification_removes_a_shift() -> None:
+    # The offsets are the means without the step: the raw means left the step's share of the level
+    # in the channel (the 7 Hz mode at 6.9846 Hz, the clean record's at 6.9868 Hz).
+    system = modal_structure([3.0, 7.0, 12.0], 0.01, 1, 4, 1 / 50, seed=3, output="acceleration",
+                             disturbance_std=1.0)
+    y = simulate_noisy(system, np.zeros((12000, 1)), seed=5)
+    clean = identify_output_only(y, 1 / 50).modes
+    model = identify_output_only(_shifted(y, [(2, 7000, 3.0)]), 1 / 50)
+    assert len(clean) == len(model.modes) == 3
+    for attribute in ("frequency_hz", "damping_ratio"):
+        np.testing.assert_allclose([getattr(m, attribute) for m in model.modes],
+                                   [getattr(m, attribute) for m in clean], rtol=1e-4)
+    assert len(model.warnings) == 1 and model.warnings[0].startswith("output 2 changes level at sample 7000 by +3.0")
