@@ -47,6 +47,7 @@ from okid_ros.core.gap_fill import missing_mask
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
+from okid_ros.core.mode_jackknife import SPARE_COLUMNS
 from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_covariance import (
     MAX_LAG_FRACTION_OF_SEGMENT,
@@ -228,7 +229,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     r_mean = correlations.mean
     var = None
     if method == "ssi-cov":
-        decomposition = covariance_decomposition(r_mean, references, block_rows, top)
+        decomposition = covariance_decomposition(r_mean, references, block_rows, top, spare=SPARE_COLUMNS)
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
@@ -240,7 +241,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     modes, _ = cluster_modes(poles)
     jackknife = None
     if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
-        jackknife = Jackknife(correlations, references, block_rows, top)
+        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis)
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
                                   dominance=partial(spectral_dominance, realizer, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)

@@ -10,7 +10,7 @@ from scipy import linalg
 from okid_ros.core.channels import channel_std
 from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.mode_jackknife import jackknife_std, nearest_modes
+from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
@@ -100,13 +100,20 @@ class Jackknife:
     ----------
     correlations, references, block_rows : as the model was identified.
     max_states : the highest order :meth:`std` will be asked for.
+    start : (i r, c) the record's Gram's leading eigenvectors (the model's decomposition's
+        ``basis``, :data:`~.mode_jackknife.SPARE_COLUMNS` beyond ``max_states``): a replicate's
+        Gram differs from the record's by one segment's share, so its leading pairs are found
+        by :data:`~.mode_jackknife.ITERATIONS` block power iterations from them where that is
+        cheaper (:func:`.stochastic_realization.covariance_decomposition`). None: each
+        replicate's decomposed from scratch.
     """
 
     def __init__(self, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
-                 max_states: int) -> None:
+                 max_states: int, *, start: np.ndarray | None = None) -> None:
         self.realizers = []
         for j in range(correlations.segments.shape[0]):
-            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states)
+            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states,
+                                                     start=start, iterations=ITERATIONS)
             self.realizers.append(OrderRealizer(decomposition, min(max_states, decomposition.max_states)))
 
     def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
