@@ -26,16 +26,19 @@ white sequence, so with ``S_k = C P_k C^T + Re``
 
 which tends to ``K_k -> K`` and ``P_k -> 0``. The gain is handed to the KalmanFilter each step.
 
-Glitches (:mod:`okid_ros.core.glitches`, the change test's rule): a sample whose innovation is a
-glitch candidate is not taken: its published state is the prediction ``xhat_k`` (its estimated
-output ``C xhat_k + D u_k``) and the filter goes on from ``A xhat_k + B u_k``. The next sample
-judges it: if that sample's innovation is settled, the glitch stays out (:attr:`glitches`
-counts it); else it was an event (an impact, a jump) and the filter takes the state it would
-have had, ``A xpost_k + B u_k``, before that sample, so from there on it is the filter without
-the rule, exactly. No sample waits: only a candidate found to be no glitch was published as its
-prediction. ``P_k`` and ``K_k`` do not depend on the outputs: the start-up filter is unchanged
-(the rule measures its innovations by ``S_k``). The innovations returned are the samples' own
-(a glitch's is its full size).
+Glitches (:mod:`okid_ros.core.glitches`, the change test's rule): in a sample whose innovation
+is a glitch candidate the outputs beyond ``QUIET_STD`` are replaced by their prediction: the
+published state is ``xhat_k + K e'_k`` (``e'_k``: ``e_k`` with those outputs' innovations 0) and
+the filter goes on from ``A (xhat_k + K e'_k) + B u_k``. The next sample judges it: if that
+sample's innovation is settled, the glitch stays out (:attr:`glitches` counts it); else it was
+an event (an impact, a jump) and the filter takes the state it would have had,
+``A xpost_k + B u_k``, before that sample, so from there on it is the filter without the rule,
+exactly. No sample waits: only a candidate found to be no glitch was published without its far
+outputs. (Its other outputs taken, rather than the whole sample's prediction as the change test
+does: the glitch's own sample loses less, and the next sample is settled more often: 59 of 61
+glitches of the steel subframe's 28 outputs rather than 56.) ``P_k`` and ``K_k`` do not depend
+on the outputs: the start-up filter is unchanged (the rule measures its innovations by ``S_k``).
+The innovations returned are the samples' own (a glitch's is its full size).
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from numpy import dot
 
-from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
+from okid_ros.core.glitches import GLITCH_STD, QUIET_STD, glitch_candidates, settled
 from okid_ros.core.statespace import InnovationModel
 
 __all__ = ["EstimatorOutput", "ModalStateEstimator"]
@@ -160,7 +163,7 @@ class ModalStateEstimator:
 
     @property
     def holding(self) -> bool:
-        """The last sample stepped was a glitch candidate, published as its prediction (the next one judges it)."""
+        """The last sample stepped was a glitch candidate, its far outputs not taken (the next one judges it)."""
         return self._held is not None
 
     def set_state(self, x: np.ndarray) -> None:
@@ -206,7 +209,8 @@ class ModalStateEstimator:
         if (self._gate and dot(innovation * innovation, self._inverse_variance) > GLITCH_STD ** 2
                 and glitch_candidates(innovation[None, :], self._innovation_std)[0]):
             self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
-            kf.x = x_prior  # the candidate's prediction published and gone on from
+            # The outputs far off replaced by their prediction (innovation 0), the others taken.
+            kf.x = x_prior + dot(kf.K, kf.y * (np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None]))
         x_post = kf.x[:, 0].copy()
         y_est = kf.H @ x_post + du + self.output_offset
         kf.x = dot(kf.F, kf.x) + dot(kf.B, u)

@@ -2,7 +2,7 @@
 
 Divergence watchdog: each innovation the estimator took is whitened by the model's innovation
 covariance (:class:`okid_ros.core.change_detection.DivergenceMonitor`; a glitch candidate's is
-0: the estimator published its prediction); a diverged sample (non-finite, or the moving mean
+0: the estimator did not take its far outputs); a diverged sample (non-finite, or the moving mean
 of the normalized innovation squared far above p) is not published. Sustained
 divergence is first judged as a jump of the state (:mod:`okid_ros.core.state_jump`: an impact,
 a bag replayed in a loop); a jump that explains it corrects the estimator's state, and nothing
@@ -113,9 +113,9 @@ class InnovationWatch:
         """
         prm = self.params
         z = active.whiten @ innovation
-        # The estimator's divergence: a glitch candidate it did not take (core/estimator.py) is no
-        # part of it (innovation 0; else one glitch of 30 output spreads withheld the watchdog's 25
-        # samples and had the state corrected). The state-jump fit keeps the sample's own (a jump's first).
+        # The estimator's divergence: a glitch candidate, whose far outputs it did not take
+        # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
+        # watchdog's 25 samples and had the state corrected). The state-jump fit keeps the sample's own.
         diverged = self.divergence.check(0.0 * z if active.estimator.holding else z)
         self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
         change = None
