@@ -35,10 +35,10 @@ an event (an impact, a jump) and the filter takes the state it would have had,
 ``A xpost_k + B u_k``, before that sample, so from there on it is the filter without the rule,
 exactly. No sample waits: only a candidate found to be no glitch was published without its far
 outputs. (Its other outputs taken, rather than the whole sample's prediction as the change test
-does: the glitch's own sample loses less, and the next sample is settled more often: 59 of 61
-glitches of the steel subframe's 28 outputs rather than 56.) ``P_k`` and ``K_k`` do not depend
-on the outputs: the start-up filter is unchanged (the rule measures its innovations by ``S_k``).
-The innovations returned are the samples' own (a glitch's is its full size).
+does: the glitch's own sample loses less, and the next sample is settled more often; see
+docs/benchmarks-change.md.) ``P_k`` and ``K_k`` do not depend on the outputs: the start-up
+filter is unchanged (the rule measures its innovations by ``S_k``). The innovations returned
+are the samples' own (a glitch's is its full size).
 """
 
 from __future__ import annotations
@@ -187,7 +187,10 @@ class ModalStateEstimator:
             self._set_innovation_std(Re)
 
     def step(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,))."""
+        """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,)).
+
+        A glitch candidate's filtered state is without its far outputs (see the module docstring).
+        """
         u = np.asarray(u, dtype=float).reshape(self.n_inputs) - self.input_offset
         y = np.asarray(y, dtype=float).reshape(self.n_outputs) - self.output_offset
         if self._start_up:
