@@ -119,3 +119,21 @@ def test_one_output_is_never_gated():
     gated, ungated = ModalStateEstimator.from_model(model), ModalStateEstimator.from_model(model, reject_glitches=False)
     np.testing.assert_array_equal(gated.run(u, y).states, ungated.run(u, y).states)
     assert gated.glitches == 0
+
+
+def test_a_candidate_no_sample_judges_is_run_as_it_came(record):
+    # A gap or a restart right after a candidate: the caller bridges from `state` and sets it.
+    _, model, u, y = record
+    k = GLITCHES[0]
+    glitched = _glitched(y, [k], [0])
+    gated = ModalStateEstimator.from_model(model)
+    ungated = ModalStateEstimator.from_model(model, reject_glitches=False)
+    gated.run(u[:k + 1], glitched[:k + 1])
+    ungated.run(u[:k + 1], glitched[:k + 1])
+    assert gated.holding and not ungated.holding
+    np.testing.assert_array_equal(gated.state, ungated.state)
+    gated.set_state(gated.state)
+    assert not gated.holding
+    a, b = gated.run(u[k + 1:k + 300], glitched[k + 1:k + 300]), ungated.run(u[k + 1:k + 300], glitched[k + 1:k + 300])
+    np.testing.assert_array_equal(a.states, b.states)
+    assert gated.glitches == 0
