@@ -211,9 +211,10 @@ class ModalStateEstimator:
         # sum_i (e_i / sigma_i)^2 bounds every output's (e_i / sigma_i)^2: an ordinary sample pays one dot.
         if (self._gate and dot(innovation * innovation, self._inverse_variance) > GLITCH_STD ** 2
                 and glitch_candidates(innovation[None, :], self._innovation_std)[0]):
-            self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
+            with np.errstate(invalid="ignore", over="ignore"):  # an infinite output: used only if no glitch
+                self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
             # The outputs far off replaced by their prediction (innovation 0), the others taken.
-            kf.x = x_prior + dot(kf.K, kf.y * (np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None]))
+            kf.x = x_prior + dot(kf.K, np.where(np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None], kf.y, 0.0))
         x_post = kf.x[:, 0].copy()
         y_est = kf.H @ x_post + du + self.output_offset
         kf.x = dot(kf.F, kf.x) + dot(kf.B, u)

@@ -116,7 +116,7 @@ class InnovationWatch:
         # The estimator's divergence: a glitch candidate, whose far outputs it did not take
         # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
         # watchdog's 25 samples and had the state corrected). The state-jump fit keeps the sample's own.
-        diverged = self.divergence.check(0.0 * z if active.estimator.holding else z)
+        diverged = self.divergence.check(np.zeros_like(z) if active.estimator.holding else z)
         self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
         change = None
         if prm.change_detection:

@@ -137,3 +137,12 @@ def test_a_candidate_no_sample_judges_is_run_as_it_came(record):
     a, b = gated.run(u[k + 1:k + 300], glitched[k + 1:k + 300]), ungated.run(u[k + 1:k + 300], glitched[k + 1:k + 300])
     np.testing.assert_array_equal(a.states, b.states)
     assert gated.glitches == 0
+
+
+def test_an_infinite_output_sample_is_a_glitch(record):
+    _, model, u, y = record
+    bad = y[:5000].copy()
+    bad[4000, 1] = np.inf  # (the service refuses it before; the core stays finite too)
+    est = ModalStateEstimator.from_model(model)
+    out = est.run(u[:5000], bad)
+    assert np.all(np.isfinite(out.states)) and est.glitches == 1
