@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.glitches import GLITCH_STD, glitch_rows, settled
+from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
 from okid_ros.core.least_squares import NormalEquations
 
 __all__ = ["ArxGlitchGate", "window_intercept"]
@@ -108,7 +108,7 @@ class ArxGlitchGate:
             return due + [(u, y, tag)]
         error = y - self._prediction(u)
         # The common case costs one comparison: no output past the limit (NaN compares False).
-        if (np.abs(error) > self._limit).any() and glitch_rows(error[None, :], self._residual_std)[0]:
+        if (np.abs(error) > self._limit).any() and glitch_candidates(error[None, :], self._residual_std)[0]:
             self._held = (u, y, tag)
             self._held_prediction = y - error
             self._remember(u, self._held_prediction)  # the next verdict reads the prediction in its place

@@ -6,8 +6,9 @@ whitens its innovations by the model's innovation covariance and hands them to a
 :class:`~okid_ros.core.model_error_check.ModelErrorCheck` of the same residuals and the inputs
 confirms; a confirmed alarm's excursion is then judged as a jump of the state
 (:mod:`okid_ros.core.state_jump`), and one that a jump explains is not declared: the monitor
-corrects its predictor's state by the fitted jump and goes on. See
-:mod:`okid_ros.core.change_detection` for the test.
+corrects its predictor's state by the fitted jump and goes on. A glitch (:mod:`okid_ros.core.glitches`)
+is not tested: the predictor goes on from its prediction. See :mod:`okid_ros.core.change_detection`
+for the test.
 
 No rclpy; numpy and scipy only.
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
+from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.output_spikes import most_spikes
 from okid_ros.core.sample_ring import SampleRing
@@ -27,18 +29,6 @@ __all__ = ["StructuralChangeMonitor"]
 
 _CHUNK_SAMPLES = 1024  # samples of a block handed to the detector at a time
 _ONSET_ROOM = 8  # samples before the CUSUM's change point the state-jump fit may start from
-#: A sample whose innovation lies beyond this many of the reference model's standard deviations
-#: in some outputs, while not every output is beyond a third of it, and whose next sample's
-#: innovation is within a third of it once the predictor has taken its own prediction in its
-#: place, is a glitch (interference, a bit error; :mod:`.output_spikes` for records): the test
-#: sees no innovation there. Gaussian innovations never reach it; a change raises their power over
-#: many samples, an unmeasured impact shows in every output at once, and a jump of the state (a
-#: record looped back on itself) goes on in the next samples' innovations. Without it, ten
-#: glitches of 30 output spreads in a 20000-sample record made `track` declare 3 changes.
-GLITCH_STD = 12.0
-#: ... the level no output passes in a glitch's sample's company (every output at once: an
-#: impact) or in the sample after it (the model's own expectation again).
-_QUIET_STD = GLITCH_STD / 3
 
 
 class StructuralChangeMonitor:
@@ -116,28 +106,18 @@ class StructuralChangeMonitor:
         self.detector.jump_test = self._judge_jump if self.state_jump_test else None
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
 
-    def _glitches(self, e: np.ndarray) -> np.ndarray:
-        """Rows of innovations ``e`` (N, p) that may be glitches (:data:`GLITCH_STD`); none with one output."""
-        if e.shape[1] < 2:  # one output: a glitch and an unmeasured impact look alike
-            return np.zeros(e.shape[0], bool)
-        size = np.abs(e) / self._innovation_std
-        return np.any(size > GLITCH_STD, axis=1) & ~np.all(size > _QUIET_STD, axis=1)
-
-    def _settled(self, e: np.ndarray) -> bool:
-        """The innovation (p,) of the sample after a glitch, its prediction taken: as the model expects."""
-        return bool(np.all(np.abs(e) <= _QUIET_STD * self._innovation_std))
-
     def _without_glitches(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """The innovations ``e`` of a block (u (N, m), y (N, p)) run from state ``x0``, its glitches taken out.
 
         A glitch's outputs are replaced by their prediction (its innovation 0) and the block run
         again from ``x0``, the first one first (the later innovations depend on it); it stays
-        taken out when the next sample's innovation is then :meth:`_settled`. A block's last
-        sample is not judged (no next sample).
+        taken out when the next sample's innovation is then :func:`~okid_ros.core.glitches.settled`.
+        A block's last sample is not judged (no next sample).
         """
         end_state, rejected = self.predictor.x.copy(), set()
         for _ in range(most_spikes(e.shape[0])):  # more: heavy-tailed innovations, tested as they are
-            candidates = [k for k in np.flatnonzero(self._glitches(e[:-1])) if k not in rejected]
+            found = np.flatnonzero(glitch_candidates(e[:-1], self._innovation_std))
+            candidates = [k for k in found if k not in rejected]
             if not candidates:
                 break
             k = candidates[0]
@@ -145,7 +125,7 @@ class StructuralChangeMonitor:
             trial[k] -= e[k]
             self.predictor.x = x0.copy()
             e_trial = self.predictor.run(u, trial)
-            if self._settled(e_trial[k + 1]):
+            if settled(e_trial[k + 1], self._innovation_std):
                 y, e, end_state = trial, e_trial, self.predictor.x.copy()
                 self.glitches += 1
             else:
@@ -156,15 +136,16 @@ class StructuralChangeMonitor:
     def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """The held sample's verdict, given the next one (u, y): its (whitened innovation, inputs, index) to test.
 
-        A glitch (the next innovation :meth:`_settled` from the predicted state): innovation 0; else
-        the sample's own innovation, and the predictor's state that of the sample as it came.
+        A glitch (the next innovation :func:`~okid_ros.core.glitches.settled` from the predicted
+        state): innovation 0; else the sample's own innovation, and the predictor's state that of
+        the sample as it came.
         """
         e_held, u_held, index = self._pending
         self._pending = None
         predicted = self.predictor.x.copy()
-        settled = self._settled(self.predictor.step(u, y))
+        quiet = settled(self.predictor.step(u, y), self._innovation_std)
         self.predictor.x = predicted
-        if settled:
+        if quiet:
             self.glitches += 1
             return np.zeros(e_held.shape[0]), u_held, index
         self.predictor.x = predicted + self.predictor.Gy @ e_held  # the step is linear in y
@@ -296,7 +277,7 @@ class StructuralChangeMonitor:
             return None
         z = self.whiten @ e
         # |z|^2 = e^T Re^-1 e bounds every (e_i / sigma_i)^2: below GLITCH_STD^2 no output is past it.
-        if test and float(z @ z) > GLITCH_STD ** 2 and self._glitches(e[None, :])[0]:
+        if test and float(z @ z) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
             self.predictor.x = self.predictor.x - self.predictor.Gy @ e  # its prediction in its place
             self._pending = (e, u, index)
             return None

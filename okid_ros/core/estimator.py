@@ -25,6 +25,20 @@ white sequence, so with ``S_k = C P_k C^T + Re``
     P_{k+1} = A (P_k + K Re K^T - K_k S_k K_k^T) A^T,
 
 which tends to ``K_k -> K`` and ``P_k -> 0``. The gain is handed to the KalmanFilter each step.
+
+Glitches (:mod:`okid_ros.core.glitches`, the change test's rule): in a sample whose innovation
+is a glitch candidate the outputs beyond ``QUIET_STD`` are replaced by their prediction: the
+published state is ``xhat_k + K e'_k`` (``e'_k``: ``e_k`` with those outputs' innovations 0) and
+the filter goes on from ``A (xhat_k + K e'_k) + B u_k``. The next sample judges it: if that
+sample's innovation is settled, the glitch stays out (:attr:`glitches` counts it); else it was
+an event (an impact, a jump) and the filter takes the state it would have had,
+``A xpost_k + B u_k``, before that sample, so from there on it is the filter without the rule,
+exactly. No sample waits: only a candidate found to be no glitch was published without its far
+outputs. (Its other outputs taken, rather than the whole sample's prediction as the change test
+does: the glitch's own sample loses less, and the next sample is settled more often; see
+docs/benchmarks-change.md.) ``P_k`` and ``K_k`` do not depend on the outputs: the start-up
+filter is unchanged (the rule measures its innovations by ``S_k``). The innovations returned
+are the samples' own (a glitch's is its full size).
 """
 
 from __future__ import annotations
@@ -35,6 +49,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from numpy import dot
 
+from okid_ros.core.glitches import GLITCH_STD, QUIET_STD, glitch_candidates, settled
 from okid_ros.core.statespace import InnovationModel
 
 __all__ = ["EstimatorOutput", "ModalStateEstimator"]
@@ -70,6 +85,11 @@ class ModalStateEstimator:
     input_offset, output_offset : (m,), (p,) means removed from the signals before the model
         applies (``u - input_offset``, ``y - output_offset``); the estimated output has the
         output offset added back. None: no offsets.
+    reject_glitches : leave glitches out (see the module docstring); False: every sample taken.
+
+    Attributes
+    ----------
+    glitches : samples left out as glitches, over the estimator's life.
     """
 
     def __init__(
@@ -80,6 +100,7 @@ class ModalStateEstimator:
         initial_covariance: np.ndarray | float | None = None,
         input_offset: np.ndarray | None = None,
         output_offset: np.ndarray | None = None,
+        reject_glitches: bool = True,
     ) -> None:
         n, m, p = model.n_states, model.n_inputs, model.n_outputs
         if n_physical_states % 2 or not 0 <= n_physical_states <= n:
@@ -99,6 +120,11 @@ class ModalStateEstimator:
         kf.R = self.innovation_covariance.copy()
         kf.x = np.zeros((n, 1))
         self.kf = kf
+        self._set_innovation_std(self.innovation_covariance)
+        # One output: a glitch and an unmeasured impact look alike (glitch_candidates finds none).
+        self._gate = bool(reject_glitches) and p >= 2 and bool(np.all(np.isfinite(self._inverse_variance)))
+        self._held: np.ndarray | None = None  # (n, 1) the next prediction had a held candidate been taken
+        self.glitches = 0
         self._start_up = initial_covariance is not None
         if self._start_up:
             P0 = np.asarray(initial_covariance, dtype=float)
@@ -107,7 +133,8 @@ class ModalStateEstimator:
             kf.P = np.zeros((n, n))
 
     @classmethod
-    def from_model(cls, model, initial_covariance: np.ndarray | float | None = None) -> "ModalStateEstimator":
+    def from_model(cls, model, initial_covariance: np.ndarray | float | None = None, *,
+                   reject_glitches: bool = True) -> "ModalStateEstimator":
         """Build from an ``IdentifiedModel`` (its physical states and offsets)."""
         return cls(
             model,
@@ -115,15 +142,33 @@ class ModalStateEstimator:
             initial_covariance=initial_covariance,
             input_offset=getattr(model, "input_offset", None),
             output_offset=getattr(model, "output_offset", None),
+            reject_glitches=reject_glitches,
         )
+
+    def _set_innovation_std(self, covariance: np.ndarray) -> None:
+        """The innovations' standard deviations (p,) the glitch rule measures by, from their covariance (p, p)."""
+        self._innovation_std = np.sqrt(np.diag(covariance))
+        with np.errstate(divide="ignore"):
+            self._inverse_variance = 1.0 / self._innovation_std ** 2
 
     @property
     def state(self) -> np.ndarray:
-        """(n,) the current one-step prediction ``xhat_k``."""
-        return self.kf.x[:, 0].copy()
+        """(n,) the current one-step prediction ``xhat_k``.
+
+        While a glitch candidate waits for the next sample's verdict: the prediction had it been
+        taken, which is what holds when no next sample judges it (the caller bridges a gap,
+        restarts or corrects the state by :meth:`set_state`), as the change test runs it.
+        """
+        return (self.kf.x if self._held is None else self._held)[:, 0].copy()
+
+    @property
+    def holding(self) -> bool:
+        """The last sample stepped was a glitch candidate, its far outputs not taken (the next one judges it)."""
+        return self._held is not None
 
     def set_state(self, x: np.ndarray) -> None:
-        """Set the predicted state ``xhat_k`` (n,), e.g. after a warm start."""
+        """Set the predicted state ``xhat_k`` (n,), e.g. after a warm start (a candidate's verdict is dropped)."""
+        self._held = None
         self.kf.x = np.asarray(x, dtype=float).reshape(self.n_states, 1).copy()
 
     def _start_up_gain(self) -> None:
@@ -135,12 +180,17 @@ class ModalStateEstimator:
         kf.K = gain
         kf.P = kf.F @ (P + K @ Re @ K.T - gain @ S @ gain.T) @ kf.F.T
         kf.P = 0.5 * (kf.P + kf.P.T)
+        self._set_innovation_std(S)  # the rule measures this sample's innovation by its covariance S_k
         if np.abs(gain - K).max() <= 1e-9 * max(np.abs(K).max(), 1e-300):
             kf.K = K.copy()
             self._start_up = False
+            self._set_innovation_std(Re)
 
     def step(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,))."""
+        """Process one sample: returns (filtered state (n,), estimated output (p,), innovation (p,)).
+
+        A glitch candidate's filtered state is without its far outputs (see the module docstring).
+        """
         u = np.asarray(u, dtype=float).reshape(self.n_inputs) - self.input_offset
         y = np.asarray(y, dtype=float).reshape(self.n_outputs) - self.output_offset
         if self._start_up:
@@ -150,13 +200,38 @@ class ModalStateEstimator:
         # KalmanFilter.update_steadystate and predict_steadystate, written out with the same
         # operations on the filter's arrays: the methods also copy z, P (twice) and x at every
         # step, bookkeeping this estimator never reads, which cost as much as the step itself.
-        kf.y = (y - du).reshape(self.n_outputs, 1) - dot(kf.H, kf.x)
-        kf.x = kf.x + dot(kf.K, kf.y)
+        z = (y - du).reshape(self.n_outputs, 1)
+        kf.y = z - dot(kf.H, kf.x)
+        if self._held is not None:
+            self._judge_held(z)
         innovation = kf.y[:, 0].copy()
+        u = u.reshape(self.n_inputs, 1)
+        x_prior = kf.x
+        kf.x = kf.x + dot(kf.K, kf.y)
+        # sum_i (e_i / sigma_i)^2 bounds every output's (e_i / sigma_i)^2: an ordinary sample pays one dot.
+        if (self._gate and dot(innovation * innovation, self._inverse_variance) > GLITCH_STD ** 2
+                and glitch_candidates(innovation[None, :], self._innovation_std)[0]):
+            with np.errstate(invalid="ignore", over="ignore"):  # an infinite output: used only if no glitch
+                self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
+            # The outputs far off replaced by their prediction (innovation 0), the others taken.
+            kf.x = x_prior + dot(kf.K, np.where(np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None], kf.y, 0.0))
         x_post = kf.x[:, 0].copy()
         y_est = kf.H @ x_post + du + self.output_offset
-        kf.x = dot(kf.F, kf.x) + dot(kf.B, u.reshape(self.n_inputs, 1))
+        kf.x = dot(kf.F, kf.x) + dot(kf.B, u)
         return x_post, y_est, innovation
+
+    def _judge_held(self, z: np.ndarray) -> None:
+        """The held candidate's verdict by this sample (``z`` (p, 1): ``y - D u``, ``kf.y`` its innovation).
+
+        Settled: a glitch (counted), the filter goes on as it is. Else the filter takes the state
+        it would have had without the rule, and this sample's innovation from it.
+        """
+        kf, held, self._held = self.kf, self._held, None
+        if settled(kf.y[:, 0], self._innovation_std):
+            self.glitches += 1
+            return
+        kf.x = held
+        kf.y = z - dot(kf.H, kf.x)
 
     def run(self, u: np.ndarray, y: np.ndarray) -> EstimatorOutput:
         """Process a block ``u`` (N, m), ``y`` (N, p)."""

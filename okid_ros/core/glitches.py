@@ -1,41 +1,47 @@
-"""The glitch rule: one sample of some outputs far off (interference, a bit error), judged by a model.
+"""The glitch rule: one sample of some outputs far off, judged by the innovations of a model's predictor.
 
-A sample whose prediction error lies beyond :data:`GLITCH_STD` of the model's standard deviations
-in some outputs, while not every output is beyond :data:`QUIET_STD` (every output at once is an
-unmeasured impact), may be a glitch; it is one when the next sample's prediction error, the model
-having taken the sample's prediction in its place, is within :data:`QUIET_STD` in every output
-(:func:`settled`). Gaussian prediction errors never reach the limit; a structural change raises
-their power over many samples, and a jump of the state goes on in the next samples' errors. The
-change test (:mod:`.change_monitor`) and node 1's window (:mod:`.arx_glitches`) apply it; records
-have their own test without a model (:mod:`.output_spikes`).
+A glitch is a single output sample far off (interference, a telemetry bit error; for records
+see :mod:`.output_spikes`). A sample whose innovation lies beyond :data:`GLITCH_STD` of the
+model's innovation standard deviations in some outputs, while not every output is beyond
+:data:`QUIET_STD`, is a glitch *candidate* (:func:`glitch_candidates`); it is a glitch when the
+next sample's innovation, once the predictor has taken the candidate's prediction in its place,
+is :func:`settled` (within :data:`QUIET_STD` in every output). Gaussian innovations never reach
+:data:`GLITCH_STD`; a change raises their power over many samples, an unmeasured impact shows
+in every output at once, and a jump of the state goes on in the next samples' innovations. With
+one output a glitch and an impact look alike: never a candidate.
+
+Used by the change test (:mod:`.change_monitor`), the modal-state estimator (:mod:`.estimator`)
+and node 1's window, there with the ARX fit's prediction errors (:mod:`.arx_glitches`). No rclpy;
+numpy only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GLITCH_STD", "QUIET_STD", "glitch_rows", "settled"]
+__all__ = ["GLITCH_STD", "QUIET_STD", "glitch_candidates", "settled"]
 
-#: Standard deviations of the model's prediction error beyond which an output's sample may be a glitch.
+#: Innovation standard deviations of the model that some output of a glitch's sample is beyond.
 #: Without the rule, ten glitches of 30 output spreads in a 20000-sample record made `track`
-#: declare 3 structural changes.
+#: declare 3 changes.
 GLITCH_STD = 12.0
-#: ... the level no output passes in a glitch's company (every output at once: an impact) or in
-#: the sample after it (the model's own expectation again).
+#: ... the level no output passes in a glitch's sample's company (every output at once: an
+#: impact) or in the sample after it (the model's own expectation again).
 QUIET_STD = GLITCH_STD / 3
 
 
-def glitch_rows(errors: np.ndarray, std: np.ndarray) -> np.ndarray:
-    """Rows of prediction errors ``errors`` (N, p) that may be glitches, given the model's ``std`` (p,).
+def glitch_candidates(e: np.ndarray, innovation_std: np.ndarray) -> np.ndarray:
+    """Rows of innovations ``e`` (N, p) that may be glitches, given the model's innovation std (p,).
 
-    None with one output: a glitch and an unmeasured impact look alike.
+    Returns a bool array (N,); all False with one output.
     """
-    if errors.shape[1] < 2:
-        return np.zeros(errors.shape[0], bool)
-    size = np.abs(errors) / std
+    if e.shape[1] < 2:  # one output: a glitch and an unmeasured impact look alike
+        return np.zeros(e.shape[0], bool)
+    size = np.abs(e) / innovation_std
     return np.any(size > GLITCH_STD, axis=1) & ~np.all(size > QUIET_STD, axis=1)
 
 
-def settled(error: np.ndarray, std: np.ndarray) -> bool:
-    """The prediction error (p,) of the sample after a glitch, its prediction taken: as the model expects."""
-    return bool(np.all(np.abs(error) <= QUIET_STD * std))
+def settled(e: np.ndarray, innovation_std: np.ndarray) -> bool:
+    """The innovation ``e`` (p,) of the sample after a candidate, its prediction taken: as the model expects."""
+    return bool(np.all(np.abs(e) <= QUIET_STD * innovation_std))
+

@@ -332,9 +332,8 @@ class ModalEstimationService:
         ----------
         stamp_s : the sample's stamp [s].
         u : (m,) inputs; y : (p,) outputs.
-        skipped : missing slots just before this sample (0: contiguous); -1
-            (``sample_grid.RESTART_SKIP``) after a time jump or restart (see
-            :class:`okid_ros.service.sample_grid.GridSample`).
+        skipped : missing slots just before this sample (0: contiguous); -1 (``sample_grid.RESTART_SKIP``)
+            after a time jump or restart (see :class:`okid_ros.service.sample_grid.GridSample`).
         """
         prm = self.params
         u = np.asarray(u, dtype=float).reshape(-1)
@@ -471,6 +470,7 @@ class ModalEstimationService:
         estimator.set_state(x)
         whiten = outcome.whiten if outcome.whiten is not None else whitening_matrix(model.innovation_covariance)
         self._model_id += 1
+        st.estimator_glitches += 0 if self._active is None else self._active.estimator.glitches  # (its life ends)
         if self._active is not None and u is None:
             self._jump.defer(self._active)
         elif self._active is not None:

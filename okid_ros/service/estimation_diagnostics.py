@@ -57,6 +57,8 @@ def estimation_diagnostics(stats: EstimationStats, buffer: SampleBuffer, watch: 
         "diverged_samples": st.diverged_samples,
         "divergence_restarts": st.divergence_restarts,
         "state_jumps": st.state_jumps,
+        # Samples the estimators left out as glitches (core/estimator.py, core/glitches.py), over the service's life.
+        "estimator_glitches": st.estimator_glitches + (0 if active is None else active.estimator.glitches),
         **watch,  # the change test's state (service/watch.py)
         "changes_detected": st.changes_detected,
         "last_change_stamp_s": st.last_change_stamp_s,

@@ -207,6 +207,7 @@ class EstimationStats:
     diverged_samples: int = 0
     divergence_restarts: int = 0
     state_jumps: int = 0  # divergences explained as a jump of the state (estimator corrected, no restart)
+    estimator_glitches: int = 0  # glitches the estimators of replaced models left out (estimator.py)
     changes_detected: int = 0
     windows_refused_for_change: int = 0
     last_change_stamp_s: float = math.nan

@@ -1,8 +1,9 @@
 """Divergence and structural-change watch of the model in use (node 2, on the sample path).
 
-Divergence watchdog: each innovation is whitened by the model's innovation covariance
-(:class:`okid_ros.core.change_detection.DivergenceMonitor`); a diverged sample (non-finite, or
-the moving mean of the normalized innovation squared far above p) is not published. Sustained
+Divergence watchdog: each innovation the estimator took is whitened by the model's innovation
+covariance (:class:`okid_ros.core.change_detection.DivergenceMonitor`; a glitch candidate's is
+0: the estimator did not take its far outputs); a diverged sample (non-finite, or the moving mean
+of the normalized innovation squared far above p) is not published. Sustained
 divergence is first judged as a jump of the state (:mod:`okid_ros.core.state_jump`: an impact,
 a bag replayed in a loop); a jump that explains it corrects the estimator's state, and nothing
 else happens. Otherwise the estimator restarts from the buffered samples (warm start with the
@@ -112,7 +113,10 @@ class InnovationWatch:
         """
         prm = self.params
         z = active.whiten @ innovation
-        diverged = self.divergence.check(z)
+        # The estimator's divergence: a glitch candidate, whose far outputs it did not take
+        # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
+        # watchdog's 25 samples and had the state corrected). The state-jump fit keeps the sample's own.
+        diverged = self.divergence.check(np.zeros_like(z) if active.estimator.holding else z)
         self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
         change = None
         if prm.change_detection:

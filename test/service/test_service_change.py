@@ -25,11 +25,15 @@ CHANGE, N = 5000, 8000
 T0 = 100.0
 
 
-def run(change: bool, n: int = N, restart: bool = True, looped_at: int | None = None):
-    """Both services over the record; ``looped_at``: from that sample on, the record again from sample 700."""
+def run(change: bool, n: int = N, restart: bool = True, looped_at: int | None = None, glitches=()):
+    """Both services over the record; ``looped_at``: from that sample on, the record again from sample 700.
+
+    ``glitches``: samples of output 0 put 30 spreads off.
+    """
     before, after = added_mass_structure(FREQS, DAMPING, 2, 2, DT, frequency_factor=0.94, seed=1)
     u = lowpass_input(n, 2, 40.0, DT, seed=3)
     y = simulate_switched([before, after], CHANGE, u, seed=4) if change else simulate_switched([before], [], u, seed=4)
+    y[list(glitches), 0] += 30 * y[:, 0].std()
     if looped_at is not None:  # a bag replayed in a loop: the state jumps, the structure is the same
         u[looped_at:], y[looped_at:] = u[700:700 + n - looped_at].copy(), y[700:700 + n - looped_at].copy()
     ident = ArxIdentificationService(ArxIdentificationParams(DT, Q, 2, 2, W, restart_min_fill=0.5))
@@ -139,6 +143,24 @@ def test_a_record_looped_back_on_itself_is_not_a_structural_change():
     assert d["change_alarms_state_jump"] == 1 and d["divergence_restarts"] == 0, d
     assert d["change_glitches"] == 0  # the seam goes on: no glitch
     assert sum(r is None for r in results[3500:]) <= 25  # withheld while the estimator diverged
+
+
+def test_glitches_are_left_out_by_the_estimator_and_counted_across_model_switches():
+    glitches = [2610, 2890, 3130, 3460, 3720]  # models switch every 250 samples
+    _, _, clean, _ = run(change=False, n=4000)
+    est, _, results, events = run(change=False, n=4000, glitches=glitches)
+    d = est.diagnostics()
+    assert d["estimator_glitches"] == len(glitches) and d["model_id"] >= 5, d
+    # Not the estimator's divergence (dbbb183: 25 samples withheld, the state corrected as a jump).
+    assert events == [] and d["diverged_samples"] == 0 and d["change_glitches"] == len(glitches), d
+    assert all(r is not None for r in results[clean.index(next(filter(None, clean))):])
+    # The first one with the clean run's model (later windows hold glitches: other models).
+    k = glitches[0]
+    assert results[k].model_id == clean[k].model_id
+    errors = [float(np.abs(results[j].coordinates - clean[j].coordinates).max() / np.abs(clean[j].coordinates).max())
+              for j in range(k, k + 100)]
+    assert max(errors) < 0.02, max(errors)
+    assert ModalEstimationService(est.params).diagnostics()["estimator_glitches"] == 0
 
 
 def test_a_spike_is_never_published_and_the_estimator_state_is_corrected():
