@@ -29,7 +29,7 @@ checkout.add()
 import numpy as np  # noqa: E402
 
 from okid_bench.live_chain import chain_modes  # noqa: E402
-from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
+from okid_bench.report import add_output_options, print_table, refuse_existing  # noqa: E402
 from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
 from okid_ros.sim.simulators import simulate_innovation  # noqa: E402
@@ -48,6 +48,14 @@ def _record(size: float, seed: int) -> tuple:
     return truth, u, y
 
 
+def _row(size: float, seeds: int) -> list:
+    """The table's cells for one glitch size over ``seeds`` records."""
+    scores = [chain_modes(*_record(size, seed), order=50, window=3750, every=500) for seed in range(1, seeds + 1)]
+    found, updates = sum(s.found for s in scores), sum(s.updates for s in scores)
+    return [f"{size:g}", f"{found}/{3 * updates}", sum(s.spurious for s in scores), updates,
+            sum(s.changes for s in scores), sum(s.arx_glitches for s in scores)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=float, nargs="+", default=[0.0, 30.0, 300.0],
@@ -56,17 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     add_output_options(parser)
     args = parser.parse_args(argv)
     refuse_existing(parser, args)
-    lines = ["| glitch size (spreads) | found | spurious | updates | changes | node 1 glitches |",
-             "|---|---|---|---|---|---|"]
-    for size in args.sizes:
-        scores = [chain_modes(*_record(size, seed), order=50, window=3750, every=500)
-                  for seed in range(1, args.seeds + 1)]
-        found, updates = sum(s.found for s in scores), sum(s.updates for s in scores)
-        cells = [f"{size:g}", f"{found}/{3 * updates}", sum(s.spurious for s in scores), updates,
-                 sum(s.changes for s in scores), sum(s.arx_glitches for s in scores)]
-        lines.append("| " + " | ".join(str(cell) for cell in cells) + " |")
-        print(lines[-1], flush=True)
-    write_output(args.out, "\n".join(lines) + "\n")
+    header = ["glitch size (spreads)", "found", "spurious", "updates", "changes", "node 1 glitches"]
+    print_table(header, (_row(size, args.seeds) for size in args.sizes), args.out)
     return 0
 
 

@@ -42,7 +42,7 @@ checkout.add()
 
 import numpy as np  # noqa: E402
 
-from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
+from okid_bench.report import add_output_options, print_table, refuse_existing  # noqa: E402
 from okid_ros.core.pipeline import identify  # noqa: E402
 from okid_ros.sim.inputs import lowpass_input  # noqa: E402
 from okid_ros.sim.paper_model import paper_model  # noqa: E402
@@ -127,13 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     add_output_options(parser)
     args = parser.parse_args(argv)
     refuse_existing(parser, args)
-    lines = ["| case | found | spurious | f RMS % | warning names it |", "|---|---|---|---|---|"]
-    for case in CASES:
-        row = _score(case, args.seeds)
-        cells = [row["case"], row["found"], row["spurious"], f"{row['f_rms_pct']:.3f}", row["named"]]
-        lines.append("| " + " | ".join(str(cell) for cell in cells) + " |")
-        print(lines[-1], flush=True)
-    write_output(args.out, "\n".join(lines) + "\n")
+    rows = (_score(case, args.seeds) for case in CASES)
+    print_table(["case", "found", "spurious", "f RMS %", "warning names it"],
+                ([row["case"], row["found"], row["spurious"], f"{row['f_rms_pct']:.3f}", row["named"]] for row in rows),
+                args.out)
     return 0
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_output_options", "refuse_existing", "write_output"]
+__all__ = ["add_output_options", "print_table", "refuse_existing", "write_output"]
 
 
 def _path(text: str) -> Path | None:
@@ -40,3 +40,12 @@ def write_output(path: Path | None, text: str) -> None:
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
+
+
+def print_table(header: list[str], rows, path: Path | None) -> None:
+    """A markdown table: each row of ``rows`` (cell lists) printed as it comes, then all written to ``path``."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for cells in rows:
+        lines.append("| " + " | ".join(str(cell) for cell in cells) + " |")
+        print(lines[-1], flush=True)
+    write_output(path, "\n".join(lines) + "\n")
