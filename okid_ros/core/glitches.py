@@ -37,7 +37,9 @@ def glitch_candidates(e: np.ndarray, innovation_std: np.ndarray) -> np.ndarray:
     """
     if e.shape[1] < 2:  # one output: a glitch and an unmeasured impact look alike
         return np.zeros(e.shape[0], bool)
-    size = np.abs(e) / innovation_std
+    # A std of 0 (node 1's window fitted exactly: as many rows as coefficients) puts any error beyond it.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        size = np.abs(e) / innovation_std
     return np.any(size > GLITCH_STD, axis=1) & ~np.all(size > QUIET_STD, axis=1)
 
 

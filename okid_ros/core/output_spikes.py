@@ -98,6 +98,7 @@ def spike_spreads(y: np.ndarray, samples: np.ndarray, *, valid: np.ndarray | Non
     (K,) ``|y_k - median of the SPIKE_NEIGHBOURHOOD samples either side| / std``, the standard
     deviation over the channel's other samples (Inf for a channel otherwise constant).
     """
+    y = _near_one(y[:, None])[:, 0]  # the spreads are ratios: the same, without overflow near 1e308
     others = np.ones(y.shape[0], bool) if valid is None else np.asarray(valid, bool).copy()
     others[samples] = False
     spread = float(np.std(y[others])) if others.any() else 0.0
@@ -132,6 +133,7 @@ def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarra
     index = np.flatnonzero(present)
     if index.size < 3:
         return np.zeros(x.shape)
+    x = _near_one(x)  # ratios: the same, without overflow of sums and medians near 1e308
     bridged = x if index.size == n else np.column_stack(
         [np.interp(np.arange(n), index, x[index, c]) for c in range(x.shape[1])])
     r = np.zeros(x.shape)
@@ -160,6 +162,13 @@ def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarra
             departure = np.where(spread > 0, np.abs(bridged[k, c] - centre) / spread, np.inf)
         ratio[k, c] = np.where(departure >= SPIKE_DEPARTURE, size[k, c] / np.maximum(jump, scale[c]), 0.0)
     return ratio
+
+
+def _near_one(x: np.ndarray) -> np.ndarray:
+    """``x`` (N, k) divided channel by channel by the power of two nearest its peak: exact, and 1 for a channel of 0."""
+    peak = np.max(np.abs(x), axis=0, initial=0.0)
+    usable = (peak > 0) & (peak < np.inf)
+    return x / np.where(usable, 2.0 ** np.round(np.log2(np.where(usable, peak, 1.0))), 1.0)
 
 
 def _sides(x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection"]
+__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection", "in_bound"]
 
 #: Largest |value| a sample may hold: W (p + m) squares of it still fit in float64 (1.8e308) for
 #: windows up to 1e7 rows. Records in such units are identified in batch after scaling
@@ -74,6 +74,12 @@ def accepted_samples(u: np.ndarray, y: np.ndarray, status: WindowStatus) -> np.n
     status.rejected_nonfinite += int(np.count_nonzero(~finite))
     status.rejected_magnitude += int(np.count_nonzero(finite & ~accepted))
     return accepted
+
+
+def in_bound(u: np.ndarray, y: np.ndarray) -> bool:
+    """Whether one sample ``u`` (m,), ``y`` (p,) is finite and within :data:`MAX_SAMPLE_MAGNITUDE` (nodes 1 and 2)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(u @ u + y @ y) <= MAX_SQUARED_NORM  # NaN fails the comparison
 
 
 def count_rejection(sample: np.ndarray, status: WindowStatus) -> None:

@@ -90,6 +90,7 @@ from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.realization_window import realization_minimum, realization_window
+from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
@@ -148,6 +149,7 @@ class ModalEstimationService:
             self._generation += 1  # outcomes of older jobs are dropped
             self._stats = EstimationStats()
             self._u_prev: np.ndarray | None = None
+            self._refused = 0  # samples refused since the last one stepped: a gap before the next
             self._selection = ModelSelection(self.params, self._stats)
             self._watch = InnovationWatch(self.params, self._buffer, self._stats)
             self._jump = SwitchJump(self._stats)
@@ -219,11 +221,8 @@ class ModalEstimationService:
         if not self.enabled:
             return False
         if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
-            st.arx_refused += 1
-            st.last_reason = (
-                f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator has "
-                f"n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}"
-            )
+            self._refuse(f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator has "
+                         f"n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
             return False
         if not math.isfinite(stamp_end_s):
             self._refuse("ARX model without a stamp")
@@ -294,7 +293,6 @@ class ModalEstimationService:
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1
         self._stats.last_reason = reason
-        return None
 
     def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
         """:func:`realize` a job, then (``follow``) :meth:`follow` the samples that arrived since."""
@@ -326,7 +324,7 @@ class ModalEstimationService:
 
     # ------------------------------------------------------------------ samples
     def step(self, stamp_s: float, u, y, skipped: int = 0) -> ModalStatesResult | None:
-        """Process one sample; return its modal states (None before the first model).
+        """Process one sample; return its modal states (None before the first model, or the sample refused).
 
         Parameters
         ----------
@@ -335,15 +333,16 @@ class ModalEstimationService:
         skipped : missing slots just before this sample (0: contiguous); -1 (``sample_grid.RESTART_SKIP``)
             after a time jump or restart (see :class:`okid_ros.service.sample_grid.GridSample`).
         """
-        prm = self.params
-        u = np.asarray(u, dtype=float).reshape(-1)
-        y = np.asarray(y, dtype=float).reshape(-1)
-        st = self._stats
-        # One sum catches NaN/Inf (look closer only if it is not finite: it may just overflow).
-        if u.size != prm.n_inputs or y.size != prm.n_outputs or (
-                not math.isfinite(u.sum() + y.sum()) and not (np.isfinite(u).all() and np.isfinite(y).all())):
+        prm, st = self.params, self._stats
+        u, y = np.asarray(u, dtype=float).reshape(-1), np.asarray(y, dtype=float).reshape(-1)
+        # Node 1's rule: wrong size, NaN/Inf or beyond 1e150 refused, counted, a missing slot before the next
+        # (8644b37 stepped the estimator with a finite 1e200: overflow warnings, a diverged state, changes).
+        if u.size != prm.n_inputs or y.size != prm.n_outputs or not in_bound(u, y):
             st.rejected_samples += 1
+            self._refused += 1
             return None
+        if self._refused:
+            skipped, self._refused = (skipped + self._refused if skipped >= 0 else skipped), 0
         st.samples += 1
         with self._lock:  # the sample appended and stepped with no idle switch in between
             return self._step(float(stamp_s), u, y, int(skipped))

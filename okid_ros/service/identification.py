@@ -43,7 +43,7 @@ from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
 from okid_ros.core.recursive import SlidingWindowArx
-from okid_ros.core.window_samples import MAX_SQUARED_NORM
+from okid_ros.core.window_samples import in_bound
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
@@ -319,14 +319,13 @@ class ArxIdentificationService:
         if step is StampStep.DUPLICATE:
             c.rejected_duplicate += 1
             return False
-        with np.errstate(over="ignore"):
-            in_bound = float(u @ u + y @ y) <= MAX_SQUARED_NORM
-        if step is StampStep.GAP or not in_bound:
+        bounded = in_bound(u, y)
+        if step is StampStep.GAP or not bounded:
             self._enter(self._gate.gap(), gap=False)  # a held sample goes in before the history breaks
         if step is StampStep.GAP:
             self._est.mark_gap()
             c.gaps += 1
-        if not in_bound:
+        if not bounded:
             self._est.push(u, y)  # refused and counted by the window, which breaks its lag history
             c.rejected_magnitude += 1
             return False

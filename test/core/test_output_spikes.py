@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
+import pytest
 
 from okid_ros.core.output_spikes import most_spikes, output_spikes
 from okid_ros.core.pipeline import identify
@@ -113,3 +116,21 @@ def test_a_spike_within_a_few_channel_spreads_is_named_and_kept(paper_record) ->
                                 "the ARX rows leaving it out costs")
     _, _, valid, warnings = record_faults(u, _spiked(small, [3000], output=1), leave_out_spikes=True)  # and a large one
     assert np.flatnonzero(~valid).tolist() == [3000] and len(warnings) == 2
+
+
+@pytest.mark.parametrize("units", [1e300, 1e308])
+def test_the_faults_of_a_record_near_the_float_limits_are_those_in_ordinary_units(paper_record, units) -> None:
+    # `okid-ros track` names a record's faults in its own units (its windows see them scaled), as
+    # identify does. 8644b37: numpy's overflow warnings (the spikes' spread by np.std at 1e300, a
+    # second difference and the harmonics' mean at 1e308) and the spikes called small, kept.
+    u, y = paper_record
+    y = _spiked(y, [700, 1900])
+    y = 0.9 + y / (16 * np.abs(y).max())  # 0.84 to 0.96: times 1e308 still finite
+    ordinary = record_faults(u, y, sample_time_s=0.008, leave_out_spikes=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        far = record_faults(u, y * units, sample_time_s=0.008, leave_out_spikes=True)
+    np.testing.assert_array_equal(far[2], ordinary[2])
+    assert not ordinary[2][[700, 1900]].any()
+    assert [w.split(" ")[:4] for w in far[3]] == [w.split(" ")[:4] for w in ordinary[3]]
+    assert len(far[3]) == 1 and "(700, 1900)" in far[3][0] and "left out as missing samples" in far[3][0], far[3]

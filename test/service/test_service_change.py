@@ -10,6 +10,7 @@ drop by 6 % at sample 5000; ARX order 40, window 2000 rows, a model every 250 sa
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -25,15 +26,19 @@ CHANGE, N = 5000, 8000
 T0 = 100.0
 
 
-def run(change: bool, n: int = N, restart: bool = True, looped_at: int | None = None, glitches=()):
+def run(change: bool, n: int = N, restart: bool = True, looped_at: int | None = None, glitches=(),
+        value: float | None = None):
     """Both services over the record; ``looped_at``: from that sample on, the record again from sample 700.
 
-    ``glitches``: samples of output 0 put 30 spreads off.
+    ``glitches``: samples of output 0 put 30 spreads off (``value``: set to it).
     """
     before, after = added_mass_structure(FREQS, DAMPING, 2, 2, DT, frequency_factor=0.94, seed=1)
     u = lowpass_input(n, 2, 40.0, DT, seed=3)
     y = simulate_switched([before, after], CHANGE, u, seed=4) if change else simulate_switched([before], [], u, seed=4)
-    y[list(glitches), 0] += 30 * y[:, 0].std()
+    if value is None:
+        y[list(glitches), 0] += 30 * y[:, 0].std()
+    else:
+        y[list(glitches), 0] = value
     if looped_at is not None:  # a bag replayed in a loop: the state jumps, the structure is the same
         u[looped_at:], y[looped_at:] = u[700:700 + n - looped_at].copy(), y[700:700 + n - looped_at].copy()
     ident = ArxIdentificationService(ArxIdentificationParams(DT, Q, 2, 2, W, restart_min_fill=0.5))
@@ -161,6 +166,19 @@ def test_glitches_are_left_out_by_the_estimator_and_counted_across_model_switche
               for j in range(k, k + 100)]
     assert max(errors) < 0.02, max(errors)
     assert ModalEstimationService(est.params).diagnostics()["estimator_glitches"] == 0
+
+
+def test_a_sample_beyond_1e150_is_refused_by_node_2_as_by_node_1():
+    # 8644b37: node 2 stepped its estimator with it: 680 numpy overflow warnings per 1e200 sample
+    # (estimator, change test, divergence watchdog), and two changes declared for two in a row.
+    glitches = [3000, 3400, 3401]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        est, ident, results, events = run(change=False, n=4000, glitches=glitches, value=1e200)
+    d = est.diagnostics()
+    assert d["rejected_samples"] == ident.diagnostics()["samples_rejected"] == len(glitches), d
+    assert events == [] and d["diverged_samples"] == 0, d
+    assert [k for k in range(2500, 4000) if results[k] is None] == glitches
 
 
 def test_a_spike_is_never_published_and_the_estimator_state_is_corrected():

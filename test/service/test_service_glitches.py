@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,25 @@ def test_glitches_cost_the_live_chain_no_mode(record):
     glitched = chain_modes(model, u, _glitched(y, GLITCHES), order=Q, window=W, every=500)
     assert glitched.updates == clean.updates and glitched.found >= clean.found - 1
     assert glitched.spurious <= clean.spurious + 1 and glitched.arx_glitches == len(GLITCHES)
+
+
+def test_a_window_fitted_exactly_judges_no_glitch_and_lets_numpy_say_nothing():
+    # Order 8, p = 3, m = 2 and a window of 60: its first fit has 42 rows for 42 coefficients per
+    # output, a residual covariance of rounding (one variance 0 or below). 8644b37: numpy's "divide by
+    # zero" at each of the 42 samples the gate then judged (core/glitches.py).
+    rng = np.random.default_rng(3)
+    n, dt = 400, 0.01
+    values = {"sample_time_s": dt, "arx.order": 8, "arx.window_length": 60, "n_outputs": 3, "n_inputs": 2,
+              "offsets": "none"}
+    service = ArxIdentificationService(ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, values)))
+    u, y = rng.standard_normal((n, 2)), np.zeros((n, 3))
+    for k in range(1, n):
+        y[k] = 0.5 * y[k - 1] + u[k - 1].sum() + 0.1 * rng.standard_normal(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        for k in range(n):
+            assert service.push(k * dt, u[k], y[k])
+            if k % 50 == 49:
+                assert service.snapshot().valid
+    assert service.diagnostics()["glitches"] == 0
+    np.testing.assert_array_equal(service.window_samples()[1], y[n - service.window_samples()[1].shape[0]:])
