@@ -106,11 +106,12 @@ class ArxGlitchGate:
         if self._run < self.order:
             self._remember(u, y)
             return due + [(u, y, tag)]
-        error = y - self._prediction(u)
+        prediction = self._prediction(u)
+        error = y - prediction
         # The common case costs one comparison: no output past the limit (NaN compares False).
         if (np.abs(error) > self._limit).any() and glitch_candidates(error[None, :], self._residual_std)[0]:
             self._held = (u, y, tag)
-            self._held_prediction = y - error
+            self._held_prediction = prediction  # not y - error: a glitch 1e20 times the signal leaves 0 of it
             self._remember(u, self._held_prediction)  # the next verdict reads the prediction in its place
             return due
         self._remember(u, y)

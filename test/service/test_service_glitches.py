@@ -46,13 +46,16 @@ def _window_after(dt: float, u: np.ndarray, y: np.ndarray) -> ArxIdentificationS
     return service
 
 
-def test_a_glitch_goes_into_node_1s_window_as_its_prediction(record):
+@pytest.mark.parametrize("size", [30.0, 1e20])
+def test_a_glitch_goes_into_node_1s_window_as_its_prediction(record, size):
     # Five samples of output 0 thirty spreads off: the window's fit was 1.5 times its own size
-    # away from the clean record's (the glitches' squares outweigh the whole window's).
+    # away from the clean record's (the glitches' squares outweigh the whole window's). At 1e20
+    # spreads the prediction taken as the sample less its error was 0, and the next glitches
+    # went in as they came.
     model, u, y = record
     dt = model.sample_time_s
     clean = _window_after(dt, u, y).snapshot().fit.theta
-    service = _window_after(dt, u, _glitched(y, GLITCHES))
+    service = _window_after(dt, u, _glitched(y, GLITCHES, size))
     theta = service.snapshot().fit.theta
     assert service.diagnostics()["glitches"] == len(GLITCHES)
     assert np.linalg.norm(theta - clean) < 0.1 * np.linalg.norm(clean)
