@@ -60,7 +60,8 @@ class StructuralChangeMonitor:
         self.disarm()
 
     def disarm(self) -> None:
-        self._pending: tuple | None = None  # a glitch held for the next sample's verdict: (innovation, u, index)
+        # A glitch held for the next sample's verdict: (innovation, u, index, the state after it as it came).
+        self._pending: tuple | None = None
         self.predictor: InnovationPredictor | None = None
         self.whiten: np.ndarray | None = None
         self.reference_rows = 0
@@ -122,7 +123,9 @@ class StructuralChangeMonitor:
                 break
             k = candidates[0]
             trial = y.copy()
-            trial[k] -= e[k]
+            self.predictor.x = x0.copy()
+            self.predictor.advance(u[:k], y[:k])
+            trial[k] = self.predictor.predicted_output(u[k])  # its prediction in its place
             self.predictor.x = x0.copy()
             e_trial = self.predictor.run(u, trial)
             if settled(e_trial[k + 1], self._innovation_std):
@@ -140,7 +143,7 @@ class StructuralChangeMonitor:
         state): innovation 0; else the sample's own innovation, and the predictor's state that of
         the sample as it came.
         """
-        e_held, u_held, index = self._pending
+        e_held, u_held, index, as_came = self._pending
         self._pending = None
         predicted = self.predictor.x.copy()
         quiet = settled(self.predictor.step(u, y), self._innovation_std)
@@ -148,7 +151,7 @@ class StructuralChangeMonitor:
         if quiet:
             self.glitches += 1
             return np.zeros(e_held.shape[0]), u_held, index
-        self.predictor.x = predicted + self.predictor.Gy @ e_held  # the step is linear in y
+        self.predictor.x = as_came  # the state of the sample as it came
         return self.whiten @ e_held, u_held, index
 
     def _judge_jump(self, change_index: int, alarm_index: int, index: int) -> StateJump | None:
@@ -206,7 +209,7 @@ class StructuralChangeMonitor:
     def _drop_pending(self) -> None:
         """A held sample run as it came, untested (no next sample judges it: a gap follows)."""
         if self._pending is not None:
-            self.predictor.x = self.predictor.x + self.predictor.Gy @ self._pending[0]
+            self.predictor.x = self._pending[3]
             self._pending = None
             self.detector.gap()
 
@@ -271,6 +274,7 @@ class StructuralChangeMonitor:
             alarm = self._test_one(*self._step_pending(u, y), test=True)
             if alarm is not None:
                 return alarm
+        before = self.predictor.x  # step() binds a new state: no copy
         e = self.predictor.step(u, y)
         if self._hold:
             self._hold -= 1
@@ -278,8 +282,11 @@ class StructuralChangeMonitor:
         z = self.whiten @ e
         # |z|^2 = e^T Re^-1 e bounds every (e_i / sigma_i)^2: below GLITCH_STD^2 no output is past it.
         if test and float(z @ z) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
-            self.predictor.x = self.predictor.x - self.predictor.Gy @ e  # its prediction in its place
-            self._pending = (e, u, index)
+            after = self.predictor.x
+            self.predictor.x = before
+            prediction = self.predictor.predicted_output(u)
+            self.predictor.step(u, prediction)  # its prediction in its place
+            self._pending = (e, u, index, after)
             return None
         return self._test_one(z, u, index, test=test)
 

@@ -342,6 +342,15 @@ class InnovationPredictor:
         self.x = self.F @ self.x + self.Gu @ u + self.Gy @ y
         return e
 
+    def predicted_output(self, u: np.ndarray) -> np.ndarray:
+        """The one-step prediction (p,) of the next sample's outputs, its inputs ``u`` (m,) given.
+
+        Computed from the state, not as the sample less its innovation: a glitch 1e20 times the
+        signal leaves nothing of the prediction in that difference.
+        """
+        u = np.asarray(u, dtype=float) - self.input_offset
+        return self.C @ self.x + self.D @ u + self.output_offset
+
     def run(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Innovations (N, p) of samples ``u`` (N, m), ``y`` (N, p); advances the state."""
         u = np.asarray(u, dtype=float) - self.input_offset
