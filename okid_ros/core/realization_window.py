@@ -2,11 +2,12 @@
 
 The newest run of the window without a long gap or a time restart; its short gaps filled by the
 window's ARX prediction (:func:`.gap_fill.fill_short_gaps`); and, in an input-output window, the
-output spikes ``identify`` leaves out of a record left out as missing samples and filled the same
-way (:func:`.sensor_faults.spikes_left_out`): a glitch (interference, a bit error) read by the
-realization's passes over the samples (state completion, refit, refinement) cost most of the
-modes of the paper structure's windows, while node 1 had already kept it out of the ARX fit
-(:mod:`.arx_glitches`; docs/robustness.md).
+output spikes ``identify`` leaves out of a record (:func:`.sensor_faults.spikes_left_out`) left
+out of its samples and of its ARX fit, refitted without the rows that reach them, and filled by
+that fit's prediction. A glitch (interference, a bit error) in the samples the realization's
+passes read (state completion, refit, refinement) cost the paper structure's windows modes; the
+fit must be of the samples they read: node 1's fit without the glitch (:mod:`.arx_glitches`)
+realized over samples still holding it lost more than the glitch itself (docs/robustness.md).
 
 No rclpy; numpy only.
 """
