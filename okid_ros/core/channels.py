@@ -12,7 +12,32 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ChannelScales", "channel_scales", "channel_spread", "channel_std", "group_scales"]
+__all__ = ["ChannelScales", "channel_mean", "channel_scales", "channel_spread", "channel_std", "group_scales",
+           "power_of_two_scales"]
+
+
+def power_of_two_scales(x: np.ndarray) -> np.ndarray:
+    """Per-column power of two nearest the column's largest magnitude of ``x`` (N, c): (c,).
+
+    1 for a column of zeros or one holding Inf/NaN. Dividing by it is exact: sums and medians of
+    the quotients are those of the values, scaled, without overflow near the float64 limits.
+    """
+    peak = np.max(np.abs(x), axis=0, initial=0.0)
+    usable = (peak > 0) & (peak < np.inf)
+    return np.where(usable, 2.0 ** np.round(np.log2(np.where(usable, peak, 1.0))), 1.0)
+
+
+def channel_mean(x: np.ndarray) -> np.ndarray:
+    """Per-column mean of ``x`` (N, c) without overflow: (c,), 0 without rows.
+
+    The same as ``x.mean(axis=0)`` wherever that does not overflow (the columns are divided by a
+    power of two); ``np.mean`` of a column of values near 1e307 overflows its sum.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape[0] == 0:
+        return np.zeros(x.shape[1])
+    scale = power_of_two_scales(x)
+    return (x / scale).mean(axis=0) * scale
 
 
 def channel_std(x: np.ndarray) -> np.ndarray:

@@ -49,6 +49,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize, stats
 
+from okid_ros.core.channels import channel_mean
+
 __all__ = ["Harmonic", "find_harmonics", "remove_harmonics", "without_harmonics"]
 
 #: A line's peak bin stands this many times above the median of its neighbourhood.
@@ -148,13 +150,13 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
         rather than taken for a mode's (the kurtosis test). None: every sample present.
     """
     present = np.ones(y.shape[0], bool) if valid is None else np.asarray(valid, bool)
-    mean = _mean(y[present])
+    mean = channel_mean(y[present])
     centred = np.where(present[:, None], y - mean, 0.0)
     scale = _power_of_two(centred)  # exact: the spectra's squares neither overflow nor underflow
     found = find_harmonics(centred / scale, sample_time_s)
     measured = u is not None and u.shape[1] > 0
     if found and measured and u.shape[0] >= 8 * _RING_OUTER:
-        inputs = np.where(present[:, None], u - _mean(u[present]), 0.0)
+        inputs = np.where(present[:, None], u - channel_mean(u[present]), 0.0)
         ratio = _line_ratios(inputs / _power_of_two(inputs))[2]
         duration_s = y.shape[0] * sample_time_s
         lobe = [np.arange(round(h.frequency_hz * duration_s) - 2, round(h.frequency_hz * duration_s) + 3)
@@ -170,14 +172,6 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
     cleaned = mean + scale * remove_harmonics(centred / scale, sample_time_s, found, valid=valid)
     return np.where(present[:, None], cleaned, y), [
         f"harmonic disturbance removed before identification{where}: {listed}"]
-
-
-def _mean(x: np.ndarray) -> np.ndarray:
-    """The columns' means of ``x`` (N, k), 0 without rows; summed divided by a power of two (exact): no overflow."""
-    if x.shape[0] == 0:
-        return np.zeros(x.shape[1])
-    scale = _power_of_two(x)
-    return (x / scale).mean(axis=0) * scale
 
 
 def _power_of_two(x: np.ndarray) -> float:

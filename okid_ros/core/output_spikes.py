@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from okid_ros.core.channels import power_of_two_scales
+
 __all__ = ["MAD_TO_STD", "MAX_SPIKES_ANY_RECORD", "MAX_SPIKE_SHARE", "SPIKE_DEPARTURE", "SPIKE_NEIGHBOURHOOD",
            "SPIKE_RATIO", "most_spikes", "output_spikes", "spike_spreads", "widened"]
 
@@ -166,9 +168,7 @@ def _jump_ratio(x: np.ndarray, present: np.ndarray, *, local: bool) -> np.ndarra
 
 def _near_one(x: np.ndarray) -> np.ndarray:
     """``x`` (N, k) divided channel by channel by the power of two nearest its peak: exact, and 1 for a channel of 0."""
-    peak = np.max(np.abs(x), axis=0, initial=0.0)
-    usable = (peak > 0) & (peak < np.inf)
-    return x / np.where(usable, 2.0 ** np.round(np.log2(np.where(usable, peak, 1.0))), 1.0)
+    return x / power_of_two_scales(x)
 
 
 def _sides(x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,7 @@ from scipy import linalg
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_order import arx_order_for_realization, choose_arx_order
-from okid_ros.core.channels import channel_std
+from okid_ros.core.channels import channel_mean, channel_std
 from okid_ros.core.era import decompose_hankel, default_hankel_size
 from okid_ros.core.excitation import frozen_output_warnings, unexplained_warnings
 from okid_ros.core.gain import gain_by_whitening
@@ -87,7 +87,7 @@ def _remove_offsets(
     """Means removed (``offsets="remove"``) or zero offsets; warnings for large offsets."""
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
-    u_mean, y_mean = u.mean(axis=0), y.mean(axis=0)
+    u_mean, y_mean = channel_mean(u), channel_mean(y)
     warnings = []
     for name, mean, data in (("input", u_mean, u), ("output", y_mean, y)):
         std = channel_std(data)  # np.std squares: overflows for values beyond 1e154

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.channels import channel_scales, channel_spread, channel_std
+from okid_ros.core.channels import channel_mean, channel_scales, channel_spread, channel_std
 from okid_ros.core.pipeline import IdentificationError, identify
 from okid_ros.core.statespace import one_step_prediction
 from okid_ros.sim.inputs import lowpass_input
@@ -67,12 +67,24 @@ def test_modes_do_not_depend_on_the_units_of_each_channel(paper_record, units: i
     assert scaled.stability_problem() is None or scaled.stability_problem() == ""
 
 
-def test_beyond_the_float64_range_is_a_clear_refusal(paper_record) -> None:
+@pytest.mark.parametrize("peak, offset", [(None, 0.0), (1e306, 1e307)])
+def test_beyond_the_float64_range_is_a_clear_refusal(paper_record, peak, offset) -> None:
+    # Outputs about 1e307 made the means' sums overflow first: numpy's warning before the refusal.
     u, y = paper_record
+    scale = 1e200 if peak is None else peak / np.abs(y).max()
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         with pytest.raises(IdentificationError, match="beyond the float64 range"):
-            identify(u, y * 1e200, DT, order=40, refine=False)
+            identify(u, y * scale + offset, DT, order=40, refine=False)
+
+
+def test_channel_mean_is_the_mean_without_its_overflow(paper_record) -> None:
+    u, y = paper_record
+    np.testing.assert_array_equal(channel_mean(y), y.mean(axis=0))  # divided by powers of two: exact
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        big = channel_mean(np.column_stack([y[:, 0] * 1e305 + 1e307, np.zeros(y.shape[0])]))
+    np.testing.assert_allclose(big, [y[:, 0].mean() * 1e305 + 1e307, 0.0], rtol=1e-12)
 
 
 def test_arx_fit_of_extreme_units_has_no_overflow(paper_record) -> None:
