@@ -264,8 +264,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
         raise DataError(problem)
     # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel lies beyond
     # 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
-    # a group of ordinary size keeps its units. The record's faults are said once, in its units as identify
-    # says them (8644b37: a level shift of 1.7e152 was called one of 1.6), on the samples the windows accept.
+    # a group of ordinary size keeps its units. The record's faults are said once, in the record's units as
+    # identify says them (not the windows' scaled values), judged on the samples the windows accept.
     scaled_u, scaled_y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
     for warning in tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)):
         print(f"okid-ros track: warning: {warning}", file=sys.stderr)

@@ -145,7 +145,7 @@ class StructuralChangeMonitor:
         """
         e_held, u_held, index, as_came = self._pending
         self._pending = None
-        predicted = self.predictor.x.copy()
+        predicted = self.predictor.x  # step() binds a new state: no copy
         quiet = settled(self.predictor.step(u, y), self._innovation_std)
         self.predictor.x = predicted
         if quiet:

@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.channels import channel_std
+from okid_ros.core.channels import channel_mean, channel_std
 from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
@@ -59,8 +59,7 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
     _, y, _, warnings = record_faults(np.zeros((y.shape[0], 0)), y, valid=valid, detrend=offsets == "remove")
     # The means of what is identified: a removed drift keeps them, a removed level shift keeps the
     # level before it. Neither overflows nor underflows for values near the float64 limits.
-    peak = np.max(np.abs(y), axis=0)
-    mean = (y / np.where(peak > 0, peak, 1.0)).mean(axis=0) * peak
+    mean = channel_mean(y)
     std = channel_std(y)
     large = np.flatnonzero(np.abs(mean) > 0.1 * std)
     if large.size:

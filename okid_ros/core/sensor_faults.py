@@ -176,7 +176,7 @@ def _shifts(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, remove: b
         warnings.append(f"output {i} changes level {steps}: a sensor re-zeroed or its range switched? (no input and "
                         f"not every output steps with it); {action}")
     for i, samples in shifts.unusable.items():
-        listed = ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")
+        listed = _listed(samples)
         warnings.append(f"output {i} changes level at {samples.size} samples ({listed}): more than {MAX_SHIFTS} level "
                         f"shifts, a loose contact or an unusable channel? kept as recorded; leave it out")
     return (without_shifts(y, shifts.by_output, valid=valid) if shifts.by_output else y), warnings
@@ -235,7 +235,7 @@ def _spikes(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, leave_out
         parts = [(large[i], action), (np.setdiff1d(samples, large[i]), small)] if leave else [(samples, action)]
         for chosen, said in parts:
             if chosen.size:
-                listed = ", ".join(str(int(k)) for k in chosen[:5]) + (", ..." if chosen.size > 5 else "")
+                listed = _listed(chosen)
                 warnings.append(f"output {i} jumps far beyond its neighbours at {chosen.size} sample(s) ({listed}): a "
                                 f"spike or glitch, not the structure's response; {said}")
     return (left_out if leave else valid), warnings
@@ -357,3 +357,8 @@ def clipped_samples(x: np.ndarray, name: str, *, valid: np.ndarray | None = None
             described.append(f"{name} {i} is clipped (a sensor's or recorder's range exceeded?): "
                              f"{' and '.join(held_ends)}")
     return clipped, described
+
+
+def _listed(samples: np.ndarray) -> str:
+    """The first five of ``samples`` (K,) for a warning, "..." after them."""
+    return ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")

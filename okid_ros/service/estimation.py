@@ -336,7 +336,7 @@ class ModalEstimationService:
         prm, st = self.params, self._stats
         u, y = np.asarray(u, dtype=float).reshape(-1), np.asarray(y, dtype=float).reshape(-1)
         # Node 1's rule: wrong size, NaN/Inf or beyond 1e150 refused, counted, a missing slot before the next
-        # (8644b37 stepped the estimator with a finite 1e200: overflow warnings, a diverged state, changes).
+        # (a finite 1e200 would overflow the estimator's, the watchdog's and the change test's squares).
         if u.size != prm.n_inputs or y.size != prm.n_outputs or not in_bound(u, y):
             st.rejected_samples += 1
             self._refused += 1
