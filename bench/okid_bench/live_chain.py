@@ -21,13 +21,19 @@ __all__ = ["ChainScore", "chain_modes"]
 
 @dataclass
 class ChainScore:
-    """True modes found (within ``tol``) and modes listed beside them, summed over the model updates."""
+    """True modes found (within ``tol``) and modes listed beside them, summed over the model updates.
+
+    ``level_steps``: sensor re-zeros node 2 took off the samples; ``output_error``: (p,) the median
+    of ``|y - y_estimated|`` over the samples published (the measured outputs less the estimate).
+    """
 
     found: int
     spurious: int
     updates: int
     changes: int
     arx_glitches: int
+    level_steps: int = 0
+    output_error: np.ndarray | None = None
 
 
 def chain_modes(truth, u: np.ndarray, y: np.ndarray, *, order: int, window: int, every: int,
@@ -41,9 +47,12 @@ def chain_modes(truth, u: np.ndarray, y: np.ndarray, *, order: int, window: int,
     arx = ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {
         **common, "arx.order": order, "arx.window_length": window, "publish_rate_hz": 1.0 / (every * dt)}))
     pipeline = WindowedPipeline(arx, ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, common)))
+    errors = []
     for k in range(u.shape[0]):
         sample = GridSample(k, k * dt, u[k], y[k], restart=k == 0)
-        pipeline.estimate(sample)
+        result = pipeline.estimate(sample)
+        if result is not None:
+            errors.append(y[k] - result.y_estimated)
         snapshot = pipeline.identify(sample)
         if snapshot is not None and snapshot.valid:
             pipeline.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
@@ -54,4 +63,6 @@ def chain_modes(truth, u: np.ndarray, y: np.ndarray, *, order: int, window: int,
         found += sum(bool(np.any(np.abs(hz - f) < tol * f)) for f in true_hz)
         spurious += sum(not np.any(np.abs(f - true_hz) < tol * true_hz) for f in hz)
     glitches = int(pipeline.arx.diagnostics().get("glitches", 0))  # not counted before the gate
-    return ChainScore(found, spurious, len(pipeline.updates), len(pipeline.changes), glitches)
+    steps = int(pipeline.est.diagnostics().get("output_level_steps", 0))  # not counted before node 2 took them
+    error = np.median(np.abs(errors), axis=0) if errors else None
+    return ChainScore(found, spurious, len(pipeline.updates), len(pipeline.changes), glitches, steps, error)

@@ -290,6 +290,7 @@ class ChangeDetector:
         self._n_nis = 0
         self._tracked = np.zeros(self.n_outputs)  # the innovations' slowly varying mean
         self._tracked_count = 0
+        self._tracked_quiet = self._tracked  # the tracked mean where the statistic was last 0
         self.whitening = InnovationWhitening(self.n_outputs)
         self.last_verdict: ModelErrorVerdict | None = None
         self.last_jump: StateJump | None = None
@@ -435,7 +436,18 @@ class ChangeDetector:
             return None
         return None
 
+    def excursion_ended(self, index: int) -> None:
+        """The caller explained the excursion up to sample ``index`` (an output's step taken off): forget it.
+
+        The tracked mean goes back to where the statistic last was 0 (per sample, :meth:`push`):
+        over a few samples of a large step it took a bias the samples after it no longer have.
+        """
+        self._tracked = self._tracked_quiet
+        self._end_excursion(index)
+        self.whitening.gap()
+
     def _end_excursion(self, index: int) -> None:
+        self._tracked_quiet = self._tracked
         self.statistic = 0.0
         self._last_zero = index
         self._sum_nis, self._n_nis = 0.0, 0

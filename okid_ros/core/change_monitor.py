@@ -21,6 +21,7 @@ from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitenin
 from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.output_spikes import most_spikes
+from okid_ros.core.output_step import step_response
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
@@ -205,6 +206,18 @@ class StructuralChangeMonitor:
         if self.armed:
             self._pending = None
             self.predictor.x = np.asarray(state, dtype=float).reshape(self.predictor.x.shape).copy()
+
+    def output_step(self, step: np.ndarray, samples: int, index: int) -> None:
+        """An output step ``step`` (p,) in the last ``samples`` samples up to ``index``, taken off the next ones.
+
+        The predictor's state loses what it took of the step (:mod:`okid_ros.core.output_step`);
+        the excursion it caused ends.
+        """
+        if not self.armed:
+            return
+        self._drop_pending()
+        self.predictor.x = self.predictor.x - step_response(self.predictor.F, self.predictor.Gy, step, samples)
+        self.detector.excursion_ended(index)
 
     def _drop_pending(self) -> None:
         """A held sample run as it came, untested (no next sample judges it: a gap follows)."""

@@ -45,7 +45,7 @@ class RealizationWindow:
 
 
 def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: ArxFit, *, max_gap: int,
-                       need: int, center: bool = True) -> RealizationWindow:
+                       need: int, center: bool = True, refit: bool = False) -> RealizationWindow:
     """The newest run of an ARX window without a long gap or a time restart, short gaps and spikes filled.
 
     The one rule of node 2 and ``okid-ros track`` for a window with missing samples: a gap of
@@ -61,6 +61,8 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     need : the window's samples (rows plus the ARX order): at least ``max(4 q, need // 2)`` of
         them must remain.
     center : the refit without the spikes' rows has an intercept (node 2's ``offsets``: "remove").
+    refit : the samples are not those ``fit`` was made of (node 2 took a sensor's re-zero off
+        them, :mod:`okid_ros.service.watch`): refit the ARX model to them.
 
     Raises
     ------
@@ -80,13 +82,13 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         filled = int(np.count_nonzero(~valid))
     if u.shape[1]:  # output-only windows: named there, not left out (identify's rule)
         spiked = spikes_left_out(u, y, valid)
-        if spiked is not valid:
+        if spiked is not valid or refit:
             # The fit to realize leaves their rows out too: the realization's passes over the samples
             # must see the data the ARX model was fitted to (a fit holding a glitch realized over a
             # window without it lost more modes than the glitch itself).
             fit, u, y, valid = fit_and_fill(u, y, spiked, fit.order, None, regularization=fit.regularization,
                                             center=center)
-            filled = int(np.count_nonzero(~valid))
+            filled = 0 if valid is None else int(np.count_nonzero(~valid))
     minimum = realization_minimum(fit.order, need)
     if u.shape[0] < minimum:
         raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "

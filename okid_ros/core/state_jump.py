@@ -88,6 +88,8 @@ class StateJump:
     offset : (p,) the whitened innovations' mean over the fitted samples.
     power_before, power_after : ``P0 / b`` and ``P1 / b`` (module docstring).
     explained : the excursion is a state jump (``power_after`` within the allowance).
+    loud_index : the first sample of the excursion's loud run (where an output's step lies), or
+        -1 when not known.
     """
 
     onset_index: int
@@ -97,6 +99,7 @@ class StateJump:
     power_before: float
     power_after: float
     explained: bool
+    loud_index: int = -1
 
     def correction(self, F: np.ndarray, next_index: int) -> np.ndarray:
         """(n,) what to add to the predicted state of sample ``next_index`` (> ``onset_index``)."""
@@ -169,8 +172,9 @@ class StateJumpTest:
         # The onsets tried surround where the loud samples begin (a jump's largest innovations
         # come first; where the excursion began is not known to the sample).
         head = z if loud_until is None else z[:max(int(loud_until) - int(first_index) + 1, 0)]
-        lo = max(self._loud_start(np.einsum("kp,kp->k", head, head) / (self._loud * baseline_power))
-                 - ONSET_CANDIDATES // 2, 0)
+        loud = self._loud_start(np.einsum("kp,kp->k", head, head) / (self._loud * baseline_power))
+        lo = max(loud - ONSET_CANDIDATES // 2, 0)
+        loud_index = first_index + loud
         z, first_index = z[lo:lo + self.max_samples + ONSET_CANDIDATES - 1], first_index + lo
         L = z.shape[0]
         if L < self.needed_samples:
@@ -204,7 +208,7 @@ class StateJumpTest:
         explained = (before >= self.min_power and after < self.min_power
                      and after - 1.0 <= self.max_remaining * (before - 1.0))
         return StateJump(first_index + offset, first_index + offset + samples - 1, solution[:n], solution[n:],
-                         before, after, bool(explained))
+                         before, after, bool(explained), loud_index)
 
     @staticmethod
     def _loud_start(loudness: np.ndarray) -> int:

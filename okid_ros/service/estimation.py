@@ -27,10 +27,9 @@ Life of a model update::
     apply_ready_at_end()           or, when the caller knows the stream has ended (the end of
                                    a record offline), the same switch at once
 
-``process_pending()`` runs take_job, realize and deliver synchronously. Offline processing
-(:class:`~okid_ros.service.windowed.WindowedPipeline`) realizes each model at once and ends the
-record with :meth:`~ModalEstimationService.apply_ready_at_end`, so that a model delivered after
-its last sample is applied and published as live.
+``process_pending()`` runs take_job, realize and deliver synchronously. Offline
+(:class:`~okid_ros.service.windowed.WindowedPipeline`) each model is realized at once, and one
+delivered after the last sample is applied and published as live (``apply_ready_at_end``).
 
 The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
 realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
@@ -69,10 +68,11 @@ sustained divergence restarts the estimator from the buffer; a change declared w
 model identified from post-change data only (windows that span it are refused), which is
 matched against the modes before the change (:mod:`okid_ros.service.model_switch`).
 
-Gaps: a sample that follows ``skipped`` missing slots is preceded by ``skipped`` open-loop
-predictions with the last input held, if ``skipped <= max_gap_samples``; after a longer gap or a
-time jump the estimator restarts from zero. A realization's window starts after the last longer
-gap; short gaps, large spikes filled (:mod:`okid_ros.core.realization_window`, ``window_samples_filled``).
+Gaps: ``skipped <= max_gap_samples`` missing slots are bridged by open-loop predictions with the
+last input held; after a longer gap or a time jump the estimator restarts from zero. A
+realization's window starts after the last longer gap; short gaps, large spikes filled
+(:mod:`okid_ros.core.realization_window`, ``window_samples_filled``). A sensor re-zero found in
+the innovations is taken off the samples from where it lies (:mod:`~okid_ros.service.watch`).
 """
 
 from __future__ import annotations
@@ -251,11 +251,9 @@ class ModalEstimationService:
     def take_job(self) -> RealizationJob | None:
         """A realization job for the waiting ARX fit, once the buffer covers its window.
 
-        Returns None when there is nothing to do, a job is running, or the buffer has not yet
-        received the window's last sample (when the stream is idle, its newest sample ends the
-        window if at most ``max_gap_samples`` short: the last ones were lost). A request whose
-        window is not in the buffer (too few samples after the last long gap, too many missing)
-        is dropped with a reason.
+        None when there is nothing to do, a job runs, or the window's last sample has not come (an
+        idle stream's newest sample ends it if at most ``max_gap_samples`` short). A request whose
+        window is not buffered (too few samples after a long gap, too many missing) is dropped.
         """
         with self._lock:
             if self._busy or self._request is None or not self.enabled:
@@ -281,7 +279,8 @@ class ModalEstimationService:
             stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
             try:
                 window = realization_window(u, y, skipped, fit, max_gap=prm.max_gap_samples, need=need,
-                                            center=prm.offsets == "remove")
+                                            center=prm.offsets == "remove",
+                                            refit=self._watch.level_step_within(end + 1 - need, end + 1))
             except ValueError as exc:
                 return self._refuse(str(exc))
             self._stats.window_samples_filled += window.filled
@@ -349,6 +348,7 @@ class ModalEstimationService:
 
     def _step(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> ModalStatesResult | None:
         prm, st = self.params, self._stats
+        y = self._watch.level_corrected(y)  # a sensor re-zero found is taken off (service/watch.py)
         index = self._buffer.append(stamp_s, u, y, skipped)
         update = None
         if self._ready is not None:
@@ -386,6 +386,7 @@ class ModalEstimationService:
         self._jump.after_sample(active, coords, switched)
         update, self._held_update = update or self._held_update, None
         change, self._held_change = change or self._held_change, None
+        y_est = y_est + self._watch.level  # in the sensors' units, as they came
         return ModalStatesResult(stamp_s, active.model_id, active.modes, coords, y_est, innov, update, change)
 
     def apply_ready_if_idle(self, *, now_s: float | None = None) -> IdleSwitch | None:

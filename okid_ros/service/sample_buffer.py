@@ -91,6 +91,12 @@ class SampleBuffer:
             self.count += 1
             return self.count - 1
 
+    def add_to_outputs(self, lo: int, hi: int, delta: np.ndarray) -> None:
+        """Add ``delta`` (p,) to the stored outputs of samples lo..hi-1 (clipped to what is stored)."""
+        with self.lock:
+            idx = np.arange(max(lo, self.first), max(min(hi, self.count), lo)) % self.cap
+            self.y[idx] += delta
+
     @property
     def first(self) -> int:
         return max(self.count - self.cap, 0)

@@ -26,6 +26,7 @@ import numpy as np
 
 from okid_ros.core.change_detection import DivergenceMonitor
 from okid_ros.core.change_monitor import StructuralChangeMonitor
+from okid_ros.core.output_step import output_step, step_response
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
@@ -38,7 +39,8 @@ from okid_ros.service.sample_buffer import SampleBuffer
 __all__ = ["InnovationWatch", "is_new_reference"]
 
 _JUMP_RING_SAMPLES = 512  # the estimator's last whitened innovations, for the state-jump fit
-_ONSET_ROOM = 8  # samples before the first diverged one the state-jump fit may start from
+_ONSET_ROOM = 16  # samples before the first diverged one the state-jump fit may start from (a glitch
+# candidate, zero to the watchdog, and the moving mean's rise lie between an output's step and it)
 # Fewest samples of a divergence's state-jump fit (raised to 4 n / p by the test): judged when
 # the divergence is sustained (25 samples by default, with the room before them). Shorter than
 # the change test's: a divergence is 100 times the innovations' power, and what a changed
@@ -83,6 +85,9 @@ class InnovationWatch:
         self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
         self._settle: list[tuple[IdentifiedModel, int]] = []  # the last two models' settle_samples
+        self.level = np.zeros(p)  # the outputs' level steps found, taken off each sample (level_corrected)
+        self.level_steps: list[int] = []  # buffer indices where a step taken off lies, still buffered
+        self.level_steps_taken = 0
 
     def configure(self, params: ModalEstimationParams) -> None:
         """Take run-time options at once: the divergence ratio and the change test's tuning.
@@ -137,7 +142,13 @@ class InnovationWatch:
             if wait:  # too few samples of the excursion to judge yet
                 return True, change, None
             if jump is not None and jump.explained:
-                active.estimator.set_state(active.estimator.state + jump.correction(self._jump_test[1].F, index + 1))
+                F = self._jump_test[1].F
+                state = active.estimator.state + jump.correction(F, index + 1)
+                step = output_step(jump, F, active.model.predictor()[2], active.model.C, active.whiten)
+                if step is not None:  # a sensor re-zeroed: its step taken off this sample's and the next ones
+                    state = state - step_response(F, active.model.predictor()[2], step)
+                    self._take_level_step(step, jump.loud_index if jump.loud_index >= 0 else jump.onset_index, index)
+                active.estimator.set_state(state)
                 self.diverged.clear()
                 self.divergence.restart()
                 self._stats.state_jumps += 1
@@ -171,6 +182,27 @@ class InnovationWatch:
         if z.shape[0] < test.needed_samples and run < test.needed_samples:
             return True, None
         return False, test.judge(z, first)
+
+    def level_corrected(self, y: np.ndarray) -> np.ndarray:
+        """A sample's outputs (p,) less the level steps found so far (what the buffer and the estimator take)."""
+        return y - self.level if self.level_steps else y
+
+    def level_step_within(self, lo: int, hi: int) -> bool:
+        """Whether a level step taken off lies inside buffer samples ``lo .. hi - 1`` (node 1's fit holds it)."""
+        return any(lo < i < hi for i in self.level_steps)
+
+    def _take_level_step(self, step: np.ndarray, first: int, index: int) -> None:
+        """Take an output step off samples ``first .. index`` (buffered) and the next ones.
+
+        The change test's predictor ran over them as they came: its state loses what it took of
+        the step, and the excursion it saw ends (its innovations are those of the level before).
+        """
+        self.level = self.level + step
+        self._buffer.add_to_outputs(first, index + 1, -step)
+        self.level_steps = [i for i in self.level_steps if i >= self._buffer.first] + [first]
+        self.level_steps_taken += 1
+        if self.monitor.armed:
+            self.monitor.output_step(step, index + 1 - first, index)
 
     def declare(self, active: ActiveModel, stamp_s: float, index: int, change_index: int, *, statistic: float,
                 threshold: float, variance_ratio: float) -> StructuralChangeEvent:
@@ -266,4 +298,5 @@ class InnovationWatch:
             "change_alarms_state_jump": int(self.monitor.state_jumps),
             "change_glitches": int(self.monitor.glitches),  # samples the test took for glitches
             "change_waiting_for_model": self.change is not None,
+            "output_level_steps": self.level_steps_taken,  # sensor re-zeros taken off the samples (core/output_step.py)
         }
