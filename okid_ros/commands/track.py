@@ -274,11 +274,14 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
+    import numpy as np
+
     from okid_ros.core.arx_order import choose_arx_order
     from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
     from okid_ros.core.realization_window import realization_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
+    from okid_ros.records import first_present_run
 
     window, (n_samples, m), p = args.window, u.shape, y.shape[1]
     if args.order == "auto" and m == 0:
@@ -287,7 +290,10 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         q = OUTPUT_ONLY_VAR_ORDER  # the VAR only frames the window; its model comes from the outputs
     elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
-        lo = _first_finite_run(u, y, window + 200)
+        lo = first_present_run(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1), window + 200)
+        if lo is None:
+            raise DataError(f"--order auto chooses the ARX order on {window + 200} samples without NaN/Inf and the "
+                            f"record has no such run; give --order Q")
         try:
             q, _ = choose_arx_order(u[lo : lo + window + 200], y[lo : lo + window + 200], options=options)
         except ValueError as exc:
@@ -389,23 +395,6 @@ def _print_summary(changes: list, dt: float, last_modes: list) -> None:
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
             f"damping {100 * mode.damping_ratio:6.3f} %"
         )
-
-
-def _first_finite_run(u, y, length: int) -> int:
-    """Where the record's first ``length`` samples without NaN/Inf begin (for the ARX order's choice)."""
-    import numpy as np
-
-    from okid_ros.errors import DataError
-    from okid_ros.records import present_runs
-
-    finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
-    if finite[:length].all():
-        return 0
-    for start, end in zip(*present_runs(finite)):
-        if end - start >= length:
-            return int(start)
-    raise DataError(f"--order auto chooses the ARX order on {length} samples without NaN/Inf and the record has "
-                    f"no such run; give --order Q")
 
 
 class _TrackedRecord:
