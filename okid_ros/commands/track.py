@@ -218,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
+        record.finish(monitor, fed)  # a glitch candidate held at the last update's sample
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
@@ -443,6 +444,13 @@ class _TrackedRecord:
                 held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
                 monitor.gap(held, int(end - start), self.max_gap)
         return None
+
+    def finish(self, monitor, end: int) -> None:
+        """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
+        if end < self.present.size and not self.present[end]:
+            self.test(monitor, end, end + 1)  # a gap: the candidate run as it came
+        else:
+            monitor.finish(*((self.u[end], self.y[end]) if end < self.present.size else ()))
 
     def window_samples(self, fit, k: int, rows: int):
         """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
