@@ -114,6 +114,15 @@ def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges[::2], edges[1::2]
 
 
+def first_present_run(present: np.ndarray, length: int) -> int | None:
+    """Where the first run of ``length`` True in ``present`` (N,) begins; None where there is none."""
+    if present[:length].all():
+        return 0
+    starts, ends = present_runs(present)
+    long = np.flatnonzero(ends - starts >= length)
+    return int(starts[long[0]]) if long.size else None
+
+
 def _present(record: Record, use_inputs: bool) -> np.ndarray:
     """(N,) True at the samples without NaN/Inf (in ``y``, and in ``u`` when ``use_inputs``)."""
     present = np.isfinite(record.y).all(axis=1)

@@ -218,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
+        record.finish(monitor, fed)  # a glitch candidate held at the last update's sample
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
@@ -274,11 +275,14 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
+    import numpy as np
+
     from okid_ros.core.arx_order import choose_arx_order
     from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
     from okid_ros.core.realization_window import realization_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
+    from okid_ros.records import first_present_run
 
     window, (n_samples, m), p = args.window, u.shape, y.shape[1]
     if args.order == "auto" and m == 0:
@@ -287,7 +291,10 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         q = OUTPUT_ONLY_VAR_ORDER  # the VAR only frames the window; its model comes from the outputs
     elif args.order == "auto":
         # Chosen once, on the first window, so every update uses the same regressors.
-        lo = _first_finite_run(u, y, window + 200)
+        lo = first_present_run(np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1), window + 200)
+        if lo is None:
+            raise DataError(f"--order auto chooses the ARX order on {window + 200} samples without NaN/Inf and the "
+                            f"record has no such run; give --order Q")
         try:
             q, _ = choose_arx_order(u[lo : lo + window + 200], y[lo : lo + window + 200], options=options)
         except ValueError as exc:
@@ -391,23 +398,6 @@ def _print_summary(changes: list, dt: float, last_modes: list) -> None:
         )
 
 
-def _first_finite_run(u, y, length: int) -> int:
-    """Where the record's first ``length`` samples without NaN/Inf begin (for the ARX order's choice)."""
-    import numpy as np
-
-    from okid_ros.errors import DataError
-    from okid_ros.records import present_runs
-
-    finite = np.isfinite(u).all(axis=1) & np.isfinite(y).all(axis=1)
-    if finite[:length].all():
-        return 0
-    for start, end in zip(*present_runs(finite)):
-        if end - start >= length:
-            return int(start)
-    raise DataError(f"--order auto chooses the ARX order on {length} samples without NaN/Inf and the record has "
-                    f"no such run; give --order Q")
-
-
 class _TrackedRecord:
     """The record as the window sees it: which samples are missing (NaN/Inf), where the window restarted.
 
@@ -454,6 +444,13 @@ class _TrackedRecord:
                 held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
                 monitor.gap(held, int(end - start), self.max_gap)
         return None
+
+    def finish(self, monitor, end: int) -> None:
+        """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
+        if end < self.present.size and not self.present[end]:
+            self.test(monitor, end, end + 1)  # a gap: the candidate run as it came
+        else:
+            monitor.finish(*((self.u[end], self.y[end]) if end < self.present.size else ()))
 
     def window_samples(self, fit, k: int, rows: int):
         """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.

@@ -114,7 +114,11 @@ class StructuralChangeMonitor:
         A glitch's outputs are replaced by their prediction (its innovation 0) and the block run
         again from ``x0``, the first one first (the later innovations depend on it); it stays
         taken out when the next sample's innovation is then :func:`~okid_ros.core.glitches.settled`.
-        A block's last sample is not judged (no next sample).
+        A block's last sample is not judged here (no next sample: :meth:`_hold_last`).
+
+        Returns
+        -------
+        e : (N, p) the innovations; y : (N, p) the outputs with the glitches' predictions in their place.
         """
         end_state, rejected = self.predictor.x.copy(), set()
         for _ in range(most_spikes(e.shape[0])):  # more: heavy-tailed innovations, tested as they are
@@ -135,7 +139,21 @@ class StructuralChangeMonitor:
             else:
                 rejected.add(k)
         self.predictor.x = end_state
-        return e
+        return e, y
+
+    def _hold_last(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray, first_index: int) -> None:
+        """Hold a block's last sample, a glitch candidate, for the next sample's verdict, as :meth:`step` does.
+
+        ``u`` (N, m), ``y`` (N, p) the block run from ``x0``, its glitches' predictions in place;
+        ``e`` (N, p) its innovations. The predictor goes on from the last sample's prediction;
+        the next block's first sample (or :meth:`finish`) judges it. Tested as it came, an absurd
+        sample (1e200) overflowed the model-error check's squares or was declared a change.
+        """
+        as_came = self.predictor.x
+        self.predictor.x = x0.copy()
+        self.predictor.advance(u[:-1], y[:-1])
+        self.predictor.step(u[-1], self.predictor.predicted_output(u[-1]))  # its prediction in its place
+        self._pending = (e[-1], u[-1], first_index + e.shape[0] - 1, as_came)
 
     def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """The held sample's verdict, given the next one (u, y): its (whitened innovation, inputs, index) to test.
@@ -180,7 +198,10 @@ class StructuralChangeMonitor:
         if at is None:
             return None
         self.detector.jump_at = None
-        self.predictor.x = self.predictor.x + self.detector.last_jump.correction(self.predictor.F, next_index)
+        correction = self.detector.last_jump.correction(self.predictor.F, next_index)
+        self.predictor.x = self.predictor.x + correction
+        if self._pending is not None:  # a block's held last sample: its state as it came is of the same sample
+            self._pending = (*self._pending[:3], self._pending[3] + correction)
         return at
 
     @property
@@ -200,6 +221,22 @@ class StructuralChangeMonitor:
         if not self.predictor.bridge(u_held, skipped, max_gap):
             self._hold = self.predictor.memory_samples
         self.detector.gap()
+
+    def finish(self, u_next: np.ndarray | None = None, y_next: np.ndarray | None = None) -> None:
+        """The samples tested end: a held glitch candidate's verdict, untested (no later sample is).
+
+        With the record's next sample ``u_next`` (m,), ``y_next`` (p,): a glitch when that
+        sample's innovation :func:`~okid_ros.core.glitches.settled`, else run as it came. Without
+        one (the candidate is the record's last sample): a glitch, as the candidate's rule has it
+        (some outputs far off, not every one).
+        """
+        if self._pending is None:
+            return
+        if u_next is None:
+            self._pending = None
+            self.glitches += 1
+            return
+        self._step_pending(u_next, y_next)
 
     def set_state(self, state: np.ndarray) -> None:
         """Replace the reference predictor's state (e.g. after the estimator restarted)."""
@@ -230,14 +267,22 @@ class StructuralChangeMonitor:
         """Samples ``first_index ..`` (u (N, m), y (N, p)); the first alarm, else None.
 
         ``test=False``: the predictor runs over the samples but they are not tested (samples
-        the estimator flagged as diverged). After an alarm the monitor is disarmed.
+        the estimator flagged as diverged). After an alarm the monitor is disarmed. A glitch
+        candidate at the block's last sample is held, as :meth:`step` holds one: the next
+        block's first sample judges it (a gap runs it as it came; :meth:`finish` ends the record).
         """
         if not self.armed or len(u) == 0:
             return None
-        self._drop_pending()  # (the nodes step, `track` processes blocks: not both)
+        if self._pending is not None:  # the last block's last sample, judged by this one's first
+            alarm = self._test_one(*self._step_pending(u[0], y[0]), test=True)
+            if alarm is not None:
+                return alarm
         x0 = self.predictor.x.copy()
-        e = self._without_glitches(u, y, self.predictor.run(u, y), x0)
+        e, y_taken = self._without_glitches(u, y, self.predictor.run(u, y), x0)
         end = first_index + e.shape[0]  # the predictor's state is that of sample `end`
+        if test and self._hold < e.shape[0] and glitch_candidates(e[-1:], self._innovation_std)[0]:
+            self._hold_last(u, y_taken, e, x0, first_index)
+            e, u = e[:-1], u[:-1]
         if not test:
             self._record(first_index, self._finite(e @ self.whiten.T))
             self.detector.gap()  # untested samples are a gap to the whitening's lags

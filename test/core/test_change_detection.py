@@ -27,6 +27,7 @@ from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
+from okid_ros.core.window_samples import MAX_SAMPLE_MAGNITUDE
 from okid_ros.sim.inputs import lowpass_input
 from okid_ros.sim.paper_model import paper_model
 from okid_ros.sim.simulators import simulate_innovation
@@ -423,3 +424,32 @@ def test_a_jump_of_every_output_and_a_change_are_no_glitch(identified):
     monitor = _armed(model, u, both)
     monitor.process(u[FIT:change], both[FIT:change], FIT)
     assert monitor.glitches == 0
+
+
+@pytest.mark.parametrize("size", [1e140, 1e200])
+@pytest.mark.parametrize("at", ["a block's last sample", "the record's last sample"])
+def test_a_glitch_at_a_blocks_last_sample_is_judged(identified, at, size):
+    # `track` hands the change test a block per update. A glitch candidate at a block's last
+    # sample had no next sample to judge it and was tested as it came: 1e200 in one output
+    # overflowed the model-error check's squares (RuntimeWarning), 1e140 was declared a change.
+    # The next block's first sample judges it now, as the next sample does on the nodes'
+    # per-sample path (which never sees a sample beyond MAX_SAMPLE_MAGNITUDE); at the record's
+    # last sample (finish: no next sample) it is counted as a glitch.
+    _, model, u, y = identified
+    n, every = FIT + 4000, 500
+    k = FIT + 3 * every - 1 if at == "a block's last sample" else n - 1
+    y = y[:n].copy()
+    y[k, 0] = size
+    block, single = _armed(model, u, y), _armed(model, u, y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert all(block.process(u[lo:lo + every], y[lo:lo + every], lo) is None for lo in range(FIT, n, every))
+        block.finish()
+        if size <= MAX_SAMPLE_MAGNITUDE:
+            assert all(single.step(u[j], y[j], j) is None for j in range(FIT, n))
+            single.finish()
+    assert block.glitches == 1 and block.state == "monitoring"
+    if size <= MAX_SAMPLE_MAGNITUDE:
+        assert single.glitches == 1 and single.state == "monitoring"
+        np.testing.assert_allclose(block.predictor.x, single.predictor.x, atol=1e-9 * np.abs(block.predictor.x).max())
+        assert block.statistic == pytest.approx(single.statistic, rel=1e-9, abs=1e-12)
