@@ -43,8 +43,9 @@ def write_output(path: Path | None, text: str) -> None:
 
 
 def print_table(header: list[str], rows, path: Path | None) -> None:
-    """A markdown table: each row of ``rows`` (cell lists) printed as it comes, then all written to ``path``."""
+    """A markdown table: its header, then each row of ``rows`` (cells) printed as it comes; all written to ``path``."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    print("\n".join(lines), flush=True)
     for cells in rows:
         lines.append("| " + " | ".join(str(cell) for cell in cells) + " |")
         print(lines[-1], flush=True)
