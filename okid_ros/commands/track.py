@@ -26,11 +26,10 @@ change point: the next models use post-change data only, from ``--restart-min-fi
 window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
 grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline.
 
-The ARX fit of each update is
-the batch fit of the window's normal equations (same as `identify` on those samples, with the
-prior scaled by the window's data and the penalty by GCV unless ``--penalty`` fixes it); the
-window keeps the normal equations up to date in O(d^2) per sample. An update whose pipeline
-fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run.
+The ARX fit of each update is the batch fit of the window's normal equations (as `identify` on
+those samples; prior scaled by the window's data, penalty by GCV unless ``--penalty`` fixes it),
+kept up to date in O(d^2) per sample. An update whose pipeline fails writes ``"modes": []`` and
+an ``"error"`` string instead of stopping the run.
 
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
 the window leaves out the regressor rows that reach them, the realization fills gaps of up to the
@@ -41,7 +40,8 @@ then counts the missing samples in the window's span.
 
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
 (:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
-spikes, a drift, harmonic lines the inputs lack. Nothing is taken out (the windows are what node 1 sees live).
+spikes, a drift, harmonic lines the inputs lack. The windows are what node 1 sees live; an output's
+re-zero the change test finds is taken off from where it lies, as node 2 does (``take_steps``).
 """
 
 from __future__ import annotations
@@ -134,20 +134,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def _progress(total: int, disable: bool):
-    """A tqdm bar on stderr, or a stand-in with the same two methods if tqdm is missing."""
+    """A tqdm bar on stderr (a declared dependency, as for ``process`` and ``batch``)."""
     import sys
 
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a declared dependency
-        class _Silent:
-            def update(self, n: int) -> None:
-                pass
+    from tqdm import tqdm
 
-            def close(self) -> None:
-                pass
-
-        return _Silent()
     return tqdm(total=total, unit="sample", file=sys.stderr, disable=disable, mininterval=0.5)
 
 
@@ -188,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         fed = 0
         for k in points:
             alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
+            record.take_steps(monitor)
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
             else:  # restart the window at the change point, as node 1 does
@@ -418,6 +410,7 @@ class _TrackedRecord:
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))
         self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
         self.origin = 0  # the window's first sample (the last change point)
+        self.steps: list[int] = []  # where output steps taken off lie (the window's ARX fit may hold them)
         self._realized = (-1, -1)  # the newest row of the last window realized, its update's sample
         # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
         missing_before = np.concatenate([[0], np.cumsum(~self.present)])
@@ -445,6 +438,13 @@ class _TrackedRecord:
                 monitor.gap(held, int(end - start), self.max_gap)
         return None
 
+    def take_steps(self, monitor) -> None:
+        """Output steps the change test found (a sensor re-zeroed) taken off the record from where they lie."""
+        for first, step in monitor.steps:
+            self.y[first:] -= step
+            self.steps.append(first)
+        monitor.steps.clear()
+
     def finish(self, monitor, end: int) -> None:
         """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
         if end < self.present.size and not self.present[end]:
@@ -467,7 +467,7 @@ class _TrackedRecord:
         skipped = np.diff(present, prepend=present[0]) - 1
         skipped[0] = 0
         return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
-                                  need=rows + self.order)
+                                  need=rows + self.order, refit=any(start < i <= k for i in self.steps))
 
     def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
         """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).

@@ -446,6 +446,10 @@ class ChangeDetector:
         self._end_excursion(index)
         self.whitening.gap()
 
+    def offset_taken(self, offset: np.ndarray) -> None:
+        """The caller takes ``offset`` (p,), whitened, off the innovations from now on: so does the tracked mean."""
+        self._tracked = self._tracked - offset
+
     def _end_excursion(self, index: int) -> None:
         self._tracked_quiet = self._tracked
         self.statistic = 0.0

@@ -21,7 +21,7 @@ from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitenin
 from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.output_spikes import most_spikes
-from okid_ros.core.output_step import step_response
+from okid_ros.core.output_step import output_step, step_response
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
@@ -58,6 +58,9 @@ class StructuralChangeMonitor:
         self.state_jump_test = bool(state_jump_test)
         self._ring = SampleRing(n_outputs, self.detector.reference_samples + 2 * _CHUNK_SAMPLES)
         self.glitches = 0  # samples taken out as glitches (GLITCH_STD), over the monitor's life
+        # Output steps (a sensor re-zeroed: :mod:`okid_ros.core.output_step`) found in explained
+        # excursions, (first sample, step (p,)): the caller takes each off the outputs from there on.
+        self.steps: list[tuple[int, np.ndarray]] = []
         self.disarm()
 
     def disarm(self) -> None:
@@ -73,6 +76,7 @@ class StructuralChangeMonitor:
         self._jumps: StateJumpTest | None = None
         self._ring.clear()
         self._calibration_power = [0.0, 0]  # sum of |z|^2 / p and samples while calibrating
+        self._offset_taken: np.ndarray | None = None  # the whitened constant of the last step taken
 
     @property
     def armed(self) -> bool:
@@ -198,7 +202,15 @@ class StructuralChangeMonitor:
         if at is None:
             return None
         self.detector.jump_at = None
-        correction = self.detector.last_jump.correction(self.predictor.F, next_index)
+        jump, F, G_y = self.detector.last_jump, self.predictor.F, self.predictor.Gy
+        correction = jump.correction(F, next_index)
+        total, count = self._calibration_power
+        step = output_step(jump, F, G_y, self.predictor.C, self.whiten, baseline_power=total / max(count, 1))
+        if step is not None:  # an output re-zeroed, which the caller takes off the samples from next_index on
+            correction = correction - step_response(F, G_y, step)
+            self.detector.offset_taken(jump.offset)
+            self.steps.append((jump.loud_index, step))
+        self._offset_taken = None if step is None else jump.offset
         self.predictor.x = self.predictor.x + correction
         if self._pending is not None:  # a block's held last sample: its state as it came is of the same sample
             self._pending = (*self._pending[:3], self._pending[3] + correction)
@@ -311,6 +323,8 @@ class StructuralChangeMonitor:
             lo = at + 1 - first_index
             if lo < z.shape[0]:
                 z[lo:] -= self._jumps.response(self.detector.last_jump, at + 1, z.shape[0] - lo)
+                if self._offset_taken is not None:  # an output step the caller takes off these samples
+                    z[lo:] -= self._offset_taken
         return None
 
     @staticmethod

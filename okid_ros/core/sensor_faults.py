@@ -163,7 +163,8 @@ def _shifts(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, remove: b
     shifts = level_shifts(u, y, valid=valid)
     if kept:
         action = ("NOT removed: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` "
-                  "removes it); the windows holding it may hide the modes")
+                  "removes it), until its change test finds the step and takes it off from there, as node 2 does; "
+                  "the windows holding it may hide the modes")
     elif remove:
         action = "removed from that sample on before identification, the level before kept"
     else:

@@ -126,6 +126,11 @@ class InnovationWatch:
         change = None
         if prm.change_detection:
             alarm = self.monitor.step(u, y, index, test=not diverged)
+            for first, step in self.monitor.steps:  # a re-zero its state-jump fit found; it took it off its own
+                F, _, G_y = active.model.predictor()
+                active.estimator.set_state(active.estimator.state - step_response(F, G_y, step, index + 1 - first))
+                self._take_level_step(step, first, index, monitor=False)
+            self.monitor.steps.clear()
             if alarm is not None:
                 change = self.declare(active, stamp_s, index, alarm.change_index, statistic=alarm.statistic,
                                       threshold=alarm.threshold, variance_ratio=alarm.variance_ratio)
@@ -191,17 +196,18 @@ class InnovationWatch:
         """Whether a level step taken off lies inside buffer samples ``lo .. hi - 1`` (node 1's fit holds it)."""
         return any(lo < i < hi for i in self.level_steps)
 
-    def _take_level_step(self, step: np.ndarray, first: int, index: int) -> None:
+    def _take_level_step(self, step: np.ndarray, first: int, index: int, *, monitor: bool = True) -> None:
         """Take an output step off samples ``first .. index`` (buffered) and the next ones.
 
-        The change test's predictor ran over them as they came: its state loses what it took of
-        the step, and the excursion it saw ends (its innovations are those of the level before).
+        ``monitor``: the change test's predictor ran over them as they came: its state loses what
+        it took of the step, and the excursion it saw ends (its innovations are those of the level
+        before). False: the change test found the step and took it off its own.
         """
         self.level = self.level + step
         self._buffer.add_to_outputs(first, index + 1, -step)
         self.level_steps = [i for i in self.level_steps if i >= self._buffer.first] + [first]
         self.level_steps_taken += 1
-        if self.monitor.armed:
+        if monitor and self.monitor.armed:
             self.monitor.output_step(step, index + 1 - first, index)
 
     def declare(self, active: ActiveModel, stamp_s: float, index: int, change_index: int, *, statistic: float,

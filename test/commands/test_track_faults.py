@@ -177,3 +177,25 @@ def test_a_glitch_at_an_updates_sample_is_judged_by_the_change_test(record, tmp_
     # (The realization of the window that ends at the glitch warns: its own matter.)
     assert not any(name in err for name in ("model_error_check", "change_detection", "change_monitor")), err
     assert monitors[0].glitches == 1 and monitors[0].armed
+
+
+def test_a_re_zero_the_change_test_finds_is_taken_off_as_node_2_does(tmp_path, capsys):
+    # Output 0 re-zeroed by 10 of its spreads at sample 4123: the change test's state-jump fit reads the
+    # step, and the record is taken off it from there (node 2's rule, service/watch.py); before, the
+    # windows holding it listed spurious modes and lost true ones for a window's length.
+    u = white_input(7000, 2, seed=3)
+    y, _ = simulate_innovation(paper_model(), u, seed=4)
+    stepped = y.copy()
+    stepped[4123:, 0] += 10.0 * y[:, 0].std()
+    true_hz = np.array([5.894, 7.295, 48.477])
+
+    def scored(lines: list[dict]) -> tuple[int, int, int]:
+        hz = [np.array([m["frequency_hz"] for m in line["modes"]]) for line in lines]
+        found = sum(int(np.any(np.abs(f - t) < 0.005 * t)) for f in hz for t in true_hz)
+        spurious = sum(int(not np.any(np.abs(h - true_hz) < 0.005 * true_hz)) for f in hz for h in f)
+        return found, spurious, sum(bool(line["change_detected"]) for line in lines)
+
+    clean = scored(_track(tmp_path, u, y, "--states", "auto", "--force"))
+    found, spurious, changes = scored(_track(tmp_path, u, stepped, "--states", "auto", "--force"))
+    assert "changes level at sample 4123" in capsys.readouterr().err
+    assert changes == 0 and found >= clean[0] - 1 and spurious <= clean[1] + 1, (clean, found, spurious)
