@@ -179,7 +179,6 @@ def run(args: argparse.Namespace) -> int:
         fed = 0
         for k in points:
             alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
-            record.take_steps(monitor)
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
             else:  # restart the window at the change point, as node 1 does
@@ -306,10 +305,8 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
                              f"at least {minimum} (a window of at least {minimum - q} rows)")
     if n_samples < window + q:
-        raise DataError(
-            f"too few samples for one window: {n_samples} given, at least {window + q} needed "
-            f"(window {window} rows plus {q} lags)"
-        )
+        raise DataError(f"too few samples for one window: {n_samples} given, at least {window + q} needed "
+                        f"(window {window} rows plus {q} lags)")
     return q
 
 
@@ -420,6 +417,12 @@ class _TrackedRecord:
         self._rows_before = np.concatenate([[0], np.cumsum(whole)])
 
     def test(self, monitor, lo: int, hi: int):
+        """Samples ``lo .. hi - 1`` through the change test, output steps it finds taken off. The first alarm."""
+        alarm = self._test(monitor, lo, hi)
+        self.take_steps(monitor)
+        return alarm
+
+    def _test(self, monitor, lo: int, hi: int):
         """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
         import numpy as np
 
