@@ -24,6 +24,7 @@ The other completion, from a state sequence (fast with many outputs), is
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,10 +71,16 @@ def innovation_covariance(innovations: np.ndarray) -> np.ndarray:
 
 
 def gain_from_predictor(A: np.ndarray, L: np.ndarray) -> np.ndarray:
-    """The paper's gain ``K`` from the predictor gain ``L = A K``."""
+    """The paper's gain ``K`` from the predictor gain ``L = A K``.
+
+    ``A`` singular or ill-conditioned (a state with a pole at 0, e.g. of a noise-free record):
+    the least-squares (minimum-norm) ``K``, not a solve that scipy warns about.
+    """
     try:
-        return linalg.solve(A, L)
-    except linalg.LinAlgError:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", linalg.LinAlgWarning)
+            return linalg.solve(A, L)
+    except (linalg.LinAlgError, linalg.LinAlgWarning):
         return linalg.lstsq(A, L)[0]
 
 
