@@ -238,7 +238,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s, eigen=realizer.eigen)
     mark_stable(poles)
-    modes, _ = cluster_modes(poles)
+    modes, _ = cluster_modes(poles, keep_rejected=False)
     jackknife = None
     if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
         jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis)

@@ -249,8 +249,14 @@ def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> lis
     return [part for label in (1, 2) for part in _families(poles, index[labels == label], depth - 1)]
 
 
-def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[list[ModeCluster], list[ModeCluster]]:
+def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_rejected: bool = True
+                  ) -> tuple[list[ModeCluster], list[ModeCluster]]:
     """Group the stable poles into modes (module docstring).
+
+    ``keep_rejected=False``: a linkage cluster whose poles span fewer orders than a mode needs
+    (:func:`_too_few_orders`) is neither split nor summarized, so it is missing from ``rejected``;
+    the modes are the same (on the low-mode simulation 174 of 190 clusters are such, and
+    summarizing them was most of the clustering's time).
 
     Returns
     -------
@@ -273,14 +279,15 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
     p = poles.shape.shape[1]
     accepted, rejected = [], []
     clusters = []
-    for label in np.unique(labels):
+    labels_kept = np.unique(labels) if keep_rejected else _labels_with_orders(labels, poles.order[index], orders.size)
+    for label in labels_kept:
         for family in _families(poles, index[labels == label]):
             clusters.append(_cluster(poles, family, p))
             clusters[-1].group = int(label)
     persisting_elsewhere = []  # clusters that fail only the persistence test
     for cluster in clusters:
         count = len(cluster.members)
-        ok = (count >= max(MIN_ORDERS, MIN_TOTAL_FRACTION * orders.size)
+        ok = (not _too_few_orders(count, orders.size)
               and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC and cluster.energy >= MIN_ENERGY
               and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
               * cluster.frequency_hz)
@@ -297,6 +304,25 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING) -> tuple[
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
+
+
+def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:
+    """Whether a cluster with poles at ``count`` orders (of ``n_orders`` in the diagram) is too small to be a mode."""
+    return count < max(MIN_ORDERS, MIN_TOTAL_FRACTION * n_orders)
+
+
+def _labels_with_orders(labels: np.ndarray, order: np.ndarray, n_orders: int) -> np.ndarray:
+    """The linkage labels (ascending) whose poles span enough orders to hold a mode (:func:`_too_few_orders`).
+
+    ``labels``, ``order`` (S,): each stable pole's linkage label and model order.
+
+    A family split from a cluster, and the one-pole-per-order members of its summary, span no
+    more orders than the cluster: a cluster that fails here fails the acceptance test whatever
+    its summary holds, and is no candidate for :func:`_persists_near` either.
+    """
+    distinct = np.unique(np.column_stack([labels, order]), axis=0)  # (label, order) pairs, once each
+    kept, counts = np.unique(distinct[:, 0], return_counts=True)
+    return kept[~_too_few_orders(counts, n_orders)]
 
 
 def _persists_near(cluster: ModeCluster, frequency_hz: np.ndarray, order: np.ndarray, orders: np.ndarray,

@@ -292,3 +292,36 @@ def test_the_screened_jackknife_stops_reading_replicates_once_a_pole_is_scattere
     read.clear()
     assert noisy.screened_std(target, 10, dt, scattered=scattered) is None
     assert read == [0, 1]  # the second replicate decides: the other six are not realized
+
+
+def test_the_labels_that_can_hold_a_mode_are_those_spanning_enough_orders() -> None:
+    """``_labels_with_orders`` against a count of each label's distinct orders, label by label."""
+    from okid_ros.core.output_only_modes import MIN_ORDERS, MIN_TOTAL_FRACTION, _labels_with_orders
+
+    rng = np.random.default_rng(5)
+    n_orders = 50
+    labels = rng.integers(1, 40, 3000)
+    order = 2 * rng.integers(1, n_orders + 1, 3000) * (labels % 3 > 0) + 2 * (labels % 3 == 0)  # some at one order
+    needed = max(MIN_ORDERS, MIN_TOTAL_FRACTION * n_orders)
+    expected = [label for label in np.unique(labels) if len(set(order[labels == label].tolist())) >= needed]
+    kept = _labels_with_orders(labels, order, n_orders)
+    assert kept.tolist() == expected and 0 < len(expected) < np.unique(labels).size
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_clusters_too_small_for_a_mode_are_not_summarized_and_the_modes_stay(seed: int) -> None:
+    """``cluster_modes(keep_rejected=False)`` skips most clusters of a record's diagram and accepts the same modes."""
+    from okid_ros.core import output_only as oo
+    from okid_ros.core.output_only_modes import cluster_modes, collect_poles, mark_stable
+
+    case = output_only_case("low-modes")
+    y = case.simulate(seed)
+    y = y - y.mean(axis=0)
+    chosen = oo._select_modes(y, case.sample_time_s, method="ssi-cov", top=oo.DEFAULT_MAX_STATES, block_rows=None)
+    poles = collect_poles(chosen.realizer.realize, range(2, chosen.realizer.max_states + 1, 2), case.sample_time_s,
+                          max_damping=oo.MAX_DAMPING, max_frequency_hz=0.475 / case.sample_time_s)
+    mark_stable(poles)
+    modes, rejected = cluster_modes(poles)
+    lean_modes, lean_rejected = cluster_modes(poles, keep_rejected=False)
+    assert repr(lean_modes) == repr(modes) and len(modes) >= 4
+    assert len(lean_rejected) < len(rejected) / 4  # most clusters span a few orders only
