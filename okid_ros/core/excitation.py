@@ -28,7 +28,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx import ArxFit, NormalEquations
-from okid_ros.core.channels import channel_std
+from okid_ros.core.channels import channel_std, column_peaks
 from okid_ros.core.identified_model import IdentifiedModel
 from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_columns
 
@@ -105,7 +105,7 @@ class Excitation:
 
 def dead_channels(x: np.ndarray) -> np.ndarray:
     """Indices of the columns of ``x`` (N, c), N >= 1, without (or with negligible) variance."""
-    level = np.max(np.abs(x), axis=0)
+    level = column_peaks(x)
     return np.flatnonzero((level == 0) | (channel_std(x) <= NEGLIGIBLE_RELATIVE_SPREAD * level))
 
 
@@ -220,7 +220,7 @@ def _leave_out(count: int) -> str:
 
 def _unit_centred(x: np.ndarray) -> np.ndarray:
     """The columns of ``x`` (N, c) each within +-1 (no overflow near the float64 limits), less their means."""
-    x = x / np.max(np.abs(x), axis=0)
+    x = x / column_peaks(x)
     return x - x.mean(axis=0)
 
 
@@ -271,7 +271,7 @@ def input_excitation(u: np.ndarray) -> Excitation:
         return Excitation(np.zeros(u.shape[1]), np.zeros(u.shape[1]), list(range(u.shape[1])),
                           dict.fromkeys(range(u.shape[1]), 0.0))
     std = channel_std(u)
-    level = np.max(np.abs(u), axis=0)
+    level = column_peaks(u)
     dead = [int(i) for i in dead_channels(u)]
     values = {i: _constant_value(u[:, i]) for i in dead}
     return Excitation(std, level, dead, values)

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import find_peaks
 
+from okid_ros.core.channels import column_peaks
 from okid_ros.core.output_spikes import MAD_TO_STD, widened
 
 __all__ = ["MAX_SHIFTS", "PERSISTENCE", "SHIFT_RATIO", "SHIFT_WINDOW", "LevelShifts", "level_shifts", "without_shifts"]
@@ -175,7 +176,7 @@ def _shift_ratio(x: np.ndarray, present: np.ndarray, *, local: bool = True) -> n
 
 def _peak(x: np.ndarray, present: np.ndarray) -> np.ndarray:
     """Each channel's largest magnitude over the samples present (1 for a channel of zeros): (k,)."""
-    peak = np.max(np.abs(np.where(present[:, None], x, 0.0)), axis=0) if x.shape[0] else np.ones(x.shape[1])
+    peak = column_peaks(np.where(present[:, None], x, 0.0)) if x.shape[0] else np.ones(x.shape[1])
     return np.where(np.isfinite(peak) & (peak > 0), peak, 1.0)
 
 

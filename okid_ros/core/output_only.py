@@ -41,7 +41,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx_gram import arx_regressor_product
-from okid_ros.core.channels import group_scales
+from okid_ros.core.channels import column_peaks, group_scales
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.gap_fill import missing_mask
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
@@ -297,7 +297,7 @@ MAX_SCALED_OUTPUT = 1e50
 
 def _check_channel_sizes(y: np.ndarray) -> None:
     """IdentificationError when the outputs (one common scale) span too many decades to correlate."""
-    peak = np.max(np.abs(y), axis=0)
+    peak = column_peaks(y)
     if np.max(peak) > MAX_SCALED_OUTPUT:
         sizes = ", ".join(f"{v:.1e}" for v in peak / np.min(peak))
         raise IdentificationError(

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.channels import channel_mean, channel_scales, channel_spread, channel_std
+from okid_ros.core.channels import channel_mean, channel_scales, channel_spread, channel_std, column_peaks
 from okid_ros.core.pipeline import IdentificationError, identify
 from okid_ros.core.statespace import one_step_prediction
 from okid_ros.sim.inputs import lowpass_input
@@ -108,3 +108,16 @@ def test_channel_spread_handles_extremes_and_dead_channels() -> None:
     scales = channel_scales(x[:, :2], x[:, 2:])
     u_s, y_s = scales.scale(x[:, :2], x[:, 2:])
     assert np.isfinite(u_s).all() and np.abs(u_s).max() < 2
+
+
+def test_column_peaks_are_numpys_largest_magnitudes() -> None:
+    """``column_peaks`` against ``np.max(np.abs(x), axis=0)``: the same values, NaN, Inf and no rows included."""
+    rng = np.random.default_rng(2)
+    x = rng.standard_normal((5000, 5)) * np.array([1e-300, 1.0, 1e300, 3.0, 0.0])
+    x[17, 3] = -np.inf
+    for matrix in (x, np.asfortranarray(x), x[::3, 1:4]):
+        assert np.array_equal(column_peaks(matrix), np.max(np.abs(matrix), axis=0))
+    x[4, 1] = np.nan
+    peaks = column_peaks(x)
+    assert np.isnan(peaks[1]) and np.array_equal(np.delete(peaks, 1), np.delete(np.max(np.abs(x), axis=0), 1))
+    assert np.array_equal(column_peaks(np.zeros((0, 3))), np.zeros(3))
