@@ -132,15 +132,20 @@ class OrderRealizer:
     def realize(self, n_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``A`` (n, n), ``C`` (p, n) and the first block column ``G`` (n, r) of order n."""
         sq = self._sq[:n_states]
-        A = self._projected[:n_states, :n_states] / np.outer(sq, sq)
+        A = self._state_matrix(n_states)
         C = self.decomposition.left_block_row(n_states) * sq
         G = sq[:, None] * self.decomposition.Vt[:n_states, : self.decomposition.n_block_inputs]
         return A, C, G
 
+    def _state_matrix(self, n_states: int) -> np.ndarray:
+        """``A`` (n, n) of order n alone (the eigensolvers need no ``C``, ``G``)."""
+        sq = self._sq[:n_states]
+        return self._projected[:n_states, :n_states] / np.outer(sq, sq)
+
     def eigen(self, n_states: int) -> tuple[np.ndarray, np.ndarray]:
         """Eigenvalues (n,) and unit right eigenvectors (n, n) of ``A`` of order n (``numpy.linalg.eig``)."""
         if n_states not in self._eigen:
-            self._eigen[n_states] = np.linalg.eig(self.realize(n_states)[0])
+            self._eigen[n_states] = np.linalg.eig(self._state_matrix(n_states))
         return self._eigen[n_states]
 
     def eigenvalues(self, n_states: int) -> np.ndarray:
@@ -148,7 +153,7 @@ class OrderRealizer:
         if n_states in self._eigen:
             return self._eigen[n_states][0]
         if n_states not in self._eigenvalues:
-            self._eigenvalues[n_states] = linalg.eigvals(self.realize(n_states)[0])
+            self._eigenvalues[n_states] = linalg.eigvals(self._state_matrix(n_states))
         return self._eigenvalues[n_states]
 
     def observability(self, n_states: int) -> np.ndarray:
