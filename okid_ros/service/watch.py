@@ -190,7 +190,7 @@ class InnovationWatch:
 
     def level_corrected(self, y: np.ndarray) -> np.ndarray:
         """A sample's outputs (p,) less the level steps found so far (what the buffer and the estimator take)."""
-        return y - self.level if self.level_steps else y
+        return y - self.level if self.level_steps_taken else y
 
     def level_step_within(self, lo: int, hi: int) -> bool:
         """Whether a level step taken off lies inside buffer samples ``lo .. hi - 1`` (node 1's fit holds it)."""
