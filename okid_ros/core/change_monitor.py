@@ -206,11 +206,13 @@ class StructuralChangeMonitor:
         correction = jump.correction(F, next_index)
         total, count = self._calibration_power
         step = output_step(jump, F, G_y, self.predictor.C, self.whiten, baseline_power=total / max(count, 1))
+        self._offset_taken = None
         if step is not None:  # an output re-zeroed, which the caller takes off the samples from next_index on
-            correction = correction - step_response(F, G_y, step)
-            self.detector.offset_taken(jump.offset)
+            steady = step_response(F, G_y, step)
+            correction = correction - steady
+            self._offset_taken = self.whiten @ (step - self.predictor.C @ steady)  # the constant it leaves
+            self.detector.offset_taken(self._offset_taken)
             self.steps.append((jump.loud_index, step))
-        self._offset_taken = None if step is None else jump.offset
         self.predictor.x = self.predictor.x + correction
         if self._pending is not None:  # a block's held last sample: its state as it came is of the same sample
             self._pending = (*self._pending[:3], self._pending[3] + correction)
@@ -267,6 +269,7 @@ class StructuralChangeMonitor:
         self._drop_pending()
         self.predictor.x = self.predictor.x - step_response(self.predictor.F, self.predictor.Gy, step, samples)
         self.detector.excursion_ended(index)
+        self._ring.clear()  # its innovations held the step: no later state-jump fit of the excursion reads them
 
     def _drop_pending(self) -> None:
         """A held sample run as it came, untested (no next sample judges it: a gap follows)."""
