@@ -32,11 +32,10 @@ kept up to date in O(d^2) per sample. An update whose pipeline fails writes ``"m
 an ``"error"`` string instead of stopping the run.
 
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
-the window leaves out the regressor rows that reach them, the realization fills gaps of up to the
-nodes' ``estimator.max_gap_samples`` by prediction and starts after a longer one
-(:func:`okid_ros.core.realization_window.realization_window`, node 2's rule), and the change test bridges
-them (:meth:`okid_ros.core.change_monitor.StructuralChangeMonitor.gap`). ``window_first_index``
-then counts the missing samples in the window's span.
+the window leaves out the regressor rows that reach them, the realization fills gaps of up to
+``estimator.max_gap_samples`` by prediction and starts after a longer one (node 2's rule,
+:func:`okid_ros.core.realization_window.realization_window`; a spike at the window's last sample
+judged by the next), and the change test bridges them. ``window_first_index`` counts them too.
 
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
 (:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
@@ -458,8 +457,8 @@ class _TrackedRecord:
     def window_samples(self, fit, k: int, rows: int):
         """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
 
-        Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples
-        among them are filled or end the run as on node 2 (:func:`okid_ros.core.realization_window.realization_window`).
+        Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples among them
+        are filled or end the run as on node 2 (:func:`okid_ros.core.realization_window.realization_window`).
         """
         import numpy as np
 
@@ -469,8 +468,10 @@ class _TrackedRecord:
         present = np.flatnonzero(self.present[start : k + 1]) + start
         skipped = np.diff(present, prepend=present[0]) - 1
         skipped[0] = 0
+        after = self.present[k : k + 2].all() and k + 1 < self.present.size  # its last sample judged by the next
         return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
-                                  need=rows + self.order, refit=any(start < i <= k for i in self.steps))
+                                  need=rows + self.order, refit=any(start < i <= k for i in self.steps),
+                                  next_sample=(self.u[k + 1], self.y[k + 1]) if after else None)
 
     def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
         """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).

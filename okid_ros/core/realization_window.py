@@ -45,7 +45,8 @@ class RealizationWindow:
 
 
 def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: ArxFit, *, max_gap: int,
-                       need: int, center: bool = True, refit: bool = False) -> RealizationWindow:
+                       need: int, center: bool = True, refit: bool = False,
+                       next_sample: tuple[np.ndarray, np.ndarray] | None = None) -> RealizationWindow:
     """The newest run of an ARX window without a long gap or a time restart, short gaps and spikes filled.
 
     The one rule of node 2 and ``okid-ros track`` for a window with missing samples: a gap of
@@ -63,6 +64,9 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     center : the refit without the spikes' rows has an intercept (node 2's ``offsets``: "remove").
     refit : the samples are not those ``fit`` was made of (node 2 took a sensor's re-zero off
         them, :mod:`okid_ros.service.watch`): refit the ARX model to them.
+    next_sample : ``(u (m,), y (p,))`` of the sample after the window, when there is one
+        (``track``): the spike rule judges the window's last sample by it, as any other.
+        Without it a glitch there stays (node 2's windows end before node 1's held candidate).
 
     Raises
     ------
@@ -81,7 +85,10 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
             raise ValueError(f"ARX window: {exc}") from None
         filled = int(np.count_nonzero(~valid))
     if u.shape[1]:  # output-only windows: named there, not left out (identify's rule)
-        spiked = spikes_left_out(u, y, valid)
+        spiked = _spikes_left_out(u, y, valid, next_sample)
+        if spiked is not valid and not spiked[-1]:  # a spike at the last sample: the window ends before it
+            last = int(np.flatnonzero(spiked)[-1]) + 1
+            u, y, spiked, refit = u[:last], y[:last], (None if spiked[:last].all() else spiked[:last]), True
         if spiked is not valid or refit:
             # The fit to realize leaves their rows out too: the realization's passes over the samples
             # must see the data the ARX model was fitted to (a fit holding a glitch realized over a
@@ -94,6 +101,19 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
                          f"{max_gap} samples; the realization needs at least {minimum}")
     return RealizationWindow(u, y, valid, filled, fit)
+
+
+def _spikes_left_out(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None,
+                     next_sample: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """:func:`.sensor_faults.spikes_left_out` of the window, its last sample judged by ``next_sample`` if given."""
+    if next_sample is None:
+        return spikes_left_out(u, y, valid)
+    n = u.shape[0]
+    judged = None if valid is None else np.r_[valid, True]
+    spiked = spikes_left_out(np.vstack([u, next_sample[0]]), np.vstack([y, next_sample[1]]), judged)
+    if spiked is judged or spiked[:n].all():
+        return valid
+    return spiked[:n]
 
 
 def realization_minimum(order: int, need: int) -> int:
