@@ -124,7 +124,11 @@ class ModalStateEstimator:
         # One output: a glitch and an unmeasured impact look alike (glitch_candidates finds none).
         self._gate = bool(reject_glitches) and p >= 2 and bool(np.all(np.isfinite(self._inverse_variance)))
         self._held: np.ndarray | None = None  # (n, 1) the next prediction had a held candidate been taken
+        self._held_outputs: tuple[np.ndarray, np.ndarray] | None = None  # its far outputs, their predictions
         self.glitches = 0
+        # The last glitch left out, (far outputs (p,) bool, their predictions (p,)), set when the next
+        # sample settles it, for the caller to take (and set to None): node 2's buffer keeps the prediction.
+        self.last_glitch: tuple[np.ndarray, np.ndarray] | None = None
         self._start_up = initial_covariance is not None
         if self._start_up:
             P0 = np.asarray(initial_covariance, dtype=float)
@@ -213,8 +217,13 @@ class ModalStateEstimator:
                 and glitch_candidates(innovation[None, :], self._innovation_std)[0]):
             with np.errstate(invalid="ignore", over="ignore"):  # an infinite output: used only if no glitch
                 self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
+            # (p,) the sample as the model predicts it, from the state (the sample less its innovation
+            # is lost to rounding beside a glitch of 1e20 spreads)
+            predicted = dot(kf.H, x_prior)[:, 0] + du + self.output_offset
             # The outputs far off replaced by their prediction (innovation 0), the others taken.
-            kf.x = x_prior + dot(kf.K, np.where(np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None], kf.y, 0.0))
+            near = np.abs(kf.y) <= QUIET_STD * self._innovation_std[:, None]
+            kf.x = x_prior + dot(kf.K, np.where(near, kf.y, 0.0))
+            self._held_outputs = (~near[:, 0], predicted)
         x_post = kf.x[:, 0].copy()
         y_est = kf.H @ x_post + du + self.output_offset
         kf.x = dot(kf.F, kf.x) + dot(kf.B, u)
@@ -229,6 +238,7 @@ class ModalStateEstimator:
         kf, held, self._held = self.kf, self._held, None
         if settled(kf.y[:, 0], self._innovation_std):
             self.glitches += 1
+            self.last_glitch = self._held_outputs
             return
         kf.x = held
         kf.y = z - dot(kf.H, kf.x)

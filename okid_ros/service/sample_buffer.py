@@ -97,6 +97,12 @@ class SampleBuffer:
             idx = np.arange(max(lo, self.first), max(min(hi, self.count), lo)) % self.cap
             self.y[idx] += delta
 
+    def replace_outputs(self, index: int, outputs: np.ndarray, values: np.ndarray) -> None:
+        """Outputs ``outputs`` (p,) bool of sample ``index`` replaced by ``values`` (p,), if it is still stored."""
+        with self.lock:
+            if self.first <= index < self.count:
+                self.y[index % self.cap, outputs] = values[outputs]
+
     @property
     def first(self) -> int:
         return max(self.count - self.cap, 0)

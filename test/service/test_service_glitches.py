@@ -10,8 +10,10 @@ import pytest
 from okid_bench.live_chain import chain_modes
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.realization_window import realization_window
+from okid_ros.service.estimation import ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
-from okid_ros.service.params import ARX_NODE, resolve_parameters
+from okid_ros.service.options import ModalEstimationParams
+from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 Q, W = 30, 2000
@@ -147,3 +149,42 @@ def test_a_window_fitted_exactly_judges_no_glitch_and_lets_numpy_say_nothing():
                 assert service.snapshot().valid
     assert service.diagnostics()["glitches"] == 0
     np.testing.assert_array_equal(service.window_samples()[1], y[n - service.window_samples()[1].shape[0]:])
+
+
+def _switch_after_a_realization(model, u: np.ndarray, y: np.ndarray) -> dict:
+    """Each published sample's (model id, modal coordinates) of node 2 with two models.
+
+    A model of samples 0-1999, then one of the window 1000-2999 realized while 400 more samples
+    come (live at tens of outputs a realization takes seconds), its warm start following them
+    before the switch at sample 3400.
+    """
+    dt = model.sample_time_s
+    service = ModalEstimationService(ModalEstimationParams.from_parameters(resolve_parameters(
+        ESTIMATOR_NODE, {"sample_time_s": dt, "n_inputs": 2, "n_outputs": 2})))
+    states, outcome = {}, None
+    for k in range(y.shape[0]):
+        result = service.step(k * dt, u[k], y[k])
+        if result is not None:
+            states[k] = (result.model_id, result.coordinates.ravel())
+        if k in (1999, 2999):
+            service.submit_arx(fit_arx(u[k - 1999:k + 1], y[k - 1999:k + 1], Q, center=True), k * dt, k)
+            outcome = service.run_job(service.take_job(), follow=False)
+            if k == 1999:
+                service.deliver(outcome)
+        if k == 3399:
+            service.deliver(service.follow(outcome))
+    return states
+
+
+@pytest.mark.parametrize("glitch_at", [3350, 3390])
+def test_a_warm_start_follows_a_glitch_as_the_estimator_left_it_out(record, glitch_at):
+    # A glitch while a model is being realized: the estimator in use leaves it out, but the new
+    # model's warm start followed node 2's buffered samples, which held it as it came, and the
+    # switch carried it (modal coordinates 2.2 % and 5.6 % off the clean run's over the 200 samples
+    # after it, some withheld as diverged). The buffer now keeps the estimator's prediction.
+    model, u, y = record
+    clean = _switch_after_a_realization(model, u, y)
+    states = _switch_after_a_realization(model, u, _glitched(y, [glitch_at]))
+    errors = [np.linalg.norm(states[k][1] - clean[k][1]) / np.linalg.norm(clean[k][1])
+              for k in range(3401, 3601) if k in states and states[k][0] == clean[k][0]]
+    assert len(errors) == 200 and np.sqrt(np.mean(np.square(errors))) < 0.005
