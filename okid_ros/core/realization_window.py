@@ -46,8 +46,7 @@ class RealizationWindow:
 
 def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: ArxFit, *, max_gap: int,
                        need: int, center: bool = True, refit: bool = False,
-                       next_sample: tuple[np.ndarray, np.ndarray] | None = None,
-                       left_out: np.ndarray | None = None) -> RealizationWindow:
+                       next_sample: tuple[np.ndarray, np.ndarray] | None = None) -> RealizationWindow:
     """The newest run of an ARX window without a long gap or a time restart, short gaps and spikes filled.
 
     The one rule of node 2 and ``okid-ros track`` for a window with missing samples: a gap of
@@ -68,8 +67,6 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     next_sample : ``(u (m,), y (p,))`` of the sample after the window, when there is one
         (``track``): the spike rule judges the window's last sample by it, as any other.
         Without it a glitch there stays (node 2's windows end before node 1's held candidate).
-    left_out : (N,) bool, True at samples to leave out as spikes are (node 2: the glitches its
-        estimator left out, whose buffered outputs hold its prediction), None: none.
 
     Raises
     ------
@@ -79,7 +76,6 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
     first = int(breaks[-1]) if breaks.size else 0
     u, y, skipped = u[first:], y[first:], skipped[first:]
-    left_out = None if left_out is None or not np.any(left_out[first:]) else np.asarray(left_out[first:], bool)
     valid = None
     filled = 0
     if np.any(skipped[1:]):
@@ -90,9 +86,6 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         filled = int(np.count_nonzero(~valid))
     if u.shape[1]:  # output-only windows: named there, not left out (identify's rule)
         spiked = _spikes_left_out(u, y, valid, next_sample)
-        if left_out is not None:
-            kept = np.ones(u.shape[0], bool) if spiked is None else spiked
-            spiked = kept & ~_on_grid(left_out, skipped, u.shape[0])
         if spiked is not valid and not spiked[-1]:  # a spike at the last sample: the window ends before it
             last = int(np.flatnonzero(spiked)[-1]) + 1
             u, y, spiked, refit = u[:last], y[:last], (None if spiked[:last].all() else spiked[:last]), True
@@ -108,14 +101,6 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
         raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
                          f"{max_gap} samples; the realization needs at least {minimum}")
     return RealizationWindow(u, y, valid, filled, fit)
-
-
-def _on_grid(left_out: np.ndarray, skipped: np.ndarray, n: int) -> np.ndarray:
-    """``left_out`` (N,) of the samples received, on the grid of the ``n`` samples with gaps filled; never the first."""
-    grid = np.zeros(n, bool)
-    grid[np.arange(left_out.size) + np.cumsum(np.r_[0, skipped[1:]])] = left_out
-    grid[0] = False  # a filled record starts with a measured sample
-    return grid
 
 
 def _spikes_left_out(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None,

@@ -280,7 +280,7 @@ class ModalEstimationService:
             try:
                 window = realization_window(u, y, skipped, fit, max_gap=prm.max_gap_samples, need=need,
                                             center=prm.offsets == "remove",
-                                            **self._watch.window_faults(end + 1 - need, end + 1))
+                                            refit=self._watch.level_step_within(end + 1 - need, end + 1))
             except ValueError as exc:
                 return self._refuse(str(exc))
             self._stats.window_samples_filled += window.filled

@@ -66,7 +66,7 @@ def follow(outcome: RealizationOutcome, buffer: SampleBuffer) -> RealizationOutc
         available = buffer.count - 1
         if available - 1 - last <= prm.handover_samples:
             break
-        _, u, y, skipped = buffer.get(last + 1, available)
+        _, u, y, skipped = buffer.get(last + 1, available, predicted_glitches=True)
         if u.shape[0] == 0:
             break
         x, u_prev = advance_state(outcome.model, x, u, y, skipped, u_prev, max_gap=prm.max_gap_samples, chunked=True)
@@ -85,7 +85,7 @@ def catch_up(outcome: RealizationOutcome, buffer: SampleBuffer, index: int, *,
     """
     x, u_prev = outcome.state, outcome.last_input
     if outcome.last_index < index - 1:
-        _, u, y, skipped = buffer.get(outcome.last_index + 1, index)
+        _, u, y, skipped = buffer.get(outcome.last_index + 1, index, predicted_glitches=True)
         x, u_prev = advance_state(outcome.model, x, u, y, skipped, u_prev, max_gap=max_gap)
     return x, u_prev
 

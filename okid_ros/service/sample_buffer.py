@@ -38,6 +38,7 @@ class SampleBuffer:
         self.m, self.p = m, p
         self._alloc(max(int(capacity), 16))
         self.count = 0
+        self._glitches: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # predicted_glitch's, by sample
 
     def _alloc(self, cap: int) -> None:
         self.cap = cap
@@ -49,6 +50,7 @@ class SampleBuffer:
     def clear(self) -> None:
         with self.lock:
             self.count = 0
+            self._glitches: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def resize(self, cap: int) -> None:
         with self.lock:
@@ -96,24 +98,42 @@ class SampleBuffer:
         with self.lock:
             idx = np.arange(max(lo, self.first), max(min(hi, self.count), lo)) % self.cap
             self.y[idx] += delta
+            for i, (outputs, values) in self._glitches.items():
+                if lo <= i < hi:
+                    self._glitches[i] = (outputs, values + delta)
 
-    def replace_outputs(self, index: int, outputs: np.ndarray, values: np.ndarray) -> None:
-        """Outputs ``outputs`` (p,) bool of sample ``index`` replaced by ``values`` (p,), if it is still stored."""
+    def predicted_glitch(self, index: int, outputs: np.ndarray, values: np.ndarray) -> None:
+        """Sample ``index`` a glitch in ``outputs`` (p,) bool, predicted as ``values`` (p,) there.
+
+        Kept beside the sample as it came: :meth:`get` returns either (a realization window's spike
+        rule judges the samples as they came, as ``identify`` does; a predictor's state follows the
+        prediction, as the estimator in use did).
+        """
         with self.lock:
             if self.first <= index < self.count:
-                self.y[index % self.cap, outputs] = values[outputs]
+                self._glitches = {i: g for i, g in self._glitches.items() if i >= self.first}
+                self._glitches[int(index)] = (np.asarray(outputs, bool).copy(), np.asarray(values, float).copy())
 
     @property
     def first(self) -> int:
         return max(self.count - self.cap, 0)
 
-    def get(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of samples lo..hi-1 (absolute indices, clipped to what is stored)."""
+    def get(self, lo: int, hi: int, *, predicted_glitches: bool = False
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of samples lo..hi-1 (absolute indices, clipped to what is stored).
+
+        ``predicted_glitches``: the glitches' outputs as predicted (:meth:`predicted_glitch`), not as they came.
+        """
         with self.lock:
             lo = max(lo, self.first)
             hi = min(hi, self.count)
             idx = np.arange(lo, max(hi, lo)) % self.cap
-            return self.stamps[idx].copy(), self.u[idx].copy(), self.y[idx].copy(), self.skipped[idx].copy()
+            y = self.y[idx]  # a copy (fancy indexing)
+            if predicted_glitches:
+                for i, (outputs, values) in self._glitches.items():
+                    if lo <= i < hi:
+                        y[i - lo, outputs] = values[outputs]
+            return self.stamps[idx].copy(), self.u[idx].copy(), y, self.skipped[idx].copy()
 
     def find_end(self, stamp_s: float, tol: float) -> tuple[int, float]:
         """Newest stored sample with stamp <= stamp_s + tol (index, its stamp), or (-1, nan).

@@ -88,7 +88,6 @@ class InnovationWatch:
         self.level = np.zeros(p)  # the outputs' level steps found, taken off each sample (level_corrected)
         self.level_steps: list[int] = []  # buffer indices where a step taken off lies, still buffered
         self.level_steps_taken = 0
-        self.glitch_samples: list[int] = []  # buffer indices of glitches the estimator left out, still buffered
 
     def configure(self, params: ModalEstimationParams) -> None:
         """Take run-time options at once: the divergence ratio and the change test's tuning.
@@ -118,10 +117,9 @@ class InnovationWatch:
         (or None) and, after a restart from the buffer, the last buffered input (else None).
         """
         prm = self.params
-        if active.estimator.last_glitch is not None:  # the last sample, a glitch: warm starts get the
-            self._buffer.replace_outputs(index - 1, *active.estimator.last_glitch)  # estimator's prediction,
-            active.estimator.last_glitch = None  # and realization windows leave it out (window_faults)
-            self.glitch_samples = [i for i in self.glitch_samples if i >= self._buffer.first] + [index - 1]
+        if active.estimator.last_glitch is not None:  # the last sample, a glitch: warm starts follow the
+            self._buffer.predicted_glitch(index - 1, *active.estimator.last_glitch)  # estimator's prediction
+            active.estimator.last_glitch = None
         z = active.whiten @ innovation
         # The estimator's divergence: a glitch candidate, whose far outputs it did not take
         # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
@@ -197,19 +195,9 @@ class InnovationWatch:
         """A sample's outputs (p,) less the level steps found so far (what the buffer and the estimator take)."""
         return y - self.level if self.level_steps_taken else y
 
-    def window_faults(self, lo: int, hi: int) -> dict:
-        """``realization_window``'s options for buffer samples ``lo .. hi - 1``.
-
-        ``refit``: a level step taken off lies inside (node 1's fit holds it); ``left_out``: (hi -
-        lo,) True at the glitches the estimator left out (their outputs hold its prediction), or None.
-        """
-        lo = max(lo, self._buffer.first)  # the samples the buffer still holds
-        inside = [i - lo for i in self.glitch_samples if lo <= i < hi]
-        left_out = None
-        if inside:
-            left_out = np.zeros(hi - lo, bool)
-            left_out[inside] = True
-        return {"refit": any(lo < i < hi for i in self.level_steps), "left_out": left_out}
+    def level_step_within(self, lo: int, hi: int) -> bool:
+        """Whether a level step taken off lies inside buffer samples ``lo .. hi - 1`` (node 1's fit holds it)."""
+        return any(lo < i < hi for i in self.level_steps)
 
     def _take_level_step(self, step: np.ndarray, first: int, index: int, *, monitor: bool = True) -> None:
         """Take an output step off samples ``first .. index`` (buffered) and the next ones.
@@ -272,7 +260,7 @@ class InnovationWatch:
         buffer, max_gap = self._buffer, self.params.max_gap_samples
         open_loop_from = min([index + 1, *(i for i in self.diverged if i >= buffer.first)])
         first = max(buffer.first, open_loop_from - self._settle_samples(model))
-        _, u, y, skipped = buffer.get(first, index + 1)
+        _, u, y, skipped = buffer.get(first, index + 1, predicted_glitches=True)
         x, u_prev = np.zeros(model.n_states), None
         lo = 0
         for k in sorted(i - first for i in self.diverged if first <= i <= index) + [u.shape[0]]:
