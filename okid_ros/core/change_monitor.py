@@ -258,7 +258,7 @@ class StructuralChangeMonitor:
             self._pending = None
             self.predictor.x = np.asarray(state, dtype=float).reshape(self.predictor.x.shape).copy()
 
-    def output_step(self, step: np.ndarray, samples: int, index: int) -> None:
+    def take_output_step(self, step: np.ndarray, samples: int, index: int) -> None:
         """An output step ``step`` (p,) in the last ``samples`` samples up to ``index``, taken off the next ones.
 
         The predictor's state loses what it took of the step (:mod:`okid_ros.core.output_step`);

@@ -150,11 +150,11 @@ class InnovationWatch:
             if wait:  # too few samples of the excursion to judge yet
                 return True, change, None
             if jump is not None and jump.explained:
-                F = self._jump_test[1].F
+                F, _, G_y = active.model.predictor()  # the jump test's F
                 state = active.estimator.state + jump.correction(F, index + 1)
-                step = output_step(jump, F, active.model.predictor()[2], active.model.C, active.whiten)
+                step = output_step(jump, F, G_y, active.model.C, active.whiten)
                 if step is not None:  # a sensor re-zeroed: its step taken off this sample's and the next ones
-                    state = state - step_response(F, active.model.predictor()[2], step)
+                    state = state - step_response(F, G_y, step)
                     self._take_level_step(step, jump.loud_index if jump.loud_index >= 0 else jump.onset_index, index)
                 active.estimator.set_state(state)
                 self.diverged.clear()
@@ -211,7 +211,7 @@ class InnovationWatch:
         self.level_steps = [i for i in self.level_steps if i >= self._buffer.first] + [first]
         self.level_steps_taken += 1
         if monitor and self.monitor.armed:
-            self.monitor.output_step(step, index + 1 - first, index)
+            self.monitor.take_output_step(step, index + 1 - first, index)
 
     def declare(self, active: ActiveModel, stamp_s: float, index: int, change_index: int, *, statistic: float,
                 threshold: float, variance_ratio: float) -> StructuralChangeEvent:
