@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize, stats
 
-from okid_ros.core.channels import channel_mean
+from okid_ros.core.channels import channel_mean, power_of_two_scales
 
 __all__ = ["Harmonic", "find_harmonics", "remove_harmonics", "without_harmonics"]
 
@@ -175,9 +175,8 @@ def without_harmonics(y: np.ndarray, sample_time_s: float, *, u: np.ndarray | No
 
 
 def _power_of_two(x: np.ndarray) -> float:
-    """The power of two nearest the largest magnitude of ``x`` (1 for an empty or all-zero ``x``)."""
-    peak = float(np.max(np.abs(x), initial=0.0))
-    return float(2.0 ** np.round(np.log2(peak))) if 0.0 < peak < np.inf else 1.0
+    """The power of two nearest the largest magnitude of ``x``, one for all channels (1 for an all-zero ``x``)."""
+    return float(power_of_two_scales(np.reshape(x, (-1, 1)))[0])
 
 
 def _band_kurtosis(raw: np.ndarray, direction: np.ndarray, k: int, n: int) -> float:

@@ -50,7 +50,7 @@ class SampleBuffer:
     def clear(self) -> None:
         with self.lock:
             self.count = 0
-            self._glitches: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+            self._glitches = {}
 
     def resize(self, cap: int) -> None:
         with self.lock:

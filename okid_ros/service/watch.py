@@ -129,11 +129,12 @@ class InnovationWatch:
         change = None
         if prm.change_detection:
             alarm = self.monitor.step(u, y, index, test=not diverged)
-            for first, step in self.monitor.steps:  # a re-zero its state-jump fit found; it took it off its own
+            if self.monitor.steps:  # a re-zero its state-jump fit found; it took it off its own
                 F, _, G_y = active.model.predictor()
-                active.estimator.set_state(active.estimator.state - step_response(F, G_y, step, index + 1 - first))
-                self._take_level_step(step, first, index, monitor=False)
-            self.monitor.steps.clear()
+                for first, step in self.monitor.steps:
+                    active.estimator.set_state(active.estimator.state - step_response(F, G_y, step, index + 1 - first))
+                    self._take_level_step(step, first, index, monitor=False)
+                self.monitor.steps.clear()
             if alarm is not None:
                 change = self.declare(active, stamp_s, index, alarm.change_index, statistic=alarm.statistic,
                                       threshold=alarm.threshold, variance_ratio=alarm.variance_ratio)
