@@ -22,7 +22,7 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.gap_fill import fill_short_gaps, fit_and_fill
 from okid_ros.core.sensor_faults import spikes_left_out
 
-__all__ = ["RealizationWindow", "realization_minimum", "realization_window"]
+__all__ = ["RealizationWindow", "newest_run_start", "realization_minimum", "realization_window"]
 
 
 @dataclass(frozen=True)
@@ -73,8 +73,7 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
     ValueError with the reason when too much is missing.
     """
     skipped = np.asarray(skipped, dtype=np.int64)
-    breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
-    first = int(breaks[-1]) if breaks.size else 0
+    first = newest_run_start(skipped, max_gap=max_gap, order=fit.order, need=need)
     u, y, skipped = u[first:], y[first:], skipped[first:]
     valid = None
     filled = 0
@@ -96,11 +95,38 @@ def realization_window(u: np.ndarray, y: np.ndarray, skipped: np.ndarray, fit: A
             fit, u, y, valid = fit_and_fill(u, y, spiked, fit.order, None, regularization=fit.regularization,
                                             center=center)
             filled = 0 if valid is None else int(np.count_nonzero(~valid))
-    minimum = realization_minimum(fit.order, need)
-    if u.shape[0] < minimum:
-        raise ValueError(f"{u.shape[0]} samples of the ARX window of {need} follow its last gap longer than "
-                         f"{max_gap} samples; the realization needs at least {minimum}")
+    _check_run(u.shape[0], max_gap=max_gap, order=fit.order, need=need)
     return RealizationWindow(u, y, valid, filled, fit)
+
+
+def newest_run_start(skipped: np.ndarray, *, max_gap: int, order: int, need: int) -> int:
+    """Index of the first sample of a window's newest run without a long gap or a time restart.
+
+    What :func:`realization_window` keeps, found cheaply: node 2 refuses a window on its
+    sample path by this and leaves the filling to the realization's worker.
+
+    Parameters
+    ----------
+    skipped : (N,) missing slots just before each sample (< 0: a time restart).
+    max_gap : longest gap filled, in samples; order : the ARX order; need : the window's samples.
+
+    Raises
+    ------
+    ValueError when fewer than :func:`realization_minimum` samples follow the run's start.
+    """
+    skipped = np.asarray(skipped, dtype=np.int64)
+    breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
+    first = int(breaks[-1]) if breaks.size else 0
+    _check_run(skipped.size - first, max_gap=max_gap, order=order, need=need)
+    return first
+
+
+def _check_run(samples: int, *, max_gap: int, order: int, need: int) -> None:
+    """ValueError if ``samples`` are fewer than a realization needs of the window (:func:`realization_minimum`)."""
+    minimum = realization_minimum(order, need)
+    if samples < minimum:
+        raise ValueError(f"{samples} samples of the ARX window of {need} follow its last gap longer than "
+                         f"{max_gap} samples; the realization needs at least {minimum}")
 
 
 def _spikes_left_out(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None,

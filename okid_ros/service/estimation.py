@@ -89,7 +89,7 @@ from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
-from okid_ros.core.realization_window import realization_minimum, realization_window
+from okid_ros.core.realization_window import newest_run_start, realization_minimum
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
@@ -99,6 +99,7 @@ from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, 
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     ActiveModel,
+    BufferedWindow,
     EstimationStats,
     IdleSwitch,
     ModalStatesResult,
@@ -276,18 +277,16 @@ class ModalEstimationService:
                     f"ARX window starts before the structural change at {change.change_stamp_s:.3f} s; "
                     f"waiting for a model of post-change data"
                 )
-            stamps, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
-            try:
-                window = realization_window(u, y, skipped, fit, max_gap=prm.max_gap_samples, need=need,
-                                            center=prm.offsets == "remove",
-                                            refit=self._watch.level_step_within(end + 1 - need, end + 1))
+            _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
+            try:  # the cheap part of realization_window here; its filling is the worker's (realize)
+                first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
             except ValueError as exc:
                 return self._refuse(str(exc))
-            self._stats.window_samples_filled += window.filled
             self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
-            return RealizationJob(window.fit, arx_id, end_stamp, window.u, window.y, end, self.params,
-                                  self._generation, window.valid, hint)
+            buffered = BufferedWindow(skipped[first:], need, self._watch.level_step_within(end + 1 - need, end + 1))
+            return RealizationJob(fit, arx_id, end_stamp, u[first:], y[first:], end, self.params, self._generation,
+                                  order_hint=hint, buffered=buffered)
 
     def _refuse(self, reason: str) -> None:
         self._stats.arx_refused += 1
@@ -311,6 +310,7 @@ class ModalEstimationService:
         with self._lock:
             if outcome.job.generation != self._generation:
                 return  # taken before a reset
+            self._stats.window_samples_filled += outcome.window_filled
             self._ready = outcome
 
     def process_pending(self) -> bool:

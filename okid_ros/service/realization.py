@@ -30,11 +30,12 @@ from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.options import RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS, identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
+from okid_ros.core.realization_window import realization_window
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "realize"]
+__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "prepare_window", "realize"]
 
 
 def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -139,23 +140,48 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     prm = job.params
     t0 = time.perf_counter()
     try:
+        job, filled = prepare_window(job)
+    except ValueError as exc:
+        return RealizationOutcome(job, None, str(exc), realization_time_s=time.perf_counter() - t0)
+
+    def refused(reason: str) -> RealizationOutcome:
+        return RealizationOutcome(job, None, reason, realization_time_s=time.perf_counter() - t0, window_filled=filled)
+
+    try:
         model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
                                 offsets=prm.offsets, output_only_method=prm.output_only_method,
                                 valid=job.valid, order_hint=job.order_hint)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-        return RealizationOutcome(job, None, f"realization failed: {exc}", realization_time_s=time.perf_counter() - t0)
+        return refused(f"realization failed: {exc}")
     elapsed = time.perf_counter() - t0
     problem = model.stability_problem()
     if problem:
-        return RealizationOutcome(job, None, f"check failed: {problem}", realization_time_s=elapsed)
+        return refused(f"check failed: {problem}")
     try:
         whiten = whitening_matrix(model.innovation_covariance)
     except ValueError as exc:
-        return RealizationOutcome(job, None, f"check: innovation covariance: {exc}", realization_time_s=elapsed)
+        return refused(f"check: innovation covariance: {exc}")
     if not model.modes:
-        return RealizationOutcome(job, None, "model has no physical mode", realization_time_s=elapsed)
+        return refused("model has no physical mode")
     # The warm start from zero over the window's last samples that the state depends on.
     first = max(0, job.u.shape[0] - InnovationPredictor(model).settle_samples)
     x, u_prev = advance_state(model, np.zeros(model.n_states), job.u[first:], job.y[first:],
                               np.zeros(job.u.shape[0] - first, dtype=np.int64), None, max_gap=prm.max_gap_samples)
-    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0] - first, whiten)
+    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0] - first, whiten,
+                              window_filled=filled)
+
+
+def prepare_window(job: RealizationJob) -> tuple[RealizationJob, int]:
+    """The job with its window's samples as the realization reads them, and the slots filled.
+
+    A job taken with its window as buffered (:attr:`RealizationJob.buffered`): its newest run
+    without a long gap, short gaps and spikes filled (:func:`okid_ros.core.realization_window.realization_window`,
+    node 2's rule). Raises ValueError with the reason when too much is missing.
+    """
+    raw = job.buffered
+    if raw is None:
+        return job, 0
+    prm = job.params
+    window = realization_window(job.u, job.y, raw.skipped, job.fit, max_gap=prm.max_gap_samples, need=raw.need,
+                                center=prm.offsets == "remove", refit=raw.refit)
+    return replace(job, fit=window.fit, u=window.u, y=window.y, valid=window.valid, buffered=None), window.filled

@@ -23,6 +23,7 @@ from okid_ros.service.options import ModalEstimationParams
 
 __all__ = [
     "ActiveModel",
+    "BufferedWindow",
     "EstimationStats",
     "IdleSwitch",
     "ModalStatesResult",
@@ -121,6 +122,25 @@ class ModalStatesResult:
     change: StructuralChangeEvent | None = None
 
 
+@dataclass(frozen=True)
+class BufferedWindow:
+    """A job's window as buffered: what :func:`~okid_ros.service.realization.realize` prepares first.
+
+    The filling of short gaps and spikes (:func:`okid_ros.core.realization_window.realization_window`)
+    runs in the realization's worker, not under the lock the sample path waits for.
+
+    Attributes
+    ----------
+    skipped : (N,) missing slots just before each of the job's samples (< 0: a time restart).
+    need : the window's samples (ARX rows plus order).
+    refit : the samples are not those the fit was made of (a re-zero taken off): refit it.
+    """
+
+    skipped: np.ndarray
+    need: int
+    refit: bool = False
+
+
 @dataclass
 class RealizationJob:
     """Everything :meth:`ModalEstimationService.run_job` needs (a copy; thread-safe)."""
@@ -135,6 +155,7 @@ class RealizationJob:
     generation: int = 0  # outcomes of jobs taken before a reset are dropped
     valid: np.ndarray | None = None  # (N,) False at samples filled in short gaps (core/gap_fill.py)
     order_hint: int | None = None  # the order of the model in use: warm-starts the order search
+    buffered: BufferedWindow | None = None  # set: u, y as buffered, prepared by realize(); None: as realized
 
     @property
     def first_index(self) -> int:
@@ -163,6 +184,7 @@ class RealizationOutcome:
     warm_start_samples: int = 0
     whiten: np.ndarray | None = None
     estimator: ModalStateEstimator | None = None
+    window_filled: int = 0  # slots of the window filled by prediction (gaps, spikes)
 
 
 @dataclass

@@ -281,6 +281,44 @@ def test_windows_with_lost_samples_are_realized_as_accurately_as_whole_ones():
             assert abs(zeta_lossy - zeta) < 0.01, (true_w, zeta, zeta_lossy)
 
 
+def test_the_sample_path_takes_a_window_as_buffered_and_the_realization_fills_it():
+    # Filling a window's gaps and spikes took ~0.7 ms of the lock each sample waits for (1 kHz,
+    # q 100): take_job hands the window over as buffered, realize() prepares it as before.
+    from okid_ros.core.realization_window import realization_window
+
+    model = paper_model()
+    dt, n = model.sample_time_s, 2600
+    u = lowpass_input(n, 2, 50.0, dt, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    y[2300, 1] += 60.0 * y[:, 1].std()  # a spike the window leaves out
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    skipped = 0
+    for k in range(n):
+        if k in (1500, 1501, 2100):  # short gaps, filled by prediction
+            skipped += 1
+            continue
+        ident.push(T0 + k * dt, u[k], y[k], gap_before=skipped > 0)
+        est.step(T0 + k * dt, u[k], y[k], skipped)
+        skipped = 0
+    snap = ident.snapshot()
+    assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    job = est.take_job()
+    assert job is not None and job.buffered is not None and job.valid is None
+    assert job.buffered.skipped.sum() == 3  # the gaps' slots, not filled yet
+    prm = est.params
+    expected = realization_window(job.u, job.y, job.buffered.skipped, job.fit, max_gap=prm.max_gap_samples,
+                                  need=job.buffered.need, center=prm.offsets == "remove")
+    prepared, filled = realization.prepare_window(job)
+    assert prepared.buffered is None and filled == expected.filled >= 4  # three gaps and the spike
+    assert np.array_equal(prepared.y, expected.y) and np.array_equal(prepared.valid, expected.valid)
+    assert np.array_equal(prepared.fit.theta, expected.fit.theta)
+    outcome = realization.realize(job)
+    assert outcome.model is not None and outcome.job.buffered is None and outcome.window_filled == filled
+    est.deliver(outcome)
+    assert est.diagnostics()["window_samples_filled"] == filled
+
+
 def test_a_window_with_too_many_lost_samples_is_refused_with_the_reason():
     diagnostics, found = _modes_with_sample_loss(0.3, 1, node_1_loses=False)  # node 1 would fit no window
     assert diagnostics["models_accepted"] == 0 and not found
