@@ -61,7 +61,11 @@ from okid_ros.core.window_samples import (
     count_rejection,
 )
 
-__all__ = ["MAX_SAMPLE_MAGNITUDE", "SlidingWindowArx", "WindowStatus"]
+__all__ = ["CANCELLATION_RATIO", "MAX_SAMPLE_MAGNITUDE", "SlidingWindowArx", "WindowStatus"]
+
+#: A row leaving the window whose square exceeds this times what stays on its diagonal of ``G``
+#: has ``G`` recomputed from the stored rows (the subtraction's rounding would be ~1e-14 of it).
+CANCELLATION_RATIO = 100.0
 
 
 class SlidingWindowArx:
@@ -305,6 +309,7 @@ class SlidingWindowArx:
         q = self.order
         n, hi = self._n, self._hi
         add = hi + np.flatnonzero(self._elig[hi:n])
+        cancelled = False
         if self.window is None:
             self._add_weighted(self._rows[add - q])
             self._elig[add] = False
@@ -329,13 +334,25 @@ class SlidingWindowArx:
                     self._syrk(psi_old, -1.0, 1.0)
                     self._row_sum -= psi_old.sum(axis=0)
                     self._lo = int(old[-1]) + 1
+                    cancelled = self._cancelled(psi_old)
                 self._n_acc += add.size - max(excess, 0)
                 self._rows_since_refactor += add.size
             self._hi = n
             self._n_eff = float(self._n_acc)
         self._n_pend = 0
-        if self.window is not None and self._rows_since_refactor >= self.refactor_every:
+        if self.window is not None and (cancelled or self._rows_since_refactor >= self.refactor_every):
             self.refactor()
+
+    def _cancelled(self, psi_old: np.ndarray) -> bool:
+        """Whether removing rows ``psi_old`` left ``G`` with more than rounding of what stays.
+
+        Subtracting a row leaves about ``eps`` times its squares in ``G``: a glitch of 1e8 output
+        spreads that left the window ruined every fit until the next refactorization (1e5 rows
+        later), with a glitch of 1e100 NaN. A row whose square in some coordinate exceeds
+        :data:`CANCELLATION_RATIO` times what stays on that diagonal has ``G`` recomputed instead.
+        """
+        peak = np.max(psi_old * psi_old, axis=0)
+        return bool(np.any(peak > CANCELLATION_RATIO * np.diagonal(self._gram)))
 
     def _add_weighted(self, psi: np.ndarray) -> None:
         """Infinite history: discount ``G`` and ``s`` by lambda per row and add the new rows."""
