@@ -165,6 +165,6 @@ class WindowedPipeline:
             return None
         outcome = self.est.run_job(job, follow=False)
         if outcome.model is not None and self.settings.validation_fits:
-            self._fits[id(outcome.model)] = prediction_fits(outcome.model, job.u, job.y)
+            self._fits[id(outcome.model)] = prediction_fits(outcome.model, outcome.job.u, outcome.job.y)  # as realized
         self.est.deliver(outcome)
         return outcome

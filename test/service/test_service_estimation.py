@@ -319,6 +319,33 @@ def test_the_sample_path_takes_a_window_as_buffered_and_the_realization_fills_it
     assert est.diagnostics()["window_samples_filled"] == filled
 
 
+def test_process_scores_a_model_on_the_window_it_was_realized_from():
+    # `okid-ros process`'s fit_one_step_pct: on the window as filled (gaps, spikes), not as buffered.
+    from okid_ros.core.validation import prediction_fits
+    from okid_ros.service.sample_grid import GridSample
+    from okid_ros.service.windowed import PipelineSettings, WindowedPipeline
+
+    model = paper_model()
+    dt, n = model.sample_time_s, 2400
+    u = lowpass_input(n + 10, 2, 50.0, dt, seed=5)
+    y, _ = simulate_innovation(model, u, seed=6)
+    y[2200, 0] += 60.0 * y[:, 0].std()
+    pipe = WindowedPipeline(ArxIdentificationParams(dt, Q, 2, 2, W, publish_period_s=1e9),
+                            ModalEstimationParams(dt, 2, 2, n_states=6), PipelineSettings())
+    for k in range(n):
+        sample = GridSample(k, T0 + k * dt, u[k], y[k], int(k == 2000), k == 0)
+        if k != 1999:  # one sample lost
+            pipe.estimate(sample)
+            pipe.identify(sample)
+    snap = pipe.arx.snapshot()
+    outcome = pipe.realize_now(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    assert outcome.model is not None and outcome.window_filled >= 2
+    for k in range(n, n + 10):
+        pipe.estimate(GridSample(k, T0 + k * dt, u[k], y[k]))
+    expected = prediction_fits(outcome.model, outcome.job.u, outcome.job.y)["one_step_pct"]
+    assert pipe.updates[-1]["fit_one_step_pct"] == expected
+
+
 def test_a_window_with_too_many_lost_samples_is_refused_with_the_reason():
     diagnostics, found = _modes_with_sample_loss(0.3, 1, node_1_loses=False)  # node 1 would fit no window
     assert diagnostics["models_accepted"] == 0 and not found
