@@ -24,7 +24,9 @@ sample with the calibrated CUSUM of :mod:`okid_ros.core.change_detection`, whose
 follows from ``--false-alarm-samples``. When a change is declared, the window restarts at the
 change point: the next models use post-change data only, from ``--restart-min-fill`` of the
 window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
-grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline.
+grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline. The
+samples after the last update are tested too: a change declared there is said in the summary on
+stdout only (no update follows it to carry it in a line).
 
 The ARX fit of each update is the batch fit of the window's normal equations (as `identify` on
 those samples; prior scaled by the window's data, penalty by GCV unless ``--penalty`` fixes it),
@@ -46,6 +48,7 @@ re-zero the change test finds is taken off from where it lies, as node 2 does (`
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from okid_ros.commands._args import (
     NodeParameterDefault,
@@ -57,6 +60,9 @@ from okid_ros.commands._args import (
     states_or_auto,
 )
 from okid_ros.core.options import GAINS, RealizationOptions
+
+if TYPE_CHECKING:
+    from okid_ros.service.tracked_record import TrackedRecord
 
 
 def _fraction(text: str) -> float:
@@ -152,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.jsonio import JsonLines
     from okid_ros.service.identification import restart_window
+    from okid_ros.service.tracked_record import TrackedRecord
     from okid_ros.service.watch import is_new_reference
 
     out, (u, y, dt) = _output_and_record(args)
@@ -161,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
     )
     q = _arx_order(args, u, y, options)
-    record = _TrackedRecord(u, y, q)
+    record = TrackedRecord(u, y, q)
     estimator = SlidingWindowArx(q, p, m, window=window)
     monitor = StructuralChangeMonitor(p, false_alarm_samples=float(args.false_alarm_samples))
     restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
@@ -208,16 +215,15 @@ def run(args: argparse.Namespace) -> int:
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
-        record.finish(monitor, fed)  # a glitch candidate held at the last update's sample
+        late = record.test_rest(monitor, fed)  # a change after the last update: said in the summary
+        changes += [late] if late is not None else []
         bar.update(n_samples - fed)
     bar.close()
     elapsed = time.perf_counter() - started
-    _print_summary(changes, dt, last_modes)
+    _print_summary(changes, dt, last_modes, points[-1])  # at least one update (_arx_order checked the length)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
-    print(
-        f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
-        f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {out}"
-    )
+    print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
+          f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {out}")
     if failures + waits == len(points):
         print(f"okid-ros track: warning: no update gave a model; the first: {first_reason}", file=sys.stderr)
     return 0
@@ -242,7 +248,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     check_output_paths(args.data, "record", [(out, "JSON lines file")])
     if not args.force:
         prepare_output(out, force=False, kind="JSON lines file")
-    # NaN/Inf samples are missing samples, as on the nodes' topics (_TrackedRecord).
+    # NaN/Inf samples are missing samples, as on the nodes' topics (TrackedRecord).
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
@@ -309,17 +315,6 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     return q
 
 
-def _waiting(status, changes: list, rows: int, needed: int) -> str:
-    """Why the window holds too few rows for a model: a restart at a change, or rejected samples."""
-    if changes:
-        return f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the {needed} rows needed"
-    rejected = [f"{count} samples rejected {why}" for count, why in (
-        (status.rejected_magnitude, "for values beyond 1e150 (rescale those channels)"),
-        (status.rejected_nonfinite, "for NaN/Inf")) if count]
-    why = f": {', '.join(rejected)}" if rejected else ""
-    return f"the window holds {rows} of the {needed} rows needed{why}"
-
-
 def _line_head(k: int, first: int, rows: int, dt: float, alarm) -> dict:
     """The first fields of the JSON line of the update at sample ``k`` (and of a change declared there)."""
     entry = {
@@ -346,7 +341,7 @@ def _arm_reference(monitor, model, u_window, y_window, rows: int) -> None:
     monitor.arm(model, warm.x, reference_rows=rows)
 
 
-def _window_model(estimator, record: "_TrackedRecord", k: int, dt: float, args: argparse.Namespace,
+def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
                   options) -> tuple:
     """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
     from okid_ros.core.arx import fit_from_normal_equations
@@ -373,128 +368,15 @@ def _window_model(estimator, record: "_TrackedRecord", k: int, dt: float, args: 
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list) -> None:
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int) -> None:
     """The changes found and the last update's modes, on stdout."""
     for alarm in changes:
+        after = "the window restarted there" if alarm.alarm_index <= last_update else (
+            f"after the last update (sample {last_update}): no window of the new structure")
         print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
-              f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); the window "
-              f"restarted there")
+              f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
             f"damping {100 * mode.damping_ratio:6.3f} %"
         )
-
-
-class _TrackedRecord:
-    """The record as the window sees it: which samples are missing (NaN/Inf), where the window restarted.
-
-    Parameters
-    ----------
-    u : (N, m); y : (N, p) the record (divided by its powers of two where a group needs it); order : the ARX order q.
-    """
-
-    def __init__(self, u, y, order: int) -> None:
-        import numpy as np
-
-        from okid_ros.core.window_samples import WindowStatus, accepted_samples
-        from okid_ros.service.options import ModalEstimationParams
-
-        self.u, self.y, self.order = u, y, int(order)
-        # The samples the window accepts (finite, within its magnitude limit): the others are missing.
-        self.present = accepted_samples(u, y, WindowStatus())
-        self.n_missing = int(self.present.size - np.count_nonzero(self.present))
-        self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
-        self.origin = 0  # the window's first sample (the last change point)
-        self.steps: list[int] = []  # where output steps taken off lie (the window's ARX fit may hold them)
-        self._realized = (-1, -1)  # the newest row of the last window realized, its update's sample
-        # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
-        missing_before = np.concatenate([[0], np.cumsum(~self.present)])
-        k = np.arange(self.order, self.present.size)
-        whole = np.zeros(self.present.size, dtype=bool)
-        whole[k] = missing_before[k + 1] == missing_before[k - self.order]
-        self._rows_before = np.concatenate([[0], np.cumsum(whole)])
-
-    def test(self, monitor, lo: int, hi: int):
-        """Samples ``lo .. hi - 1`` through the change test, output steps it finds taken off. The first alarm."""
-        alarm = self._test(monitor, lo, hi)
-        self.take_steps(monitor)
-        return alarm
-
-    def _test(self, monitor, lo: int, hi: int):
-        """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
-        import numpy as np
-
-        if self.present[lo:hi].all():
-            return monitor.process(self.u[lo:hi], self.y[lo:hi], lo)
-        edges = lo + np.flatnonzero(np.diff(self.present[lo:hi].astype(np.int8))) + 1
-        for start, end in zip(np.concatenate([[lo], edges]), np.concatenate([edges, [hi]])):
-            if not monitor.armed:
-                return None
-            if self.present[start]:
-                alarm = monitor.process(self.u[start:end], self.y[start:end], int(start))
-                if alarm is not None:
-                    return alarm
-            else:
-                held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
-                monitor.gap(held, int(end - start), self.max_gap)
-        return None
-
-    def take_steps(self, monitor) -> None:
-        """Output steps the change test found (a sensor re-zeroed) taken off the record from where they lie."""
-        for first, step in monitor.steps:
-            self.y[first:] -= step
-            self.steps.append(first)
-        monitor.steps.clear()
-
-    def finish(self, monitor, end: int) -> None:
-        """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
-        if end < self.present.size and not self.present[end]:
-            self.test(monitor, end, end + 1)  # a gap: the candidate run as it came
-        else:
-            monitor.finish(*((self.u[end], self.y[end]) if end < self.present.size else ()))
-
-    def window_samples(self, fit, k: int, rows: int):
-        """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
-
-        Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples among them
-        are filled or end the run as on node 2 (:func:`okid_ros.core.realization_window.realization_window`).
-        """
-        import numpy as np
-
-        from okid_ros.core.realization_window import realization_window
-
-        start = self.window_start(k, rows)
-        present = np.flatnonzero(self.present[start : k + 1]) + start
-        skipped = np.diff(present, prepend=present[0]) - 1
-        skipped[0] = 0
-        after = self.present[k : k + 2].all() and k + 1 < self.present.size  # its last sample judged by the next
-        return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
-                                  need=rows + self.order, refit=any(start < i <= k for i in self.steps),
-                                  next_sample=(self.u[k + 1], self.y[k + 1]) if after else None)
-
-    def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
-        """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).
-
-        Too few rows, or none since the last realized (the data stopped: that model again would read as new).
-        """
-        if rows < needed:
-            return _waiting(status, changes, rows, needed)
-        # The last sample up to k that ends a regressor row (its q lags present).
-        newest = int(self._rows_before.searchsorted(self._rows_before[k + 1], side="left")) - 1
-        if newest == self._realized[0]:
-            return f"no sample since sample {newest}: the window is the one of the update at sample {self._realized[1]}"
-        self._realized = (newest, k)
-        return ""
-
-    def window_start(self, k: int, rows: int) -> int:
-        """The first sample of the window of ``rows`` rows ending at sample ``k`` (its oldest row's first lag)."""
-        import numpy as np
-
-        q, before = self.order, self._rows_before
-        if rows <= 0:
-            return k - q + 1
-        # The oldest row is the last sample with the count of rows before it that leaves ``rows``
-        # rows up to k (or the first row after the restart).
-        oldest = max(int(before[k + 1]) - rows, int(before[min(self.origin + q, k)]))
-        return int(np.searchsorted(before, oldest, side="right")) - 1 - q

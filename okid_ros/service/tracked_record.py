@@ -1,7 +1,10 @@
-"""What a record tracked offline (``okid-ros track``) holds besides the structure's response, said once before.
+"""A record tracked offline (``okid-ros track``): what it holds besides the structure's response, and its samples.
 
-The windows are fitted on the record as recorded: they are what node 1 sees live, so nothing
-here changes a sample. What is named: the missing samples (NaN/Inf, skipped as the nodes skip
+The windows are fitted on the record as recorded: they are what node 1 sees live. Only a sensor
+re-zero the change test finds is taken off the samples from where it lies, as node 2 does
+(:meth:`TrackedRecord.take_steps`). :class:`TrackedRecord` keeps which samples are missing, where
+the window restarted, and hands the change test and the realization their samples. What is named
+before the tracking (:func:`tracked_record_warnings`): the missing samples (NaN/Inf, skipped as the nodes skip
 them) and the sensor faults ``identify`` names (:func:`okid_ros.core.sensor_faults.record_fault_warnings`:
 clipping, an output held alone, frozen outputs, level shifts, spikes, drift, harmonic lines the inputs lack), on the
 samples the window accepts (:func:`okid_ros.core.window_samples.accepted_samples`).
@@ -11,10 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from okid_ros.core.realization_window import realization_window
 from okid_ros.core.sensor_faults import record_fault_warnings
 from okid_ros.core.window_samples import WindowStatus, accepted_samples
+from okid_ros.service.options import ModalEstimationParams
 
-__all__ = ["tracked_record_warnings"]
+__all__ = ["TrackedRecord", "tracked_record_warnings"]
 
 
 def tracked_record_warnings(u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
@@ -37,3 +42,123 @@ def tracked_record_warnings(u: np.ndarray, y: np.ndarray, sample_time_s: float, 
     # The samples the window leaves out (beyond 1e150 too) are missing for the faults' rules as well.
     valid = accepted_samples(*((u, y) if scaled is None else scaled), WindowStatus())
     return warnings + record_fault_warnings(u, y, valid=valid, sample_time_s=sample_time_s)
+
+
+class TrackedRecord:
+    """The record as the window sees it: which samples are missing (NaN/Inf), where the window restarted.
+
+    Parameters
+    ----------
+    u : (N, m); y : (N, p) the record (divided by its powers of two where a group needs it); order : the ARX order q.
+    """
+
+    def __init__(self, u, y, order: int) -> None:
+        self.u, self.y, self.order = u, y, int(order)
+        # The samples the window accepts (finite, within its magnitude limit): the others are missing.
+        self.present = accepted_samples(u, y, WindowStatus())
+        self.n_missing = int(self.present.size - np.count_nonzero(self.present))
+        self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
+        self.origin = 0  # the window's first sample (the last change point)
+        self.steps: list[int] = []  # where output steps taken off lie (the window's ARX fit may hold them)
+        self._realized = (-1, -1)  # the newest row of the last window realized, its update's sample
+        # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
+        missing_before = np.concatenate([[0], np.cumsum(~self.present)])
+        k = np.arange(self.order, self.present.size)
+        whole = np.zeros(self.present.size, dtype=bool)
+        whole[k] = missing_before[k + 1] == missing_before[k - self.order]
+        self._rows_before = np.concatenate([[0], np.cumsum(whole)])
+
+    def test(self, monitor, lo: int, hi: int):
+        """Samples ``lo .. hi - 1`` through the change test, output steps it finds taken off. The first alarm."""
+        alarm = self._test(monitor, lo, hi)
+        self.take_steps(monitor)
+        return alarm
+
+    def _test(self, monitor, lo: int, hi: int):
+        """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
+        if self.present[lo:hi].all():
+            return monitor.process(self.u[lo:hi], self.y[lo:hi], lo)
+        edges = lo + np.flatnonzero(np.diff(self.present[lo:hi].astype(np.int8))) + 1
+        for start, end in zip(np.concatenate([[lo], edges]), np.concatenate([edges, [hi]])):
+            if not monitor.armed:
+                return None
+            if self.present[start]:
+                alarm = monitor.process(self.u[start:end], self.y[start:end], int(start))
+                if alarm is not None:
+                    return alarm
+            else:
+                held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
+                monitor.gap(held, int(end - start), self.max_gap)
+        return None
+
+    def take_steps(self, monitor) -> None:
+        """Output steps the change test found (a sensor re-zeroed) taken off the record from where they lie."""
+        for first, step in monitor.steps:
+            self.y[first:] -= step
+            self.steps.append(first)
+        monitor.steps.clear()
+
+    def test_rest(self, monitor, lo: int):
+        """The samples from ``lo`` on (after the last update) through the change test, then its end. The alarm."""
+        alarm, end = None, lo
+        if monitor.armed and lo < self.present.size:
+            alarm, end = self.test(monitor, lo, self.present.size), self.present.size
+        self.finish(monitor, end)  # a glitch candidate held at the last sample tested
+        return alarm
+
+    def finish(self, monitor, end: int) -> None:
+        """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
+        if end < self.present.size and not self.present[end]:
+            self.test(monitor, end, end + 1)  # a gap: the candidate run as it came
+        else:
+            monitor.finish(*((self.u[end], self.y[end]) if end < self.present.size else ()))
+
+    def window_samples(self, fit, k: int, rows: int):
+        """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.
+
+        Its rows are the last ``rows`` samples whose ``q`` lags are all present; missing samples among them
+        are filled or end the run as on node 2 (:func:`okid_ros.core.realization_window.realization_window`).
+        """
+        start = self.window_start(k, rows)
+        present = np.flatnonzero(self.present[start : k + 1]) + start
+        skipped = np.diff(present, prepend=present[0]) - 1
+        skipped[0] = 0
+        after = self.present[k : k + 2].all() and k + 1 < self.present.size  # its last sample judged by the next
+        return realization_window(self.u[present], self.y[present], skipped, fit, max_gap=self.max_gap,
+                                  need=rows + self.order, refit=any(start < i <= k for i in self.steps),
+                                  next_sample=(self.u[k + 1], self.y[k + 1]) if after else None)
+
+    def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
+        """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).
+
+        Too few rows, or none since the last realized (the data stopped: that model again would read as new).
+        """
+        if rows < needed:
+            return _waiting(status, changes, rows, needed)
+        # The last sample up to k that ends a regressor row (its q lags present).
+        newest = int(self._rows_before.searchsorted(self._rows_before[k + 1], side="left")) - 1
+        if newest == self._realized[0]:
+            return f"no sample since sample {newest}: the window is the one of the update at sample {self._realized[1]}"
+        self._realized = (newest, k)
+        return ""
+
+    def window_start(self, k: int, rows: int) -> int:
+        """The first sample of the window of ``rows`` rows ending at sample ``k`` (its oldest row's first lag)."""
+        q, before = self.order, self._rows_before
+        if rows <= 0:
+            return k - q + 1
+        # The oldest row is the last sample with the count of rows before it that leaves ``rows``
+        # rows up to k (or the first row after the restart).
+        oldest = max(int(before[k + 1]) - rows, int(before[min(self.origin + q, k)]))
+        return int(np.searchsorted(before, oldest, side="right")) - 1 - q
+
+
+def _waiting(status, changes: list, rows: int, needed: int) -> str:
+    """Why the window holds too few rows for a model: a restart at a change, or rejected samples."""
+    if changes:
+        return f"window restarted at the change (sample {changes[-1].change_index}): {rows} of the {needed} rows needed"
+    rejected = [f"{count} samples rejected {why}" for count, why in (
+        (status.rejected_magnitude, "for values beyond 1e150 (rescale those channels)"),
+        (status.rejected_nonfinite, "for NaN/Inf")) if count]
+    why = f": {', '.join(rejected)}" if rejected else ""
+    return f"the window holds {rows} of the {needed} rows needed{why}"

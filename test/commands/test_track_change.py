@@ -93,3 +93,20 @@ def test_missing_samples_are_bridged_and_the_change_is_still_declared(record, tm
         if x["sample_index"] < CHANGE:  # the gaps before the change are no change
             got = sorted(m["frequency_hz"] for m in x["modes"])
             np.testing.assert_allclose(got, FREQS, rtol=0.01)
+
+
+def test_a_change_after_the_last_update_is_said_in_the_summary(record, tmp_path, capsys):
+    # The record ends 200 samples after the change and 160 after the last update (sample 4039):
+    # the samples after the last update were not tested, and the change went unsaid.
+    import re
+
+    data = np.load(record)
+    path = tmp_path / "short.npz"
+    save_record(path, data["u"][: CHANGE + 200], data["y"][: CHANGE + 200], DT)
+    lines = track(path, tmp_path / "short.jsonl")
+    assert lines[-1]["sample_index"] == CHANGE + 39 and not any(e["change_detected"] for e in lines)
+    out = capsys.readouterr().out
+    said = re.search(r"structural change at sample (\d+) .* declared at sample (\d+) .*: no window of the new "
+                     r"structure", out)
+    assert said, out
+    assert abs(int(said[1]) - CHANGE) <= 50 and CHANGE < int(said[2]) < CHANGE + 200
