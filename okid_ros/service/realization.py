@@ -141,7 +141,7 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     t0 = time.perf_counter()
     try:
         job, filled = prepare_window(job)
-    except ValueError as exc:
+    except (ValueError, np.linalg.LinAlgError) as exc:
         return RealizationOutcome(job, None, str(exc), realization_time_s=time.perf_counter() - t0)
 
     def refused(reason: str) -> RealizationOutcome:
