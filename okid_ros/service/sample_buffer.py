@@ -38,6 +38,7 @@ class SampleBuffer:
         self.m, self.p = m, p
         self._alloc(max(int(capacity), 16))
         self.count = 0
+        self._oldest = 0  # no sample before this one is held (a resize keeps only what the ring held)
         self._glitches: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # predicted_glitch's, by sample
 
     def _alloc(self, cap: int) -> None:
@@ -49,17 +50,17 @@ class SampleBuffer:
 
     def clear(self) -> None:
         with self.lock:
-            self.count = 0
+            self.count = self._oldest = 0
             self._glitches = {}
 
     def resize(self, cap: int) -> None:
         with self.lock:
             if cap <= self.cap:
                 return
-            first = max(self.count - self.cap, 0)
-            idx = np.arange(first, self.count) % self.cap
-            old = (self.stamps[idx], self.u[idx], self.y[idx], self.skipped[idx])
+            first = self.first
+            old = [self._ordered(array, first, self.count) for array in (self.stamps, self.u, self.y, self.skipped)]
             self._alloc(cap)
+            self._oldest = first  # the samples the smaller ring had let go are not held again
             new = np.arange(first, self.count) % cap
             self.stamps[new], self.u[new], self.y[new], self.skipped[new] = old
 
@@ -116,7 +117,8 @@ class SampleBuffer:
 
     @property
     def first(self) -> int:
-        return max(self.count - self.cap, 0)
+        """Absolute index of the oldest sample held."""
+        return max(self.count - self.cap, self._oldest)
 
     def get(self, lo: int, hi: int, *, predicted_glitches: bool = False
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -127,13 +129,25 @@ class SampleBuffer:
         with self.lock:
             lo = max(lo, self.first)
             hi = min(hi, self.count)
-            idx = np.arange(lo, max(hi, lo)) % self.cap
-            y = self.y[idx]  # a copy (fancy indexing)
+            hi = max(hi, lo)
+            y = self._ordered(self.y, lo, hi)
             if predicted_glitches:
                 for i, (outputs, values) in self._glitches.items():
                     if lo <= i < hi:
                         y[i - lo, outputs] = values[outputs]
-            return self.stamps[idx].copy(), self.u[idx].copy(), y, self.skipped[idx].copy()
+            return (self._ordered(self.stamps, lo, hi), self._ordered(self.u, lo, hi), y,
+                    self._ordered(self.skipped, lo, hi))
+
+    def _ordered(self, array: np.ndarray, lo: int, hi: int) -> np.ndarray:
+        """A copy of ``array``'s rows of samples lo..hi-1 (stored, lo <= hi), oldest first.
+
+        One or two slices of the ring: a fancy index of thousands of rows cost ~4x as much, with
+        the lock held that the sample path's :meth:`append` waits for.
+        """
+        start, end = lo % self.cap, lo % self.cap + (hi - lo)
+        if end <= self.cap:
+            return array[start:end].copy()
+        return np.concatenate([array[start:], array[: end - self.cap]])
 
     def find_end(self, stamp_s: float, tol: float) -> tuple[int, float]:
         """Newest stored sample with stamp <= stamp_s + tol (index, its stamp), or (-1, nan).
@@ -144,9 +158,8 @@ class SampleBuffer:
             lo, hi = self.first, self.count
             if hi == lo:
                 return -1, math.nan
-            idx = np.arange(lo, hi) % self.cap
-            st = self.stamps[idx]
-            restarts = np.flatnonzero(self.skipped[idx] < 0)
+            st = self._ordered(self.stamps, lo, hi)
+            restarts = np.flatnonzero(self._ordered(self.skipped, lo, hi) < 0)
             start = int(restarts[-1]) if restarts.size else 0
             ok = np.flatnonzero(st[start:] <= stamp_s + tol)
             if ok.size == 0:
@@ -171,8 +184,7 @@ class SampleBuffer:
             lo, hi = self.first, self.count
             if hi == lo:
                 return -1
-            idx = np.arange(lo, hi) % self.cap
-            restarts = np.flatnonzero(self.skipped[idx] < 0)
+            restarts = np.flatnonzero(self._ordered(self.skipped, lo, hi) < 0)
             start = int(restarts[-1]) if restarts.size else 0
-            ok = np.flatnonzero(self.stamps[idx][start:] >= stamp_s - tol)
+            ok = np.flatnonzero(self._ordered(self.stamps, lo, hi)[start:] >= stamp_s - tol)
             return -1 if ok.size == 0 else lo + start + int(ok[0])

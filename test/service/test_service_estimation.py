@@ -346,6 +346,34 @@ def test_process_scores_a_model_on_the_window_it_was_realized_from():
     assert pipe.updates[-1]["fit_one_step_pct"] == expected
 
 
+def test_a_window_longer_than_the_first_buffer_holds_no_sample_the_buffer_let_go():
+    # Node 2's buffer starts at 8192 samples and grows to the first ArxModel's window. The samples
+    # it had let go by then came back from the grown ring as zeros stamped 0: the first models'
+    # windows began with 1848 of them; with outputs of some level (gravity, a strain offset) the
+    # first model held only the 304 rad/s mode.
+    from okid_ros.sim import paper_modes
+
+    model = paper_model()
+    dt, n, window = model.sample_time_s, 12000, 10000
+    u = lowpass_input(n, 2, 50.0, dt, seed=1)
+    y, _ = simulate_innovation(model, u, seed=2)
+    y = y + 30 * y.std(axis=0)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, window))
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    for k in range(n):
+        ident.push(T0 + k * dt, u[k], y[k])
+        est.step(T0 + k * dt, u[k], y[k])
+    snap = ident.snapshot()
+    assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    job = est.take_job()
+    assert job.u.shape[0] < window  # what the buffer held when it grew, not the whole window
+    np.testing.assert_array_equal(job.y, y[n - job.u.shape[0]:])
+    outcome = realization.realize(job)
+    for truth in paper_modes():
+        w = truth["frequency_rad_s"]
+        assert min(abs(m.frequency_rad_s / w - 1) for m in outcome.model.modes) < 0.01, w
+
+
 def test_a_window_with_too_many_lost_samples_is_refused_with_the_reason():
     diagnostics, found = _modes_with_sample_loss(0.3, 1, node_1_loses=False)  # node 1 would fit no window
     assert diagnostics["models_accepted"] == 0 and not found
