@@ -141,7 +141,7 @@ class SampleBuffer:
     def _ordered(self, array: np.ndarray, lo: int, hi: int) -> np.ndarray:
         """A copy of ``array``'s rows of samples lo..hi-1 (stored, lo <= hi), oldest first.
 
-        One or two slices of the ring: a fancy index of thousands of rows cost ~4x as much, with
+        One or two slices of the ring: a fancy index of thousands of rows cost ~10x as much, with
         the lock held that the sample path's :meth:`append` waits for.
         """
         start, end = lo % self.cap, lo % self.cap + (hi - lo)
