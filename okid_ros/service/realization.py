@@ -138,15 +138,15 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     expensive part of a model update: weighted ERA, refit, order selection, refinement.
     """
     prm = job.params
-    t0 = time.perf_counter()
-    try:
-        job, filled = prepare_window(job)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        return RealizationOutcome(job, None, str(exc), realization_time_s=time.perf_counter() - t0)
+    t0, filled = time.perf_counter(), 0
 
     def refused(reason: str) -> RealizationOutcome:
         return RealizationOutcome(job, None, reason, realization_time_s=time.perf_counter() - t0, window_filled=filled)
 
+    try:
+        job, filled = prepare_window(job)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return refused(str(exc))
     try:
         model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
                                 offsets=prm.offsets, output_only_method=prm.output_only_method,

@@ -128,8 +128,7 @@ class SampleBuffer:
         """
         with self.lock:
             lo = max(lo, self.first)
-            hi = min(hi, self.count)
-            hi = max(hi, lo)
+            hi = max(min(hi, self.count), lo)
             y = self._ordered(self.y, lo, hi)
             if predicted_glitches:
                 for i, (outputs, values) in self._glitches.items():
