@@ -151,15 +151,17 @@ def _terminate_as_interrupt() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    from okid_ros.tools.interrupts import interrupt
 
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    # Ctrl-C too, where Python's default raises at once: a bag record is not cut in two (tools/interrupts.py).
+    ctrl_c = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    signals = [signal.SIGTERM, signal.SIGINT] if ctrl_c else [signal.SIGTERM]
+    previous = {signum: signal.signal(signum, interrupt) for signum in signals}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _stdout_to_devnull() -> None:

@@ -40,6 +40,7 @@ from typing import Any
 from okid_ros.errors import OkidWarning, one_line
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
+from okid_ros.tools.interrupts import deferred
 from okid_ros.tools.output_paths import prepare_output
 
 __all__ = [
@@ -415,7 +416,8 @@ class BagWriter:
         connection, msgtype = self._connections[topic]
         try:
             raw = self.typestore.serialize_cdr(msg, msgtype)
-            self._writer.write(connection, int(stamp_ns), raw)
+            with deferred():  # a record is written whole: Ctrl-C or SIGTERM right after it
+                self._writer.write(connection, int(stamp_ns), raw)
         except Exception as exc:
             raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
         self.counts[topic] += 1
@@ -424,7 +426,8 @@ class BagWriter:
         """Write already serialized CDR bytes (e.g. from an rclpy ``raw=True`` subscription)."""
         connection, msgtype = self._connections[topic]
         try:
-            self._writer.write(connection, int(stamp_ns), data)
+            with deferred():
+                self._writer.write(connection, int(stamp_ns), data)
         except Exception as exc:
             raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
         self.counts[topic] += 1
