@@ -124,14 +124,12 @@ class WindowedPipeline:
 
     def _record(self, update: ModelUpdate | None, change: StructuralChangeEvent | None, *,
                 applied_at_stamp_s: float, after_last_sample: bool = False) -> None:
-        """Keep the JSON records of a model update and a change (at a sample or after the last one)."""
-        if change is not None:
-            if self.settings.restart_on_change:
-                self.arx.restart_at(change.change_stamp_s)  # what node 1 does with the message
-            record = change_record(change)
-            self.changes.append(record)
-            if not change.modes_after:
-                self._change_since_update = record
+        """Keep the JSON records of a model update and a change (at a sample or after the last one).
+
+        The update first: one that comes with a change's declaration was applied before it (a
+        model of the old structure, not flagged); one that comes with its identification is the
+        first model of the new structure (flagged by the declaration before).
+        """
         if update is not None:
             line = update_record(update, applied_at_stamp_s, self._change_since_update,
                                  after_last_sample=after_last_sample)
@@ -140,6 +138,13 @@ class WindowedPipeline:
             if fits is not None:  # on the model's own window, after the ARX order's samples
                 line.update(fit_one_step_pct=fits["one_step_pct"], fit_simulation_pct=fits["simulation_pct"])
             self.updates.append(line)
+        if change is not None:
+            if self.settings.restart_on_change:
+                self.arx.restart_at(change.change_stamp_s)  # what node 1 does with the message
+            record = change_record(change)
+            self.changes.append(record)
+            if not change.modes_after:
+                self._change_since_update = record
 
     def identify(self, sample: GridSample) -> ArxSnapshot | None:
         """Node 1 with one of its samples; the snapshot when one is due by sample time."""
