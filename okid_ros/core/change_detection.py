@@ -70,7 +70,12 @@ unchanged. With a :class:`~okid_ros.core.model_error_check.ModelErrorCheck` atta
 (``check``, as :class:`~okid_ros.core.change_monitor.StructuralChangeMonitor` does), an alarm is
 declared only when the residuals of its excursion carry a model error: a part the past inputs
 and residuals predict beyond what the calibration's did. Otherwise it is counted
-(``unconfirmed_alarms``), the CUSUM goes on, and the excursion is judged again later.
+(``unconfirmed_alarms``), the CUSUM goes on, and the excursion is judged again later. Excitation
+that changes relative to the sensor noise colours the innovations too (the optimal gain depends
+on that ratio), and the check confirms it: a ``noise_test`` (the monitor attaches a
+:class:`~okid_ros.core.noise_change.NoiseChangeTest`) judges a confirmed excursion that no state
+jump explains, and one that a change of the noise model explains ends (``noise_changes``; the
+caller re-arms with the new noise model).
 
 A jump of the state raises the power too, and the model-error check confirms it (an impact,
 a bag replayed in a loop: the decaying mismatch is predictable from its own lags), but it is
@@ -118,20 +123,10 @@ from okid_ros.core.model_error_check import ModelErrorCheck, ModelErrorVerdict
 from okid_ros.core.state_jump import StateJump
 
 __all__ = [
-    "DEFAULT_FALSE_ALARM_SAMPLES",
-    "DEFAULT_VARIANCE_RATIO",
-    "DEFAULT_REFERENCE_SAMPLES",
-    "DEFAULT_MEAN_TRACKING_SAMPLES",
-    "DEFAULT_BATCH_SAMPLES",
-    "DEFAULT_WHITENING_MAX_ORDER",
-    "ChangeAlarm",
-    "ChangeDetector",
-    "DivergenceMonitor",
-    "calibration_scale",
-    "cusum_average_run_length",
-    "cusum_threshold",
-    "predictor_spectral_radius",
-    "whitening_matrix",
+    "DEFAULT_FALSE_ALARM_SAMPLES", "DEFAULT_VARIANCE_RATIO", "DEFAULT_REFERENCE_SAMPLES",
+    "DEFAULT_MEAN_TRACKING_SAMPLES", "DEFAULT_BATCH_SAMPLES", "DEFAULT_WHITENING_MAX_ORDER", "ChangeAlarm",
+    "ChangeDetector", "DivergenceMonitor", "calibration_scale", "cusum_average_run_length", "cusum_threshold",
+    "predictor_spectral_radius", "whitening_matrix",
 ]
 
 DEFAULT_FALSE_ALARM_SAMPLES = 1e7  # expected samples between false alarms (11 h at 250 Hz)
@@ -226,6 +221,9 @@ class ChangeDetector:
     state_jumps : excursions explained as a state jump, since construction.
     jump_at : the sample of the last explained excursion's alarm, until the caller takes it
         (sets it to None) and corrects its predictor by ``last_jump``.
+    noise_test : ``(change_index, index) -> NoiseVerdict | None``, as ``jump_test`` for a noise
+        change; ``noise_changes``, ``noise_at`` and ``last_noise`` as ``state_jumps``, ``jump_at``, ``last_jump``.
+    calibrated_at : the last calibration sample (-1 before the calibration).
     """
 
     def __init__(self, n_outputs: int, *, false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES,
@@ -253,8 +251,10 @@ class ChangeDetector:
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.check: ModelErrorCheck | None = None
         self.jump_test: Callable[[int, int, int], StateJump | None] | None = None
+        self.noise_test = None
         self.unconfirmed_alarms = 0
         self.state_jumps = 0
+        self.noise_changes = 0
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
@@ -296,7 +296,11 @@ class ChangeDetector:
         self.last_jump: StateJump | None = None
         self.jump_at: int | None = None
         self._confirmed_at = -1  # the sample whose alarm the check confirmed, awaiting the state-jump test
+        self._jump_open = True
         self._judge_from = -1  # no judgement of this excursion before this sample (-1: none refused yet)
+        self.last_noise = None
+        self.noise_at: int | None = None
+        self.calibrated_at = -1
 
     @property
     def whitening_order(self) -> int:
@@ -328,6 +332,7 @@ class ChangeDetector:
 
         From the calibration samples ``ref``, the last of which is sample ``last_index``.
         """
+        self.calibrated_at = int(last_index)
         self.whitening, ref = InnovationWhitening.calibrate(ref, max_order=self.whitening_max_order)
         self.mean = ref.mean(axis=0)
         # The AR's residuals on new samples: Akaike's final prediction error, the calibration's
@@ -383,6 +388,8 @@ class ChangeDetector:
             if self.jump_at is not None:  # the rest of the block is the caller's to correct and feed again
                 self._forget_jump()
                 return None
+            if self.noise_at is not None:  # the caller re-arms with the new noise model
+                return None
         return None
 
     def push(self, z: np.ndarray, index: int) -> ChangeAlarm | None:
@@ -420,21 +427,35 @@ class ChangeDetector:
             if self._confirmed_at < 0:
                 if not self._confirmed(alarm):
                     return None
-                if self.jump_test is None:
-                    return alarm
-                self._confirmed_at = index  # declared unless a jump of the state explains it
+                self._confirmed_at = index  # declared unless a state jump or a noise change explains it
+            return self._explained_or(alarm, index)
+        return None
+
+    def _explained_or(self, alarm: ChangeAlarm, index: int) -> ChangeAlarm | None:
+        """A confirmed alarm judged as a state jump, then as a noise change: the alarm if neither explains it."""
+        if self.jump_test is not None and self._jump_open:
             jump = self.jump_test(alarm.change_index, self._confirmed_at, index)
             if jump is None:  # too few samples of the excursion yet
                 self._judge_from = index + 1
                 return None
-            self._confirmed_at = -1
-            if not jump.explained:
-                return alarm
-            self._end_excursion(index)
-            self.state_jumps += 1
-            self.last_jump, self.jump_at = jump, index
-            return None
-        return None
+            if jump.explained:
+                self._end_excursion(index)
+                self.state_jumps += 1
+                self.last_jump, self.jump_at = jump, index
+                return None
+            self._jump_open = False
+        if self.noise_test is not None:
+            noise = self.noise_test(alarm.change_index, index)
+            if noise is None:  # judged on more samples
+                self._judge_from = index + 1
+                return None
+            if noise.explained:
+                self._end_excursion(index)
+                self.noise_changes += 1
+                self.last_noise, self.noise_at = noise, index
+                return None
+        self._confirmed_at = -1
+        return alarm
 
     def excursion_ended(self, index: int) -> None:
         """The caller explained the excursion up to sample ``index`` (an output's step taken off): forget it.
@@ -457,6 +478,7 @@ class ChangeDetector:
         self._sum_nis, self._n_nis = 0.0, 0
         self._judge_from = -1
         self._confirmed_at = -1
+        self._jump_open = True  # the confirmed alarm of the next excursion is judged as a state jump first
 
     def _forget_jump(self) -> None:
         """The tracked mean from the jump's fit (offsets may step with it); the whitening's lags refill."""

@@ -6,9 +6,12 @@ whitens its innovations by the model's innovation covariance and hands them to a
 :class:`~okid_ros.core.model_error_check.ModelErrorCheck` of the same residuals and the inputs
 confirms; a confirmed alarm's excursion is then judged as a jump of the state
 (:mod:`okid_ros.core.state_jump`), and one that a jump explains is not declared: the monitor
-corrects its predictor's state by the fitted jump and goes on. A glitch (:mod:`okid_ros.core.glitches`)
-is not tested: the predictor goes on from its prediction. See :mod:`okid_ros.core.change_detection`
-for the test.
+corrects its predictor's state by the fitted jump and goes on. One that no jump explains is
+judged as a change of the noise model (:mod:`okid_ros.core.noise_change`: the excitation changed
+relative to the sensor noise), and one that such a change explains is not declared either: the
+monitor re-arms with the reference's noise model refitted (and calibrates again). A glitch
+(:mod:`okid_ros.core.glitches`) is not tested: the predictor goes on from its prediction. See
+:mod:`okid_ros.core.change_detection` for the test.
 
 No rclpy; numpy and scipy only.
 """
@@ -20,6 +23,7 @@ import numpy as np
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
 from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
 from okid_ros.core.model_error_check import ModelErrorCheck
+from okid_ros.core.noise_change import NoiseChangeTest, NoiseVerdict, with_noise
 from okid_ros.core.output_spikes import most_spikes
 from okid_ros.core.output_step import output_step, step_response
 from okid_ros.core.sample_ring import SampleRing
@@ -48,14 +52,18 @@ class StructuralChangeMonitor:
     state_jump_test : judge each confirmed alarm by a :class:`StateJumpTest` of the reference
         predictor before declaring it (a jump of the state is not a change); False: no such
         judgement.
+    noise_change_test : (with the model-error check) judge each confirmed alarm that no state jump
+        explains by a :class:`~okid_ros.core.noise_change.NoiseChangeTest` before declaring it;
+        False: no such judgement.
     detector_options : those of :class:`ChangeDetector`.
     """
 
     def __init__(self, n_outputs: int, *, model_error_check: bool = True, state_jump_test: bool = True,
-                 **detector_options) -> None:
+                 noise_change_test: bool = True, **detector_options) -> None:
         self.detector = ChangeDetector(n_outputs, **detector_options)
         self.model_error_check = bool(model_error_check)
         self.state_jump_test = bool(state_jump_test)
+        self.noise_change_test = bool(noise_change_test) and self.model_error_check
         self._ring = SampleRing(n_outputs, self.detector.reference_samples + 2 * _CHUNK_SAMPLES)
         self.glitches = 0  # samples taken out as glitches (GLITCH_STD), over the monitor's life
         # Output steps (a sensor re-zeroed: :mod:`okid_ros.core.output_step`) found in explained
@@ -73,7 +81,11 @@ class StructuralChangeMonitor:
         self.detector.restart()
         self.detector.check = None
         self.detector.jump_test = None
+        self.detector.noise_test = None
         self._jumps: StateJumpTest | None = None
+        self._noise: NoiseChangeTest | None = None
+        self._noise_model = None  # the reference with the noise model the last noise verdict fitted
+        self._noise_excursion = -1  # the change point of the excursion the noise test judges
         self._ring.clear()
         self._calibration_power = [0.0, 0]  # sum of |z|^2 / p and samples while calibrating
         self._offset_taken: np.ndarray | None = None  # the whitened constant of the last step taken
@@ -110,6 +122,11 @@ class StructuralChangeMonitor:
         self._calibration_power = [0.0, 0]
         self._jumps = StateJumpTest(self.predictor.F, whiten @ self.predictor.C) if self.state_jump_test else None
         self.detector.jump_test = self._judge_jump if self.state_jump_test else None
+        self._noise = None
+        if self.noise_change_test:
+            self._noise = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, self.detector.check)
+        self.detector.noise_test = self._judge_noise if self.noise_change_test else None
+        self._noise_excursion = -1
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
 
     def _without_glitches(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray) -> np.ndarray:
@@ -183,9 +200,51 @@ class StructuralChangeMonitor:
         total, count = self._calibration_power
         return self._jumps.judge(z, first, baseline_power=total / max(count, 1), loud_until=alarm_index)
 
+    def _judge_noise(self, change_index: int, index: int) -> NoiseVerdict | None:
+        """The detector's ``noise_test``: the excursion from ``change_index`` judged as a change of the noise model."""
+        if change_index != self._noise_excursion:  # a new excursion
+            self._noise_excursion = change_index
+            self._noise.restart()
+        if index - change_index + 1 < min(self._noise.next_samples, self._noise.max_samples):
+            return None  # (not read from the ring on every sample)
+        verdict = self._noise.judge(self._ring.since(change_index, index)[0], index)
+        if verdict is not None and verdict.explained:
+            self._noise_model = with_noise(self.model, self.whiten, verdict.change)
+            if self._noise_model is None:  # no model of the new noise to monitor with: declared
+                return NoiseVerdict(False, verdict.excess, verdict.limit, verdict.samples)
+        return verdict
+
+    def _calibrate_noise(self) -> None:
+        """The noise test's baseline, once the detector's calibration is done."""
+        if self._noise is None or self._noise.baseline is not None or self.detector.calibrated_at < 0:
+            return
+        last = self.detector.calibrated_at
+        self._noise.calibrate(self._ring.since(last - self.detector.reference_samples + 1, last)[0], last)
+
+    def _rest_after_noise(self, x0: np.ndarray, u: np.ndarray, y: np.ndarray, first_index: int, *,
+                          test: bool) -> ChangeAlarm | None:
+        """A block's samples after a noise verdict, processed with the re-armed reference.
+
+        ``u``, ``y`` the block from ``first_index`` (its glitches' predictions in place), ``x0``
+        the state it started from: the old predictor's state after the verdict's sample is the
+        new reference's start.
+        """
+        k = self.detector.noise_at + 1 - first_index
+        self.predictor.x = x0.copy()
+        self.predictor.advance(u[:k], y[:k])
+        self._take_noise()
+        return self.process(u[k:], y[k:], first_index + k, test=test) if k < u.shape[0] else None
+
+    def _take_noise(self) -> bool:
+        """After an explained noise change: re-arm with the refitted noise model from the predictor's state."""
+        if self.detector.noise_at is None:
+            return False
+        self.arm(self._noise_model, self.predictor.x, reference_rows=self.reference_rows)
+        return True
+
     def _record(self, first_index: int, z: np.ndarray) -> None:
-        """Keep the innovations for the state-jump fit (and their power while calibrating)."""
-        if self._jumps is None:
+        """Keep the innovations for the state-jump and noise tests (and their power while calibrating)."""
+        if self._jumps is None and self._noise is None:
             return
         self._ring.push(first_index, z)
         total, count = self._calibration_power
@@ -222,6 +281,11 @@ class StructuralChangeMonitor:
     def state_jumps(self) -> int:
         """Alarms whose excursion was explained as a jump of the state (not declared)."""
         return self.detector.state_jumps
+
+    @property
+    def noise_changes(self) -> int:
+        """Alarms whose excursion was explained as a change of the noise model (not declared; re-armed)."""
+        return self.detector.noise_changes
 
     def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
         """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).
@@ -294,6 +358,7 @@ class StructuralChangeMonitor:
                 return alarm
         x0 = self.predictor.x.copy()
         e, y_taken = self._without_glitches(u, y, self.predictor.run(u, y), x0)
+        block = (u, y_taken, first_index)  # as it came (u and first_index move below)
         end = first_index + e.shape[0]  # the predictor's state is that of sample `end`
         if test and self._hold < e.shape[0] and glitch_candidates(e[-1:], self._innovation_std)[0]:
             self._hold_last(u, y_taken, e, x0, first_index)
@@ -318,10 +383,17 @@ class StructuralChangeMonitor:
             if alarm is not None:
                 self.disarm()
                 return alarm
+            self._calibrate_noise()
+            if self.detector.noise_at is not None:
+                if block is None:  # a jump corrected the state in this block: re-armed from its end
+                    self._take_noise()
+                    return None
+                return self._rest_after_noise(x0, *block, test=test)
             at = self._take_jump(end)
             if at is None:
                 lo = hi
                 continue
+            block = None  # its states before `end` are no longer those the jump corrected
             # The samples after the jump's alarm again, less the jump's response.
             lo = at + 1 - first_index
             if lo < z.shape[0]:
@@ -380,8 +452,11 @@ class StructuralChangeMonitor:
         alarm = self.detector.push(z, index)
         if alarm is not None:
             self.disarm()
+            return alarm
+        self._calibrate_noise()
         self._take_jump(index + 1)
-        return alarm
+        self._take_noise()
+        return None
 
     @property
     def statistic(self) -> float:

@@ -200,13 +200,26 @@ class ModelErrorCheck:
     def _predictable(self, last: int, samples: int) -> tuple[float, int] | None:
         """``((R^2 - c) / (1 - c), n)`` over the samples ending at ``last``; None if too few."""
         w, u = self._run_until(last, samples + self.lags)
+        return self._fraction(w, u)
+
+    def _fraction(self, w: np.ndarray, u: np.ndarray) -> tuple[float, int] | None:
         if w.shape[0] - self.lags < 2 * self.regressors:
             return None
         r2, n = explained_fraction(w, u, self.lags)
         chance = self.regressors / (n - 1)
         return (r2 - chance) / (1.0 - chance), n
 
-    def _spread(self, n: int) -> float:
+    def predictable(self, w: np.ndarray, last: int) -> tuple[float, int] | None:
+        """The statistic of other residuals ``w`` (N, p) of the samples ending at ``last``, with their inputs.
+
+        ``((R^2 - c) / (1 - c), n)`` as :meth:`judge` computes it (e.g. for the innovations of
+        another predictor, :mod:`okid_ros.core.noise_change`); only the samples whose inputs are
+        held count; None if too few.
+        """
+        u, _ = self._u.since(int(last) - w.shape[0] + 1, last)
+        return self._fraction(w[w.shape[0] - u.shape[0]:], u)
+
+    def spread(self, n: int) -> float:
         """Standard deviation of the pooled ``(R^2 - c) / (1 - c)`` of white residuals over ``n`` rows."""
         k, p = self.regressors, self.n_outputs
         a, b = 0.5 * k, 0.5 * max(n - k - 1, 1)
@@ -229,7 +242,7 @@ class ModelErrorCheck:
         if found is None or self.baseline is None:
             return ModelErrorVerdict(True, float("nan"), float("nan"), 0 if found is None else found[1])
         fraction, n = found
-        spread = math.hypot(self._spread(n), self._spread(self._baseline_rows))
+        spread = math.hypot(self.spread(n), self.spread(self._baseline_rows))
         limit = max(self.min_excess, self.z * spread)
         excess = fraction - self.baseline
         return ModelErrorVerdict(bool(excess > limit), float(excess), float(limit), int(n))

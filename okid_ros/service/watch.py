@@ -306,6 +306,7 @@ class InnovationWatch:
             "change_threshold": float(self.monitor.threshold),
             "change_alarms_unconfirmed": int(self.monitor.unconfirmed_alarms),
             "change_alarms_state_jump": int(self.monitor.state_jumps),
+            "change_alarms_noise": int(self.monitor.noise_changes),  # excitation changed (core/noise_change.py)
             "change_glitches": int(self.monitor.glitches),  # samples the test took for glitches
             "change_waiting_for_model": self.change is not None,
             "output_level_steps": self.level_steps_taken,  # sensor re-zeros taken off the samples (core/output_step.py)
