@@ -32,6 +32,10 @@ Parts:
   by a jump of the state: power before -> after over the calibration's (first 1000 samples), and
   whether the test takes it for a jump (``*``). The steel subframe looped (a model of samples
   0-5999, ARX order 20) closes the table.
+- ``louder``: the disturbance forces of the 4-mode structure made 1.5, 2 and 3 times as strong at
+  the change sample, the structure unchanged (the optimal predictor gain changes with the
+  disturbances against the sensor noise), with the detector of ``delay``: declared (a false
+  alarm) or taken for a noise change (``core/noise_change.py``) and re-armed, and alarms after.
 - ``calibration``: the detector alone on white unit innovations (2 outputs), calibrated on
   200 or 1000 samples: runs with an alarm within 20 000 samples, with the threshold of an exact
   calibration against the one that allows for the calibration's error (the default), 300 runs each.
@@ -47,7 +51,7 @@ import checkout
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--part", nargs="+",
-                     choices=("track", "delay", "stationary", "jump", "calibration", "short-reference"),
+                     choices=("track", "delay", "stationary", "jump", "calibration", "short-reference", "louder"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -66,6 +70,9 @@ _parser.add_argument("--no-model-error-check", dest="model_error_check", action=
 _parser.add_argument("--no-state-jump-test", dest="state_jump_test", action="store_false",
                      help="delay and stationary parts: no state-jump judgement of confirmed alarms (the test "
                      "before it)")
+_parser.add_argument("--no-noise-change-test", dest="noise_change_test", action="store_false",
+                     help="delay, stationary and louder parts: no noise-change judgement of confirmed alarms (the "
+                     "test before it)")
 _parser.add_argument("--jump-lengths", type=int, nargs="+", default=[90, 100, 150],
                      help="jump part: samples fitted from 5 before the seam or change (default 90 100 150)")
 _parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
@@ -75,6 +82,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = str(_args.threads)
 
 import contextlib  # noqa: E402
+import dataclasses  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import tempfile  # noqa: E402
@@ -86,7 +94,7 @@ import numpy as np  # noqa: E402
 
 checkout.add()
 from okid_bench.changes import change_case  # noqa: E402
-from okid_bench.switching import settling  # noqa: E402
+from okid_bench.switching import settling, simulate_switched  # noqa: E402
 from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
 from okid_ros.core.change_detection import ChangeDetector, whitening_matrix  # noqa: E402
@@ -173,7 +181,8 @@ def armed(model, u_window, y_window) -> StructuralChangeMonitor:
     if _args.false_alarm_samples is not None:
         options["false_alarm_samples"] = _args.false_alarm_samples
     monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check,
-                                      state_jump_test=_args.state_jump_test, **options)
+                                      state_jump_test=_args.state_jump_test,
+                                      noise_change_test=_args.noise_change_test, **options)
     monitor.arm(model, warm.x, reference_rows=WINDOW)
     return monitor
 
@@ -359,10 +368,42 @@ def part_short_reference(samples: int = 20_000) -> None:
     print()
 
 
+def part_louder(factors=(1.5, 2.0, 3.0), after_samples: int = 10_000) -> None:
+    print(f"## louder: the disturbance forces times a factor at the change, the structure unchanged; the detector "
+          f"of the delay part over {after_samples} samples after it (noise-change test "
+          f"{'on' if _args.noise_change_test else 'off'})")
+    print()
+    print("| factor | seed | declared after (samples) | noise changes | alarms in all |")
+    print("|---|---|---|---|---|")
+    case = change_case("frequency", 0.06)
+    for factor in factors:
+        louder = dataclasses.replace(case.before,
+                                     process_noise_covariance=factor**2 * case.before.process_noise_covariance)
+        for seed in _args.seeds:
+            change = WINDOW + ORDER + 3000
+            u = case.make_input(change + after_samples, 100 + seed)
+            y = simulate_switched([case.before, louder], change, u, seed=200 + seed)
+            model = reference_model(case, u, y)
+            start = WINDOW + ORDER
+            monitor, alarms, noise, first = armed(model, u[:start], y[:start]), 0, 0, None
+            while start < len(u):  # after an alarm: re-armed with the same model at the next sample
+                alarm = monitor.process(u[start:], y[start:], start)
+                noise += monitor.noise_changes
+                if alarm is None:
+                    break
+                alarms += 1
+                first = alarm.alarm_index - change if first is None else first
+                start = alarm.alarm_index + 1
+                monitor = armed(model, u[:start], y[:start])
+            print(f"| {factor:g} | {seed} | {'none' if first is None else first} | {noise} | {alarms} |")
+            sys.stdout.flush()
+    print()
+
+
 def main() -> int:
     for part in _args.part:
         {"track": part_track, "delay": part_delay, "stationary": part_stationary, "jump": part_jump,
-         "calibration": part_calibration, "short-reference": part_short_reference}[part]()
+         "calibration": part_calibration, "short-reference": part_short_reference, "louder": part_louder}[part]()
     return 0
 
 

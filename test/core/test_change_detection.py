@@ -25,6 +25,7 @@ from okid_ros.core.change_detection import (
 )
 from okid_ros.core.change_monitor import StructuralChangeMonitor
 from okid_ros.core.model_error_check import ModelErrorCheck
+from okid_ros.core.noise_change import MIN_JUDGED_SAMPLES
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.core.window_samples import MAX_SAMPLE_MAGNITUDE
@@ -142,8 +143,9 @@ def test_no_alarm_on_1e5_stationary_samples_of_an_identified_model(identified):
     assert monitor.state == "monitoring" and 0.0 <= monitor.statistic < monitor.threshold
 
 
-@pytest.mark.parametrize("factor, max_delay", [(0.94, 100), (0.98, 500)])
-def test_a_step_change_of_the_frequencies_is_detected_at_once(identified, factor, max_delay):
+# Declared once the noise-change test has judged MIN_JUDGED_SAMPLES of it (core/noise_change.py).
+@pytest.mark.parametrize("factor, max_delay, max_point_error", [(0.94, MIN_JUDGED_SAMPLES + 50, 100), (0.98, 500, 500)])
+def test_a_step_change_of_the_frequencies_is_detected_at_once(identified, factor, max_delay, max_point_error):
     before, model, u, _ = identified
     _, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=factor, seed=1)
     change = FIT + 5000
@@ -153,7 +155,7 @@ def test_a_step_change_of_the_frequencies_is_detected_at_once(identified, factor
     alarm = monitor.process(u[FIT:n], y[FIT:n], FIT)
     assert alarm is not None
     assert change <= alarm.alarm_index <= change + max_delay, alarm
-    assert abs(alarm.change_index - change) <= max_delay, alarm  # change point estimate
+    assert abs(alarm.change_index - change) <= max_point_error, alarm  # change point estimate
     assert alarm.statistic > alarm.threshold and alarm.variance_ratio > 1.2
     assert monitor.state == "disarmed"  # waits for the model of the new structure
 
@@ -315,12 +317,12 @@ def _short_window_references(seeds):
 def test_references_that_miss_a_mode_keep_the_false_alarm_rate():
     # 20000 stationary samples per reference, 1e7 expected between false alarms: 0.06 alarms
     # expected over 30 references. Without the whitening AR several of them alarm. (The
-    # state-jump test, which explains some of those excursions too, is off: the AR alone.)
+    # state-jump and noise-change tests, which explain some of those excursions too, are off: the AR alone.)
     plain = whitened = 0
     orders = []
     for model, state, u, y in _short_window_references(range(30)):
         for options in ({"whitening_max_order": 0}, {}):
-            monitor = StructuralChangeMonitor(2, state_jump_test=False, **options)
+            monitor = StructuralChangeMonitor(2, state_jump_test=False, noise_change_test=False, **options)
             monitor.arm(model, state)
             alarm = monitor.process(u, y, 0)
             if options:
@@ -336,7 +338,8 @@ def test_references_that_miss_a_mode_keep_the_false_alarm_rate():
 def test_the_whitened_test_still_detects_a_change():
     # References from 1000 samples with 4 states for a 3-mode structure: they miss modes and
     # their innovations are coloured. Without the whitening AR most of them raise a false alarm
-    # before the change; with it none does, and the 6 % frequency drop is still found at once.
+    # before the change; with it none does, and the 6 % frequency drop is still found at once:
+    # at the noise-change test's first or second judgement (a reference missing modes needs more samples).
     before, after = added_mass_structure([6.0, 21.0, 40.0], [0.01, 0.015, 0.01], 2, 2, DT,
                                          frequency_factor=0.94, seed=1)
     n, change = 8000, 5000
@@ -349,7 +352,7 @@ def test_the_whitened_test_still_detects_a_change():
         for options in ({"whitening_max_order": 0}, {}):
             warm = InnovationPredictor(model)
             warm.run(u[:1000], y[:1000])
-            monitor = StructuralChangeMonitor(2, **options)
+            monitor = StructuralChangeMonitor(2, noise_change_test=not options, **options)  # plain: the AR alone
             monitor.arm(model, warm.x)
             false_alarm = monitor.process(u[1000:change], y[1000:change], 1000)
             if options:
@@ -359,7 +362,7 @@ def test_the_whitened_test_still_detects_a_change():
             alarm = monitor.process(u[change:], y[change:], change)
             delays.append(alarm.alarm_index - change if alarm is not None else None)
     assert false_plain >= 2, false_plain  # the test can fail
-    assert all(d is not None and d < 200 for d in delays), delays
+    assert all(d is not None and d <= 2 * MIN_JUDGED_SAMPLES + 50 for d in delays), delays
 
 
 def test_the_per_sample_path_equals_the_block_path_with_whitening_and_gaps():

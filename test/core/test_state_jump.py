@@ -15,6 +15,7 @@ from okid_bench.changes import change_case
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.change_monitor import StructuralChangeMonitor
+from okid_ros.core.noise_change import MIN_JUDGED_SAMPLES
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJumpTest
@@ -119,10 +120,12 @@ def test_the_monitor_takes_a_seam_as_a_jump_and_still_declares_a_change(structur
 
     alarm, monitor = first_alarm(*_looped(u, y))
     assert alarm is None and monitor.state_jumps == 1
-    alarm, _ = first_alarm(*_looped(u, y), state_jump_test=False)
-    assert alarm is not None and alarm.alarm_index >= CHANGE  # the test can fail: the seam alone declares
+    # The test can fail: the seam alone declares (a change of the noise model explains it too: off).
+    alarm, _ = first_alarm(*_looped(u, y), state_jump_test=False, noise_change_test=False)
+    assert alarm is not None and alarm.alarm_index >= CHANGE
     alarm, monitor = first_alarm(*changed[("frequency", 0.06)])
-    assert alarm is not None and 0 <= alarm.alarm_index - CHANGE <= 150 and monitor.state_jumps == 0
+    assert alarm is not None and 0 <= alarm.alarm_index - CHANGE <= MIN_JUDGED_SAMPLES + 50  # noise_change.py
+    assert monitor.state_jumps == 0
 
 
 def test_the_ring_returns_the_run_of_samples_up_to_the_last():

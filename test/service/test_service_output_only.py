@@ -22,7 +22,7 @@ from okid_ros.service.options import ArxIdentificationParams, ModalEstimationPar
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
 from okid_ros.service.windowed import WindowedPipeline
 from okid_ros.sim.models import modal_structure
-from okid_ros.sim.simulators import simulate_noisy
+from okid_ros.sim.simulators import initial_state, propagate_states, simulate_noisy, sqrt_psd
 
 DT = 1.0 / 50.0
 FREQS_HZ = (3.0, 7.0, 12.0)
@@ -171,6 +171,25 @@ def test_a_stiffness_loss_is_declared_from_the_outputs_alone():
     assert pipe.arx.diagnostics()["window_restarts"] >= 1
 
 
+def test_louder_ambient_excitation_is_no_structural_change():
+    """The unmeasured forces twice as strong from sample 9000 on, the sensors as before.
+
+    The optimal gain changes with that ratio and the first model's innovations become
+    predictable: this was declared a change at 180 s. The noise-change test refits the
+    reference's gain and goes on (core/noise_change.py).
+    """
+    system = structure()
+    rng = np.random.default_rng(5)
+    noise = rng.standard_normal((N, system.n_states + system.n_outputs)) @ sqrt_psd(system.joint_noise_covariance()).T
+    w, v = noise[:, :system.n_states], noise[:, system.n_states:]
+    w[9000:] *= 2.0
+    x = propagate_states(system.A, w, initial_state(system.A, system.process_noise_covariance, "stationary", rng))
+    pipe, _, _ = run(x @ system.C.T + v)
+    d = pipe.est.diagnostics()
+    assert pipe.changes == [] and d["changes_detected"] == 0, pipe.changes
+    assert d["change_alarms_noise"] >= 1 and d["change_monitor"] == "monitoring"
+
+
 def _scaled_frequencies(A: np.ndarray, factor: float) -> np.ndarray:
     """The discrete ``A`` with every pole's continuous frequency and decay scaled by ``factor``."""
     z, V = np.linalg.eig(A)
@@ -193,13 +212,11 @@ def test_the_var_route_gives_an_output_only_model_too():
     assert results[-1] is not None
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "known product issue: the VAR route's first model of this record misses the 3 Hz mode and lists a "
-    "spurious 10.8 Hz one; with it as the change test's reference the innovations' power wanders over "
-    "~250 samples (the 3 Hz mode's decay time), more than the 25-sample batch means of the correlation "
-    "factor see, and a change is declared at 132-135 s of this stationary record (not strict: on a "
-    "machine whose rounding gives a better first model, none is declared)"))
 def test_the_var_route_declares_no_change_on_a_stationary_record():
+    # The VAR route's first model of this record misses the 3 Hz mode and lists a spurious 10.8 Hz
+    # one; with it as the reference the innovations' power wanders over ~250 samples (the 3 Hz
+    # mode's decay time) and a change was declared at 132-135 s. The noise-change test explains
+    # that excursion by the reference's gain refitted (core/noise_change.py) and re-arms.
     system = structure()
     y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
     pipe, _, _ = run(y, method="var")
