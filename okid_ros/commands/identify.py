@@ -10,8 +10,18 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import add_bag_arguments, path_text, positive_int, states_or_auto
+from okid_ros.commands._args import (
+    add_bag_arguments,
+    ignored_for_output_only,
+    path_text,
+    positive_int,
+    states_or_auto,
+)
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+
+#: The options only the input-output chain takes: an output-only identification warns it ignores them.
+INPUT_OUTPUT_ONLY = ("--order", "--states", "--ar-order", "--method", "--regularization", "--no-refine", "--gain",
+                     "--max-states")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -107,9 +117,8 @@ def run(args: argparse.Namespace) -> int:
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
         raise DataError(problem)  # named with the record by run_command
-    if output_only and (ignored := _input_output_options(args)):
-        print(f"okid-ros identify: warning: {', '.join(ignored)} apply to input-output identification; ignored "
-              "for this output-only one", file=sys.stderr)
+    if output_only and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
+        print(f"okid-ros identify: warning: {ignored}", file=sys.stderr)
     valid = None
     if args.method == "paper" and not output_only:  # the paper's method needs contiguous samples
         record, gaps = longest_present_run(record)
@@ -235,15 +244,6 @@ def _uncertainty_method(model) -> str:
     if model.uncertainty.method == "jackknife":  # an okid model with too many outputs for the covariance
         return _JACKKNIFE
     return _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])
-
-
-def _input_output_options(args: argparse.Namespace) -> list[str]:
-    """The options given that only the input-output chain takes (an output-only run passes them over)."""
-    given = {"--order": args.order != "auto", "--states": args.states != "auto", "--ar-order": args.ar_order,
-             "--method": args.method != "okid", "--regularization": args.regularization, "--no-refine": args.no_refine,
-             "--gain": args.gain != RealizationOptions.gain,
-             "--max-states": args.max_states != RealizationOptions.max_states}
-    return [option for option, is_given in given.items() if is_given]
 
 
 def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):

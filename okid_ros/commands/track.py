@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING
 from okid_ros.commands._args import (
     NodeParameterDefault,
     add_bag_arguments,
+    ignored_for_output_only,
     node_parameter_range,
     path_text,
     penalty_or_gcv,
@@ -63,6 +64,11 @@ from okid_ros.core.options import GAINS, RealizationOptions
 
 if TYPE_CHECKING:
     from okid_ros.service.tracked_record import TrackedRecord
+
+
+#: The options an output-only window passes over (its model comes from the outputs alone); --order,
+#: --regularization and --penalty still make the vector autoregression that frames the window.
+INPUT_OUTPUT_ONLY = ("--states", "--max-states", "--gain")
 
 
 def _fraction(text: str) -> float:
@@ -254,6 +260,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     u = record.u[:, :0] if args.output_only else record.u
     if problem := channel_without_values(u, record.y):
         raise DataError(problem)
+    if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
+        print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
     # record's units; every window would fail on it, the first in the ARX order's search).
     problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
