@@ -12,6 +12,10 @@ update writes one JSON object per line:
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
      "arx_penalty": ..., "condition_number": ..., "rows": W, "elapsed_s": ...}
 
+The lines go to a temporary file beside OUT, renamed to OUT when the run ends: a failed or
+interrupted run (Ctrl-C, SIGTERM) leaves no OUT, or an old one as it was; ``--force`` replaces
+the name OUT (a link there, never the file it points to), as `identify --json` does.
+
 ``sample_index`` is the index in DATA of the newest sample used. Every line also carries
 ``change_detected``: true on the update where a structural change is declared, with
 ``change_sample_index`` (the estimated first sample of the new structure),
@@ -138,7 +142,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "without u): each window's model by output-only identification, n_inputs 0 in every line")
     parser.add_argument("--jsonl", required=True, metavar="OUT.jsonl", help="where to write the updates")
     add_bag_arguments(parser)
-    parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl")
+    parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl (when the run ends)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
@@ -182,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
     changes: list = []
-    handle = JsonLines(out)
+    handle = JsonLines(out, replace=True)  # a failed or interrupted run leaves an old OUT as it was
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
