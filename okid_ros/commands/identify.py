@@ -89,11 +89,11 @@ def _outputs(args: argparse.Namespace) -> list:
 
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES
 
-    paths = [(Path(args.json), "JSON model")]
+    paths: list = [(args.json, "JSON model")]  # as given: a trailing "/" is refused (prepare_file_outputs)
     if args.csv:
-        paths.append((Path(args.csv), "modes CSV"))
+        paths.append((args.csv, "modes CSV"))
     if args.uff:
-        paths.append((Path(args.uff), "UFF file"))
+        paths.append((args.uff, "UFF file"))
     if args.plot_dir:
         paths += [(Path(args.plot_dir) / name, "figure") for name in VALIDATION_FIGURES]
     return paths
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, channel_without_values, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_output_paths, prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
 
     out, outputs = Path(args.json), _outputs(args)
     check_output_paths(args.data, "record", outputs)
@@ -146,12 +146,9 @@ def run(args: argparse.Namespace) -> int:
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
-    for path, kind in outputs:
-        if kind != "figure" and path.is_dir():  # found only after the work (IsADirectoryError)
-            raise OutputError(f"{path}: a folder; the {kind} is a file: give a file name")
-    if not args.force:  # after every option is checked (no empty figure folder is left), before the work
-        for path, kind in outputs:
-            prepare_output(path, force=False, kind=kind)
+    # After every option is checked (an option's error leaves no folder made), before the work; removes
+    # nothing, --force or not: each file replaces its old one when it is written.
+    prepare_file_outputs(outputs, force=args.force)
     started = time.perf_counter()
     model = _identify(record, args, output_only, valid)
     uncertainty = model.uncertainty

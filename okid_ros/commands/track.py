@@ -252,12 +252,12 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.records import channel_without_values
     from okid_ros.service.tracked_record import tracked_record_warnings
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_output_paths, prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
 
     out = Path(args.jsonl)
     check_output_paths(args.data, "record", [(out, "JSON lines file")])
-    if not args.force:
-        prepare_output(out, force=False, kind="JSON lines file")
+    # --force removes nothing: the lines replace the old file when the run ends (JsonLines(replace=True)).
+    prepare_file_outputs([(args.jsonl, "JSON lines file")], force=args.force)
     # NaN/Inf samples are missing samples, as on the nodes' topics (TrackedRecord).
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).

@@ -160,3 +160,24 @@ def test_an_interrupted_or_failed_track_leaves_the_old_lines(record, tmp_path, c
         assert out.read_text() == "old lines\n"
         assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz", "t.jsonl"]  # no temporary file left
 
+
+@pytest.mark.parametrize("force", [[], ["--force"]])
+def test_a_missing_parent_folder_is_made_with_force_too(record, tmp_path, capsys, force):
+    # With --force the parent folder was not made ("No such file or directory") where without it it was.
+    model, lines = tmp_path / "a" / "b" / "m.json", tmp_path / "c" / "d" / "t.jsonl"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--no-refine", *force)
+    assert code == 0 and model.is_file(), err
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", lines, "--window", "500", "--every", "500",
+                           "--no-progress", *force)
+    assert code == 0 and lines.is_file(), err
+
+
+@pytest.mark.parametrize("ending", ["/", "/."])
+def test_an_output_named_as_a_folder_is_refused(record, tmp_path, capsys, ending):
+    # "out/" wrote a file named "out" (Path drops the slash).
+    out = f"{tmp_path / 'out'}{ending}"
+    code, _, err = run_cli(capsys, "identify", record, "--json", out)
+    assert_one_line_error(code, err, f"{out}: names a folder; the JSON model is a file: give a file name")
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--no-progress", "--force")
+    assert_one_line_error(code, err, f"{out}: names a folder; the JSON lines file is a file: give a file name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
