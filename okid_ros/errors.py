@@ -42,12 +42,26 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
     On any failure the temporary file is removed and ``path`` is left as it was: readers never
     see a truncated output, and a failed command leaves nothing half-written behind. A device,
     FIFO or socket (``/dev/null``, ``/dev/stdout``) is written into instead: a rename would put a
-    regular file in its place.
+    regular file in its place. See :func:`replacing`.
+    """
+    with replacing(path) as stream:
+        write(stream)
+
+
+@contextlib.contextmanager
+def replacing(path: str | os.PathLike) -> Iterator[IO[bytes]]:
+    """A binary stream whose bytes replace ``path`` when the block ends without an exception.
+
+    The one rule for a file output, written at once (:func:`write_atomically`) or as it comes
+    (``track``'s JSON lines): a temporary file beside ``path`` renamed over it at the end. The
+    rename replaces the name only: a symlink at ``path`` goes, never what it points to, and a hard
+    link's other names (the record itself) keep their content. An exception (Ctrl-C too) removes
+    the temporary file and leaves ``path`` as it was. A device, FIFO or socket is written into.
     """
     target = Path(path)
     if is_special_file(target):
         with open(target, "wb") as stream:
-            write(stream)
+            yield stream
         return
     # open(..., "x") rather than mkstemp: the file gets the usual permissions (umask), not 0600.
     # The name cut to 200 bytes: a legal name of 255 made a temporary one too long to create.
@@ -55,7 +69,7 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], objec
     temporary = target.with_name(f".{stem}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
     try:
         with open(temporary, "xb") as stream:
-            write(stream)
+            yield stream
         os.replace(temporary, target)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)

@@ -9,13 +9,14 @@ that is not JSON (``allow_nan=False`` as a last guard).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from okid_ros.errors import write_atomically, writing
+from okid_ros.errors import replacing, write_atomically, writing
 
 __all__ = ["to_strict", "dumps", "write_json"]
 
@@ -72,28 +73,35 @@ class JsonLines:
 
     One strict JSON object per line, flushed each time; failing to open or write it (a full
     disk) is an :class:`~okid_ros.errors.OutputError` naming the file. A context manager.
+
+    ``replace``: the lines go to a temporary file beside ``path``, renamed over it by
+    :meth:`close` (:func:`okid_ros.errors.replacing`, the rule of every other file output):
+    leaving the ``with`` block by an exception (Ctrl-C too) removes them and leaves ``path`` as it
+    was. Without it (``process``, whose lines go with its bag and stay when it is interrupted) the
+    file is opened in place, so the caller removes an old one first (``prepare_output``).
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, replace: bool = False) -> None:
         self.path = Path(path)
+        self._open = contextlib.ExitStack()
         with writing(self.path, "JSON lines file"):
-            self.stream = open(self.path, "w")
+            self.stream = self._open.enter_context(replacing(self.path) if replace else open(self.path, "wb"))
 
     def write(self, line: Any) -> None:
         with writing(self.path, "JSON lines file"):
-            self.stream.write(dumps(line) + "\n")
+            self.stream.write((dumps(line) + "\n").encode())
             self.stream.flush()
 
     def close(self) -> None:
         with writing(self.path, "JSON lines file"):
-            self.stream.close()
+            self._open.close()
 
     def __enter__(self) -> JsonLines:
         return self
 
     def __exit__(self, kind, value, traceback) -> None:
-        try:
-            self.close()
-        except Exception:
-            if kind is None:  # else the first error stands
-                raise
+        if kind is not None:  # the temporary file of ``replace`` goes; the first error stands
+            with contextlib.suppress(Exception):
+                self._open.__exit__(kind, value, traceback)
+            return
+        self.close()

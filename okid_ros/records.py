@@ -240,8 +240,27 @@ def require_inputs(record: Record, source: str | Path, command: str = "this comm
     return record
 
 
+def _not_an_archive(path: Path) -> str:
+    """Why ``path`` is neither a zip archive nor a .npy array ("" if it begins as one).
+
+    np.load takes any other bytes for a pickle and refused them by suggesting allow_pickle
+    (a CSV renamed .npz, random bytes): misleading, as pickles are never loaded here.
+    """
+    with open(path, "rb") as stream:
+        head = stream.read(512)
+    if head[:4] in (b"PK\x03\x04", b"PK\x05\x06") or head[:6] == b"\x93NUMPY":  # a zip (empty too), a .npy
+        return ""
+    if not head:
+        return "not an .npz (zip) archive: the file is empty"
+    if all(32 <= byte < 127 or byte in b"\t\r\n" for byte in head):
+        return "not an .npz (zip) archive: it begins as text, a CSV named .npz?"
+    return "not an .npz (zip) archive"
+
+
 def _load_npz(path: Path) -> Record:
     try:
+        if problem := _not_an_archive(path):
+            raise DataError(f"{path}: not a readable .npz file ({problem})")
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):  # a bare .npy renamed .npz
             raise DataError(f"{path}: a single array, not an .npz archive with y and sample_time_s")

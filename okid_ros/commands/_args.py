@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.core.options import RealizationOptions
+
 __all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "states_or_auto",
            "penalty_or_gcv", "node_parameter_range", "NodeParameterDefault", "add_bag_arguments",
-           "add_progress_arguments", "namespace"]
+           "add_progress_arguments", "namespace", "ignored_for_output_only"]
 
 
 def positive_int(text: str) -> int:
@@ -124,6 +126,31 @@ class NodeParameterDefault:
 
     def __str__(self) -> str:
         return f"{float(self):g}"
+
+
+#: Options of the input-output chain and whether each was given (differs from its default, as in
+#: `identify`; `track` has the same defaults for those it passes over, see ignored_for_output_only).
+_INPUT_OUTPUT_OPTIONS = {
+    "--order": lambda args: args.order != "auto",
+    "--states": lambda args: args.states != "auto",
+    "--ar-order": lambda args: args.ar_order is not None,
+    "--method": lambda args: args.method != "okid",
+    "--regularization": lambda args: args.regularization is not None,
+    "--no-refine": lambda args: args.no_refine,
+    "--gain": lambda args: args.gain != RealizationOptions.gain,
+    "--max-states": lambda args: args.max_states != RealizationOptions.max_states,
+}
+
+
+def ignored_for_output_only(args: argparse.Namespace, options) -> str:
+    """The warning for those of ``options`` given to an output-only run, which passes them over ("" if none).
+
+    One sentence for `identify` and `track` (each names the options its output-only route ignores).
+    """
+    given = [option for option in options if _INPUT_OUTPUT_OPTIONS[option](args)]
+    if not given:
+        return ""
+    return f"{', '.join(given)} apply to input-output identification; ignored for this output-only one"
 
 
 def path_text(text: str) -> str:

@@ -10,8 +10,18 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.commands._args import add_bag_arguments, path_text, positive_int, states_or_auto
+from okid_ros.commands._args import (
+    add_bag_arguments,
+    ignored_for_output_only,
+    path_text,
+    positive_int,
+    states_or_auto,
+)
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+
+#: The options only the input-output chain takes: an output-only identification warns it ignores them.
+INPUT_OUTPUT_ONLY = ("--order", "--states", "--ar-order", "--method", "--regularization", "--no-refine", "--gain",
+                     "--max-states")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -79,11 +89,11 @@ def _outputs(args: argparse.Namespace) -> list:
 
     from okid_ros.tools.validation_plots import VALIDATION_FIGURES
 
-    paths = [(Path(args.json), "JSON model")]
+    paths: list = [(args.json, "JSON model")]  # as given: a trailing "/" is refused (prepare_file_outputs)
     if args.csv:
-        paths.append((Path(args.csv), "modes CSV"))
+        paths.append((args.csv, "modes CSV"))
     if args.uff:
-        paths.append((Path(args.uff), "UFF file"))
+        paths.append((args.uff, "UFF file"))
     if args.plot_dir:
         paths += [(Path(args.plot_dir) / name, "figure") for name in VALIDATION_FIGURES]
     return paths
@@ -99,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, channel_without_values, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_output_paths, prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
 
     out, outputs = Path(args.json), _outputs(args)
     check_output_paths(args.data, "record", outputs)
@@ -107,9 +117,8 @@ def run(args: argparse.Namespace) -> int:
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
         raise DataError(problem)  # named with the record by run_command
-    if output_only and (ignored := _input_output_options(args)):
-        print(f"okid-ros identify: warning: {', '.join(ignored)} apply to input-output identification; ignored "
-              "for this output-only one", file=sys.stderr)
+    if output_only and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
+        print(f"okid-ros identify: warning: {ignored}", file=sys.stderr)
     valid = None
     if args.method == "paper" and not output_only:  # the paper's method needs contiguous samples
         record, gaps = longest_present_run(record)
@@ -137,12 +146,9 @@ def run(args: argparse.Namespace) -> int:
     if output_only and (args.uff or args.plot_dir or args.frf_pairs):
         raise ParameterError("--uff, --plot-dir and --frf-pairs draw frequency responses from the measured input: "
                              "not available for an output-only identification")
-    for path, kind in outputs:
-        if kind != "figure" and path.is_dir():  # found only after the work (IsADirectoryError)
-            raise OutputError(f"{path}: a folder; the {kind} is a file: give a file name")
-    if not args.force:  # after every option is checked (no empty figure folder is left), before the work
-        for path, kind in outputs:
-            prepare_output(path, force=False, kind=kind)
+    # After every option is checked (an option's error leaves no folder made), before the work; removes
+    # nothing, --force or not: each file replaces its old one when it is written.
+    prepare_file_outputs(outputs, force=args.force)
     started = time.perf_counter()
     model = _identify(record, args, output_only, valid)
     uncertainty = model.uncertainty
@@ -235,15 +241,6 @@ def _uncertainty_method(model) -> str:
     if model.uncertainty.method == "jackknife":  # an okid model with too many outputs for the covariance
         return _JACKKNIFE
     return _UNCERTAINTY_METHODS.get(model.method, _UNCERTAINTY_METHODS["okid"])
-
-
-def _input_output_options(args: argparse.Namespace) -> list[str]:
-    """The options given that only the input-output chain takes (an output-only run passes them over)."""
-    given = {"--order": args.order != "auto", "--states": args.states != "auto", "--ar-order": args.ar_order,
-             "--method": args.method != "okid", "--regularization": args.regularization, "--no-refine": args.no_refine,
-             "--gain": args.gain != RealizationOptions.gain,
-             "--max-states": args.max_states != RealizationOptions.max_states}
-    return [option for option, is_given in given.items() if is_given]
 
 
 def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):

@@ -12,6 +12,10 @@ update writes one JSON object per line:
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
      "arx_penalty": ..., "condition_number": ..., "rows": W, "elapsed_s": ...}
 
+The lines go to a temporary file beside OUT, renamed to OUT when the run ends: a failed or
+interrupted run (Ctrl-C, SIGTERM) leaves no OUT, or an old one as it was; ``--force`` replaces
+the name OUT (a link there, never the file it points to), as `identify --json` does.
+
 ``sample_index`` is the index in DATA of the newest sample used. Every line also carries
 ``change_detected``: true on the update where a structural change is declared, with
 ``change_sample_index`` (the estimated first sample of the new structure),
@@ -53,6 +57,7 @@ from typing import TYPE_CHECKING
 from okid_ros.commands._args import (
     NodeParameterDefault,
     add_bag_arguments,
+    ignored_for_output_only,
     node_parameter_range,
     path_text,
     penalty_or_gcv,
@@ -63,6 +68,11 @@ from okid_ros.core.options import GAINS, RealizationOptions
 
 if TYPE_CHECKING:
     from okid_ros.service.tracked_record import TrackedRecord
+
+
+#: The options an output-only window passes over (its model comes from the outputs alone); --order,
+#: --regularization and --penalty still make the vector autoregression that frames the window.
+INPUT_OUTPUT_ONLY = ("--states", "--max-states", "--gain")
 
 
 def _fraction(text: str) -> float:
@@ -132,7 +142,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "without u): each window's model by output-only identification, n_inputs 0 in every line")
     parser.add_argument("--jsonl", required=True, metavar="OUT.jsonl", help="where to write the updates")
     add_bag_arguments(parser)
-    parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl")
+    parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl (when the run ends)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
@@ -176,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
     changes: list = []
-    handle = JsonLines(out)
+    handle = JsonLines(out, replace=True)  # a failed or interrupted run leaves an old OUT as it was
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
@@ -242,18 +252,20 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.records import channel_without_values
     from okid_ros.service.tracked_record import tracked_record_warnings
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_output_paths, prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
 
     out = Path(args.jsonl)
     check_output_paths(args.data, "record", [(out, "JSON lines file")])
-    if not args.force:
-        prepare_output(out, force=False, kind="JSON lines file")
+    # --force removes nothing: the lines replace the old file when the run ends (JsonLines(replace=True)).
+    prepare_file_outputs([(args.jsonl, "JSON lines file")], force=args.force)
     # NaN/Inf samples are missing samples, as on the nodes' topics (TrackedRecord).
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
     if problem := channel_without_values(u, record.y):
         raise DataError(problem)
+    if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
+        print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
     # record's units; every window would fail on it, the first in the ARX order's search).
     problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])

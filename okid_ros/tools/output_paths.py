@@ -6,7 +6,9 @@ nothing but an output even with it.
 Paths are compared resolved (symlinks, ``..``); an input file inside a rosbag2 directory
 (``run/run_0.mcap``) counts as that directory, whose metadata.yaml belongs to it.
 :func:`check_output_paths` runs in ``identify``, ``track`` and ``process`` before any work,
-whatever ``--force`` says; :func:`prepare_output` before each output is written.
+whatever ``--force`` says; :func:`prepare_output` before each output is written that replaces
+an old one by removing it first (a bag), :func:`prepare_file_outputs` before the work for a file
+renamed over the old one (``identify``'s and ``track``'s outputs).
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from pathlib import Path
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["bag_folder", "check_output_paths", "check_replaceable", "prepare_output", "output_exists"]
+__all__ = ["bag_folder", "check_output_paths", "check_replaceable", "prepare_file_outputs", "prepare_output",
+           "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -126,6 +129,41 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
             raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
     _make_folder(out.parent, out)
     return out
+
+
+def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, force: bool) -> None:
+    """Check before the work that file outputs may be written, then create their parent folders.
+
+    Each file is written later by :func:`okid_ros.errors.replacing` (a temporary file renamed over
+    the old one), so ``force`` removes nothing here: a failed or interrupted run leaves the old
+    output as it was, and a symlink there is replaced, never what it points to. Refused, with or
+    without ``force``: a name that ends as a folder's (``out/``, ``out/.``: a file named like the
+    folder was written) and an existing folder. Every output is checked before any folder is
+    made; the parent folders are made with ``force`` too (a rerun with it was refused where the
+    first run succeeded).
+
+    Parameters
+    ----------
+    outputs : ``(path, kind)`` of each file: the path as given (a str keeps its trailing ``/``), what
+        it is for the messages ("JSON model", "JSON lines file", ...).
+    force : allow replacing an existing file.
+
+    Raises
+    ------
+    OutputError
+        a folder's name or a folder.
+    OutputExistsError, BagWriteError
+        as :func:`prepare_output`.
+    """
+    for path, kind in outputs:
+        text, out = os.fspath(path), Path(path)
+        if os.path.basename(text) in ("", ".", ".."):  # Path() drops a trailing "/" and "/."
+            raise OutputError(f"{text}: names a folder; the {kind} is a file: give a file name")
+        if _is_dir(out):  # found only after the work otherwise (IsADirectoryError)
+            raise OutputError(f"{out}: a folder; the {kind} is a file: give a file name")
+        check_replaceable(out, force=force, kind=kind)
+    for path, _ in outputs:
+        _make_folder(Path(path).parent, Path(path))
 
 
 def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag") -> bool:

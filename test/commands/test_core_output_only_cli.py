@@ -87,3 +87,19 @@ def test_frequency_response_outputs_are_refused_in_one_line(tmp_path: Path, koma
                      "--json", str(tmp_path / "m.json")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "output-only" in err[0]
+
+
+def test_track_names_the_options_its_output_only_windows_pass_over(tmp_path: Path, koma_record, capsys) -> None:
+    # track ignored --states, --max-states and --gain in silence where identify warns (one rule,
+    # commands/_args.ignored_for_output_only); --order still sets the VAR that frames the window.
+    y, dt, _ = koma_record
+    record = tmp_path / "y_only.npz"
+    np.savez(record, y=y[:3000], sample_time_s=dt)
+    out = tmp_path / "t.jsonl"
+    code = cli.main(["track", str(record), "--jsonl", str(out), "--window", "1500", "--every", "1500", "--order",
+                     "12", "--states", "6", "--gain", "whitening", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "okid-ros track: warning: --states, --gain apply to input-output identification; ignored for this " \
+           "output-only one" in err
+    assert json.loads(out.read_text().splitlines()[0])["arx_order"] == 12

@@ -97,6 +97,19 @@ def test_hostile_npz_is_one_line_naming_the_file(tmp_path: Path, case: str,
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == sorted(["source.npz", path.name])
 
 
+
+@pytest.mark.parametrize(("content", "says"), [
+    (b"# sample_time_s=0.01\nu1,y1\n1,2\n", "not an .npz (zip) archive: it begins as text, a CSV named .npz?"),
+    (bytes(range(256)) * 2, "not an .npz (zip) archive"),
+])
+def test_a_file_that_is_no_zip_archive_is_named_so_not_a_pickle(tmp_path: Path, content: bytes, says: str) -> None:
+    # np.load took it for a pickle: "... load it unsafely using the `allow_pickle=` keyword argument".
+    path = tmp_path / "rec.npz"
+    path.write_bytes(content)
+    with pytest.raises(DataError) as raised:
+        load_record(path)
+    assert str(raised.value) == f"{path}: not a readable .npz file ({says})"
+
 CSV_CASES = {
     "empty": ("", "no header line"),
     "header_only": ("# sample_time_s=0.01\nu1,y1\n", "no samples"),

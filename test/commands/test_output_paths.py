@@ -116,3 +116,68 @@ def test_identify_refuses_a_folder_for_a_file_before_the_work_and_names_what_it_
     full.symlink_to("/dev/full")
     code, _, err = run_cli(capsys, "identify", record, "--json", model, "--csv", full)
     assert_one_line_error(code, err, "No space left on device", f"the JSON model is written ({model})")
+
+
+def test_track_force_replaces_a_link_never_what_it_points_to(record, tmp_path, capsys):
+    # --force opened OUT in place: a hard link to the record destroyed the record, a symlink
+    # overwrote the file it points to. Now the lines replace the name, as identify's JSON does.
+    before = record.read_bytes()
+    hard = tmp_path / "hard.jsonl"
+    hard.hardlink_to(record)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("precious notes\n")
+    soft = tmp_path / "soft.jsonl"
+    soft.symlink_to(notes.name)
+    for out in (hard, soft):
+        code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--every", "500",
+                               "--no-progress", "--force")
+        assert code == 0, err
+        assert not out.is_symlink() and out.read_text().startswith('{"sample_index"')
+    assert record.read_bytes() == before and notes.read_text() == "precious notes\n"
+
+
+def test_an_interrupted_or_failed_track_leaves_the_old_lines(record, tmp_path, capsys, monkeypatch):
+    # The lines go to a temporary file renamed at the end: Ctrl-C (or an error) half-way left a
+    # half-written OUT in place of the old one.
+    import okid_ros.commands.track as track
+
+    out = tmp_path / "t.jsonl"
+    out.write_text("old lines\n")
+    real = track._window_model
+    for stop in (KeyboardInterrupt, MemoryError):
+        calls = []
+
+        def stopping(*args, stop=stop, calls=calls, **kwargs):
+            calls.append(1)
+            if len(calls) == 2:
+                raise stop
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(track, "_window_model", stopping)
+        code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--every", "300",
+                               "--no-progress", "--force")
+        assert code in (130, 2) and len(calls) == 2, err
+        assert out.read_text() == "old lines\n"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz", "t.jsonl"]  # no temporary file left
+
+
+@pytest.mark.parametrize("force", [[], ["--force"]])
+def test_a_missing_parent_folder_is_made_with_force_too(record, tmp_path, capsys, force):
+    # With --force the parent folder was not made ("No such file or directory") where without it it was.
+    model, lines = tmp_path / "a" / "b" / "m.json", tmp_path / "c" / "d" / "t.jsonl"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--no-refine", *force)
+    assert code == 0 and model.is_file(), err
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", lines, "--window", "500", "--every", "500",
+                           "--no-progress", *force)
+    assert code == 0 and lines.is_file(), err
+
+
+@pytest.mark.parametrize("ending", ["/", "/."])
+def test_an_output_named_as_a_folder_is_refused(record, tmp_path, capsys, ending):
+    # "out/" wrote a file named "out" (Path drops the slash).
+    out = f"{tmp_path / 'out'}{ending}"
+    code, _, err = run_cli(capsys, "identify", record, "--json", out)
+    assert_one_line_error(code, err, f"{out}: names a folder; the JSON model is a file: give a file name")
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--no-progress", "--force")
+    assert_one_line_error(code, err, f"{out}: names a folder; the JSON lines file is a file: give a file name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
