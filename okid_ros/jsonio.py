@@ -76,9 +76,11 @@ class JsonLines:
 
     ``replace``: the lines go to a temporary file beside ``path``, renamed over it by
     :meth:`close` (:func:`okid_ros.errors.replacing`, the rule of every other file output):
-    leaving the ``with`` block by an exception (Ctrl-C too) removes them and leaves ``path`` as it
-    was. Without it (``process``, whose lines go with its bag and stay when it is interrupted) the
-    file is opened in place, so the caller removes an old one first (``prepare_output``).
+    leaving the ``with`` block by an error removes them and leaves ``path`` as it was; by Ctrl-C
+    (or SIGTERM, which the CLI turns into it) the lines so far replace it, as the user stopped the
+    run, not the run itself (what is identified is kept). Without it (``process``, whose lines go
+    with its bag and stay when it is interrupted) the file is opened in place, so the caller
+    removes an old one first (``prepare_output``).
     """
 
     def __init__(self, path: str | Path, *, replace: bool = False) -> None:
@@ -100,7 +102,7 @@ class JsonLines:
         return self
 
     def __exit__(self, kind, value, traceback) -> None:
-        if kind is not None:  # the temporary file of ``replace`` goes; the first error stands
+        if kind is not None and not issubclass(kind, KeyboardInterrupt):  # temporary file removed; the error stands
             with contextlib.suppress(Exception):
                 self._open.__exit__(kind, value, traceback)
             return

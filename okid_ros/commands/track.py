@@ -12,9 +12,10 @@ update writes one JSON object per line:
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
      "arx_penalty": ..., "condition_number": ..., "rows": W, "elapsed_s": ...}
 
-The lines go to a temporary file beside OUT, renamed to OUT when the run ends: a failed or
-interrupted run (Ctrl-C, SIGTERM) leaves no OUT, or an old one as it was; ``--force`` replaces
-the name OUT (a link there, never the file it points to), as `identify --json` does.
+The lines go to a temporary file beside OUT, renamed to OUT when the run ends or is interrupted
+(Ctrl-C, SIGTERM: the lines so far are kept); a run that fails leaves no OUT, or an old one as
+it was. ``--force`` replaces the name OUT (a link there, never the file it points to), as
+`identify --json` does.
 
 ``sample_index`` is the index in DATA of the newest sample used. Every line also carries
 ``change_detected``: true on the update where a structural change is declared, with
@@ -186,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     first = window + q - 1
     points = list(range(first, n_samples, args.every))
     changes: list = []
-    handle = JsonLines(out, replace=True)  # a failed or interrupted run leaves an old OUT as it was
+    handle = JsonLines(out, replace=True)  # a failed run leaves an old OUT as it was; Ctrl-C keeps the lines
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows

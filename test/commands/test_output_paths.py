@@ -8,6 +8,7 @@ failed write is one line.
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 from pathlib import Path
@@ -136,9 +137,10 @@ def test_track_force_replaces_a_link_never_what_it_points_to(record, tmp_path, c
     assert record.read_bytes() == before and notes.read_text() == "precious notes\n"
 
 
-def test_an_interrupted_or_failed_track_leaves_the_old_lines(record, tmp_path, capsys, monkeypatch):
-    # The lines go to a temporary file renamed at the end: Ctrl-C (or an error) half-way left a
-    # half-written OUT in place of the old one.
+def test_a_failed_track_leaves_the_old_lines_and_an_interrupted_one_keeps_its_own(record, tmp_path, capsys,
+                                                                                  monkeypatch):
+    # The lines go to a temporary file renamed at the end: an error half-way left a half-written
+    # OUT in place of the old one. Ctrl-C keeps the lines so far (the user stopped the run).
     import okid_ros.commands.track as track
 
     out = tmp_path / "t.jsonl"
@@ -157,7 +159,12 @@ def test_an_interrupted_or_failed_track_leaves_the_old_lines(record, tmp_path, c
         code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--every", "300",
                                "--no-progress", "--force")
         assert code in (130, 2) and len(calls) == 2, err
-        assert out.read_text() == "old lines\n"
+        if stop is KeyboardInterrupt:
+            lines = [json.loads(line) for line in out.read_text().splitlines()]
+            assert len(lines) == 1 and lines[0]["rows"] == 500, lines  # the first update, before the stop
+            out.write_text("old lines\n")
+        else:
+            assert out.read_text() == "old lines\n"
         assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz", "t.jsonl"]  # no temporary file left
 
 
