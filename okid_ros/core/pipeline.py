@@ -60,7 +60,7 @@ from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.slow_pole_span import spanning_slowest_pole
 from okid_ros.core.stabilization import stability_judge, stabilization_diagram
 from okid_ros.core.state_gram import StateGram
-from okid_ros.core.statespace import InnovationModel, spectral_radius
+from okid_ros.core.statespace import InnovationModel, one_step_prediction, spectral_radius
 from okid_ros.core.uncertainty import (
     attach_mode_uncertainty,
     noisy_poles,
@@ -330,12 +330,24 @@ def identify_from_arx(
         completed_orders=sorted(search.fits), stabilization=diagram,
         system_markov=system_markov, completion=completion, refined=refined,
         input_offset=u_offset, output_offset=y_offset, max_states_reached=search.max_states_reached,
-        warnings=warnings + frame.warnings + unexplained_warnings(model.innovation_covariance, y)
+        warnings=warnings + frame.warnings + unexplained_warnings(_prediction_error_covariance(model, u, y, best.x0), y)
         + frozen_output_warnings(y),
         jackknife=None if not options.jackknife_segments else lambda identified: attach_jackknife_std(
             identified, arx, u, y, hankel_size=(hankel_rows, hankel_cols), options=options, valid=valid),
     )
     return frame.leave(identified, offsets, offset_warnings=_remove_offsets(*frame.physical, offsets)[4])
+
+
+def _prediction_error_covariance(model: InnovationModel, u: np.ndarray, y: np.ndarray, x0: np.ndarray | None
+                                 ) -> np.ndarray:
+    """(p, p) covariance of the model's one-step prediction errors on the record it was identified from.
+
+    What the model explains, whatever its gain claims: the whitening gain's own innovation
+    covariance is that of the ARX residuals, and on outputs unrelated to anything (white noise)
+    it claimed a fit the predictor does not make, so "no dynamics identified" went unsaid.
+    """
+    _, errors = one_step_prediction(model, u, y, x0=x0)
+    return np.atleast_2d(np.cov(errors, rowvar=False))
 
 
 def _identify_paper(

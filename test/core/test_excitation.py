@@ -160,6 +160,17 @@ def test_a_model_that_explains_nothing_says_so(one_input_record) -> None:
     assert any("explains at most" in w and "no dynamics identified" in w for w in model.warnings)
 
 
+def test_the_whitening_gain_of_a_model_that_explains_nothing_says_so_too(one_input_record) -> None:
+    # The whitening gain's own innovation covariance (the ARX residuals') claimed a fit its
+    # predictor does not make: no warning, where the default gain warned. Judged now on the
+    # model's one-step prediction errors.
+    u, _ = one_input_record
+    unrelated = np.random.default_rng(4).standard_normal((u.shape[0], 2))
+    for gain in ("whitening", "riccati"):
+        model = identify(u, unrelated, DT, order=50, gain=gain)
+        assert any("no dynamics identified" in w for w in model.warnings), (gain, model.warnings)
+
+
 def test_inputs_made_up_of_each_other_are_named_once(one_input_record) -> None:
     # Input 1 a scaled copy of input 0: the ridge fit split their effect between B's columns with
     # nothing said; a dead third input is still named on its own.
