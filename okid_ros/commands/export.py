@@ -37,14 +37,14 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.errors import DataError
     from okid_ros.records import save_record
     from okid_ros.tools.bag_record import record_from_bag
-    from okid_ros.tools.output_paths import check_output_paths, prepare_output
+    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
     from okid_ros.tools.process import load_node_parameters
 
     out = Path(args.npz)
     if out.suffix.lower() != ".npz":
         raise DataError(f"--npz {out}: the record file must end in .npz")
     check_output_paths(args.bag, "input bag", [(out, "record")])
-    prepare_output(out, force=args.force, kind="record")
+    prepare_file_outputs([(args.npz, "record")], force=args.force)  # replaced when written: a failed read keeps it
     est_values = load_node_parameters(args.params, args.param, args.source)[1]
     from_bag = record_from_bag(args.bag, est_values)
     record = from_bag.record

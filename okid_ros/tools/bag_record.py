@@ -121,13 +121,17 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         for topic, log_ns, msg in bag.stored_messages([s.topic for s in inputs.specs]):
             samples += inputs.add(topic, msg, log_ns * 1e-9)
         samples += inputs.grid.flush()
-    if not samples:
+    if len(samples) < 2:  # one sample is no record either: `process` refuses it, `export` wrote it
         counters = inputs.grid.counters
         rejected = counters.rejections()
         why = (f": {_rejected_messages(rejected, int(counters.messages), inputs.wrong_size_note)}"
                if any(rejected.values()) else "")
-        raise DataError(f"{bag_path}: no complete sample on the topics {', '.join(s.topic for s in inputs.specs)}"
-                        + why)
+        from okid_ros.tools.grid_hints import rejection_hint
+
+        hint = rejection_hint(rejected, float(est_values["sample_time_s"]), messages=int(counters.messages))
+        why += f"; {hint}" if hint and why else ""
+        made = "no complete sample" if not samples else "one complete sample only"
+        raise DataError(f"{bag_path}: {made} on the topics {', '.join(s.topic for s in inputs.specs)}" + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)

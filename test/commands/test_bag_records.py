@@ -48,6 +48,26 @@ def test_export_writes_the_bags_samples_and_refuses_to_overwrite(bag, tmp_path, 
     assert main(["export", str(bag), "--npz", str(out), "--force"]) == 0
 
 
+def test_export_refuses_one_sample_and_a_failed_forced_export_keeps_the_old_record(bag, tmp_path, capsys):
+    # A bag of one complete sample (every later message at its stamp): export wrote a 1-sample
+    # record with exit 0 where process refuses it; with --force it removed the old record first.
+    from okid_ros.tools.bagio import BagWriter
+
+    one = tmp_path / "one"
+    with open_bag(bag) as reader, BagWriter(one) as writer:
+        writer.add_topic(IO_SAMPLE_TOPIC, "okid_msgs/msg/IoSample")
+        for _, log_ns, msg in reader.messages([IO_SAMPLE_TOPIC]):
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0  # every sample at one stamp
+            writer.write(IO_SAMPLE_TOPIC, log_ns, msg)
+    out = tmp_path / "run.npz"
+    assert main(["export", str(bag), "--npz", str(out)]) == 0
+    before = out.read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(one), "--npz", str(out), "--force"]) == 2
+    assert "complete sample" in capsys.readouterr().err
+    assert out.read_bytes() == before
+
+
 def test_identify_and_track_read_a_bag_like_its_exported_record(bag, tmp_path):
     npz = tmp_path / "run.npz"
     assert main(["export", str(bag), "--npz", str(npz)]) == 0
@@ -87,8 +107,11 @@ def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path,
                                                                   where):
     capsys.readouterr()
     out = tmp_path / "r.npz"
-    assert main(["export", str(bag), "--npz", str(out), "--param", f"sample_time_s={sample_time_s}"]) == 0
+    one_sample = sample_time_s == "3600"  # the 12 s bag in one sample time: refused, the cause said
+    assert main(["export", str(bag), "--npz", str(out), "--param", f"sample_time_s={sample_time_s}"]) == (
+        2 if one_sample else 0)
     err = capsys.readouterr().err
+    assert ("one complete sample only" in err) == one_sample, err
     assert f"of the 1500 messages were rejected ({reason}); most fell {where}: is sample_time_s" in err, err
     assert main(["export", str(bag), "--npz", str(tmp_path / "ok.npz")]) == 0
     assert "rejected" not in capsys.readouterr().err
