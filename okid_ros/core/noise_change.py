@@ -44,7 +44,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from okid_ros.core.model_error_check import ModelErrorCheck
-from okid_ros.core.state_jump import jump_responses
 from okid_ros.core.statespace import InnovationModel, simulate, spectral_radius
 from okid_ros.core.stochastic_realization import fit_var, gain_from_markov, stochastic_markov_from_var
 
@@ -114,12 +113,41 @@ def refit_noise(z: np.ndarray, F: np.ndarray, C_whitened: np.ndarray, *, var_ord
     F_new = F - gain @ C_whitened
     if not np.all(np.isfinite(gain)) or not spectral_radius(F_new) < 1.0:
         return None
-    residuals = simulate(F_new, gain, -C_whitened, np.eye(p), z)
-    # The two predictors' states differ at the first sample: that difference's free response,
-    # fitted by least squares and taken off (left in, it is predictable from its own past).
-    free = jump_responses(F_new, C_whitened, z.shape[0]).reshape(-1, n)
-    residuals -= (free @ np.linalg.lstsq(free, residuals.reshape(-1), rcond=None)[0]).reshape(residuals.shape)
+    residuals = _without_free_response(simulate(F_new, gain, -C_whitened, np.eye(p), z), F_new, C_whitened)
     return NoiseChange(gain, residuals, np.atleast_2d(np.cov(residuals, rowvar=False)))
+
+
+def _without_free_response(residuals: np.ndarray, F: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``residuals`` (N, p) less their least-squares fit by a free response ``C F^k x0``.
+
+    The two predictors' states differ at the first sample: that difference's free response, left
+    in, is predictable from its own past. By the normal equations: their matrix by doubling
+    (:func:`_response_gram`) and the right side by one backward pass, where the stacked
+    responses (N p x n) and ``lstsq`` took 0.19 s at 28 outputs, 122 states, 1024 samples.
+    """
+    n, samples = F.shape[0], residuals.shape[0]
+    # sum_k (C F^k)^T r_k: the adjoint system run backwards over the residuals, its last state.
+    backward = simulate(F.T, C.T, np.eye(n), np.zeros((n, C.shape[0])), residuals[::-1])
+    right = F.T @ backward[-1] + C.T @ residuals[0]
+    x0 = np.linalg.lstsq(_response_gram(F, C, samples), right, rcond=None)[0]
+    return residuals - simulate(F, np.zeros((n, 1)), C, np.zeros((C.shape[0], 1)), np.zeros((samples, 1)), x0=x0)
+
+
+def _response_gram(F: np.ndarray, C: np.ndarray, samples: int) -> np.ndarray:
+    """``sum_(k < samples) (C F^k)^T (C F^k)`` (n, n), by doubling: a few n x n products per bit of ``samples``."""
+    n = F.shape[0]
+    total, power = np.zeros((n, n)), np.eye(n)  # over the terms so far, and F to their count
+    block, block_power = C.T @ C, F.copy()  # over 2^i terms, and F^(2^i)
+    remaining = int(samples)
+    while remaining:
+        if remaining & 1:
+            total = total + power.T @ block @ power
+            power = power @ block_power
+        remaining >>= 1
+        if remaining:
+            block = block + block_power.T @ block @ block_power
+            block_power = block_power @ block_power
+    return total
 
 
 def with_noise(model: InnovationModel, whiten: np.ndarray, change: NoiseChange) -> InnovationModel | None:

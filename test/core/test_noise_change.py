@@ -107,3 +107,17 @@ def test_a_model_whose_state_matrix_cannot_be_inverted_gets_no_refitted_noise():
     z = np.random.default_rng(0).standard_normal((2000, old.n_outputs))
     change = refit_noise(z, singular.predictor()[0], whiten @ old.C, var_order=5)
     assert change is not None and with_noise(singular, whiten, change) is None
+
+
+@pytest.mark.parametrize("n, p, samples", [(6, 3, 100), (20, 4, 257)])
+def test_the_free_response_is_taken_off_as_by_least_squares_on_the_stacked_responses(n, p, samples):
+    from okid_ros.core.noise_change import _without_free_response
+    from okid_ros.core.state_jump import jump_responses
+
+    rng = np.random.default_rng(n)
+    F = 0.97 * np.linalg.qr(rng.standard_normal((n, n)))[0]
+    C, residuals = rng.standard_normal((p, n)), rng.standard_normal((samples, p))
+    stacked = jump_responses(F, C, samples).reshape(-1, n)
+    fitted = stacked @ np.linalg.lstsq(stacked, residuals.reshape(-1), rcond=None)[0]
+    np.testing.assert_allclose(_without_free_response(residuals, F, C), residuals - fitted.reshape(residuals.shape),
+                               atol=1e-12)
