@@ -316,10 +316,12 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read as UTF-8 text ({exc})") from None
     dt = None
-    body = []
+    body, commented = [], []  # commented: (data rows before it, its text) of comment lines among the rows
     for line in lines:
         stripped = line.strip()
         if stripped.startswith("#"):
+            if body:
+                commented.append((len(body) - 1, stripped.lstrip("#").strip()))
             if _comment_setting(stripped)[0] == "sample_time_s":
                 given = _csv_sample_time(path, stripped)
                 if dt is not None and given != dt:  # the first must not be silently overridden
@@ -339,6 +341,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
         if len(row) != len(header):
             raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}"
                             f"{_separator_hint(header, body[0])}")
+    _warn_commented_rows(path, commented, len(header), len(rows) - 1)
     values = np.full((len(rows) - 1, len(header)), np.nan)
     for column in wanted(header):
         texts = [row[column] for row in rows[1:]]
@@ -351,6 +354,21 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             raise DataError(f"{path}: data row {loose}, column {header[column]!r}: {texts[loose - 1].strip()!r} "
                             f"is not a plain decimal number")
     return dt, header, values
+
+
+def _warn_commented_rows(path: Path, commented: list[tuple[int, str]], columns: int, n_rows: int) -> None:
+    """Warn of comment lines between data rows that read as a row of numbers: a sample left out.
+
+    Without a ``time_s`` column nothing else shows the gap: the samples either side are taken as
+    neighbours (``commented``: (data rows before it, its text without the ``#``)).
+    """
+    dropped = [before for before, text in commented
+               if 0 < before < n_rows and len(row := text.split(",")) == columns and all(map(_is_float, row))]
+    if dropped:
+        where = ", ".join(f"after data row {before}" for before in dropped[:3]) + (", ..." if len(dropped) > 3 else "")
+        warnings.warn(f"{path}: {len(dropped)} commented-out data row(s) between the samples ({where}): each is a "
+                      "sample missing from the record, its neighbours taken as consecutive; uncomment it or give a "
+                      "time_s column to mark the gap", OkidWarning, stacklevel=4)
 
 
 def _not_a_number(header: list[str], column: int, texts: list[str]) -> str:

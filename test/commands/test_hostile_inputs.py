@@ -184,6 +184,17 @@ def test_csv_columns_taken_by_their_first_letter_only_are_named(tmp_path: Path) 
     _load_without_warning(path)
 
 
+def test_a_commented_out_data_row_between_samples_is_named(tmp_path: Path) -> None:
+    # A '#' before a data row dropped its sample and joined its neighbours, in silence.
+    path = tmp_path / "hash.csv"
+    path.write_text("# sample_time_s=0.01\nu1,y1\n1,2\n2,3\n# 3,4\n4,5\n# a note, not numbers\n5,6\n# 6,7\n")
+    with pytest.warns(OkidWarning, match=r"1 commented-out data row\(s\) between the samples \(after data row 2\)"):
+        record = load_record(path)
+    assert record.y.shape == (4, 1)
+    path.write_text("# sample_time_s=0.01\n# 0,1\nu1,y1\n1,2\n2,3\n# 3,4\n")  # before the header, after the end
+    _load_without_warning(path)
+
+
 def test_a_sample_time_stored_in_half_precision_is_named(tmp_path: Path) -> None:
     # float16 0.01 is 0.0100021: every frequency 2e-4 off, in silence.
     u, y = _good_arrays()
