@@ -166,3 +166,16 @@ def test_a_parameter_given_dotted_and_nested_in_one_section_is_refused(tmp_path,
     path.write_text("/**:\n  ros__parameters:\n    arx.order: 30\n    arx: {window_length: 500}\n")
     arx, _ = load_node_parameters([path], strict=True)
     assert (arx["arx.order"], arx["arx.window_length"]) == (30, 500)
+
+
+def test_a_bad_param_value_names_the_option_not_the_last_file(tmp_path):
+    path = tmp_path / "small.yaml"
+    path.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 20}\n")
+    with pytest.raises(ParameterError, match=r"^--param arx.order=abc: parameter arx.order must be a number"):
+        load_node_parameters([path], ["arx.order=abc"])
+    with pytest.raises(ParameterError, match=r"^--param arx.window_length=-5: parameter arx.window_length"):
+        load_node_parameters([path], ["arx.window_length=-5"])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: abc}\n")
+    with pytest.raises(ParameterError, match=rf"^{bad}: parameter arx.order must be a number"):  # a file's own
+        load_node_parameters([path, bad], ["arx.window_length=500"])
