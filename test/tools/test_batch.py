@@ -141,6 +141,8 @@ def test_a_rerun_with_other_bags_keeps_the_rows_of_every_bag_identified_before(c
     assert batch(tmp_path / "moved", "--params", campaign["params"], "--out", out) == 1
     assert len((out / "summary.csv").read_text().splitlines()) == 1 + 4
     assert len(table_rows(out)) == len(rows)
+    assert batch(write_good_bag(tmp_path / "later" / "run_003", 3), "--params", campaign["params"], "--out", out) == 0
+    assert len((out / "summary.csv").read_text().splitlines()) == 1 + 5  # the moved bags' old entries not again
 
 
 def test_max_failures_stops_early_and_the_next_run_finishes(campaign, tmp_path):

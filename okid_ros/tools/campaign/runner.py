@@ -190,16 +190,18 @@ def _kept_from_journal(manifest: Manifest, bags: list[Path], fingerprints: dict[
 
     A campaign grows run by run (``batch DIR/new_bag.mcap --out DIR``): rewriting the tables with the
     bags given this time only dropped the rows of every bag identified before, in silence. A bag is
-    known by its absolute path; one given at another path with the same name, size and modification
-    time (the input folder moved) is that bag, not kept twice. A journaled bag whose stored result
+    known by its absolute path; one journaled or given at another path with the same name, size and
+    modification time (the input folder moved) is that bag, not kept twice. A journaled bag whose stored result
     is gone or spoilt is left out with a warning (give it again to process it).
     """
     given = {Manifest.key(bag) for bag in bags}
-    moved = {(bag.resolve().name, *fingerprints[str(bag)]) for bag in bags}
+    seen = {(bag.resolve().name, *fingerprints[str(bag)]) for bag in bags}
     kept, other_parameters = [], 0
-    for key, entry in manifest.entries.items():
-        if key in given or (Path(key).name, entry.get("size"), entry.get("mtime_ns")) in moved:
+    for key, entry in reversed(manifest.entries.items()):  # the newest path of a moved bag first
+        same = (Path(key).name, entry.get("size"), entry.get("mtime_ns"))
+        if key in given or same in seen:
             continue
+        seen.add(same)
         result, problem = stored_result(entry, out_dir, retry_failed=False)
         if result is None:
             why = problem or f"{key}: its outputs under {out_dir / 'bags'} are gone"
