@@ -23,8 +23,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "and ROS 1 .bag files) as `okid-ros process` does, locally in parallel (--workers) or on a running Dask "
         "cluster (--scheduler). Writes DIR/modes.parquet (one row per mode per model update, mode ids kept "
         "across the bags in stamp order), DIR/summary.csv (one row per bag), and per bag the output bag and "
-        "JSON lines of `process` under DIR/bags/. A rerun processes only new or changed bags. Exit status: 0 "
-        "when every bag is ok, 1 when one failed or was not run, 2 for a usage error.",
+        "JSON lines of `process` under DIR/bags/. A rerun processes only new or changed bags; the tables keep "
+        "every bag of the campaign, given this time or not (docs/batch.md). Exit status: 0 when every bag given "
+        "is ok, 1 when one failed or was not run, 2 for a usage error.",
     )
     parser.add_argument("paths", nargs="+", type=path_text,
                         metavar="BAG_OR_DIR", help="bags, or directories to search for bags")
@@ -54,7 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "(default: %(default)s)")
     parser.add_argument("--max-failures", type=positive_int, default=None, metavar="K",
                         help="stop after K bags failed (bags not started are reported skipped)")
-    parser.add_argument("--force", action="store_true", help="process every bag again, even when unchanged")
+    parser.add_argument("--force", action="store_true", help="process every bag given again, even when unchanged")
     parser.add_argument("--retry-failed", action="store_true",
                         help="process again the unchanged bags that failed before (default: keep their failure)")
     parser.add_argument("--csv", action="store_true", help="also write DIR/modes.csv")

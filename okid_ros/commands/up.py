@@ -24,12 +24,12 @@ from pathlib import Path
 
 from okid_ros.commands._args import namespace
 from okid_ros.errors import OkidError
+from okid_ros.tools.parent_death import die_with_parent
 
 NODE_MODULES = {
     "okid_arx_identifier": "okid_ros.nodes.arx_identifier_node",
     "okid_modal_estimator": "okid_ros.nodes.modal_estimator_node",
 }
-_PR_SET_PDEATHSIG = 1
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -63,16 +63,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="seconds each node gets to stop after SIGINT before SIGTERM (default: %(default)s)")
     parser.set_defaults(func=run)
     return parser
-
-
-def _die_with_parent() -> None:
-    """In the child: receive SIGTERM when `up` dies, however it dies (Linux)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass
 
 
 def node_command(module: str, params: list[str], use_sim_time: bool, log_level: str, *,
@@ -143,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
                 node_command(module, params, args.use_sim_time, args.log_level,
                              namespace=args.namespace, strict_params=args.strict_params,
                              lifecycle=args.lifecycle, autostart=not args.no_autostart),
-                start_new_session=True, preexec_fn=_die_with_parent,
+                start_new_session=True, preexec_fn=die_with_parent,
             )
         print(f"okid-ros up: started {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}; "
               "Ctrl-C stops both", flush=True)

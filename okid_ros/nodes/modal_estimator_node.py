@@ -84,6 +84,7 @@ from okid_ros.service.estimation import (
 from okid_ros.service.params import ESTIMATOR_NODE
 from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.windowed import estimation_step
+from okid_ros.tools.parent_death import die_with_parent
 
 NODE_NAME = ESTIMATOR_NODE
 SWITCH_INTERVAL_S = 2e-4
@@ -372,14 +373,7 @@ def _worker_init(name: str, node_pid: int | None = None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A node killed (SIGKILL, the OOM killer) cannot stop its pool: without this the worker and
     # multiprocessing's resource tracker lived on, orphaned, one pair per crash (Linux only).
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if node_pid is not None and os.getppid() != node_pid:
-        os._exit(0)  # the node died before the line above took effect
+    die_with_parent(node_pid)
     name_thread(name)
     # Numerical warnings of the realization (ill-conditioned refits of candidate orders) are
     # part of its normal work; a model that fails its checks is reported in the diagnostics.

@@ -9,8 +9,9 @@ one name token and ``/**`` for any number of them. So ``/**`` applies to every n
 
 :func:`file_report` lists what a user most likely got wrong and rcl passes over in silence:
 parameters no node declares (``arx: {ordr: 50}``), sections naming a node of this package
-that do not apply to it (a bare node name with a namespace) and a key given twice in one
-mapping (rcl, like YAML loaders, keeps the last). The nodes log it as warnings (or
+that do not apply to it (a bare node name with a namespace), sections that apply to no node
+(a misspelt node name, ``/**/okid_arx_identifer``: the closest node name is suggested) and a
+key given twice in one mapping (rcl, like YAML loaders, keeps the last). The nodes log it as warnings (or
 refuse to start with ``strict_parameters``), ``okid-ros process`` prints it (or refuses with
 ``--strict-params``). A parameter given twice in one section in two spellings, dotted and
 nested (``inputs.sources`` and ``inputs: {sources}``), is refused by :func:`read_parameter_file`
@@ -180,14 +181,11 @@ def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
     for key, values in _sections(tree):
         applies = [node for node, fqn in fqns.items() if section_matches(key, fqn)]
         last = str(key).rstrip("/").split("/")[-1]
-        if for_node is not None and for_node not in applies and last != for_node:
+        near = last if last in known else _near_node(last, known)
+        if for_node is not None and for_node not in applies and near != for_node:
             continue
         if not applies:
-            if last in known:
-                problems.append(
-                    f"{label}: section {key!r} does not apply to {fqns[last]} (a node name without "
-                    f"'/**/' is in the root namespace); key it '/**/{last}' to apply in every namespace"
-                )
+            problems.append(_no_node_problem(label, str(key), last, near, fqns))
             continue
         names = set().union(*(known[node] for node in applies))
         unknown = sorted(n for n in values if n not in names and not _standard(n))
@@ -196,6 +194,25 @@ def file_report(tree: Mapping, label: str, nodes: Mapping[str, Iterable[str]],
             problems.append(f"{label}: section {key!r}: unknown parameter(s) {', '.join(unknown)} "
                             f"(not declared by {where})")
     return problems
+
+
+def _near_node(name: str, known: Iterable[str]) -> str | None:
+    """The node name ``name`` most likely misspells (``okid_arx_identifer``), or None."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.8)
+    return close[0] if close else None
+
+
+def _no_node_problem(label: str, key: str, last: str, near: str | None, fqns: Mapping[str, str]) -> str:
+    """The sentence for a section that applies to none of the nodes (a misspelt node name: rcl reads it for none)."""
+    if near == last:
+        return (f"{label}: section {key!r} does not apply to {fqns[last]} (a node name without "
+                f"'/**/' is in the root namespace); key it '/**/{last}' to apply in every namespace")
+    text = f"{label}: section {key!r} applies to no node ({', '.join(fqns.values())}): nothing in it is read"
+    if near is not None:
+        text += f" (did you mean {key.rstrip('/')[:-len(last)] + near!r}?)"
+    return text
 
 
 def params_files_from_args(args: Sequence[str]) -> list[str]:

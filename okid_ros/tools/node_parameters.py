@@ -55,8 +55,11 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
 
     names = {node: {s.name for s in node_params(node)} for node in (ARX_NODE, ESTIMATOR_NODE)}
     layered = _overrides(overrides, names)
+    # Where each value given on the command line came from: a bad one is blamed on its option, not a file.
+    given = {name: f"--param {item.strip()}" for (name, _), item in zip(layered, overrides)}
     if sources:
         layered.append(("inputs.sources", list(sources)))
+        given["inputs.sources"] = "--source"
     trees = [(str(path), read_parameter_file(path)) for path in param_files]
     problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
     problems += _typed_problems(trees, namespace)
@@ -74,6 +77,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
             merged.update(found)
             origin.update({name: label for name in found})
         merged.update((name, value) for name, value in layered if name in names[node])
+        origin.update((name, given[name]) for name, _ in layered if name in names[node])
         merged = {k: v for k, v in merged.items() if k in names[node]}
         try:
             values.append(resolve_parameters(node, merged))

@@ -8,7 +8,10 @@ Paths are compared resolved (symlinks, ``..``); an input file inside a rosbag2 d
 :func:`check_output_paths` runs in ``identify``, ``track`` and ``process`` before any work,
 whatever ``--force`` says; :func:`prepare_output` before each output is written that replaces
 an old one by removing it first (a bag), :func:`prepare_file_outputs` before the work for a file
-renamed over the old one (``identify``'s and ``track``'s outputs).
+renamed over the old one (``identify``'s and ``track``'s outputs). ``process``'s bag and JSON
+lines replace existing ones only once complete (:class:`StagedOutput`: written beside, renamed
+over at the end, kept when interrupted): ``--force`` never costs the previous output for a run
+that fails.
 """
 
 from __future__ import annotations
@@ -16,14 +19,15 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["bag_folder", "check_output_paths", "check_replaceable", "prepare_file_outputs", "prepare_output",
-           "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_output_paths", "check_replaceable", "prepare_file_outputs",
+           "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -189,6 +193,78 @@ def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag"
     except OSError as exc:
         raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
     return True
+
+
+class StagedOutput:
+    """An output that replaces an existing one (``--force``) only once it is complete.
+
+    Replacing an output first and failing late (an input with no complete sample, found at its
+    end) lost the previous good output for nothing. Where there is an output to replace, the new
+    one is written as ``.NAME.tmp-XXXXXXXX/NAME`` beside it (its own name inside: a rosbag2
+    directory names its storage file after itself) and :meth:`commit` renames it over ``path``
+    (what may be replaced: :func:`check_replaceable`); :meth:`discard` removes it and leaves the
+    old one. A new path is written in place (JSON lines can be followed as they come) and removed
+    by :meth:`discard`; a device or FIFO (``/dev/null``) is written into.
+
+    Parameters
+    ----------
+    path : the output's path.
+    force : allow replacing an existing output.
+    kind : what the output is, for the messages ("bag", "JSON lines file", ...).
+
+    Raises
+    ------
+    OutputExistsError, BagWriteError : as :func:`prepare_output`; also when the folder beside it cannot be made.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, force: bool, kind: str = "bag") -> None:
+        self.path, self.force, self.kind = Path(path), force, kind
+        self._folder: Path | None = None
+        replacing = check_replaceable(self.path, force=force, kind=kind)
+        self.staged = self.path
+        self._created = not output_exists(self.path)  # False for a device: never removed
+        _make_folder(self.path.parent, self.path)
+        if not replacing:
+            return
+        stem = os.fsdecode(os.fsencode(self.path.name)[:200])  # a legal long name stays legal with the tag
+        folder = self.path.with_name(f".{stem}.tmp-{uuid.uuid4().hex[:8]}")
+        try:
+            folder.mkdir()
+        except OSError as exc:
+            raise BagWriteError(f"{self.path}: cannot write beside it ({one_line(exc.strerror or exc)})") from None
+        self._folder, self.staged, self._created = folder, folder / self.path.name, False
+
+    def commit(self) -> Path:
+        """Put the complete output at ``path``, replacing the old one; returns ``path``."""
+        if self._folder is None:
+            self._created = False
+            return self.path
+        old = self._folder / f".old-{self.path.name}"  # aside first: put back if the rename fails
+        try:
+            os.replace(self.path, old)
+        except OSError as exc:
+            raise BagWriteError(f"{self.path}: cannot replace the {self.kind} "
+                                f"({one_line(exc.strerror or exc)})") from None
+        try:
+            os.replace(self.staged, self.path)
+        except OSError as exc:
+            os.replace(old, self.path)
+            raise BagWriteError(f"{self.path}: cannot put the new {self.kind} in place "
+                                f"({one_line(exc.strerror or exc)})") from None
+        self.discard()  # the old output and the emptied folder
+        return self.path
+
+    def discard(self) -> None:
+        """Remove what was written (an output that was there before stays as it was)."""
+        if self._folder is not None:
+            shutil.rmtree(self._folder, ignore_errors=True)
+            self._folder = None
+        elif self._created:
+            self._created = False
+            if self.path.is_dir() and not self.path.is_symlink():
+                shutil.rmtree(self.path, ignore_errors=True)
+            elif output_exists(self.path):
+                self.path.unlink()
 
 
 def _make_folder(folder: Path, out: Path) -> None:

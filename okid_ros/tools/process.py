@@ -33,7 +33,6 @@ metadata, and ``okid_ros.process`` records the source and the resolved parameter
 from __future__ import annotations
 
 import math
-import shutil
 import sys
 import time
 import warnings
@@ -41,7 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import OkidWarning, ParameterError, is_special_file
+from okid_ros.errors import OkidWarning, ParameterError
 from okid_ros.jsonio import JsonLines, dumps
 from okid_ros.tools.bagio import (
     PROCESS_KEY,
@@ -53,7 +52,7 @@ from okid_ros.tools.bagio import (
 from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
-from okid_ros.tools.output_paths import check_output_paths, check_replaceable, prepare_output
+from okid_ros.tools.output_paths import StagedOutput, check_output_paths, check_replaceable
 from okid_ros.tools.source_check import bag_fingerprint
 
 __all__ = [
@@ -118,18 +117,11 @@ def process_bag(
     nodes = OfflineNodes(arx_values, est_values, namespace=namespace)
     jsonl_path = _check_outputs(bag_path, out_path, jsonl_path, nodes, force)
     started = time.perf_counter()
-    created: list[Path] = []
+    staged: list[StagedOutput] = []
     try:
         with open_bag(bag_path) as bag:
             total, truth = _check_input(bag, bag_path, nodes, arx_values)
-            # Outputs are created only once the input is known to be usable.
-            writer = BagWriter(out_path, storage=storage, force=force)
-            created.append(out_path)
-            jsonl = None
-            if jsonl_path is not None:
-                prepare_output(jsonl_path, force=force, kind="JSON lines file")
-                jsonl = JsonLines(jsonl_path)
-                created.append(jsonl_path)
+            writer, jsonl = _new_outputs(staged, out_path, jsonl_path, force=force, storage=storage)
             bar = _Progress(total, progress, progress_stream)
             with writer:
                 emit = _Emitter(writer, nodes, jsonl, on_update, truth)
@@ -147,11 +139,31 @@ def process_bag(
                 summary.elapsed_s = time.perf_counter() - started
                 _write_metadata(writer, nodes, record)
     except KeyboardInterrupt:
-        raise  # what was written stays, closed and readable
-    except BaseException:
-        _remove(created)  # no half-written outputs after an error
+        for output in staged:  # what was written stays, closed, readable and marked cut short
+            output.commit()
         raise
+    except BaseException:
+        for output in staged:  # no half-written outputs after an error; the previous ones stay
+            output.discard()
+        raise
+    for output in staged:
+        output.commit()
     return summary
+
+
+def _new_outputs(staged: list[StagedOutput], out_path: Path, jsonl_path: Path | None, *, force: bool,
+                 storage: str) -> tuple[BagWriter, JsonLines | None]:
+    """The output bag's writer and the JSON lines file, each added to ``staged`` as it is made.
+
+    Made only once the input is known to be usable; an existing output is replaced (``force``) only
+    by a complete new one (:class:`StagedOutput`).
+    """
+    staged.append(StagedOutput(out_path, force=force))
+    writer = BagWriter(staged[-1].staged, storage=storage)
+    if jsonl_path is None:
+        return writer, None
+    staged.append(StagedOutput(jsonl_path, force=force, kind="JSON lines file"))
+    return writer, JsonLines(staged[-1].staged)
 
 
 def publish_rate_warning(arx_values: dict, samples: int) -> str:
@@ -189,15 +201,6 @@ def _with_samples(summary: ProcessSummary, bag_path: Path) -> ProcessSummary:
         made = "no input message made a complete sample" if not summary.samples else "one complete sample only"
         raise BagReadError(f"{bag_path}: {made}" + (f"; {note}" if note else ""))
     return summary
-
-
-def _remove(paths: list[Path]) -> None:
-    """Remove the outputs of a failed run; a device or FIFO (``/dev/stdout``) is written into, never removed."""
-    for path in paths:
-        if path.is_dir():
-            shutil.rmtree(path, ignore_errors=True)
-        elif path.exists() and not is_special_file(path):
-            path.unlink()
 
 
 def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None, nodes: OfflineNodes,

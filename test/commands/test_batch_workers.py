@@ -7,10 +7,16 @@ worker(s)"; with as many bags it would have started as many processes.
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
+from batch_helpers import write_good_bag, write_params
 from cli_helpers import run_cli
+from ros_helpers import REPO_ROOT
 
 from okid_ros.cli import main
 from okid_ros.commands import batch
@@ -54,3 +60,63 @@ def test_the_cores_are_those_of_the_affinity_and_the_container_quota(tmp_path, m
     assert usable_cores(cpu_max_path=cpu_max) == 8
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})
     assert usable_cores(cpu_max_path=tmp_path / "absent") == 1
+
+
+# `okid-ros batch --workers 2` in a process of its own, its cores set to 2 whatever this machine has.
+_BATCH_2 = ("import sys; from okid_ros.commands import batch; batch.usable_cores = lambda: 2; "
+            "from okid_ros.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state, parent pid) of a process from /proc (Linux), None when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return fields[0], int(fields[1])
+
+
+def _forked_children(parent: int) -> list[int]:
+    """The pool's workers: children running the parent's own command line (forked, not exec'd)."""
+    def cmdline(pid: int) -> bytes:
+        try:
+            return Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            return b""
+
+    pids = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit()]
+    return [pid for pid in pids if (_stat(pid) or ("", 0))[1] == parent and cmdline(pid) == cmdline(parent)]
+
+
+def _gone(pid: int) -> bool:
+    stat = _stat(pid)
+    return stat is None or stat[0] in "ZX"  # a zombie is dead, not yet reaped by its new parent
+
+
+def test_the_pool_workers_die_with_a_killed_batch(tmp_path):
+    # Was: SIGKILL (the OOM killer, kill -9) left both workers running the queued bags, then blocked
+    # forever on a pipe, ~140 MB each.
+    for index in range(6):
+        write_good_bag(tmp_path / "bags" / f"b{index}", index)
+    command = [sys.executable, "-c", _BATCH_2, "batch", str(tmp_path / "bags"), "--params",
+               str(write_params(tmp_path / "p.yaml")), "--out", str(tmp_path / "c"), "--workers", "2", "--no-progress"]
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT), "OPENBLAS_NUM_THREADS": "1"}
+    process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 60
+        while len(workers) < 2:
+            assert process.poll() is None and time.monotonic() < deadline, "batch ended before its pool started"
+            time.sleep(0.05)
+            workers = _forked_children(process.pid)
+        process.send_signal(signal.SIGKILL)
+        process.wait(timeout=10)
+        deadline = time.monotonic() + 5
+        while not all(map(_gone, workers)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [pid for pid in workers if not _gone(pid)] == []
+    finally:
+        process.kill()
+        for pid in workers:
+            if not _gone(pid):
+                os.kill(pid, signal.SIGKILL)  # the old code's orphans: not left on the machine

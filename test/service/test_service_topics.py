@@ -166,3 +166,36 @@ def test_a_parameter_given_dotted_and_nested_in_one_section_is_refused(tmp_path,
     path.write_text("/**:\n  ros__parameters:\n    arx.order: 30\n    arx: {window_length: 500}\n")
     arx, _ = load_node_parameters([path], strict=True)
     assert (arx["arx.order"], arx["arx.window_length"]) == (30, 500)
+
+
+def test_a_section_that_applies_to_no_node_is_reported_with_the_closest_node_name(tmp_path):
+    # A misspelt node name applies to no node: the run used the defaults, in silence, even with --strict-params.
+    path = tmp_path / "misspelt.yaml"
+    path.write_text("/**/okid_arx_identifer:\n  ros__parameters:\n    arx: {order: 20}\n"
+                    "/**/some_other_node:\n  ros__parameters:\n    rate: 5\n")
+    reported: list[str] = []
+    arx, _ = load_node_parameters([path], report=reported.append)
+    assert arx["arx.order"] == 100 and len(reported) == 2
+    assert "section '/**/okid_arx_identifer' applies to no node" in reported[0]
+    assert "did you mean '/**/okid_arx_identifier'?" in reported[0]
+    assert "'/**/some_other_node' applies to no node" in reported[1] and "did you mean" not in reported[1]
+    with pytest.raises(ParameterError, match="okid_arx_identifer' applies to no node"):
+        load_node_parameters([path], strict=True)
+    names = {n: [s.name for s in node_params(n)] for n in (ARX_NODE, ESTIMATOR_NODE)}
+    tree = yaml.safe_load(path.read_text())
+    # A node reports the near miss of its own name only (a shared file holds other nodes' sections).
+    assert len(file_report(tree, "f.yaml", names, for_node=ARX_NODE)) == 1
+    assert file_report(tree, "f.yaml", names, for_node=ESTIMATOR_NODE) == []
+
+
+def test_a_bad_param_value_names_the_option_not_the_last_file(tmp_path):
+    path = tmp_path / "small.yaml"
+    path.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 20}\n")
+    with pytest.raises(ParameterError, match=r"^--param arx.order=abc: parameter arx.order must be a number"):
+        load_node_parameters([path], ["arx.order=abc"])
+    with pytest.raises(ParameterError, match=r"^--param arx.window_length=-5: parameter arx.window_length"):
+        load_node_parameters([path], ["arx.window_length=-5"])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: abc}\n")
+    with pytest.raises(ParameterError, match=rf"^{bad}: parameter arx.order must be a number"):  # a file's own
+        load_node_parameters([path, bad], ["arx.window_length=500"])

@@ -113,6 +113,38 @@ def test_only_new_or_changed_bags_and_other_parameters_run_again(campaign, tmp_p
     assert all(row["reused"] == "False" for row in read_summary(out).values())  # parameters' hash changed
 
 
+def test_a_rerun_with_other_bags_keeps_the_rows_of_every_bag_identified_before(campaign, tmp_path, capsys):
+    # Was: `batch new_bag --out DIR` (or a rerun after a bag left the input folder) rewrote
+    # modes.parquet and summary.csv with the bags given that time only, in silence.
+    bags, out = tmp_path / "bags", tmp_path / "c"
+    for name in ("run_000", "run_001", "run_001_cut"):
+        shutil.copytree(campaign["bags"] / name, bags / name)
+    assert batch(bags, "--params", campaign["params"], "--out", out, "--workers", 1) == 1  # run_001_cut fails
+    before = table_rows(out)
+    assert {Path(r["bag"]).name for r in before} == {"run_000", "run_001"}
+    capsys.readouterr()
+    new = write_good_bag(tmp_path / "later" / "run_002", 2)
+    assert batch(new, "--params", campaign["params"], "--out", out) == 0  # the kept failure is not this run's
+    assert "(3 of them not given this time, kept from the campaign's journal)" in capsys.readouterr().out
+    summary = read_summary(out)
+    assert {n: (row["status"], row["reused"], row["given"]) for n, row in summary.items()} == {
+        "run_000": ("ok", "True", "False"), "run_001": ("ok", "True", "False"),
+        "run_001_cut": ("failed", "True", "False"), "run_002": ("ok", "False", "True")}
+    rows = table_rows(out)
+    assert [r for r in rows if Path(r["bag"]).name != "run_002"] == before  # run_002 is the latest bag
+    assert {Path(r["bag"]).name for r in rows} == {"run_000", "run_001", "run_002"}
+    # A bag removed from the input folder keeps its rows; the folder moved, its bags are not counted twice.
+    shutil.rmtree(bags / "run_001")
+    assert batch(bags, "--params", campaign["params"], "--out", out) == 1
+    assert table_rows(out) == rows and sorted(read_summary(out)) == sorted(summary)
+    os.rename(bags, tmp_path / "moved")
+    assert batch(tmp_path / "moved", "--params", campaign["params"], "--out", out) == 1
+    assert len((out / "summary.csv").read_text().splitlines()) == 1 + 4
+    assert len(table_rows(out)) == len(rows)
+    assert batch(write_good_bag(tmp_path / "later" / "run_003", 3), "--params", campaign["params"], "--out", out) == 0
+    assert len((out / "summary.csv").read_text().splitlines()) == 1 + 5  # the moved bags' old entries not again
+
+
 def test_max_failures_stops_early_and_the_next_run_finishes(campaign, tmp_path):
     bags = tmp_path / "bags"
     bags.mkdir()

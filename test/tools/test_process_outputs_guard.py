@@ -173,3 +173,22 @@ def test_a_publish_period_longer_than_the_bag_is_the_reason_given(victim, capsys
                              "--no-progress")
     assert code == 0, err
     assert "no model was identified: no ArxModel was due: one every 10 s of sample time (publish_rate_hz)" in out
+
+
+def test_force_keeps_the_previous_outputs_when_the_new_input_fails_late(victim, capsys):
+    # Was: --force removed the old bag and JSON lines before reading the input; an input found at
+    # its end to make no sample then left neither the old outputs nor new ones.
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--jsonl", "m.jsonl", "--no-progress")
+    assert code == 0, err
+    before = (digest(Path("o")), Path("m.jsonl").read_bytes())
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--jsonl", "m.jsonl", "--param", "n_inputs=3",
+                           "--param", "n_outputs=5", "--force", "--no-progress")
+    assert_one_line_error(code, err, "no input message made a complete sample")
+    assert (digest(Path("o")), Path("m.jsonl").read_bytes()) == before
+    assert sorted(p.name for p in Path().iterdir()) == ["m.jsonl", "o", "v"]  # nothing staged is left
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--jsonl", "m.jsonl", "--param",
+                           "publish_rate_hz=0.5", "--force", "--no-progress")
+    assert code == 0, err  # a run that succeeds replaces both
+    assert digest(Path("o")) != before[0] and sorted(p.name for p in Path().iterdir()) == ["m.jsonl", "o", "v"]
+    with open_bag(Path("o")) as written:
+        assert written.custom_json("okid_ros.process")["parameters"]["okid_arx_identifier"]["publish_rate_hz"] == 0.5

@@ -7,13 +7,16 @@ stop early (``--max-failures``): bags not started are cancelled and returned as 
 already running finish and are delivered, so nothing done is lost.
 
 The local pool forks this process (Linux), so a worker starts with the modules the command has
-already imported: the per-bag overhead is the bag itself. Dask is an optional extra
+already imported: the per-bag overhead is the bag itself; its workers end with it, even when it
+is killed (:func:`okid_ros.tools.parent_death.die_with_parent`). Dask is an optional extra
 (``okid_ros[dask]``) imported only for ``--scheduler``.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
 import uuid
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -22,6 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from okid_ros.errors import OkidError
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.worker import BagJob, failed_result, run_bag_job
+from okid_ros.tools.parent_death import die_with_parent
 
 __all__ = ["run_jobs"]
 
@@ -62,12 +66,25 @@ def _pool_context() -> multiprocessing.context.BaseContext:
     return multiprocessing.get_context("fork" if "fork" in methods else None)
 
 
+def _pool_worker_init(parent_pid: int) -> None:
+    """A pool worker ends with the command, however the command ends.
+
+    Killed (SIGKILL, the OOM killer), the command cannot stop its pool: the workers went on with
+    the bags queued, then waited forever on a pipe (~140 MB each). SIGKILL, not SIGTERM: a worker
+    forked from the command inherits its SIGTERM handler, which raises KeyboardInterrupt in the
+    bag under way: the worker sends it back as the bag's error and waits for the next bag, forever.
+    What a worker killed so leaves is a ``bags/.tmp-*`` folder, never a table or a journal line.
+    """
+    die_with_parent(parent_pid, signal.SIGKILL)
+
+
 def _run_pool(jobs: list[BagJob], on_result: OnResult, workers: int) -> list[BagJob]:
     # A few bags in flight per worker, not all of them: cancelling the rest at a stop is then exact
     # and the pool's queues stay small for thousands of bags.
     pending = list(reversed(range(len(jobs))))
     running: dict[Future, int] = {}
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context(), initializer=_pool_worker_init,
+                             initargs=(os.getpid(),)) as pool:
         try:
             _drain(pool, jobs, pending, running, on_result, workers)
         except KeyboardInterrupt:

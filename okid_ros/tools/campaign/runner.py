@@ -5,7 +5,8 @@ The order of a run: the bags are found and fingerprinted; a bag whose manifest e
 others become jobs for the engine; each finished bag is journaled at once; then campaign mode
 ids are given over every ok bag and ``modes.parquet`` and ``summary.csv`` are written (both
 atomically, rebuilt from the per-bag results each run, so a run killed before this point is
-completed by the next one).
+completed by the next one). The tables hold every bag of the journal, given this run or not: a
+campaign grows run by run, and nothing identified before leaves its tables.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ class CampaignReport:
 
     @property
     def exit_status(self) -> int:
-        """0 when every bag is ok, 1 otherwise (failed or not run)."""
-        return 0 if all(e["status"] == "ok" for e in self.entries) else 1
+        """0 when every bag given is ok, 1 otherwise (failed or not run); bags kept from the journal do not count."""
+        return 0 if all(e["status"] == "ok" for e in self.entries if e.get("given", True)) else 1
 
 
 def is_campaign_dir(path: Path) -> bool:
@@ -177,7 +178,43 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
                                 "reason": f"not run: --max-failures {options.max_failures} reached", "models": 0,
                                 "samples": 0, "duration_s": math.nan, "start_s": math.nan, "seconds": 0.0,
                                 "reused": False, "updates": []}
-    return _finish(options, manifest, list(results.values()), started)
+    for result in results.values():
+        result["given"] = True
+    kept = _kept_from_journal(manifest, bags, fingerprints, out_dir, params_hash)
+    return _finish(options, manifest, list(results.values()) + kept, started)
+
+
+def _kept_from_journal(manifest: Manifest, bags: list[Path], fingerprints: dict[str, tuple[int, int]],
+                       out_dir: Path, params_hash: str) -> list[dict]:
+    """The journaled bags not given this run, as their earlier runs left them (the tables keep them).
+
+    A campaign grows run by run (``batch DIR/new_bag.mcap --out DIR``): rewriting the tables with the
+    bags given this time only dropped the rows of every bag identified before, in silence. A bag is
+    known by its absolute path; one journaled or given at another path with the same name, size and
+    modification time (the input folder moved) is that bag, not kept twice. A journaled bag whose stored result
+    is gone or spoilt is left out with a warning (give it again to process it).
+    """
+    given = {Manifest.key(bag) for bag in bags}
+    seen = {(bag.resolve().name, *fingerprints[str(bag)]) for bag in bags}
+    kept, other_parameters = [], 0
+    for key, entry in reversed(manifest.entries.items()):  # the newest path of a moved bag first
+        same = (Path(key).name, entry.get("size"), entry.get("mtime_ns"))
+        if key in given or same in seen:
+            continue
+        seen.add(same)
+        result, problem = stored_result(entry, out_dir, retry_failed=False)
+        if result is None:
+            why = problem or f"{key}: its outputs under {out_dir / 'bags'} are gone"
+            print(f"okid-ros batch: warning: {why}; the bag is not given this time: left out of the tables (give "
+                  "it again to process it)", file=sys.stderr)
+            continue
+        other_parameters += entry.get("params_hash") != params_hash
+        kept.append({**result, "bag": str(result.get("bag") or key), "reused": True, "given": False})
+    if other_parameters:
+        print(f"okid-ros batch: warning: {other_parameters} bag(s) of the campaign not given this time were "
+              "identified with other parameters; the tables keep them as they are (give them again to redo "
+              "them with these)", file=sys.stderr)
+    return kept
 
 
 def _finish(options: CampaignOptions, manifest: Manifest, results: list[dict], started: float) -> CampaignReport:

@@ -23,9 +23,10 @@ def print_summary(report: CampaignReport, options: CampaignOptions, emit: Callab
     started = min(options.workers, processed + report.count("skipped"))  # the pool's processes (engines.run_jobs)
     engine = (f"Dask scheduler {options.scheduler}" if options.scheduler
               else f"{started} local worker(s)" if started > 1 else "serial")
+    kept = sum(1 for e in entries if not e.get("given", True))
     emit(f"batch: {len(entries)} bags: {report.count('ok')} ok, {report.count('failed')} failed, "
          f"{report.count('skipped')} skipped; {processed} processed now ({engine}), {reused} unchanged since the "
-         f"last run")
+         f"last run" + (f" ({kept} of them not given this time, kept from the campaign's journal)" if kept else ""))
     emit(f"  {models} model updates over {samples} samples, {len(report.rows)} mode rows, "
          f"{len(mode_ids)} mode ids tracked across the campaign; {report.elapsed_s:.1f} s")
     for mode_id in sorted(mode_ids)[:_MAX_LISTED]:

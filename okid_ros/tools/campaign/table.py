@@ -27,7 +27,7 @@ MODE_COLUMNS = ("bag", "bag_index", "stamp_s", "model_id", "arx_model_id", "n_st
                 "mpc", "emac", "msv", "mac_previous", "stable")
 #: Columns of summary.csv, in order (add, never rename).
 SUMMARY_COLUMNS = ("bag", "status", "reason", "models", "duration_s", "seconds", "samples", "start_s", "reused",
-                   "outputs")
+                   "outputs", "given")
 _INT_COLUMNS = {"bag_index", "model_id", "arx_model_id", "n_states", "mode_id", "bag_mode_id"}
 
 
