@@ -95,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
                       f"span {span:.3g} s")
         print("no model was identified" + (f": {reason}" if reason else ""))
     note = summary.rejection_note()
-    if note and (not summary.updates or summary.grid_hints()):  # the likely cause, or models of a wrong grid
+    # The likely cause, models of a wrong grid, or a share of the bag lost (a topic that stopped half-way)
+    if note and (not summary.updates or summary.grid_hints() or summary.losses_worth_saying()):
         print(f"okid-ros process: warning: {note}", file=sys.stderr)
     return 0
 

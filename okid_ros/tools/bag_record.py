@@ -42,6 +42,7 @@ class BagRecord:
         jumps and gaps longer than ``MAX_GAP_SAMPLES``).
     messages : messages read on the source topics.
     rejected : messages the sample grid refused, by reason (only reasons that occurred).
+    missing : sample times the grid dropped incomplete (a message missing on some source topic).
     """
 
     record: Record
@@ -50,6 +51,7 @@ class BagRecord:
     runs: int
     messages: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
+    missing: int = 0
 
     @property
     def samples_left_out(self) -> int:
@@ -76,10 +78,13 @@ class BagRecord:
         Also said when most samples stand alone between empty sample times: a sample time finer
         than the stamps' spacing refuses nothing but leaves every other slot empty.
         """
-        from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
+        from okid_ros.tools.grid_hints import loss_worth_saying, rejection_hint, stand_alone_hint
 
         dt = self.record.sample_time_s
         notes = []
+        if loss_worth_saying(self.missing, self.samples_total + self.missing):
+            notes.append(f"{self.missing} sample times dropped incomplete (a message missing on some source topic: "
+                         "one that stopped or dropped messages?)")
         if sum(self.rejected.values()):
             hint = rejection_hint(self.rejected, dt, messages=self.messages)
             notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
@@ -135,14 +140,14 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
-        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections())
+        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections(), int(grid.missing))
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     grid.rejections())
+                     grid.rejections(), int(grid.missing))
 
 
 def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:

@@ -15,7 +15,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-__all__ = ["rejection_hint", "stand_alone_hint"]
+__all__ = ["LOSS_NOTE_FRACTION", "loss_worth_saying", "rejection_hint", "stand_alone_hint"]
+
+#: Samples lost (dropped incomplete, or their messages refused) worth a note even when models came:
+#: a stray duplicate or a dropped packet in a long bag is not, a topic that stopped half-way is.
+LOSS_NOTE_FRACTION = 0.01
+
+
+def loss_worth_saying(lost: int, total: int) -> bool:
+    """Whether ``lost`` of ``total`` (samples, or messages) is worth a note though models came."""
+    return lost > 0 and lost >= LOSS_NOTE_FRACTION * max(total, 1)
 
 #: Refusals a wrong sample_time_s causes, when they are most of them: where those messages fell.
 _WHERE = {"duplicate": "in a sample time already taken", "off_grid": "between sample times",

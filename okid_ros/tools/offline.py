@@ -143,6 +143,15 @@ class ProcessSummary:
                  *self.grid_hints(), refused]
         return "; ".join(note for note in notes if note)
 
+    def losses_worth_saying(self) -> bool:
+        """Whether the samples dropped incomplete or the messages refused are worth the note though models came."""
+        from okid_ros.tools.grid_hints import loss_worth_saying
+
+        counts = self.grid_counters
+        missing = counts.get("missing", 0)
+        return (loss_worth_saying(missing, self.samples + missing)
+                or loss_worth_saying(counts.get("rejected_messages", 0), counts.get("messages", 0)))
+
     def grid_hints(self) -> list[str]:
         """The likely cause when the messages do not fit node 1's grid (:mod:`okid_ros.tools.grid_hints`)."""
         from okid_ros.tools.grid_hints import rejection_hint, stand_alone_hint
