@@ -26,10 +26,10 @@ at poles ``F`` does not have), a changed noise does not.
 
 Measured on the change bench's systems (3 seeds; the excess predictable fraction, old
 innovations -> re-whitened, over the first 512 samples after the change): the disturbance
-forces x1.5 to x3 0.20-0.77 -> -0.01-0.03; structural changes keep 0.06-0.34 (frequency -2 %
+forces x1.5 to x3 0.33-0.77 -> 0.00-0.03; structural changes keep 0.06-0.34 (frequency -2 %
 and -6 %, damping x2, storey stiffness -20 %) and 0.03-0.05 (stiffness -10 %). Fewer samples
 tell them apart less well, so a verdict of noise waits for :attr:`NoiseChangeTest.max_samples`
-while a model error found earlier is declared at once.
+while a model error found earlier is declared at once (docs/benchmarks-change.md).
 
 No library tests a change of noise model with the dynamics fixed (the state-space tests in
 the field's packages re-identify the whole model); numpy and scipy only.
