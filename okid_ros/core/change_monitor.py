@@ -122,12 +122,26 @@ class StructuralChangeMonitor:
         self._calibration_power = [0.0, 0]
         self._jumps = StateJumpTest(self.predictor.F, whiten @ self.predictor.C) if self.state_jump_test else None
         self.detector.jump_test = self._judge_jump if self.state_jump_test else None
-        self._noise = None
-        if self.noise_change_test:
-            self._noise = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, self.detector.check)
+        self._noise = self._noise_test(whiten) if self.noise_change_test else None
         self.detector.noise_test = self._judge_noise if self.noise_change_test else None
         self._noise_excursion = -1
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
+
+    def _noise_test(self, whiten: np.ndarray) -> NoiseChangeTest:
+        """The noise-change test, with the check's inputs and the ring holding the samples its verdict needs.
+
+        Its samples grow with the check's regressors (many inputs): beyond the calibration's
+        capacity a verdict would never come, and the ring was read on every sample meanwhile.
+        """
+        check = self.detector.check
+        test = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, check)
+        needed = test.max_samples + check.lags + _CHUNK_SAMPLES
+        if check.capacity < needed:
+            check = self.detector.check = ModelErrorCheck(check.n_outputs, check.n_inputs, capacity=needed)
+            test = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, check)
+        if self._ring.capacity < needed:
+            self._ring = SampleRing(check.n_outputs, needed)
+        return test
 
     def _without_glitches(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """The innovations ``e`` of a block (u (N, m), y (N, p)) run from state ``x0``, its glitches taken out.

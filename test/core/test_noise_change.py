@@ -121,3 +121,20 @@ def test_the_free_response_is_taken_off_as_by_least_squares_on_the_stacked_respo
     fitted = stacked @ np.linalg.lstsq(stacked, residuals.reshape(-1), rcond=None)[0]
     np.testing.assert_allclose(_without_free_response(residuals, F, C), residuals - fitted.reshape(residuals.shape),
                                atol=1e-12)
+
+
+def test_with_many_inputs_the_verdict_still_comes():
+    # Twelve inputs make the check's regressors many and its min_samples large: the verdict needs
+    # 4 x 1136 samples, more than the calibration's capacity held, and never came (the ring was
+    # read on every sample meanwhile).
+    from okid_ros.sim.models import modal_structure
+
+    quiet = modal_structure([3.0, 7.0], 0.02, 12, 2, 0.01, seed=1)
+    louder = dataclasses.replace(quiet, process_noise_covariance=9.0 * quiet.process_noise_covariance)
+    change, total = 3000, 12_000
+    u = np.random.default_rng(3).standard_normal((total, 12))
+    y = simulate_switched([quiet, louder], change, u, seed=4)
+    monitor = StructuralChangeMonitor(2)
+    monitor.arm(quiet.to_innovation_form())
+    assert monitor.process(u, y, 0) is None
+    assert monitor.noise_changes == 1 and monitor.state == "monitoring"
