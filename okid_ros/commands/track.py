@@ -249,6 +249,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
     from okid_ros.core.channels import group_scales
     from okid_ros.core.excitation import output_problem
+    from okid_ros.core.scaling import covariance_range_problem
     from okid_ros.errors import DataError
     from okid_ros.records import channel_without_values
     from okid_ros.service.tracked_record import tracked_record_warnings
@@ -269,7 +270,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
         print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
     # record's units; every window would fail on it, the first in the ARX order's search).
-    problem = output_problem(record.y[np.isfinite(record.y).all(axis=1)])
+    present = record.y[np.isfinite(record.y).all(axis=1)]
+    problem = output_problem(present) or covariance_range_problem(present)  # identify's refusal, before the work
     if problem:
         raise DataError(problem)
     # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel lies beyond

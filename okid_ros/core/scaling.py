@@ -28,12 +28,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.channels import ChannelScales, channel_scales
+from okid_ros.core.channels import ChannelScales, channel_scales, channel_spread
 from okid_ros.core.excitation import LiveInputs, excitation_warnings, output_problem
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.modal import _reference_row
+from okid_ros.core.output_spikes import MAD_TO_STD
 
-__all__ = ["IdentificationFrame", "restore_model"]
+__all__ = ["IdentificationFrame", "covariance_range_problem", "restore_model"]
 
 
 def restore_model(model: IdentifiedModel, scales: ChannelScales, *,
@@ -71,12 +72,30 @@ def _covariance_in_units(scaled: np.ndarray, scales: np.ndarray) -> np.ndarray:
     physical = scaled * np.outer(scales, scales)
     lost = ~np.isfinite(physical) | ((physical == 0) & (scaled != 0))
     if lost.any():
-        raise IdentificationError(
-            f"the innovation covariance in the record's units is beyond the float64 range (output spreads "
-            f"{', '.join(f'{v:.3g}' for v in scales)}; squares beyond 1e+-308 cannot be represented): express "
-            f"the outputs in other units, e.g. divided by 1e100"
-        )
+        raise IdentificationError(_beyond_range(scales))
     return physical
+
+
+def covariance_range_problem(y: np.ndarray) -> str:
+    """Why no covariance of the outputs ``y`` (N, p) fits float64 in their units ("" if one does).
+
+    Said before the work where a command would fail on it later (``track``: in the windows' sums;
+    ``identify`` refuses the model at the end, :func:`restore_model`). Judged on each output's
+    robust spread (normalized median absolute deviation, else its spread): a glitch of 1e200 is
+    a glitch, not the record's units.
+    """
+    y = np.asarray(y, dtype=float)
+    deviation = MAD_TO_STD * np.median(np.abs(y - np.median(y, axis=0)), axis=0) if y.shape[0] else np.ones(y.shape[1])
+    spreads = np.where(deviation > 0, deviation, channel_spread(y))
+    with np.errstate(over="ignore", under="ignore"):
+        squares = np.square(spreads)
+    return "" if np.all(np.isfinite(squares) & (squares > 0)) else _beyond_range(spreads)
+
+
+def _beyond_range(spreads: np.ndarray) -> str:
+    return (f"the innovation covariance in the record's units is beyond the float64 range (output spreads "
+            f"{', '.join(f'{v:.3g}' for v in spreads)}; squares beyond 1e+-308 cannot be represented): express "
+            f"the outputs in other units, e.g. divided by 1e100")
 
 
 def _normalize_mode_blocks(model: IdentifiedModel) -> IdentifiedModel:

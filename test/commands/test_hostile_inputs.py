@@ -297,12 +297,17 @@ def test_track_without_inputs_runs_output_only(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_track_says_why_a_window_of_rejected_samples_waits(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # Outputs 450 decades apart: after track's common scale of the outputs one is still beyond
+    # Outputs 300 decades apart: after track's common scale of the outputs one is still beyond
     # 1e150, which the sliding window rejects (its squares would overflow), so no window fills;
     # the line said "restarted at the change" of a change that never was, and the lookup of that
-    # change ended track with an IndexError (found by test_property_cli).
+    # change ended track with an IndexError (found by test_property_cli). (450 decades apart, a
+    # covariance in the record's units is beyond float64: refused at the start, as identify does.)
     u, y = _good_arrays()
-    np.savez(tmp_path / "huge.npz", u=u, y=y * np.array([1e-150, 1e300]), sample_time_s=0.01)
+    np.savez(tmp_path / "wide.npz", u=u, y=y * np.array([1e-150, 1e300]), sample_time_s=0.01)
+    assert cli.main(["track", str(tmp_path / "wide.npz"), "--jsonl", str(tmp_path / "w.jsonl"),
+                     "--window", "200", "--order", "6", "--states", "4", "--no-progress"]) == 2
+    assert "beyond the float64 range" in capsys.readouterr().err and not (tmp_path / "w.jsonl").exists()
+    np.savez(tmp_path / "huge.npz", u=u, y=y * np.array([1e-150, 1e152]), sample_time_s=0.01)
     assert cli.main(["track", str(tmp_path / "huge.npz"), "--jsonl", str(tmp_path / "t.jsonl"),
                      "--window", "200", "--order", "6", "--states", "4", "--no-progress"]) == 0
     lines = [json.loads(line) for line in (tmp_path / "t.jsonl").read_text().splitlines()]
