@@ -249,12 +249,10 @@ class StructuralChangeMonitor:
         self._take_noise()
         return self.process(u[k:], y[k:], first_index + k, test=test) if k < u.shape[0] else None
 
-    def _take_noise(self) -> bool:
+    def _take_noise(self) -> None:
         """After an explained noise change: re-arm with the refitted noise model from the predictor's state."""
-        if self.detector.noise_at is None:
-            return False
-        self.arm(self._noise_model, self.predictor.x, reference_rows=self.reference_rows)
-        return True
+        if self.detector.noise_at is not None:
+            self.arm(self._noise_model, self.predictor.x, reference_rows=self.reference_rows)
 
     def _record(self, first_index: int, z: np.ndarray) -> None:
         """Keep the innovations for the state-jump and noise tests (and their power while calibrating)."""
