@@ -131,6 +131,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
                         help="do not test for structural changes (the window only slides)")
+    parser.add_argument("--no-noise-test", dest="noise_test", action="store_false",
+                        help="declare an alarm without judging it as a change of the noise model (louder or quieter "
+                        "excitation against the sensor noise): ~250 samples sooner, and such changes declared too "
+                        "(node parameter change.noise_test)")
     parser.add_argument("--false-alarm-samples", type=_samples, metavar="N",
                         default=NodeParameterDefault("change.false_alarm_samples"),
                         help="expected samples between false alarms of the change test on a stationary "
@@ -181,11 +185,11 @@ def run(args: argparse.Namespace) -> int:
     q = _arx_order(args, u, y, options)
     record = TrackedRecord(u, y, q)
     estimator = SlidingWindowArx(q, p, m, window=window)
-    monitor = StructuralChangeMonitor(p, false_alarm_samples=float(args.false_alarm_samples))
+    monitor = StructuralChangeMonitor(p, false_alarm_samples=float(args.false_alarm_samples),
+                                      noise_change_test=args.noise_test)
     restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     # Update points: the window is first full at sample window + q - 1, then every S samples.
-    first = window + q - 1
-    points = list(range(first, n_samples, args.every))
+    points = list(range(window + q - 1, n_samples, args.every))
     changes: list = []
     handle = JsonLines(out, replace=True)  # a failed run leaves an old OUT as it was; Ctrl-C keeps the lines
     bar = _progress(n_samples, disable=args.no_progress or n_samples < 20_000)

@@ -174,6 +174,7 @@ class ModalEstimationParams:
     change_false_alarm_samples: float = _est("change_false_alarm_samples")
     change_variance_ratio: float = _est("change_variance_ratio")
     change_reference_samples: int = _est("change_reference_samples")
+    change_noise_test: bool = _est("change_noise_test")
     divergence_window_samples: int = _est("divergence_window_samples")
     divergence_nis_ratio: float = _est("divergence_nis_ratio")
 

@@ -230,6 +230,7 @@ ESTIMATOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("change.enabled", True, "detect structural changes from the innovations of a reference model (CUSUM, see okid_ros/core/change_detection.py)", field="change_detection", runtime=True),
     ParamSpec("change.false_alarm_samples", DEFAULT_FALSE_ALARM_SAMPLES, "expected number of samples between false alarms of the change test on a stationary structure (sets the CUSUM threshold)", "samples", 100.0, 1e15, field="change_false_alarm_samples", runtime=True),
     ParamSpec("change.variance_ratio", DEFAULT_VARIANCE_RATIO, "increase of the innovation covariance the CUSUM is tuned to; increases above ratio ln(ratio) / (ratio - 1) are detected", "", 1.01, 100.0, field="change_variance_ratio", runtime=True),
+    ParamSpec("change.noise_test", True, "judge an alarm that no jump of the state explains as a change of the noise model (the unmeasured excitation louder or quieter against the sensor noise, core/noise_change.py) before declaring it; false: a change is declared ~250 samples sooner, and so is every such change of the excitation", field="change_noise_test"),
     ParamSpec("change.reference_samples", DEFAULT_REFERENCE_SAMPLES, "samples after each new reference model that calibrate the change test (no detection meanwhile)", "samples", 100, 10_000_000, field="change_reference_samples"),
     ParamSpec("structural_change_topic", STRUCTURAL_CHANGE, "output topic of okid_msgs/msg/StructuralChange (relative: in the rig namespace, /okid/structural_change by default)", fixed=WIRING),
 )

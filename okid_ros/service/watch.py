@@ -77,6 +77,7 @@ class InnovationWatch:
         self.monitor = StructuralChangeMonitor(
             p, false_alarm_samples=params.change_false_alarm_samples,
             variance_ratio=params.change_variance_ratio, reference_samples=params.change_reference_samples,
+            noise_change_test=params.change_noise_test,
         )
         self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
         self.changes = 0

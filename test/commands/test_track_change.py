@@ -95,6 +95,13 @@ def test_missing_samples_are_bridged_and_the_change_is_still_declared(record, tm
             np.testing.assert_allclose(got, FREQS, rtol=0.01)
 
 
+def test_without_the_noise_test_the_change_is_declared_sooner(record, tmp_path):
+    on = [e for e in track(record, tmp_path / "on.jsonl") if e["change_detected"]]
+    off = [e for e in track(record, tmp_path / "off.jsonl", "--no-noise-test") if e["change_detected"]]
+    assert len(on) == len(off) == 1
+    assert CHANGE <= off[0]["change_declared_index"] <= CHANGE + 100 < on[0]["change_declared_index"]
+
+
 def test_a_change_after_the_last_update_is_said_in_the_summary(record, tmp_path, capsys):
     # The record ends 450 samples after the change and 411 after the last update (sample 4039,
     # an update every 500): the samples after the last update were not tested, and the change
