@@ -26,8 +26,8 @@ from pathlib import Path
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["StagedOutput", "bag_folder", "check_output_paths", "check_replaceable", "prepare_file_outputs",
-           "prepare_output", "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_output_paths", "check_replaceable",
+           "prepare_file_outputs", "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -160,14 +160,23 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
         as :func:`prepare_output`.
     """
     for path, kind in outputs:
-        text, out = os.fspath(path), Path(path)
-        if os.path.basename(text) in ("", ".", ".."):  # Path() drops a trailing "/" and "/."
-            raise OutputError(f"{text}: names a folder; the {kind} is a file: give a file name")
-        if _is_dir(out):  # found only after the work otherwise (IsADirectoryError)
-            raise OutputError(f"{out}: a folder; the {kind} is a file: give a file name")
-        check_replaceable(out, force=force, kind=kind)
+        check_file_name(path, kind)
+        check_replaceable(Path(path), force=force, kind=kind)
     for path, _ in outputs:
         _make_folder(Path(path).parent, Path(path))
+
+
+def check_file_name(path: str | os.PathLike, kind: str) -> None:
+    """Refuse a file output named as a folder (``out/``, ``out/.``) or an existing folder: OutputError.
+
+    ``path`` as given: a str keeps its trailing ``/``, which ``Path`` drops (a file named like the
+    folder was written).
+    """
+    text, out = os.fspath(path), Path(path)
+    if os.path.basename(text) in ("", ".", ".."):
+        raise OutputError(f"{text}: names a folder; the {kind} is a file: give a file name")
+    if _is_dir(out):  # found only after the work otherwise (IsADirectoryError)
+        raise OutputError(f"{out}: a folder; the {kind} is a file: give a file name")
 
 
 def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag") -> bool:

@@ -52,7 +52,7 @@ from okid_ros.tools.bagio import (
 from okid_ros.tools.errors import BagReadError
 from okid_ros.tools.node_parameters import load_node_parameters
 from okid_ros.tools.offline import TOPIC_PARAMETERS, NodeInputs, OfflineNodes, ProcessSummary
-from okid_ros.tools.output_paths import StagedOutput, check_output_paths, check_replaceable
+from okid_ros.tools.output_paths import StagedOutput, check_file_name, check_output_paths, check_replaceable
 from okid_ros.tools.source_check import bag_fingerprint
 
 __all__ = [
@@ -210,6 +210,8 @@ def _check_outputs(bag_path: Path, out_path: Path, jsonl_path: str | Path | None
     if clash:
         raise ParameterError(f"input and output topics overlap: {', '.join(clash)}")
     _check_topic_types(nodes)
+    if jsonl_path is not None:
+        check_file_name(jsonl_path, "JSON lines file")  # as given: 'out/' wrote a file named out
     jsonl_path = None if jsonl_path is None else Path(jsonl_path)
     outputs = [(out_path, "output bag")] + ([(jsonl_path, "JSON lines file")] if jsonl_path is not None else [])
     check_output_paths(bag_path, "input bag", outputs)

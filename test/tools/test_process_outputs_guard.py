@@ -89,6 +89,14 @@ def test_a_file_at_the_output_bag_is_not_removed_even_with_force(victim, capsys)
     assert notes.read_text() == "precious" and lines.read_text() == "identified before\n"
 
 
+@pytest.mark.parametrize("ending", ["/", "/."])
+def test_a_jsonl_named_as_a_folder_is_refused(victim, capsys, ending):
+    # "--jsonl out/" wrote a file named "out" (Path drops the slash), as identify and track did.
+    code, _, err = run_cli(capsys, "process", victim, "--out", "o", "--jsonl", f"lines{ending}", "--no-progress")
+    assert_one_line_error(code, err, f"lines{ending}: names a folder; the JSON lines file is a file: give a file name")
+    assert not Path("lines").exists() and not Path("o").exists()
+
+
 @pytest.mark.parametrize("name, problem", [
     ("bad topic name!!", "not allowed"), ("", "empty"), ("a//b", "'//'"), ("a/", "ends with"),
     ("2d/x", "starts with a digit"), ("~/private", "substitutions are not supported"),
