@@ -67,6 +67,16 @@ def test_track_too_few_samples_is_one_line_error(record, tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "at least 3020 needed" in err
 
 
+def test_every_sample_an_update_is_said_with_its_cost(record, tmp_path, capsys):
+    # --every 1 ran a realization per sample (3000 samples: 265 s) in silence; process warns of its equivalent.
+    path, _, _ = record
+    args = ["track", str(path), "--order", "20", "--window", "2560", "--states", "4", "--no-progress"]
+    assert okid_ros_main([*args, "--every", "1", "--jsonl", str(tmp_path / "a.jsonl")]) == 0
+    assert "--every 1 identifies a model at every sample: 21 identifications" in capsys.readouterr().err
+    assert okid_ros_main([*args, "--every", "2", "--jsonl", str(tmp_path / "b.jsonl")]) == 0
+    assert "--every" not in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("offset, order", [(1e12, "auto"), (5.0, "20")])
 def test_a_dead_output_is_the_records_error_in_its_own_units(record, tmp_path, capsys, offset, order):
     # A channel that does not vary: refused as identify refuses it, with its value as recorded
