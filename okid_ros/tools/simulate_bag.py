@@ -237,19 +237,20 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
     OutputExistsError
         ``path`` exists and may not be replaced.
     BagWriteError
-        the bag cannot be written; the partial bag directory this call created is removed.
+        the bag cannot be written; the partial bag this call wrote is removed, an old one it was to
+        replace stays as it was.
     """
-    import shutil
+    from okid_ros.tools.output_paths import StagedOutput
 
-    writer = BagWriter(path, storage=storage, force=force)  # refuses, or removes what --force replaces
-    created = not writer.path.exists()  # so a failure removes only what this call made
+    staged = StagedOutput(path, force=force)  # an old bag is replaced by a complete new one only
     try:
-        with writer as bag:
-            return _write_messages(bag, experiment, progress)
+        with BagWriter(staged.staged, storage=storage) as bag:
+            counts = _write_messages(bag, experiment, progress)
     except BaseException:
-        if created:
-            shutil.rmtree(writer.path, ignore_errors=True)
+        staged.discard()
         raise
+    staged.commit()
+    return counts
 
 
 def _write_messages(bag: BagWriter, experiment: Experiment, progress) -> dict[str, int]:

@@ -473,6 +473,30 @@ def test_force_on_a_bag_replaces_it(small_bag, tmp_path):
         assert bag.message_count([IO_SAMPLE_TOPIC]) == 125
 
 
+def test_a_simulate_that_fails_keeps_the_bag_it_was_to_replace(small_bag, tmp_path, monkeypatch, capsys):
+    # simulate --force removed the old bag before writing: a failure half-way (here a full disk)
+    # left neither. The new bag is written beside and renamed over the old one when complete.
+    import okid_ros.tools.simulate_bag as simulate_bag
+    from okid_ros.tools.errors import BagWriteError
+
+    copy = tmp_path / "copy"
+    shutil.copytree(small_bag, copy)
+    before = sorted((p.name, p.stat().st_size) for p in copy.iterdir())
+    written = simulate_bag._write_messages
+
+    def failing(bag, *args):
+        written(bag, *args)
+        raise BagWriteError(f"{bag.path}: cannot write (No space left on device)")
+
+    monkeypatch.setattr(simulate_bag, "_write_messages", failing)
+    assert main(["simulate", "--out", str(copy), "--duration", "1", "--force"]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert sorted((p.name, p.stat().st_size) for p in copy.iterdir()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["copy"]  # nothing left beside it
+    assert main(["simulate", "--out", str(tmp_path / "new"), "--duration", "1"]) == 2
+    assert not (tmp_path / "new").exists()  # a new path: the partial bag removed, as before
+
+
 def test_a_ros1_bag_is_read_and_its_messages_come_out_as_cdr(tmp_path):
     from rosbags.rosbag1 import Writer as Ros1Writer
 
