@@ -18,6 +18,8 @@ No rclpy; numpy and scipy only.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
@@ -225,7 +227,7 @@ class StructuralChangeMonitor:
         if verdict is not None and verdict.explained:
             self._noise_model = with_noise(self.model, self.whiten, verdict.change)
             if self._noise_model is None:  # no model of the new noise to monitor with: declared
-                return NoiseVerdict(False, verdict.excess, verdict.limit, verdict.samples)
+                return dataclasses.replace(verdict, explained=False)
         return verdict
 
     def _calibrate_noise(self) -> None:

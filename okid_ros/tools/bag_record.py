@@ -78,7 +78,7 @@ class BagRecord:
         Also said when most samples stand alone between empty sample times: a sample time finer
         than the stamps' spacing refuses nothing but leaves every other slot empty.
         """
-        from okid_ros.tools.grid_hints import loss_worth_saying, rejection_hint, stand_alone_hint
+        from okid_ros.tools.grid_hints import loss_worth_saying, stand_alone_hint
 
         dt = self.record.sample_time_s
         notes = []
@@ -86,8 +86,7 @@ class BagRecord:
             notes.append(f"{self.missing} sample times dropped incomplete (a message missing on some source topic: "
                          "one that stopped or dropped messages?)")
         if sum(self.rejected.values()):
-            hint = rejection_hint(self.rejected, dt, messages=self.messages)
-            notes.append(_rejected_messages(self.rejected, self.messages) + (f"; {hint}" if hint else ""))
+            notes.append(_rejected_messages(self.rejected, self.messages, dt))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
         notes.append(stand_alone_hint(samples=self.samples_total, runs=self.runs, alone=int(alone.sum()),
@@ -95,12 +94,21 @@ class BagRecord:
         return "; ".join(note for note in notes if note)
 
 
-def _rejected_messages(rejected: dict[str, int], messages: int, wrong_size_note: str = "") -> str:
-    """"N of the M messages were rejected (n reason, ...)", the sizes expected after a wrong size."""
+def _rejected_messages(rejected: dict[str, int], messages: int, sample_time_s: float,
+                       wrong_size_note: str = "") -> str:
+    """"N of the M messages were rejected (n reason, ...)", with the sizes expected and the likely cause.
+
+    The cause: :func:`~okid_ros.tools.grid_hints.rejection_hint` (a sample time that is not the
+    stamps' spacing); the sizes after a wrong size.
+    """
+    from okid_ros.tools.grid_hints import rejection_hint
+
     reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" + (f" ({wrong_size_note})" if reason == "wrong_size"
                                                                and wrong_size_note else "")
                         for reason, n in rejected.items() if n)
-    return f"{sum(rejected.values())} of the {messages} messages were rejected ({reasons})"
+    hint = rejection_hint(rejected, sample_time_s, messages=messages)
+    text = f"{sum(rejected.values())} of the {messages} messages were rejected ({reasons})"
+    return f"{text}; {hint}" if hint else text
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:
@@ -129,12 +137,9 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     if len(samples) < 2:  # one sample is no record either: `process` refuses it, `export` wrote it
         counters = inputs.grid.counters
         rejected = counters.rejections()
-        why = (f": {_rejected_messages(rejected, int(counters.messages), inputs.wrong_size_note)}"
+        dt = float(est_values["sample_time_s"])
+        why = (f": {_rejected_messages(rejected, int(counters.messages), dt, inputs.wrong_size_note)}"
                if any(rejected.values()) else "")
-        from okid_ros.tools.grid_hints import rejection_hint
-
-        hint = rejection_hint(rejected, float(est_values["sample_time_s"]), messages=int(counters.messages))
-        why += f"; {hint}" if hint and why else ""
         made = "no complete sample" if not samples else "one complete sample only"
         raise DataError(f"{bag_path}: {made} on the topics {', '.join(s.topic for s in inputs.specs)}" + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters

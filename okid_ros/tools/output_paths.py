@@ -227,7 +227,7 @@ class StagedOutput:
     """
 
     def __init__(self, path: str | os.PathLike, *, force: bool, kind: str = "bag") -> None:
-        self.path, self.force, self.kind = Path(path), force, kind
+        self.path, self.kind = Path(path), kind
         self._folder: Path | None = None
         replacing = check_replaceable(self.path, force=force, kind=kind)
         self.staged = self.path
