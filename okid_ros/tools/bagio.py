@@ -37,7 +37,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from okid_ros.errors import OkidWarning, one_line
+from okid_ros.errors import OkidWarning, one_line, special_file_kind
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.interrupts import deferred
@@ -294,6 +294,7 @@ class _OpenBag:
             raise BagReadError(f"{path}: cannot open the bag ({one_line(exc.strerror or exc)})") from None
         if not found:
             raise BagReadError(f"{path}: no such bag")
+        _refuse_special_files(path)
         note = ""
         try:
             self._reader = _open_reader(path)
@@ -319,6 +320,20 @@ class _OpenBag:
         if self._scratch is not None:
             shutil.rmtree(self._scratch, ignore_errors=True)
             self._scratch = None
+
+
+def _refuse_special_files(path: Path) -> None:
+    """BagReadError for a bag that is, or whose folder holds, a FIFO, socket or device: its reader waits for ever."""
+    kind = special_file_kind(path)
+    if kind:
+        raise BagReadError(f"{path}: not a regular file ({kind}); a bag is a rosbag2 folder or a storage file")
+    try:
+        entries = sorted(path.iterdir()) if path.is_dir() else []
+    except OSError:  # a folder that cannot be listed: the reader says why
+        entries = []
+    for entry in entries:
+        if kind := special_file_kind(entry):
+            raise BagReadError(f"{path}: {entry.name} in the bag is not a regular file ({kind})")
 
 
 def open_bag(path: str | os.PathLike) -> _OpenBag:
