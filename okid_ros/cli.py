@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 from okid_ros import __version__
 from okid_ros.errors import DataError, OkidError, OkidWarning, OutputError
+from okid_ros.tools.output_paths import made_folders_removed_on_failure
 
 PROG = "okid-ros"
 
@@ -110,13 +111,16 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
     status 70 (EX_SOFTWARE), the traceback only with ``OKID_ROS_TRACEBACK=1``. Python warnings
     (numpy's floating-point warnings among them) are printed as one line each, naming the command;
     okid-ros's own (:class:`~okid_ros.errors.OkidWarning`: a parameter file's problems, ...) once per run.
+    A command that fails leaves no empty folder it made for its outputs
+    (:func:`~okid_ros.tools.output_paths.made_folders_removed_on_failure`).
     A data error that does not name ``source`` (the file the command reads) is prefixed with it.
     """
     with warnings.catch_warnings(), _terminate_as_interrupt():
         warnings.showwarning = _one_line_warning(command)
         warnings.simplefilter("default", OkidWarning)  # once per run: a new filter forgets earlier runs
         try:
-            return work()
+            with made_folders_removed_on_failure():  # a failed command leaves no empty folder it made
+                return work()
         except OkidError as exc:
             # Expected failures are one line, like argparse's own usage errors, never a traceback.
             print(f"{PROG} {command}: error: {_naming_source(exc, source)}", file=sys.stderr)

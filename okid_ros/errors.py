@@ -84,11 +84,26 @@ def is_special_file(path: str | os.PathLike) -> bool:
     """
     if os.path.abspath(path).startswith(("/dev/", "/proc/")) and os.path.islink(path):
         return True
+    return special_file_kind(path) is not None
+
+
+def special_file_kind(path: str | os.PathLike) -> str | None:
+    """What ``path`` is (through links) when neither a regular file nor a folder: "a FIFO", "a socket", ...
+
+    None for a file, a folder, or a path that cannot be looked at (the reader says why). An input
+    that is one is refused before it is opened: opening a FIFO waits for a writer, for ever.
+    """
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):
-        return False
-    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+        return None
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "a device"
 
 
 def one_line(text: object) -> str:

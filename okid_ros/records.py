@@ -37,7 +37,7 @@ import numpy as np
 from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
 from okid_ros.core.regressors import real_array
-from okid_ros.errors import DataError, OkidWarning, write_atomically
+from okid_ros.errors import DataError, OkidWarning, special_file_kind, write_atomically
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
 
@@ -469,6 +469,8 @@ def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:
         raise DataError(f"{path}: no such file")
     if path.is_dir():
         raise DataError(f"{path}: a folder, not a record file")
+    if kind := special_file_kind(path):  # a FIFO would be waited on for ever
+        raise DataError(f"{path}: not a regular file ({kind}); a record is an .npz or .csv file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         record = _load_npz(path)

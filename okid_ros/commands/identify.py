@@ -19,6 +19,10 @@ from okid_ros.commands._args import (
 )
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
 
+#: The most of a --reference file read. It is an `identify --json` output: 40-75 kB for a model of two
+#: outputs (most of it the stabilization diagram), a few MB for hundreds of states of tens of outputs; 64 MiB
+#: leaves room for far larger models and refuses a wrong file (a bag, a log) before it is read into memory.
+MAX_REFERENCE_BYTES = 64 << 20
 #: The options only the input-output chain takes: an output-only identification warns it ignores them.
 INPUT_OUTPUT_ONLY = ("--order", "--states", "--ar-order", "--method", "--regularization", "--no-refine", "--gain",
                      "--max-states")
@@ -314,13 +318,23 @@ def _load_reference(path: str, n_outputs: int) -> list:
         (see ``validation_plots.reference_modes``).
     """
     import json
-    from pathlib import Path
+    import os
 
-    from okid_ros.errors import ParameterError
+    from okid_ros.errors import ParameterError, special_file_kind
     from okid_ros.tools.validation_plots import reference_modes
 
+    if kind := special_file_kind(path):  # a FIFO would be waited on for ever
+        raise ParameterError(f"--reference {path}: not a regular file ({kind})")
+    too_large = (f"--reference {path}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference model (an "
+                 "`okid-ros identify --json` output is a few kB to a few MB): another file?")
     try:
-        document = json.loads(Path(path).read_text())
+        if os.stat(path).st_size > MAX_REFERENCE_BYTES:
+            raise ParameterError(too_large)
+        with open(path, "rb") as stream:  # bounded too: a file that grows meanwhile is not read whole
+            text = stream.read(MAX_REFERENCE_BYTES + 1)
+        if len(text) > MAX_REFERENCE_BYTES:
+            raise ParameterError(too_large)
+        document = json.loads(text)
     except (OSError, ValueError) as exc:
         raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output ({exc})") from None
     if not isinstance(document, dict) or "modes" not in document:

@@ -4,14 +4,20 @@ Like ``ros2 bag record`` for one rig: subscribes the nodes' outputs (``arx_model
 ``state_space_model``, ``modal_states``, ``structural_change`` in the rig namespace) and ``/diagnostics`` (and with
 ``--inputs`` the rig's ``io_sample``) and writes every message as it arrived (serialized bytes,
 receive time as log time) to a new rosbag2 until Ctrl-C or ``--duration``. An existing output is
-never replaced without ``--force``.
+never replaced without ``--force``, and with it only by a complete recording: the new bag is written
+beside the old one and renamed over it when the recording ends by Ctrl-C, SIGTERM or ``--duration``;
+a recording that fails leaves the old bag as it was.
 """
 
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from okid_ros.commands._args import namespace, path_text
+
+if TYPE_CHECKING:
+    from okid_ros.tools.bagio import BagWriter
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -52,38 +58,57 @@ def record_topics(namespace: str | None, *, inputs: bool, diagnostics: bool) -> 
 
 
 def run(args: argparse.Namespace) -> int:
+    from okid_ros.errors import OkidError
+    from okid_ros.tools.bagio import BagWriter
+    from okid_ros.tools.output_paths import StagedOutput
+
+    if args.duration is not None and not args.duration > 0:
+        raise OkidError(f"--duration must be a positive number of seconds, got {args.duration}")
+    topics = record_topics(args.namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)
+    # --force replaces an old bag only by a complete new recording: one that fails keeps the old bag.
+    staged = StagedOutput(args.out, force=args.force)
+    writer = None
+    try:
+        writer = BagWriter(staged.staged, storage=args.storage)
+        with writer:
+            counts = _record_live(writer, topics, duration=args.duration, out=args.out)
+    except BaseException:
+        if staged.staged != staged.path or writer is None or not any(writer.counts.values()):
+            staged.discard()  # the old bag stays; a new one that holds no message is no recording
+        raise  # a new bag with messages stays, closed and readable
+    staged.commit()
+    print(f"okid-ros record: wrote {args.out}: " + ", ".join(f"{t}: {n}" for t, n in counts.items()), flush=True)
+    return 0
+
+
+def _record_live(writer: BagWriter, topics: dict[str, str], *, duration: float | None, out: str) -> dict[str, int]:
+    """Record ``topics`` into the open ``writer`` until Ctrl-C, SIGTERM or ``duration`` s; messages per topic.
+
+    Those ends are the normal ones (the recording is complete); any other exception is a failure.
+    """
     import time
 
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from okid_ros.errors import OkidError
-    from okid_ros.tools.bagio import BagWriter
     from okid_ros.tools.recorder import LiveRecorder
 
-    if args.duration is not None and not args.duration > 0:
-        raise OkidError(f"--duration must be a positive number of seconds, got {args.duration}")
-    topics = record_topics(args.namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)
     context = rclpy.Context()
     rclpy.init(context=context, args=[])
-    recorder = None
     try:
-        with BagWriter(args.out, storage=args.storage, force=args.force) as writer:
-            node = rclpy.create_node("okid_record", context=context)
-            executor = SingleThreadedExecutor(context=context)
-            executor.add_node(node)
-            recorder = LiveRecorder(node, writer, topics)
-            print(f"okid-ros record: recording {', '.join(topics)} -> {args.out} (Ctrl-C stops)", flush=True)
-            end = None if args.duration is None else time.monotonic() + args.duration
-            try:
-                while end is None or time.monotonic() < end:
-                    executor.spin_once(timeout_sec=0.1)
-            except (KeyboardInterrupt, ExternalShutdownException):
-                pass
-            executor.shutdown()
-            node.destroy_node()
+        node = rclpy.create_node("okid_record", context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        recorder = LiveRecorder(node, writer, topics)
+        print(f"okid-ros record: recording {', '.join(topics)} -> {out} (Ctrl-C stops)", flush=True)
+        end = None if duration is None else time.monotonic() + duration
+        try:
+            while end is None or time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.1)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        executor.shutdown()
+        node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    counts = recorder.counts if recorder else {}
-    print(f"okid-ros record: wrote {args.out}: " + ", ".join(f"{t}: {n}" for t, n in counts.items()), flush=True)
-    return 0
+    return recorder.counts

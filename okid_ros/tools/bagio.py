@@ -1,9 +1,10 @@
 """Bag input and output on the `rosbags` library: any rosbag2 in, new rosbag2 out, no ROS needed.
 
 Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader``: rosbag2
-directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file, and a directory
-named ``*.bag``) and ROS 1 bags, deserialized with the definitions stored in the bag (bags without definitions fall back
-to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
+directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file, the only storage
+file of a bag directory read as that directory, with its metadata, and a directory named
+``*.bag``) and ROS 1 bags, deserialized with the definitions stored in the bag (bags without
+definitions fall back to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
 the middle of the messages, becomes a one-line :class:`BagReadError` naming the path. A
 recording that was not closed (an MCAP file cut off, or without its ``metadata.yaml``) is read as
 far as it is whole, with a warning (:mod:`okid_ros.tools.mcap_salvage`).
@@ -37,11 +38,11 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from okid_ros.errors import OkidWarning, one_line
+from okid_ros.errors import OkidWarning, one_line, special_file_kind
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.interrupts import deferred
-from okid_ros.tools.output_paths import prepare_output
+from okid_ros.tools.output_paths import bag_folder, prepare_output
 
 __all__ = [
     "OKID_MSGS_PACKAGE",
@@ -294,9 +295,10 @@ class _OpenBag:
             raise BagReadError(f"{path}: cannot open the bag ({one_line(exc.strerror or exc)})") from None
         if not found:
             raise BagReadError(f"{path}: no such bag")
+        _refuse_special_files(path)
         note = ""
         try:
-            self._reader = _open_reader(path)
+            self._reader = _open_reader(_whole_bag_of(path))
         except Exception as exc:  # the readers raise many kinds; all mean "not a usable bag"
             try:
                 self._reader, note, self._scratch = mcap_salvage.read_unclosed(path, _try_open_reader)
@@ -319,6 +321,47 @@ class _OpenBag:
         if self._scratch is not None:
             shutil.rmtree(self._scratch, ignore_errors=True)
             self._scratch = None
+
+
+def _whole_bag_of(path: Path) -> Path:
+    """What to open for ``path``: its rosbag2 folder when it is that bag's only storage file, else ``path``.
+
+    A storage file read alone has no ``metadata.yaml``: its custom data (a simulation's truth, the
+    run `process` recorded, the stabilization data) was lost to `plot BAG/BAG.mcap` and the others.
+    The folder holds the same messages and its metadata. A file of a split recording is read alone,
+    with a warning naming what is left out.
+    """
+    folder = bag_folder(path)
+    if folder == path:
+        return path
+    try:
+        import yaml
+
+        info = yaml.safe_load((folder / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        files = [Path(name).name for name in info["relative_file_paths"]]
+    except Exception:  # noqa: BLE001 - an unreadable metadata.yaml: the file alone, as before
+        return path
+    if files == [path.name]:
+        return folder
+    if path.name in files:
+        warnings.warn(f"{path}: one of the {len(files)} storage files of the bag {folder}, read alone: the bag's "
+                      f"metadata.yaml (a simulation's truth, the run process recorded) is not read; give {folder} "
+                      "for the whole bag", OkidWarning, stacklevel=3)
+    return path
+
+
+def _refuse_special_files(path: Path) -> None:
+    """BagReadError for a bag that is, or whose folder holds, a FIFO, socket or device: its reader waits for ever."""
+    kind = special_file_kind(path)
+    if kind:
+        raise BagReadError(f"{path}: not a regular file ({kind}); a bag is a rosbag2 folder or a storage file")
+    try:
+        entries = sorted(path.iterdir()) if path.is_dir() else []
+    except OSError:  # a folder that cannot be listed: the reader says why
+        entries = []
+    for entry in entries:
+        if kind := special_file_kind(entry):
+            raise BagReadError(f"{path}: {entry.name} in the bag is not a regular file ({kind})")
 
 
 def open_bag(path: str | os.PathLike) -> _OpenBag:

@@ -11,26 +11,32 @@ an old one by removing it first (a bag), :func:`prepare_file_outputs` before the
 renamed over the old one (``identify``'s and ``track``'s outputs). ``process``'s bag and JSON
 lines replace existing ones only once complete (:class:`StagedOutput`: written beside, renamed
 over at the end, kept when interrupted): ``--force`` never costs the previous output for a run
-that fails.
+that fails. The missing parent folders of an output are made before the work (a folder that
+cannot be made is said at once), and a command that fails removes again those still empty
+(:func:`made_folders_removed_on_failure`, around every command in ``cli.run_command``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import shutil
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from okid_ros.errors import OutputError, is_special_file, one_line
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
 __all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_output_paths", "check_replaceable",
-           "prepare_file_outputs", "prepare_output", "output_exists"]
+           "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
+#: The folders :func:`_make_folder` made within :func:`made_folders_removed_on_failure` (None outside it).
+#: A context variable: a command run in another thread keeps its own.
+_MADE_FOLDERS: contextvars.ContextVar[list[Path] | None] = contextvars.ContextVar("made_folders", default=None)
 
 
 def check_output_paths(input_path: str | Path, input_kind: str, outputs: Sequence[tuple[str | Path, str]]) -> None:
@@ -144,7 +150,8 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     without ``force``: a name that ends as a folder's (``out/``, ``out/.``: a file named like the
     folder was written) and an existing folder. Every output is checked before any folder is
     made; the parent folders are made with ``force`` too (a rerun with it was refused where the
-    first run succeeded).
+    first run succeeded), and removed again if the command fails while they are empty
+    (:func:`made_folders_removed_on_failure`).
 
     Parameters
     ----------
@@ -276,6 +283,29 @@ class StagedOutput:
                 self.path.unlink()
 
 
+@contextlib.contextmanager
+def made_folders_removed_on_failure() -> Iterator[None]:
+    """When the block fails, remove the output folders made in it that are still empty (deepest first).
+
+    Outputs' parent folders are made before the work (:func:`prepare_file_outputs`,
+    :class:`StagedOutput`) so that one that cannot be made is refused at once; a run that then failed
+    (the record unreadable, the identification refused) left them behind empty. Only ``rmdir``: a
+    folder that holds anything (an output written before the failure, a file put there meanwhile)
+    stays, and so does every folder that existed before.
+    """
+    made: list[Path] = []
+    token = _MADE_FOLDERS.set(made)
+    try:
+        yield
+    except BaseException:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+    finally:
+        _MADE_FOLDERS.reset(token)
+
+
 def _make_folder(folder: Path, out: Path) -> None:
     """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
     todo = []
@@ -292,6 +322,9 @@ def _make_folder(folder: Path, out: Path) -> None:
             with contextlib.suppress(OSError):
                 folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
         raise BagWriteError(f"{out}: cannot create the parent folder ({one_line(exc.strerror or exc)})") from None
+    watching = _MADE_FOLDERS.get()
+    if watching is not None:
+        watching.extend(made)
 
 
 def _is_dir(path: Path) -> bool:

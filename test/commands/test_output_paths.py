@@ -188,3 +188,25 @@ def test_an_output_named_as_a_folder_is_refused(record, tmp_path, capsys, ending
     code, _, err = run_cli(capsys, "track", record, "--jsonl", out, "--window", "500", "--no-progress", "--force")
     assert_one_line_error(code, err, f"{out}: names a folder; the JSON lines file is a file: give a file name")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+
+
+def test_a_failed_command_leaves_no_empty_folder_it_made(record, tmp_path, capsys):
+    # The outputs' parent folders are made before the work; a run that then failed left them, empty.
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"not a record")
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "a" / "b" / "m.json", "--order", "700")
+    assert_one_line_error(code, err, "too few samples for ARX order 700")
+    code, _, err = run_cli(capsys, "track", garbage, "--jsonl", tmp_path / "c" / "t.jsonl", "--no-progress")
+    assert_one_line_error(code, err, "not a readable .npz file")
+    code, _, err = run_cli(capsys, "export", garbage, "--npz", tmp_path / "d" / "r.npz")
+    assert_one_line_error(code, err, "not a readable rosbag2")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.npz", "rec.npz"]
+    # A folder that holds an output written before the failure stays, with it; so does one that was there.
+    (tmp_path / "there").mkdir()
+    full = tmp_path / "full.csv"
+    full.symlink_to("/dev/full")
+    model = tmp_path / "kept" / "m.json"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--csv", full, "--plot-dir",
+                           tmp_path / "there" / "figures" / "new", "--no-refine")
+    assert_one_line_error(code, err, "the JSON model is written")
+    assert model.is_file() and sorted(p.name for p in (tmp_path / "there").iterdir()) == []

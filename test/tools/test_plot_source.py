@@ -80,3 +80,24 @@ def test_an_input_within_the_run_but_on_other_stamps_is_refused(run, tmp_path, c
     assert_one_line_error(code, err, f"--input {shifted}: none of its samples has the stamp of a ModalStates",
                           "another recording?")
     assert not (tmp_path / "fig").exists()
+
+
+def test_the_storage_file_of_a_bag_is_drawn_as_the_bag(run, tmp_path, capsys):
+    # Was: `plot OUT/out.mcap` read the file alone, without OUT/metadata.yaml: no source bag, no
+    # stabilization data, no truth ("wrote 6 figures (no truth); no input bag: ...").
+    code, whole, err = run_cli(capsys, "plot", run["out"], "--out-dir", tmp_path / "bag")
+    assert code == 0, err
+    code, alone, err = run_cli(capsys, "plot", run["out"] / "out.mcap", "--out-dir", tmp_path / "file")
+    assert code == 0 and not err, err
+    assert alone.splitlines()[0] == whole.splitlines()[0].replace(str(tmp_path / "bag"), str(tmp_path / "file"))
+    assert "(no truth)" not in alone and "measured outputs from" in alone
+    assert sorted(p.name for p in (tmp_path / "file").iterdir()) == sorted(p.name for p in (tmp_path / "bag").iterdir())
+    # One file of a split recording is read alone, and what that leaves out is said.
+    split = tmp_path / "split"
+    shutil.copytree(run["out"], split)
+    metadata = (split / "metadata.yaml").read_text()
+    (split / "metadata.yaml").write_text(metadata.replace("  - out.mcap\n", "  - out.mcap\n  - out_1.mcap\n", 1))
+    code, alone, err = run_cli(capsys, "plot", split / "out.mcap", "--out-dir", tmp_path / "part")
+    assert code == 0, err
+    assert f"{split / 'out.mcap'}: one of the 2 storage files of the bag {split}, read alone: the bag's " in err
+    assert "no input bag" in alone

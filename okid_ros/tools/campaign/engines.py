@@ -73,7 +73,8 @@ def _pool_worker_init(parent_pid: int) -> None:
     the bags queued, then waited forever on a pipe (~140 MB each). SIGKILL, not SIGTERM: a worker
     forked from the command inherits its SIGTERM handler, which raises KeyboardInterrupt in the
     bag under way: the worker sends it back as the bag's error and waits for the next bag, forever.
-    What a worker killed so leaves is a ``bags/.tmp-*`` folder, never a table or a journal line.
+    What a worker killed so leaves is a ``bags/.tmp-*`` folder, never a table or a journal line; the
+    next run on the campaign removes it (campaign/lock.py).
     """
     die_with_parent(parent_pid, signal.SIGKILL)
 

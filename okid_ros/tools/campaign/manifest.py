@@ -21,9 +21,11 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MANIFEST_NAME", "Manifest", "atomic_write_bytes", "parameters_hash", "replace_directory"]
+__all__ = ["MANIFEST_NAME", "OLD_PREFIX", "Manifest", "atomic_write_bytes", "parameters_hash", "replace_directory"]
 
 MANIFEST_NAME = "manifest.jsonl"
+#: Name start of a folder being replaced (:func:`replace_directory`); a killed run's are removed by the next.
+OLD_PREFIX = ".old-"
 _VERSION = 1
 
 
@@ -51,7 +53,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 def replace_directory(new: Path, final: Path) -> None:
     """Put the complete folder ``new`` at ``final``, replacing an older one (renames only)."""
     if final.exists():
-        old = final.with_name(f".old-{final.name}-{uuid.uuid4().hex[:8]}")
+        old = final.with_name(f"{OLD_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}")
         os.replace(final, old)
         os.replace(new, final)
         shutil.rmtree(old, ignore_errors=True)

@@ -22,6 +22,7 @@ from okid_ros.errors import OkidError, OutputError
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
 from okid_ros.tools.campaign.engines import run_jobs
+from okid_ros.tools.campaign.lock import LEFTOVER_PREFIXES, campaign_lock, remove_leftovers
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
 from okid_ros.tools.campaign.stored import stored_result
 from okid_ros.tools.campaign.table import campaign_order, mode_rows, write_modes, write_summary
@@ -124,10 +125,9 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     Raises
     ------
     OkidError
-        a usage error: a path missing, no bags found, an --out that is not a campaign directory.
+        a usage error: a path missing, no bags found, an --out that is not a campaign directory, or
+        one another batch is running on (campaign/lock.py).
     """
-    from okid_ros.service.topics import resolve_topic
-
     started = time.perf_counter()
     out_dir = options.out_dir
     bags = find_bags(options.paths, exclude=out_dir)
@@ -136,6 +136,32 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     for bag in bags:  # a campaign inside a bag would fail every bag and spoil it as a bag
         check_output_paths(bag, "input bag", [(out_dir, "campaign folder")])
     _check_out_dir(out_dir)
+    with campaign_lock(out_dir) as locked:  # from the journal read to the tables written
+        _start_campaign(out_dir, locked=locked)
+        return _run_locked(options, bags, started)
+
+
+def _start_campaign(out_dir: Path, *, locked: bool) -> None:
+    """Remove what a killed run left under ``DIR/bags`` when ``locked`` (saying so); mark ``DIR`` a campaign.
+
+    The journal is made, empty, at the start: a first run killed before any bag was done left a
+    folder that the next run refused as "not a campaign".
+    """
+    removed = remove_leftovers(out_dir) if locked else 0
+    if removed:
+        print(f"okid-ros batch: removed {removed} unfinished folder(s) under {out_dir / 'bags'} left by a run that "
+              f"was killed ({', '.join(prefix + '*' for prefix in LEFTOVER_PREFIXES)})", file=sys.stderr)
+    try:
+        (out_dir / MANIFEST_NAME).touch()
+    except OSError as exc:
+        raise OutputError(f"--out {out_dir}: cannot write the campaign's journal ({exc.strerror or exc})") from None
+
+
+def _run_locked(options: CampaignOptions, bags: list[Path], started: float) -> CampaignReport:
+    """The rest of :func:`run_campaign`, under the campaign's lock."""
+    from okid_ros.service.topics import resolve_topic
+
+    out_dir = options.out_dir
     params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
                                   storage=options.storage)
     manifest = Manifest(out_dir)

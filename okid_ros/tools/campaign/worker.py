@@ -23,7 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BagJob", "run_bag_job", "failed_result"]
+__all__ = ["TMP_PREFIX", "BagJob", "run_bag_job", "failed_result"]
+
+#: Name start of a bag's folder while it is processed (``DIR/bags/.tmp-LABEL-XXXX``); a killed run's are
+#: removed by the next (campaign/lock.py).
+TMP_PREFIX = ".tmp-"
 
 #: Fields of a model update (a JSON line of `process`) kept in the result; wall-clock timings are
 #: left out so that every engine gives the same result.
@@ -79,7 +83,7 @@ def run_bag_job(job: BagJob) -> dict:
     """Process one bag; returns its result (see the module docstring). Never raises but KeyboardInterrupt."""
     started, cpu_started = time.perf_counter(), time.process_time()
     bags_dir = Path(job.out_dir) / "bags"
-    tmp = bags_dir / f".tmp-{job.label}-{uuid.uuid4().hex[:8]}"
+    tmp = bags_dir / f"{TMP_PREFIX}{job.label}-{uuid.uuid4().hex[:8]}"
     try:
         bags_dir.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()

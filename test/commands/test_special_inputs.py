@@ -1,0 +1,79 @@
+"""Inputs that are not regular files (a FIFO) and a --reference far too large: one line, exit 2, at once.
+
+Opening a FIFO waits for a writer: a record, bag or --reference given as one blocked for ever. Each
+FIFO here gets a writer that opens it as soon as a reader does and closes it, so that code which
+still opens it fails the test (on an empty read) instead of hanging it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_helpers import assert_one_line_error, run_cli
+
+from okid_ros.commands.identify import MAX_REFERENCE_BYTES
+
+
+@contextlib.contextmanager
+def _fifo(path: Path) -> Iterator[Path]:
+    """A FIFO at ``path`` with a writer that closes it at once if anything opens it for reading."""
+    os.mkfifo(path)
+    writer = threading.Thread(target=lambda: open(path, "wb").close(), daemon=True)
+    writer.start()
+    try:
+        yield path
+    finally:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # lets the writer's open return if no reader came
+        writer.join(timeout=10)
+        os.close(fd)
+
+
+@pytest.fixture
+def record(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(1)
+    path = tmp_path / "rec.npz"
+    np.savez(path, u=rng.standard_normal((400, 1)), y=rng.standard_normal((400, 2)), sample_time_s=0.01)
+    return path
+
+
+@pytest.mark.parametrize("command", ["identify", "track"])
+@pytest.mark.parametrize("name", ["rec.npz", "rec.csv"])
+def test_a_fifo_as_the_record_is_refused(tmp_path, capsys, command, name):
+    output = ["--json", tmp_path / "m.json"] if command == "identify" else ["--jsonl", tmp_path / "t.jsonl"]
+    with _fifo(tmp_path / name) as fifo:
+        code, _, err = run_cli(capsys, command, fifo, *output)
+    assert_one_line_error(code, err, f"{fifo}: not a regular file (a FIFO); a record is an .npz or .csv file")
+
+
+@pytest.mark.parametrize("command", [["export", "--npz", "x.npz"], ["process", "--out", "out"], ["plot"],
+                                     ["identify", "--json", "m.json"]])
+def test_a_fifo_as_the_bag_or_in_it_is_refused(tmp_path, capsys, monkeypatch, command):
+    monkeypatch.chdir(tmp_path)
+    with _fifo(tmp_path / "run.mcap") as fifo:
+        code, _, err = run_cli(capsys, command[0], fifo, *command[1:])
+    assert_one_line_error(code, err, f"{fifo}: not a regular file (a FIFO); a bag is a rosbag2 folder")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    with _fifo(bag / "bag_0.mcap"):
+        code, _, err = run_cli(capsys, command[0], bag, *command[1:])
+    assert_one_line_error(code, err, f"{bag}: bag_0.mcap in the bag is not a regular file (a FIFO)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "run.mcap"]  # nothing written
+
+
+def test_a_fifo_or_a_huge_file_as_the_reference_is_refused(record, tmp_path, capsys):
+    with _fifo(tmp_path / "ref.json") as fifo:
+        code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference", fifo)
+    assert_one_line_error(code, err, f"--reference {fifo}: not a regular file (a FIFO)")
+    huge = tmp_path / "huge.json"
+    with open(huge, "wb") as stream:
+        stream.truncate(MAX_REFERENCE_BYTES + 1)  # sparse: no disk used, and refused before it is read
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference", huge)
+    assert_one_line_error(code, err, f"--reference {huge}: more than the 64 MiB read for a reference model")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["huge.json", "rec.npz", "ref.json"]
