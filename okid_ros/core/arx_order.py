@@ -19,7 +19,7 @@ from okid_ros.core.least_squares import (
     solve_normal_equations,
 )
 from okid_ros.core.options import ArxOrderOptions, RealizationOptions
-from okid_ros.core.regressors import check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, longest_given_order, regressor_length, samples_for_order
 
 __all__ = ["ArxOrderChoice", "arx_order_for_realization", "choose_arx_order", "longest_arx_order",
            "select_arx_order", "most_states", "states_problem"]
@@ -191,6 +191,18 @@ def states_problem(states: int, n_present: int, n_outputs: int, n_inputs: int, *
     return f"{needs}; at most {most} states fit within {why}"
 
 
+def _too_short_for_a_search(n_present: int, smallest: int, p: int, m: int, arx_orders: ArxOrderOptions) -> str:
+    """Why ``n_present`` samples take no automatic ARX order, and which given order they take (or that none does)."""
+    needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, m)) + smallest
+    given = longest_given_order(n_present, p, m)
+    if given < 2:  # the realization needs two blocks of Markov parameters (ARX order 2)
+        return (f"{n_present} samples are too few for any ARX order: the smallest a given order can be, 2 (with {m} "
+                f"inputs and {p} outputs), needs {samples_for_order(2, p, m)} samples, the automatic order's "
+                f"smallest, {smallest} ({MIN_SEARCH_STATES} states' worth), {needed}")
+    return (f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, {smallest} "
+            f"({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order up to {given} fits them")
+
+
 def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
                               arx_orders: ArxOrderOptions | None, center: bool, valid: np.ndarray | None = None
                               ) -> tuple[ArxOrderChoice, list[str]]:
@@ -227,10 +239,7 @@ def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: Realizat
             raise
         smallest = min_arx_order(MIN_SEARCH_STATES, p)
         if longest < smallest:  # the order cited by select_arx_order was the search's, not the fallback's
-            needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, u.shape[1])) + smallest
-            raise ValueError(f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, "
-                             f"{smallest} ({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order "
-                             f"may fit fewer (at most {longest} here)") from None
+            raise ValueError(_too_short_for_a_search(n_present, smallest, p, u.shape[1], arx_orders)) from None
     choice = choose(longest, (longest,))
     return choice, [
         f"{n_present} samples are too few for the ARX order a search up to {states} states needs "

@@ -54,3 +54,21 @@ def test_the_most_states_follow_the_cost_limit_and_the_record():
     most, why = most_states(500, 2, 2, arx_orders=orders)
     assert (most, why) == (54, "the 500 samples of the fit")
     assert "at most 54 states fit within the 500 samples" in states_problem(55, 500, 2, 2, arx_orders=orders)
+
+
+@pytest.mark.parametrize("n_samples, fragments", [
+    # was: "... needs 31 samples; a given order may fit fewer (at most 0 here)"
+    (5, ["5 samples are too few for any ARX order: the smallest a given order can be, 2 (with 2 inputs and 2 "
+         "outputs), needs 13 samples, the automatic order's smallest, 3 (2 states' worth), 31"]),
+    # was: "(at most 1 here)" although --order 2 and 3 fit 20 samples
+    (20, ["20 samples are too few for an automatic ARX order", "needs 31 samples; a given order up to 3 fits them"]),
+])
+def test_a_record_too_short_for_an_automatic_order_says_its_samples_and_what_fits(tmp_path, capsys, n_samples,
+                                                                                  fragments):
+    record = _paper_record(tmp_path / "short.npz", n_samples)
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "out.json")
+    assert_one_line_error(code, err, *fragments)
+    assert "at most 0" not in err and not (tmp_path / "out.json").exists()
+    if n_samples == 20:  # the largest order said to fit does
+        code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "out.json", "--order", "3")
+        assert code == 0, err
