@@ -4,7 +4,8 @@
     Arrays ``u`` (N, m), ``y`` (N, p) and a scalar ``sample_time_s``. One-dimensional ``u`` or
     ``y`` are read as a single channel. Without ``u`` the record has no inputs (``u`` (N, 0),
     for output-only identification). Arrays must be real numbers (bool, integer or float);
-    pickled objects are never loaded.
+    pickled objects are never loaded. Stamps ``stamp_s`` (N,) (`export` writes them), like a CSV's
+    ``stamp_s`` column, must step by about the sample time: a jump (two records glued) is refused.
 
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
@@ -36,6 +37,7 @@ import numpy as np
 
 from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
+from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.core.regressors import real_array
 from okid_ros.errors import DataError, OkidWarning, special_file_kind, write_atomically
 
@@ -270,6 +272,9 @@ def _load_npz(path: Path) -> Record:
                 raise DataError(f"{path}: missing key(s) {', '.join(missing)} (has {', '.join(data.files) or 'none'})")
             y = data["y"]
             u = data["u"] if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
+            if "stamp_s" in data.files and (jump := stamp_jump_problem(
+                    data["stamp_s"], data["sample_time_s"], n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
+                raise DataError(f"{path}: {jump}")
             return Record(u, y, data["sample_time_s"])
     except DataError:
         raise
@@ -393,10 +398,10 @@ def _is_float(text: str) -> bool:
 
 
 def _csv_columns(header: list[str]) -> tuple[list[int], list[int], list[int]]:
-    """Indices of the input, output and time_s columns of a CSV header."""
+    """Indices of the input, output and time columns (``time_s``, ``stamp_s``) of a CSV header."""
     return ([i for i, h in enumerate(header) if h.lower().startswith("u")],
             [i for i, h in enumerate(header) if h.lower().startswith("y")],
-            [i for i, h in enumerate(header) if h == "time_s"])
+            [i for i, h in enumerate(header) if h in ("time_s", "stamp_s")])
 
 
 def _load_csv(path: Path) -> Record:
@@ -420,6 +425,9 @@ def _load_csv(path: Path) -> Record:
         if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
             raise DataError(f"{path}: the sample_time_s comment says {dt:g} s and the time_s column steps {step:g} s")
         dt = step if dt is None else dt
+    if "stamp_s" in header and (jump := stamp_jump_problem(values[:, header.index("stamp_s")], dt,
+                                                           n_samples=values.shape[0], rows=True)):
+        raise DataError(f"{path}: {jump}")
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 

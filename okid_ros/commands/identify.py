@@ -252,9 +252,17 @@ def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
 
     ``valid``: False at the record's missing samples, which the core fills (None: none missing).
     """
+    from okid_ros.core.arx_order import states_problem
+    from okid_ros.core.options import ArxOrderOptions
     from okid_ros.core.pipeline import IdentificationError, identify
-    from okid_ros.errors import DataError
+    from okid_ros.errors import DataError, ParameterError
 
+    if not output_only and args.order == "auto" and args.states != "auto":
+        # The bound is the states' (was said as the ARX order's cost, an option not given).
+        n_present = record.u.shape[0] if valid is None else int(valid.sum())
+        if problem := states_problem(args.states, n_present, record.y.shape[1], record.u.shape[1],
+                                     arx_orders=ArxOrderOptions()):
+            raise ParameterError(f"--states {args.states}: {problem}")
     try:
         if output_only:
             return _identify_output_only(record, args, valid)

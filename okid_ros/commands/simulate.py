@@ -38,9 +38,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--seed", type=int_between(0), default=1,
                         help="seed of input and noise, an integer >= 0 (default: %(default)s)")
     parser.add_argument("--cutoff", type=float, default=15.0, metavar="HZ",
-                        help="low-pass cut-off of the thruster signals (default: %(default)s Hz)")
+                        help="low-pass cut-off of the thruster signals, from 0.001 to below 62.5 Hz "
+                        "(default: %(default)s Hz)")
     parser.add_argument("--noise", type=positive_finite_float, default=1.0, metavar="R",
-                        help="innovation variance r > 0, Re = r I (default: %(default)s)")
+                        help="innovation variance r > 0, Re = r I, at most 1e280 (default: %(default)s)")
     parser.add_argument("--start-time", type=_start_time, default=None, metavar="SEC",
                         help="stamp of the first sample in seconds since the epoch, from 0 to 2**31 - 1 with "
                         "the whole record (a ROS 2 stamp's sec is an int32; default: now)")

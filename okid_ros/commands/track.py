@@ -309,7 +309,8 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
     """The ARX order of every update (chosen on the first window with ``--order auto``), checked."""
     import numpy as np
 
-    from okid_ros.core.arx_order import choose_arx_order
+    from okid_ros.core.arx_order import choose_arx_order, states_problem
+    from okid_ros.core.options import ArxOrderOptions
     from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
     from okid_ros.core.realization_window import realization_minimum
     from okid_ros.core.regressors import regressor_length
@@ -327,6 +328,10 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
         if lo is None:
             raise DataError(f"--order auto chooses the ARX order on {window + 200} samples without NaN/Inf and the "
                             f"record has no such run; give --order Q")
+        if args.states != "auto" and (problem := states_problem(args.states, window + 200, p, m,
+                                                                 arx_orders=ArxOrderOptions())):
+            raise ParameterError(f"--states {args.states}: {problem} (the ARX order is chosen on the first "
+                                 f"--window + 200 samples)")
         try:
             q, _ = choose_arx_order(u[lo : lo + window + 200], y[lo : lo + window + 200], options=options)
         except ValueError as exc:

@@ -19,10 +19,10 @@ from okid_ros.core.least_squares import (
     solve_normal_equations,
 )
 from okid_ros.core.options import ArxOrderOptions, RealizationOptions
-from okid_ros.core.regressors import check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, longest_given_order, regressor_length, samples_for_order
 
 __all__ = ["ArxOrderChoice", "arx_order_for_realization", "choose_arx_order", "longest_arx_order",
-           "select_arx_order"]
+           "select_arx_order", "most_states", "states_problem"]
 
 #: A record too short for the whole state search still gets a search of at least one mode.
 MIN_SEARCH_STATES = 2
@@ -157,6 +157,52 @@ def min_arx_order(states: int, n_outputs: int) -> int:
     return 2 * int(np.ceil(states / n_outputs)) + 1
 
 
+def most_states(n_present: int, n_outputs: int, n_inputs: int, *, arx_orders: ArxOrderOptions) -> tuple[int, str]:
+    """The most states a given state order may have on a record of ``n_present`` samples, and what bounds it.
+
+    ``n`` states need the ARX order :func:`min_arx_order` ``(n, p)`` for the realization's Hankel
+    matrix, within the cost limit (``arx_orders.max_coefficients``) and the record
+    (:func:`longest_arx_order`).
+    """
+    p, m = n_outputs, n_inputs
+    by_cost = (arx_orders.max_coefficients - m) // (p + m)
+    by_record = longest_arx_order(n_present, p, m, min_rows_per_coefficient=arx_orders.min_rows_per_coefficient)
+    if by_cost <= by_record:
+        why = f"the limit of {arx_orders.max_coefficients} ARX coefficients per output"
+    else:
+        why = f"the {n_present} samples of the fit"
+    return max(p * ((min(by_cost, by_record) - 1) // 2), 0), why
+
+
+def states_problem(states: int, n_present: int, n_outputs: int, n_inputs: int, *,
+                   arx_orders: ArxOrderOptions) -> str:
+    """Why a given order of ``states`` cannot be realized from an ARX fit of the record, or "".
+
+    The ARX order the Hankel matrix of ``states`` needs must fit (:func:`most_states`); the cost
+    of the ARX fit is named only as the reason for the bound on the states.
+    """
+    most, why = most_states(n_present, n_outputs, n_inputs, arx_orders=arx_orders)
+    if states <= most:
+        return ""
+    needs = (f"needs an ARX order of at least {min_arx_order(states, n_outputs)} for its Hankel matrix with "
+             f"{n_outputs} output{'s' if n_outputs > 1 else ''}")
+    if most < 1:
+        return f"{needs}; no state order fits within {why}"
+    return f"{needs}; at most {most} states fit within {why}"
+
+
+def _too_short_for_a_search(n_present: int, smallest: int, p: int, m: int, arx_orders: ArxOrderOptions) -> str:
+    """Why ``n_present`` samples take no automatic ARX order, and which given order they take (or that none does)."""
+    needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, m)) + smallest
+    given = longest_given_order(n_present, p, m)
+    if given < 2:  # the realization needs two blocks of Markov parameters (ARX order 2)
+        return (f"{n_present} samples are too few for any ARX order: the smallest a given order can be, 2 (with {m} "
+                f"inputs and {p} outputs), needs {samples_for_order(2, p, m)} samples, the automatic order's "
+                f"smallest, {smallest} ({MIN_SEARCH_STATES} states' worth), {needed}")
+    return (f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, {smallest} "
+            f"({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order up to {given} fits them")
+
+
 def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: RealizationOptions | None,
                               arx_orders: ArxOrderOptions | None, center: bool, valid: np.ndarray | None = None
                               ) -> tuple[ArxOrderChoice, list[str]]:
@@ -172,6 +218,10 @@ def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: Realizat
     p = y.shape[1]
     states = options.max_states if options.automatic_order else int(options.n_states)
     min_order = min_arx_order(states, p)
+    if not options.automatic_order:
+        n_present = u.shape[0] if valid is None else int(np.count_nonzero(valid))
+        if problem := states_problem(states, n_present, p, u.shape[1], arx_orders=arx_orders):
+            raise ValueError(f"{states} states: {problem}")
 
     def choose(floor: int, candidates: tuple[int, ...] = arx_orders.candidates) -> ArxOrderChoice:
         return select_arx_order(
@@ -189,10 +239,7 @@ def arx_order_for_realization(u: np.ndarray, y: np.ndarray, *, options: Realizat
             raise
         smallest = min_arx_order(MIN_SEARCH_STATES, p)
         if longest < smallest:  # the order cited by select_arx_order was the search's, not the fallback's
-            needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, u.shape[1])) + smallest
-            raise ValueError(f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, "
-                             f"{smallest} ({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order "
-                             f"may fit fewer (at most {longest} here)") from None
+            raise ValueError(_too_short_for_a_search(n_present, smallest, p, u.shape[1], arx_orders)) from None
     choice = choose(longest, (longest,))
     return choice, [
         f"{n_present} samples are too few for the ARX order a search up to {states} states needs "

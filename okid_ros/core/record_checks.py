@@ -7,7 +7,7 @@ import numpy as np
 from okid_ros.core.gap_fill import mark_missing, missing_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import OFFSETS, RealizationOptions, sample_time_problem
-from okid_ros.core.regressors import check_io_arrays, regressor_length
+from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
 __all__ = ["METHODS", "check_record_length", "checked_record"]
 
@@ -46,7 +46,7 @@ def check_record_length(n_samples: int, order: int, p: int, m: int) -> None:
     if order < 2:
         raise IdentificationError(f"ARX order must be >= 2, got {order}")
     d = regressor_length(order, p, m)
-    needed = order + d + 1
+    needed = samples_for_order(order, p, m)
     if n_samples < needed:
         raise IdentificationError(
             f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {n_samples} "

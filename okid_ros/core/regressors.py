@@ -20,6 +20,8 @@ import numpy as np
 
 __all__ = [
     "regressor_length",
+    "samples_for_order",
+    "longest_given_order",
     "arx_regressors",
     "regressor_at",
     "valid_regressor_rows",
@@ -51,6 +53,16 @@ def real_array(name: str, value: object) -> np.ndarray:
 def regressor_length(order: int, n_outputs: int, n_inputs: int) -> int:
     """Length ``d = m + q (p + m)`` of one ARX regressor vector."""
     return n_inputs + order * (n_outputs + n_inputs)
+
+
+def samples_for_order(order: int, n_outputs: int, n_inputs: int) -> int:
+    """The fewest samples a given ARX ``order`` is fitted to: ``q`` lags, then ``d + 1`` rows for ``d`` coefficients."""
+    return order + regressor_length(order, n_outputs, n_inputs) + 1
+
+
+def longest_given_order(n_samples: int, n_outputs: int, n_inputs: int) -> int:
+    """The largest ARX order :func:`samples_for_order` lets ``n_samples`` fit (below 2: none the realization takes)."""
+    return max((n_samples - n_inputs - 1) // (1 + n_outputs + n_inputs), 0)
 
 
 def check_io_arrays(u: np.ndarray, y: np.ndarray, *, allow_no_inputs: bool = False) -> tuple[np.ndarray, np.ndarray]:

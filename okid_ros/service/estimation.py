@@ -106,6 +106,7 @@ from okid_ros.service.results import (
     ModelUpdate,
     RealizationJob,
     RealizationOutcome,
+    RefusedArx,
     StructuralChangeEvent,
 )
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -222,11 +223,11 @@ class ModalEstimationService:
         if not self.enabled:
             return False
         if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
-            self._refuse(f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator has "
-                         f"n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
+            st.refuse_arx(RefusedArx.DIMENSIONS, f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator "
+                          f"has n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
             return False
         if not math.isfinite(stamp_end_s):
-            self._refuse("ARX model without a stamp")
+            st.refuse_arx(RefusedArx.STAMP, "ARX model without a stamp")
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):
@@ -237,11 +238,12 @@ class ModalEstimationService:
         if prm.buffer_length <= 0:  # the buffer follows the ARX window, within node 2's bounds
             problem = self._buffer.grow_for(rows + fit.order, MAX_BUFFER_SAMPLES, "estimator.buffer_length")
             if problem:
-                self._refuse(f"ARX model refused: {problem}")
+                st.refuse_arx(RefusedArx.BUFFER, f"ARX model refused: {problem}")
                 return False
         elif self._buffer.cap < (least := realization_minimum(fit.order, rows + fit.order)):  # else "a gap", none there
-            self._refuse(f"ARX model refused: its window of {rows + fit.order} samples (rows + order) needs at least "
-                         f"{least} buffered, more than estimator.buffer_length {self._buffer.cap} keeps")
+            st.refuse_arx(RefusedArx.BUFFER, f"ARX model refused: its window of {rows + fit.order} samples (rows + "
+                          f"order) needs at least {least} buffered, more than estimator.buffer_length "
+                          f"{self._buffer.cap} keeps")
             return False
         with self._lock:
             if self._request is not None:
@@ -269,28 +271,25 @@ class ModalEstimationService:
             end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)
             need = rows + fit.order
             if end < 0:
-                return self._refuse("no buffered sample at or before the ARX window's end")
+                return self._refuse(RefusedArx.NO_SAMPLE, "no buffered sample at or before the ARX window's end")
             change = self._watch.change
             if change is not None and end + 1 - need < change.change_index:
                 self._stats.windows_refused_for_change += 1
-                return self._refuse(
-                    f"ARX window starts before the structural change at {change.change_stamp_s:.3f} s; "
-                    f"waiting for a model of post-change data"
-                )
+                return self._refuse(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
+                                    f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
             _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
             try:  # the cheap part of realization_window here; its filling is the worker's (realize)
                 first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
             except ValueError as exc:
-                return self._refuse(str(exc))
+                return self._refuse(RefusedArx.GAP, str(exc))
             self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
             buffered = BufferedWindow(skipped[first:], need, self._watch.level_step_within(end + 1 - need, end + 1))
             return RealizationJob(fit, arx_id, end_stamp, u[first:], y[first:], end, self.params, self._generation,
                                   order_hint=hint, buffered=buffered)
 
-    def _refuse(self, reason: str) -> None:
-        self._stats.arx_refused += 1
-        self._stats.last_reason = reason
+    def _refuse(self, why: str, reason: str) -> None:
+        self._stats.refuse_arx(why, reason)
 
     def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
         """:func:`realize` a job, then (``follow``) :meth:`follow` the samples that arrived since."""

@@ -37,6 +37,7 @@ def estimation_diagnostics(stats: EstimationStats, buffer: SampleBuffer, watch: 
         "arx_models_received": st.arx_received,
         "arx_models_replaced": st.arx_replaced,
         "arx_models_refused": st.arx_refused,
+        "arx_models_refused_why": st.arx_refused_text(),
         "arx_models_unchanged": st.arx_unchanged,
         "realizations": st.realizations,
         "models_accepted": st.models_accepted,

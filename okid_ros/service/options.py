@@ -30,6 +30,7 @@ from okid_ros.service.params import (
     option_values,
     runtime_fields,
 )
+from okid_ros.service.sample_buffer import memory_shortfall
 
 __all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_change", "HANDOVER_SAMPLES",
            "MAX_BUFFER_SAMPLES"]
@@ -133,7 +134,27 @@ class ArxIdentificationParams:
         if self.regularization == "none" and 0 < self.window_length < d:
             return (f"arx.window_length {self.window_length} is smaller than the d = {d} coefficients of arx.order "
                     f"{q}: unregularized least squares (arx.regularization none) needs at least d rows")
+        # numpy's zeroed buffers take memory only as samples fill them: 1e8 rows started, then failed days
+        # later (or at once under ulimit -v with a message that did not name the parameter).
+        shortfall = memory_shortfall(self.window_bytes())
+        if shortfall:
+            return (f"arx.window_length {self.window_length}: buffering the window's samples {shortfall} (estimated "
+                    f"at {self.window_bytes() / self.window_length:.0f} bytes a row: the window's two-fold ring, "
+                    f"node 1's replay ring and node 2's)")
         return ""
+
+    def window_bytes(self) -> int:
+        """Memory the buffers sized by a full ``window_length`` take [bytes] (0 for an infinite history).
+
+        The sliding window's ring of twice the window of (p + m) samples with two flags each
+        (:class:`~okid_ros.core.recursive.SlidingWindowArx`), node 1's ring of the samples it replays
+        after a change and node 2's of the window (stamp, skipped flag, u, y: both
+        :class:`~okid_ros.service.sample_buffer.SampleBuffer`; `process` runs both nodes in one process).
+        """
+        if self.window_length <= 0:
+            return 0
+        samples = self.n_inputs + self.n_outputs
+        return self.window_length * (2 * (8 * samples + 2) + 2 * 8 * (2 + samples))
 
     @property
     def n_params(self) -> int:

@@ -200,6 +200,17 @@ class ActiveModel:
     window_samples: int
 
 
+class RefusedArx:
+    """Why node 2 refuses an ArxModel (:meth:`EstimationStats.refuse_arx`), as "N ..." reads them."""
+
+    DIMENSIONS = "of other dimensions than node 2's"
+    STAMP = "without a stamp"
+    BUFFER = "whose window node 2's buffer cannot hold"
+    NO_SAMPLE = "whose window's end node 2 holds no sample at or before"
+    CHANGE = "whose window starts before a structural change"
+    GAP = "with too few samples after a gap (or a time jump) in their window"
+
+
 @dataclass
 class EstimationStats:
     """Counters of the estimation service (its diagnostics)."""
@@ -236,3 +247,15 @@ class EstimationStats:
     last_change_statistic: float = math.nan
     last_change_delay_samples: int = 0
     modes_retired: int = 0
+    #: ArxModels refused, by why (a RefusedArx phrase) -> (count, the last one's reason in full).
+    arx_refused_why: dict = field(default_factory=dict)
+
+    def refuse_arx(self, why: str, reason: str) -> None:
+        """Count an ArxModel refused for ``why`` (a :class:`RefusedArx` phrase); ``reason`` says it in full."""
+        self.arx_refused += 1
+        self.last_reason = reason
+        self.arx_refused_why[why] = (self.arx_refused_why.get(why, (0, ""))[0] + 1, reason)
+
+    def arx_refused_text(self) -> str:
+        """"N WHY (the last: REASON); ..." of the refused ArxModels ("" if none)."""
+        return "; ".join(f"{count} {why} (the last: {reason})" for why, (count, reason) in self.arx_refused_why.items())

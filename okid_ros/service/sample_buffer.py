@@ -16,7 +16,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["SampleBuffer", "MEMORY_SHARE", "physical_memory_bytes"]
+__all__ = ["SampleBuffer", "MEMORY_SHARE", "physical_memory_bytes", "available_memory_bytes", "memory_shortfall"]
 
 #: The largest share of this machine's memory a buffer sized from an ARX window may take.
 MEMORY_SHARE = 0.5
@@ -28,6 +28,50 @@ def physical_memory_bytes() -> int:
         return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):
         return 0
+
+
+def available_memory_bytes() -> int:
+    """Memory this process may still take [bytes] (0 when the system does not say).
+
+    The kernel's estimate of what can be had without swapping (``MemAvailable`` of /proc/meminfo,
+    else the free pages), and less under an address-space limit (``ulimit -v``): there what the
+    process has mapped already counts against the limit.
+    """
+    available = 0
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            available = next((int(line.split()[1]) * 1024 for line in meminfo if line.startswith("MemAvailable:")), 0)
+    except (OSError, ValueError, IndexError):
+        pass
+    if not available:
+        try:
+            available = int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_AVPHYS_PAGES"))
+        except (ValueError, OSError, AttributeError):
+            available = 0
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit != resource.RLIM_INFINITY:
+            with open("/proc/self/statm", encoding="ascii") as statm:
+                mapped = int(statm.read().split()[0]) * int(os.sysconf("SC_PAGE_SIZE"))
+            room = max(limit - mapped, 1)
+            available = min(available, room) if available else room
+    except (ImportError, OSError, ValueError, IndexError):
+        pass
+    return available
+
+
+def memory_shortfall(need_bytes: float) -> str:
+    """"needs about X GiB, only Y GiB available" when ``need_bytes`` do not fit, else "".
+
+    The one wording for options sized beyond this machine (``arx.window_length``, ``simulate
+    --duration``); "" too when the system does not say what is available.
+    """
+    available = available_memory_bytes()
+    if not available or need_bytes <= available:
+        return ""
+    return f"needs about {need_bytes / 2**30:.3g} GiB, only {available / 2**30:.3g} GiB available"
 
 
 class SampleBuffer:

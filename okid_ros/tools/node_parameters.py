@@ -27,8 +27,9 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     namespace : the nodes' namespace (None: the root namespace); decides which sections of
         the files apply, as for the live nodes.
     strict : unknown parameter names (or sections naming a node that do not apply) in the
-        files, and values the nodes refuse for their type (``8`` for a floating-point
-        parameter: rclpy's typed parameters; read here as 8.0), are an error instead of a report.
+        files are an error instead of a report. A value the nodes refuse for its type (``8`` for a
+        floating-point parameter: rclpy's typed parameters; the nodes do not start) is an error
+        always, in a file or an override, as it is for the nodes (:func:`~okid_ros.service.params.rcl_type_problem`).
     report : called with each such problem when not ``strict``, and with an ``inputs.time_jump_s``
         the sample grid raises (:func:`okid_ros.service.inputs.time_jump_note`) (default: an
         :class:`~okid_ros.errors.OkidWarning`, which `okid-ros` prints as its command's warning line).
@@ -62,12 +63,14 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         given["inputs.sources"] = "--source"
     trees = [(str(path), read_parameter_file(path)) for path in param_files]
     problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
-    problems += _typed_problems(trees, namespace)
     if problems and strict:
         raise ParameterError("; ".join(problems))
     say = report or (lambda text: warnings.warn(text, OkidWarning, stacklevel=3))
     for problem in problems:
         say(problem)
+    # The nodes do not start on such a value (rclpy's typed parameters), strict or not: nor does this.
+    if typed := _typed_problems(trees, namespace) + _typed_override_problems(layered, given):
+        raise ParameterError("; ".join(typed))
     values = []
     for node in (ARX_NODE, ESTIMATOR_NODE):
         merged: dict[str, Any] = {}
@@ -99,7 +102,7 @@ def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tup
     layered: list[tuple[str, Any]] = []
     for item in overrides:
         name, sep, text = item.partition("=")
-        name = name.strip()
+        name = name.strip().removesuffix(":")  # NAME:=VALUE as ros2 run's -p writes it, too
         if not sep or not name:
             raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
         try:
@@ -112,8 +115,20 @@ def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tup
     return layered
 
 
+def _typed_override_problems(layered: list[tuple[str, Any]], given: dict[str, str]) -> list[str]:
+    """Values of ``--param`` that the nodes refuse for their type (``-p sample_time_s:=1`` does not start them)."""
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params, rcl_type_problem
+
+    specs = {spec.name: spec for node in (ARX_NODE, ESTIMATOR_NODE) for spec in node_params(node)}
+    found = {}
+    for name, value in layered:
+        if name in specs and name in given and (why := rcl_type_problem(specs[name], value)):
+            found[name] = f"{given[name]}: parameter {name} = {value!r} {why}"
+    return list(found.values())
+
+
 def _typed_problems(trees: list[tuple[str, Any]], namespace: str | None) -> list[str]:
-    """Values of the files that the nodes refuse for their type (read here all the same), one sentence each."""
+    """Values of the files that the nodes refuse for their type, one sentence each."""
     from okid_ros.service.param_files import node_fqn, node_values_from_tree
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, node_params, rcl_type_problem
 

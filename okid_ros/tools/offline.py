@@ -118,6 +118,20 @@ class ProcessSummary:
     def final_modes(self) -> list[dict]:
         return self.updates[-1]["modes"] if self.updates else []
 
+    def arx_refused_note(self) -> str:
+        """What node 2 refused of node 1's ArxModels, in one sentence ("" when nothing beyond a change's).
+
+        Refusals of windows that start before a declared structural change are the change's
+        expected wait (said with it); any other (a time jump of hours: windows across the gap)
+        is said with its count and reasons, which the live node gives in its diagnostics.
+        """
+        d = self.estimator_diagnostics
+        refused = d.get("arx_models_refused", 0)
+        if refused <= d.get("windows_refused_for_change", 0):
+            return ""
+        return (f"node 2 refused {refused} of the {d.get('arx_models_received', 0)} ArxModels of node 1: "
+                f"{d.get('arx_models_refused_why', '')}")
+
     def rejection_note(self) -> str:
         """What node 1's sample grid and window refused, in one sentence ("" when nothing).
 

@@ -37,7 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.window_samples import MAX_SAMPLE_MAGNITUDE
 from okid_ros.jsonio import dumps
+from okid_ros.service.sample_buffer import memory_shortfall
 from okid_ros.service.sample_grid import MAX_STAMP_S
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
 from okid_ros.tools.errors import ToolParameterError
@@ -58,6 +60,16 @@ THRUSTER_FRAMES = ("thruster1", "thruster2")
 IMU_FRAMES = ("accel_tip1", "accel_tip2")
 RIG_FRAME = "truss_tip"
 DEFAULT_CUTOFF_HZ = 15.0
+#: The largest innovation variance: its standard deviation 1e140 leaves ten decades below the samples'
+#: bound (MAX_SAMPLE_MAGNITUDE, 1e150, which node 1 and `process` refuse beyond) for the model's gain
+#: and the noise's tails; --noise 1e300 wrote a bag whose every output was refused.
+MAX_INNOVATION_VARIANCE = 1e280
+#: The lowest input cut-off: the filter's start-up of 20 / cutoff seconds is simulated and thrown away
+#: (5.5 h at 1e-3 Hz; 1e-12 Hz ran out of memory, 1e-300 Hz failed in numpy).
+MIN_CUTOFF_HZ = 1e-3
+#: Peak memory of a simulation per sample of the record [bytes] (about 330 measured: input, its
+#: filter, states, outputs, messages), to refuse a --duration this machine cannot hold before the work.
+SIMULATION_BYTES_PER_SAMPLE = 400
 
 
 @dataclass
@@ -123,6 +135,10 @@ def simulate_experiment(
     # Checked before the model is built: an infinite variance made it NaN (scipy's "infs or NaNs").
     if not 0 < innovation_variance < np.inf:
         raise ToolParameterError(f"innovation variance must be a positive finite number, got {innovation_variance}")
+    if innovation_variance > MAX_INNOVATION_VARIANCE:
+        raise ToolParameterError(
+            f"--noise {innovation_variance:g} is more than {MAX_INNOVATION_VARIANCE:g}: its outputs would pass "
+            f"{MAX_SAMPLE_MAGNITUDE:g}, beyond which the nodes and `process` refuse samples")
     model = paper_model(innovation_variance=innovation_variance)
     dt = model.sample_time_s
     n_samples = _check_options(duration_s, seed, cutoff_hz, dt)
@@ -171,13 +187,22 @@ def _check_options(duration_s: float, seed: int, cutoff_hz: float, dt: float) ->
     """The number of samples of ``duration_s``; raises ToolParameterError for an option out of range."""
     if not np.isfinite(duration_s) or duration_s <= 0:
         raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
-    if not 0 < cutoff_hz < 0.5 / dt:
-        raise ToolParameterError(f"input cut-off must be in (0, {0.5 / dt}) Hz, got {cutoff_hz}")
+    if duration_s > MAX_STAMP_S:
+        raise ToolParameterError(f"--duration {duration_s:g} s is more than the {MAX_STAMP_S} s a ROS 2 stamp can "
+                                 f"hold (its sec is an int32)")
+    if not MIN_CUTOFF_HZ <= cutoff_hz < 0.5 / dt:
+        raise ToolParameterError(f"--cutoff {cutoff_hz:g} Hz: the input cut-off must be from {MIN_CUTOFF_HZ:g} to "
+                                 f"below {0.5 / dt:g} Hz (below {MIN_CUTOFF_HZ:g} Hz the filter's start-up of "
+                                 f"20 / cutoff s is too long to simulate)")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ToolParameterError(f"--seed must be an integer >= 0, got {seed!r}")  # numpy's default_rng needs it
     n_samples = int(round(duration_s / dt))
     if n_samples < 2:
         raise ToolParameterError(f"--duration {duration_s} s is shorter than two samples of {dt} s")
+    shortfall = memory_shortfall(n_samples * SIMULATION_BYTES_PER_SAMPLE)
+    if shortfall:
+        raise ToolParameterError(f"--duration {duration_s:g} s: simulating its {n_samples} samples {shortfall} "
+                                 f"(estimated at {SIMULATION_BYTES_PER_SAMPLE} bytes a sample)")
     return n_samples
 
 

@@ -128,13 +128,15 @@ def test_a_bag_of_which_no_sample_fits_says_why(bag, tmp_path, capsys):
     assert "messages were rejected (1500 wrong size (n_inputs 0, n_outputs 2 expected" in err
 
 
-@pytest.mark.parametrize("sample_time_s, reason, where", [("3600", "1499 duplicate", "in a sample time already taken"),
-                                                          ("0.016", "750 off grid", "between sample times")])
+@pytest.mark.parametrize("sample_time_s, reason, where", [
+    ("3600.0", "1499 duplicate", "in a sample time already taken"),  # a float: the nodes refuse 3600
+    ("0.016", "750 off grid", "between sample times"),
+])
 def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path, capsys, sample_time_s, reason,
                                                                   where):
     capsys.readouterr()
     out = tmp_path / "r.npz"
-    one_sample = sample_time_s == "3600"  # the 12 s bag in one sample time: refused, the cause said
+    one_sample = sample_time_s == "3600.0"  # the 12 s bag in one sample time: refused, the cause said
     assert main(["export", str(bag), "--npz", str(out), "--param", f"sample_time_s={sample_time_s}"]) == (
         2 if one_sample else 0)
     err = capsys.readouterr().err

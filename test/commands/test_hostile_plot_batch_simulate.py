@@ -60,6 +60,31 @@ def test_simulate_refuses_a_record_ending_beyond_a_ros_stamp(tmp_path, capsys):
     assert "int32" in err and not out.exists()
 
 
+@pytest.mark.parametrize("option, fragment", [
+    # outputs beyond 1e150, refused sample by sample by `process` (was: a bag written)
+    (["--noise", "1e300"], "--noise 1e+300 is more than 1e+280"),
+    # was: out of memory without naming the option, and an internal error for 1e-300
+    (["--cutoff", "1e-12"], "--cutoff 1e-12 Hz: the input cut-off must be from 0.001"),
+    (["--cutoff", "1e-300"], "filter's start-up"),
+    # was: a --start-time error, an option not given
+    (["--duration", "1e10"], "--duration 1e+10 s is more than the 2147483647 s a ROS 2 stamp can hold"),
+])
+def test_simulate_refuses_options_that_cannot_give_samples_the_nodes_take(tmp_path, capsys, option, fragment):
+    out = tmp_path / "sim"
+    _one_line_error(capsys, ["simulate", "--out", str(out), "--duration", "1", *option], fragment)
+    assert not out.exists()
+
+
+def test_simulate_refuses_a_duration_beyond_the_available_memory(tmp_path, capsys, monkeypatch):
+    from okid_ros.service import sample_buffer
+
+    monkeypatch.setattr(sample_buffer, "available_memory_bytes", lambda: 2**20, raising=False)  # 1 MiB
+    out = tmp_path / "sim"
+    err = _one_line_error(capsys, ["simulate", "--out", str(out), "--duration", "100"],
+                          "--duration 100 s: simulating its 12500 samples needs about")
+    assert "only 0.000977 GiB available" in err and not out.exists()
+
+
 def test_simulate_experiment_checks_seed_and_noise_itself():
     from okid_ros.tools.simulate_bag import simulate_experiment
 

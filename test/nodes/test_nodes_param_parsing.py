@@ -58,7 +58,7 @@ def test_a_parameter_file_means_to_okid_ros_what_it_means_to_rcl(tmp_path: Path,
     assert ours["exponent"] == ["float", 0.001] and ours["octal"] == ["int", 8] and ours["letter_y"] == ["bool", True]
 
 
-@pytest.mark.parametrize("text, expected", [("5e-1", 0.5), ("2", 2.0)])
+@pytest.mark.parametrize("text, expected", [("5e-1", 0.5), ("2.0", 2.0)])
 def test_a_number_in_exponent_form_is_a_number_in_files_and_overrides(tmp_path: Path, text: str,
                                                                        expected: float) -> None:
     path = tmp_path / "rate.yaml"
@@ -68,26 +68,31 @@ def test_a_number_in_exponent_form_is_a_number_in_files_and_overrides(tmp_path: 
     assert from_file["publish_rate_hz"] == from_override["publish_rate_hz"] == expected
 
 
-def test_a_file_value_the_nodes_refuse_for_its_type_is_reported(tmp_path: Path) -> None:
+def test_a_value_the_nodes_refuse_for_its_type_is_refused_from_a_file_and_from_param(tmp_path: Path) -> None:
     # rclpy's typed parameters refuse 8 for sample_time_s and 20.0 for arx.order (node 1 stops with
     # "parameter sample_time_s must be a floating-point number (e.g. 1.0, not 1)"); the offline path
-    # read them silently, so a file `process` took could not start `up`. Reported (refused with
-    # strict); --param stays lenient.
+    # read them silently, then with a warning from a file only (and none for --param sample_time_s=8),
+    # so a file or an option `process` took could not start `up`. Refused on every path, as the nodes do.
     path = tmp_path / "loose.yaml"
     path.write_text("/**:\n  ros__parameters:\n    sample_time_s: 8\n"
                     "/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {order: 20.0}\n")
     said: list[str] = []
-    arx, est = load_node_parameters([path], report=said.append)
-    assert arx["sample_time_s"] == est["sample_time_s"] == 8.0 and arx["arx.order"] == 20
-    assert said == [f"{path}: parameter sample_time_s = 8 is an integer: the nodes refuse it for a floating-point "
-                    "parameter and do not start (write 8.0)",
-                    f"{path}: parameter arx.order = 20.0 is a floating-point number: the nodes refuse it for an "
-                    "integer parameter and do not start"]
-    with pytest.raises(ParameterError, match="sample_time_s = 8 is an integer"):
-        load_node_parameters([path], strict=True)
-    said.clear()
-    load_node_parameters(overrides=["sample_time_s=8", "arx.order=20.0"], report=said.append)
+    for strict in (False, True):
+        with pytest.raises(ParameterError) as refused:
+            load_node_parameters([path], report=said.append, strict=strict)
+        assert str(refused.value) == (
+            f"{path}: parameter sample_time_s = 8 is an integer: the nodes refuse it for a floating-point parameter "
+            f"and do not start (write 8.0); {path}: parameter arx.order = 20.0 is a floating-point number: the "
+            "nodes refuse it for an integer parameter and do not start")
+    for override in ("sample_time_s=8", "sample_time_s:=8"):  # NAME:=VALUE as ros2 run -p writes it
+        with pytest.raises(ParameterError, match=f"^--param {override}: parameter sample_time_s = 8 is an integer: "
+                           r"the nodes refuse it for a floating-point parameter and do not start \(write 8\.0\)$"):
+            load_node_parameters(overrides=[override], report=said.append)
+    with pytest.raises(ParameterError, match=r"^--param arx\.order=20\.0: parameter arx\.order = 20\.0 is a "):
+        load_node_parameters(overrides=["arx.order=20.0"], report=said.append)
     assert said == []
+    arx, _ = load_node_parameters(overrides=["sample_time_s:=8.0", "arx.order=20"])
+    assert arx["sample_time_s"] == 8.0 and arx["arx.order"] == 20
 
 
 def test_the_commands_say_a_files_problems_as_their_own_warning_lines(tmp_path: Path, capsys) -> None:
@@ -96,7 +101,7 @@ def test_the_commands_say_a_files_problems_as_their_own_warning_lines(tmp_path: 
     from okid_ros.cli import main
 
     bag, loose = tmp_path / "run", tmp_path / "loose.yaml"
-    loose.write_text("/**:\n  ros__parameters:\n    publish_rate_hz: 1\n    no_such_thing: 3\n")
+    loose.write_text("/**:\n  ros__parameters:\n    publish_rate_hz: 1.0\n    no_such_thing: 3\n")
     assert main(["simulate", "--out", str(bag), "--duration", "2"]) == 0
     capsys.readouterr()
     for command, args in [("export", ["--npz", str(tmp_path / "run.npz")]),
@@ -105,9 +110,7 @@ def test_the_commands_say_a_files_problems_as_their_own_warning_lines(tmp_path: 
         said = [line for line in capsys.readouterr().err.splitlines() if str(loose) in line]
         assert said == [
             f"okid-ros {command}: warning: {loose}: section '/**': unknown parameter(s) no_such_thing (not declared "
-            "by okid_arx_identifier, okid_modal_estimator)",
-            f"okid-ros {command}: warning: {loose}: parameter publish_rate_hz = 1 is an integer: the nodes refuse it "
-            "for a floating-point parameter and do not start (write 1.0)"], said
+            "by okid_arx_identifier, okid_modal_estimator)"], said
     assert main(["identify", str(tmp_path / "run.npz"), "--json", str(tmp_path / "m.json"), "--order", "10",
                  "--params", str(loose)]) == 0
     assert capsys.readouterr().err.splitlines()[0] == (

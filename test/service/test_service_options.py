@@ -126,3 +126,15 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
+
+
+def test_a_window_whose_buffers_do_not_fit_in_the_available_memory_is_refused(monkeypatch):
+    """``arx.window_length`` 1e8 started (numpy's zeroed buffers take memory as they fill) and failed later."""
+    from okid_ros.service import sample_buffer
+
+    monkeypatch.setattr(sample_buffer, "available_memory_bytes", lambda: 2**30, raising=False)  # 1 GiB
+    with pytest.raises(ParameterError, match=r"^arx\.window_length 100000000: buffering the window's samples needs "
+                       r"about 15\.3 GiB, only 1 GiB available \(estimated at 164 bytes a row"):
+        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.window_length": 100_000_000}))
+    # A window of a million rows (164 MB) fits.
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.window_length": 1_000_000}))

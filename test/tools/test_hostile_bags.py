@@ -133,3 +133,25 @@ def test_process_refuses_a_bag_of_one_sample(tmp_path, capsys):
     write_record_bag(tmp_path / "one", rng.standard_normal((1, 2)), rng.standard_normal((1, 2)), 0.008)
     code, _, err = run_cli(capsys, "process", tmp_path / "one", "--out", tmp_path / "o", "--no-progress")
     assert code == 2 and "one complete sample only" in err and not (tmp_path / "o").exists(), err
+
+
+def test_a_window_beyond_the_address_space_limit_is_refused_naming_the_parameter(tmp_path):
+    """Under ``ulimit -v 4000000`` a window of 1e8 rows was "out of memory", the parameter unnamed."""
+    import resource
+    import subprocess
+    import sys
+
+    bag = tmp_path / "sim"
+    assert main(["simulate", "--out", str(bag), "--duration", "3"]) == 0
+
+    def limit_address_space() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (4_000_000 * 1024, 4_000_000 * 1024))
+
+    result = subprocess.run(
+        [sys.executable, "-m", "okid_ros.cli", "process", str(bag), "--out", str(tmp_path / "out"), "--no-progress",
+         "--param", "arx.window_length=100000000"],
+        capture_output=True, text=True, timeout=120, preexec_fn=limit_address_space, cwd=REPO_ROOT)
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert "arx.window_length 100000000: buffering the window's samples needs about 15.3 GiB" in result.stderr
+    assert not (tmp_path / "out").exists()

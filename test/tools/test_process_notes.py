@@ -146,3 +146,22 @@ def test_a_stray_duplicate_is_no_sign_of_a_wrong_sample_time(tmp_path, capsys):
     stamps[300] = stamps[299]
     code, _, err = run_cli(capsys, "export", write_io_bag(tmp_path / "bag", stamps), "--npz", tmp_path / "r.npz")
     assert code == 0 and "1 duplicate" in err and "sample_time_s" not in err, err
+
+
+def test_arx_models_node_2_refuses_after_a_forward_jump_of_hours_are_said(tmp_path, capsys):
+    # A jump of 5 h half-way: node 2 refused 17 of node 1's ArxModels (windows across the gap,
+    # `arx_models_refused` in its diagnostics) and `process` said nothing of it.
+    from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
+
+    n = 7500
+    u = lowpass_input(n, 2, 15.0, DT, seed=1)
+    y, _ = simulate_innovation(paper_model(), u, seed=2)
+    stamps = grid_ns(n) + np.where(np.arange(n) >= n // 2, 5 * 3600 * 10**9, 0)
+    bag = write_io_bag(tmp_path / "jump", stamps, y=y)
+    code, _, err = process(capsys, bag, tmp_path)
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "ArxModels" in line]
+    assert len(said) == 1, err
+    assert said[0].startswith("okid-ros process: warning: node 2 refused 17 of the 43 ArxModels of node 1: 17 with too "
+                              "few samples after a gap (or a time jump) in their window (the last: "), said
+    assert "follow its last gap longer than 10 samples; the realization needs at least" in said[0]
