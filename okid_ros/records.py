@@ -4,8 +4,7 @@
     Arrays ``u`` (N, m), ``y`` (N, p) and a scalar ``sample_time_s``. One-dimensional ``u`` or
     ``y`` are read as a single channel. Without ``u`` the record has no inputs (``u`` (N, 0),
     for output-only identification). Arrays must be real numbers (bool, integer or float);
-    pickled objects are never loaded. Stamps ``stamp_s`` (N,) (`export` writes them), like a CSV's
-    ``stamp_s`` column, must step by about the sample time: a jump (two records glued) is refused.
+    pickled objects are never loaded. Stamps ``stamp_s`` (N,), as `export` writes them, may come too.
 
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
@@ -15,8 +14,8 @@
     comment line ``# sample_time_s=0.008`` (or ``: 0.008``; two that differ are refused, and so
     is one that a ``time_s`` column contradicts) or, failing that, from a ``time_s`` column. A
     ``time_s`` column must be a uniform grid (to the rounding of the times as written), with a
-    comment too: a gap is refused with its row. Invisible characters in the header's names
-    (zero-width spaces, NULs) are dropped::
+    comment too: a gap is refused with its row; stamps (``stamp_s``, here or in an .npz) must step
+    by about the sample time (a jump: records glued). Invisible characters in names are dropped::
 
         # sample_time_s=0.008
         u1,u2,y1,y2
