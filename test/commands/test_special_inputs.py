@@ -77,3 +77,11 @@ def test_a_fifo_or_a_huge_file_as_the_reference_is_refused(record, tmp_path, cap
     code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference", huge)
     assert_one_line_error(code, err, f"--reference {huge}: more than the 64 MiB read for a reference model")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["huge.json", "rec.npz", "ref.json"]
+
+
+def test_a_fifo_given_to_batch_is_refused_as_no_bag(tmp_path, capsys):
+    """It was searched as a folder: "left out 1 folder(s) ... that cannot be read (no permission?)"."""
+    with _fifo(tmp_path / "run.mcap") as fifo:
+        code, _, err = run_cli(capsys, "batch", fifo, "--out", tmp_path / "campaign")
+    assert_one_line_error(code, err, f"{fifo}: not a regular file (a FIFO); a bag is a rosbag2 folder")
+    assert "permission" not in err and not (tmp_path / "campaign").exists()

@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import OkidError, OkidWarning
+from okid_ros.errors import OkidError, OkidWarning, special_file_kind
 
 __all__ = ["BAG_SUFFIXES", "BagPlan", "bag_fingerprint", "bag_label", "find_bags", "plan_bag"]
 
@@ -84,6 +84,8 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
         path = Path(given)
         if not path.exists():
             raise OkidError(f"{path}: no such bag or directory")
+        if kind := special_file_kind(path):  # was searched as a folder: "cannot be read (no permission?)"
+            raise OkidError(f"{path}: not a regular file ({kind}); a bag is a rosbag2 folder or a storage file")
         if path.is_file():
             if path.suffix not in BAG_SUFFIXES:
                 raise OkidError(f"{path}: not a bag (expected a rosbag2 directory, {', '.join(BAG_SUFFIXES)})")
