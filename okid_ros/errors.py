@@ -87,11 +87,13 @@ def is_special_file(path: str | os.PathLike) -> bool:
     return special_file_kind(path) is not None
 
 
-def special_file_kind(path: str | os.PathLike) -> str | None:
+def special_file_kind(path: str | os.PathLike, *, pipe: bool = False) -> str | None:
     """What ``path`` is (through links) when neither a regular file nor a folder: "a FIFO", "a socket", ...
 
     None for a file, a folder, or a path that cannot be looked at (the reader says why). An input
     that is one is refused before it is opened: opening a FIFO waits for a writer, for ever.
+    ``pipe``: None too for a pipe the shell opened for this process (``--reference <(cmd)``:
+    ``/dev/fd/63``), whose writer is running: reading it ends when the writer does.
     """
     try:
         mode = os.stat(path).st_mode
@@ -99,6 +101,9 @@ def special_file_kind(path: str | os.PathLike) -> str | None:
         return None
     if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
         return None
+    with contextlib.suppress(OSError, ValueError):
+        if pipe and stat.S_ISFIFO(mode) and os.readlink(path).startswith("pipe:"):
+            return None
     if stat.S_ISFIFO(mode):
         return "a FIFO"
     if stat.S_ISSOCK(mode):

@@ -331,7 +331,7 @@ def _load_reference(path: str, n_outputs: int) -> list:
     from okid_ros.errors import ParameterError, special_file_kind
     from okid_ros.tools.validation_plots import reference_modes
 
-    if kind := special_file_kind(path):  # a FIFO would be waited on for ever
+    if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
         raise ParameterError(f"--reference {path}: not a regular file ({kind})")
     too_large = (f"--reference {path}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference model (an "
                  "`okid-ros identify --json` output is a few kB to a few MB): another file?")

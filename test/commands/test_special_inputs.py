@@ -85,3 +85,19 @@ def test_a_fifo_given_to_batch_is_refused_as_no_bag(tmp_path, capsys):
         code, _, err = run_cli(capsys, "batch", fifo, "--out", tmp_path / "campaign")
     assert_one_line_error(code, err, f"{fifo}: not a regular file (a FIFO); a bag is a rosbag2 folder")
     assert "permission" not in err and not (tmp_path / "campaign").exists()
+
+
+def test_a_reference_from_a_pipe_the_shell_opened_is_read(record, tmp_path, capsys):
+    """``--reference <(cmd)`` (``/dev/fd/63``: a pipe whose writer runs) was read before FIFOs were refused."""
+    assert run_cli(capsys, "identify", record, "--json", tmp_path / "ref.json", "--order", "4")[0] == 0
+    read, write = os.pipe()
+    writer = threading.Thread(target=lambda: (os.write(write, (tmp_path / "ref.json").read_bytes()), os.close(write)),
+                              daemon=True)
+    writer.start()  # the shell's writer: it may fill the pipe's buffer before the reader comes
+    try:
+        code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--order", "4",
+                               "--reference", f"/dev/fd/{read}")
+    finally:
+        os.close(read)  # a writer still blocked (the reference not read) gets EPIPE and ends
+        writer.join(timeout=10)
+    assert code == 0 and "not a regular file" not in err, err
