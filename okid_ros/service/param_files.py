@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from okid_ros.errors import ParameterError
+from okid_ros.errors import ParameterError, special_file_kind
 
 __all__ = [
     "ROS_STANDARD_PARAMETERS",
@@ -376,6 +376,8 @@ def read_parameter_file(path: str | Path) -> Mapping:
     import yaml
 
     path = Path(path)
+    if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
+        raise ParameterError(f"parameter file {path}: not a regular file ({kind})")
     repeated: list[str] = []
     try:
         tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}", repeated=repeated)

@@ -101,3 +101,20 @@ def test_a_reference_from_a_pipe_the_shell_opened_is_read(record, tmp_path, caps
         os.close(read)  # a writer still blocked (the reference not read) gets EPIPE and ends
         writer.join(timeout=10)
     assert code == 0 and "not a regular file" not in err, err
+
+
+def test_a_fifo_as_a_parameter_file_is_refused_and_a_shell_pipe_read(record, tmp_path, capsys):
+    """``--params FIFO`` waited for a writer for ever; ``--params <(cmd)`` keeps working."""
+    bag = tmp_path / "bag"
+    assert run_cli(capsys, "simulate", "--out", bag, "--duration", "1")[0] == 0
+    with _fifo(tmp_path / "p.yaml") as fifo:
+        code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "x.npz", "--params", fifo)
+    assert_one_line_error(code, err, f"parameter file {fifo}: not a regular file (a FIFO)")
+    read, write = os.pipe()
+    os.write(write, b"/**:\n  ros__parameters:\n    arx.order: 10\n")
+    os.close(write)
+    try:
+        code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "x.npz", "--params", f"/dev/fd/{read}")
+    finally:
+        os.close(read)
+    assert code == 0 and "regular file" not in err, err
