@@ -35,6 +35,9 @@ from typing import IO, TextIO
 
 from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
+from okid_ros.tools.output_paths import prepare_output
+from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
+from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
 
 __all__ = ["DemoOptions", "DemoResult", "run_demo", "default_params_file", "compare_modes"]
 
@@ -206,7 +209,10 @@ def _new_run_dir(out_dir: Path) -> Path:
     run_dir = out_dir / time.strftime("%Y%m%d-%H%M%S")
     if run_dir.exists():
         raise OkidError(f"{run_dir} exists already; wait a second and run again")
-    run_dir.mkdir(parents=True)
+    try:  # OUT_DIR a file, or not writable: one line, as for every output (was an internal error)
+        prepare_output(run_dir, force=False, kind="run folder").mkdir()
+    except OSError as exc:
+        raise OkidError(f"{run_dir}: cannot create the run folder ({exc.strerror})") from None
     latest = out_dir / "latest"
     if latest.is_symlink() or not latest.exists():
         if latest.is_symlink():
@@ -294,11 +300,14 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     """
     options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
     started = time.monotonic()
+    # Simulated before the run folder is made: a duration or seed out of range leaves none behind.
+    simulate = simulate_ambient if options.output_only else simulate_experiment
+    experiment = simulate(options.duration_s, seed=options.seed)
     run = _DemoRun(Path(out_dir), options, stream or sys.stdout)
     run.say(f"okid-ros demo: run folder {run.run_dir} (ROS_DOMAIN_ID={run.domain_id}; watch from another shell "
             f"with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
     try:
-        experiment_bag, truth = _simulate(run)
+        experiment_bag, truth = _write_experiment(run, experiment)
         nodes = _start_nodes(run)
         counts, live_bag = _replay_and_record(run, nodes, experiment_bag, truth)
         _stop_process(nodes, grace_s=15.0)
@@ -312,7 +321,6 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
 
 
 def _input_topics(options: DemoOptions) -> list[str]:
-    from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS
     from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
 
     if options.output_only:
@@ -320,18 +328,13 @@ def _input_topics(options: DemoOptions) -> list[str]:
     return list(THRUSTER_TOPICS) + list(IMU_TOPICS) if options.sensors else [IO_SAMPLE_TOPIC]
 
 
-def _simulate(run: _DemoRun) -> tuple[Path, dict]:
-    """Step 1: the simulated experiment as a bag; returns the bag and the truth."""
-    from okid_ros.tools.simulate_ambient import simulate_ambient, write_ambient_bag
-    from okid_ros.tools.simulate_bag import simulate_experiment, write_experiment_bag
-
+def _write_experiment(run: _DemoRun, experiment: Experiment) -> tuple[Path, dict]:
+    """Step 1: the simulated experiment as a bag in the run folder; returns the bag and the truth."""
     experiment_bag = run.run_dir / "experiment"
     if run.options.output_only:
-        experiment = simulate_ambient(run.options.duration_s, seed=run.options.seed)
         write_ambient_bag(experiment_bag, experiment)
         what = "ambient vibration (no measured input, two Imu topics)"
     else:
-        experiment = simulate_experiment(run.options.duration_s, seed=run.options.seed)
         write_experiment_bag(experiment_bag, experiment)
         what = "the paper's experiment"
     truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"

@@ -452,7 +452,7 @@ def test_handled_conditions_put_no_scipy_warnings_on_stderr(tmp_path: Path, caps
 
 @pytest.mark.parametrize("argv", [["identify", ""], ["track", ""], ["batch", "", "--plan"],
                                   ["export", "", "--npz", "x"], ["plot", ""], ["process", "", "--out", "x"],
-                                  ["replay", ""], ["record", ""]])
+                                  ["replay", ""], ["record", ""], ["demo", "--out-dir", ""]])
 def test_an_empty_path_is_refused_not_taken_for_here(argv, capsys: pytest.CaptureFixture[str]) -> None:
     """An unset shell variable (`okid-ros batch "$DIR"`) must not mean the current folder."""
     with pytest.raises(SystemExit) as raised:

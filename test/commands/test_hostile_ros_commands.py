@@ -1,4 +1,4 @@
-"""Hostile options of the ROS commands `info`, `replay` and `monitor`: one line, exit 2, no hang.
+"""Hostile options of the ROS commands `info`, `replay`, `monitor`, `up` and `demo`: one line, exit 2, no hang.
 
 Each case once ended in a traceback (exit 70) or a wait without end: a count, depth or window
 beyond 64 bits (rclpy's QoS and ``deque(maxlen=...)`` refuse them with TypeError and
@@ -120,3 +120,33 @@ def test_selftest_stops_publishing_at_its_timeout(ros_env):
                              "--timeout", "0.5"], env=ros_env, capture_output=True, text=True, timeout=14)
     assert result.returncode == 2 and "self-test:" in result.stderr, result.stderr
     assert time.monotonic() - started < 14
+
+
+def _status(argv: list[str]) -> int:
+    """``okid-ros ARGV``'s exit status, argparse's refusals (SystemExit) included."""
+    try:
+        return cli.main(argv)
+    except SystemExit as stopped:
+        return stopped.code
+
+
+@pytest.mark.parametrize("options, option", [
+    (["--seed", "-1"], "--seed"),  # was: refused after the run folder was made, left empty
+    (["--output-only", "--seed", "-1"], "--seed"),  # was: numpy's ValueError, internal error (exit 70)
+    (["--output-only", "--duration", "1e300"], "--duration"),  # was: "Maximum allowed dimension exceeded", 70
+    (["--duration", "1e300"], "--duration"),  # was: refused after the run folder was made
+])
+def test_demo_refuses_an_option_out_of_range_before_making_a_run_folder(capsys, tmp_path, options, option):
+    runs = tmp_path / "runs"
+    assert _status(["demo", "--no-ansi", "--out-dir", str(runs), *options]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith("okid-ros demo: error: ") and option in lines[-1], lines
+    assert "Traceback" not in "".join(lines) and not runs.exists()
+
+
+def test_demo_names_an_out_dir_it_cannot_make_in_one_line(capsys, tmp_path):
+    """A file as --out-dir: the run folder's error, exit 2 (was: NotADirectoryError, internal error, exit 70)."""
+    (tmp_path / "a_file").write_text("")
+    line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "1", "--out-dir", str(tmp_path / "a_file")])
+    assert "a_file/" in line and "cannot create" in line, line
+    assert (tmp_path / "a_file").is_file() and list(tmp_path.iterdir()) == [tmp_path / "a_file"]
