@@ -35,6 +35,7 @@ from typing import IO, TextIO
 
 from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
+from okid_ros.service.param_files import files_for_nodes
 from okid_ros.tools.output_paths import prepare_output
 from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
 from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
@@ -228,9 +229,6 @@ class _DemoRun:
         self.options = options
         self.out = stream
         self.param_files = options.param_files
-        for path in self.param_files:
-            if not path.is_file():
-                raise OkidError(f"parameter file {path} does not exist")
         self.run_dir = _new_run_dir(out_dir)
         if options.output_only and not options.params:
             overrides = self.run_dir / "output_only_demo.yaml"
@@ -300,6 +298,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     """
     options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
     started = time.monotonic()
+    files_for_nodes(options.param_files)  # read as `up` reads them, before anything is simulated or started
     # Simulated before the run folder is made: a duration or seed out of range leaves none behind.
     simulate = simulate_ambient if options.output_only else simulate_experiment
     experiment = simulate(options.duration_s, seed=options.seed)

@@ -63,6 +63,7 @@ def short_bag(tmp_path_factory) -> Path:
     (["replay", "bag", "--clock", "0"], "--clock"),
     (["replay", "bag", "--clock", "1e-300"], "--clock"),  # the clock step in ns overflowed
     (["monitor", "--window", HUGE], "--window"),
+    (["up", "--params", "p.yaml", "--grace", "nan"], "--grace"),  # was taken: nan > 0 is False, and nan <= 0 too
 ])
 def test_out_of_range_options_are_usage_errors(capsys, argv, option):
     assert option in usage_error(capsys, argv)
@@ -150,3 +151,22 @@ def test_demo_names_an_out_dir_it_cannot_make_in_one_line(capsys, tmp_path):
     line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "1", "--out-dir", str(tmp_path / "a_file")])
     assert "a_file/" in line and "cannot create" in line, line
     assert (tmp_path / "a_file").is_file() and list(tmp_path.iterdir()) == [tmp_path / "a_file"]
+
+
+@pytest.mark.parametrize("command", ["up", "demo"])
+@pytest.mark.parametrize("case, reason", [("folder", "Is a directory"), ("record", "not UTF-8 text"),
+                                          ("device", "not a regular file (a device)")])
+def test_a_params_file_the_nodes_cannot_read_is_refused_before_anything_starts(capsys, tmp_path, command, case,
+                                                                                reason):
+    """Read as `process` reads one, before a node starts or the demo simulates.
+
+    Was: "does not exist" for a folder or /dev/null; rcl's parse error from each node for a record
+    (`demo`: after its simulation, in a run folder).
+    """
+    (tmp_path / "record.npz").write_bytes(bytes(range(256)))
+    params = {"folder": tmp_path, "record": tmp_path / "record.npz", "device": "/dev/null"}[case]
+    started = time.monotonic()
+    line = one_line_error(capsys, [command, "--params", str(params), *(["--out-dir", str(tmp_path / "runs")]
+                                                                        if command == "demo" else [])])
+    assert str(params) in line and reason in line, line
+    assert not (tmp_path / "runs").exists() and time.monotonic() - started < 10
