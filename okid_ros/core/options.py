@@ -45,7 +45,9 @@ SAMPLE_TIME_RANGE_S = (1e-6, 3600.0)
 def sample_time_problem(sample_time_s: Any) -> str | None:
     """Why ``sample_time_s`` is not a usable sample time (one line), or None when it is."""
     low, high = SAMPLE_TIME_RANGE_S
-    try:
+    try:  # text ("0.008") passed float() and failed later in numpy's division (TypeError)
+        if isinstance(sample_time_s, (str, bytes, bool)):
+            raise TypeError
         dt = float(sample_time_s)
     except (TypeError, ValueError):
         return f"sample_time_s must be a number of seconds, got {sample_time_s!r}"
