@@ -101,6 +101,13 @@ def test_a_remap_onto_a_topic_of_another_type_names_both(capsys, short_bag):
     assert f"{IMU_TOPICS[0]} (sensor_msgs/msg/Imu)" in line, line
 
 
+def test_a_topic_remapped_twice_is_refused(capsys, short_bag):
+    """Was: the later target taken in silence, the first remap lost."""
+    line = one_line_error(capsys, ["replay", "--delay", "0", str(short_bag), "--remap", f"{IO_SAMPLE_TOPIC}:=/a",
+                                   f"{IO_SAMPLE_TOPIC}:=/b"])
+    assert f"--remap {IO_SAMPLE_TOPIC} is given twice, to /a and to /b" in line, line
+
+
 def test_a_remap_onto_clock_with_clock_is_refused(capsys, short_bag):
     line = one_line_error(capsys, ["replay", "--delay", "0", "--clock", "50", str(short_bag), "--remap",
                                    f"{IO_SAMPLE_TOPIC}:=clock"])  # relative: resolves to /clock
