@@ -469,6 +469,24 @@ def test_frf_pairs_without_a_figure_folder_says_it_draws_nothing(tmp_path: Path,
     assert "--frf-pairs chooses the panels of frf.png, which only --plot-dir draws" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("options, said", [
+    (["--ar-order", "5"], "--ar-order is the order of the AR whitening filter of --gain whitening (and --method "
+                          "paper): ignored with --gain refit"),
+    (["--method", "paper", "--gain", "riccati"], "--method paper identifies the estimator gain by whitening, as "
+                                                 "published: --gain riccati ignored"),
+    (["--ar-order", "5", "--gain", "whitening"], None),
+])
+def test_gain_options_the_chain_passes_over_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], options,
+                                                      said) -> None:
+    """Was: passed over in silence (the model's gain the default's, or the paper's whitening)."""
+    path = tmp_path / "record.npz"
+    u = lowpass_input(1500, 2, 15.0, 0.008, seed=1)
+    np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
+    cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--order", "20", *options])
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "--ar-order" in line or "--gain" in line]
+    assert warnings == ([] if said is None else [f"okid-ros identify: warning: {said}"]), warnings
+
+
 @pytest.mark.parametrize("argv, words", [
     # A channel without a single value: identify said "no two samples in a row are free of NaN/Inf",
     # track waited for rows on every update with exit 0; neither named the channel.
