@@ -177,3 +177,37 @@ def test_a_params_file_the_nodes_cannot_read_is_refused_before_anything_starts(c
                                                                         if command == "demo" else [])])
     assert str(params) in line and reason in line, line
     assert not (tmp_path / "runs").exists() and time.monotonic() - started < 10
+
+
+MODAL_STATES = "okid_msgs/msg/ModalStates"
+
+
+class _Graph:
+    """The ROS graph as a node sees it: topic -> (types, publishers)."""
+
+    def __init__(self, topics: dict[str, tuple[list[str], int]]) -> None:
+        self.topics = topics
+
+    def resolve_topic_name(self, topic: str) -> str:
+        return topic if topic.startswith("/") else f"/{topic}"
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        return [(name, types) for name, (types, _) in self.topics.items()]
+
+    def count_publishers(self, topic: str) -> int:
+        return self.topics.get(topic, ([], 0))[1]
+
+
+@pytest.mark.parametrize("topics, topic, said", [
+    # --topic of another type: rclpy matches no publisher, and the monitor said only "no ModalStates"
+    ({"/okid/io_sample": (["okid_msgs/msg/IoSample", MODAL_STATES], 1)}, "/okid/io_sample",
+     ": /okid/io_sample carries okid_msgs/msg/IoSample (the wrong --topic?)"),
+    # the nodes in another namespace
+    ({"/okid/modal_states": ([MODAL_STATES], 0), "/rig/modal_states": ([MODAL_STATES], 1)}, "/okid/modal_states",
+     "; ModalStates are published on /rig/modal_states (another --topic or --namespace?)"),
+    ({"/okid/modal_states": ([MODAL_STATES], 0)}, "/okid/modal_states", ""),  # nothing to add
+])
+def test_monitor_says_why_no_modal_states_came(topics, topic, said):
+    from okid_ros.tools.monitor import _silence_reason
+
+    assert _silence_reason(_Graph(topics), topic) == said
