@@ -211,3 +211,11 @@ def test_monitor_says_why_no_modal_states_came(topics, topic, said):
     from okid_ros.tools.monitor import _silence_reason
 
     assert _silence_reason(_Graph(topics), topic) == said
+
+
+def test_info_names_selftest_options_given_without_selftest(capsys):
+    """Was: passed over in silence (no DDS self-test ran)."""
+    assert cli.main(["info", "--count", "5"]) == 0
+    assert ("okid-ros info: warning: --count: options of the DDS self-test, which only --selftest runs; ignored"
+            in capsys.readouterr().err)
+    assert cli.main(["info"]) == 0 and "warning" not in capsys.readouterr().err
