@@ -219,3 +219,13 @@ def test_info_names_selftest_options_given_without_selftest(capsys):
     assert ("okid-ros info: warning: --count: options of the DDS self-test, which only --selftest runs; ignored"
             in capsys.readouterr().err)
     assert cli.main(["info"]) == 0 and "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, watched", [
+    (["--namespace", "/rig", "--topic", "modal_states"], "/rig/modal_states"),  # was /modal_states, --namespace lost
+    (["--topic", "modal_states"], "/okid/modal_states"),  # was /modal_states: not the default's rig namespace
+    (["--namespace", "/rig", "--topic", "/x/modal_states"], "/x/modal_states"),  # absolute: as given
+])
+def test_a_relative_monitor_topic_is_in_the_rig_namespace(capsys, argv, watched):
+    line = one_line_error(capsys, ["monitor", "--no-ansi", "--once", "--duration", "0.3", *argv])
+    assert f"no okid_msgs/ModalStates on {watched} within 0.3 s" in line, line
