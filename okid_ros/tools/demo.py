@@ -216,8 +216,7 @@ def _new_run_dir(out_dir: Path) -> Path:
         raise OkidError(f"{run_dir}: cannot create the run folder ({exc.strerror})") from None
     latest = out_dir / "latest"
     if latest.is_symlink() or not latest.exists():
-        if latest.is_symlink():
-            latest.unlink()
+        latest.unlink(missing_ok=True)
         latest.symlink_to(run_dir.name)
     return run_dir
 
@@ -299,9 +298,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
     started = time.monotonic()
     files_for_nodes(options.param_files)  # read as `up` reads them, before anything is simulated or started
-    # Simulated before the run folder is made: a duration or seed out of range leaves none behind.
     simulate = simulate_ambient if options.output_only else simulate_experiment
-    experiment = simulate(options.duration_s, seed=options.seed)
+    experiment = simulate(options.duration_s, seed=options.seed)  # before the run folder: none left on a refusal
     run = _DemoRun(Path(out_dir), options, stream or sys.stdout)
     run.say(f"okid-ros demo: run folder {run.run_dir} (ROS_DOMAIN_ID={run.domain_id}; watch from another shell "
             f"with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
@@ -375,7 +373,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
-    from okid_msgs.msg import ModalStates
+    from okid_msgs.msg import ArxModel, ModalStates
     from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
     from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
     from okid_ros.tools.recorder import LiveRecorder
@@ -385,7 +383,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     ansi = run.options.ansi
     monitor = TerminalMonitor(view, run.out, None if ansi is not False and run.out.isatty() else 5.0,
                               ansi=ansi, title="okid-ros demo (live)")
-    counts = {"models": 0, "states": 0}
+    counts = {"models": 0, "states": 0, "valid_arx_models": 0}
     last_output = [time.monotonic()]
 
     def on_output(topic: str, data: bytes, receive_ns: int) -> None:
@@ -398,6 +396,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         elif topic == "/okid/state_space_model":
             last_output[0] = time.monotonic()
             counts["models"] += 1
+        counts["valid_arx_models"] += topic == "/okid/arx_model" and deserialize_message(data, ArxModel).valid
 
     node_2: dict[str, str] = {}  # the values of node 2's last estimation status
 
@@ -430,8 +429,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         if replay.returncode != 0:
             raise OkidError(f"the replay failed with status {replay.returncode}; see {run.run_dir / 'replay.log'}")
         if not _wait_for_last_model(run, nodes, node_2):
-            run.say(f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last "
-                    "window may be missing")
+            run.say(_unsettled_note(counts["valid_arx_models"], run.options.duration_s))
         settle = time.monotonic() + 5.0  # let the last outputs arrive: until 1 s without a model or modal states
         while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
             run.executor.spin_once(timeout_sec=0.05)
@@ -456,6 +454,14 @@ def _wait_for_last_model(run: _DemoRun, nodes: subprocess.Popen, node_2: dict[st
             return True
         run.executor.spin_once(timeout_sec=0.05)
     return False
+
+
+def _unsettled_note(valid_arx_models: int, duration_s: float) -> str:
+    """Why the wait for the last model timed out (it blamed node 2 when node 1 had no valid model)."""
+    if not valid_arx_models:
+        return (f"node 1 published no valid ArxModel: is the experiment ({duration_s:g} s) shorter than its first "
+                "window (arx.window_length)? see nodes.log")
+    return f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last window may be missing"
 
 
 def _draw_figures(run: _DemoRun, live_bag: Path, experiment_bag: Path) -> list:

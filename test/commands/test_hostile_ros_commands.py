@@ -229,3 +229,12 @@ def test_info_names_selftest_options_given_without_selftest(capsys):
 def test_a_relative_monitor_topic_is_in_the_rig_namespace(capsys, argv, watched):
     line = one_line_error(capsys, ["monitor", "--no-ansi", "--once", "--duration", "0.3", *argv])
     assert f"no okid_msgs/ModalStates on {watched} within 0.3 s" in line, line
+
+
+def test_the_demo_says_node_1_published_nothing_rather_than_blame_node_2():
+    """`demo --duration 0.1`: no valid ArxModel came; the note said "node 2 was still busy 30 s after the replay"."""
+    from okid_ros.tools.demo import _unsettled_note
+
+    assert _unsettled_note(0, 0.1) == ("node 1 published no valid ArxModel: is the experiment (0.1 s) shorter than "
+                                       "its first window (arx.window_length)? see nodes.log")
+    assert _unsettled_note(3, 60.0).startswith("node 2 was still busy 30 s after the replay")
