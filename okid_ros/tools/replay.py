@@ -201,7 +201,7 @@ class BagPlayer:
         with open_bag(self.path) as bag:
             self.bag_topics = dict(bag.topics)
             self.duration_bag_s = bag.duration_s
-            wanted = list(topics) if topics else sorted(bag.topics)
+            wanted = list(dict.fromkeys(topics)) if topics else sorted(bag.topics)  # a topic given twice is one
             unknown = [t for t in wanted if t not in bag.topics]
             if unknown:
                 raise BagReadError(f"{self.path}: no topic {', '.join(unknown)}; the bag has: "

@@ -108,6 +108,12 @@ def test_a_topic_remapped_twice_is_refused(capsys, short_bag):
     assert f"--remap {IO_SAMPLE_TOPIC} is given twice, to /a and to /b" in line, line
 
 
+def test_a_topic_listed_twice_is_replayed_as_one(short_bag):
+    """Was: "2500 messages on 2 topics" for --topics /okid/io_sample /okid/io_sample."""
+    player = BagPlayer(short_bag, topics=[IO_SAMPLE_TOPIC, IO_SAMPLE_TOPIC], log=lambda line: None)
+    assert player.topics == [IO_SAMPLE_TOPIC]
+
+
 def test_a_remap_onto_clock_with_clock_is_refused(capsys, short_bag):
     line = one_line_error(capsys, ["replay", "--delay", "0", "--clock", "50", str(short_bag), "--remap",
                                    f"{IO_SAMPLE_TOPIC}:=clock"])  # relative: resolves to /clock
