@@ -293,7 +293,7 @@ def _check_options(method: str, harmonics: str, *, max_states, block_rows) -> No
     if harmonics not in ("remove", "keep"):
         raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
     for name, value, why in (("max_states", max_states, "a mode takes two states"),
-                             ("block_rows", block_rows, "the Hankel's least")):
+                             ("block_rows", block_rows, "Hankel block rows")):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2):
             raise IdentificationError(f"{name} must be an integer >= 2 ({why}) or None, got {value!r}")
 
