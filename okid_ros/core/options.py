@@ -190,6 +190,12 @@ class RealizationOptions:
             raise ValueError(f"jackknife_segments must be 0 or at least 2, got {self.jackknife_segments}")
         if self.refined_orders < 1:
             raise ValueError(f"refined_orders must be >= 1, got {self.refined_orders}")
+        for name in ("ar_order", "hankel_rows", "hankel_cols"):  # 0 was taken for None in silence, 5.5 a TypeError
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not hasattr(value, "__index__") or value < 1):
+                raise ValueError(f"{name} must be a positive integer or None, got {value!r}")
+        if self.refine not in (True, False):  # "no" was taken for True
+            raise ValueError(f"refine must be True or False, got {self.refine!r}")
 
     @property
     def automatic_order(self) -> bool:

@@ -7,7 +7,7 @@ import numpy as np
 from okid_ros.core.arx import check_regularization
 from okid_ros.core.gap_fill import mark_missing, missing_problem
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.options import AUTO, OFFSETS, RealizationOptions, sample_time_problem
+from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
 __all__ = ["METHODS", "check_record_length", "checked_record"]
@@ -17,6 +17,7 @@ METHODS = ("okid", "paper")
 
 def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
                    changes: dict, order: int | str = AUTO, regularization: str | None = None,
+                   arx_orders: ArxOrderOptions | None = None,
                    ) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`~okid_ros.core.pipeline.identify`'s arguments checked, or IdentificationError.
 
@@ -31,8 +32,9 @@ def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, val
     integer = isinstance(order, (int, np.integer)) and not isinstance(order, bool)
     if not (integer or (isinstance(order, str) and order == AUTO)):
         raise IdentificationError(f"order must be an integer ARX order or {AUTO!r}, got {order!r}")
-    if not isinstance(options, RealizationOptions):
-        raise IdentificationError(f"options must be a RealizationOptions, got {type(options).__name__}")
+    for name, value, kind in (("options", options, RealizationOptions), ("arx_orders", arx_orders, ArxOrderOptions)):
+        if not isinstance(value, kind) and (name == "options" or value is not None):  # an AttributeError later
+            raise IdentificationError(f"{name} must be of type {kind.__name__}, got {type(value).__name__}")
     try:
         if regularization is not None:
             check_regularization(regularization)

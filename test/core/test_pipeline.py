@@ -329,7 +329,12 @@ def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s:
     ({"regularization": "l1"}, "regularization must be one of"),  # was solved as "tc" in silence
     ({"order": 20.5}, "order must be an integer ARX order or 'auto', got 20.5"),  # was cut to 20
     ({"order": True}, "order must be an integer"),  # was "ARX order must be >= 2, got 1"
-    ({"options": "fast"}, "options must be a RealizationOptions, got str"),  # was an AttributeError
+    ({"options": "fast"}, "options must be of type RealizationOptions, got str"),  # was an AttributeError
+    ({"arx_orders": "fast"}, "arx_orders must be of type ArxOrderOptions, got str"),  # the same
+    ({"ar_order": 0}, "ar_order must be a positive integer or None, got 0"),  # was the ARX order, in silence
+    ({"ar_order": 5.5}, "ar_order must be a positive integer or None, got 5.5"),  # was a TypeError
+    ({"hankel_rows": 0}, "hankel_rows must be a positive integer or None, got 0"),  # was the default, in silence
+    ({"refine": "no"}, "refine must be True or False, got 'no'"),  # was taken for True
 ])
 def test_arguments_of_the_wrong_kind_are_refused_with_their_name(arguments, reason) -> None:
     """The Python API as users call it: one IdentificationError naming the argument, before any work."""
