@@ -487,6 +487,26 @@ def test_gain_options_the_chain_passes_over_are_named(tmp_path: Path, capsys: py
     assert warnings == ([] if said is None else [f"okid-ros identify: warning: {said}"]), warnings
 
 
+@pytest.mark.parametrize("options, said", [
+    (["--penalty", "0.5", "--regularization", "none"],
+     "--penalty 0.5 weighs a regularization: ignored with --regularization none"),
+    (["--no-change-detection", "--false-alarm-samples", "1000", "--restart-min-fill", "0.5"],
+     "--false-alarm-samples, --restart-min-fill: options of the change test, which --no-change-detection turns off; "
+     "ignored"),
+    (["--no-change-detection"], None),
+])
+def test_track_names_options_that_others_turn_off(tmp_path: Path, capsys: pytest.CaptureFixture[str], options,
+                                                  said) -> None:
+    """Was: passed over in silence."""
+    path = tmp_path / "record.npz"
+    u = lowpass_input(1500, 2, 15.0, 0.008, seed=1)
+    np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
+    assert cli.main(["track", str(path), "--jsonl", str(tmp_path / "t.jsonl"), "--order", "10", "--window", "600",
+                     "--every", "1000", "--no-progress", *options]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "ignored" in line]
+    assert warnings == ([] if said is None else [f"okid-ros track: warning: {said}"]), warnings
+
+
 @pytest.mark.parametrize("argv, words", [
     # A channel without a single value: identify said "no two samples in a row are free of NaN/Inf",
     # track waited for rows on every update with exit 0; neither named the channel.
