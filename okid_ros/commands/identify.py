@@ -182,14 +182,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _gain_options_ignored(args: argparse.Namespace) -> str:
-    """The warning for ``--gain`` or ``--ar-order`` given where the input-output chain passes it over ("" if none).
+    """The warning for options given that the input-output chain passes over ("" if none).
 
-    ``--method paper`` identifies the gain by whitening, as published, and ``--ar-order`` is only
-    the whitening's AR order (both were passed over in silence).
+    ``--method paper`` identifies as published: the gain by whitening, the order by the largest
+    gap of the Hankel singular values, no refinement; ``--ar-order`` is only the whitening's AR
+    order (all were passed over in silence).
     """
-    if args.method == "paper" and args.gain not in (RealizationOptions.gain, "whitening"):
-        return f"--method paper identifies the estimator gain by whitening, as published: --gain {args.gain} ignored"
-    if args.ar_order is not None and args.method != "paper" and args.gain != "whitening":
+    if args.method == "paper":
+        given = {f"--gain {args.gain}": args.gain not in (RealizationOptions.gain, "whitening"),
+                 "--no-refine": args.no_refine, "--max-states": args.max_states != RealizationOptions.max_states}
+        if names := ", ".join(option for option, passed_over in given.items() if passed_over):
+            return ("--method paper identifies as published (the estimator gain by whitening, the order by the "
+                    f"largest gap of the Hankel singular values, no refinement): {names} ignored")
+    elif args.ar_order is not None and args.gain != "whitening":
         return (f"--ar-order is the order of the AR whitening filter of --gain whitening (and --method paper): "
                 f"ignored with --gain {args.gain}")
     return ""
