@@ -22,11 +22,12 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import DataError
+from okid_ros.errors import DataError, OkidWarning
 from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
 
@@ -125,7 +126,9 @@ def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> 
     """DataError when two outputs ``(what, topic, type)`` resolve to one topic with different types.
 
     rcl refuses a second publisher of another type on a topic of the same node (an RCLError);
-    a remap onto another replayed topic (or onto /clock with ``--clock``) does that.
+    a remap onto another replayed topic (or onto /clock with ``--clock``) does that. Of one type,
+    an OkidWarning: their messages interleave on the topic (two accelerometers read as one;
+    was said by nothing).
     """
     seen: dict[str, tuple[str, str]] = {}
     for what, name, msgtype in outputs:
@@ -137,6 +140,9 @@ def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> 
         if first_type != msgtype:
             raise DataError(f"cannot publish {what} ({msgtype}) on {resolved}: {first} ({first_type}) is "
                             f"published there too, and a topic has one message type; remap one of them elsewhere")
+        if first != what:
+            warnings.warn(f"{first} and {what} are both published on {resolved}: their messages interleave there, "
+                          "and no subscriber can tell them apart", OkidWarning, stacklevel=2)
 
 
 class BagPlayer:

@@ -114,6 +114,21 @@ def test_a_topic_listed_twice_is_replayed_as_one(short_bag):
     assert player.topics == [IO_SAMPLE_TOPIC]
 
 
+def test_two_topics_of_one_type_remapped_onto_one_are_named():
+    """Two accelerometers on one topic: their messages interleave (was: said by nothing)."""
+    from okid_ros.errors import OkidWarning
+    from okid_ros.tools.replay import _check_one_type_per_topic
+
+    class Node:
+        def resolve_topic_name(self, name: str) -> str:
+            return name
+
+    imu = "sensor_msgs/msg/Imu"
+    with pytest.warns(OkidWarning, match=f"{IMU_TOPICS[0]} and {IMU_TOPICS[1]} are both published on /x: their "
+                      "messages interleave there"):
+        _check_one_type_per_topic(Node(), [(IMU_TOPICS[0], "/x", imu), (IMU_TOPICS[1], "/x", imu)])
+
+
 def test_a_remap_onto_clock_with_clock_is_refused(capsys, short_bag):
     line = one_line_error(capsys, ["replay", "--delay", "0", "--clock", "50", str(short_bag), "--remap",
                                    f"{IO_SAMPLE_TOPIC}:=clock"])  # relative: resolves to /clock
