@@ -13,6 +13,7 @@ from importlib import metadata
 from okid_ros import __version__
 from okid_ros.commands._args import int_between, positive_finite_float
 from okid_ros.errors import OkidError
+from okid_ros.tools.ros_domain import ros_context
 
 # Distributions whose versions `info` reports, as named on PyPI (ROS wheels: ros-jazzy-*).
 _DISTRIBUTIONS = ("numpy", "scipy", "filterpy", "rosbags", "ros-jazzy-rclpy")
@@ -83,8 +84,7 @@ def _selftest(count: int, timeout_s: float) -> None:
     except ImportError as exc:
         raise OkidError(f"ROS 2 is not available ({exc}); run `make setup` or source ROS") from exc
 
-    context = rclpy.Context()
-    rclpy.init(context=context)
+    context = ros_context()
     try:
         # Two nodes, so the message travels through the middleware from one to the other.
         pub_node = rclpy.create_node("okid_selftest_pub", context=context)

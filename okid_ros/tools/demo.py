@@ -37,6 +37,7 @@ from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
 from okid_ros.service.param_files import files_for_nodes
 from okid_ros.tools.output_paths import prepare_output
+from okid_ros.tools.ros_domain import ros_context, ros_domain_id
 from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
 from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
 
@@ -80,8 +81,8 @@ def default_params_file(name: str = "okid.yaml") -> Path:
 
 def _claim_domain_id() -> tuple[int, IO[str] | None]:
     """ROS_DOMAIN_ID from the environment, else a free id of 1..100 (locked while we run)."""
-    if os.environ.get("ROS_DOMAIN_ID"):
-        return int(os.environ["ROS_DOMAIN_ID"]), None
+    if (domain_id := ros_domain_id()) is not None:  # checked: "abc" was a ValueError, an internal error
+        return domain_id, None
     lock_dir = Path(tempfile.gettempdir()) / "okid_ros_domain_locks"
     lock_dir.mkdir(exist_ok=True)
     start = (os.getpid() * 7) % 100
@@ -228,12 +229,12 @@ class _DemoRun:
         self.options = options
         self.out = stream
         self.param_files = options.param_files
+        self.domain_id, self._domain_lock = _claim_domain_id()  # before the run folder: a bad id leaves none
         self.run_dir = _new_run_dir(out_dir)
         if options.output_only and not options.params:
             overrides = self.run_dir / "output_only_demo.yaml"
             overrides.write_text(_OUTPUT_ONLY_OVERRIDES)
             self.param_files.append(overrides)
-        self.domain_id, self._domain_lock = _claim_domain_id()
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1")
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         self._saved_env = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
@@ -349,8 +350,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
     up_args = [arg for path in run.param_files for arg in ("--params", str(path))]
     nodes = run.start(["up", *up_args], "nodes.log")
     run.say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run.run_dir / 'nodes.log'})")
-    run.context = rclpy.Context()
-    rclpy.init(context=run.context, args=[])
+    run.context = ros_context()
     run.node = rclpy.create_node("okid_demo", context=run.context)
     run.executor = SingleThreadedExecutor(context=run.context)
     run.executor.add_node(run.node)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from okid_ros.tools.errors import ToolParameterError
+from okid_ros.tools.ros_domain import ros_context
 
 __all__ = ["ModalStatesView", "TerminalMonitor", "run_monitor", "MAX_WINDOW_SAMPLES"]
 
@@ -319,8 +320,7 @@ def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, durati
     monitor = TerminalMonitor(view, stream, interval_s, ansi)
     if once and duration_s is None:
         duration_s = 30.0
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    context = ros_context()
     try:
         node = rclpy.create_node("okid_monitor", context=context)
         _subscribe(node, ModalStates, topic, view.update, qos_profile_sensor_data)

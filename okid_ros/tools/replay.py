@@ -30,6 +30,7 @@ from pathlib import Path
 from okid_ros.errors import DataError, OkidWarning
 from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
+from okid_ros.tools.ros_domain import ros_context
 
 __all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class", "MIN_RATE", "MAX_DELAY_S",
            "CLOCK_HZ_RANGE", "MAX_QUEUE_DEPTH", "MAX_SUBSCRIBERS"]
@@ -344,8 +345,7 @@ class BagPlayer:
 
         own_context = context is None
         if own_context:
-            context = rclpy.Context()
-            rclpy.init(context=context, args=[])
+            context = ros_context()
         stats = ReplayStats(published={self.remaps.get(t, t): 0 for t in self.topics})
         node = rclpy.create_node(self.node_name, context=context)
         try:

@@ -259,3 +259,22 @@ def test_the_demo_says_node_1_published_nothing_rather_than_blame_node_2():
     assert _unsettled_note(0, 0.1) == ("node 1 published no valid ArxModel: is the experiment (0.1 s) shorter than "
                                        "its first window (arx.window_length)? see nodes.log")
     assert _unsettled_note(3, 60.0).startswith("node 2 was still busy 30 s after the replay")
+
+
+@pytest.mark.parametrize("domain_id, said", [("abc", "ROS_DOMAIN_ID='abc' is not an integer"),
+                                             ("300", "ROS_DOMAIN_ID=300 is beyond 232")])
+@pytest.mark.parametrize("argv", [["monitor", "--no-ansi", "--once", "--duration", "0.3"],
+                                  ["info", "--selftest", "--timeout", "0.3"],
+                                  ["up", "--params", str(Path(__file__).parents[2] / "config" / "okid.yaml")],
+                                  ["demo", "--duration", "1", "--out-dir", "{tmp}/runs"]])
+def test_a_ros_domain_id_ros_cannot_use_is_one_line_before_anything_starts(capsys, tmp_path, monkeypatch, domain_id,
+                                                                            said, argv):
+    """Checked before rclpy, a node or the demo's run folder (`tools/ros_domain.py`).
+
+    Was: rcl's RCLError (`monitor`, `info`, `replay`, `record`) or `demo`'s ValueError, internal errors, exit 70;
+    beyond 232 `monitor` and `up` ended with status 1 after Fast DDS's "Calculated port number is too high".
+    """
+    monkeypatch.setenv("ROS_DOMAIN_ID", domain_id)
+    line = one_line_error(capsys, [a.format(tmp=tmp_path) for a in argv])
+    assert said in line, line
+    assert not (tmp_path / "runs").exists()
