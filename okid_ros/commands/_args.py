@@ -150,7 +150,8 @@ def ignored_for_output_only(args: argparse.Namespace, options) -> str:
     given = [option for option in options if _INPUT_OUTPUT_OPTIONS[option](args)]
     if not given:
         return ""
-    return f"{', '.join(given)} apply to input-output identification; ignored for this output-only one"
+    verb = "applies" if len(given) == 1 else "apply"  # "--order apply to" was said of one option
+    return f"{', '.join(given)} {verb} to input-output identification; ignored for this output-only one"
 
 
 def path_text(text: str) -> str:

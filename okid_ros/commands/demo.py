@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from okid_ros.commands._args import int_between, path_text
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `demo`."""
@@ -22,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "folder under --out-dir. Exit status 0 when both modes of the paper's table were identified "
         "(--output-only: an ambient experiment, every true mode).",
     )
-    parser.add_argument("--out-dir", default="out/demo", metavar="DIR",
+    parser.add_argument("--out-dir", type=path_text, default="out/demo", metavar="DIR",
                         help="parent folder of the run folders (default: %(default)s)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="length of the simulated experiment (default: 60 s, with --output-only 90 s; with "
@@ -37,7 +39,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="ambient vibration: a structure shaken by forces nobody measures, two Imu topics, the "
                         "nodes with n_inputs 0 (config/okid_output_only.yaml); modes and modal states from the "
                         "accelerations alone")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the simulation (default: %(default)s)")
+    parser.add_argument("--seed", type=int_between(0), default=1,
+                        help="seed of the simulation, an integer >= 0 (default: %(default)s)")
     parser.add_argument("--no-ansi", action="store_true", help="print monitor tables instead of redrawing")
     parser.set_defaults(func=run)
     return parser

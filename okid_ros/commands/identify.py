@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
         raise DataError(problem)  # named with the record by run_command
-    if output_only and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
+    ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _gain_options_ignored(args)
+    if ignored:
         print(f"okid-ros identify: warning: {ignored}", file=sys.stderr)
     valid = None
     if args.method == "paper" and not output_only:  # the paper's method needs contiguous samples
@@ -178,6 +179,25 @@ def run(args: argparse.Namespace) -> int:
     except OutputError as exc:  # a full disk, a device that refuses: say what is written already
         raise OutputError(f"{exc}; the JSON model is written ({out})") from None
     return 0
+
+
+def _gain_options_ignored(args: argparse.Namespace) -> str:
+    """The warning for options given that the input-output chain passes over ("" if none).
+
+    ``--method paper`` identifies as published: the gain by whitening, the order by the largest
+    gap of the Hankel singular values, no refinement; ``--ar-order`` is only the whitening's AR
+    order (all were passed over in silence).
+    """
+    if args.method == "paper":
+        given = {f"--gain {args.gain}": args.gain not in (RealizationOptions.gain, "whitening"),
+                 "--no-refine": args.no_refine, "--max-states": args.max_states != RealizationOptions.max_states}
+        if names := ", ".join(option for option, passed_over in given.items() if passed_over):
+            return ("--method paper identifies as published (the estimator gain by whitening, the order by the "
+                    f"largest gap of the Hankel singular values, no refinement): {names} ignored")
+    elif args.ar_order is not None and args.gain != "whitening":
+        return (f"--ar-order is the order of the AR whitening filter of --gain whitening (and --method paper): "
+                f"ignored with --gain {args.gain}")
+    return ""
 
 
 def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, out) -> None:

@@ -13,6 +13,7 @@ from importlib import metadata
 from okid_ros import __version__
 from okid_ros.commands._args import int_between, positive_finite_float
 from okid_ros.errors import OkidError
+from okid_ros.tools.ros_domain import ros_context
 
 # Distributions whose versions `info` reports, as named on PyPI (ROS wheels: ros-jazzy-*).
 _DISTRIBUTIONS = ("numpy", "scipy", "filterpy", "rosbags", "ros-jazzy-rclpy")
@@ -21,6 +22,8 @@ _ROS_ENV_VARS = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOS
 #: Most --selftest messages. They go one at a time (about 0.2 ms each) and the count is also the
 #: QoS depth, which rclpy refuses beyond 64 bits (a TypeError) and Fast DDS keeps in an int32.
 MAX_SELFTEST_COUNT = 100_000
+#: --selftest's defaults: messages sent, seconds waited.
+SELFTEST_DEFAULTS = {"--count": 200, "--timeout": 10.0}
 
 
 def _selftest_count(text: str) -> int:
@@ -39,9 +42,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     parser.add_argument("--selftest", action="store_true",
                         help="publish and receive okid_msgs/IoSample over DDS")
-    parser.add_argument("--count", type=_selftest_count, default=200, metavar="N",
+    parser.add_argument("--count", type=_selftest_count, default=SELFTEST_DEFAULTS["--count"], metavar="N",
                         help="messages sent by --selftest (default: %(default)s)")
-    parser.add_argument("--timeout", type=positive_finite_float, default=10.0, metavar="S",
+    parser.add_argument("--timeout", type=positive_finite_float, default=SELFTEST_DEFAULTS["--timeout"], metavar="S",
                         help="seconds --selftest waits for discovery and delivery "
                         "(default: %(default)s)")
     parser.set_defaults(func=run)
@@ -50,6 +53,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Print the report; run the DDS self-test when asked."""
+    given = [option for option, default in SELFTEST_DEFAULTS.items()
+             if getattr(args, option.lstrip("-")) != default]
+    if given and not args.selftest:  # as identify's --frf-pairs without --plot-dir (was passed over in silence)
+        print(f"okid-ros info: warning: {', '.join(given)}: options of the DDS self-test, which only --selftest runs; "
+              "ignored", file=sys.stderr)
     print(f"okid_ros {__version__}")
     print(f"python {platform.python_version()} ({sys.executable})")
     for dist in _DISTRIBUTIONS:
@@ -76,8 +84,7 @@ def _selftest(count: int, timeout_s: float) -> None:
     except ImportError as exc:
         raise OkidError(f"ROS 2 is not available ({exc}); run `make setup` or source ROS") from exc
 
-    context = rclpy.Context()
-    rclpy.init(context=context)
+    context = ros_context()
     try:
         # Two nodes, so the message travels through the middleware from one to the other.
         pub_node = rclpy.create_node("okid_selftest_pub", context=context)

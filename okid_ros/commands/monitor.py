@@ -25,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "place; otherwise (pipe, file) a table is printed every --interval seconds.",
     )
     parser.add_argument("--topic", default=None,
-                        help="ModalStates topic (default: modal_states in the rig namespace, /okid/modal_states)")
+                        help="ModalStates topic; a relative name is in the rig namespace, as the nodes' topics are "
+                        "(default: modal_states, /okid/modal_states)")
     parser.add_argument("--namespace", type=namespace, default=None, metavar="NS",
                         help="the rig's namespace (nodes started with --namespace NS): shows NS/modal_states")
     parser.add_argument("--once", action="store_true",
@@ -45,11 +46,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
+    from okid_ros.errors import ParameterError
     from okid_ros.service.topics import MODAL_STATES, resolve_topic
+    from okid_ros.tools.errors import ToolParameterError
     from okid_ros.tools.monitor import run_monitor
 
-    # `--topic ''` is refused by the subscription, not taken for the default in silence
-    topic = resolve_topic(MODAL_STATES, args.namespace) if args.topic is None else args.topic
+    # A relative --topic is in the rig namespace, as the default and the nodes' topics are (was: under
+    # /, and --namespace passed over: `--namespace /rig --topic modal_states` watched /modal_states).
+    # `--topic ''` is refused, not taken for the default in silence.
+    try:
+        topic = resolve_topic(MODAL_STATES if args.topic is None else args.topic, args.namespace)
+    except ParameterError as exc:
+        raise ToolParameterError(f"--topic {args.topic!r}: cannot subscribe: {exc}") from None
     try:
         run_monitor(topic, once=args.once, duration_s=args.duration, interval_s=args.interval,
                     window_samples=args.window, trend_window_s=args.trend_window,

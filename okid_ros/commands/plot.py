@@ -12,6 +12,9 @@ from okid_ros.commands._args import int_between, namespace, path_text
 
 #: Bound of --terms, equal to okid_ros.tools.plots.MAX_TERMS (not imported: every parser is built at start-up).
 MAX_TERMS = 10_000
+#: Defaults of --window [s] and --terms (a campaign folder names them when given otherwise).
+DEFAULT_WINDOW_S = 5.0
+DEFAULT_TERMS = 100
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -39,9 +42,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="the nodes' parameter file(s), for the input topics of --input (default: those "
                         "recorded by process, else the built-in defaults)")
-    parser.add_argument("--window", type=float, default=5.0, metavar="S",
+    parser.add_argument("--window", type=float, default=DEFAULT_WINDOW_S, metavar="S",
                         help="seconds of modal states and outputs shown, at the end of the bag (default: %(default)s)")
-    parser.add_argument("--terms", type=int_between(1, MAX_TERMS), default=100, metavar="N",
+    parser.add_argument("--terms", type=int_between(1, MAX_TERMS), default=DEFAULT_TERMS, metavar="N",
                         help=f"stochastic Markov parameters drawn, 1 to {MAX_TERMS}: the figure is about 800 "
                         "pixels wide and the terms decay, more would not show (default: %(default)s)")
     parser.add_argument("--frf-pairs", default=None, metavar="O:I,...",
@@ -179,8 +182,17 @@ def _is_campaign(path: str) -> bool:
 
 def _plot_campaign(args: argparse.Namespace) -> int:
     """A campaign directory of `okid-ros batch`: every mode id over the campaign."""
+    import sys
+
     from okid_ros.tools.campaign.plot import write_campaign_figures
 
+    # Options of a bag's figures, given for a campaign (were passed over in silence).
+    given = {"--input": args.input, "--params": args.params, "--window": args.window != DEFAULT_WINDOW_S,
+             "--terms": args.terms != DEFAULT_TERMS, "--frf-pairs": args.frf_pairs, "--namespace": args.namespace}
+    ignored = [option for option, value in given.items() if value]
+    if ignored:
+        print(f"okid-ros plot: warning: {', '.join(ignored)}: options of an output bag's figures; ignored for the "
+              f"campaign folder {args.bag} (campaign_modes.png)", file=sys.stderr)
     out_dir = Path(args.out_dir) if args.out_dir else Path(args.bag) / "figures"
     written = write_campaign_figures(Path(args.bag), out_dir, force=args.force)
     print(f"wrote {len(written)} figure(s) of the campaign {args.bag} to {out_dir}")

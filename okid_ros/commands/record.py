@@ -15,6 +15,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from okid_ros.commands._args import namespace, path_text
+from okid_ros.tools.ros_domain import ros_context
 
 if TYPE_CHECKING:
     from okid_ros.tools.bagio import BagWriter
@@ -93,8 +94,7 @@ def _record_live(writer: BagWriter, topics: dict[str, str], *, duration: float |
 
     from okid_ros.tools.recorder import LiveRecorder
 
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    context = ros_context()
     try:
         node = rclpy.create_node("okid_record", context=context)
         executor = SingleThreadedExecutor(context=context)

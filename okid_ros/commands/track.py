@@ -289,6 +289,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
         raise DataError(problem)
     if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
         print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
+    if ignored := _turned_off(args):
+        print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
     # record's units; every window would fail on it, the first in the ARX order's search).
     present = record.y[np.isfinite(record.y).all(axis=1)]
@@ -303,6 +305,20 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     for warning in tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)):
         print(f"okid-ros track: warning: {warning}", file=sys.stderr)
     return out, (scaled_u, scaled_y, record.sample_time_s)
+
+
+def _turned_off(args: argparse.Namespace) -> str:
+    """The warning for options given that others turn off ("" if none; they were passed over in silence)."""
+    notes = []
+    if args.regularization == "none" and args.penalty != "gcv":
+        notes.append(f"--penalty {args.penalty:g} weighs a regularization: ignored with --regularization none")
+    given = {"--no-noise-test": not args.noise_test,
+             "--false-alarm-samples": not isinstance(args.false_alarm_samples, NodeParameterDefault),
+             "--restart-min-fill": not isinstance(args.restart_min_fill, NodeParameterDefault)}
+    if not args.change_detection and any(given.values()):
+        notes.append(f"{', '.join(o for o, g in given.items() if g)}: options of the change test, which "
+                     "--no-change-detection turns off; ignored")
+    return "; ".join(notes)
 
 
 def _arx_order(args: argparse.Namespace, u, y, options) -> int:

@@ -20,11 +20,11 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-from okid_ros.commands._args import namespace
+from okid_ros.commands._args import namespace, positive_finite_float
 from okid_ros.errors import OkidError
 from okid_ros.tools.parent_death import die_with_parent
+from okid_ros.tools.ros_domain import ros_domain_id
 
 NODE_MODULES = {
     "okid_arx_identifier": "okid_ros.nodes.arx_identifier_node",
@@ -59,7 +59,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--use-sim-time", action="store_true", help="run the nodes' timers on /clock")
     parser.add_argument("--log-level", default="info", choices=("debug", "info", "warn", "error"),
                         help="ROS log level of both nodes (default: %(default)s)")
-    parser.add_argument("--grace", type=float, default=5.0, metavar="S",
+    parser.add_argument("--grace", type=positive_finite_float, default=5.0, metavar="S",
                         help="seconds each node gets to stop after SIGINT before SIGTERM (default: %(default)s)")
     parser.set_defaults(func=run)
     return parser
@@ -109,14 +109,10 @@ def _stop(processes: dict[str, subprocess.Popen], grace_s: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Start both nodes and supervise them until a signal or until one exits."""
-    params = []
-    for path in args.params:
-        file = Path(path)
-        if not file.is_file():
-            raise OkidError(f"parameter file {path} does not exist")
-        params.append(str(file.resolve()))
-    if args.grace <= 0:
-        raise OkidError(f"--grace must be > 0 seconds, got {args.grace}")
+    from okid_ros.service.param_files import files_for_nodes
+
+    params = files_for_nodes(args.params)
+    ros_domain_id()  # the nodes ended with status 1 and Fast DDS's lines for one beyond 232
     if args.no_autostart and not args.lifecycle:
         raise OkidError("--no-autostart needs --lifecycle")
 

@@ -58,6 +58,7 @@ __all__ = [
     "center_normal_equations",
     "longest_arx_order",
     "select_arx_order",
+    "check_regularization",
     "channel_mean_square",
     "residual_covariance",
     "scaled_condition_number",
@@ -65,6 +66,12 @@ __all__ = [
 
 REGULARIZATIONS = ("none", "ridge", "tc")
 TC_DECAYS = (0.8, 0.9, 0.95, 0.97, 0.98, 0.99, 0.995)
+
+
+def check_regularization(regularization: str) -> None:
+    """ValueError unless ``regularization`` is one of :data:`REGULARIZATIONS`."""
+    if not isinstance(regularization, str) or regularization not in REGULARIZATIONS:
+        raise ValueError(f"regularization must be one of {REGULARIZATIONS}, got {regularization!r}")
 
 
 @dataclass
@@ -162,8 +169,7 @@ def fit_arx(
     # near 1e+-150, and exactly the fit of the record itself, restored (channels.group_scales).
     scales = group_scales(u, y)
     u, y = scales.scale(u, y)
-    if regularization not in REGULARIZATIONS:
-        raise ValueError(f"regularization must be one of {REGULARIZATIONS}, got {regularization!r}")
+    check_regularization(regularization)
     if order < 1:
         raise ValueError(f"ARX order must be >= 1, got {order}")
     m, p = u.shape[1], y.shape[1]
@@ -200,6 +206,7 @@ def fit_from_normal_equations(
     ``center=True`` fits an intercept (offsets of inputs and outputs) along with the
     coefficients (:func:`center_normal_equations`).
     """
+    check_regularization(regularization)  # any other name was solved as "tc" in silence
     p, m = n_outputs, n_inputs
     if center:
         normal = center_normal_equations(normal)

@@ -45,7 +45,9 @@ SAMPLE_TIME_RANGE_S = (1e-6, 3600.0)
 def sample_time_problem(sample_time_s: Any) -> str | None:
     """Why ``sample_time_s`` is not a usable sample time (one line), or None when it is."""
     low, high = SAMPLE_TIME_RANGE_S
-    try:
+    try:  # text ("0.008") passed float() and failed later in numpy's division (TypeError)
+        if isinstance(sample_time_s, (str, bytes, bool)):
+            raise TypeError
         dt = float(sample_time_s)
     except (TypeError, ValueError):
         return f"sample_time_s must be a number of seconds, got {sample_time_s!r}"
@@ -188,6 +190,12 @@ class RealizationOptions:
             raise ValueError(f"jackknife_segments must be 0 or at least 2, got {self.jackknife_segments}")
         if self.refined_orders < 1:
             raise ValueError(f"refined_orders must be >= 1, got {self.refined_orders}")
+        for name in ("ar_order", "hankel_rows", "hankel_cols"):  # 0 was taken for None in silence, 5.5 a TypeError
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not hasattr(value, "__index__") or value < 1):
+                raise ValueError(f"{name} must be a positive integer or None, got {value!r}")
+        if self.refine not in (True, False):  # "no" was taken for True
+            raise ValueError(f"refine must be True or False, got {self.refine!r}")
 
     @property
     def automatic_order(self) -> bool:

@@ -106,6 +106,8 @@ def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8, *,
     if present is not None and present.all():
         present = None
     spans = list(zip(bounds[:-1], bounds[1:]))
+    if present is not None:  # a segment without a measured sample weighs nothing: its jackknife replicate was 0 / 0
+        spans = [(lo, hi) for lo, hi in spans if present[lo:hi].any()]
     segments = np.stack([_correlations(y[lo:hi], max_lag, None if present is None else present[lo:hi])
                          for lo, hi in spans])
     weights = np.diff(bounds) if present is None else np.array([present[lo:hi].sum() for lo, hi in spans])

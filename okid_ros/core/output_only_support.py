@@ -50,6 +50,9 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
         raise IdentificationError(problem)
     if y.shape[0] < MIN_SAMPLES:
         raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
+    if valid is not None and valid.sum() < MIN_SAMPLES:  # their correlations were 0 / 0: NaN, then a ValueError
+        raise IdentificationError(f"too few measured samples for output-only identification: {int(valid.sum())} of "
+                                  f"the {valid.size} (valid True) < {MIN_SAMPLES}")
     if not np.all(np.isfinite(y)):
         bad = np.argwhere(~np.isfinite(y))[0]
         raise IdentificationError(f"y holds NaN or Inf (first at sample {bad[0]}, channel {bad[1]})")

@@ -419,7 +419,9 @@ def identify(
     IdentificationError with a one-line reason on bad data or options.
     """
     options, u, y, valid = checked_record(u, y, sample_time_s, method=method, offsets=offsets, valid=valid,
-                                          options=options or RealizationOptions(), changes=option_changes)
+                                          options=RealizationOptions() if options is None else options,
+                                          changes=option_changes, order=order, regularization=regularization,
+                                          arx_orders=arx_orders)
     u, y, valid, fault_warnings = record_faults(u, y, valid=valid, detrend=offsets == "remove",
                                                 sample_time_s=sample_time_s, leave_out_spikes=method != "paper")
     p = y.shape[1]

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from okid_ros.core.arx import check_regularization
 from okid_ros.core.gap_fill import mark_missing, missing_problem
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.options import OFFSETS, RealizationOptions, sample_time_problem
+from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
 __all__ = ["METHODS", "check_record_length", "checked_record"]
@@ -15,7 +16,9 @@ METHODS = ("okid", "paper")
 
 
 def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
-                   changes: dict) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
+                   changes: dict, order: int | str = AUTO, regularization: str | None = None,
+                   arx_orders: ArxOrderOptions | None = None,
+                   ) -> tuple[RealizationOptions, np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`~okid_ros.core.pipeline.identify`'s arguments checked, or IdentificationError.
 
     Returns ``options`` with the ``changes``, ``u`` and ``y`` as (N, m) and (N, p) float arrays
@@ -25,7 +28,16 @@ def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, val
         raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
     if problem := sample_time_problem(sample_time_s):
         raise IdentificationError(problem)
+    # An order of 20.5 was cut to 20 and a bool taken for 1, as n_states refuses them.
+    integer = isinstance(order, (int, np.integer)) and not isinstance(order, bool)
+    if not (integer or (isinstance(order, str) and order == AUTO)):
+        raise IdentificationError(f"order must be an integer ARX order or {AUTO!r}, got {order!r}")
+    for name, value, kind in (("options", options, RealizationOptions), ("arx_orders", arx_orders, ArxOrderOptions)):
+        if not isinstance(value, kind) and (name == "options" or value is not None):  # an AttributeError later
+            raise IdentificationError(f"{name} must be of type {kind.__name__}, got {type(value).__name__}")
     try:
+        if regularization is not None:
+            check_regularization(regularization)
         options = options.with_changes(**changes)
         if valid is not None:
             u, y, valid = mark_missing(u, y, valid)

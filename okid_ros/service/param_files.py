@@ -36,6 +36,7 @@ __all__ = [
     "rcl_scalar",
     "node_fqn",
     "read_parameter_file",
+    "files_for_nodes",
     "ParameterTree",
     "section_matches",
     "flatten",
@@ -400,3 +401,24 @@ def read_parameter_file(path: str | Path) -> Mapping:
 def read_files(paths: Sequence[str | Path]) -> list[tuple[str, Mapping]]:
     """(label, YAML tree) of each file; ParameterError when one cannot be read."""
     return [(str(p), read_parameter_file(p)) for p in paths]
+
+
+def files_for_nodes(paths: Sequence[str | Path]) -> list[str]:
+    """The absolute paths of parameter files node processes will read themselves (`up`, `demo`), each read here first.
+
+    Read as every command reads one (:func:`read_parameter_file`), so a file that is missing, a
+    folder, not YAML or not a parameter file is refused in one line before a node starts (was:
+    "does not exist" for a folder or a device; rcl's parse error from each node, after the demo's
+    simulation). A pipe is refused too: read here, it would be empty for the two nodes.
+
+    Raises
+    ------
+    ParameterError naming the file and what is wrong.
+    """
+    checked = []
+    for path in paths:
+        if kind := special_file_kind(path):
+            raise ParameterError(f"parameter file {path}: not a regular file ({kind}); each node reads it itself")
+        read_parameter_file(path)
+        checked.append(str(Path(path).resolve()))
+    return checked

@@ -35,6 +35,11 @@ from typing import IO, TextIO
 
 from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
+from okid_ros.service.param_files import files_for_nodes
+from okid_ros.tools.output_paths import prepare_output
+from okid_ros.tools.ros_domain import ros_context, ros_domain_id
+from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
+from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
 
 __all__ = ["DemoOptions", "DemoResult", "run_demo", "default_params_file", "compare_modes"]
 
@@ -76,8 +81,8 @@ def default_params_file(name: str = "okid.yaml") -> Path:
 
 def _claim_domain_id() -> tuple[int, IO[str] | None]:
     """ROS_DOMAIN_ID from the environment, else a free id of 1..100 (locked while we run)."""
-    if os.environ.get("ROS_DOMAIN_ID"):
-        return int(os.environ["ROS_DOMAIN_ID"]), None
+    if (domain_id := ros_domain_id()) is not None:  # checked: "abc" was a ValueError, an internal error
+        return domain_id, None
     lock_dir = Path(tempfile.gettempdir()) / "okid_ros_domain_locks"
     lock_dir.mkdir(exist_ok=True)
     start = (os.getpid() * 7) % 100
@@ -206,11 +211,13 @@ def _new_run_dir(out_dir: Path) -> Path:
     run_dir = out_dir / time.strftime("%Y%m%d-%H%M%S")
     if run_dir.exists():
         raise OkidError(f"{run_dir} exists already; wait a second and run again")
-    run_dir.mkdir(parents=True)
+    try:  # OUT_DIR a file, or not writable: one line, as for every output (was an internal error)
+        prepare_output(run_dir, force=False, kind="run folder").mkdir()
+    except OSError as exc:
+        raise OkidError(f"{run_dir}: cannot create the run folder ({exc.strerror})") from None
     latest = out_dir / "latest"
     if latest.is_symlink() or not latest.exists():
-        if latest.is_symlink():
-            latest.unlink()
+        latest.unlink(missing_ok=True)
         latest.symlink_to(run_dir.name)
     return run_dir
 
@@ -222,15 +229,12 @@ class _DemoRun:
         self.options = options
         self.out = stream
         self.param_files = options.param_files
-        for path in self.param_files:
-            if not path.is_file():
-                raise OkidError(f"parameter file {path} does not exist")
+        self.domain_id, self._domain_lock = _claim_domain_id()  # before the run folder: a bad id leaves none
         self.run_dir = _new_run_dir(out_dir)
         if options.output_only and not options.params:
             overrides = self.run_dir / "output_only_demo.yaml"
             overrides.write_text(_OUTPUT_ONLY_OVERRIDES)
             self.param_files.append(overrides)
-        self.domain_id, self._domain_lock = _claim_domain_id()
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1")
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         self._saved_env = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
@@ -294,11 +298,14 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     """
     options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
     started = time.monotonic()
+    files_for_nodes(options.param_files)  # read as `up` reads them, before anything is simulated or started
+    simulate = simulate_ambient if options.output_only else simulate_experiment
+    experiment = simulate(options.duration_s, seed=options.seed)  # before the run folder: none left on a refusal
     run = _DemoRun(Path(out_dir), options, stream or sys.stdout)
     run.say(f"okid-ros demo: run folder {run.run_dir} (ROS_DOMAIN_ID={run.domain_id}; watch from another shell "
             f"with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
     try:
-        experiment_bag, truth = _simulate(run)
+        experiment_bag, truth = _write_experiment(run, experiment)
         nodes = _start_nodes(run)
         counts, live_bag = _replay_and_record(run, nodes, experiment_bag, truth)
         _stop_process(nodes, grace_s=15.0)
@@ -312,7 +319,6 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
 
 
 def _input_topics(options: DemoOptions) -> list[str]:
-    from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS
     from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, THRUSTER_TOPICS
 
     if options.output_only:
@@ -320,18 +326,13 @@ def _input_topics(options: DemoOptions) -> list[str]:
     return list(THRUSTER_TOPICS) + list(IMU_TOPICS) if options.sensors else [IO_SAMPLE_TOPIC]
 
 
-def _simulate(run: _DemoRun) -> tuple[Path, dict]:
-    """Step 1: the simulated experiment as a bag; returns the bag and the truth."""
-    from okid_ros.tools.simulate_ambient import simulate_ambient, write_ambient_bag
-    from okid_ros.tools.simulate_bag import simulate_experiment, write_experiment_bag
-
+def _write_experiment(run: _DemoRun, experiment: Experiment) -> tuple[Path, dict]:
+    """Step 1: the simulated experiment as a bag in the run folder; returns the bag and the truth."""
     experiment_bag = run.run_dir / "experiment"
     if run.options.output_only:
-        experiment = simulate_ambient(run.options.duration_s, seed=run.options.seed)
         write_ambient_bag(experiment_bag, experiment)
         what = "ambient vibration (no measured input, two Imu topics)"
     else:
-        experiment = simulate_experiment(run.options.duration_s, seed=run.options.seed)
         write_experiment_bag(experiment_bag, experiment)
         what = "the paper's experiment"
     truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"
@@ -349,8 +350,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
     up_args = [arg for path in run.param_files for arg in ("--params", str(path))]
     nodes = run.start(["up", *up_args], "nodes.log")
     run.say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run.run_dir / 'nodes.log'})")
-    run.context = rclpy.Context()
-    rclpy.init(context=run.context, args=[])
+    run.context = ros_context()
     run.node = rclpy.create_node("okid_demo", context=run.context)
     run.executor = SingleThreadedExecutor(context=run.context)
     run.executor.add_node(run.node)
@@ -373,7 +373,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
-    from okid_msgs.msg import ModalStates
+    from okid_msgs.msg import ArxModel, ModalStates
     from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
     from okid_ros.tools.monitor import ModalStatesView, TerminalMonitor
     from okid_ros.tools.recorder import LiveRecorder
@@ -383,7 +383,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
     ansi = run.options.ansi
     monitor = TerminalMonitor(view, run.out, None if ansi is not False and run.out.isatty() else 5.0,
                               ansi=ansi, title="okid-ros demo (live)")
-    counts = {"models": 0, "states": 0}
+    counts = {"models": 0, "states": 0, "valid_arx_models": 0}
     last_output = [time.monotonic()]
 
     def on_output(topic: str, data: bytes, receive_ns: int) -> None:
@@ -396,6 +396,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         elif topic == "/okid/state_space_model":
             last_output[0] = time.monotonic()
             counts["models"] += 1
+        counts["valid_arx_models"] += topic == "/okid/arx_model" and deserialize_message(data, ArxModel).valid
 
     node_2: dict[str, str] = {}  # the values of node 2's last estimation status
 
@@ -428,8 +429,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
         if replay.returncode != 0:
             raise OkidError(f"the replay failed with status {replay.returncode}; see {run.run_dir / 'replay.log'}")
         if not _wait_for_last_model(run, nodes, node_2):
-            run.say(f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last "
-                    "window may be missing")
+            run.say(_unsettled_note(counts["valid_arx_models"], run.options.duration_s))
         settle = time.monotonic() + 5.0  # let the last outputs arrive: until 1 s without a model or modal states
         while time.monotonic() < settle and time.monotonic() - last_output[0] < 1.0:
             run.executor.spin_once(timeout_sec=0.05)
@@ -454,6 +454,14 @@ def _wait_for_last_model(run: _DemoRun, nodes: subprocess.Popen, node_2: dict[st
             return True
         run.executor.spin_once(timeout_sec=0.05)
     return False
+
+
+def _unsettled_note(valid_arx_models: int, duration_s: float) -> str:
+    """Why the wait for the last model timed out (it blamed node 2 when node 1 had no valid model)."""
+    if not valid_arx_models:
+        return (f"node 1 published no valid ArxModel: is the experiment ({duration_s:g} s) shorter than its first "
+                "window (arx.window_length)? see nodes.log")
+    return f"node 2 was still busy {SETTLE_TIMEOUT_S:g} s after the replay: the model of the last window may be missing"
 
 
 def _draw_figures(run: _DemoRun, live_bag: Path, experiment_bag: Path) -> list:

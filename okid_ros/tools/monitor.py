@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from okid_ros.tools.errors import ToolParameterError
+from okid_ros.tools.ros_domain import ros_context
 
 __all__ = ["ModalStatesView", "TerminalMonitor", "run_monitor", "MAX_WINDOW_SAMPLES"]
 
@@ -264,6 +265,28 @@ def _subscribe(node: Any, msg_type: type, topic: str, callback: Any, qos: Any) -
         raise ToolParameterError(f"--topic {topic!r}: cannot subscribe: {' '.join(str(exc).split())}") from None
 
 
+_MODAL_STATES = "okid_msgs/msg/ModalStates"
+
+
+def _silence_reason(node: Any, topic: str) -> str:
+    """Why no ModalStates came, from the ROS graph as ``node`` sees it ("" when it shows nothing to say).
+
+    A topic of another type got nothing, with nothing said but "no okid_msgs/ModalStates on
+    /okid/io_sample" (rclpy matches no publisher of another type), and so did nodes in another
+    namespace.
+    """
+    resolved = node.resolve_topic_name(topic)
+    graph = dict(node.get_topic_names_and_types())
+    other = [t for t in graph.get(resolved, []) if t != _MODAL_STATES]
+    if other and node.count_publishers(resolved):
+        return f": {resolved} carries {', '.join(other)} (the wrong --topic?)"
+    elsewhere = [name for name, types in graph.items()
+                 if name != resolved and _MODAL_STATES in types and node.count_publishers(name)]
+    if elsewhere:
+        return f"; ModalStates are published on {', '.join(sorted(elsewhere))} (another --topic or --namespace?)"
+    return ""
+
+
 def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, duration_s: float | None = None,
                 interval_s: float | None = None, window_samples: int = 250, trend_window_s: float = 10.0,
                 stream: TextIO | None = None, ansi: bool | None = None) -> ModalStatesView:
@@ -297,8 +320,7 @@ def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, durati
     monitor = TerminalMonitor(view, stream, interval_s, ansi)
     if once and duration_s is None:
         duration_s = 30.0
-    context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    context = ros_context()
     try:
         node = rclpy.create_node("okid_monitor", context=context)
         _subscribe(node, ModalStates, topic, view.update, qos_profile_sensor_data)
@@ -320,7 +342,8 @@ def run_monitor(topic: str = "/okid/modal_states", *, once: bool = False, durati
                 continue
             monitor.maybe_draw()
         if once:
-            raise DataError(f"no okid_msgs/ModalStates on {topic} within {duration_s:g} s")
+            why = _silence_reason(node, topic)
+            raise DataError(f"no okid_msgs/ModalStates on {topic} within {duration_s:g} s{why}")
         monitor.draw()
         return view
     finally:

@@ -22,13 +22,15 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import DataError
+from okid_ros.errors import DataError, OkidWarning
 from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
+from okid_ros.tools.ros_domain import ros_context
 
 __all__ = ["ReplayStats", "BagPlayer", "parse_remaps", "message_class", "MIN_RATE", "MAX_DELAY_S",
            "CLOCK_HZ_RANGE", "MAX_QUEUE_DEPTH", "MAX_SUBSCRIBERS"]
@@ -77,6 +79,9 @@ def parse_remaps(items: Sequence[str]) -> dict[str, str]:
         source, sep, target = item.partition(":=")
         if not sep or not source or not target:
             raise ToolParameterError(f"--remap {item!r} must be FROM:=TO, e.g. /okid/io_sample:=/rig/io")
+        if remaps.get(source, target) != target:  # the later one was taken in silence
+            raise ToolParameterError(f"--remap {source} is given twice, to {remaps[source]} and to {target}: a topic "
+                                     f"is published on one")
         remaps[source] = target
     return remaps
 
@@ -122,7 +127,9 @@ def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> 
     """DataError when two outputs ``(what, topic, type)`` resolve to one topic with different types.
 
     rcl refuses a second publisher of another type on a topic of the same node (an RCLError);
-    a remap onto another replayed topic (or onto /clock with ``--clock``) does that.
+    a remap onto another replayed topic (or onto /clock with ``--clock``) does that. Of one type,
+    an OkidWarning: their messages interleave on the topic (two accelerometers read as one;
+    was said by nothing).
     """
     seen: dict[str, tuple[str, str]] = {}
     for what, name, msgtype in outputs:
@@ -134,6 +141,9 @@ def _check_one_type_per_topic(node, outputs: Sequence[tuple[str, str, str]]) -> 
         if first_type != msgtype:
             raise DataError(f"cannot publish {what} ({msgtype}) on {resolved}: {first} ({first_type}) is "
                             f"published there too, and a topic has one message type; remap one of them elsewhere")
+        if first != what:
+            warnings.warn(f"{first} and {what} are both published on {resolved}: their messages interleave there, "
+                          "and no subscriber can tell them apart", OkidWarning, stacklevel=2)
 
 
 class BagPlayer:
@@ -198,7 +208,7 @@ class BagPlayer:
         with open_bag(self.path) as bag:
             self.bag_topics = dict(bag.topics)
             self.duration_bag_s = bag.duration_s
-            wanted = list(topics) if topics else sorted(bag.topics)
+            wanted = list(dict.fromkeys(topics)) if topics else sorted(bag.topics)  # a topic given twice is one
             unknown = [t for t in wanted if t not in bag.topics]
             if unknown:
                 raise BagReadError(f"{self.path}: no topic {', '.join(unknown)}; the bag has: "
@@ -335,8 +345,7 @@ class BagPlayer:
 
         own_context = context is None
         if own_context:
-            context = rclpy.Context()
-            rclpy.init(context=context, args=[])
+            context = ros_context()
         stats = ReplayStats(published={self.remaps.get(t, t): 0 for t in self.topics})
         node = rclpy.create_node(self.node_name, context=context)
         try:

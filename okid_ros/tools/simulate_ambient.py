@@ -26,8 +26,7 @@ import numpy as np
 
 from okid_ros.jsonio import dumps
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
-from okid_ros.tools.errors import ToolParameterError
-from okid_ros.tools.simulate_bag import Experiment, accelerometer_message
+from okid_ros.tools.simulate_bag import Experiment, accelerometer_message, experiment_samples
 
 __all__ = ["AMBIENT_FREQUENCIES_HZ", "AMBIENT_IMU_TOPICS", "simulate_ambient", "write_ambient_bag"]
 
@@ -60,15 +59,14 @@ def simulate_ambient(duration_s: float = 90.0, seed: int = 1, start_ns: int | No
 
     Raises
     ------
-    ToolParameterError for a duration that is not positive.
+    ToolParameterError for a duration or seed out of range (the input-output experiment's rule,
+    :func:`~okid_ros.tools.simulate_bag.experiment_samples`).
     """
     from okid_ros.sim.simulators import simulate_noisy
 
-    if not np.isfinite(duration_s) or duration_s <= 0:
-        raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
     system = ambient_structure()
     dt = system.sample_time_s
-    n_samples = max(int(round(duration_s / dt)), 2)
+    n_samples = experiment_samples(duration_s, seed, dt)
     if start_ns is None:
         start_ns = int(time.time()) * 1_000_000_000
     y = simulate_noisy(system, np.zeros((n_samples, 1)), seed=seed)

@@ -49,6 +49,7 @@ __all__ = [
     "IO_SAMPLE_TOPIC",
     "THRUSTER_TOPICS",
     "Experiment",
+    "experiment_samples",
     "simulate_experiment",
     "write_experiment_bag",
 ]
@@ -185,15 +186,29 @@ def simulate_experiment(
 
 def _check_options(duration_s: float, seed: int, cutoff_hz: float, dt: float) -> int:
     """The number of samples of ``duration_s``; raises ToolParameterError for an option out of range."""
+    if not MIN_CUTOFF_HZ <= cutoff_hz < 0.5 / dt:
+        raise ToolParameterError(f"--cutoff {cutoff_hz:g} Hz: the input cut-off must be from {MIN_CUTOFF_HZ:g} to "
+                                 f"below {0.5 / dt:g} Hz (below {MIN_CUTOFF_HZ:g} Hz the filter's start-up of "
+                                 f"20 / cutoff s is too long to simulate)")
+    return experiment_samples(duration_s, seed, dt)
+
+
+def experiment_samples(duration_s: float, seed: int, dt: float) -> int:
+    """The number of samples of a simulated experiment of ``duration_s`` at ``dt``, its options checked.
+
+    One rule for the input-output and the ambient experiment (`simulate`, `demo`).
+
+    Raises
+    ------
+    ToolParameterError
+        a duration that is not positive, beyond a ROS 2 stamp, shorter than two samples or more
+        than the memory holds; a seed that is not an integer >= 0.
+    """
     if not np.isfinite(duration_s) or duration_s <= 0:
         raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration_s}")
     if duration_s > MAX_STAMP_S:
         raise ToolParameterError(f"--duration {duration_s:g} s is more than the {MAX_STAMP_S} s a ROS 2 stamp can "
                                  f"hold (its sec is an int32)")
-    if not MIN_CUTOFF_HZ <= cutoff_hz < 0.5 / dt:
-        raise ToolParameterError(f"--cutoff {cutoff_hz:g} Hz: the input cut-off must be from {MIN_CUTOFF_HZ:g} to "
-                                 f"below {0.5 / dt:g} Hz (below {MIN_CUTOFF_HZ:g} Hz the filter's start-up of "
-                                 f"20 / cutoff s is too long to simulate)")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ToolParameterError(f"--seed must be an integer >= 0, got {seed!r}")  # numpy's default_rng needs it
     n_samples = int(round(duration_s / dt))

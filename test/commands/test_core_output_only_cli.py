@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -48,6 +49,19 @@ def test_output_only_ignores_the_inputs_of_a_record(tmp_path: Path, koma_record,
     assert "one-step prediction [" in stdout and "free-run simulation" not in stdout, "no input: no free run"
     # Outputs are never replaced without --force.
     assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 2
+
+
+def test_one_option_passed_over_is_named_in_the_singular() -> None:
+    """Was: "--order apply to input-output identification"."""
+    from okid_ros.commands._args import ignored_for_output_only
+    from okid_ros.commands.identify import INPUT_OUTPUT_ONLY
+    from okid_ros.core.options import RealizationOptions
+
+    args = argparse.Namespace(order=5, states="auto", ar_order=None, method="okid", regularization=None,
+                              no_refine=False, gain=RealizationOptions.gain, max_states=RealizationOptions.max_states)
+    assert ignored_for_output_only(args, INPUT_OUTPUT_ONLY).startswith("--order applies to input-output")
+    args.states = 4
+    assert ignored_for_output_only(args, INPUT_OUTPUT_ONLY).startswith("--order, --states apply to input-output")
 
 
 def test_options_an_output_only_run_passes_over_are_named(tmp_path: Path, koma_record, capsys) -> None:

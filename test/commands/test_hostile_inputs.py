@@ -452,7 +452,7 @@ def test_handled_conditions_put_no_scipy_warnings_on_stderr(tmp_path: Path, caps
 
 @pytest.mark.parametrize("argv", [["identify", ""], ["track", ""], ["batch", "", "--plan"],
                                   ["export", "", "--npz", "x"], ["plot", ""], ["process", "", "--out", "x"],
-                                  ["replay", ""], ["record", ""]])
+                                  ["replay", ""], ["record", ""], ["demo", "--out-dir", ""]])
 def test_an_empty_path_is_refused_not_taken_for_here(argv, capsys: pytest.CaptureFixture[str]) -> None:
     """An unset shell variable (`okid-ros batch "$DIR"`) must not mean the current folder."""
     with pytest.raises(SystemExit) as raised:
@@ -467,6 +467,47 @@ def test_frf_pairs_without_a_figure_folder_says_it_draws_nothing(tmp_path: Path,
     np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
     assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--frf-pairs", "1:1"]) == 0
     assert "--frf-pairs chooses the panels of frf.png, which only --plot-dir draws" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("options, said", [
+    (["--ar-order", "5"], "--ar-order is the order of the AR whitening filter of --gain whitening (and --method "
+                          "paper): ignored with --gain refit"),
+    (["--method", "paper", "--gain", "riccati", "--no-refine"],
+     "--method paper identifies as published (the estimator gain by whitening, the order by the largest gap of the "
+     "Hankel singular values, no refinement): --gain riccati, --no-refine ignored"),
+    (["--method", "paper", "--max-states", "10"], "--method paper identifies as published (the estimator gain by "
+     "whitening, the order by the largest gap of the Hankel singular values, no refinement): --max-states ignored"),
+    (["--ar-order", "5", "--gain", "whitening"], None),
+])
+def test_gain_options_the_chain_passes_over_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], options,
+                                                      said) -> None:
+    """Was: passed over in silence (the model's gain the default's, or the paper's whitening)."""
+    path = tmp_path / "record.npz"
+    u = lowpass_input(1500, 2, 15.0, 0.008, seed=1)
+    np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
+    cli.main(["identify", str(path), "--json", str(tmp_path / "m.json"), "--order", "20", *options])
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "ignored" in line]
+    assert warnings == ([] if said is None else [f"okid-ros identify: warning: {said}"]), warnings
+
+
+@pytest.mark.parametrize("options, said", [
+    (["--penalty", "0.5", "--regularization", "none"],
+     "--penalty 0.5 weighs a regularization: ignored with --regularization none"),
+    (["--no-change-detection", "--false-alarm-samples", "1000", "--restart-min-fill", "0.5"],
+     "--false-alarm-samples, --restart-min-fill: options of the change test, which --no-change-detection turns off; "
+     "ignored"),
+    (["--no-change-detection"], None),
+])
+def test_track_names_options_that_others_turn_off(tmp_path: Path, capsys: pytest.CaptureFixture[str], options,
+                                                  said) -> None:
+    """Was: passed over in silence."""
+    path = tmp_path / "record.npz"
+    u = lowpass_input(1500, 2, 15.0, 0.008, seed=1)
+    np.savez(path, u=u, y=simulate_innovation(paper_model(), u, seed=2)[0], sample_time_s=0.008)
+    assert cli.main(["track", str(path), "--jsonl", str(tmp_path / "t.jsonl"), "--order", "10", "--window", "600",
+                     "--every", "1000", "--no-progress", *options]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "ignored" in line]
+    assert warnings == ([] if said is None else [f"okid-ros track: warning: {said}"]), warnings
 
 
 @pytest.mark.parametrize("argv, words", [

@@ -183,6 +183,19 @@ def test_plot_of_a_campaign_with_a_spoilt_modes_table_is_one_line(tmp_path, caps
     assert f"{campaign / 'modes.parquet'}: not a" in err and not (campaign / "figures").exists()
 
 
+def test_plot_of_a_campaign_names_the_options_of_a_bag_s_figures(tmp_path, capsys):
+    """--input, --window, --frf-pairs ... draw an output bag's figures (were passed over in silence)."""
+    campaign = tmp_path / "camp"
+    campaign.mkdir()
+    (campaign / "manifest.jsonl").write_text("")
+    (campaign / "modes.parquet").write_bytes(b"")  # the warning comes before the table is read
+    main(["plot", str(campaign), "--frf-pairs", "1:1", "--window", "3", "--input", str(tmp_path / "bag")])
+    assert (f"okid-ros plot: warning: --input, --window, --frf-pairs: options of an output bag's figures; ignored for "
+            f"the campaign folder {campaign} (campaign_modes.png)") in capsys.readouterr().err
+    main(["plot", str(campaign), "--window", "5"])  # the default, given
+    assert "warning" not in capsys.readouterr().err
+
+
 # --- identify --reference -------------------------------------------------------------------------
 
 GOOD_MODE = {"id": 0, "frequency_hz": 5.9, "shape_real": [0.88, 0.47], "shape_imag": [0.0, 0.03]}

@@ -1,4 +1,4 @@
-"""Hostile options of the ROS commands `info`, `replay` and `monitor`: one line, exit 2, no hang.
+"""Hostile options of the ROS commands `info`, `replay`, `monitor`, `up` and `demo`: one line, exit 2, no hang.
 
 Each case once ended in a traceback (exit 70) or a wait without end: a count, depth or window
 beyond 64 bits (rclpy's QoS and ``deque(maxlen=...)`` refuse them with TypeError and
@@ -63,6 +63,7 @@ def short_bag(tmp_path_factory) -> Path:
     (["replay", "bag", "--clock", "0"], "--clock"),
     (["replay", "bag", "--clock", "1e-300"], "--clock"),  # the clock step in ns overflowed
     (["monitor", "--window", HUGE], "--window"),
+    (["up", "--params", "p.yaml", "--grace", "nan"], "--grace"),  # was taken: nan > 0 is False, and nan <= 0 too
 ])
 def test_out_of_range_options_are_usage_errors(capsys, argv, option):
     assert option in usage_error(capsys, argv)
@@ -100,6 +101,34 @@ def test_a_remap_onto_a_topic_of_another_type_names_both(capsys, short_bag):
     assert f"{IMU_TOPICS[0]} (sensor_msgs/msg/Imu)" in line, line
 
 
+def test_a_topic_remapped_twice_is_refused(capsys, short_bag):
+    """Was: the later target taken in silence, the first remap lost."""
+    line = one_line_error(capsys, ["replay", "--delay", "0", str(short_bag), "--remap", f"{IO_SAMPLE_TOPIC}:=/a",
+                                   f"{IO_SAMPLE_TOPIC}:=/b"])
+    assert f"--remap {IO_SAMPLE_TOPIC} is given twice, to /a and to /b" in line, line
+
+
+def test_a_topic_listed_twice_is_replayed_as_one(short_bag):
+    """Was: "2500 messages on 2 topics" for --topics /okid/io_sample /okid/io_sample."""
+    player = BagPlayer(short_bag, topics=[IO_SAMPLE_TOPIC, IO_SAMPLE_TOPIC], log=lambda line: None)
+    assert player.topics == [IO_SAMPLE_TOPIC]
+
+
+def test_two_topics_of_one_type_remapped_onto_one_are_named():
+    """Two accelerometers on one topic: their messages interleave (was: said by nothing)."""
+    from okid_ros.errors import OkidWarning
+    from okid_ros.tools.replay import _check_one_type_per_topic
+
+    class Node:
+        def resolve_topic_name(self, name: str) -> str:
+            return name
+
+    imu = "sensor_msgs/msg/Imu"
+    with pytest.warns(OkidWarning, match=f"{IMU_TOPICS[0]} and {IMU_TOPICS[1]} are both published on /x: their "
+                      "messages interleave there"):
+        _check_one_type_per_topic(Node(), [(IMU_TOPICS[0], "/x", imu), (IMU_TOPICS[1], "/x", imu)])
+
+
 def test_a_remap_onto_clock_with_clock_is_refused(capsys, short_bag):
     line = one_line_error(capsys, ["replay", "--delay", "0", "--clock", "50", str(short_bag), "--remap",
                                    f"{IO_SAMPLE_TOPIC}:=clock"])  # relative: resolves to /clock
@@ -120,3 +149,132 @@ def test_selftest_stops_publishing_at_its_timeout(ros_env):
                              "--timeout", "0.5"], env=ros_env, capture_output=True, text=True, timeout=14)
     assert result.returncode == 2 and "self-test:" in result.stderr, result.stderr
     assert time.monotonic() - started < 14
+
+
+def _status(argv: list[str]) -> int:
+    """``okid-ros ARGV``'s exit status, argparse's refusals (SystemExit) included."""
+    try:
+        return cli.main(argv)
+    except SystemExit as stopped:
+        return stopped.code
+
+
+@pytest.mark.parametrize("options, option", [
+    (["--seed", "-1"], "--seed"),  # was: refused after the run folder was made, left empty
+    (["--output-only", "--seed", "-1"], "--seed"),  # was: numpy's ValueError, internal error (exit 70)
+    (["--output-only", "--duration", "1e300"], "--duration"),  # was: "Maximum allowed dimension exceeded", 70
+    (["--duration", "1e300"], "--duration"),  # was: refused after the run folder was made
+])
+def test_demo_refuses_an_option_out_of_range_before_making_a_run_folder(capsys, tmp_path, options, option):
+    runs = tmp_path / "runs"
+    assert _status(["demo", "--no-ansi", "--out-dir", str(runs), *options]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith("okid-ros demo: error: ") and option in lines[-1], lines
+    assert "Traceback" not in "".join(lines) and not runs.exists()
+
+
+def test_demo_names_an_out_dir_it_cannot_make_in_one_line(capsys, tmp_path):
+    """A file as --out-dir: the run folder's error, exit 2 (was: NotADirectoryError, internal error, exit 70)."""
+    (tmp_path / "a_file").write_text("")
+    line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "1", "--out-dir", str(tmp_path / "a_file")])
+    assert "a_file/" in line and "cannot create" in line, line
+    assert (tmp_path / "a_file").is_file() and list(tmp_path.iterdir()) == [tmp_path / "a_file"]
+
+
+@pytest.mark.parametrize("command", ["up", "demo"])
+@pytest.mark.parametrize("case, reason", [("folder", "Is a directory"), ("record", "not UTF-8 text"),
+                                          ("device", "not a regular file (a device)")])
+def test_a_params_file_the_nodes_cannot_read_is_refused_before_anything_starts(capsys, tmp_path, command, case,
+                                                                                reason):
+    """Read as `process` reads one, before a node starts or the demo simulates.
+
+    Was: "does not exist" for a folder or /dev/null; rcl's parse error from each node for a record
+    (`demo`: after its simulation, in a run folder).
+    """
+    (tmp_path / "record.npz").write_bytes(bytes(range(256)))
+    params = {"folder": tmp_path, "record": tmp_path / "record.npz", "device": "/dev/null"}[case]
+    started = time.monotonic()
+    line = one_line_error(capsys, [command, "--params", str(params), *(["--out-dir", str(tmp_path / "runs")]
+                                                                        if command == "demo" else [])])
+    assert str(params) in line and reason in line, line
+    assert not (tmp_path / "runs").exists() and time.monotonic() - started < 10
+
+
+MODAL_STATES = "okid_msgs/msg/ModalStates"
+
+
+class _Graph:
+    """The ROS graph as a node sees it: topic -> (types, publishers)."""
+
+    def __init__(self, topics: dict[str, tuple[list[str], int]]) -> None:
+        self.topics = topics
+
+    def resolve_topic_name(self, topic: str) -> str:
+        return topic if topic.startswith("/") else f"/{topic}"
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        return [(name, types) for name, (types, _) in self.topics.items()]
+
+    def count_publishers(self, topic: str) -> int:
+        return self.topics.get(topic, ([], 0))[1]
+
+
+@pytest.mark.parametrize("topics, topic, said", [
+    # --topic of another type: rclpy matches no publisher, and the monitor said only "no ModalStates"
+    ({"/okid/io_sample": (["okid_msgs/msg/IoSample", MODAL_STATES], 1)}, "/okid/io_sample",
+     ": /okid/io_sample carries okid_msgs/msg/IoSample (the wrong --topic?)"),
+    # the nodes in another namespace
+    ({"/okid/modal_states": ([MODAL_STATES], 0), "/rig/modal_states": ([MODAL_STATES], 1)}, "/okid/modal_states",
+     "; ModalStates are published on /rig/modal_states (another --topic or --namespace?)"),
+    ({"/okid/modal_states": ([MODAL_STATES], 0)}, "/okid/modal_states", ""),  # nothing to add
+])
+def test_monitor_says_why_no_modal_states_came(topics, topic, said):
+    from okid_ros.tools.monitor import _silence_reason
+
+    assert _silence_reason(_Graph(topics), topic) == said
+
+
+def test_info_names_selftest_options_given_without_selftest(capsys):
+    """Was: passed over in silence (no DDS self-test ran)."""
+    assert cli.main(["info", "--count", "5"]) == 0
+    assert ("okid-ros info: warning: --count: options of the DDS self-test, which only --selftest runs; ignored"
+            in capsys.readouterr().err)
+    assert cli.main(["info"]) == 0 and "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, watched", [
+    (["--namespace", "/rig", "--topic", "modal_states"], "/rig/modal_states"),  # was /modal_states, --namespace lost
+    (["--topic", "modal_states"], "/okid/modal_states"),  # was /modal_states: not the default's rig namespace
+    (["--namespace", "/rig", "--topic", "/x/modal_states"], "/x/modal_states"),  # absolute: as given
+])
+def test_a_relative_monitor_topic_is_in_the_rig_namespace(capsys, argv, watched):
+    line = one_line_error(capsys, ["monitor", "--no-ansi", "--once", "--duration", "0.3", *argv])
+    assert f"no okid_msgs/ModalStates on {watched} within 0.3 s" in line, line
+
+
+def test_the_demo_says_node_1_published_nothing_rather_than_blame_node_2():
+    """`demo --duration 0.1`: no valid ArxModel came; the note said "node 2 was still busy 30 s after the replay"."""
+    from okid_ros.tools.demo import _unsettled_note
+
+    assert _unsettled_note(0, 0.1) == ("node 1 published no valid ArxModel: is the experiment (0.1 s) shorter than "
+                                       "its first window (arx.window_length)? see nodes.log")
+    assert _unsettled_note(3, 60.0).startswith("node 2 was still busy 30 s after the replay")
+
+
+@pytest.mark.parametrize("domain_id, said", [("abc", "ROS_DOMAIN_ID='abc' is not an integer"),
+                                             ("300", "ROS_DOMAIN_ID=300 is beyond 232")])
+@pytest.mark.parametrize("argv", [["monitor", "--no-ansi", "--once", "--duration", "0.3"],
+                                  ["info", "--selftest", "--timeout", "0.3"],
+                                  ["up", "--params", str(Path(__file__).parents[2] / "config" / "okid.yaml")],
+                                  ["demo", "--duration", "1", "--out-dir", "{tmp}/runs"]])
+def test_a_ros_domain_id_ros_cannot_use_is_one_line_before_anything_starts(capsys, tmp_path, monkeypatch, domain_id,
+                                                                            said, argv):
+    """Checked before rclpy, a node or the demo's run folder (`tools/ros_domain.py`).
+
+    Was: rcl's RCLError (`monitor`, `info`, `replay`, `record`) or `demo`'s ValueError, internal errors, exit 70;
+    beyond 232 `monitor` and `up` ended with status 1 after Fast DDS's "Calculated port number is too high".
+    """
+    monkeypatch.setenv("ROS_DOMAIN_ID", domain_id)
+    line = one_line_error(capsys, [a.format(tmp=tmp_path) for a in argv])
+    assert said in line, line
+    assert not (tmp_path / "runs").exists()

@@ -132,7 +132,7 @@ def test_hum_in_the_outputs_is_named_and_kept_in_the_windows(record, tmp_path, c
     _track(tmp_path, u, hum, *(["--output-only"] if output_only else []))
     where = "(not a mode)" if output_only else "(not a mode; the inputs hold no such line)"
     # _track's --states 6 is passed over by the output-only windows, and said so (as identify does).
-    ignored = ["okid-ros track: warning: --states apply to input-output identification; ignored for this "
+    ignored = ["okid-ros track: warning: --states applies to input-output identification; ignored for this "
                "output-only one"] if output_only else []
     assert _warnings(capsys.readouterr().err) == ignored + [
         f"okid-ros track: warning: harmonic disturbance in the outputs {where}: 20 Hz; kept: track fits its windows "

@@ -303,6 +303,25 @@ def test_a_mask_of_missing_samples_must_fit_the_record() -> None:
         identify_output_only(_three_modes(3000, 2, seed=0), 0.02, valid=np.ones(2999, bool))
 
 
+@pytest.mark.parametrize("options, reason", [
+    ({"max_states": 0}, "max_states must be an integer >= 2"),  # was taken for the default, in silence
+    ({"max_states": -4}, "max_states must be an integer >= 2"),  # was "the Hankel matrix has rank below 2"
+    ({"max_states": "20"}, "max_states must be an integer >= 2"),  # was parsed
+    ({"block_rows": 20.5}, "block_rows must be an integer >= 2"),  # was cut to 20
+    ({"valid": np.zeros(3000, bool)}, "too few measured samples for output-only identification: 0 of the 3000"),
+    ({"valid": np.arange(3000) < 150}, "150 of the 3000"),  # both were NaN correlations, a ValueError
+])
+def test_options_of_the_wrong_kind_are_refused_with_their_name(options, reason) -> None:
+    with pytest.raises(IdentificationError, match=reason):
+        identify_output_only(_three_modes(3000, 2, seed=0), 0.02, **options)
+
+
+def test_measured_samples_in_one_segment_leave_the_others_out_of_the_jackknife() -> None:
+    """The first 600 of 3000 samples measured: the empty segments weigh nothing (was: 0 / 0, a ValueError)."""
+    model = identify_output_only(_three_modes(3000, 2, seed=0), 0.02, valid=np.arange(3000) < 600)
+    assert np.isfinite([m.frequency_hz for m in model.modes]).all() and model.modes
+
+
 @pytest.mark.parametrize(("y", "reason"), [
     (np.full((3000, 2), np.nan), "NaN"),
     (np.column_stack([np.random.default_rng(0).standard_normal(3000), np.ones(3000)]), "constant"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -321,6 +322,32 @@ def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s:
     for run in (lambda: identify(u, y, sample_time_s), lambda: identify_output_only(y, sample_time_s)):
         with pytest.raises(IdentificationError, match="between 1e-06 and 3600 s"):
             run()
+
+
+@pytest.mark.parametrize("arguments, reason", [
+    ({"sample_time_s": "0.01"}, "sample_time_s must be a number of seconds, got '0.01'"),  # was numpy's TypeError
+    ({"regularization": "l1"}, "regularization must be one of"),  # was solved as "tc" in silence
+    ({"order": 20.5}, "order must be an integer ARX order or 'auto', got 20.5"),  # was cut to 20
+    ({"order": True}, "order must be an integer"),  # was "ARX order must be >= 2, got 1"
+    ({"options": "fast"}, "options must be of type RealizationOptions, got str"),  # was an AttributeError
+    ({"arx_orders": "fast"}, "arx_orders must be of type ArxOrderOptions, got str"),  # the same
+    ({"ar_order": 0}, "ar_order must be a positive integer or None, got 0"),  # was the ARX order, in silence
+    ({"ar_order": 5.5}, "ar_order must be a positive integer or None, got 5.5"),  # was a TypeError
+    ({"hankel_rows": 0}, "hankel_rows must be a positive integer or None, got 0"),  # was the default, in silence
+    ({"refine": "no"}, "refine must be True or False, got 'no'"),  # was taken for True
+])
+def test_arguments_of_the_wrong_kind_are_refused_with_their_name(arguments, reason) -> None:
+    """The Python API as users call it: one IdentificationError naming the argument, before any work."""
+    from okid_ros.core.output_only import identify_output_only
+
+    rng = np.random.default_rng(0)
+    u, y = rng.standard_normal((1000, 1)), rng.standard_normal((1000, 2))
+    kwargs = {"sample_time_s": 0.01, "order": 10, **arguments}
+    with pytest.raises(IdentificationError, match=re.escape(reason)):
+        identify(u, y, **kwargs)
+    if "sample_time_s" in arguments:
+        with pytest.raises(IdentificationError, match=re.escape(reason)):
+            identify_output_only(y, arguments["sample_time_s"])
 
 
 def test_a_record_with_dropped_samples_is_identified_whole_with_them_filled():
