@@ -229,6 +229,8 @@ class OkidNode(Node):
         for param in parameters:
             spec = self.specs.get(param.name)
             if spec is None:
+                if param.name == "use_sim_time" and param.value is True:
+                    self._tell_sim_time_without_clock()
                 continue  # use_sim_time, qos_overrides.*: rclpy's own
             reason = read_only_reason(param.name)
             if reason:
@@ -255,6 +257,20 @@ class OkidNode(Node):
         self.get_logger().info("parameters set: " + ", ".join(
             f"{k}: {old_values[k]!r} -> {v!r}" for k, v in changed.items()))
         return SetParametersResult(successful=True)
+
+    def _tell_sim_time_without_clock(self) -> None:
+        """Warn when ``use_sim_time`` is switched on while nothing publishes /clock.
+
+        The node clock then stands at 0 and every timer on it stops (node 1's ArxModel, the
+        diagnostics, the staleness check, node 2's idle timer): the node fell silent with the
+        change answered ``successful`` and nothing said. rclpy takes the change as it should (a
+        replay's /clock may come later), so it is told, not refused.
+        """
+        if self.count_publishers("/clock") == 0:
+            self.get_logger().warning(
+                "use_sim_time set to true, but nothing publishes /clock: the node clock stands still, "
+                "and with it this node's timers (its outputs on a rate, the diagnostics) until /clock comes "
+                "(e.g. okid-ros replay --clock); set use_sim_time false to run on the system clock")
 
     # ------------------------------------------------------------------ diagnostics
     def off_sample_path(self, work: Callable[[], None]) -> None:

@@ -212,8 +212,9 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
 
     Raises
     ------
-    ValueError when the coefficient array does not match its declared shape, the residual
-    covariance is not a finite symmetric positive semidefinite p x p matrix, or the sample times differ.
+    ValueError when the coefficient array does not match its declared shape or holds NaN or Inf,
+    the residual covariance is not a finite symmetric positive semidefinite p x p matrix, or the
+    sample times differ.
     """
     m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
     if sample_time_s is not None and not abs(float(msg.sample_time_s) - sample_time_s) <= 1e-9 * sample_time_s:
@@ -235,6 +236,12 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
             f"ArxModel coefficients are {rows} x {cols} ({theta.size} values); order {q} with "
             f"{m} inputs and {p} outputs needs {d} x {p}"
         )
+    # Malformed like a wrong size: realized, NaN or Inf cost a realization on node 2's worker and
+    # came back as 'realization failed: array must not contain infs or NaNs', counted as a
+    # rejected model rather than a malformed message.
+    if not np.isfinite(theta).all():
+        raise ValueError(f"ArxModel coefficients are not finite ({int(np.count_nonzero(~np.isfinite(theta)))} "
+                         f"of {theta.size} values NaN or Inf)")
     cov = _residual_covariance_from_msg(msg.residual_covariance, p)
     cond = float(msg.condition_number)
     fit = ArxFit(

@@ -47,6 +47,12 @@ class InputFrontend:
         n = len(self.specs)
         self.last_arrival_ns: list[int | None] = [None] * n
         self.stale = [False] * n
+        # Messages that arrive but make no sample (a source stamped later than the grid's latency,
+        # or all of one source's messages refused) left every input "receiving", status OK, while
+        # nothing was identified or published: told as starved. Mark: (since [ns], samples
+        # emitted, missing, refusals per source then).
+        self.starved = False
+        self._emission_mark = (self._clock.now().nanoseconds, 0, 0, self._refusals())
         self._counts = [0] * n
         self._rate_mark = (self._clock.now().nanoseconds, [0] * n)
         self.rates_hz = [0.0] * n
@@ -168,7 +174,36 @@ class InputFrontend:
                     changes.append((f"input {spec.topic} is receiving again", False))
             self.stale[i] = stale
             changes += self._check_types(i, spec)
-        return changes
+        return changes + self._check_starved(now)
+
+    def _refusals(self) -> list[dict[str, int]]:
+        return [self.grid.source_counters(i).rejections() for i in range(len(self.specs))]
+
+    def _check_starved(self, now_ns: int) -> list[tuple[str, bool]]:
+        """(message, is_warning) when messages arrive but no sample is assembled for ``stale_timeout_s``, or again."""
+        counters = self.grid.counters
+        since_ns, emitted, missing, refused = self._emission_mark
+        arriving = any(last is not None and now_ns - last <= self.stale_timeout_ns for last in self.last_arrival_ns)
+        # A source that never sent, or went stale: the status says so already.
+        told = None in self.last_arrival_ns or any(self.stale)
+        if counters.samples_emitted != emitted or not arriving or told:
+            self._emission_mark = (now_ns, counters.samples_emitted, counters.missing, self._refusals())
+            starved = False
+        else:
+            starved = now_ns - since_ns > self.stale_timeout_ns
+        if starved == self.starved:
+            return []
+        self.starved = starved
+        if not starved:
+            return [("inputs: samples assembled again", False)]
+        why = [f"{spec.topic} {reason} {count - refused[i].get(reason, 0)}"
+               for i, (spec, counts) in enumerate(zip(self.specs, self._refusals()))
+               for reason, count in counts.items() if count > refused[i].get(reason, 0)]
+        timeout_s = self.stale_timeout_ns * 1e-9
+        return [(f"inputs: messages arrive but no sample was assembled for more than {timeout_s:g} s: "
+                 f"{counters.missing - missing} sample times missing; messages refused meanwhile: "
+                 f"{', '.join(why) or 'none'} (a source stamped more than inputs.latency_samples sample times "
+                 "behind the others, or all of its messages refused)", True)]
 
     def _publishers_note(self, topic: str) -> str:
         """For a stale input: the publishers still in the graph (a stall can lose them for good)."""
@@ -209,15 +244,20 @@ class InputFrontend:
             values[f"{spec.topic} messages"] = c.messages
             values[f"{spec.topic} rejected"] = c.rejected_messages
             values[f"{spec.topic} wrong_type_publishers"] = len(self.wrong_type_publishers[i])
+        values["starved"] = self.starved
         for key, value in self.grid.counters.as_dict().items():
             values[f"grid {key}"] = value
         values["input callback mean_us"] = round(self.callback_stats[0], 1)
         values["input callback max_ms"] = round(self.callback_stats[1], 3)
         stale = [s.topic for s, flag in zip(self.specs, self.stale) if flag]
         waiting = [s.topic for s, last in zip(self.specs, self.last_arrival_ns) if last is None]
-        level = DiagnosticStatus.WARN if stale else DiagnosticStatus.OK
-        if stale:
-            message = "stale: " + ", ".join(stale)
+        problems = [f"stale: {', '.join(stale)}"] if stale else []
+        if self.starved:
+            timeout_s = self.stale_timeout_ns * 1e-9
+            problems.append(f"no sample assembled for more than {timeout_s:g} s though messages arrive")
+        level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+        if problems:
+            message = "; ".join(problems)
         elif waiting:
             message = "waiting for the first message on " + ", ".join(waiting)
         else:

@@ -98,6 +98,7 @@ from okid_ros.service.model_switch import ModelSelection, SwitchJump
 from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
+    JOB_GENERATIONS,
     ActiveModel,
     BufferedWindow,
     EstimationStats,
@@ -134,7 +135,6 @@ class ModalEstimationService:
         cap = params.buffer_length if params.buffer_length > 0 else 8192
         self._buffer = SampleBuffer(cap, params.n_inputs, params.n_outputs)
         self.enabled = True
-        self._generation = -1
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -148,7 +148,7 @@ class ModalEstimationService:
             self._last_request_end: float | None = None
             self._busy = False
             self._ready: RealizationOutcome | None = None
-            self._generation += 1  # outcomes of older jobs are dropped
+            self._generation = next(JOB_GENERATIONS)  # outcomes of older jobs (any service's) are dropped
             self._stats = EstimationStats()
             self._u_prev: np.ndarray | None = None
             self._refused = 0  # samples refused since the last one stepped: a gap before the next

@@ -10,6 +10,7 @@ worker thread or process. The serialized shapes of these (JSON lines, messages, 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -141,6 +142,12 @@ class BufferedWindow:
     refit: bool = False
 
 
+#: Generations of realization jobs, unique across services: a node reconfigured (a lifecycle cleanup
+#: and configure) has a new service, which took the outcome of its predecessor's job still running
+#: when both counted from 0 (a model of the window before the cleanup, applied after activate).
+JOB_GENERATIONS = itertools.count()
+
+
 @dataclass
 class RealizationJob:
     """Everything :meth:`ModalEstimationService.run_job` needs (a copy; thread-safe)."""
@@ -152,7 +159,7 @@ class RealizationJob:
     y: np.ndarray
     end_index: int  # absolute buffer index of the window's last sample
     params: ModalEstimationParams
-    generation: int = 0  # outcomes of jobs taken before a reset are dropped
+    generation: int = 0  # outcomes of jobs taken before a reset, or by another service, are dropped
     valid: np.ndarray | None = None  # (N,) False at samples filled in short gaps (core/gap_fill.py)
     order_hint: int | None = None  # the order of the model in use: warm-starts the order search
     buffered: BufferedWindow | None = None  # set: u, y as buffered, prepared by realize(); None: as realized

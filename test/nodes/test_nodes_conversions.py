@@ -115,6 +115,18 @@ def test_an_arx_model_whose_residual_covariance_is_no_covariance_is_malformed(id
         cv.arx_fit_from_msg(msg, msg.sample_time_s)
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_an_arx_model_whose_coefficients_are_not_finite_is_malformed(identified, bad):
+    # Was taken, and spent a realization on node 2's worker: "realization failed: array must not
+    # contain infs or NaNs", counted as a rejected model instead of a malformed message.
+    msg = cv.arx_model_msg(identified[0], TYPES)
+    coefficients = np.array(msg.coefficients)
+    coefficients[7] = bad
+    msg.coefficients = coefficients
+    with pytest.raises(ValueError, match=r"ArxModel coefficients are not finite \(1 of 164 values NaN or Inf\)"):
+        cv.arx_fit_from_msg(msg, msg.sample_time_s)
+
+
 def test_node_1_never_publishes_a_covariance_node_2_refuses(identified):
     snap = identified[0]
     # Round-off of a near-exact fit: an eigenvalue a hair below 0, published as 0.

@@ -19,6 +19,7 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters, SetParametersAtomically
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import REPO_ROOT, ProbeNode, RosProcess, subprocess_env
+from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from okid_msgs.msg import ArxModel, IoSample, ModalStates
@@ -268,3 +269,26 @@ def test_a_parameter_given_dotted_and_nested_is_refused_and_a_low_time_jump_is_t
                     "-r", "__ns:=/rig8")
     low.wait_for_output(r"WARN.*parameter inputs\.time_jump_s 0\.001 s raised to 0\.056 s", 30)
     low.wait_for_output(r"ready:", 30)
+
+
+def test_use_sim_time_switched_on_without_a_clock_is_told(spawn_ros, probe):
+    # The node clock then stands at 0 and node 1's ArxModel and both nodes' diagnostics stop: the
+    # change was answered `successful` and the node fell silent with nothing said.
+    node = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "-r", "__ns:=/rig7")
+    node.wait_for_output(r"ready:", 30)
+    [ok] = set_params(probe, "/rig7/okid_arx_identifier", use_sim_time=("bool", True))
+    assert ok.successful, ok.reason
+    node.wait_for_output(r"WARN.*use_sim_time set to true, but nothing publishes /clock: the node clock stands "
+                         r"still, and with it this node's timers", 10)
+    [ok] = set_params(probe, "/rig7/okid_arx_identifier", use_sim_time=("bool", False))
+    assert ok.successful, ok.reason
+    # With a /clock publisher in the graph (a replay's --clock) nothing is said.
+    clock = probe.node.create_publisher(Clock, "/clock", 10)
+    probe.wait_until("node 1 to see the /clock publisher",
+                     lambda: probe.node.count_publishers("/clock") >= 1, 10)
+    time.sleep(1.0)  # the node's view of the graph too
+    [ok] = set_params(probe, "/rig7/okid_arx_identifier", use_sim_time=("bool", True))
+    assert ok.successful, ok.reason
+    time.sleep(1.0)
+    assert node.output().count("nothing publishes /clock") == 1, node.output()
+    probe.node.destroy_publisher(clock)

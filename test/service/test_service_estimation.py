@@ -421,3 +421,34 @@ def test_a_window_longer_than_the_fixed_buffer_is_refused_naming_the_buffer(pipe
     reason = est.diagnostics()["last_reason"]
     assert f"its window of {W + fit.order} samples (rows + order) needs at least" in reason, reason
     assert "estimator.buffer_length 100 keeps" in reason
+
+
+def test_a_new_service_never_takes_the_outcome_of_its_predecessors_job():
+    # A lifecycle cleanup and configure gives node 2 a new service while the old one's realization
+    # still runs; both counted their job generations from 0 (one reset each at activate), so the
+    # new service took the old job's outcome: a model of the window before the cleanup, applied
+    # as model 1 after activate (measured live with realization.worker thread).
+    model = paper_model()
+    dt, n = model.sample_time_s, 2600
+    u = lowpass_input(n, 2, 50.0, dt, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    params = ModalEstimationParams(dt, 2, 2, n_states=6)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
+    old = ModalEstimationService(params)
+    old.reset()  # activate
+    for k in range(n):
+        ident.push(T0 + k * dt, u[k], y[k])
+        old.step(T0 + k * dt, u[k], y[k])
+    snap = ident.snapshot()
+    assert old.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    job = old.take_job()
+    new = ModalEstimationService(params)  # cleanup, configure
+    new.reset()  # activate
+    new.step(T0 + n * dt, u[0], y[0])
+    outcome = realization.realize(job)
+    assert outcome.model is not None
+    new.deliver(outcome)
+    assert new.step(T0 + (n + 1) * dt, u[1], y[1]) is None
+    assert new.diagnostics()["model_id"] == 0
+    old.deliver(outcome)  # its own service takes it
+    assert old.step(T0 + n * dt, u[0], y[0]) is not None and old.diagnostics()["model_id"] == 1

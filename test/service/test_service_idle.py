@@ -25,6 +25,16 @@ T0 = 50.0
 DT = paper_model().sample_time_s
 
 
+def as_outcome_of(job, outcome):
+    """A copy of ``outcome`` as the outcome of ``job``: the same window realized by another service.
+
+    A service takes only the outcomes of its own jobs (their generation).
+    """
+    copied = copy.deepcopy(outcome)
+    copied.job.generation = job.generation
+    return copied
+
+
 @pytest.fixture(scope="module")
 def record():
     u = lowpass_input(2600, 2, 50.0, DT, seed=3)
@@ -104,13 +114,14 @@ def test_the_next_sample_after_an_idle_switch_is_stepped_once_as_after_a_switch_
     _feed(record, ident, [idle, reference], FIRST_WINDOW, FIRST_WINDOW + 300)  # model 1 at the first
     _submit(ident, [idle, reference], 2)
     job = idle.take_job()
-    assert reference.take_job() is not None
+    reference_job = reference.take_job()
+    assert reference_job is not None
     lo = FIRST_WINDOW + 350
     _feed(record, ident, [idle, reference], FIRST_WINDOW + 300, lo)  # samples go on during the realization
     outcome = idle.run_job(job)
     assert outcome.last_index < lo - 1  # follow() leaves at least the newest sample to the catch-up
     idle.deliver(outcome)
-    reference.deliver(copy.deepcopy(outcome))
+    reference.deliver(as_outcome_of(reference_job, outcome))
     assert idle.apply_ready_if_idle(now_s=0.0) is None
     switch = idle.apply_ready_if_idle(now_s=1.0)
     assert switch is not None and switch.update.model_id == 2 and idle.model_id == 2 and reference.model_id == 1
@@ -216,9 +227,10 @@ def test_a_sample_arriving_during_an_idle_switch_is_stepped_after_it_once(record
     _feed(record, ident, [est, reference], 0, FIRST_WINDOW)
     _submit(ident, [est, reference], 1)
     outcome = _realized(est)
-    assert reference.take_job() is not None
+    reference_job = reference.take_job()
+    assert reference_job is not None
     est.deliver(outcome)
-    reference.deliver(copy.deepcopy(outcome))
+    reference.deliver(as_outcome_of(reference_job, outcome))
     assert est.apply_ready_if_idle(now_s=0.0) is None
     in_switch, go = threading.Event(), threading.Event()
     catch_up = realization.catch_up
