@@ -80,7 +80,6 @@ class ArxIdentifierNode(OkidNode):
             max_workers=1, thread_name_prefix="arx_solve", initializer=name_thread, initargs=("okid_arx_solve",)
         )
         self._solving = False
-        self._generation = 0
         self._skipped_publishes = 0
         self._lock = threading.Lock()
         self._publish_timer = self.create_timer(1.0 / float(values["publish_rate_hz"]), self._on_publish_timer)
@@ -101,8 +100,6 @@ class ArxIdentifierNode(OkidNode):
             return
         with self.state_lock, self._lock:  # the window is the input thread's too
             replayed = self.service.restart_at(stamp_to_seconds(msg.change_stamp))
-            if replayed >= 0:
-                self._generation += 1  # a solve of the old window still running is not published
         if replayed >= 0:
             self.get_logger().info(
                 f"structural change {msg.change_id}: window restarted at {stamp_to_seconds(msg.change_stamp):.3f} s "
@@ -119,9 +116,9 @@ class ArxIdentifierNode(OkidNode):
         with self.state_lock:  # the input thread pushes into the window being copied
             capture = self.service.capture()
         self._solving = True  # before submit: the worker clears it when done
-        self._pool.submit(self._solve, self._generation, capture)
+        self._pool.submit(self._solve, capture)
 
-    def _solve(self, generation: int, capture: WindowCapture) -> None:
+    def _solve(self, capture: WindowCapture) -> None:
         """On the worker thread: solve, then accept and publish (rclpy publishers are thread-safe)."""
         try:
             result = solve_capture(capture)
@@ -129,8 +126,8 @@ class ArxIdentifierNode(OkidNode):
             result = SolveResult(None, float("nan"), f"internal error in the solve: {exc!r}", 0.0)
         try:
             with self._lock:
-                if generation != self._generation:
-                    return  # solved before a reset
+                if not self.service.is_current(capture):
+                    return  # solved before a reset or restart, or by the service before a reconfigure
                 snapshot = self.service.accept(capture, result)
             self.publisher.publish(arx_model_msg(snapshot, self.types, frame_id=self.frame_id))
         finally:
@@ -139,8 +136,7 @@ class ArxIdentifierNode(OkidNode):
     # ------------------------------------------------------------------ hooks of OkidNode
     def reset_state(self, reason: str) -> str:
         with self._lock:
-            self._generation += 1
-            self.service.reset()
+            self.service.reset()  # a solve of the old window still running is then stale
         return "window, counters and model ids cleared"
 
     def set_enabled(self, on: bool) -> str:

@@ -32,6 +32,7 @@ model of the new structure comes soon.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, replace
@@ -62,6 +63,9 @@ __all__ = [
 #: How far after the newest sample of the window a structural change may be stamped: node 1 may
 #: lag node 2 by its input queue (at most a few hundred samples at the nodes' rates).
 MAX_CHANGE_LEAD_S = 2.0
+#: Generations of the window, unique across services: a capture solved after its window was reset,
+#: restarted or rebuilt (a lifecycle cleanup and configure: a new service) is not accepted.
+_WINDOW_GENERATIONS = itertools.count()
 
 @dataclass
 class WindowCapture:
@@ -78,6 +82,7 @@ class WindowCapture:
     samples_used: int
     samples_rejected: int
     params: ArxIdentificationParams
+    generation: int = -1  # the window's (:meth:`ArxIdentificationService.is_current`)
 
 
 @dataclass
@@ -266,6 +271,7 @@ class ArxIdentificationService:
         self._last_good_penalty = math.nan
         self._model_id = 0
         self._due_stamp: float | None = None
+        self._generation = next(_WINDOW_GENERATIONS)
 
     def set_params(self, params: ArxIdentificationParams) -> list[str]:
         """Take new options at once (the next solve and restart use them); returns the changed fields.
@@ -368,6 +374,7 @@ class ArxIdentificationService:
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])
         c.last_restart_stamp_s = change_stamp_s
+        self._generation = next(_WINDOW_GENERATIONS)  # a solve of the old window still running is stale
         return int(u.shape[0])
 
     def push_block(self, stamps_s, u, y) -> int:
@@ -388,7 +395,12 @@ class ArxIdentificationService:
             samples_rejected=self._counters.rejected,
             params=replace(self.params, min_window_fill=min(self.params.min_window_fill, self.params.restart_min_fill))
             if self._restarted else self.params,
+            generation=self._generation,
         )
+
+    def is_current(self, capture: WindowCapture) -> bool:
+        """Whether ``capture`` is of this service's window as it is (not reset, restarted or another service's)."""
+        return capture.generation == self._generation
 
     def accept(self, capture: WindowCapture, result: SolveResult) -> ArxSnapshot:
         """Turn a solved capture into the next snapshot (keeps the last good fit on failure)."""

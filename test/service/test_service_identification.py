@@ -157,3 +157,25 @@ def test_a_sample_beyond_the_window_bound_is_a_counted_rejection_without_warning
     assert d["rejected_magnitude"] == 1 and d["samples_rejected"] == 1 and d["samples_used"] == n - 1
     assert d["gaps"] == with_nan.diagnostics()["gaps"] == 1
     np.testing.assert_array_equal(snapshot.fit.theta, with_nan.snapshot().fit.theta)
+
+
+def test_a_capture_is_current_only_for_its_own_window(record):
+    """Node 1 publishes a solve only when its capture is current: not after a reset or restart, nor another's.
+
+    A lifecycle cleanup and configure builds a new service; node 1 counted generations from 0 in each
+    build, so a solve of the old window still running passed for the new one's.
+    """
+    dt, u, y = record
+    old = make_service(dt)
+    old.push_block(np.arange(600) * dt, u[:600], y[:600])
+    capture = old.capture()
+    assert old.is_current(capture)
+    new = make_service(dt)  # the service of a reconfigured node, at the same point of its own history
+    new.push_block(np.arange(600) * dt, u[:600], y[:600])
+    assert not new.is_current(capture) and new.is_current(new.capture())
+    old.push_block(600 * dt + np.arange(10) * dt, u[600:610], y[600:610])
+    assert old.is_current(capture)  # more samples: the solve is of an earlier instant of the same window
+    assert old.restart_at(500 * dt) > 0 and not old.is_current(capture)
+    capture = old.capture()
+    old.reset()
+    assert not old.is_current(capture)
