@@ -161,7 +161,7 @@ def identify_output_only(
     ------
     IdentificationError with a one-line reason.
     """
-    _check_options(method, harmonics, max_states=max_states, block_rows=block_rows)
+    _check_options(method, harmonics, max_states=max_states, block_rows=block_rows, low_band=low_band)
     try:
         present = None if valid is None else missing_mask(valid, np.shape(y)[0])
     except ValueError as exc:
@@ -282,16 +282,19 @@ def _usable_order(top: int, hankel_rank: int) -> int:
     return top
 
 
-def _check_options(method: str, harmonics: str, *, max_states, block_rows) -> None:
-    """IdentificationError naming an unknown method or harmonics option, or a count that is no integer >= 2.
+def _check_options(method: str, harmonics: str, *, max_states, block_rows, low_band) -> None:
+    """IdentificationError naming an unknown method or harmonics option, a count that is no integer >= 2,
+    or a ``low_band`` that is no bool.
 
     ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank
-    below 2", and 20.5 or "20" were cut or parsed, in silence.
+    below 2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
     """
     if method not in OUTPUT_ONLY_METHODS:
         raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
     if harmonics not in ("remove", "keep"):
         raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
+    if low_band not in (True, False):
+        raise IdentificationError(f"low_band must be True or False, got {low_band!r}")
     for name, value, why in (("max_states", max_states, "a mode takes two states"),
                              ("block_rows", block_rows, "Hankel block rows")):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2):
