@@ -283,11 +283,10 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 
 def _check_options(method: str, harmonics: str, *, max_states, block_rows, low_band) -> None:
-    """IdentificationError naming an unknown method or harmonics option, a count that is no integer >= 2,
-    or a ``low_band`` that is no bool.
+    """IdentificationError naming an unknown method or harmonics option, a bad count or a non-bool ``low_band``.
 
-    ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank
-    below 2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
+    ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank below
+    2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
     """
     if method not in OUTPUT_ONLY_METHODS:
         raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
