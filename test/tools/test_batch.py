@@ -23,6 +23,7 @@ from batch_helpers import (
     table_rows,
     write_bag_without_inputs,
     write_good_bag,
+    write_params,
 )
 from ros_helpers import REPO_ROOT
 
@@ -143,6 +144,43 @@ def test_a_rerun_with_other_bags_keeps_the_rows_of_every_bag_identified_before(c
     assert len(table_rows(out)) == len(rows)
     assert batch(write_good_bag(tmp_path / "later" / "run_003", 3), "--params", campaign["params"], "--out", out) == 0
     assert len((out / "summary.csv").read_text().splitlines()) == 1 + 5  # the moved bags' old entries not again
+
+
+def test_a_moved_bag_keeps_its_outputs_and_its_journal_line_follows_it(tmp_path, capsys):
+    # Was: given at its new path (the bags moved to an archive disk) the bag was processed again and its
+    # old journal line stayed; after any later change of the bag that line came back as a second bag.
+    params, out = write_params(tmp_path / "params.yaml"), tmp_path / "c"
+    bag, moved = write_good_bag(tmp_path / "in" / "run_000", 0), tmp_path / "archive" / "run_000"
+    assert batch(bag, "--params", params, "--out", out, "--workers", 1) == 0
+    before = [{**row, "bag": None} for row in table_rows(out)]
+    moved.parent.mkdir()
+    os.rename(bag, moved)
+    capsys.readouterr()
+    assert batch(moved, "--params", params, "--out", out, "--workers", 1) == 0
+    captured = capsys.readouterr()
+    assert "0 processed now" in captured.out, captured.out
+    assert f"{moved}: the bag journaled at {bag} (same name, size and modification time): its outputs reused, " \
+           "its journal line moved to the new path\n" in captured.err, captured.err
+    row = read_summary(out)["run_000"]
+    assert (row["bag"], row["reused"], row["given"]) == (str(moved), "True", "True")
+    assert [p.name for p in (out / "bags").iterdir()] == [Path(row["outputs"]).name]
+    assert json.loads((out / row["outputs"] / "result.json").read_text())["bag"] == str(moved)
+    assert _journal_keys(out) == [str(moved)]
+    assert [{**row, "bag": None} for row in table_rows(out)] == before
+    # Changed since, it is still one bag of the campaign.
+    metadata = moved / "metadata.yaml"
+    os.utime(metadata, ns=(metadata.stat().st_atime_ns, metadata.stat().st_mtime_ns + 10**9))
+    assert batch(moved, "--params", params, "--out", out, "--workers", 1) == 0
+    assert len((out / "summary.csv").read_text().splitlines()) == 1 + 1 and _journal_keys(out) == [str(moved)]
+    # Moved back and redone (--force): the new result replaces the old line and folder.
+    os.rename(moved, bag)
+    assert batch(bag, "--params", params, "--out", out, "--workers", 1, "--force") == 0
+    assert _journal_keys(out) == [str(bag)] and len(list((out / "bags").iterdir())) == 1
+    assert read_summary(out)["run_000"]["reused"] == "False"
+
+
+def _journal_keys(out: Path) -> list[str]:
+    return [json.loads(line)["key"] for line in (out / "manifest.jsonl").read_text().splitlines()]
 
 
 def test_max_failures_stops_early_and_the_next_run_finishes(campaign, tmp_path):

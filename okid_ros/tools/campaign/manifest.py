@@ -125,6 +125,10 @@ class Manifest:
         os.fsync(self._stream.fileno())
         return entry
 
+    def forget(self, key: str) -> dict | None:
+        """Drop the entry of ``key`` (an absolute path) from the journal; returns it. Written by :meth:`compact`."""
+        return self.entries.pop(key, None)
+
     def compact(self) -> None:
         """Rewrite the journal with one line per bag (atomically)."""
         self.close()

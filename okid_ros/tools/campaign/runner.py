@@ -1,7 +1,8 @@
 """`okid-ros batch`: find the bags, skip what is done, run the rest, gather, write the tables.
 
 The order of a run: the bags are found and fingerprinted; a bag whose manifest entry matches
-(same path, size, modification time and parameters' hash) is taken as it is (``reused``), the
+(same path, size, modification time and parameters' hash) is taken as it is (``reused``), as is one
+journaled at another path it was moved from (:mod:`~okid_ros.tools.campaign.moved`), the
 others become jobs for the engine; each finished bag is journaled at once; then campaign mode
 ids are given over every ok bag and ``modes.parquet`` and ``summary.csv`` are written (both
 atomically, rebuilt from the per-bag results each run, so a run killed before this point is
@@ -24,6 +25,7 @@ from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_b
 from okid_ros.tools.campaign.engines import run_jobs
 from okid_ros.tools.campaign.lock import LEFTOVER_PREFIXES, campaign_lock, remove_leftovers
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
+from okid_ros.tools.campaign.moved import drop_replaced, journaled_elsewhere, take_moved
 from okid_ros.tools.campaign.stored import stored_result
 from okid_ros.tools.campaign.table import campaign_order, mode_rows, write_modes, write_summary
 from okid_ros.tools.campaign.worker import BagJob
@@ -172,13 +174,19 @@ def _run_locked(options: CampaignOptions, bags: list[Path], started: float) -> C
     results: dict[str, dict] = {}
     jobs: list[BagJob] = []
     fingerprints: dict[str, tuple[int, int]] = {}
+    given, replaced = {Manifest.key(bag) for bag in bags}, {}  # replaced: the entries of moved bags run again
     for bag in bags:
         fingerprints[str(bag)] = fingerprint = bag_fingerprint(bag)
         entry = None if options.force else manifest.lookup(bag, *fingerprint, params_hash)
         kept = None if entry is None else _reused(entry, out_dir, options.retry_failed, bag)
+        moved = None if entry is not None else journaled_elsewhere(manifest, bag, fingerprint, given)
+        if moved is not None and not options.force and moved.get("params_hash") == params_hash:
+            stored = _reused(moved, out_dir, options.retry_failed, bag)
+            kept = None if stored is None else take_moved(manifest, moved, stored, bag, fingerprint, out_dir)
         if kept is not None:
             results[str(bag)] = {**kept, "bag": str(bag), "reused": True}
         else:
+            replaced[str(bag)] = moved
             jobs.append(_job(options, bag, ss_topic))
     topics = input_topics(options.arx_values, options.est_values, options.namespace)
     bar = CampaignBar(jobs, topics, options.progress)
@@ -188,6 +196,8 @@ def _run_locked(options: CampaignOptions, bags: list[Path], started: float) -> C
         nonlocal failures
         if not result.get("transient"):
             manifest.record(Path(job.bag), *fingerprints[job.display], params_hash, result)
+            if replaced.get(job.display) is not None:
+                drop_replaced(manifest, replaced[job.display], out_dir, result)
         results[job.display] = {**result, "reused": False}
         failures += result["status"] == "failed"
         bar.done(job, result)

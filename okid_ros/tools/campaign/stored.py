@@ -16,7 +16,7 @@ from pathlib import Path
 
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME
 
-__all__ = ["result_problem", "stored_result"]
+__all__ = ["label_problem", "result_problem", "stored_result"]
 
 #: Fields of a stored result that are numbers (or null) when present.
 _NUMBERS = ("models", "samples", "input_messages", "duration_s", "start_s", "seconds")
@@ -33,7 +33,7 @@ def _finite(value: object) -> bool:
     return _number(value) and math.isfinite(value)
 
 
-def _label_problem(label: object) -> str:
+def label_problem(label: object) -> str:
     """Why ``label`` cannot name a folder under ``bags/`` ('' when it can)."""
     if not isinstance(label, str) or not label:
         return f"its label is {label!r}, not a folder name"
@@ -84,7 +84,7 @@ def result_problem(result: object, status: str) -> str:
         return f"not a JSON object but {type(result).__name__}"
     if result.get("status") != status:
         return f"its status is {result.get('status')!r}, the manifest says {status!r}"
-    problem = _label_problem(result.get("label"))
+    problem = label_problem(result.get("label"))
     if problem:
         return problem
     for name in _NUMBERS:
@@ -121,7 +121,7 @@ def stored_result(entry: dict, out_dir: Path, retry_failed: bool) -> tuple[dict 
             else ({**summary, "updates": []}, "")
     if status != "ok":
         return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag has the status {status!r}"
-    problem = _label_problem(entry.get("label"))
+    problem = label_problem(entry.get("label"))
     if problem:
         return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag is spoilt ({problem})"
     path = out_dir / "bags" / entry["label"] / "result.json"
