@@ -27,7 +27,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "every bag of the campaign, given this time or not (docs/batch.md). Exit status: 0 when every bag given "
         "is ok, 1 when one failed or was not run, 2 for a usage error.",
     )
-    parser.add_argument("paths", nargs="+", type=path_text,
+    parser.add_argument("paths", nargs="*", type=path_text,
                         metavar="BAG_OR_DIR", help="bags, or directories to search for bags")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="the nodes' parameter YAML (repeatable, later files override; default: the "
@@ -55,7 +55,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "(default: %(default)s)")
     parser.add_argument("--max-failures", type=positive_int, default=None, metavar="K",
                         help="stop after K bags failed (bags not started are reported skipped)")
-    parser.add_argument("--force", action="store_true", help="process every bag given again, even when unchanged")
+    parser.add_argument("--force", action="store_true", help="process every bag given again, even when unchanged; "
+                        "with --forget: remove the forgotten bags' outputs too")
+    parser.add_argument("--forget", nargs="+", type=path_text, default=None, metavar="BAG",
+                        help="take these bags (by path, name or output folder) out of the campaign --out: their "
+                        "journal lines removed and the tables rebuilt, no bag processed; their outputs under "
+                        "DIR/bags are kept unless --force is given")
     parser.add_argument("--retry-failed", action="store_true",
                         help="process again the unchanged bags that failed before (default: keep their failure)")
     parser.add_argument("--csv", action="store_true", help="also write DIR/modes.csv")
@@ -111,6 +116,20 @@ def local_workers(requested: int | None) -> int:
     return requested
 
 
+def _check_bags_given(args: argparse.Namespace) -> None:
+    """Refuse a run without bags to process, or with bags and --forget (which processes none)."""
+    from okid_ros.errors import OkidError
+
+    if args.forget is None:
+        if not args.paths:
+            raise OkidError("give the bags to process (BAG_OR_DIR...), or --forget BAG... --out DIR to take bags "
+                            "out of a campaign")
+    elif args.paths or args.plan:
+        extra = " ".join((["--plan"] if args.plan else []) + args.paths)
+        raise OkidError(f"--forget BAG... processes and plans no bag: {extra} cannot go with it (the bags to forget "
+                        "follow --forget)")
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -122,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
     namespace = args.namespace  # validated by its argparse type
     arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
                                                   strict=args.strict_params)
+    _check_bags_given(args)
     if args.plan:
         from okid_ros.tools.campaign.discovery import find_bags
         from okid_ros.tools.campaign.plan import format_plan, plan_campaign
@@ -139,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
         namespace=namespace, storage=args.storage, workers=local_workers(args.workers),
         scheduler=args.scheduler, scheduler_timeout_s=args.scheduler_timeout, force=args.force,
         retry_failed=args.retry_failed, max_failures=args.max_failures, csv=args.csv, progress=args.progress,
-        provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"})
+        provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"},
+        forget=args.forget or [])
     report = run_campaign(options)
     print_summary(report, options)
     return report.exit_status

@@ -14,6 +14,7 @@ Modules, one role each:
 - :mod:`~okid_ros.tools.campaign.runner`: the command's orchestration and its summary;
 - :mod:`~okid_ros.tools.campaign.moved`: a journaled bag given at a new path, its outputs and journal
   line moved with it;
+- :mod:`~okid_ros.tools.campaign.forget`: bags taken out of a campaign (``--forget``);
 - :mod:`~okid_ros.tools.campaign.lock`: one run at a time on a campaign directory, and the folders a
   killed run left;
 - :mod:`~okid_ros.tools.campaign.plot`: frequency and damping of every mode id over the campaign.

@@ -23,6 +23,7 @@ from okid_ros.errors import OkidError, OutputError
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
 from okid_ros.tools.campaign.engines import run_jobs
+from okid_ros.tools.campaign.forget import forget_entries, journaled_entries
 from okid_ros.tools.campaign.lock import LEFTOVER_PREFIXES, campaign_lock, remove_leftovers
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME, Manifest, parameters_hash
 from okid_ros.tools.campaign.moved import drop_replaced, journaled_elsewhere, take_moved
@@ -53,6 +54,8 @@ class CampaignOptions:
     csv: bool = False
     progress: bool | None = None
     provenance: dict = field(default_factory=dict)
+    #: Bags to take out of the campaign (``--forget``): none processed, the tables rebuilt without them.
+    forget: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -132,6 +135,8 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     """
     started = time.perf_counter()
     out_dir = options.out_dir
+    if options.forget:
+        return _forget(options, started)
     bags = find_bags(options.paths, exclude=out_dir)
     if not bags:
         raise OkidError(f"no bags found in {', '.join(map(str, options.paths))}")
@@ -141,6 +146,20 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
     with campaign_lock(out_dir) as locked:  # from the journal read to the tables written
         _start_campaign(out_dir, locked=locked)
         return _run_locked(options, bags, started)
+
+
+def _forget(options: CampaignOptions, started: float) -> CampaignReport:
+    """Take ``options.forget`` out of the campaign (campaign/forget.py) and rebuild its tables, under its lock."""
+    out_dir = options.out_dir
+    if not is_campaign_dir(out_dir):
+        raise OutputError(f"--out {out_dir}: not a campaign of okid-ros batch (no {MANIFEST_NAME}): no bag to forget")
+    params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
+                                  storage=options.storage)
+    with campaign_lock(out_dir) as locked:
+        _start_campaign(out_dir, locked=locked)
+        manifest = Manifest(out_dir)
+        forget_entries(manifest, journaled_entries(manifest, options.forget, out_dir), out_dir, remove=options.force)
+        return _finish(options, manifest, _kept_from_journal(manifest, [], {}, out_dir, params_hash), started)
 
 
 def _start_campaign(out_dir: Path, *, locked: bool) -> None:
