@@ -20,7 +20,9 @@ median of the samples beyond the window after less that before the step holds le
 :data:`PERSISTENCE` of it: an impact's ringing in a quiet record lies far beyond the record's
 usual mean differences, but dies out to the level before). A channel with more than
 :data:`MAX_SHIFTS` shifts is named as unusable and kept (a loose contact, a noisy channel: no
-level to keep).
+level to keep). A step within 150 samples of either end of the record is not looked for: the rule
+needs a window on its side and half a window of the level beyond the next, which tells a re-zero
+from an impact's ringing (docs/robustness.md, "A level shift at a record's ends").
 
 Each shift's sample is the one where the step best explains the channel's prediction errors
 around the peak (the channel's own AR fit, a matched filter of the step through it: ``d`` alone

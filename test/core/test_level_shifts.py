@@ -183,3 +183,18 @@ def test_output_only_identification_removes_a_shift() -> None:
         np.testing.assert_allclose([getattr(m, attribute) for m in model.modes],
                                    [getattr(m, attribute) for m in clean], rtol=1e-4)
     assert len(model.warnings) == 1 and model.warnings[0].startswith("output 2 changes level at sample 7000 by +3.0")
+
+
+@pytest.mark.parametrize("sample", [50, 140, 3610, 3700])
+def test_a_shift_within_150_samples_of_an_end_is_not_looked_for(paper_record, sample) -> None:
+    # The limit held (docs/robustness.md, "A level shift at a record's ends"): the rule needs a window
+    # of 100 on the step's side and half a window of the level beyond the next one, which tells a
+    # re-zero from an impact's ringing; none lies there. A step of 10 spreads is left as it is.
+    u, y = paper_record
+    shifted = _shifted(y, [(0, sample, 10.0)])
+    assert level_shifts(u, shifted).by_output == {} and level_shifts(u, shifted).unusable == {}
+    assert not [w for w in record_faults(u, shifted)[3] if "changes level" in w]
+    # 300 samples in, the same step is found at its sample (between 150 and 250 of the start it is
+    # placed up to 50 samples early or missed: the AR fit of the placement has no rows before it).
+    inward = 300 if sample < 1000 else y.shape[0] - 300
+    np.testing.assert_array_equal(level_shifts(u, _shifted(y, [(0, inward, 10.0)])).by_output[0][0], [inward])
