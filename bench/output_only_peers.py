@@ -33,7 +33,12 @@ def _okid(method: str):
     def run(y, dt, block_rows, max_states):
         from okid_ros.core.output_only import identify_output_only
 
-        model = identify_output_only(y, dt, method=method)
+        try:  # the threads `okid-ros identify` gives it (a tree before them: one)
+            from okid_ros.tools.cores import identify_workers
+            options = {"workers": identify_workers()}
+        except ImportError:
+            options = {}
+        model = identify_output_only(y, dt, method=method, **options)
         return [{"frequency_hz": m.frequency_hz, "damping_ratio": m.damping_ratio, "shape": m.shape,
                  "frequency_hz_std": m.frequency_hz_std, "damping_ratio_std": m.damping_ratio_std}
                 for m in model.modes]

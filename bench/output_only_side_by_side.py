@@ -6,7 +6,8 @@ records once and answers one call at a time with its CPU seconds (``time.process
 1 thread). The driver warms every worker up on every record, then calls them in turn, record
 by record, switching the order of the two trees every repeat, so that the machine's load falls
 on both alike. Printed per record group: the median CPU seconds per call of each, and the
-median and range of the per-call ratio new / base. Records: ``koma`` (the koma frame),
+median and range of the per-call ratio new / base; the same for the wall time (what a user
+waits: the new tree may use threads, :mod:`okid_ros.core.worker_threads`). Records: ``koma`` (the koma frame),
 ``subframe`` (the steel subframe's outputs), or a simulated case of
 :mod:`okid_bench.output_only_cases` with its seed, ``low-modes:0``. The peers' wrappers and
 block rows are those of ``bench/output_only.py``.
@@ -54,9 +55,9 @@ def _worker(tree: str, method: str) -> None:
             rows, _ = choose_block_rows(y, dt, n_references=reference_channels(y, 12).size, max_states=100)
             records[name] = (y, dt, rows)
         y, dt, rows = records[name]
-        started = time.process_time()
+        started, clock = time.process_time(), time.perf_counter()
         run_method(method, y, dt, rows, 100)
-        print(json.dumps({"cpu": time.process_time() - started}), flush=True)
+        print(json.dumps({"cpu": time.process_time() - started, "wall": time.perf_counter() - clock}), flush=True)
 
 
 def _start(tree: str, method: str) -> subprocess.Popen:
@@ -68,10 +69,10 @@ def _start(tree: str, method: str) -> subprocess.Popen:
     return process
 
 
-def _call(process: subprocess.Popen, record: str) -> float:
+def _call(process: subprocess.Popen, record: str) -> dict[str, float]:
     process.stdin.write(record + "\n")
     process.stdin.flush()
-    return json.loads(process.stdout.readline())["cpu"]
+    return json.loads(process.stdout.readline())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,16 +95,17 @@ def main(argv: list[str] | None = None) -> int:
     for record in records:
         for process in workers.values():
             _call(process, record)  # warm-up: the record loaded, the first call's imports
-    times: dict[str, list[float]] = {name: [] for name in workers}
+    times: dict[str, list[dict[str, float]]] = {name: [] for name in workers}
     for repeat in range(args.repeat):
         order = ["base", "new"] if repeat % 2 == 0 else ["new", "base"]
         for record in records:
             for name in order + (["koma"] if args.koma else []):
                 times[name].append(_call(workers[name], record))
-    ratios = [new / base for new, base in zip(times["new"], times["base"])]
-    text = ", ".join(f"{name} {statistics.median(values):.3f}" for name, values in times.items())
-    print(f"{args.records}: {text} s CPU per call (median of {len(ratios)}); new / base "
-          f"{statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})")
+    for clock, what in (("cpu", "CPU"), ("wall", "wall")):
+        ratios = [new[clock] / base[clock] for new, base in zip(times["new"], times["base"])]
+        text = ", ".join(f"{name} {statistics.median(t[clock] for t in values):.3f}" for name, values in times.items())
+        print(f"{args.records}: {text} s {what} per call (median of {len(ratios)}); new / base "
+              f"{statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})")
     for process in workers.values():
         process.stdin.close()
         process.wait()

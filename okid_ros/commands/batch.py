@@ -7,11 +7,10 @@ lives in :mod:`okid_ros.tools.campaign`.
 from __future__ import annotations
 
 import argparse
-import os
-from pathlib import Path
 
 from okid_ros.commands._args import add_progress_arguments, namespace, path_text, positive_finite_float, positive_int
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
+from okid_ros.tools.cores import usable_cores
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -69,30 +68,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     add_progress_arguments(parser)
     parser.set_defaults(func=run)
     return parser
-
-
-#: The cgroup v2 CPU limit of this process's container (``"max 100000"`` or ``"QUOTA PERIOD"``).
-CGROUP_CPU_MAX = Path("/sys/fs/cgroup/cpu.max")
-
-
-def usable_cores(*, cpu_max_path: Path = CGROUP_CPU_MAX) -> int:
-    """The cores this process may run on: its CPU affinity, within its container's CPU quota.
-
-    ``os.cpu_count()`` counts the host's cores, not those of a ``taskset``, a cpuset or a
-    container's ``--cpus`` limit. The quota is read here by hand: the libraries that read it
-    (dask.system, loky) are not dependencies of the command (dask is an optional extra).
-    """
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not Linux
-        cores = os.cpu_count() or 1
-    try:
-        quota, period = cpu_max_path.read_text().split()[:2]
-        if quota != "max":
-            cores = min(cores, max(1, int(int(quota) / int(period))))
-    except (OSError, ValueError, ZeroDivisionError):  # no cgroup v2, or a line not understood
-        pass
-    return max(1, cores)
 
 
 def local_workers(requested: int | None) -> int:

@@ -312,17 +312,19 @@ def _identify_output_only(record, args: argparse.Namespace, valid=None):
     Covariance-driven SSI: the paper's VAR route (``method="var"`` of the core) lost on every
     record of ``docs/benchmarks-output-only.md``, so it is not offered here. ``valid``: False at
     missing samples, filled first by a VAR's prediction as node 2 fills its window, and left out
-    of the output correlations.
+    of the output correlations. Its decompositions run in a thread per usable core (up to four;
+    the same model as one thread gives).
     """
     from okid_ros.core.gap_fill import fill_missing_outputs
     from okid_ros.core.output_only import identify_output_only
     from okid_ros.errors import DataError
+    from okid_ros.tools.cores import identify_workers
 
     try:
         y = record.y if valid is None else fill_missing_outputs(record.y, valid)
     except ValueError as exc:
         raise DataError(f"the missing samples cannot be filled: {exc}") from None
-    return identify_output_only(y, record.sample_time_s, offsets=args.offsets, valid=valid)
+    return identify_output_only(y, record.sample_time_s, offsets=args.offsets, valid=valid, workers=identify_workers())
 
 
 def _fit_line(fits: dict, *, output_only: bool) -> str:

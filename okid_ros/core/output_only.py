@@ -41,7 +41,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx_gram import arx_regressor_product
-from okid_ros.core.channels import column_peaks, group_scales
+from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.gap_fill import missing_mask
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
@@ -68,6 +68,8 @@ from okid_ros.core.output_only_modes import (
 )
 from okid_ros.core.output_only_support import (
     Jackknife,
+    check_channel_sizes,
+    check_output_only_options,
     match_clusters,
     output_only_diagram,
     prepare_outputs,
@@ -84,6 +86,7 @@ from okid_ros.core.stochastic_realization import (
     stochastic_markov_from_var,
 )
 from okid_ros.core.uncertainty import UncertaintyResult
+from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
 __all__ = ["OUTPUT_ONLY_METHODS", "identify_output_only"]
 
@@ -130,6 +133,7 @@ def identify_output_only(
     harmonics: str = "remove",
     low_band: bool = True,
     valid: np.ndarray | None = None,
+    workers: int = 1,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -152,6 +156,8 @@ def identify_output_only(
         need an unbroken record (spectrum, harmonics, gain, decimated band) use the filled
         values, the output correlations (ssi-cov) leave them out (a prediction lacks the
         innovation's spread and would bias them). None: every sample measured.
+    workers : threads for the orders' and the jackknife's decompositions (:mod:`.worker_threads`):
+        the same model for any number, sooner with more cores (``okid-ros identify``: every core).
 
     Returns
     -------
@@ -161,7 +167,8 @@ def identify_output_only(
     ------
     IdentificationError with a one-line reason.
     """
-    _check_options(method, harmonics, max_states=max_states, block_rows=block_rows, low_band=low_band)
+    check_output_only_options(method, harmonics, methods=OUTPUT_ONLY_METHODS, max_states=max_states,
+                              block_rows=block_rows, low_band=low_band, workers=workers)
     try:
         present = None if valid is None else missing_mask(valid, np.shape(y)[0])
     except ValueError as exc:
@@ -171,11 +178,24 @@ def identify_output_only(
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
     scales = group_scales(np.zeros((y.shape[0], 0)), y)
     y = y / scales.output
-    _check_channel_sizes(y)
+    check_channel_sizes(y)
     y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
     warnings += removed
-    chosen = _select_modes(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
-                           block_rows=block_rows, present=present)
+    with WorkerThreads(workers) as threads:
+        model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
+                            block_rows=block_rows, present=present, low_band=low_band, threads=threads,
+                            warnings=warnings)
+    model = restore_model(model, scales)
+    model.output_offset, model.warnings = offset, warnings
+    return model
+
+
+def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
+                present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str]
+                ) -> IdentifiedModel:
+    """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``)."""
+    chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
+                           threads=threads)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
     if method == "ssi-cov" and chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
@@ -194,10 +214,7 @@ def identify_output_only(
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
-            _select_modes(low, dt, method="ssi-cov", top=int(max_states or DEFAULT_MAX_STATES), block_rows=rows,
-                          once=False), dt))
-    model = restore_model(model, scales)
-    model.output_offset, model.warnings = offset, warnings
+            _select_modes(low, dt, method="ssi-cov", top=top, block_rows=rows, once=False, threads=threads), dt))
     return model
 
 
@@ -216,7 +233,8 @@ class _Selection:
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                  once: bool = True, present: np.ndarray | None = None) -> _Selection:
+                  once: bool = True, present: np.ndarray | None = None, threads: WorkerThreads = SERIAL
+                  ) -> _Selection:
     """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
 
     ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
@@ -234,14 +252,16 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = _usable_order(top, decomposition.max_states)
+    jackknife = None
+    if method == "ssi-cov" and correlations.segments.shape[0] >= 3:  # its replicates made beside the diagram
+        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis, threads=threads)
     realizer = OrderRealizer(decomposition, top)
+    realizer.decompose_orders(range(2, top + 1, 2), threads)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s, eigen=realizer.eigen)
     mark_stable(poles)
     modes, _ = cluster_modes(poles, keep_rejected=False)
-    jackknife = None
-    if method == "ssi-cov" and correlations.segments.shape[0] >= 3:
-        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis)
+    if jackknife is not None:
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
                                   dominance=partial(spectral_dominance, realizer, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
@@ -280,40 +300,6 @@ def _usable_order(top: int, hankel_rank: int) -> int:
     if top < 2:
         raise IdentificationError("the Hankel matrix has rank below 2: no mode can be identified")
     return top
-
-
-def _check_options(method: str, harmonics: str, *, max_states, block_rows, low_band) -> None:
-    """IdentificationError naming an unknown method or harmonics option, a bad count or a non-bool ``low_band``.
-
-    ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank below
-    2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
-    """
-    if method not in OUTPUT_ONLY_METHODS:
-        raise IdentificationError(f"output-only method must be one of {OUTPUT_ONLY_METHODS}, got {method!r}")
-    if harmonics not in ("remove", "keep"):
-        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
-    if low_band not in (True, False):
-        raise IdentificationError(f"low_band must be True or False, got {low_band!r}")
-    for name, value, why in (("max_states", max_states, "a mode takes two states"),
-                             ("block_rows", block_rows, "Hankel block rows")):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2):
-            raise IdentificationError(f"{name} must be an integer >= 2 ({why}) or None, got {value!r}")
-
-
-#: Largest channel size after the common scale: the Hankel's Gram holds fourth powers of the
-#: outputs, and 1e50 keeps them within float64.
-MAX_SCALED_OUTPUT = 1e50
-
-
-def _check_channel_sizes(y: np.ndarray) -> None:
-    """IdentificationError when the outputs (one common scale) span too many decades to correlate."""
-    peak = column_peaks(y)
-    if np.max(peak) > MAX_SCALED_OUTPUT:
-        sizes = ", ".join(f"{v:.1e}" for v in peak / np.min(peak))
-        raise IdentificationError(
-            f"the output channels differ too much in size (relative peaks {sizes}): output-only identification "
-            f"weighs each channel by its variance, and the correlations of channels so far apart leave float64; "
-            f"express them in comparable units")
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,

@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.channels import channel_mean, channel_std
+from okid_ros.core.channels import channel_mean, channel_std, column_peaks
 from okid_ros.core.excitation import output_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
@@ -18,8 +18,10 @@ from okid_ros.core.regressors import real_array
 from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
 from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
+from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
-__all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife", "spectral_dominance"]
+__all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife", "spectral_dominance",
+           "check_channel_sizes", "check_output_only_options"]
 
 #: Fewest samples per output channel and per Hankel lag worth identifying from.
 MIN_SAMPLES = 200
@@ -78,6 +80,43 @@ def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> li
     return [(complex(poles.eigenvalue[mode.members[n_model]]), mode) for mode in modes if n_model in mode.members]
 
 
+def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str, ...], max_states, block_rows,
+                              low_band, workers) -> None:
+    """IdentificationError naming an unknown method or harmonics option, a bad count or a non-bool ``low_band``.
+
+    ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank below
+    2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
+    """
+    if method not in methods:
+        raise IdentificationError(f"output-only method must be one of {methods}, got {method!r}")
+    if harmonics not in ("remove", "keep"):
+        raise IdentificationError(f"harmonics must be 'remove' or 'keep', got {harmonics!r}")
+    if low_band not in (True, False):
+        raise IdentificationError(f"low_band must be True or False, got {low_band!r}")
+    for name, value, least, why in (("max_states", max_states, 2, "a mode takes two states; or None"),
+                                    ("block_rows", block_rows, 2, "Hankel block rows; or None"),
+                                    ("workers", workers, 1, "threads")):
+        if (value is not None or name == "workers") and (
+                isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least):
+            raise IdentificationError(f"{name} must be an integer >= {least} ({why}), got {value!r}")
+
+
+#: Largest channel size after the common scale: the Hankel's Gram holds fourth powers of the
+#: outputs, and 1e50 keeps them within float64.
+MAX_SCALED_OUTPUT = 1e50
+
+
+def check_channel_sizes(y: np.ndarray) -> None:
+    """IdentificationError when the outputs (one common scale) span too many decades to correlate."""
+    peak = column_peaks(y)
+    if np.max(peak) > MAX_SCALED_OUTPUT:
+        sizes = ", ".join(f"{v:.1e}" for v in peak / np.min(peak))
+        raise IdentificationError(
+            f"the output channels differ too much in size (relative peaks {sizes}): output-only identification "
+            f"weighs each channel by its variance, and the correlations of channels so far apart leave float64; "
+            f"express them in comparable units")
+
+
 def output_only_diagram(poles: PoleSet) -> list[StabilizationOrder]:
     """The stabilization diagram in the project's structure (a stable pole meets all criteria)."""
     diagram = []
@@ -108,15 +147,25 @@ class Jackknife:
         by :data:`~.mode_jackknife.ITERATIONS` block power iterations from them where that is
         cheaper (:func:`.stochastic_realization.covariance_decomposition`). None: each
         replicate's decomposed from scratch.
+    threads : the replicates are decomposed, and their poles read, side by side in these
+        (:mod:`.worker_threads`; the same values for any number).
     """
 
     def __init__(self, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
-                 max_states: int, *, start: np.ndarray | None = None) -> None:
-        self.realizers = []
-        for j in range(correlations.segments.shape[0]):
+                 max_states: int, *, start: np.ndarray | None = None, threads: WorkerThreads = SERIAL) -> None:
+        def replicate(j: int) -> OrderRealizer:
             decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states,
                                                      start=start, iterations=ITERATIONS)
-            self.realizers.append(OrderRealizer(decomposition, min(max_states, decomposition.max_states)))
+            return OrderRealizer(decomposition, min(max_states, decomposition.max_states))
+
+        # Started now, read when a mode is screened: the caller's diagram is made meanwhile.
+        self._threads = threads
+        self._replicates = [threads.submit(replicate, j) for j in range(correlations.segments.shape[0])]
+
+    @property
+    def realizers(self) -> list[OrderRealizer]:
+        """The replicates' realizers, one per left-out segment (waited for on first use)."""
+        return [future.result() for future in self._replicates]
 
     def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Standard deviations ``(frequency_hz_std, damping_ratio_std)``, (M,) each.
@@ -127,8 +176,8 @@ class Jackknife:
         n_seg = len(self.realizers)
         freqs = np.empty((n_seg, targets.size))
         damps = np.empty((n_seg, targets.size))
-        for j, realizer in enumerate(self.realizers):
-            eigenvalues = realizer.eigenvalues(min(n_model, realizer.max_states))
+        values = self._threads.map(lambda r: r.eigenvalues(min(n_model, r.max_states)), self.realizers)
+        for j, eigenvalues in enumerate(values):
             freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
         return jackknife_std(freqs), jackknife_std(damps)
 
@@ -153,15 +202,19 @@ class Jackknife:
         -------
         ``(frequency_hz_std, damping_ratio_std)`` floats, or None when scattered.
         """
-        n_seg = len(self.realizers)
+        realizers = self.realizers
+        n_seg, chunk = len(realizers), self._threads.workers
         read = np.empty((n_seg, 2))
-        for j, realizer in enumerate(self.realizers):
-            eigenvalues = realizer.eigenvalues(min(n_model, realizer.max_states))
-            read[j] = [v[0] for v in nearest_modes(eigenvalues, np.array([target]), sample_time_s)]
-            # A NaN bound (a replicate without a complex pole) never passes: read on, as std() would.
-            bound = np.sqrt((n_seg - 1) / n_seg * np.sum((read[: j + 1] - read[: j + 1].mean(axis=0)) ** 2, axis=0))
-            if scattered(*(bound / (1.0 + 1e-9))):
-                return None
+        for first in range(0, n_seg, chunk):  # as many replicates at a time as there are threads
+            values = self._threads.map(lambda r: r.eigenvalues(min(n_model, r.max_states)),
+                                       realizers[first:first + chunk])
+            for j, eigenvalues in enumerate(values, first):
+                read[j] = [v[0] for v in nearest_modes(eigenvalues, np.array([target]), sample_time_s)]
+                # A NaN bound (a replicate without a complex pole) never passes: read on, as std() would.
+                bound = np.sqrt((n_seg - 1) / n_seg * np.sum((read[: j + 1] - read[: j + 1].mean(axis=0)) ** 2,
+                                                              axis=0))
+                if scattered(*(bound / (1.0 + 1e-9))):
+                    return None
         f_std, z_std = self.std(np.array([target]), n_model, sample_time_s)  # the eigenvalues are kept
         return None if scattered(f_std[0], z_std[0]) else (float(f_std[0]), float(z_std[0]))
 

@@ -20,6 +20,7 @@ Two sequences of "free responses" are realized by the same ERA (:mod:`okid_ros.c
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +30,7 @@ from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
 from okid_ros.core.era import HankelDecomposition, decompose_hankel
 from okid_ros.core.symmetric_eigen import SymmetricEigen
+from okid_ros.core.worker_threads import WorkerThreads
 
 __all__ = [
     "CovarianceDecomposition",
@@ -147,6 +149,12 @@ class OrderRealizer:
         if n_states not in self._eigen:
             self._eigen[n_states] = np.linalg.eig(self._state_matrix(n_states))
         return self._eigen[n_states]
+
+    def decompose_orders(self, orders: Iterable[int], threads: WorkerThreads) -> None:
+        """Make :meth:`eigen`'s decompositions of ``orders`` now, side by side in ``threads``."""
+        missing = [int(n) for n in orders if n not in self._eigen]
+        for n, pair in zip(missing, threads.map(lambda n: np.linalg.eig(self._state_matrix(n)), missing)):
+            self._eigen[n] = pair
 
     def eigenvalues(self, n_states: int) -> np.ndarray:
         """Eigenvalues (n,) of ``A`` of order n (those of :meth:`eigen` when it was asked for)."""

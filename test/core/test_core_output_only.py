@@ -309,6 +309,9 @@ def test_a_mask_of_missing_samples_must_fit_the_record() -> None:
     ({"max_states": "20"}, "max_states must be an integer >= 2"),  # was parsed
     ({"block_rows": 20.5}, "block_rows must be an integer >= 2"),  # was cut to 20
     ({"low_band": "no"}, "low_band must be True or False"),  # was taken as True
+    ({"workers": 0}, "workers must be an integer >= 1"),
+    ({"workers": 2.0}, "workers must be an integer >= 1"),
+    ({"workers": None}, "workers must be an integer >= 1"),
     ({"valid": np.zeros(3000, bool)}, "too few measured samples for output-only identification: 0 of the 3000"),
     ({"valid": np.arange(3000) < 150}, "150 of the 3000"),  # both were NaN correlations, a ValueError
 ])

@@ -261,6 +261,7 @@ def test_random_records_whose_mode_was_listed_twice_list_only_true_modes(index: 
 def test_the_screened_jackknife_stops_reading_replicates_once_a_pole_is_scattered() -> None:
     """``Jackknife.screened_std``: the values of ``std`` when not scattered, None when scattered, read lazily."""
     from okid_ros.core.output_only_support import Jackknife
+    from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
     dt, read = 1e-3, []
 
@@ -273,9 +274,10 @@ def test_the_screened_jackknife_stops_reading_replicates_once_a_pole_is_scattere
             s = 2 * np.pi * (10.0 + self.offset_hz) * (-0.01 + 1j)
             return np.exp(np.array([s, np.conj(s)]) * dt)
 
-    def jackknife(offsets_hz) -> Jackknife:
+    def jackknife(offsets_hz, threads: WorkerThreads = SERIAL) -> Jackknife:
         made = Jackknife.__new__(Jackknife)
-        made.realizers = [Replicate(j, f) for j, f in enumerate(offsets_hz)]
+        made._threads = threads
+        made._replicates = [SERIAL.submit(Replicate, j, f) for j, f in enumerate(offsets_hz)]
         return made
 
     target = np.exp(2 * np.pi * 10.0 * (-0.01 + 1j) * dt)
@@ -292,6 +294,13 @@ def test_the_screened_jackknife_stops_reading_replicates_once_a_pole_is_scattere
     read.clear()
     assert noisy.screened_std(target, 10, dt, scattered=scattered) is None
     assert read == [0, 1]  # the second replicate decides: the other six are not realized
+    with WorkerThreads(2) as threads:  # two at a time: the same answer, the pair holding the decision read
+        read.clear()
+        assert jackknife([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], threads).screened_std(
+            target, 10, dt, scattered=scattered) is None
+        assert sorted(read) == [0, 1, 2, 3]
+        assert jackknife(0.01 * np.sin(np.arange(8)), threads).screened_std(
+            target, 10, dt, scattered=scattered) == (f_std[0], z_std[0])
 
 
 def test_the_labels_that_can_hold_a_mode_are_those_spanning_enough_orders() -> None:
