@@ -50,6 +50,7 @@ from std_srvs.srv import SetBool, Trigger
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.audit import log_calls
 from okid_ros.nodes.common import (
+    SIM_TIME_WITHOUT_CLOCK,
     DiagnosticsPublisher,
     check_parameter_files,
     declare_parameters,
@@ -264,13 +265,14 @@ class OkidNode(Node):
         The node clock then stands at 0 and every timer on it stops (node 1's ArxModel, the
         diagnostics, the staleness check, node 2's idle timer): the node fell silent with the
         change answered ``successful`` and nothing said. rclpy takes the change as it should (a
-        replay's /clock may come later), so it is told, not refused.
+        replay's /clock may come later), so it is told, not refused. Given at the start, the input
+        frontend tells it once samples arrive with the clock still at 0
+        (:meth:`~okid_ros.nodes.input_frontend.InputFrontend.note_clock_at_zero`).
         """
         if self.count_publishers("/clock") == 0:
-            self.get_logger().warning(
-                "use_sim_time set to true, but nothing publishes /clock: the node clock stands still, "
-                "and with it this node's timers (its outputs on a rate, the diagnostics) until /clock comes "
-                "(e.g. okid-ros replay --clock); set use_sim_time false to run on the system clock")
+            self.get_logger().warning(SIM_TIME_WITHOUT_CLOCK)
+            if self.inputs is not None:
+                self.inputs.sim_clock_told = True  # not said again when samples come with the clock at 0
 
     # ------------------------------------------------------------------ diagnostics
     def off_sample_path(self, work: Callable[[], None]) -> None:
