@@ -48,10 +48,8 @@ Checks before a model is accepted (otherwise the current one is kept, with the r
 - the realization succeeded, ``A`` is stable (spectral radius < 1), so is its one-step
   predictor ``A - A K C``, the innovation covariance is positive definite, and it has a
   physical mode;
-- modes are not lost: at least ``min_matched_fraction`` of the current model's modes are found
-  again (frequency within ``max_frequency_change``, MAC >= ``min_mac``, by
-  :func:`okid_ros.core.modal.match_modes`). After ``max_consecutive_rejections`` models
-  rejected in a row for lost modes, the next stable one is accepted (the structure changed).
+- modes are not lost (:mod:`~okid_ros.service.model_switch`): ``min_matched_fraction`` of the current
+  model's modes found again; after ``max_consecutive_rejections`` such rejections the next stable one is taken.
 
 Mode ids are persistent: a mode matched to one seen in the last ``mode_memory`` accepted
 models keeps its id (and ``mac_previous`` is its MAC to it); other modes get fresh ids.
@@ -95,7 +93,7 @@ from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
-from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
+from okid_ros.service.options import MAX_ARX_LEAD_S, MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     JOB_GENERATIONS,
@@ -217,9 +215,8 @@ class ModalEstimationService:
         A fit whose window ends where the last taken or the waiting one ends (node 1
         republishing an unchanged window, e.g. while the inputs are silent) is ignored.
         """
-        st = self._stats
+        st, prm = self._stats, self.params
         st.arx_received += 1
-        prm = self.params
         if not self.enabled:
             return False
         if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
@@ -228,6 +225,10 @@ class ModalEstimationService:
             return False
         if not math.isfinite(stamp_end_s):
             st.refuse_arx(RefusedArx.STAMP, "ARX model without a stamp")
+            return False
+        if stamp_end_s > (newest := self._buffer.newest_stamp()) + MAX_ARX_LEAD_S:  # none buffered: nan, False
+            st.refuse_arx(RefusedArx.FUTURE, f"ARX window ends at {stamp_end_s:.3f} s, more than MAX_ARX_LEAD_S "
+                          f"{MAX_ARX_LEAD_S:g} s after the newest sample here ({newest:.3f} s)")
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):

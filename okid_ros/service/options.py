@@ -38,6 +38,11 @@ __all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_ch
 #: Samples :meth:`~okid_ros.service.estimation.ModalEstimationService.follow` leaves to the
 #: switch on the sample path (not a parameter).
 HANDOVER_SAMPLES = 4
+#: How far after node 2's newest sample an ArxModel's window may end [s]. Node 2's samples may lag
+#: node 1's by its input queue (``inputs.queue_depth`` 1000 messages: 8 s at 125 Hz) on a loaded
+#: machine; a window ending further ahead is of a stream node 2 does not get (a forged or foreign
+#: stamp) and held the realization waiting for its end sample until node 1's next model replaced it.
+MAX_ARX_LEAD_S = 60.0
 #: The most samples node 2 buffers, the limit of ``estimator.buffer_length``; with 0 (the
 #: buffer follows the ARX window an ArxModel claims) the buffer grows no further.
 MAX_BUFFER_SAMPLES = int(option_specs(ESTIMATOR_NODE)["buffer_length"].high)

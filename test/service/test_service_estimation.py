@@ -14,6 +14,7 @@ import pytest
 from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+from okid_ros.service.options import MAX_ARX_LEAD_S
 from okid_ros.sim import lowpass_input, modal_structure, paper_model, paper_modes, simulate, simulate_innovation
 
 Q, W, EVERY, N = 40, 2000, 250, 4500
@@ -210,6 +211,25 @@ def test_requests_wait_for_the_window_end_and_are_checked(pipeline):
     wrong = dataclasses.replace(fit, n_inputs=1)
     assert not est.submit_arx(wrong, 2.0, 2, W)
     assert est.diagnostics()["arx_models_refused"] == 2
+
+
+def test_a_window_ending_far_after_the_newest_sample_is_refused_with_its_reason(pipeline):
+    # A stamp 1e6 s ahead (forged, or of another clock) held the request: take_job waited for an
+    # end sample that never comes until node 1's next model replaced it.
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    assert est.submit_arx(fit, 1e6, 1, W)  # nothing buffered yet: no newest sample to judge it by, it waits
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    newest = 99 * 0.008
+    assert not est.submit_arx(fit, newest + 1e6, 2, W)
+    assert not est.submit_arx(fit, newest + MAX_ARX_LEAD_S + 0.1, 3, W)
+    d = est.diagnostics()
+    assert d["arx_models_refused"] == 2 and d["arx_models_replaced"] == 0, d
+    assert d["arx_models_refused_why"].startswith("2 whose window ends far after node 2's newest sample"), d
+    assert "more than MAX_ARX_LEAD_S 60 s after the newest sample here (0.792 s)" in d["last_reason"], d
+    assert est.submit_arx(fit, newest + MAX_ARX_LEAD_S - 0.1, 4, W)  # node 2 lagging node 1: it waits
+    assert est.has_request and est.take_job() is None
 
 
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
