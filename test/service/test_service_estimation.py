@@ -472,3 +472,31 @@ def test_a_new_service_never_takes_the_outcome_of_its_predecessors_job():
     assert new.diagnostics()["model_id"] == 0
     old.deliver(outcome)  # its own service takes it
     assert old.step(T0 + n * dt, u[0], y[0]) is not None and old.diagnostics()["model_id"] == 1
+
+
+def test_an_outcome_of_a_replaced_service_is_dropped_before_its_warm_start_goes_on():
+    # Node 2 follows each outcome (its warm start continued over the samples buffered since its
+    # window) before deliver: one of the service a lifecycle cleanup replaced was continued over
+    # the new service's buffer, of other samples, and its estimator built, then dropped.
+    model = paper_model()
+    dt, n = model.sample_time_s, 2600
+    u = lowpass_input(n, 2, 50.0, dt, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    params = ModalEstimationParams(dt, 2, 2, n_states=6)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
+    old = ModalEstimationService(params)
+    for k in range(n):
+        ident.push(T0 + k * dt, u[k], y[k])
+        old.step(T0 + k * dt, u[k], y[k])
+    snap = ident.snapshot()
+    assert old.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    outcome = realization.realize(old.take_job())
+    assert outcome.model is not None and outcome.estimator is None
+    new = ModalEstimationService(params)  # cleanup, configure
+    for k in range(500):
+        new.step(T0 + (n + k) * dt, u[k], y[k])
+    assert new.follow(outcome) is outcome  # as realized: nothing run over the new buffer
+    followed = old.follow(outcome)  # its own service's: followed
+    assert followed is not outcome and followed.estimator is not None
+    old.reset()
+    assert old.follow(outcome) is outcome  # taken before a reset: stale as well
