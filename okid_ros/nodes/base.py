@@ -23,7 +23,7 @@ Managed (``managed=True``, :func:`okid_ros.nodes.lifecycle.managed_node_class`; 
 node is an ``rclpy.lifecycle`` node: the constructor declares the parameters only, *configure*
 builds, *activate* starts the identification and the publishing, *deactivate* stops both
 (samples are dropped, nothing is published, the services still answer), *cleanup* destroys
-what configure built, *shutdown* does the same from any state.
+what configure built, *shutdown* does the same from any state and ends the process.
 
 Split by concern: this module is the node base; :mod:`okid_ros.nodes.lifecycle` its managed
 variant, :mod:`okid_ros.nodes.input_thread` the thread that serves its inputs,
@@ -93,6 +93,7 @@ class OkidNode(Node):
         self._diagnostics_timer = None
         self._built_entities: tuple | None = None
         self.active = False
+        self.finalized = False  # the lifecycle shutdown ran: the process ends (nodes/runner.py)
         self.time_jump_resets = 0
         # Held by the input thread while it handles samples and by the callbacks that change
         # the node's state (services, parameters, lifecycle, the nodes' own subscriptions and
