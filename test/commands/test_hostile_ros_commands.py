@@ -10,6 +10,7 @@ an invalid ``--topic``. ROS_DOMAIN_ID is this session's (conftest.py).
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 import time
@@ -21,9 +22,11 @@ from okid_ros import cli
 from okid_ros.tools.errors import ToolParameterError
 from okid_ros.tools.monitor import MAX_WINDOW_SAMPLES, ModalStatesView
 from okid_ros.tools.replay import BagPlayer
+from okid_ros.tools.ros_domain import installed_rmw_implementations, rmw_implementation
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
 
 HUGE = "99999999999999999999"  # beyond 64 bits
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def usage_error(capsys, argv: list[str]) -> str:
@@ -278,3 +281,38 @@ def test_a_ros_domain_id_ros_cannot_use_is_one_line_before_anything_starts(capsy
     line = one_line_error(capsys, [a.format(tmp=tmp_path) for a in argv])
     assert said in line, line
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("argv", [["monitor", "--no-ansi", "--once", "--duration", "0.3"],
+                                  ["info", "--selftest", "--timeout", "0.3"],
+                                  ["up", "--params", str(REPO_ROOT / "config" / "okid.yaml")],
+                                  ["demo", "--duration", "1", "--out-dir", "{tmp}/runs"],
+                                  ["replay", "{tmp}/bag"],
+                                  ["record", "{tmp}/out", "--duration", "0.3"]])
+def test_an_rmw_implementation_not_installed_is_one_line_before_rclpy_loads(tmp_path, argv):
+    """Checked before rclpy loads, whose rcl ended the process at once (`tools/ros_domain.py`).
+
+    Was: rcl's "Expected RMW implementation identifier of 'rmw_bogus' but instead found 'rmw_fastrtps_cpp',
+    exiting with 102." and status 102 (a process of its own here: it would end pytest's).
+    """
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_bogus"}
+    done = subprocess.run([sys.executable, "-m", "okid_ros.cli", *[a.format(tmp=tmp_path) for a in argv]], env=env,
+                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr)
+    installed, _ = installed_rmw_implementations()
+    assert lines[0] == (f"okid-ros {argv[0]}: error: RMW_IMPLEMENTATION='rmw_bogus' is not installed (installed: "
+                        f"{', '.join(installed)}): set one of those, or unset it for the default"), lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no run folder, no bag
+
+
+def test_an_rmw_implementation_is_known_by_the_ament_index_or_its_library(tmp_path):
+    installed, _ = installed_rmw_implementations()
+    assert installed and "rmw_implementation" not in installed  # the dispatcher is none
+    assert rmw_implementation({"RMW_IMPLEMENTATION": installed[0]}) == installed[0]
+    assert rmw_implementation({"RMW_IMPLEMENTATION": ""}) is None and rmw_implementation({}) is None
+    (tmp_path / "librmw_elsewhere.so").write_bytes(b"")  # installed outside the index (LD_LIBRARY_PATH)
+    env = {"RMW_IMPLEMENTATION": "rmw_elsewhere", "LD_LIBRARY_PATH": str(tmp_path)}
+    assert rmw_implementation(env) == "rmw_elsewhere"
+    with pytest.raises(ToolParameterError, match="RMW_IMPLEMENTATION='rmw_elsewhere' is not installed"):
+        rmw_implementation({"RMW_IMPLEMENTATION": "rmw_elsewhere"})
