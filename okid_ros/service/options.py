@@ -16,6 +16,7 @@ True
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
@@ -116,6 +117,24 @@ class ArxIdentificationParams:
         if problem:
             raise ParameterError(problem)
         return params
+
+    def first_model_samples(self) -> float:
+        """Samples node 1 takes in before its first valid model: ``min_window_fill`` of its window, plus ``order``.
+
+        With forgetting (``window_length`` 0) the window's fill after n rows is 1 - lambda^n (1 from the
+        first row on without forgetting, :class:`~okid_ros.core.recursive.SlidingWindowArx`); inf when the
+        fill asked for is never reached.
+        """
+        fill, lam = self.min_window_fill, self.forgetting_factor
+        if self.window_length > 0:
+            rows = math.ceil(fill * self.window_length)
+        elif lam >= 1.0:
+            rows = 1
+        elif fill >= 1.0:
+            return math.inf
+        else:
+            rows = math.ceil(math.log1p(-fill) / math.log(lam))
+        return max(rows, 1) + self.order  # a solve needs a row; each row its order lags before it
 
     def size_problem(self) -> str:
         """Why the regressor of ``order`` is too long for the window or the live update, or ""."""
