@@ -29,7 +29,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="length of the simulated experiment (default: 60 s, with --output-only 90 s; with "
                         "config/okid.yaml the first model needs about 17 s, output-only about 30 s)")
-    parser.add_argument("--rate", type=float, default=1.0, metavar="X", help="replay speed (default: %(default)s)")
+    parser.add_argument("--rate", type=float, default=1.0, metavar="X",
+                        help="replay speed, 0.1 to 5 times real time (default: %(default)s)")
     parser.add_argument("--params", action="append", default=None, metavar="FILE",
                         help="the nodes' parameter file, repeatable, later files win (default: config/okid.yaml, "
                         "or config/okid_imu_wrench.yaml with --sensors)")
@@ -53,8 +54,6 @@ def run(args: argparse.Namespace) -> int:
     duration = args.duration if args.duration is not None else (90.0 if args.output_only else 60.0)
     if not duration > 0:
         raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration}")
-    if not args.rate > 0:
-        raise ToolParameterError(f"--rate must be positive, got {args.rate}")
     if args.output_only and args.sensors:
         raise ToolParameterError("--output-only and --sensors exclude each other (output-only has Imu topics only)")
     result = run_demo(args.out_dir, duration_s=duration, rate=args.rate, params=args.params,

@@ -23,7 +23,7 @@ Managed (``managed=True``, :func:`okid_ros.nodes.lifecycle.managed_node_class`; 
 node is an ``rclpy.lifecycle`` node: the constructor declares the parameters only, *configure*
 builds, *activate* starts the identification and the publishing, *deactivate* stops both
 (samples are dropped, nothing is published, the services still answer), *cleanup* destroys
-what configure built, *shutdown* does the same from any state.
+what configure built, *shutdown* does the same from any state and ends the process.
 
 Split by concern: this module is the node base; :mod:`okid_ros.nodes.lifecycle` its managed
 variant, :mod:`okid_ros.nodes.input_thread` the thread that serves its inputs,
@@ -50,6 +50,7 @@ from std_srvs.srv import SetBool, Trigger
 from okid_ros.errors import ParameterError
 from okid_ros.nodes.audit import log_calls
 from okid_ros.nodes.common import (
+    SIM_TIME_WITHOUT_CLOCK,
     DiagnosticsPublisher,
     check_parameter_files,
     declare_parameters,
@@ -92,6 +93,7 @@ class OkidNode(Node):
         self._diagnostics_timer = None
         self._built_entities: tuple | None = None
         self.active = False
+        self.finalized = False  # the lifecycle shutdown ran: the process ends (nodes/runner.py)
         self.time_jump_resets = 0
         # Held by the input thread while it handles samples and by the callbacks that change
         # the node's state (services, parameters, lifecycle, the nodes' own subscriptions and
@@ -264,13 +266,14 @@ class OkidNode(Node):
         The node clock then stands at 0 and every timer on it stops (node 1's ArxModel, the
         diagnostics, the staleness check, node 2's idle timer): the node fell silent with the
         change answered ``successful`` and nothing said. rclpy takes the change as it should (a
-        replay's /clock may come later), so it is told, not refused.
+        replay's /clock may come later), so it is told, not refused. Given at the start, the input
+        frontend tells it once samples arrive with the clock still at 0
+        (:meth:`~okid_ros.nodes.input_frontend.InputFrontend.note_clock_at_zero`).
         """
         if self.count_publishers("/clock") == 0:
-            self.get_logger().warning(
-                "use_sim_time set to true, but nothing publishes /clock: the node clock stands still, "
-                "and with it this node's timers (its outputs on a rate, the diagnostics) until /clock comes "
-                "(e.g. okid-ros replay --clock); set use_sim_time false to run on the system clock")
+            self.get_logger().warning(SIM_TIME_WITHOUT_CLOCK)
+            if self.inputs is not None:
+                self.inputs.sim_clock_told = True  # not said again when samples come with the clock at 0
 
     # ------------------------------------------------------------------ diagnostics
     def off_sample_path(self, work: Callable[[], None]) -> None:

@@ -33,9 +33,22 @@ __all__ = [
     "DiagnosticsPublisher",
     "reliable_qos",
     "sensor_qos",
+    "SIM_CLOCK_SILENCE_S",
+    "SIM_TIME_WITHOUT_CLOCK",
 ]
 
 _INT64_MAX = 2**63 - 1
+
+#: What a node says when ``use_sim_time`` is true and nothing publishes /clock (switched on at run
+#: time, or given at the start with samples arriving and the node clock still at 0).
+SIM_TIME_WITHOUT_CLOCK = (
+    "use_sim_time set to true, but nothing publishes /clock: the node clock stands still, "
+    "and with it this node's timers (its outputs on a rate, the diagnostics) until /clock comes "
+    "(e.g. okid-ros replay --clock); set use_sim_time false to run on the system clock")
+#: How long samples may arrive while the node clock stands at 0 (``use_sim_time``, no /clock message
+#: yet) before :data:`SIM_TIME_WITHOUT_CLOCK` is said [s]: a replay publishes /clock from its first
+#: message on, so a clock still at 0 seconds after the samples started is not coming by itself.
+SIM_CLOCK_SILENCE_S = 3.0
 
 
 def name_thread(name: str) -> None:

@@ -15,7 +15,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from okid_ros.nodes.common import make_status, sensor_qos
+from okid_ros.nodes.common import SIM_CLOCK_SILENCE_S, SIM_TIME_WITHOUT_CLOCK, make_status, sensor_qos
 from okid_ros.nodes.conversions import source_values
 from okid_ros.nodes.raw_inputs import message_class, raw_reader
 from okid_ros.service.inputs import sources_and_grid, time_jump_note
@@ -44,6 +44,10 @@ class InputFrontend:
         self.stale_timeout_ns = int(float(values["inputs.stale_timeout_s"]) * 1e9)
         self.on_sample = on_sample
         self._clock = node.get_clock()
+        # use_sim_time given at the start with nothing on /clock: the node clock stands at 0 and
+        # the node's timers with it, so the node fell silent with nothing said (note_clock_at_zero).
+        self.sim_clock_told = False
+        self._clock_at_zero_since: float | None = None
         n = len(self.specs)
         self.last_arrival_ns: list[int | None] = [None] * n
         self.stale = [False] * n
@@ -122,12 +126,29 @@ class InputFrontend:
 
     def _accept(self, index: int, stamp: float | None, values: Any, now_ns: int) -> None:
         """One message's stamp (None: none, stamped ``now_ns``, its arrival) and values onto the grid."""
+        if not now_ns:
+            self.note_clock_at_zero()
         self.last_arrival_ns[index] = now_ns
         self._counts[index] += 1
         if stamp is None:
             stamp = now_ns * 1e-9
         for sample in self.grid.add(index, stamp, values):
             self.on_sample(sample)
+
+    def note_clock_at_zero(self) -> None:
+        """A message arrived with the node clock at 0 (``use_sim_time``, nothing on /clock yet): told once.
+
+        Said when messages have kept arriving so for :data:`~okid_ros.nodes.common.SIM_CLOCK_SILENCE_S`
+        (the monotonic clock; the node clock stands still), unless it was said already.
+        """
+        if self.sim_clock_told:
+            return
+        now_s = time.monotonic()
+        if self._clock_at_zero_since is None:
+            self._clock_at_zero_since = now_s
+        elif now_s - self._clock_at_zero_since >= SIM_CLOCK_SILENCE_S:
+            self.sim_clock_told = True
+            self.node.get_logger().warning(SIM_TIME_WITHOUT_CLOCK)
 
     def reset(self) -> None:
         self.grid.reset()

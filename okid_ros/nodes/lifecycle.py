@@ -2,7 +2,8 @@
 
 *configure* builds, *activate* starts the identification and the publishing, *deactivate*
 stops both (samples are dropped, nothing is published, the services still answer), *cleanup*
-destroys what configure built, *shutdown* does the same from any state.
+destroys what configure built, *shutdown* does the same from any state and ends the process
+(:func:`~okid_ros.nodes.runner.run_node` returns 0 once the transition is answered).
 """
 
 from __future__ import annotations
@@ -71,6 +72,8 @@ def managed_node_class(cls: type[OkidNode]) -> type:
 
         def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
             self.teardown()
+            self.finalized = True  # run_node ends the process (exit 0) once this transition is answered
+            self.get_logger().info("shut down (finalized): the process ends")
             return TransitionCallbackReturn.SUCCESS
 
         def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -20,7 +20,7 @@ __all__ = ["run_node"]
 
 
 def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None = None) -> int:
-    """Create the node, spin until Ctrl-C / SIGTERM / shutdown; 2 if the parameters are invalid.
+    """Create the node, spin until Ctrl-C / SIGTERM / the lifecycle shutdown (0); 2 if the parameters are invalid.
 
     Options before ``--ros-args``: ``--lifecycle`` runs the node as a managed node
     (:func:`managed_node_class`), configured and activated at once unless
@@ -70,7 +70,10 @@ def run_node(factory: Callable[..., Node], name: str, args: Sequence[str] | None
         executor.add_node(node)
         if input_thread is not None:
             input_thread.start()
-        executor.spin()
+        # Until the lifecycle shutdown has finalized the node (its answer sent by the spin_once that
+        # ran it): a finalized node can do nothing more, and its process lived on until killed.
+        while executor.context.ok() and not node.finalized:
+            executor.spin_once()
         return 0
     except ParameterError as exc:
         print(f"[{name}] error: {exc}", file=sys.stderr, flush=True)

@@ -45,34 +45,29 @@ between two samples.
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
 :meth:`diagnostics`, naming the check):
 
-- the realization succeeded, ``A`` is stable (spectral radius < 1), so is its one-step
-  predictor ``A - A K C``, the innovation covariance is positive definite, and it has a
-  physical mode;
-- modes are not lost: at least ``min_matched_fraction`` of the current model's modes are found
-  again (frequency within ``max_frequency_change``, MAC >= ``min_mac``, by
-  :func:`okid_ros.core.modal.match_modes`). After ``max_consecutive_rejections`` models
-  rejected in a row for lost modes, the next stable one is accepted (the structure changed).
+- the realization succeeded, ``A`` is stable (spectral radius < 1), so is its one-step predictor
+  ``A - A K C``, the innovation covariance is positive definite, and it has a physical mode;
+- modes are not lost (:mod:`~okid_ros.service.model_switch`): ``min_matched_fraction`` of the current
+  model's modes found again; after ``max_consecutive_rejections`` such rejections the next stable one is taken.
 
 Mode ids are persistent: a mode matched to one seen in the last ``mode_memory`` accepted
 models keeps its id (and ``mac_previous`` is its MAC to it); other modes get fresh ids.
 
-No jump at a model switch: the new estimator starts from the state its own predictor reaches
-over the buffered samples (not from zero), and the normalized modal form of
-:mod:`okid_ros.core.modal` fixes each mode's coordinates up to the identification error, so
-matched modes continue smoothly. The size of the step at each switch relative to the modes'
-RMS amplitude is measured and reported (``last_switch_jump``).
+No jump at a model switch: the new estimator starts from the state its own predictor reaches over the
+buffered samples (not from zero), and the normalized modal form of :mod:`okid_ros.core.modal` fixes each
+mode's coordinates up to the identification error, so matched modes continue smoothly. The size of the
+step at each switch relative to the modes' RMS amplitude is measured and reported (``last_switch_jump``).
 
-Divergence watchdog and structural change (:mod:`okid_ros.service.watch`): a diverged sample
-is not published (its model update or change event goes out with the next good sample);
-sustained divergence restarts the estimator from the buffer; a change declared waits for a
-model identified from post-change data only (windows that span it are refused), which is
-matched against the modes before the change (:mod:`okid_ros.service.model_switch`).
+Divergence watchdog and structural change (:mod:`okid_ros.service.watch`): a diverged sample is not published (its
+model update or change event goes out with the next good sample); sustained divergence restarts the estimator from
+the buffer; a change declared waits for a model identified from post-change data only (windows that span it are
+refused), which is matched against the modes before the change (:mod:`okid_ros.service.model_switch`).
 
-Gaps: ``skipped <= max_gap_samples`` missing slots are bridged by open-loop predictions with the
-last input held; after a longer gap or a time jump the estimator restarts from zero. A
-realization's window starts after the last longer gap; short gaps, large spikes filled
-(:mod:`okid_ros.core.realization_window`, ``window_samples_filled``). A sensor re-zero found in
-the innovations is taken off the samples from where it lies (:mod:`~okid_ros.service.watch`).
+Gaps: ``skipped <= max_gap_samples`` missing slots are bridged by open-loop predictions with the last input
+held; after a longer gap or a time jump the estimator restarts from zero. A realization's window starts
+after the last longer gap; short gaps, large spikes filled (:mod:`okid_ros.core.realization_window`,
+``window_samples_filled``). A sensor re-zero found in the innovations is taken off the samples from where it
+lies (:mod:`~okid_ros.service.watch`).
 """
 
 from __future__ import annotations
@@ -95,7 +90,7 @@ from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
-from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
+from okid_ros.service.options import MAX_ARX_LEAD_S, MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     JOB_GENERATIONS,
@@ -217,9 +212,8 @@ class ModalEstimationService:
         A fit whose window ends where the last taken or the waiting one ends (node 1
         republishing an unchanged window, e.g. while the inputs are silent) is ignored.
         """
-        st = self._stats
+        st, prm = self._stats, self.params
         st.arx_received += 1
-        prm = self.params
         if not self.enabled:
             return False
         if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
@@ -228,6 +222,10 @@ class ModalEstimationService:
             return False
         if not math.isfinite(stamp_end_s):
             st.refuse_arx(RefusedArx.STAMP, "ARX model without a stamp")
+            return False
+        if stamp_end_s > (newest := self._buffer.newest_stamp()) + MAX_ARX_LEAD_S:  # none buffered: nan, False
+            st.refuse_arx(RefusedArx.FUTURE, f"ARX window ends at {stamp_end_s:.3f} s, more than MAX_ARX_LEAD_S "
+                          f"{MAX_ARX_LEAD_S:g} s after the newest sample here ({newest:.3f} s)")
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):
@@ -300,8 +298,11 @@ class ModalEstimationService:
         """Continue a realized outcome's warm start over the samples buffered since its window.
 
         On any thread, before :meth:`deliver` (:func:`okid_ros.service.realization.follow`):
-        the switch then has at most ``handover_samples`` left to catch up.
+        the switch then has at most ``handover_samples`` left to catch up. An outcome of a job
+        taken before a reset, or by another service, is returned as it is (:meth:`deliver` drops it).
         """
+        if outcome.job.generation != self._generation:
+            return outcome  # followed over this buffer, of other samples, it was work for nothing
         return realization.follow(outcome, self._buffer)
 
     def deliver(self, outcome: RealizationOutcome) -> None:

@@ -354,13 +354,17 @@ class ArxIdentificationService:
         so is one stamped more than :data:`MAX_CHANGE_LEAD_S` after the newest sample here: node 2
         declares changes at samples it has seen, which reach this window within its lag; a stamp
         from the future would empty the window and, as the last restart, make every real change
-        before it ignored. Returns the number of samples put back into the window (-1 if ignored).
+        before it ignored. So is one before the oldest sample held, or before 0 (no sample's): the
+        samples held are all of the new structure already, and a restart replayed them all for
+        nothing. Returns the number of samples put back into the window (-1 if ignored).
         """
         c = self._counters
         change_stamp_s = float(change_stamp_s)
         tol = 0.5 * self.params.sample_time_s
-        newest = self._stamps.newest_stamp_s
-        if (not math.isfinite(change_stamp_s) or change_stamp_s <= c.last_restart_stamp_s + tol
+        newest, oldest = self._stamps.newest_stamp_s, self._recent.stamp_at(self._recent.first)  # nan: none
+        earliest = max(0.0, oldest - tol) if math.isfinite(oldest) else 0.0
+        if (not math.isfinite(change_stamp_s) or change_stamp_s < earliest
+                or change_stamp_s <= c.last_restart_stamp_s + tol
                 or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
             c.restarts_ignored += 1
             return -1

@@ -16,6 +16,7 @@ True
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
@@ -38,6 +39,11 @@ __all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_ch
 #: Samples :meth:`~okid_ros.service.estimation.ModalEstimationService.follow` leaves to the
 #: switch on the sample path (not a parameter).
 HANDOVER_SAMPLES = 4
+#: How far after node 2's newest sample an ArxModel's window may end [s]. Node 2's samples may lag
+#: node 1's by its input queue (``inputs.queue_depth`` 1000 messages: 8 s at 125 Hz) on a loaded
+#: machine; a window ending further ahead is of a stream node 2 does not get (a forged or foreign
+#: stamp) and held the realization waiting for its end sample until node 1's next model replaced it.
+MAX_ARX_LEAD_S = 60.0
 #: The most samples node 2 buffers, the limit of ``estimator.buffer_length``; with 0 (the
 #: buffer follows the ARX window an ArxModel claims) the buffer grows no further.
 MAX_BUFFER_SAMPLES = int(option_specs(ESTIMATOR_NODE)["buffer_length"].high)
@@ -111,6 +117,24 @@ class ArxIdentificationParams:
         if problem:
             raise ParameterError(problem)
         return params
+
+    def first_model_samples(self) -> float:
+        """Samples node 1 takes in before its first valid model: ``min_window_fill`` of its window, plus ``order``.
+
+        With forgetting (``window_length`` 0) the window's fill after n rows is 1 - lambda^n (1 from the
+        first row on without forgetting, :class:`~okid_ros.core.recursive.SlidingWindowArx`); inf when the
+        fill asked for is never reached.
+        """
+        fill, lam = self.min_window_fill, self.forgetting_factor
+        if self.window_length > 0:
+            rows = math.ceil(fill * self.window_length)
+        elif lam >= 1.0:
+            rows = 1
+        elif fill >= 1.0:
+            return math.inf
+        else:
+            rows = math.ceil(math.log1p(-fill) / math.log(lam))
+        return max(rows, 1) + self.order  # a solve needs a row; each row its order lags before it
 
     def size_problem(self) -> str:
         """Why the regressor of ``order`` is too long for the window or the live update, or ""."""

@@ -212,6 +212,7 @@ class RefusedArx:
 
     DIMENSIONS = "of other dimensions than node 2's"
     STAMP = "without a stamp"
+    FUTURE = "whose window ends far after node 2's newest sample"
     BUFFER = "whose window node 2's buffer cannot hold"
     NO_SAMPLE = "whose window's end node 2 holds no sample at or before"
     CHANGE = "whose window starts before a structural change"

@@ -36,12 +36,19 @@ from typing import IO, TextIO
 from okid_ros.errors import OkidError
 from okid_ros.jsonio import dumps
 from okid_ros.service.param_files import files_for_nodes
+from okid_ros.tools.demo_options import (
+    OUTPUT_ONLY_DEMO_WINDOW,
+    OUTPUT_ONLY_OVERRIDES,
+    DemoOptions,
+    check_demo_options,
+    default_params_file,
+)
 from okid_ros.tools.output_paths import prepare_output
 from okid_ros.tools.ros_domain import ros_context, ros_domain_id
 from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
 from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
 
-__all__ = ["DemoOptions", "DemoResult", "run_demo", "default_params_file", "compare_modes"]
+__all__ = ["DemoOptions", "DemoResult", "OUTPUT_ONLY_DEMO_WINDOW", "run_demo", "default_params_file", "compare_modes"]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 OUTPUT_TOPICS = {
@@ -56,28 +63,6 @@ SETTLE_TIMEOUT_S = 30.0
 #: Subscriptions on each input topic once the nodes are up: node 1 and node 2.
 NODE_SUBSCRIPTIONS = 2
 _ESTIMATION_STATUS = "okid_modal_estimator: estimation"  # node 2's DiagnosticStatus (after its namespace)
-
-#: The output-only demo's window [samples] (60 s at 200 Hz; config/okid_output_only.yaml has 120 s).
-OUTPUT_ONLY_DEMO_WINDOW = 12000
-_OUTPUT_ONLY_OVERRIDES = f"""# okid-ros demo --output-only: a window that fits the demo (the file's: 120 s)
-/**/okid_arx_identifier:
-  ros__parameters:
-    arx:
-      window_length: {OUTPUT_ONLY_DEMO_WINDOW}
-"""
-
-
-def default_params_file(name: str = "okid.yaml") -> Path:
-    """``config/NAME`` of the repository, else of the installed package (share/okid_ros/config)."""
-    candidates = [REPO_ROOT / "config" / name, Path(sys.prefix) / "share" / "okid_ros" / "config" / name]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix) / "share" / "okid_ros" / "config" / name)
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise OkidError(f"parameter file {name} not found (looked in {', '.join(str(c.parent) for c in candidates)})")
-
 
 def _claim_domain_id() -> tuple[int, IO[str] | None]:
     """ROS_DOMAIN_ID from the environment, else a free id of 1..100 (locked while we run)."""
@@ -179,33 +164,6 @@ def _stop_process(proc: subprocess.Popen, grace_s: float) -> None:
             continue
 
 
-@dataclass(frozen=True)
-class DemoOptions:
-    """What ``okid-ros demo`` runs (see :func:`run_demo`)."""
-
-    duration_s: float = 60.0
-    rate: float = 1.0
-    params: tuple[Path, ...] = ()
-    sensors: bool = False
-    seed: int = 1
-    ansi: bool | None = None
-    startup_timeout_s: float = 90.0
-    output_only: bool = False
-
-    @property
-    def param_files(self) -> list[Path]:
-        """The parameter files given, else the default ones for the input topics.
-
-        Output-only: config/okid.yaml and config/okid_output_only.yaml; the demo adds its
-        window (``_DemoRun``).
-        """
-        if self.params:
-            return list(self.params)
-        if self.output_only:
-            return [default_params_file("okid.yaml"), default_params_file("okid_output_only.yaml")]
-        return [default_params_file("okid_imu_wrench.yaml" if self.sensors else "okid.yaml")]
-
-
 def _new_run_dir(out_dir: Path) -> Path:
     """A new ``OUT_DIR/YYYYmmdd-HHMMSS``, with ``OUT_DIR/latest`` pointing to it."""
     run_dir = out_dir / time.strftime("%Y%m%d-%H%M%S")
@@ -233,7 +191,7 @@ class _DemoRun:
         self.run_dir = _new_run_dir(out_dir)
         if options.output_only and not options.params:
             overrides = self.run_dir / "output_only_demo.yaml"
-            overrides.write_text(_OUTPUT_ONLY_OVERRIDES)
+            overrides.write_text(OUTPUT_ONLY_OVERRIDES)
             self.param_files.append(overrides)
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1")
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -299,6 +257,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     options = DemoOptions(**{**options, "params": tuple(Path(p) for p in options.get("params") or ())})
     started = time.monotonic()
     files_for_nodes(options.param_files)  # read as `up` reads them, before anything is simulated or started
+    check_demo_options(options)
     simulate = simulate_ambient if options.output_only else simulate_experiment
     experiment = simulate(options.duration_s, seed=options.seed)  # before the run folder: none left on a refusal
     run = _DemoRun(Path(out_dir), options, stream or sys.stdout)

@@ -10,6 +10,7 @@ an invalid ``--topic``. ROS_DOMAIN_ID is this session's (conftest.py).
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 import time
@@ -21,9 +22,11 @@ from okid_ros import cli
 from okid_ros.tools.errors import ToolParameterError
 from okid_ros.tools.monitor import MAX_WINDOW_SAMPLES, ModalStatesView
 from okid_ros.tools.replay import BagPlayer
+from okid_ros.tools.ros_domain import installed_rmw_implementations, rmw_implementation
 from okid_ros.tools.simulate_bag import IMU_TOPICS, IO_SAMPLE_TOPIC, simulate_experiment, write_experiment_bag
 
 HUGE = "99999999999999999999"  # beyond 64 bits
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def usage_error(capsys, argv: list[str]) -> str:
@@ -173,10 +176,31 @@ def test_demo_refuses_an_option_out_of_range_before_making_a_run_folder(capsys, 
     assert "Traceback" not in "".join(lines) and not runs.exists()
 
 
+@pytest.mark.parametrize("options, said", [
+    # Was: the replay, then 30 s of waiting, then "node 1 published no valid ArxModel".
+    (["--duration", "0.1"], "--duration 0.1 s is shorter than node 1's first window, 16.8 s (2100 samples of 0.008 s: "
+     "arx.min_window_fill 0.5 of arx.window_length 4000 rows, plus arx.order 100): no model would come; give at "
+     "least 17 s, or a shorter window"),
+    (["--output-only", "--duration", "10"], "--duration 10 s is shorter than node 1's first window, 30.05 s (6010 "
+     "samples of 0.005 s: arx.min_window_fill 0.5 of arx.window_length 12000 rows, plus arx.order 10)"),
+    # Was: the whole experiment replayed at once, the nodes' queues overrun.
+    (["--rate", "1e300"], "--rate must be from 0.1 to 5 (times real time: the nodes take the samples live), "
+     "got 1e+300"),
+    (["--rate", "0.001"], "--rate must be from 0.1 to 5"),
+    (["--rate", "nan"], "--rate must be from 0.1 to 5"),
+])
+def test_demo_refuses_an_experiment_without_a_model_and_a_rate_the_nodes_cannot_take(capsys, tmp_path, options, said):
+    runs = tmp_path / "runs"
+    started = time.monotonic()
+    line = one_line_error(capsys, ["demo", "--no-ansi", "--out-dir", str(runs), *options])
+    assert said in line, line
+    assert not runs.exists() and time.monotonic() - started < 10
+
+
 def test_demo_names_an_out_dir_it_cannot_make_in_one_line(capsys, tmp_path):
     """A file as --out-dir: the run folder's error, exit 2 (was: NotADirectoryError, internal error, exit 70)."""
     (tmp_path / "a_file").write_text("")
-    line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "1", "--out-dir", str(tmp_path / "a_file")])
+    line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "20", "--out-dir", str(tmp_path / "a_file")])
     assert "a_file/" in line and "cannot create" in line, line
     assert (tmp_path / "a_file").is_file() and list(tmp_path.iterdir()) == [tmp_path / "a_file"]
 
@@ -266,7 +290,7 @@ def test_the_demo_says_node_1_published_nothing_rather_than_blame_node_2():
 @pytest.mark.parametrize("argv", [["monitor", "--no-ansi", "--once", "--duration", "0.3"],
                                   ["info", "--selftest", "--timeout", "0.3"],
                                   ["up", "--params", str(Path(__file__).parents[2] / "config" / "okid.yaml")],
-                                  ["demo", "--duration", "1", "--out-dir", "{tmp}/runs"]])
+                                  ["demo", "--duration", "20", "--out-dir", "{tmp}/runs"]])
 def test_a_ros_domain_id_ros_cannot_use_is_one_line_before_anything_starts(capsys, tmp_path, monkeypatch, domain_id,
                                                                             said, argv):
     """Checked before rclpy, a node or the demo's run folder (`tools/ros_domain.py`).
@@ -278,3 +302,38 @@ def test_a_ros_domain_id_ros_cannot_use_is_one_line_before_anything_starts(capsy
     line = one_line_error(capsys, [a.format(tmp=tmp_path) for a in argv])
     assert said in line, line
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("argv", [["monitor", "--no-ansi", "--once", "--duration", "0.3"],
+                                  ["info", "--selftest", "--timeout", "0.3"],
+                                  ["up", "--params", str(REPO_ROOT / "config" / "okid.yaml")],
+                                  ["demo", "--duration", "20", "--out-dir", "{tmp}/runs"],
+                                  ["replay", "{tmp}/bag"],
+                                  ["record", "{tmp}/out", "--duration", "0.3"]])
+def test_an_rmw_implementation_not_installed_is_one_line_before_rclpy_loads(tmp_path, argv):
+    """Checked before rclpy loads, whose rcl ended the process at once (`tools/ros_domain.py`).
+
+    Was: rcl's "Expected RMW implementation identifier of 'rmw_bogus' but instead found 'rmw_fastrtps_cpp',
+    exiting with 102." and status 102 (a process of its own here: it would end pytest's).
+    """
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_bogus"}
+    done = subprocess.run([sys.executable, "-m", "okid_ros.cli", *[a.format(tmp=tmp_path) for a in argv]], env=env,
+                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr)
+    installed, _ = installed_rmw_implementations()
+    assert lines[0] == (f"okid-ros {argv[0]}: error: RMW_IMPLEMENTATION='rmw_bogus' is not installed (installed: "
+                        f"{', '.join(installed)}): set one of those, or unset it for the default"), lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no run folder, no bag
+
+
+def test_an_rmw_implementation_is_known_by_the_ament_index_or_its_library(tmp_path):
+    installed, _ = installed_rmw_implementations()
+    assert installed and "rmw_implementation" not in installed  # the dispatcher is none
+    assert rmw_implementation({"RMW_IMPLEMENTATION": installed[0]}) == installed[0]
+    assert rmw_implementation({"RMW_IMPLEMENTATION": ""}) is None and rmw_implementation({}) is None
+    (tmp_path / "librmw_elsewhere.so").write_bytes(b"")  # installed outside the index (LD_LIBRARY_PATH)
+    env = {"RMW_IMPLEMENTATION": "rmw_elsewhere", "LD_LIBRARY_PATH": str(tmp_path)}
+    assert rmw_implementation(env) == "rmw_elsewhere"
+    with pytest.raises(ToolParameterError, match="RMW_IMPLEMENTATION='rmw_elsewhere' is not installed"):
+        rmw_implementation({"RMW_IMPLEMENTATION": "rmw_elsewhere"})

@@ -7,6 +7,7 @@ no publishing) -> activate -> active -> deactivate -> cleanup -> shutdown.
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import time
 
@@ -188,13 +189,35 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
             time.sleep(0.05)
         assert probe.node.count_publishers(f"{NS}/arx_model") == 0
         assert probe.io.get_subscription_count() == 0
-        # Configure again after a cleanup, then shut down.
+        # Configure again after a cleanup, then shut down: the finalized node's process ends (0), and
+        # `up` stops the other (test_a_finalized_node_ends_its_process: each node from each state).
         probe.transition(NODES[0], Transition.TRANSITION_CONFIGURE)
         assert probe.state(NODES[0]) == State.PRIMARY_STATE_INACTIVE
-        for node, transition in ((NODES[0], Transition.TRANSITION_INACTIVE_SHUTDOWN),
-                                 (NODES[1], Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)):
-            probe.transition(node, transition)
-            assert probe.state(node) == State.PRIMARY_STATE_FINALIZED
+        probe.transition(NODES[0], Transition.TRANSITION_INACTIVE_SHUTDOWN)
+        up.wait_for_output(r"okid-ros up: okid_arx_identifier exited with status 0; stopping the other node", 10)
         assert "Traceback" not in up.output(), up.output()
     finally:
         up.stop()
+
+
+@pytest.mark.parametrize("module, start, shutdown", [
+    ("modal_estimator_node", (), Transition.TRANSITION_ACTIVE_SHUTDOWN),
+    ("modal_estimator_node", ("--no-autostart",), Transition.TRANSITION_UNCONFIGURED_SHUTDOWN),
+    ("arx_identifier_node", (), Transition.TRANSITION_ACTIVE_SHUTDOWN),
+    ("arx_identifier_node", ("--no-autostart",), Transition.TRANSITION_UNCONFIGURED_SHUTDOWN),
+])
+def test_a_finalized_node_ends_its_process(probe, spawn_ros, module, start, shutdown):
+    # After the shutdown transition (finalized: nothing more it can do) the process kept running
+    # until killed; a user or a lifecycle manager expects it to end.
+    node = spawn_ros("-m", f"okid_ros.nodes.{module}", "--lifecycle", *start, "--ros-args", "-r", f"__ns:={NS}")
+    name = NODES[0] if module == "arx_identifier_node" else NODES[1]
+    if not start:
+        node.wait_for_output(r"ready:", 30)
+    answer = probe.call(ChangeState, f"{name}/change_state", ChangeState.Request(transition=Transition(id=shutdown)))
+    assert answer.success
+    try:
+        code = node.proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{module} finalized, but its process still runs 10 s later:\n{node.output()}")
+    assert code == 0 and "Traceback" not in node.output(), node.output()
+    assert "shut down (finalized): the process ends" in node.output()

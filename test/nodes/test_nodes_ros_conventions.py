@@ -23,6 +23,7 @@ from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from okid_msgs.msg import ArxModel, IoSample, ModalStates
+from okid_ros.nodes.common import SIM_CLOCK_SILENCE_S
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
@@ -292,3 +293,32 @@ def test_use_sim_time_switched_on_without_a_clock_is_told(spawn_ros, probe):
     time.sleep(1.0)
     assert node.output().count("nothing publishes /clock") == 1, node.output()
     probe.node.destroy_publisher(clock)
+
+
+def test_use_sim_time_given_at_the_start_without_a_clock_is_told_once_samples_come(spawn_ros, probe):
+    # Given at the start (-p, a parameter file) the clock stood at 0 from the first moment: the
+    # node's timers never ran (no ArxModel, no diagnostics) and nothing was said, as samples came.
+    node = spawn_ros("-m", "okid_ros.nodes.arx_identifier_node", "--ros-args", "-r", "__ns:=/rig9",
+                     "-p", "use_sim_time:=true")
+    node.wait_for_output(r"ready:", 30)
+    io = probe.node.create_publisher(IoSample, "/rig9/io_sample", SENSOR_QOS)
+    probe.wait_until("node 1 to subscribe /rig9/io_sample", lambda: io.get_subscription_count() >= 1, 10)
+    told = "nothing publishes /clock"
+    k = 0
+
+    def feed_until(deadline: float, stop) -> None:
+        nonlocal k
+        while not stop() and time.monotonic() < deadline:
+            msg = IoSample()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round((100.0 + k * DT) * 1e9)), 10**9)
+            msg.u, msg.y = [0.1 * (k % 7), -0.2], [0.3, 0.01 * (k % 5)]
+            io.publish(msg)
+            k += 1
+            time.sleep(DT)
+
+    feed_until(time.monotonic() + SIM_CLOCK_SILENCE_S + 10.0, lambda: told in node.output())
+    node.wait_for_output(r"WARN.*use_sim_time set to true, but nothing publishes /clock: the node clock stands "
+                         r"still, and with it this node's timers", 1)
+    feed_until(time.monotonic() + 1.0, lambda: False)  # samples go on coming: said once
+    assert node.output().count(told) == 1, node.output()
+    probe.node.destroy_publisher(io)

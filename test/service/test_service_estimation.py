@@ -14,6 +14,7 @@ import pytest
 from okid_ros.service import realization
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+from okid_ros.service.options import MAX_ARX_LEAD_S
 from okid_ros.sim import lowpass_input, modal_structure, paper_model, paper_modes, simulate, simulate_innovation
 
 Q, W, EVERY, N = 40, 2000, 250, 4500
@@ -210,6 +211,25 @@ def test_requests_wait_for_the_window_end_and_are_checked(pipeline):
     wrong = dataclasses.replace(fit, n_inputs=1)
     assert not est.submit_arx(wrong, 2.0, 2, W)
     assert est.diagnostics()["arx_models_refused"] == 2
+
+
+def test_a_window_ending_far_after_the_newest_sample_is_refused_with_its_reason(pipeline):
+    # A stamp 1e6 s ahead (forged, or of another clock) held the request: take_job waited for an
+    # end sample that never comes until node 1's next model replaced it.
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    assert est.submit_arx(fit, 1e6, 1, W)  # nothing buffered yet: no newest sample to judge it by, it waits
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    newest = 99 * 0.008
+    assert not est.submit_arx(fit, newest + 1e6, 2, W)
+    assert not est.submit_arx(fit, newest + MAX_ARX_LEAD_S + 0.1, 3, W)
+    d = est.diagnostics()
+    assert d["arx_models_refused"] == 2 and d["arx_models_replaced"] == 0, d
+    assert d["arx_models_refused_why"].startswith("2 whose window ends far after node 2's newest sample"), d
+    assert "more than MAX_ARX_LEAD_S 60 s after the newest sample here (0.792 s)" in d["last_reason"], d
+    assert est.submit_arx(fit, newest + MAX_ARX_LEAD_S - 0.1, 4, W)  # node 2 lagging node 1: it waits
+    assert est.has_request and est.take_job() is None
 
 
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
@@ -452,3 +472,31 @@ def test_a_new_service_never_takes_the_outcome_of_its_predecessors_job():
     assert new.diagnostics()["model_id"] == 0
     old.deliver(outcome)  # its own service takes it
     assert old.step(T0 + n * dt, u[0], y[0]) is not None and old.diagnostics()["model_id"] == 1
+
+
+def test_an_outcome_of_a_replaced_service_is_dropped_before_its_warm_start_goes_on():
+    # Node 2 follows each outcome (its warm start continued over the samples buffered since its
+    # window) before deliver: one of the service a lifecycle cleanup replaced was continued over
+    # the new service's buffer, of other samples, and its estimator built, then dropped.
+    model = paper_model()
+    dt, n = model.sample_time_s, 2600
+    u = lowpass_input(n, 2, 50.0, dt, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    params = ModalEstimationParams(dt, 2, 2, n_states=6)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
+    old = ModalEstimationService(params)
+    for k in range(n):
+        ident.push(T0 + k * dt, u[k], y[k])
+        old.step(T0 + k * dt, u[k], y[k])
+    snap = ident.snapshot()
+    assert old.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    outcome = realization.realize(old.take_job())
+    assert outcome.model is not None and outcome.estimator is None
+    new = ModalEstimationService(params)  # cleanup, configure
+    for k in range(500):
+        new.step(T0 + (n + k) * dt, u[k], y[k])
+    assert new.follow(outcome) is outcome  # as realized: nothing run over the new buffer
+    followed = old.follow(outcome)  # its own service's: followed
+    assert followed is not outcome and followed.estimator is not None
+    old.reset()
+    assert old.follow(outcome) is outcome  # taken before a reset: stale as well

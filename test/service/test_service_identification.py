@@ -137,6 +137,21 @@ def test_a_structural_change_stamped_in_the_future_is_ignored(record):
     assert svc.restart_at(newest + 1.0) == 0  # within node 1's lag behind node 2: an empty window for now
 
 
+def test_a_structural_change_stamped_before_the_samples_held_is_ignored(record):
+    # Stamped -1 s (a forged message) or before the oldest sample held, a change counted as a restart
+    # that replayed every sample held and set last_restart_stamp_s to -1.
+    dt, u, y = record
+    svc = make_service(dt)
+    assert svc.restart_at(-1.0) == -1  # nothing held yet: still no sample's stamp
+    svc.push_block(10.0 + np.arange(900) * dt, u, y)
+    assert svc.restart_at(-1.0) == -1
+    assert svc.restart_at(10.0 - 1.0) == -1
+    d = svc.diagnostics()
+    assert d["window_restarts"] == 0 and d["window_restarts_ignored"] == 3, d
+    assert math.isnan(d["last_restart_stamp_s"]), d
+    assert svc.restart_at(10.0 + 800 * dt) == 100  # a change among the samples held restarts the window
+
+
 @pytest.mark.parametrize("value", [1e151, 1e300])
 def test_a_sample_beyond_the_window_bound_is_a_counted_rejection_without_warnings(record, value):
     """As a NaN sample: refused, counted, a gap.

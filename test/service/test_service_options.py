@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 
 import pytest
@@ -138,3 +139,13 @@ def test_a_window_whose_buffers_do_not_fit_in_the_available_memory_is_refused(mo
         ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.window_length": 100_000_000}))
     # A window of a million rows (164 MB) fits.
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.window_length": 1_000_000}))
+
+
+def test_node_1s_first_model_takes_its_window_fill_plus_its_order():
+    arx = ArxIdentificationParams(0.008, 100, 2, 2, 4000)  # config/okid.yaml: min_window_fill 0.5
+    assert arx.first_model_samples() == 2000 + 100
+    forgetting = dataclasses.replace(arx, window_length=0, forgetting_factor=0.99)
+    assert forgetting.first_model_samples() == math.ceil(math.log(0.5) / math.log(0.99)) + 100  # 1 - 0.99^n >= 0.5
+    assert dataclasses.replace(forgetting, forgetting_factor=1.0).first_model_samples() == 1 + 100
+    assert math.isinf(dataclasses.replace(forgetting, min_window_fill=1.0).first_model_samples())
+    assert dataclasses.replace(arx, min_window_fill=0.0).first_model_samples() == 1 + 100  # a solve needs a row
