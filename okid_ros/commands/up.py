@@ -133,10 +133,15 @@ def run(args: argparse.Namespace) -> int:
             )
         print(f"okid-ros up: started {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}; "
               "Ctrl-C stops both", flush=True)
-        while True:
-            for name, proc in processes.items():
+        running = dict(processes)
+        while running:
+            for name, proc in list(running.items()):
                 code = proc.poll()
-                if code is not None:
+                if code == 0 and args.lifecycle:  # its lifecycle shutdown: the other node is the user's to end
+                    print(f"okid-ros up: {name} was shut down (lifecycle) and exited"
+                          + ("; the other node runs on" if len(running) > 1 else ""), flush=True)
+                    del running[name]
+                elif code is not None:
                     print(f"okid-ros up: {name} exited with status {code}; stopping the other node",
                           file=sys.stderr, flush=True)
                     status = code if code != 0 else 1

@@ -74,16 +74,19 @@ def rmw_implementation(environ: Mapping[str, str] | None = None) -> str | None:
     ------
     ToolParameterError
         it names an implementation neither the ament index lists nor whose library
-        (``librmw_NAME.so``) is found (:func:`installed_rmw_implementations`).
+        (``librmw_NAME.so``) is found (:func:`installed_rmw_implementations`), where the index
+        lists some.
     """
     name = (os.environ if environ is None else environ).get("RMW_IMPLEMENTATION", "")
     if not name:
         return None
     installed, folders = installed_rmw_implementations(environ)
-    if name in installed or any((folder / f"lib{name}.so").is_file() for folder in folders):
+    # With no index found (an install laid out otherwise) rcl is left to judge: a refusal here
+    # would stop a name it would load.
+    if not installed or name in installed or any((folder / f"lib{name}.so").is_file() for folder in folders):
         return name
     raise ToolParameterError(f"RMW_IMPLEMENTATION={name!r} is not installed (installed: "
-                             f"{', '.join(installed) or 'none found'}): set one of those, or unset it for the default")
+                             f"{', '.join(installed)}): set one of those, or unset it for the default")
 
 
 def ros_context():

@@ -189,12 +189,17 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
             time.sleep(0.05)
         assert probe.node.count_publishers(f"{NS}/arx_model") == 0
         assert probe.io.get_subscription_count() == 0
-        # Configure again after a cleanup, then shut down: the finalized node's process ends (0), and
-        # `up` stops the other (test_a_finalized_node_ends_its_process: each node from each state).
+        # Configure again after a cleanup, then shut down: the finalized node's process ends (0)
+        # (test_a_finalized_node_ends_its_process: each node from each state); `up` leaves the other
+        # running (was: stopped it and exited 1), and ends with 0 once both are shut down.
         probe.transition(NODES[0], Transition.TRANSITION_CONFIGURE)
         assert probe.state(NODES[0]) == State.PRIMARY_STATE_INACTIVE
         probe.transition(NODES[0], Transition.TRANSITION_INACTIVE_SHUTDOWN)
-        up.wait_for_output(r"okid-ros up: okid_arx_identifier exited with status 0; stopping the other node", 10)
+        up.wait_for_output(r"okid-ros up: okid_arx_identifier was shut down \(lifecycle\) and exited; "
+                           r"the other node runs on", 10)
+        assert probe.state(NODES[1]) == State.PRIMARY_STATE_UNCONFIGURED
+        probe.transition(NODES[1], Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
+        assert up.proc.wait(timeout=10) == 0, up.output()
         assert "Traceback" not in up.output(), up.output()
     finally:
         up.stop()
