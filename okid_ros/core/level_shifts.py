@@ -25,10 +25,11 @@ needs a window on its side and half a window of the level beyond the next, which
 from an impact's ringing (docs/robustness.md, "A level shift at a record's ends").
 
 Each shift's sample is the one where the step best explains the channel's prediction errors
-around the peak (the channel's own AR fit, a matched filter of the step through it: ``d`` alone
-puts it within a few samples); its size is the least-squares fit of the levels between the shifts
-and a line over the channel (the drift the trend step removes after). The step is subtracted from
-the shift's sample on: the level before is kept.
+around the peak (the channel's own AR fit, a matched filter of the step through it, the level
+fitted with it over a window on each side of the peak: ``d`` alone puts it within a few samples);
+its size is the least-squares fit of the levels between the shifts and a line over the channel
+(the drift the trend step removes after). The step is subtracted from the shift's sample on: the
+level before is kept.
 
 scipy offers no change-point detector (``ruptures`` and the like are not dependencies); the rule
 is a running mean, a median and ``scipy.signal.find_peaks`` for the separate peaks.
@@ -186,9 +187,11 @@ def _step_sample(x: np.ndarray, present: np.ndarray, peak: int) -> int:
     """The sample within half a window of ``peak`` where a step best explains ``x``'s AR prediction errors.
 
     A step ``s`` at ``k`` adds ``s g_(t-k)`` to the errors ``e = A(z) x`` of the channel's AR
-    fit, ``g`` the AR filter's step response; the sample whose matched filter ``(g . e)^2 / g . g``
-    is largest is the step's (the generalized likelihood ratio of a step in an AR signal). The
-    fit leaves out the rows that reach the peak's window, which the step would bias.
+    fit, ``g`` the AR filter's step response, and the channel's level adds a constant; over the
+    rows within a window of the peak, the sample whose ``g`` (the constant projected out of both)
+    explains most of ``e`` (``(g . e)^2 / g . g``) is the step's (the generalized likelihood ratio
+    of a step in an AR signal of unknown level). The fit leaves out the rows that
+    reach the peak's window, which the step would bias.
     """
     n, w, q = x.shape[0], SHIFT_WINDOW, _AR_ORDER
     index = np.flatnonzero(present)
@@ -201,13 +204,18 @@ def _step_sample(x: np.ndarray, present: np.ndarray, peak: int) -> int:
         return peak
     regressors = np.column_stack([lags[fit, 1:], np.ones(np.count_nonzero(fit))])
     coef = np.linalg.lstsq(regressors, lags[fit, 0], rcond=None)[0]
-    first, last = max(peak - w // 2, q), min(peak + w // 2, n - w)
-    errors = lags[:, 0] - lags[:, 1:] @ coef[:-1]  # the intercept only moves every error alike
-    errors = errors - np.median(errors[fit])
-    g = 1.0 - np.r_[0.0, np.cumsum(coef[:-1])][np.minimum(np.arange(w), q)]
-    # errors[j] belongs to sample j + q; the match of a step at sample k starts there.
-    match = np.array([errors[k - q : k - q + w] @ g for k in range(first, last + 1)])
-    return int(first + np.argmax(np.abs(match)))
+    # The level is fitted within the window, not taken from the fit's rows: near an end those all
+    # lie on one side of the step, and a level from one side pulls the match to the search's edge.
+    window = rows[np.abs(rows - peak) <= w]
+    errors = lags[window - q, 0] - lags[window - q, 1:] @ coef[:-1]
+    g = 1.0 - np.r_[0.0, np.cumsum(coef[:-1])]
+    candidates = np.arange(max(peak - w // 2, q), min(peak + w // 2, n - 1) + 1)
+    lag = window[None, :] - candidates[:, None]
+    steps = np.where(lag >= 0, g[np.clip(lag, 0, q)], 0.0)  # (candidate, row): the step's errors
+    steps -= steps.mean(axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        match = (steps @ (errors - errors.mean())) ** 2 / np.einsum("ij,ij->i", steps, steps)
+    return int(candidates[np.argmax(np.where(np.isfinite(match), match, -1.0))])
 
 
 def _stays(x: np.ndarray, present: np.ndarray, samples: np.ndarray, local: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from okid_ros.core.level_shifts import MAX_SHIFTS, level_shifts
+from okid_ros.core.level_shifts import MAX_SHIFTS, level_shifts, without_shifts
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify
 from okid_ros.core.sensor_faults import record_fault_warnings, record_faults
@@ -194,7 +194,22 @@ def test_a_shift_within_150_samples_of_an_end_is_not_looked_for(paper_record, sa
     shifted = _shifted(y, [(0, sample, 10.0)])
     assert level_shifts(u, shifted).by_output == {} and level_shifts(u, shifted).unusable == {}
     assert not [w for w in record_faults(u, shifted)[3] if "changes level" in w]
-    # 300 samples in, the same step is found at its sample (between 150 and 250 of the start it is
-    # placed up to 50 samples early or missed: the AR fit of the placement has no rows before it).
+    # 300 samples in, the same step is found at its sample.
     inward = 300 if sample < 1000 else y.shape[0] - 300
     np.testing.assert_array_equal(level_shifts(u, _shifted(y, [(0, inward, 10.0)])).by_output[0][0], [inward])
+
+
+@pytest.mark.parametrize(("output", "sample"), [(0, 150), (1, 160), (0, 200), (1, 220), (1, 3590)])
+def test_a_shift_near_an_end_is_placed_at_its_sample(paper_record, output, sample) -> None:
+    # Placed up to 50 samples early or missed before (a step of 10 spreads at sample 200 subtracted
+    # from 150 on: a false pulse put into the record): the matched filter took its level from the
+    # AR fit's rows, near an end all on one side of the step.
+    u, y = paper_record
+    for size in (1.5, 3.0, -5.0, 10.0):
+        shifted = _shifted(y, [(output, sample, size)])
+        shifts = level_shifts(u, shifted)
+        assert list(shifts.by_output) == [output] and shifts.unusable == {}
+        placed = shifts.by_output[output][0]
+        assert len(placed) == 1 and abs(int(placed[0]) - sample) <= 2, (size, placed)
+        fixed = without_shifts(shifted, shifts.by_output)
+        assert np.abs(fixed - y)[:, output].max() < 0.5 * y[:, output].std(), size  # no pulse left in
