@@ -22,6 +22,7 @@ import contextlib
 import contextvars
 import os
 import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -151,7 +152,8 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     folder was written) and an existing folder. Every output is checked before any folder is
     made; the parent folders are made with ``force`` too (a rerun with it was refused where the
     first run succeeded), and removed again if the command fails while they are empty
-    (:func:`made_folders_removed_on_failure`).
+    (:func:`made_folders_removed_on_failure`). Each folder must then take a new file: one that
+    refuses it fails here, before the work and before any output is written.
 
     Parameters
     ----------
@@ -162,15 +164,32 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     Raises
     ------
     OutputError
-        a folder's name or a folder.
+        a folder's name or a folder; a folder that takes no new file.
     OutputExistsError, BagWriteError
         as :func:`prepare_output`.
     """
     for path, kind in outputs:
         check_file_name(path, kind)
         check_replaceable(Path(path), force=force, kind=kind)
-    for path, _ in outputs:
+    for path, kind in outputs:
         _make_folder(Path(path).parent, Path(path))
+        _check_folder_takes_files(Path(path), kind)
+
+
+def _check_folder_takes_files(out: Path, kind: str) -> None:
+    """OutputError unless a new file can be made beside ``out``, as its temporary file will be.
+
+    A folder that refuses new files (``/proc``, read-only) was found only when the output was
+    written, after the work and after the outputs written before it. A device is written into.
+    """
+    if is_special_file(out):
+        return
+    try:
+        with tempfile.TemporaryFile(dir=out.parent):  # no name left behind, whatever happens
+            pass
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot write the {kind} in the folder {out.parent} "
+                          f"({one_line(exc.strerror or exc)})") from None
 
 
 def check_file_name(path: str | os.PathLike, kind: str) -> None:
