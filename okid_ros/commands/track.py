@@ -411,7 +411,8 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
                                     center=True)
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
-    model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid)  # output-only when m = 0
+    model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
+                            max_gap=record.max_gap)
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,
