@@ -27,11 +27,12 @@ import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from okid_ros.errors import OutputError, is_special_file, one_line
+from okid_ros.errors import OutputError, is_special_file, one_line, special_file_kind
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_output_paths", "check_replaceable",
-           "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output", "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_folder_option", "check_output_paths",
+           "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output",
+           "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -325,6 +326,33 @@ def made_folders_removed_on_failure() -> Iterator[None]:
         _MADE_FOLDERS.reset(token)
 
 
+def check_folder_option(option: str, path: str | os.PathLike) -> None:
+    """OutputError ``--out-dir X: is a file, not a folder`` when ``path`` or a folder above it is no folder.
+
+    The one check of every option naming a folder to write into (``identify --plot-dir``, ``plot
+    --out-dir``, ``demo --out-dir``, ``batch --out``), before the work: its mkdir said only
+    ``cannot create the parent folder (File exists)``.
+    """
+    if found := _non_folder(Path(path)):
+        part, kind = found
+        where = "" if part == Path(path) else f"{part} "
+        raise OutputError(f"{option} {os.fspath(path)}: {where}is {kind}, not a folder")
+
+
+def _non_folder(path: Path) -> tuple[Path, str] | None:
+    """``path`` or the nearest path above it that exists, when it is no folder, and what it is ("a file")."""
+    for part in (path, *path.parents):
+        try:
+            if not (part.exists() or part.is_symlink()):
+                continue
+            if part.is_dir():
+                return None
+        except OSError:  # a name too long, no permission: its mkdir says why
+            return None
+        return part, "a link to nothing" if not part.exists() else special_file_kind(part) or "a file"
+    return None
+
+
 def _make_folder(folder: Path, out: Path) -> None:
     """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
     todo = []
@@ -340,6 +368,8 @@ def _make_folder(folder: Path, out: Path) -> None:
         for folder in reversed(made):
             with contextlib.suppress(OSError):
                 folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
+        if found := _non_folder(folder):  # was "cannot create the parent folder (File exists)"
+            raise BagWriteError(f"{out}: {found[0]} is {found[1]}, not a folder") from None
         raise BagWriteError(f"{out}: cannot create the parent folder ({one_line(exc.strerror or exc)})") from None
     watching = _MADE_FOLDERS.get()
     if watching is not None:

@@ -227,3 +227,21 @@ def test_a_folder_that_takes_no_file_is_refused_before_the_work(record, tmp_path
     code, _, err = run_cli(capsys, "export", garbage, "--npz", "/proc/r.npz")
     assert_one_line_error(code, err, "/proc/r.npz: cannot write the record in the folder /proc")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.mcap", "rec.npz"]
+
+
+def test_a_file_given_for_a_folder_is_named_as_one(record, tmp_path, capsys):
+    # A file as --plot-dir (or above it, or above an output) said "cannot create the parent folder (File exists)".
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    model = tmp_path / "m.json"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--plot-dir", afile)
+    assert_one_line_error(code, err, f"--plot-dir {afile}: is a file, not a folder")
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--plot-dir", afile / "figs")
+    assert_one_line_error(code, err, f"--plot-dir {afile / 'figs'}: {afile} is a file, not a folder")
+    code, _, err = run_cli(capsys, "identify", record, "--json", afile / "m.json")
+    assert_one_line_error(code, err, f"{afile / 'm.json'}: {afile} is a file, not a folder")
+    code, _, err = run_cli(capsys, "batch", tmp_path, "--out", afile)
+    assert_one_line_error(code, err, f"--out {afile}: is a file, not a folder")
+    code, _, err = run_cli(capsys, "simulate", "--out", afile / "bag", "--duration", "1")
+    assert_one_line_error(code, err, f"{afile / 'bag'}: {afile} is a file, not a folder")
+    assert afile.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["afile", "rec.npz"]
