@@ -27,7 +27,7 @@ import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from okid_ros.errors import OutputError, is_special_file, one_line, special_file_kind
+from okid_ros.errors import OutputError, is_special_file, name_beside, one_line, special_file_kind
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
 __all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_folder_option", "check_output_paths",
@@ -242,6 +242,13 @@ class StagedOutput:
     old one. A new path is written in place (JSON lines can be followed as they come) and removed
     by :meth:`discard`; a device or FIFO (``/dev/null``) is written into.
 
+    Not :func:`okid_ros.errors.replacing` (the file outputs of ``identify``, ``track``, ``export``),
+    for a reason: a bag is a folder, which cannot be renamed over another, so the old output is
+    moved aside first (and put back if the new one cannot take its place); a new path is written
+    in place, where ``process``'s JSON lines are followed as they come and ``record`` keeps what it
+    recorded when interrupted; and the ``--force`` rule is checked here, as each output is made,
+    where ``replacing``'s callers check every output before the work (:func:`prepare_file_outputs`).
+
     Parameters
     ----------
     path : the output's path.
@@ -262,8 +269,7 @@ class StagedOutput:
         _make_folder(self.path.parent, self.path)
         if not replacing:
             return
-        stem = os.fsdecode(os.fsencode(self.path.name)[:200])  # a legal long name stays legal with the tag
-        folder = self.path.with_name(f".{stem}.tmp-{uuid.uuid4().hex[:8]}")
+        folder = name_beside(self.path, f"tmp-{uuid.uuid4().hex[:8]}")
         try:
             folder.mkdir()
         except OSError as exc:
