@@ -57,6 +57,11 @@ def replacing(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     rename replaces the name only: a symlink at ``path`` goes, never what it points to, and a hard
     link's other names (the record itself) keep their content. An exception (Ctrl-C too) removes
     the temporary file and leaves ``path`` as it was. A device, FIFO or socket is written into.
+
+    Not :class:`okid_ros.tools.output_paths.StagedOutput` (a bag's or ``process``'s outputs), for
+    a reason: a file is replaced by one atomic rename and never seen half-written, on a new path
+    too (a reader of the JSON model finds it whole or not at all); a folder cannot be renamed over
+    another, so StagedOutput moves the old one aside and writes a new path in place.
     """
     target = Path(path)
     if is_special_file(target):
@@ -64,9 +69,7 @@ def replacing(path: str | os.PathLike) -> Iterator[IO[bytes]]:
             yield stream
         return
     # open(..., "x") rather than mkstemp: the file gets the usual permissions (umask), not 0600.
-    # The name cut to 200 bytes: a legal name of 255 made a temporary one too long to create.
-    stem = os.fsdecode(os.fsencode(target.name)[:200])
-    temporary = target.with_name(f".{stem}.{os.getpid()}.{next(_PART_NUMBERS)}.part")
+    temporary = name_beside(target, f"{os.getpid()}.{next(_PART_NUMBERS)}.part")
     try:
         with open(temporary, "xb") as stream:
             yield stream
@@ -74,6 +77,14 @@ def replacing(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def name_beside(path: Path, tag: str) -> Path:
+    """The hidden name ``.NAME.TAG`` beside ``path``, where an output is written before it replaces ``path``.
+
+    NAME is cut to 200 bytes: a legal name of 255 made the temporary one too long to create.
+    """
+    return path.with_name(f".{os.fsdecode(os.fsencode(path.name)[:200])}.{tag}")
 
 
 def is_special_file(path: str | os.PathLike) -> bool:

@@ -111,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.errors import OkidError
     from okid_ros.tools.campaign.runner import CampaignOptions, input_topics, run_campaign
     from okid_ros.tools.campaign.summary import print_summary
+    from okid_ros.tools.output_paths import check_folder_option
     from okid_ros.tools.process import load_node_parameters
 
     namespace = args.namespace  # validated by its argparse type
@@ -129,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         raise OkidError("--out DIR is required (except with --plan)")
+    check_folder_option("--out", args.out)
     options = CampaignOptions(
         paths=args.paths, out_dir=Path(args.out), arx_values=arx_values, est_values=est_values,
         namespace=namespace, storage=args.storage, workers=local_workers(args.workers),

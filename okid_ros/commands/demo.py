@@ -50,12 +50,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.demo import run_demo
     from okid_ros.tools.errors import ToolParameterError
+    from okid_ros.tools.output_paths import check_folder_option
 
     duration = args.duration if args.duration is not None else (90.0 if args.output_only else 60.0)
     if not duration > 0:
         raise ToolParameterError(f"--duration must be a positive number of seconds, got {duration}")
     if args.output_only and args.sensors:
         raise ToolParameterError("--output-only and --sensors exclude each other (output-only has Imu topics only)")
+    check_folder_option("--out-dir", args.out_dir)
     result = run_demo(args.out_dir, duration_s=duration, rate=args.rate, params=args.params,
                       sensors=args.sensors, seed=args.seed, ansi=False if args.no_ansi else None,
                       output_only=args.output_only)

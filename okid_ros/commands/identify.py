@@ -113,9 +113,11 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, channel_without_values, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
+    from okid_ros.tools.output_paths import check_folder_option, check_output_paths, prepare_file_outputs
 
     out, outputs = Path(args.json), _outputs(args)
+    if args.plot_dir:
+        check_folder_option("--plot-dir", args.plot_dir)
     check_output_paths(args.data, "record", outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0

@@ -59,9 +59,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.errors import ToolParameterError
-    from okid_ros.tools.output_paths import bag_folder, check_output_paths
+    from okid_ros.tools.output_paths import bag_folder, check_folder_option, check_output_paths
     from okid_ros.tools.plots import read_plot_data, write_figures
 
+    if args.out_dir:
+        check_folder_option("--out-dir", args.out_dir)
     if _is_campaign(args.bag):
         return _plot_campaign(args)
     if not args.window > 0:

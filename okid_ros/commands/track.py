@@ -165,7 +165,6 @@ def _progress(total: int, disable: bool):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     import time
 
     import numpy as np
@@ -173,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.change_monitor import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
+    from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
     from okid_ros.service.identification import restart_window
     from okid_ros.service.tracked_record import TrackedRecord
@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     failures, waits, first_reason = 0, 0, ""  # updates without a model: refused, or waiting for rows
     last_modes: list = []
-    with handle:
+    with handle, bar:  # the bar closed on a failure too: its line ends before the error's
         fed = 0
         for k in points:
             alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
@@ -231,17 +231,17 @@ def run(args: argparse.Namespace) -> int:
                 entry.update(n_states=None, modes=[], error=reason)
             entry["elapsed_s"] = time.perf_counter() - t0
             handle.write(entry)
+        if failures + waits == len(points):  # a failure: the lines go with it, an old OUT stays (JsonLines)
+            raise DataError(f"none of the {len(points)} updates gave a model ({failures} failed, {waits} waiting "
+                            f"for rows); the first: {first_reason}")
         late = record.test_rest(monitor, fed)  # a change after the last update: said in the summary
         changes += [late] if late is not None else []
         bar.update(n_samples - fed)
-    bar.close()
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes, points[-1])  # at least one update (_arx_order checked the length)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {out}")
-    if failures + waits == len(points):
-        print(f"okid-ros track: warning: no update gave a model; the first: {first_reason}", file=sys.stderr)
     return 0
 
 
@@ -411,7 +411,8 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
                                     center=True)
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
-    model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid)  # output-only when m = 0
+    model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
+                            max_gap=record.max_gap)
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,

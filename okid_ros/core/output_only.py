@@ -43,7 +43,7 @@ from scipy import linalg
 from okid_ros.core.arx_gram import arx_regressor_product
 from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
-from okid_ros.core.gap_fill import missing_mask
+from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
@@ -134,6 +134,7 @@ def identify_output_only(
     low_band: bool = True,
     valid: np.ndarray | None = None,
     workers: int = 1,
+    max_gap: int = MAX_GAP_SAMPLES,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -155,7 +156,10 @@ def identify_output_only(
         prediction (:func:`.gap_fill.fill_missing_outputs`, or node 2's window): the steps that
         need an unbroken record (spectrum, harmonics, gain, decimated band) use the filled
         values, the output correlations (ssi-cov) leave them out (a prediction lacks the
-        innovation's spread and would bias them). None: every sample measured.
+        innovation's spread and would bias them). None: every sample measured. Held to the
+        input-output record's rule (:func:`.gap_fill.missing_problem`): first and last samples
+        measured, runs of at most ``max_gap`` filled, at most a tenth of the record.
+    max_gap : the longest run of filled samples taken (node 2's ``estimator.max_gap_samples``).
     workers : threads for the orders' and the jackknife's decompositions (:mod:`.worker_threads`):
         the same model for any number, sooner with more cores (``okid-ros identify``: every core).
 
@@ -169,11 +173,7 @@ def identify_output_only(
     """
     check_output_only_options(method, harmonics, methods=OUTPUT_ONLY_METHODS, max_states=max_states,
                               block_rows=block_rows, low_band=low_band, workers=workers)
-    try:
-        present = None if valid is None else missing_mask(valid, np.shape(y)[0])
-    except ValueError as exc:
-        raise IdentificationError(str(exc)) from None
-    y, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=present)
+    y, present, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=valid, max_gap=max_gap)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
     scales = group_scales(np.zeros((y.shape[0], 0)), y)

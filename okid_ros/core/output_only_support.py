@@ -9,6 +9,7 @@ from scipy import linalg
 
 from okid_ros.core.channels import channel_mean, channel_std, column_peaks
 from okid_ros.core.excitation import output_problem
+from okid_ros.core.gap_fill import MAX_GAP_SAMPLES, missing_mask, missing_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
@@ -27,16 +28,17 @@ __all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknif
 MIN_SAMPLES = 200
 
 
-def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """``y`` as (N, p) floats less its means (``offsets="remove"``) and drift, the means, warnings.
+def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_gap: int = MAX_GAP_SAMPLES
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, list[str]]:
+    """``y`` as (N, p) floats less its means (``offsets="remove"``) and drift, ``valid``, the means, warnings.
 
-    ``valid`` (N,) bool: False at samples filled by prediction (the drift's line leaves them out).
-    Clipped and drifting channels are named (:mod:`.sensor_faults`; a drift is removed unless
-    ``offsets="none"``).
+    ``valid`` (N,) bool: False at samples filled by prediction (the drift's line leaves them out),
+    returned as a bool mask (None when no sample is); held to the input-output record's gap rule
+    (:func:`.gap_fill.missing_problem`, runs of at most ``max_gap``). Clipped and drifting
+    channels are named (:mod:`.sensor_faults`; a drift is removed unless ``offsets="none"``).
 
     Raises IdentificationError naming what is wrong (shape, NaN/Inf, a dead channel or one the
-    others make up, too short, a bad sample time).
+    others make up, too short, too much filled, a bad sample time).
     """
     if offsets not in OFFSETS:
         raise IdentificationError(f"offsets must be one of {OFFSETS}, got {offsets!r}")
@@ -52,9 +54,15 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
         raise IdentificationError(problem)
     if y.shape[0] < MIN_SAMPLES:
         raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
+    try:
+        valid = None if valid is None else missing_mask(valid, y.shape[0])
+    except ValueError as exc:
+        raise IdentificationError(str(exc)) from None
     if valid is not None and valid.sum() < MIN_SAMPLES:  # their correlations were 0 / 0: NaN, then a ValueError
         raise IdentificationError(f"too few measured samples for output-only identification: {int(valid.sum())} of "
                                   f"the {valid.size} (valid True) < {MIN_SAMPLES}")
+    if valid is not None and (problem := missing_problem(valid, max_gap=max_gap)):  # 90 % filled was taken
+        raise IdentificationError(problem)
     if not np.all(np.isfinite(y)):
         bad = np.argwhere(~np.isfinite(y))[0]
         raise IdentificationError(f"y holds NaN or Inf (first at sample {bad[0]}, channel {bad[1]})")
@@ -71,8 +79,8 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid: np.ndarray 
         action = "removed" if offsets == "remove" else "NOT removed (offsets='none')"
         warnings.append(f"large offsets {action} on outputs {', '.join(str(int(i)) for i in large[:6])}")
     if offsets == "none":
-        return y, np.zeros(y.shape[1]), warnings
-    return y - mean, mean, warnings
+        return y, valid, np.zeros(y.shape[1]), warnings
+    return y - mean, valid, mean, warnings
 
 
 def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> list[tuple[complex, ModeCluster]]:

@@ -27,6 +27,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.core.options import RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS, identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
@@ -102,7 +103,8 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
 def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
                     options: RealizationOptions, offsets: str = "remove",
                     output_only_method: str = OUTPUT_ONLY_METHODS[0],
-                    valid: np.ndarray | None = None, order_hint: int | None = None) -> IdentifiedModel:
+                    valid: np.ndarray | None = None, order_hint: int | None = None,
+                  max_gap: int = MAX_GAP_SAMPLES) -> IdentifiedModel:
     """The core's model of one window: from its ARX fit, or (m = 0) from its outputs alone.
 
     The one place where the nodes (:func:`realize`), ``okid-ros process`` and ``okid-ros
@@ -120,13 +122,16 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
         left out of the Gram of past data (input-output route) or of the output correlations
         (output-only route).
     order_hint : the order of the model in use, which warm-starts the order search.
+    max_gap : the longest gap the window's filled samples may come from (node 2's
+        ``estimator.max_gap_samples``); the output-only route holds ``valid`` to it.
 
     Raises
     ------
     IdentificationError, ValueError or numpy.linalg.LinAlgError with the reason.
     """
     if u.shape[1] == 0:
-        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid)
+        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid,
+                                    max_gap=max_gap)
     return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid,
                              order_hint=order_hint)
 
@@ -150,7 +155,7 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     try:
         model = identify_window(job.fit, job.u, job.y, prm.sample_time_s, options=prm.realization_options(),
                                 offsets=prm.offsets, output_only_method=prm.output_only_method,
-                                valid=job.valid, order_hint=job.order_hint)
+                                valid=job.valid, order_hint=job.order_hint, max_gap=prm.max_gap_samples)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return refused(f"realization failed: {exc}")
     elapsed = time.perf_counter() - t0

@@ -22,15 +22,17 @@ import contextlib
 import contextvars
 import os
 import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from okid_ros.errors import OutputError, is_special_file, one_line
+from okid_ros.errors import OutputError, is_special_file, name_beside, one_line, special_file_kind
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_output_paths", "check_replaceable",
-           "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output", "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_folder_option", "check_output_paths",
+           "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output",
+           "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -151,7 +153,8 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     folder was written) and an existing folder. Every output is checked before any folder is
     made; the parent folders are made with ``force`` too (a rerun with it was refused where the
     first run succeeded), and removed again if the command fails while they are empty
-    (:func:`made_folders_removed_on_failure`).
+    (:func:`made_folders_removed_on_failure`). Each folder must then take a new file: one that
+    refuses it fails here, before the work and before any output is written.
 
     Parameters
     ----------
@@ -162,15 +165,32 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     Raises
     ------
     OutputError
-        a folder's name or a folder.
+        a folder's name or a folder; a folder that takes no new file.
     OutputExistsError, BagWriteError
         as :func:`prepare_output`.
     """
     for path, kind in outputs:
         check_file_name(path, kind)
         check_replaceable(Path(path), force=force, kind=kind)
-    for path, _ in outputs:
+    for path, kind in outputs:
         _make_folder(Path(path).parent, Path(path))
+        _check_folder_takes_files(Path(path), kind)
+
+
+def _check_folder_takes_files(out: Path, kind: str) -> None:
+    """OutputError unless a new file can be made beside ``out``, as its temporary file will be.
+
+    A folder that refuses new files (``/proc``, read-only) was found only when the output was
+    written, after the work and after the outputs written before it. A device is written into.
+    """
+    if is_special_file(out):
+        return
+    try:
+        with tempfile.TemporaryFile(dir=out.parent):  # no name left behind, whatever happens
+            pass
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot write the {kind} in the folder {out.parent} "
+                          f"({one_line(exc.strerror or exc)})") from None
 
 
 def check_file_name(path: str | os.PathLike, kind: str) -> None:
@@ -222,6 +242,13 @@ class StagedOutput:
     old one. A new path is written in place (JSON lines can be followed as they come) and removed
     by :meth:`discard`; a device or FIFO (``/dev/null``) is written into.
 
+    Not :func:`okid_ros.errors.replacing` (the file outputs of ``identify``, ``track``, ``export``),
+    for a reason: a bag is a folder, which cannot be renamed over another, so the old output is
+    moved aside first (and put back if the new one cannot take its place); a new path is written
+    in place, where ``process``'s JSON lines are followed as they come and ``record`` keeps what it
+    recorded when interrupted; and the ``--force`` rule is checked here, as each output is made,
+    where ``replacing``'s callers check every output before the work (:func:`prepare_file_outputs`).
+
     Parameters
     ----------
     path : the output's path.
@@ -242,8 +269,7 @@ class StagedOutput:
         _make_folder(self.path.parent, self.path)
         if not replacing:
             return
-        stem = os.fsdecode(os.fsencode(self.path.name)[:200])  # a legal long name stays legal with the tag
-        folder = self.path.with_name(f".{stem}.tmp-{uuid.uuid4().hex[:8]}")
+        folder = name_beside(self.path, f"tmp-{uuid.uuid4().hex[:8]}")
         try:
             folder.mkdir()
         except OSError as exc:
@@ -306,6 +332,33 @@ def made_folders_removed_on_failure() -> Iterator[None]:
         _MADE_FOLDERS.reset(token)
 
 
+def check_folder_option(option: str, path: str | os.PathLike) -> None:
+    """OutputError ``--out-dir X: is a file, not a folder`` when ``path`` or a folder above it is no folder.
+
+    The one check of every option naming a folder to write into (``identify --plot-dir``, ``plot
+    --out-dir``, ``demo --out-dir``, ``batch --out``), before the work: its mkdir said only
+    ``cannot create the parent folder (File exists)``.
+    """
+    if found := _non_folder(Path(path)):
+        part, kind = found
+        where = "" if part == Path(path) else f"{part} "
+        raise OutputError(f"{option} {os.fspath(path)}: {where}is {kind}, not a folder")
+
+
+def _non_folder(path: Path) -> tuple[Path, str] | None:
+    """``path`` or the nearest path above it that exists, when it is no folder, and what it is ("a file")."""
+    for part in (path, *path.parents):
+        try:
+            if not (part.exists() or part.is_symlink()):
+                continue
+            if part.is_dir():
+                return None
+        except OSError:  # a name too long, no permission: its mkdir says why
+            return None
+        return part, "a link to nothing" if not part.exists() else special_file_kind(part) or "a file"
+    return None
+
+
 def _make_folder(folder: Path, out: Path) -> None:
     """``mkdir -p folder``, removing the folders it made when a deeper one fails (a name too long)."""
     todo = []
@@ -321,6 +374,8 @@ def _make_folder(folder: Path, out: Path) -> None:
         for folder in reversed(made):
             with contextlib.suppress(OSError):
                 folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
+        if found := _non_folder(folder):  # was "cannot create the parent folder (File exists)"
+            raise BagWriteError(f"{out}: {found[0]} is {found[1]}, not a folder") from None
         raise BagWriteError(f"{out}: cannot create the parent folder ({one_line(exc.strerror or exc)})") from None
     watching = _MADE_FOLDERS.get()
     if watching is not None:

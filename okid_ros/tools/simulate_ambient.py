@@ -26,7 +26,7 @@ import numpy as np
 
 from okid_ros.jsonio import dumps
 from okid_ros.tools.bagio import TRUTH_KEY, BagWriter
-from okid_ros.tools.simulate_bag import Experiment, accelerometer_message, experiment_samples
+from okid_ros.tools.simulate_bag import Experiment, accelerometer_message, experiment_samples, write_staged_bag
 
 __all__ = ["AMBIENT_FREQUENCIES_HZ", "AMBIENT_IMU_TOPICS", "simulate_ambient", "write_ambient_bag"]
 
@@ -81,16 +81,24 @@ def simulate_ambient(duration_s: float = 90.0, seed: int = 1, start_ns: int | No
 
 def write_ambient_bag(path: str | Path, experiment: Experiment, storage: str = "mcap",
                       force: bool = False) -> dict[str, int]:
-    """Write ``experiment`` (6 outputs) as two Imu topics (see the module docstring); messages per topic."""
-    with BagWriter(path, storage=storage, force=force) as bag:
-        bag.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
-        for topic in AMBIENT_IMU_TOPICS:
-            bag.add_topic(topic, "sensor_msgs/msg/Imu")
-        Time = bag.msg_class("builtin_interfaces/msg/Time")
-        imu = accelerometer_message(bag)
-        y = experiment.y
-        for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
-            stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-            for i, topic in enumerate(AMBIENT_IMU_TOPICS):
-                bag.write(topic, stamp_ns, imu(stamp, _IMU_FRAMES[i], tuple(float(v) for v in y[k, 3 * i: 3 * i + 3])))
-        return dict(bag.counts)
+    """Write ``experiment`` (6 outputs) as two Imu topics (see the module docstring); messages per topic.
+
+    An old bag (``force``) is replaced by a complete new one only, as `simulate` replaces one
+    (:func:`~okid_ros.tools.simulate_bag.write_staged_bag`; it was removed before the writing).
+    """
+    return write_staged_bag(path, lambda bag: _write_imu_messages(bag, experiment), storage=storage, force=force)
+
+
+def _write_imu_messages(bag: BagWriter, experiment: Experiment) -> dict[str, int]:
+    """The truth, topics and messages of :func:`write_ambient_bag`; returns the messages written per topic."""
+    bag.set_custom_data(TRUTH_KEY, dumps(experiment.truth))
+    for topic in AMBIENT_IMU_TOPICS:
+        bag.add_topic(topic, "sensor_msgs/msg/Imu")
+    Time = bag.msg_class("builtin_interfaces/msg/Time")
+    imu = accelerometer_message(bag)
+    y = experiment.y
+    for k, stamp_ns in enumerate(experiment.stamps_ns.tolist()):
+        stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+        for i, topic in enumerate(AMBIENT_IMU_TOPICS):
+            bag.write(topic, stamp_ns, imu(stamp, _IMU_FRAMES[i], tuple(float(v) for v in y[k, 3 * i: 3 * i + 3])))
+    return dict(bag.counts)

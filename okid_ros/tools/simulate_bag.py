@@ -32,6 +32,7 @@ covariance, the input, the seed and the topic/channel map.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +53,7 @@ __all__ = [
     "experiment_samples",
     "simulate_experiment",
     "write_experiment_bag",
+    "write_staged_bag",
 ]
 
 IO_SAMPLE_TOPIC = "/okid/io_sample"
@@ -280,12 +282,24 @@ def write_experiment_bag(path: str | Path, experiment: Experiment, storage: str 
         the bag cannot be written; the partial bag this call wrote is removed, an old one it was to
         replace stays as it was.
     """
+    return write_staged_bag(path, lambda bag: _write_messages(bag, experiment, progress), storage=storage,
+                            force=force)
+
+
+def write_staged_bag(path: str | Path, write: Callable[[BagWriter], dict[str, int]], *, storage: str,
+                     force: bool) -> dict[str, int]:
+    """A new bag at ``path`` whose messages ``write(bag)`` writes, returning what it returns.
+
+    An old bag (``force``) is replaced by a complete new one only
+    (:class:`~okid_ros.tools.output_paths.StagedOutput`): a failure half-way keeps it, and removes
+    the partial bag.
+    """
     from okid_ros.tools.output_paths import StagedOutput
 
-    staged = StagedOutput(path, force=force)  # an old bag is replaced by a complete new one only
+    staged = StagedOutput(path, force=force)
     try:
         with BagWriter(staged.staged, storage=storage) as bag:
-            counts = _write_messages(bag, experiment, progress)
+            counts = write(bag)
     except BaseException:
         staged.discard()
         raise

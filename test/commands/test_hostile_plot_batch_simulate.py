@@ -135,7 +135,7 @@ def output_bag(tmp_path) -> Path:
 
 
 @pytest.mark.parametrize("where, fragment", [
-    ("file", "exists and is not a folder"),
+    ("file", "is a file, not a folder"),
     ("/proc/okid_figs", "cannot create the folder of the figures"),
     ("long", "File name too long"),
 ])
@@ -253,7 +253,7 @@ def test_a_reference_without_imaginary_parts_or_of_huge_numbers_is_compared():
 # --- batch ----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("where, fragment", [
-    ("file", "exists and is not a directory"),
+    ("file", "is a file, not a folder"),
     ("/proc/okid_campaign", "cannot create the campaign directory"),
     ("long", "File name too long"),
 ])

@@ -198,10 +198,14 @@ def test_demo_refuses_an_experiment_without_a_model_and_a_rate_the_nodes_cannot_
 
 
 def test_demo_names_an_out_dir_it_cannot_make_in_one_line(capsys, tmp_path):
-    """A file as --out-dir: the run folder's error, exit 2 (was: NotADirectoryError, internal error, exit 70)."""
+    """A file as --out-dir: named as one, exit 2.
+
+    Was: NotADirectoryError, internal error, exit 70; then the run folder's "cannot create the parent folder (File
+    exists)".
+    """
     (tmp_path / "a_file").write_text("")
     line = one_line_error(capsys, ["demo", "--no-ansi", "--duration", "20", "--out-dir", str(tmp_path / "a_file")])
-    assert "a_file/" in line and "cannot create" in line, line
+    assert line.endswith(f"--out-dir {tmp_path / 'a_file'}: is a file, not a folder"), line
     assert (tmp_path / "a_file").is_file() and list(tmp_path.iterdir()) == [tmp_path / "a_file"]
 
 

@@ -210,3 +210,38 @@ def test_a_failed_command_leaves_no_empty_folder_it_made(record, tmp_path, capsy
                            tmp_path / "there" / "figures" / "new", "--no-refine")
     assert_one_line_error(code, err, "the JSON model is written")
     assert model.is_file() and sorted(p.name for p in (tmp_path / "there").iterdir()) == []
+
+
+def test_a_folder_that_takes_no_file_is_refused_before_the_work(record, tmp_path, capsys):
+    # /proc takes no new file: identify wrote the JSON, then failed on --uff (exit 2 after the work);
+    # export read the whole bag first. Now every output's folder is tried before the work.
+    model = tmp_path / "m.json"
+    for option, path in (("--uff", "/proc/nope.uff"), ("--csv", "/proc/nope.csv"), ("--plot-dir", "/proc")):
+        code, out, err = run_cli(capsys, "identify", record, "--json", model, option, path, "--no-refine")
+        assert_one_line_error(code, err, f"{path}", "in the folder /proc")
+        assert out == "" and not model.exists()
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", "/proc/t.jsonl", "--no-progress")
+    assert_one_line_error(code, err, "/proc/t.jsonl: cannot write the JSON lines file in the folder /proc")
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"not a bag")
+    code, _, err = run_cli(capsys, "export", garbage, "--npz", "/proc/r.npz")
+    assert_one_line_error(code, err, "/proc/r.npz: cannot write the record in the folder /proc")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.mcap", "rec.npz"]
+
+
+def test_a_file_given_for_a_folder_is_named_as_one(record, tmp_path, capsys):
+    # A file as --plot-dir (or above it, or above an output) said "cannot create the parent folder (File exists)".
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    model = tmp_path / "m.json"
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--plot-dir", afile)
+    assert_one_line_error(code, err, f"--plot-dir {afile}: is a file, not a folder")
+    code, _, err = run_cli(capsys, "identify", record, "--json", model, "--plot-dir", afile / "figs")
+    assert_one_line_error(code, err, f"--plot-dir {afile / 'figs'}: {afile} is a file, not a folder")
+    code, _, err = run_cli(capsys, "identify", record, "--json", afile / "m.json")
+    assert_one_line_error(code, err, f"{afile / 'm.json'}: {afile} is a file, not a folder")
+    code, _, err = run_cli(capsys, "batch", tmp_path, "--out", afile)
+    assert_one_line_error(code, err, f"--out {afile}: is a file, not a folder")
+    code, _, err = run_cli(capsys, "simulate", "--out", afile / "bag", "--duration", "1")
+    assert_one_line_error(code, err, f"{afile / 'bag'}: {afile} is a file, not a folder")
+    assert afile.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["afile", "rec.npz"]

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 
 from okid_ros.cli import main as okid_ros_main
 from okid_ros.core.arx import fit_arx
@@ -206,23 +207,37 @@ def test_order_auto_is_chosen_on_samples_without_nan(record, tmp_path, capsys):
     assert "--order auto chooses the ARX order on 1200 samples without NaN/Inf" in capsys.readouterr().err
 
 
-def test_updates_that_all_wait_for_rows_say_so_on_stderr(record, tmp_path, capsys):
-    # The first 2300 samples without outputs: no window ever holds the rows a model needs. Each line
-    # says why it waits and, as when every update is refused, one warning says no model came out
-    # (was: "3 updates (0 failed)" and nothing on stderr but the NaN count).
+def test_updates_that_all_wait_for_rows_fail_the_run_in_one_line(record, tmp_path, capsys):
+    # The first 2300 samples without outputs: no window ever holds the rows a model needs. The run
+    # fails, saying why the first update waited (was: "3 updates (0 failed)" and nothing on stderr but
+    # the NaN count; then exit 0 with a warning and lines without a model).
     _, u, y = record
     y = y.copy()
     y[:2300] = np.nan
     path = tmp_path / "late.npz"
     save_record(path, u, y, DT)
-    lines = _track(path, tmp_path / "late.jsonl", "--order", "20", "--window", "1500", "--every", "400")
-    assert lines and all(not line["modes"] and "rows needed" in line["waiting"] for line in lines), lines
+    code, _, err = run_cli(capsys, "track", path, "--jsonl", tmp_path / "late.jsonl", "--no-progress", "--order",
+                           "20", "--window", "1500", "--every", "400")
+    warning, error = err.strip().split("\n")  # the NaN count, then why the run failed
+    assert "2300 of the 2600 samples hold NaN/Inf" in warning
+    assert_one_line_error(code, error, "none of the 3 updates gave a model (0 failed, 3 waiting for rows); the first: "
+                          "the window holds 0 of the 375 rows needed")
     # The reason names what was rejected, and nothing that was not (no "0 samples rejected for values beyond").
-    assert all("for NaN/Inf" in line["waiting"] and "1e150" not in line["waiting"] for line in lines), lines
-    captured = capsys.readouterr()
-    assert "(0 failed, 3 waiting for rows)" in captured.out
-    assert "okid-ros track: warning: no update gave a model; the first: the window holds 0 of the 375 rows" in (
-        captured.err), captured.err
+    assert "for NaN/Inf" in error and "1e150" not in error, error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["late.npz"]
+
+
+def test_a_run_where_no_update_gives_a_model_fails_and_writes_nothing(record, tmp_path, capsys):
+    # --states 100, beyond every window's rank: each update failed, and track exited 0 with a warning and
+    # lines of errors only. A run without a model is a failure; an old OUT stays as it was.
+    path, _, _ = record
+    out = tmp_path / "t.jsonl"
+    out.write_text("old lines\n")
+    code, stdout, err = run_cli(capsys, "track", path, "--jsonl", out, "--window", "1000", "--every", "1000",
+                                "--order", "20", "--states", "100", "--no-progress", "--force")
+    assert_one_line_error(code, err, "none of the 2 updates gave a model (2 failed, 0 waiting for rows); the first: "
+                          "100 states are not supported")
+    assert stdout == "" and out.read_text() == "old lines\n" and list(tmp_path.iterdir()) == [out]
 
 
 def test_updates_after_the_data_stop_say_so_instead_of_repeating_the_last_window(record, tmp_path, capsys):

@@ -320,10 +320,23 @@ def test_options_of_the_wrong_kind_are_refused_with_their_name(options, reason) 
         identify_output_only(_three_modes(3000, 2, seed=0), 0.02, **options)
 
 
-def test_measured_samples_in_one_segment_leave_the_others_out_of_the_jackknife() -> None:
-    """The first 600 of 3000 samples measured: the empty segments weigh nothing (was: 0 / 0, a ValueError)."""
-    model = identify_output_only(_three_modes(3000, 2, seed=0), 0.02, valid=np.arange(3000) < 600)
-    assert np.isfinite([m.frequency_hz for m in model.modes]).all() and model.modes
+def test_a_mask_is_held_to_the_input_output_gap_rule() -> None:
+    """90 % of the samples filled, the first 600 of 3000 alone measured, or a run of 11 filled: refused.
+
+    They were identified (a model of predictions); the input-output ``identify`` refused them
+    (``gap_fill.missing_problem``). A longer run is taken where the gap bridge is longer (node 2).
+    """
+    y = _three_modes(3000, 2, seed=0)
+    sparse = np.arange(3000) % 10 == 0
+    sparse[-1] = True
+    one_gap = np.ones(3000, bool)
+    one_gap[1000:1011] = False
+    for valid, reason in ((sparse, "2699 of the 3000 samples are missing; at most 10% are filled"),
+                          (np.arange(3000) < 600, "must start and end with a measured one"),
+                          (one_gap, "11 samples are missing in a row before sample 1011; at most 10 are filled")):
+        with pytest.raises(IdentificationError, match=reason):
+            identify_output_only(y, 0.02, valid=valid)
+    assert identify_output_only(y, 0.02, valid=one_gap, max_gap=11).modes
 
 
 @pytest.mark.parametrize(("y", "reason"), [

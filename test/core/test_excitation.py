@@ -236,12 +236,12 @@ def test_identify_and_track_report_dead_inputs_in_json(tmp_path, one_input_recor
     assert any("input 1" in w for w in entries[0]["warnings"]) and entries[0]["n_states"]
     assert "no input carries excitation" in entries[-1]["error"] and entries[-1]["n_states"] is None
     assert "no update gave a model" not in capsys.readouterr().err  # some did
-    u_dead[:, 0] = 0.0
+    u_dead[:, 0] = 0.0  # no update gives a model: the run fails
     np.savez(path, u=u_dead, y=y, sample_time_s=DT)
     assert okid_ros_main(["track", str(path), "--jsonl", str(tmp_path / "t.jsonl"), "--order", "20",
-                          "--window", "800", "--every", "400", "--no-progress", "--force"]) == 0
+                          "--window", "800", "--every", "400", "--no-progress", "--force"]) == 2
     err = capsys.readouterr().err
-    assert "okid-ros track: warning: no update gave a model; the first: not identified: no input carries" in err, err
+    assert "gave a model (6 failed, 0 waiting for rows); the first: not identified: no input carries" in err, err
 
 
 def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_record) -> None:

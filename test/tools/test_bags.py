@@ -497,6 +497,25 @@ def test_a_simulate_that_fails_keeps_the_bag_it_was_to_replace(small_bag, tmp_pa
     assert not (tmp_path / "new").exists()  # a new path: the partial bag removed, as before
 
 
+def test_an_ambient_bag_that_fails_keeps_the_bag_it_was_to_replace(tmp_path):
+    # write_ambient_bag (demo --output-only's experiment) removed an old bag before writing (BagWriter with
+    # force): a failure half-way left a partial bag in its place. Now written beside, as simulate does.
+    import dataclasses
+
+    from okid_ros.tools.simulate_ambient import simulate_ambient, write_ambient_bag
+
+    bag = tmp_path / "ambient"
+    experiment = simulate_ambient(1.0, seed=2, start_ns=1_000 * 1_000_000_000)
+    write_ambient_bag(bag, experiment)
+    before = sorted((p.name, p.read_bytes()) for p in bag.iterdir())
+    three_outputs = dataclasses.replace(experiment, y=experiment.y[:, :3])  # the second Imu has no values
+    with pytest.raises(ValueError):
+        write_ambient_bag(bag, three_outputs, force=True)
+    assert sorted((p.name, p.read_bytes()) for p in bag.iterdir()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ambient"]  # nothing left beside it
+    assert write_ambient_bag(bag, experiment, force=True) == {"/okid/imu_top": 200, "/okid/imu_base": 200}
+
+
 def test_a_ros1_bag_is_read_and_its_messages_come_out_as_cdr(tmp_path):
     from rosbags.rosbag1 import Writer as Ros1Writer
 
