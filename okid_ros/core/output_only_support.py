@@ -172,8 +172,8 @@ class Jackknife:
 
     @property
     def realizers(self) -> list[OrderRealizer]:
-        """The replicates' realizers, one per left-out segment (waited for on first use)."""
-        return [future.result() for future in self._replicates]
+        """The replicates' realizers, one per left-out segment (made or waited for on first use)."""
+        return [task.result() for task in self._replicates]
 
     def std(self, targets: np.ndarray, n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Standard deviations ``(frequency_hz_std, damping_ratio_std)``, (M,) each.

@@ -161,7 +161,7 @@ class OrderRealizer:
         if n_states in self._eigen:
             return self._eigen[n_states][0]
         if n_states not in self._eigenvalues:
-            self._eigenvalues[n_states] = linalg.eigvals(self._state_matrix(n_states))
+            self._eigenvalues[n_states] = np.linalg.eigvals(self._state_matrix(n_states))
         return self._eigenvalues[n_states]
 
     def observability(self, n_states: int) -> np.ndarray:

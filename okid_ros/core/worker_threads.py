@@ -7,45 +7,92 @@ code makes, on the same arrays, so the results are bit for bit those of one thre
 (``test/core/test_output_only_threads.py``). With one worker nothing is threaded (the live
 nodes' realizations keep one, beside their sample path).
 
-The standard library's :class:`concurrent.futures.ThreadPoolExecutor` does the threading; this
-class only gives the serial case the same interface without a pool.
+``workers`` counts the calling thread: it never waits idle for the others. In :meth:`map` it takes
+items as the others do, and a task it asks the result of that no thread has started yet it runs
+itself. So ``workers`` threads are busy at most, and work queued earlier (the jackknife's
+replicates, submitted before the diagram) does not hold up work the caller needs now.
+The standard library's :class:`concurrent.futures.ThreadPoolExecutor` runs the other threads.
 """
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
-__all__ = ["SERIAL", "WorkerThreads"]
+__all__ = ["SERIAL", "Task", "WorkerThreads"]
+
+
+class Task:
+    """A call submitted to :class:`WorkerThreads`; :meth:`result` runs it in the caller if no thread has begun it."""
+
+    def __init__(self, function: Callable[..., Any], args: tuple, future: Future | None) -> None:
+        self._call = (function, args)
+        self._future = future
+        self._value: Any = None
+        self._done = future is None
+
+    def result(self) -> Any:
+        """The call's value (its exception raised here)."""
+        if not self._done:
+            if self._future.cancel():  # not begun: the caller runs it rather than wait for a thread
+                function, args = self._call
+                self._value = function(*args)
+            else:
+                self._value = self._future.result()
+            self._done, self._future = True, None
+        return self._value
+
+    @classmethod
+    def ran(cls, function: Callable[..., Any], args: tuple) -> Task:
+        """The call run at once, in the calling thread."""
+        task = cls(function, args, None)
+        task._value = function(*args)
+        return task
 
 
 class WorkerThreads:
-    """``workers`` threads (none for 1), a context manager that joins them on exit.
+    """``workers`` threads counting the caller's (none started for 1); a context manager that joins them.
 
     Parameters
     ----------
-    workers : threads for the tasks (1: each task runs in the calling thread when submitted).
+    workers : threads busy at most, the calling thread among them.
     """
 
     def __init__(self, workers: int = 1) -> None:
         self.workers = int(workers)
-        self._pool = (ThreadPoolExecutor(self.workers, thread_name_prefix="okid_worker")
+        self._pool = (ThreadPoolExecutor(self.workers - 1, thread_name_prefix="okid_worker")
                       if self.workers > 1 else None)
 
     def map(self, function: Callable[[Any], Any], items: Iterable[Any]) -> list:
-        """``[function(item) for item in items]``, the items shared among the threads."""
-        if self._pool is None:
+        """``[function(item) for item in items]``, the items taken in turn by the caller and the free threads."""
+        items = list(items)
+        if self._pool is None or len(items) < 2:
             return [function(item) for item in items]
-        return list(self._pool.map(function, items))
+        results: list = [None] * len(items)
+        taken = itertools.count()  # its next() is atomic under the GIL: each index is taken once
+        stop = []
 
-    def submit(self, function: Callable[..., Any], *args: Any) -> Future:
-        """A future of ``function(*args)`` (with one worker already done: an error raises here)."""
-        if self._pool is not None:
-            return self._pool.submit(function, *args)
-        future: Future = Future()
-        future.set_result(function(*args))
-        return future
+        def take() -> None:
+            while not stop and (i := next(taken)) < len(items):
+                results[i] = function(items[i])
+
+        helpers = [self._pool.submit(take) for _ in range(min(self.workers - 1, len(items) - 1))]
+        try:
+            take()
+        finally:
+            stop.append(True)  # after an error in the caller the threads take no further item
+            for helper in helpers:
+                if not helper.cancel():  # one a thread began: wait for its item (its error raised)
+                    helper.result()
+        return results
+
+    def submit(self, function: Callable[..., Any], *args: Any) -> Task:
+        """``function(*args)`` for a free thread (with one worker: run now, an error raised here)."""
+        if self._pool is None:
+            return Task.ran(function, args)
+        return Task(function, args, self._pool.submit(function, *args))
 
     def __enter__(self) -> WorkerThreads:
         return self

@@ -39,18 +39,42 @@ def test_threads_give_the_one_thread_model_bit_for_bit(case: str) -> None:
     assert _fingerprint(threaded) == _fingerprint(serial)
 
 
-def test_the_work_runs_in_other_threads_and_they_are_joined() -> None:
-    seen = set()
+def test_the_work_runs_in_another_thread_beside_the_caller_and_it_is_joined() -> None:
+    started = threading.Event()
 
-    def task(k: int) -> int:
-        seen.add(threading.current_thread().name)
-        return k * k
+    def waits_for_the_caller() -> str:  # returns only if the caller runs on meanwhile
+        started.set()
+        assert release.wait(10)
+        return threading.current_thread().name
+
+    release = threading.Event()
+    with WorkerThreads(2) as threads:
+        task = threads.submit(waits_for_the_caller)
+        assert started.wait(10)
+        release.set()
+        assert task.result().startswith("okid_worker")
+        assert threads.map(lambda k: k * k, range(40)) == [k * k for k in range(40)]
+    assert not any(t.name.startswith("okid_worker") and t.is_alive() for t in threading.enumerate())
+
+
+def test_the_caller_does_the_work_no_thread_has_begun() -> None:
+    """Work queued behind a busy thread (the replicates, before the diagram) is done by the caller, not waited for."""
+    caller, names = threading.current_thread().name, []
+    busy, release = threading.Event(), threading.Event()
+
+    def occupy() -> None:
+        busy.set()
+        assert release.wait(10)
 
     with WorkerThreads(2) as threads:
-        assert threads.map(task, range(40)) == [k * k for k in range(40)]
-        assert threads.submit(task, 7).result() == 49
-    assert seen and all(name.startswith("okid_worker") for name in seen)
-    assert not any(t.name.startswith("okid_worker") and t.is_alive() for t in threading.enumerate())
+        occupying = threads.submit(occupy)
+        assert busy.wait(10)
+        queued = threads.submit(lambda: threading.current_thread().name)
+        assert queued.result() == caller  # its thread is busy: run by the caller
+        assert threads.map(lambda k: names.append(threading.current_thread().name) or k, range(5)) == list(range(5))
+        assert set(names) == {caller}
+        release.set()
+        occupying.result()
 
 
 def test_one_worker_runs_in_the_calling_thread_and_raises_at_once() -> None:
@@ -62,8 +86,12 @@ def test_one_worker_runs_in_the_calling_thread_and_raises_at_once() -> None:
         threads.submit(lambda: 1 / 0)
 
 
-def test_an_error_in_a_thread_reaches_the_caller() -> None:
+@pytest.mark.parametrize("where", ["submitted", "mapped"])
+def test_an_error_in_a_thread_reaches_the_caller(where: str) -> None:
+    bad = np.full((3, 3), np.nan)
     with WorkerThreads(2) as threads:
-        future = threads.submit(np.linalg.eig, np.full((3, 3), np.nan))
         with pytest.raises(np.linalg.LinAlgError):
-            future.result()
+            if where == "submitted":
+                threads.submit(np.linalg.eig, bad).result()
+            else:
+                threads.map(np.linalg.eig, [np.eye(3), bad, np.eye(3), bad])
