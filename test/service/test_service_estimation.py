@@ -443,26 +443,34 @@ def test_a_window_longer_than_the_fixed_buffer_is_refused_naming_the_buffer(pipe
     assert "estimator.buffer_length 100 keeps" in reason
 
 
+def _service_with_its_job(*, activated: bool):
+    """Node 2's service fed the paper model's record, an ArxModel of it submitted and its job taken.
+
+    Returns ``(service, job, (u, y, sample_time_s, samples))``.
+    """
+    model = paper_model()
+    dt, n = model.sample_time_s, 2600
+    u = lowpass_input(n, 2, 50.0, dt, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
+    service = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    if activated:
+        service.reset()  # activate
+    for k in range(n):
+        ident.push(T0 + k * dt, u[k], y[k])
+        service.step(T0 + k * dt, u[k], y[k])
+    snap = ident.snapshot()
+    assert service.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    return service, service.take_job(), (u, y, dt, n)
+
+
 def test_a_new_service_never_takes_the_outcome_of_its_predecessors_job():
     # A lifecycle cleanup and configure gives node 2 a new service while the old one's realization
     # still runs; both counted their job generations from 0 (one reset each at activate), so the
     # new service took the old job's outcome: a model of the window before the cleanup, applied
     # as model 1 after activate (measured live with realization.worker thread).
-    model = paper_model()
-    dt, n = model.sample_time_s, 2600
-    u = lowpass_input(n, 2, 50.0, dt, seed=3)
-    y, _ = simulate_innovation(model, u, seed=4)
-    params = ModalEstimationParams(dt, 2, 2, n_states=6)
-    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
-    old = ModalEstimationService(params)
-    old.reset()  # activate
-    for k in range(n):
-        ident.push(T0 + k * dt, u[k], y[k])
-        old.step(T0 + k * dt, u[k], y[k])
-    snap = ident.snapshot()
-    assert old.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
-    job = old.take_job()
-    new = ModalEstimationService(params)  # cleanup, configure
+    old, job, (u, y, dt, n) = _service_with_its_job(activated=True)
+    new = ModalEstimationService(old.params)  # cleanup, configure
     new.reset()  # activate
     new.step(T0 + n * dt, u[0], y[0])
     outcome = realization.realize(job)
@@ -478,21 +486,10 @@ def test_an_outcome_of_a_replaced_service_is_dropped_before_its_warm_start_goes_
     # Node 2 follows each outcome (its warm start continued over the samples buffered since its
     # window) before deliver: one of the service a lifecycle cleanup replaced was continued over
     # the new service's buffer, of other samples, and its estimator built, then dropped.
-    model = paper_model()
-    dt, n = model.sample_time_s, 2600
-    u = lowpass_input(n, 2, 50.0, dt, seed=3)
-    y, _ = simulate_innovation(model, u, seed=4)
-    params = ModalEstimationParams(dt, 2, 2, n_states=6)
-    ident = ArxIdentificationService(ArxIdentificationParams(dt, Q, 2, 2, W))
-    old = ModalEstimationService(params)
-    for k in range(n):
-        ident.push(T0 + k * dt, u[k], y[k])
-        old.step(T0 + k * dt, u[k], y[k])
-    snap = ident.snapshot()
-    assert old.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
-    outcome = realization.realize(old.take_job())
+    old, job, (u, y, dt, n) = _service_with_its_job(activated=False)
+    outcome = realization.realize(job)
     assert outcome.model is not None and outcome.estimator is None
-    new = ModalEstimationService(params)  # cleanup, configure
+    new = ModalEstimationService(old.params)  # cleanup, configure
     for k in range(500):
         new.step(T0 + (n + k) * dt, u[k], y[k])
     assert new.follow(outcome) is outcome  # as realized: nothing run over the new buffer
