@@ -139,8 +139,10 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
     if input_bag is None and info.get("source") and Path(info["source"]).exists():
         input_bag = info["source"]
     without = "; no input bag: measured output drawn as the one-step prediction + innovation"
-    if input_bag is None:
-        return None, None, without
+    if input_bag is None:  # a source recorded and gone: a bag moved (batch reuses its outputs: docs/batch.md)
+        gone = f"; {info['source']}, the bag `process` read, is not there (moved? give --input)" if info.get(
+            "source") else ""
+        return None, None, gone + without
     if args.params or "parameters" not in info:
         est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
     else:
