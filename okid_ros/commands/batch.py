@@ -105,7 +105,17 @@ def _check_bags_given(args: argparse.Namespace) -> None:
                         "follow --forget)")
 
 
+def _ignored_with_forget(args: argparse.Namespace) -> list[str]:
+    """The options of processing bags given with --forget, which processes none (they were passed over in silence)."""
+    given = {"--workers": args.workers is not None, "--scheduler": args.scheduler is not None,
+             "--scheduler-timeout": args.scheduler_timeout != SCHEDULER_TIMEOUT_S,
+             "--max-failures": args.max_failures is not None, "--retry-failed": args.retry_failed,
+             "--progress": args.progress is True}
+    return [option for option, value in given.items() if value]
+
+
 def run(args: argparse.Namespace) -> int:
+    import sys
     from pathlib import Path
 
     from okid_ros.errors import OkidError
@@ -118,6 +128,9 @@ def run(args: argparse.Namespace) -> int:
     arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
                                                   strict=args.strict_params)
     _check_bags_given(args)
+    if args.forget is not None and (ignored := _ignored_with_forget(args)):
+        print(f"okid-ros batch: warning: {', '.join(ignored)}: options of processing bags; ignored with --forget "
+              "(it processes no bag)", file=sys.stderr)
     if args.plan:
         from okid_ros.tools.campaign.discovery import find_bags
         from okid_ros.tools.campaign.plan import format_plan, plan_campaign
@@ -133,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
     check_folder_option("--out", args.out)
     options = CampaignOptions(
         paths=args.paths, out_dir=Path(args.out), arx_values=arx_values, est_values=est_values,
-        namespace=namespace, storage=args.storage, workers=local_workers(args.workers),
+        namespace=namespace, storage=args.storage,
+        workers=1 if args.forget is not None else local_workers(args.workers),
         scheduler=args.scheduler, scheduler_timeout_s=args.scheduler_timeout, force=args.force,
         retry_failed=args.retry_failed, max_failures=args.max_failures, csv=args.csv, progress=args.progress,
         provenance={"params_files": args.params, "param_overrides": args.param, "namespace": namespace or "/"},

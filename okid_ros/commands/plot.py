@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     folder = bag_folder(bag_path).resolve()  # the figures go beside the bag, never inside it
     if not args.out_dir and not folder.name:
         raise ToolParameterError(f"{args.bag}: no folder to put the figures beside; give --out-dir")
-    out_dir = Path(args.out_dir) if args.out_dir else folder.with_name(folder.name + "_figures")
+    out_dir = _figure_folder(args, folder.with_name(folder.name + "_figures"))
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
     info = data.process_info or {}
@@ -139,8 +139,10 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
     if input_bag is None and info.get("source") and Path(info["source"]).exists():
         input_bag = info["source"]
     without = "; no input bag: measured output drawn as the one-step prediction + innovation"
-    if input_bag is None:
-        return None, None, without
+    if input_bag is None:  # a source recorded and gone: a bag moved (batch reuses its outputs: docs/batch.md)
+        gone = f"; {info['source']}, the bag `process` read, is not there (moved? give --input)" if info.get(
+            "source") else ""
+        return None, None, gone + without
     if args.params or "parameters" not in info:
         est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
     else:
@@ -176,6 +178,16 @@ def _run_span_ns(data: Any) -> tuple:
     return first, data.modal_stamp_ns[-1]
 
 
+def _figure_folder(args: argparse.Namespace, default: Path) -> Path:
+    """``--out-dir`` (checked first by :func:`run`), else ``default``, refused as ``--out-dir`` is when no folder."""
+    from okid_ros.tools.output_paths import check_folder_option
+
+    if args.out_dir:
+        return Path(args.out_dir)
+    check_folder_option("--out-dir (by default)", default)  # was "exists and is not a folder", another wording
+    return default
+
+
 def _is_campaign(path: str) -> bool:
     from okid_ros.tools.campaign.runner import is_campaign_dir
 
@@ -195,7 +207,7 @@ def _plot_campaign(args: argparse.Namespace) -> int:
     if ignored:
         print(f"okid-ros plot: warning: {', '.join(ignored)}: options of an output bag's figures; ignored for the "
               f"campaign folder {args.bag} (campaign_modes.png)", file=sys.stderr)
-    out_dir = Path(args.out_dir) if args.out_dir else Path(args.bag) / "figures"
+    out_dir = _figure_folder(args, Path(args.bag) / "figures")
     written = write_campaign_figures(Path(args.bag), out_dir, force=args.force)
     print(f"wrote {len(written)} figure(s) of the campaign {args.bag} to {out_dir}")
     for path in written:

@@ -108,7 +108,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="track the modes of a record over a sliding window (one JSON line per update)",
         description="Slide a window of W regressor rows over the record, updating the ARX normal "
         "equations recursively, and every S samples (once the window is full) identify the model "
-        "of the window and write its physical modes as one JSON line.",
+        "of the window and write its physical modes as one JSON line. Exit status: 0 when an update gave a model, "
+        "2 for a usage or data error, none of the updates giving a model among them (OUT.jsonl left as it was), "
+        "130 when interrupted (Ctrl-C, SIGTERM: the lines so far written to OUT.jsonl), 70 for an internal error.",
     )
     parser.add_argument("data", type=path_text,
                         help=".npz with u (N, m), y (N, p), sample_time_s; .csv (see docs); or a bag "

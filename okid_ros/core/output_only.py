@@ -172,7 +172,7 @@ def identify_output_only(
     IdentificationError with a one-line reason.
     """
     check_output_only_options(method, harmonics, methods=OUTPUT_ONLY_METHODS, max_states=max_states,
-                              block_rows=block_rows, low_band=low_band, workers=workers)
+                              block_rows=block_rows, low_band=low_band, workers=workers, max_gap=max_gap)
     y, present, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=valid, max_gap=max_gap)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.

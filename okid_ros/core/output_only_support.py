@@ -89,11 +89,12 @@ def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> li
 
 
 def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str, ...], max_states, block_rows,
-                              low_band, workers) -> None:
+                              low_band, workers, max_gap) -> None:
     """IdentificationError naming an unknown method or harmonics option, a bad count or a non-bool ``low_band``.
 
     ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank below
-    2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence.
+    2", 20.5 or "20" were cut or parsed, and ``low_band="no"`` was taken as True, in silence; ``max_gap``
+    -1 said "0 samples are missing in a row ...; at most -1 are filled", "10" a TypeError.
     """
     if method not in methods:
         raise IdentificationError(f"output-only method must be one of {methods}, got {method!r}")
@@ -103,8 +104,9 @@ def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str
         raise IdentificationError(f"low_band must be True or False, got {low_band!r}")
     for name, value, least, why in (("max_states", max_states, 2, "a mode takes two states; or None"),
                                     ("block_rows", block_rows, 2, "Hankel block rows; or None"),
-                                    ("workers", workers, 1, "threads")):
-        if (value is not None or name == "workers") and (
+                                    ("workers", workers, 1, "threads"),
+                                    ("max_gap", max_gap, 0, "the longest run of filled samples")):
+        if (value is not None or name in ("workers", "max_gap")) and (
                 isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least):
             raise IdentificationError(f"{name} must be an integer >= {least} ({why}), got {value!r}")
 

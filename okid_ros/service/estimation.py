@@ -90,7 +90,7 @@ from okid_ros.service import realization
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
-from okid_ros.service.options import MAX_ARX_LEAD_S, MAX_BUFFER_SAMPLES, ModalEstimationParams, check_runtime_change
+from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, arx_lead_problem, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     JOB_GENERATIONS,
@@ -223,9 +223,8 @@ class ModalEstimationService:
         if not math.isfinite(stamp_end_s):
             st.refuse_arx(RefusedArx.STAMP, "ARX model without a stamp")
             return False
-        if stamp_end_s > (newest := self._buffer.newest_stamp()) + MAX_ARX_LEAD_S:  # none buffered: nan, False
-            st.refuse_arx(RefusedArx.FUTURE, f"ARX window ends at {stamp_end_s:.3f} s, more than MAX_ARX_LEAD_S "
-                          f"{MAX_ARX_LEAD_S:g} s after the newest sample here ({newest:.3f} s)")
+        if far := arx_lead_problem(stamp_end_s, self._buffer.newest_stamp()):  # none buffered: judged in take_job
+            st.refuse_arx(RefusedArx.FUTURE, far)
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):
@@ -254,13 +253,17 @@ class ModalEstimationService:
 
         None when there is nothing to do, a job runs, or the window's last sample has not come (an
         idle stream's newest sample ends it if at most ``max_gap_samples`` short). A request whose
-        window is not buffered (too few samples after a long gap, too many missing) is dropped.
+        window is not buffered (too few samples after a long gap, too many missing) is dropped, so is one
+        offered with nothing buffered whose window ends beyond ``MAX_ARX_LEAD_S`` of the first samples.
         """
         with self._lock:
             if self._busy or self._request is None or not self.enabled:
                 return None
             fit, stamp_end, arx_id, rows = self._request
-            dt, prm = self.params.sample_time_s, self.params
+            if far := arx_lead_problem(stamp_end, self._buffer.newest_stamp()):  # offered with none buffered
+                self._request = None
+                return self._stats.refuse_arx(RefusedArx.FUTURE, far)
+            dt, prm, st = self.params.sample_time_s, self.params, self._stats
             short = (stamp_end - self._buffer.newest_stamp()) / dt if self._buffer.count > 0 else 0.0
             if short > 0.5 and not (self._idle.still_idle(self._buffer.count) and short <= prm.max_gap_samples + 0.5):
                 return None  # the window's last sample has not arrived here yet
@@ -269,25 +272,22 @@ class ModalEstimationService:
             end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)
             need = rows + fit.order
             if end < 0:
-                return self._refuse(RefusedArx.NO_SAMPLE, "no buffered sample at or before the ARX window's end")
+                return st.refuse_arx(RefusedArx.NO_SAMPLE, "no buffered sample at or before the ARX window's end")
             change = self._watch.change
             if change is not None and end + 1 - need < change.change_index:
-                self._stats.windows_refused_for_change += 1
-                return self._refuse(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
-                                    f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
+                st.windows_refused_for_change += 1
+                return st.refuse_arx(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
+                                     f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
             _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
             try:  # the cheap part of realization_window here; its filling is the worker's (realize)
                 first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
             except ValueError as exc:
-                return self._refuse(RefusedArx.GAP, str(exc))
+                return st.refuse_arx(RefusedArx.GAP, str(exc))
             self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
             buffered = BufferedWindow(skipped[first:], need, self._watch.level_step_within(end + 1 - need, end + 1))
             return RealizationJob(fit, arx_id, end_stamp, u[first:], y[first:], end, self.params, self._generation,
                                   order_hint=hint, buffered=buffered)
-
-    def _refuse(self, why: str, reason: str) -> None:
-        self._stats.refuse_arx(why, reason)
 
     def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
         """:func:`realize` a job, then (``follow``) :meth:`follow` the samples that arrived since."""

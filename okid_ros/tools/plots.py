@@ -440,13 +440,12 @@ def make_figure_dir(out_dir: str | Path) -> Path:
     Raises
     ------
     OutputError
-        it exists and is not a folder, or cannot be created (a read-only place, a name too long).
+        it cannot be created (a read-only place, a name too long; a file there, which the commands
+        refuse first with ``output_paths.check_folder_option``, says ``File exists``).
     """
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError(f"{out_dir}: exists and is not a folder; give another one for the figures") from None
     except OSError as exc:
         raise OutputError(f"{out_dir}: cannot create the folder of the figures ({exc.strerror or exc})") from None
     return out_dir

@@ -147,6 +147,20 @@ def test_plot_out_dir_that_cannot_be_a_folder_is_one_line(output_bag, tmp_path, 
     assert where != "file" or out_dir.read_bytes() == b"mine"
 
 
+def test_a_file_at_the_default_figure_folder_is_refused_as_out_dir_is(output_bag, small_campaign, tmp_path, capsys):
+    # Without --out-dir a file at OUT_figures (or a campaign's DIR/figures) said "exists and is not a
+    # folder", the one folder check's wording aside.
+    default = tmp_path / "out_figures"
+    default.write_bytes(b"mine")
+    _one_line_error(capsys, ["plot", str(output_bag)], f"--out-dir (by default) {default}: is a file, not a folder")
+    campaign = tmp_path / "camp"
+    shutil.copytree(small_campaign["out"], campaign)
+    (campaign / "figures").write_bytes(b"mine")
+    _one_line_error(capsys, ["plot", str(campaign)], f"--out-dir (by default) {campaign / 'figures'}: is a file, not "
+                    "a folder")
+    assert default.read_bytes() == (campaign / "figures").read_bytes() == b"mine"
+
+
 def test_a_figure_failing_to_save_leaves_no_file(tmp_path, monkeypatch):
     from okid_ros.tools.plots import pyplot, save_figure
 

@@ -258,3 +258,12 @@ def test_updates_after_the_data_stop_say_so_instead_of_repeating_the_last_window
     assert after and all(not line["modes"] and line["waiting"].startswith("no sample since sample 1999")
                          for line in after), after[:2]
     assert f"{len(after)} waiting for rows" in capsys.readouterr().out
+
+
+def test_the_help_says_the_exit_statuses(capsys):
+    # `track` exits 2 when no update gives a model; neither its help nor the docs said its statuses.
+    with pytest.raises(SystemExit):
+        okid_ros_main(["track", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Exit status: 0 when an update gave a model, 2 for a usage or data error, none of the updates giving a " \
+           "model among them (OUT.jsonl left as it was), 130 when interrupted" in text, text

@@ -312,6 +312,9 @@ def test_a_mask_of_missing_samples_must_fit_the_record() -> None:
     ({"workers": 0}, "workers must be an integer >= 1"),
     ({"workers": 2.0}, "workers must be an integer >= 1"),
     ({"workers": None}, "workers must be an integer >= 1"),
+    ({"max_gap": -1}, "max_gap must be an integer >= 0"),  # was "... at most -1 are filled" with a mask, else passed
+    ({"max_gap": "10"}, "max_gap must be an integer >= 0"),  # was a TypeError with a mask
+    ({"max_gap": 2.5}, "max_gap must be an integer >= 0"),
     ({"valid": np.zeros(3000, bool)}, "too few measured samples for output-only identification: 0 of the 3000"),
     ({"valid": np.arange(3000) < 150}, "150 of the 3000"),  # both were NaN correlations, a ValueError
 ])

@@ -232,6 +232,25 @@ def test_a_window_ending_far_after_the_newest_sample_is_refused_with_its_reason(
     assert est.has_request and est.take_job() is None
 
 
+def test_a_far_window_offered_with_nothing_buffered_is_refused_at_the_first_samples(pipeline):
+    # With nothing buffered there is no newest sample to judge it by (node 2 may lag node 1): it was
+    # kept and, once samples came, waited for an end sample that never comes.
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    assert est.submit_arx(fit, 1e6, 1, W)
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    assert est.take_job() is None and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused"] == 1 and d["arx_models_refused_why"].startswith("1 whose window ends far after"), d
+    assert "more than MAX_ARX_LEAD_S 60 s after the newest sample here (0.792 s)" in d["last_reason"], d
+    est.reset()
+    assert est.submit_arx(fit, 1.0, 2, W)  # within the lead of the first samples: it waits for its end
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    assert est.take_job() is None and est.has_request
+
+
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
     est, results, _ = pipeline
     t = results[-1].stamp_s

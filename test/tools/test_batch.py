@@ -167,6 +167,9 @@ def test_a_moved_bag_keeps_its_outputs_and_its_journal_line_follows_it(tmp_path,
     assert json.loads((out / row["outputs"] / "result.json").read_text())["bag"] == str(moved)
     assert _journal_keys(out) == [str(moved)]
     assert [{**row, "bag": None} for row in table_rows(out)] == before
+    # Its output bag's metadata still names the old path (written once, not rewritten): plot says it is gone.
+    assert main(["plot", str(out / row["outputs"] / "output"), "--out-dir", str(tmp_path / "figures")]) == 0
+    assert f"{bag}, the bag `process` read, is not there (moved? give --input); no input bag" in capsys.readouterr().out
     # Changed since, it is still one bag of the campaign.
     metadata = moved / "metadata.yaml"
     os.utime(metadata, ns=(metadata.stat().st_atime_ns, metadata.stat().st_mtime_ns + 10**9))

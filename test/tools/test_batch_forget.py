@@ -74,3 +74,26 @@ def test_forget_is_refused_with_bags_to_process_outside_a_campaign_and_while_ano
     shutil.rmtree(out / "bags")  # a forgotten bag whose folder is gone: nothing to keep or remove
     assert batch("--forget", "run_000", "--force", "--out", out) == 0
     assert "outputs" not in capsys.readouterr().err
+
+
+def test_forget_warns_of_the_options_of_processing_and_refuses_a_name_several_bags_share(tmp_path, capsys):
+    params, out = write_params(tmp_path / "params.yaml"), tmp_path / "c"
+    first, second = write_good_bag(tmp_path / "a" / "run_000", 0), write_good_bag(tmp_path / "b" / "run_000", 1)
+    assert batch(first, second, "--params", params, "--out", out, "--workers", 1) == 0
+    summary = (out / "summary.csv").read_text()
+    capsys.readouterr()
+    # Both bags are run_000: the name is refused, naming their paths; nothing changes.
+    assert batch("--forget", "run_000", "--params", params, "--out", out) == 2
+    err = capsys.readouterr().err
+    assert f"--forget run_000: names 2 bags of the campaign {out} ({first.resolve()}, {second.resolve()}); give " \
+           "the one's path" in err, err
+    assert (out / "summary.csv").read_text() == summary and _journal_names(out) == ["run_000", "run_000"]
+    # Options of processing bags were passed over in silence: named, ignored, the bag forgotten by its path.
+    assert batch("--forget", first, "--params", params, "--out", out, "--workers", 2, "--retry-failed",
+                 "--max-failures", 1, "--scheduler-timeout", 3, "--csv") == 0
+    err = capsys.readouterr().err
+    assert "okid-ros batch: warning: --workers, --scheduler-timeout, --max-failures, --retry-failed: options of " \
+           "processing bags; ignored with --forget (it processes no bag)" in err, err
+    assert _journal_names(out) == ["run_000"] and (out / "modes.csv").is_file()
+    assert batch("--forget", second, "--params", params, "--out", out, "--scheduler", "tcp://127.0.0.1:1") == 0
+    assert "warning: --scheduler: options of processing bags" in capsys.readouterr().err

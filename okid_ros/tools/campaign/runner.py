@@ -96,10 +96,12 @@ def input_topics(arx_values: dict, est_values: dict, namespace: str | None) -> l
 
 
 def _check_out_dir(out_dir: Path) -> None:
-    """Refuse an --out that is not a new, empty or campaign directory, or cannot be created; create it."""
+    """Refuse an --out that is not a new, empty or campaign directory, or cannot be created; create it.
+
+    A file there is `batch`'s refusal (``output_paths.check_folder_option``, before the work); one made
+    since fails the mkdir below.
+    """
     try:
-        if out_dir.exists() and not out_dir.is_dir():
-            raise OutputError(f"--out {out_dir}: exists and is not a directory")
         if out_dir.is_dir() and any(out_dir.iterdir()) and not is_campaign_dir(out_dir):
             raise OutputError(f"--out {out_dir}: a non-empty directory that is not a campaign of okid-ros batch "
                               f"(no {MANIFEST_NAME}); give a new or empty directory")
