@@ -191,7 +191,7 @@ def _step_sample(x: np.ndarray, present: np.ndarray, peak: int) -> int:
     rows within a window of the peak, the sample whose ``g`` (the constant projected out of both)
     explains most of ``e`` (``(g . e)^2 / g . g``) is the step's (the generalized likelihood ratio
     of a step in an AR signal of unknown level). The fit leaves out the rows that
-    reach the peak's window, which the step would bias.
+    reach the peak's window, which the step would bias. A sample measured (``present``) is returned.
     """
     n, w, q = x.shape[0], SHIFT_WINDOW, _AR_ORDER
     index = np.flatnonzero(present)
@@ -215,7 +215,12 @@ def _step_sample(x: np.ndarray, present: np.ndarray, peak: int) -> int:
     steps -= steps.mean(axis=1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         match = (steps @ (errors - errors.mean())) ** 2 / np.einsum("ij,ij->i", steps, steps)
-    return int(candidates[np.argmax(np.where(np.isfinite(match), match, -1.0))])
+    best = int(candidates[np.argmax(np.where(np.isfinite(match), match, -1.0))])
+    # A step within missing samples is the same step at the first sample measured after them (the
+    # record's values are changed there only), and is judged there: placed at the gap's start, near
+    # an end its level before lacked the samples _stays needs and the step was missed.
+    measured = index[index >= best]
+    return int(measured[0]) if measured.size else best
 
 
 def _stays(x: np.ndarray, present: np.ndarray, samples: np.ndarray, local: np.ndarray) -> np.ndarray:

@@ -356,14 +356,14 @@ class ArxIdentificationService:
         from the future would empty the window and, as the last restart, make every real change
         before it ignored. So is one before the oldest sample held, or before 0 (no sample's): the
         samples held are all of the new structure already, and a restart replayed them all for
-        nothing. Returns the number of samples put back into the window (-1 if ignored).
+        nothing; and any while none is held (started, reset): nothing to restart, and one from the
+        future became the last restart. Returns the samples put back into the window (-1: ignored).
         """
         c = self._counters
         change_stamp_s = float(change_stamp_s)
         tol = 0.5 * self.params.sample_time_s
         newest, oldest = self._stamps.newest_stamp_s, self._recent.stamp_at(self._recent.first)  # nan: none
-        earliest = max(0.0, oldest - tol) if math.isfinite(oldest) else 0.0
-        if (not math.isfinite(change_stamp_s) or change_stamp_s < earliest
+        if (not math.isfinite(oldest) or not math.isfinite(change_stamp_s) or change_stamp_s < max(0.0, oldest - tol)
                 or change_stamp_s <= c.last_restart_stamp_s + tol
                 or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
             c.restarts_ignored += 1

@@ -91,7 +91,7 @@ def check_demo_options(options: DemoOptions) -> None:
     low, high = DEMO_RATE_RANGE
     if not low <= options.rate <= high:
         raise ToolParameterError(f"--rate must be from {low:g} to {high:g} (times real time: the nodes take the "
-                                 f"samples live), got {options.rate:g}")
+                                 f"samples live), got {options.rate!r}")  # not :g, which wrote 5.0000001 as 5
     demo_window = [f"arx.window_length={OUTPUT_ONLY_DEMO_WINDOW}"] if options.output_only and not options.params else []
     values = load_node_parameters(options.param_files, demo_window, report=lambda problem: None)[0]  # `up` says them
     arx = ArxIdentificationParams.from_parameters(values)

@@ -187,6 +187,7 @@ def test_demo_refuses_an_option_out_of_range_before_making_a_run_folder(capsys, 
     (["--rate", "1e300"], "--rate must be from 0.1 to 5 (times real time: the nodes take the samples live), "
      "got 1e+300"),
     (["--rate", "0.001"], "--rate must be from 0.1 to 5"),
+    (["--rate", "5.0000001"], "(times real time: the nodes take the samples live), got 5.0000001"),  # was: got 5
     (["--rate", "nan"], "--rate must be from 0.1 to 5"),
 ])
 def test_demo_refuses_an_experiment_without_a_model_and_a_rate_the_nodes_cannot_take(capsys, tmp_path, options, said):

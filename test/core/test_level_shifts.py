@@ -213,3 +213,21 @@ def test_a_shift_near_an_end_is_placed_at_its_sample(paper_record, output, sampl
         assert len(placed) == 1 and abs(int(placed[0]) - sample) <= 2, (size, placed)
         fixed = without_shifts(shifted, shifts.by_output)
         assert np.abs(fixed - y)[:, output].max() < 0.5 * y[:, output].std(), size  # no pulse left in
+
+
+@pytest.mark.parametrize(("sample", "size"), [(150, -5.0), (150, 1e6), (1000, -5.0)])
+def test_a_shift_across_missing_samples_is_placed_at_the_first_sample_measured_after_them(paper_record, sample,
+                                                                                            size) -> None:
+    # The matched filter ranges over the missing samples too (bridged): it put the step at the gap's
+    # start, a sample never measured, and 150 samples in, the level before it then lacked the half
+    # window the persistence test needs: the step, of 1e6 spreads too, was missed.
+    u, y = paper_record
+    valid = np.ones(y.shape[0], bool)
+    valid[sample - 2 : sample + 3] = False
+    shifted = _shifted(y, [(0, sample, size)])
+    shifted[~valid] = np.nan
+    shifts = level_shifts(u, shifted, valid=valid)
+    assert list(shifts.by_output) == [0] and shifts.unusable == {}
+    np.testing.assert_array_equal(shifts.by_output[0][0], [sample + 3])
+    fixed = without_shifts(shifted, shifts.by_output, valid=valid)
+    assert np.abs(fixed - y)[valid, 0].max() < 0.5 * y[:, 0].std()

@@ -152,6 +152,22 @@ def test_a_structural_change_stamped_before_the_samples_held_is_ignored(record):
     assert svc.restart_at(10.0 + 800 * dt) == 100  # a change among the samples held restarts the window
 
 
+def test_a_structural_change_while_no_sample_is_held_is_ignored(record):
+    # Just started, reset or activated: one stamped an hour ahead was taken as a restart (of an empty
+    # window) and became the last restart's stamp, so every real change after it was ignored.
+    dt, u, y = record
+    for reset in (False, True):
+        svc = make_service(dt)
+        if reset:
+            svc.push_block(np.arange(900) * dt, u, y)
+            svc.reset()
+        assert svc.restart_at(3600.0) == -1
+        d = svc.diagnostics()
+        assert d["window_restarts"] == 0 and d["window_restarts_ignored"] == 1 and math.isnan(d["last_restart_stamp_s"])
+        svc.push_block(10.0 + np.arange(900) * dt, u, y)
+        assert svc.restart_at(10.0 + 800 * dt) == 100  # the first real change restarts the window
+
+
 @pytest.mark.parametrize("value", [1e151, 1e300])
 def test_a_sample_beyond_the_window_bound_is_a_counted_rejection_without_warnings(record, value):
     """As a NaN sample: refused, counted, a gap.

@@ -97,3 +97,20 @@ def test_forget_warns_of_the_options_of_processing_and_refuses_a_name_several_ba
     assert _journal_names(out) == ["run_000"] and (out / "modes.csv").is_file()
     assert batch("--forget", second, "--params", params, "--out", out, "--scheduler", "tcp://127.0.0.1:1") == 0
     assert "warning: --scheduler: options of processing bags" in capsys.readouterr().err
+
+
+def test_forget_says_the_journal_lines_it_cannot_read(tmp_path, capsys):
+    # The journal is rewritten without them, as by any run; a run processing bags said so, --forget
+    # dropped them in silence.
+    params, out = write_params(tmp_path / "params.yaml"), tmp_path / "c"
+    for index in range(2):
+        write_good_bag(tmp_path / "in" / f"run_{index:03d}", index)
+    assert batch(tmp_path / "in", "--params", params, "--out", out, "--workers", 1) == 0
+    with open(out / "manifest.jsonl", "a") as journal:
+        journal.write('{"key": "/cut/by/a/crash\n')
+    capsys.readouterr()
+    assert batch("--forget", "run_000", "--params", params, "--out", out) == 0
+    err = capsys.readouterr().err
+    assert f"okid-ros batch: warning: {out / 'manifest.jsonl'}: 1 unreadable line(s) ignored (not JSON text): their " \
+           "bags are left out of the tables, and processed again when given\n" in err, err
+    assert _journal_names(out) == ["run_001"]

@@ -159,9 +159,18 @@ def _forget(options: CampaignOptions, started: float) -> CampaignReport:
                                   storage=options.storage)
     with campaign_lock(out_dir) as locked:
         _start_campaign(out_dir, locked=locked)
-        manifest = Manifest(out_dir)
+        manifest = _read_journal(out_dir)
         forget_entries(manifest, journaled_entries(manifest, options.forget, out_dir), out_dir, remove=options.force)
         return _finish(options, manifest, _kept_from_journal(manifest, [], {}, out_dir, params_hash), started)
+
+
+def _read_journal(out_dir: Path) -> Manifest:
+    """The campaign's journal, its unreadable lines said (the journal is rewritten without them)."""
+    manifest = Manifest(out_dir)
+    if manifest.unreadable:
+        print(f"okid-ros batch: warning: {manifest.path}: {manifest.unreadable} unreadable line(s) ignored (not "
+              f"JSON text): their bags are left out of the tables, and processed again when given", file=sys.stderr)
+    return manifest
 
 
 def _start_campaign(out_dir: Path, *, locked: bool) -> None:
@@ -187,10 +196,7 @@ def _run_locked(options: CampaignOptions, bags: list[Path], started: float) -> C
     out_dir = options.out_dir
     params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
                                   storage=options.storage)
-    manifest = Manifest(out_dir)
-    if manifest.unreadable:
-        print(f"okid-ros batch: warning: {manifest.path}: {manifest.unreadable} unreadable line(s) ignored (not "
-              f"JSON text); their bags are processed again", file=sys.stderr)
+    manifest = _read_journal(out_dir)
     ss_topic = resolve_topic(options.est_values["state_space_model_topic"], options.namespace)
     results: dict[str, dict] = {}
     jobs: list[BagJob] = []
