@@ -137,8 +137,8 @@ def run(args: argparse.Namespace) -> int:
         while running:
             for name, proc in list(running.items()):
                 code = proc.poll()
-                if code == 0 and args.lifecycle:  # its lifecycle shutdown: the other node is the user's to end
-                    print(f"okid-ros up: {name} was shut down (lifecycle) and exited"
+                if code == 0 and args.lifecycle:  # its lifecycle shutdown (or a signal): the other node is the user's
+                    print(f"okid-ros up: {name} exited with status 0 (its lifecycle shutdown, or a signal)"
                           + ("; the other node runs on" if len(running) > 1 else ""), flush=True)
                     del running[name]
                 elif code is not None:

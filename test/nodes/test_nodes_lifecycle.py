@@ -195,8 +195,8 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
         probe.transition(NODES[0], Transition.TRANSITION_CONFIGURE)
         assert probe.state(NODES[0]) == State.PRIMARY_STATE_INACTIVE
         probe.transition(NODES[0], Transition.TRANSITION_INACTIVE_SHUTDOWN)
-        up.wait_for_output(r"okid-ros up: okid_arx_identifier was shut down \(lifecycle\) and exited; "
-                           r"the other node runs on", 10)
+        up.wait_for_output(r"okid-ros up: okid_arx_identifier exited with status 0 \(its lifecycle shutdown, or a "
+                           r"signal\); the other node runs on", 10)
         assert probe.state(NODES[1]) == State.PRIMARY_STATE_UNCONFIGURED
         probe.transition(NODES[1], Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
         assert up.proc.wait(timeout=10) == 0, up.output()
