@@ -52,7 +52,7 @@ def sample_time_problem(sample_time_s: Any) -> str | None:
     except (TypeError, ValueError):
         return f"sample_time_s must be a number of seconds, got {sample_time_s!r}"
     if not low <= dt <= high:  # NaN fails too
-        return f"sample_time_s must be between {low:g} and {high:g} s, got {dt:g}"
+        return f"sample_time_s must be between {low:g} and {high:g} s, got {dt!r}"  # :g said 3600.0000001 as 3600
     return None
 
 

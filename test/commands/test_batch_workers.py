@@ -49,17 +49,45 @@ def test_more_workers_than_cores_are_capped_with_a_warning_and_the_summary_count
 def test_the_cores_are_those_of_the_affinity_and_the_container_quota(tmp_path, monkeypatch):
     # Was os.cpu_count(): the host's cores, whatever taskset, a cpuset or `docker --cpus` allowed.
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
-    cpu_max = tmp_path / "cpu.max"
-    cpu_max.write_text("max 100000\n")
-    assert usable_cores(cpu_max_path=cpu_max) == 8
-    cpu_max.write_text("250000 100000\n")  # --cpus 2.5: two processes keep within it
-    assert usable_cores(cpu_max_path=cpu_max) == 2
-    cpu_max.write_text("50000 100000\n")  # half a core: still one worker
-    assert usable_cores(cpu_max_path=cpu_max) == 1
-    cpu_max.write_text("garbage\n")
-    assert usable_cores(cpu_max_path=cpu_max) == 8
+    root, own = tmp_path / "cgroup", tmp_path / "self_cgroup"
+    root.mkdir()
+    own.write_text("0::/\n")
+
+    def cores() -> int:
+        return usable_cores(cgroup_root=root, own_cgroups=own)
+
+    (root / "cpu.max").write_text("max 100000\n")
+    assert cores() == 8
+    (root / "cpu.max").write_text("250000 100000\n")  # --cpus 2.5: two processes keep within it
+    assert cores() == 2
+    (root / "cpu.max").write_text("50000 100000\n")  # half a core: still one worker
+    assert cores() == 1
+    (root / "cpu.max").write_text("garbage\n")
+    assert cores() == 8
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})
-    assert usable_cores(cpu_max_path=tmp_path / "absent") == 1
+    assert usable_cores(cgroup_root=tmp_path / "absent", own_cgroups=tmp_path / "absent") == 1
+
+
+def test_the_quotas_of_cgroup_v1_and_of_the_cgroups_above_bind_too(tmp_path, monkeypatch):
+    # Only /sys/fs/cgroup/cpu.max was read: a cgroup v1 host's quota (docker on an older host) and a
+    # limit set on a parent cgroup (a slice, a pod) were not seen, and batch started a process per
+    # host core.
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)))
+    root, own = tmp_path / "cgroup", tmp_path / "self_cgroup"
+    v1 = root / "cpu,cpuacct" / "docker" / "abc"
+    v1.mkdir(parents=True)
+    (v1 / "cpu.cfs_quota_us").write_text("300000\n")
+    (v1 / "cpu.cfs_period_us").write_text("100000\n")
+    own.write_text("4:memory:/docker/abc\n3:cpu,cpuacct:/docker/abc\n0::/\n")
+    assert usable_cores(cgroup_root=root, own_cgroups=own) == 3
+    (v1 / "cpu.cfs_quota_us").write_text("-1\n")  # no limit
+    assert usable_cores(cgroup_root=root, own_cgroups=own) == 16
+    slice_, leaf = root / "pods.slice", root / "pods.slice" / "pod1" / "ctr"
+    leaf.mkdir(parents=True)
+    (slice_ / "cpu.max").write_text("200000 100000\n")  # the parent's limit
+    (leaf / "cpu.max").write_text("max 100000\n")
+    own.write_text("0::/pods.slice/pod1/ctr\n")
+    assert usable_cores(cgroup_root=root, own_cgroups=own) == 2
 
 
 # `okid-ros batch --workers 2` in a process of its own, its cores set to 2 whatever this machine has.

@@ -326,6 +326,7 @@ def test_a_sample_time_outside_the_range_is_refused_by_both_paths(sample_time_s:
 
 @pytest.mark.parametrize("arguments, reason", [
     ({"sample_time_s": "0.01"}, "sample_time_s must be a number of seconds, got '0.01'"),  # was numpy's TypeError
+    ({"sample_time_s": 3600.0000001}, "between 1e-06 and 3600 s, got 3600.0000001"),  # said "got 3600"
     ({"regularization": "l1"}, "regularization must be one of"),  # was solved as "tc" in silence
     ({"order": 20.5}, "order must be an integer ARX order or 'auto', got 20.5"),  # was cut to 20
     ({"order": True}, "order must be an integer"),  # was "ARX order must be >= 2, got 1"

@@ -27,8 +27,9 @@ def test_forget_takes_bags_out_of_the_journal_and_tables_and_keeps_their_outputs
     assert batch(inputs, "--params", params, "--out", out, "--workers", 1) == 1
     folders = {name: row["outputs"] for name, row in read_summary(out).items()}
     capsys.readouterr()
-    # By name: its line and rows gone, its folder kept (and said), nothing processed.
-    assert batch("--forget", "run_001", "--params", params, "--out", out) == 0
+    # By name (as a shell completes a folder: run_001/, refused before unless cwd held it): its line and
+    # rows gone, its folder kept (and said), nothing processed.
+    assert batch("--forget", "run_001/", "--params", params, "--out", out) == 0
     captured = capsys.readouterr()
     assert f"forgot 1 bag(s) of the campaign: {inputs.resolve() / 'run_001'}\n" in captured.err, captured.err
     assert f"kept their outputs under {out / 'bags'}: {folders['run_001'][5:]} (--force removes them)" in captured.err

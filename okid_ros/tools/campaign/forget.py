@@ -28,8 +28,9 @@ def _matches(manifest: Manifest, name: str) -> list[dict]:
     entry = manifest.entries.get(Manifest.key(Path(name)))
     if entry is not None:
         return [entry]
-    folder = name.removeprefix("bags/").rstrip("/")
-    return [e for key, e in manifest.entries.items() if name == Path(key).name or folder == e.get("label")]
+    bare = name.rstrip("/")  # a shell's completion of a bag folder ends in /
+    folder = bare.removeprefix("bags/")
+    return [e for key, e in manifest.entries.items() if bare == Path(key).name or folder == e.get("label")]
 
 
 def journaled_entries(manifest: Manifest, names: list[str], out_dir: Path) -> list[dict]:
