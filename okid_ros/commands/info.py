@@ -13,7 +13,7 @@ from importlib import metadata
 from okid_ros import __version__
 from okid_ros.commands._args import int_between, positive_finite_float
 from okid_ros.errors import OkidError
-from okid_ros.tools.ros_domain import ros_context, ros_domain_id
+from okid_ros.tools.ros_domain import check_ros_environment, ros_context
 
 # Distributions whose versions `info` reports, as named on PyPI (ROS wheels: ros-jazzy-*).
 _DISTRIBUTIONS = ("numpy", "scipy", "filterpy", "rosbags", "ros-jazzy-rclpy")
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _selftest(count: int, timeout_s: float) -> None:
     """Send `count` IoSample messages between two nodes over DDS; raise OkidError on failure."""
-    ros_domain_id()  # before rclpy loads: rcl ends the process (102) at once on an RMW_IMPLEMENTATION not installed
+    check_ros_environment()  # before rclpy loads
     try:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor

@@ -49,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.errors import ParameterError
     from okid_ros.service.topics import MODAL_STATES, resolve_topic
     from okid_ros.tools.errors import ToolParameterError
-    from okid_ros.tools.ros_domain import ros_domain_id
+    from okid_ros.tools.ros_domain import check_ros_environment
 
-    ros_domain_id()  # before rclpy loads: rcl ends the process (102) at once on an RMW_IMPLEMENTATION not installed
+    check_ros_environment()  # before rclpy loads
     from okid_ros.tools.monitor import run_monitor
 
     # A relative --topic is in the rig namespace, as the default and the nodes' topics are (was: under

@@ -15,7 +15,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from okid_ros.commands._args import namespace, path_text
-from okid_ros.tools.ros_domain import ros_context, ros_domain_id
+from okid_ros.tools.ros_domain import check_ros_environment, ros_context
 
 if TYPE_CHECKING:
     from okid_ros.tools.bagio import BagWriter
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.tools.bagio import BagWriter
     from okid_ros.tools.output_paths import StagedOutput
 
-    ros_domain_id()  # before rclpy loads: rcl ends the process (102) at once on an RMW_IMPLEMENTATION not installed
+    check_ros_environment()  # before rclpy loads
     if args.duration is not None and not args.duration > 0:
         raise OkidError(f"--duration must be a positive number of seconds, got {args.duration}")
     topics = record_topics(args.namespace, inputs=args.inputs, diagnostics=not args.no_diagnostics)

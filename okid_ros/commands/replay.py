@@ -76,9 +76,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    from okid_ros.tools.ros_domain import ros_domain_id
+    from okid_ros.tools.ros_domain import check_ros_environment
 
-    ros_domain_id()  # before rclpy loads: rcl ends the process (102) at once on an RMW_IMPLEMENTATION not installed
+    check_ros_environment()  # before rclpy loads
     from okid_ros.tools.replay import BagPlayer, parse_remaps
 
     remaps = parse_remaps([item for group in args.remap for item in group])

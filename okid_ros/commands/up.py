@@ -24,7 +24,7 @@ import time
 from okid_ros.commands._args import namespace, positive_finite_float
 from okid_ros.errors import OkidError
 from okid_ros.tools.parent_death import die_with_parent
-from okid_ros.tools.ros_domain import ros_domain_id
+from okid_ros.tools.ros_domain import check_ros_environment
 
 NODE_MODULES = {
     "okid_arx_identifier": "okid_ros.nodes.arx_identifier_node",
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.service.param_files import files_for_nodes
 
     params = files_for_nodes(args.params)
-    ros_domain_id()  # the nodes ended with status 1 and Fast DDS's lines for one beyond 232
+    check_ros_environment()  # before the nodes start (they ended with rcl's or Fast DDS's lines)
     if args.no_autostart and not args.lifecycle:
         raise OkidError("--no-autostart needs --lifecycle")
 

@@ -44,7 +44,7 @@ from okid_ros.tools.demo_options import (
     default_params_file,
 )
 from okid_ros.tools.output_paths import prepare_output
-from okid_ros.tools.ros_domain import ros_context, ros_domain_id
+from okid_ros.tools.ros_domain import check_ros_environment, ros_context
 from okid_ros.tools.simulate_ambient import AMBIENT_IMU_TOPICS, simulate_ambient, write_ambient_bag
 from okid_ros.tools.simulate_bag import Experiment, simulate_experiment, write_experiment_bag
 
@@ -66,7 +66,7 @@ _ESTIMATION_STATUS = "okid_modal_estimator: estimation"  # node 2's DiagnosticSt
 
 def _claim_domain_id() -> tuple[int, IO[str] | None]:
     """ROS_DOMAIN_ID from the environment, else a free id of 1..100 (locked while we run)."""
-    if (domain_id := ros_domain_id()) is not None:  # checked: "abc" was a ValueError, an internal error
+    if (domain_id := check_ros_environment()) is not None:  # checked: "abc" was a ValueError, an internal error
         return domain_id, None
     lock_dir = Path(tempfile.gettempdir()) / "okid_ros_domain_locks"
     lock_dir.mkdir(exist_ok=True)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from okid_ros.tools.errors import ToolParameterError
 
-__all__ = ["MAX_DOMAIN_ID", "installed_rmw_implementations", "rmw_implementation", "ros_domain_id", "ros_context"]
+__all__ = ["MAX_DOMAIN_ID", "check_ros_environment", "installed_rmw_implementations", "rmw_implementation",
+           "ros_domain_id", "ros_context"]
 
 #: The largest domain id whose ports Fast DDS can open with the default port base (7400 + 250 id).
 MAX_DOMAIN_ID = 232
@@ -29,10 +30,8 @@ def ros_domain_id(environ: Mapping[str, str] | None = None) -> int | None:
     Raises
     ------
     ToolParameterError
-        it is not an integer, or beyond :data:`MAX_DOMAIN_ID`; or ``RMW_IMPLEMENTATION`` names
-        none installed (:func:`rmw_implementation`: every command that checks the domain checks it).
+        it is not an integer, or beyond :data:`MAX_DOMAIN_ID`.
     """
-    rmw_implementation(environ)
     text = (os.environ if environ is None else environ).get("ROS_DOMAIN_ID", "").strip()
     if not text:
         return None
@@ -89,11 +88,26 @@ def rmw_implementation(environ: Mapping[str, str] | None = None) -> str | None:
                              f"{', '.join(installed)}): set one of those, or unset it for the default")
 
 
+def check_ros_environment(environ: Mapping[str, str] | None = None) -> int | None:
+    """``RMW_IMPLEMENTATION`` and ``ROS_DOMAIN_ID`` checked before rclpy loads; the domain id (:func:`ros_domain_id`).
+
+    rcl ends the process (status 102) as soon as it loads an RMW implementation that is not
+    installed, so every command that talks over DDS calls this before it imports rclpy.
+
+    Raises
+    ------
+    ToolParameterError
+        as :func:`rmw_implementation` or :func:`ros_domain_id`.
+    """
+    rmw_implementation(environ)
+    return ros_domain_id(environ)
+
+
 def ros_context():
-    """A new rclpy context, initialized, once ``ROS_DOMAIN_ID`` is checked (:func:`ros_domain_id`)."""
+    """A new rclpy context, initialized, once the environment is checked (:func:`check_ros_environment`)."""
     import rclpy
 
-    ros_domain_id()
+    check_ros_environment()
     context = rclpy.Context()
     rclpy.init(context=context, args=[])
     return context
