@@ -18,7 +18,9 @@ the structure itself moved, an unmeasured load), one where an input shifts or ju
 the window (the response to a measured step or impact), and a level that does not stay (the
 median of the samples beyond the window after less that before the step holds less than
 :data:`PERSISTENCE` of it: an impact's ringing in a quiet record lies far beyond the record's
-usual mean differences, but dies out to the level before). A channel with more than
+usual mean differences, but dies out to the level before; and the level must hold to the next
+step: each step's size fitted over the channel, :func:`_held`, is at least that share too, since
+the spans next to a blow in another's ringing hold that ringing, not a level). A channel with more than
 :data:`MAX_SHIFTS` shifts is named as unusable and kept (a loose contact, a noisy channel: no
 level to keep). A step within 150 samples of either end of the record is not looked for: the rule
 needs a window on its side and half a window of the level beyond the next, which tells a re-zero
@@ -112,11 +114,12 @@ def level_shifts(u: np.ndarray, y: np.ndarray, *, valid: np.ndarray | None = Non
         at = {_step_sample(y[:, i], present, k): k for k in peaks}  # the step's sample: its peak
         samples, peaks = np.array(sorted(at)), np.array([at[k] for k in sorted(at)])
         local = _mean_differences(y[:, [i]], present)[0][peaks, 0]
-        samples = samples[_stays(y[:, i], present, samples, local)]
+        stays = _stays(y[:, i], present, samples, local)
+        samples, sizes = _held(y[:, i], present, samples[stays], local[stays])
         if samples.size > MAX_SHIFTS:
             unusable[int(i)] = samples
         elif samples.size:
-            by_output[int(i)] = (samples, _step_sizes(y[:, i], present, samples))
+            by_output[int(i)] = (samples, sizes)
     if not by_output and not unusable:
         return none
     kept = without_shifts(y, by_output, valid=valid)[present]
@@ -242,6 +245,26 @@ def _stays(x: np.ndarray, present: np.ndarray, samples: np.ndarray, local: np.nd
             held = np.median(x[after]) - np.median(x[before])
             stays[j] = local[j] != 0 and held / local[j] >= PERSISTENCE
     return stays
+
+
+def _held(x: np.ndarray, present: np.ndarray, samples: np.ndarray,
+          local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ``samples`` (K,, sorted) of ``x`` (N,) whose level holds to the next step, and their sizes.
+
+    A step's level holds until the next step or the record's end: its size fitted over the whole
+    channel (:func:`_step_sizes`) is at least :data:`PERSISTENCE` of its mean difference ``local``
+    (K,), with its sign. A transient's ringing averages out over those spans whatever its phase next
+    to the step (the spans :func:`_stays` judges are cut short by a neighbouring blow's own transient
+    and may hold only its ringing). The sample that holds least is dropped and the rest fitted again.
+    """
+    while samples.size:
+        sizes = _step_sizes(x, present, samples)
+        held = np.where(local != 0, sizes / np.where(local != 0, local, 1.0), -np.inf)
+        if held.min() >= PERSISTENCE:
+            return samples, sizes
+        keep = np.arange(samples.size) != np.argmin(held)
+        samples, local = samples[keep], local[keep]
+    return samples, np.zeros(0)
 
 
 def _step_sizes(x: np.ndarray, present: np.ndarray, samples: np.ndarray) -> np.ndarray:

@@ -105,6 +105,24 @@ def test_an_impact_hammer_record_holds_no_shift(seed) -> None:
     np.testing.assert_array_equal(found[1][0], [4000])
 
 
+@pytest.mark.parametrize("seed", [3, 6, 8])
+def test_a_blow_in_the_ringing_of_another_is_no_shift(seed) -> None:
+    # Blows in pairs 150 to 350 samples apart: the level before the second was judged over the 50
+    # samples between the first's window and its own, the first's ringing, and named a re-zero.
+    rng = np.random.default_rng(seed)
+    u = 0.01 * rng.standard_normal((12000, 2))
+    for first in (1000, 4000, 7000, 10000):
+        u[[first, first + rng.integers(150, 350)], rng.integers(0, 2, 2)] += 50.0
+    y = simulate_noisy(_quiet_structure(), u, seed=seed)
+    for inputs in (u, u[:, :0]):  # measured or not
+        for outputs in (y, y[:, :1], y[:, 1:2], y[:, 2:]):
+            shifts = level_shifts(inputs, outputs)
+            assert shifts.by_output == {} and shifts.unusable == {}
+    # A re-zero in the same record is found.
+    found = level_shifts(u[:, :0], _shifted(y[:, :1], [(0, 5500, 3.0)])).by_output
+    np.testing.assert_array_equal(found[0][0], [5500])
+
+
 def test_a_step_of_a_measured_input_or_of_every_output_is_no_shift() -> None:
     u = lowpass_input(12000, 2, 5.0, 0.01, seed=0)
     u[6000:, 0] += 30 * u[:, 0].std()  # a static load applied, measured
