@@ -52,9 +52,11 @@ __all__ = ["MAX_SHIFTS", "PERSISTENCE", "SHIFT_RATIO", "SHIFT_WINDOW", "LevelShi
 #: Samples on each side of a sample whose means are compared.
 SHIFT_WINDOW = 100
 #: Robust standard deviations of a channel's mean differences beyond which a sample is a shift
-#: (records without impacts or steps: at most 6.5, docs/robustness.md; a step of 3 spreads on the
-#: paper's structure: 30 and more, of 1 spread about 12).
-SHIFT_RATIO = 12.0
+#: (records without impacts or steps: at most 6.5, the steel subframe, which names two at 6; a step
+#: of 3 spreads on the paper's structure: 30 and more, of 1 spread beyond 8, 44 of 64 beyond 10; of
+#: 3 spreads on the koma frame's slow channels beyond 10 on 15 of 40, 8 on 32). Not 8: a dropout's
+#: edge is then named a step (docs/robustness.md, "Small level shifts and the threshold").
+SHIFT_RATIO = 10.0
 #: The level after a shift (beyond its window) differs from that before by at least this share of
 #: the shift's mean difference, with its sign: the level stays.
 PERSISTENCE = 0.5
