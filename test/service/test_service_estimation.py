@@ -251,6 +251,56 @@ def test_a_far_window_offered_with_nothing_buffered_is_refused_at_the_first_samp
     assert est.take_job() is None and est.has_request
 
 
+def _record_and_its_arx_model(samples: int = 2600):
+    """The paper model's record (u, y, stamps from T0) and node 1's ArxModel of its last window (a snapshot)."""
+    model = paper_model()
+    u = lowpass_input(samples, 2, 50.0, model.sample_time_s, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    stamps = T0 + np.arange(samples) * model.sample_time_s
+    ident = ArxIdentificationService(ArxIdentificationParams(model.sample_time_s, Q, 2, 2, W))
+    for k in range(samples):
+        ident.push(stamps[k], u[k], y[k])
+    return stamps, u, y, ident.snapshot()
+
+
+def test_a_model_offered_before_the_first_sample_waits_for_the_samples():
+    # Node 2 started after node 1, or lagging it by its input queue: an ArxModel that came while it
+    # buffered nothing, its job due at once, was refused as NO_SAMPLE ("no buffered sample at or
+    # before the ARX window's end") and lost, though its window's samples were still to come.
+    stamps, u, y, snap = _record_and_its_arx_model()
+    est = ModalEstimationService(ModalEstimationParams(stamps[1] - stamps[0], 2, 2, n_states=6))
+    assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    assert est.take_job() is None and est.has_request  # judged by the first samples
+    jobs = []
+    for k in range(len(stamps)):  # as node 2's sample path: a job started when one is due
+        est.step(stamps[k], u[k], y[k])
+        if est.has_request and (job := est.take_job()) is not None:
+            jobs.append((k, job))
+    assert [(k, job.stamp_end_s) for k, job in jobs] == [(len(stamps) - 1, snap.stamp_s)]
+    assert est.diagnostics()["arx_models_refused"] == 0
+    est.deliver(est.run_job(jobs[0][1], follow=False))
+    assert est.step(stamps[-1] + 0.008, u[0], y[0]).update is not None
+
+
+def test_a_model_whose_window_ends_before_the_first_sample_is_refused_with_its_reason():
+    # Its window will never be buffered: refused once the first sample is (also when it came before
+    # them), or at once when samples are there (so a request waiting is kept), saying why.
+    stamps, u, y, snap = _record_and_its_arx_model()
+    dt = stamps[1] - stamps[0]
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    assert est.submit_arx(snap.fit, snap.stamp_s, 1, snap.window_rows)
+    est.step(snap.stamp_s + dt, u[0], y[0])  # node 2 started after that window's end
+    assert est.take_job() is None and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 whose window's end node 2 holds no sample at or before"), d
+    first = f"before the first sample node 2 holds ({snap.stamp_s + dt:.3f} s, since any time jump)"
+    assert first in d["last_reason"] and "will never be buffered here" in d["last_reason"], d
+    assert est.submit_arx(snap.fit, snap.stamp_s + 10.0, 2, snap.window_rows)  # waits for its end
+    assert not est.submit_arx(snap.fit, snap.stamp_s - 1.0, 3, snap.window_rows)  # refused at once
+    assert est.has_request and est.diagnostics()["arx_models_refused"] == 2
+    assert est.diagnostics()["arx_models_replaced"] == 0
+
+
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
     est, results, _ = pipeline
     t = results[-1].stamp_s
