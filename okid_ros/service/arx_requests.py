@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.realization_window import realization_minimum
+from okid_ros.core.realization_window import realization_minimum, run_breaks
 from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, arx_lead_problem, arx_unbuffered_problem
 from okid_ros.service.results import RefusedArx
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["buffer_refusal", "stamp_refusal"]
+__all__ = ["held_refusal", "stamp_refusal", "window_refusal"]
 
 
 def stamp_refusal(stamp_end_s: float, buffer: SampleBuffer, sample_time_s: float) -> tuple[str, str] | None:
@@ -35,16 +37,35 @@ def stamp_refusal(stamp_end_s: float, buffer: SampleBuffer, sample_time_s: float
     return None
 
 
-def buffer_refusal(fit: ArxFit, rows: int, params: ModalEstimationParams, buffer: SampleBuffer) -> str | None:
-    """Why ``buffer`` cannot hold the window of ``rows`` regressor rows of ``fit`` (``RefusedArx.BUFFER``), or None.
+def window_refusal(fit: ArxFit, rows: int, params: ModalEstimationParams, buffer: SampleBuffer
+                   ) -> tuple[str, str] | None:
+    """Why the window of ``rows`` regressor rows of ``fit`` is refused for its size, as (phrase, reason); or None.
 
-    With ``estimator.buffer_length`` 0 the buffer follows the ARX window, grown to it within node 2's bounds.
+    Shorter than a realization needs (:func:`realization_minimum`: four times the order), or more than
+    ``buffer`` can hold; with ``estimator.buffer_length`` 0 the buffer follows the ARX window, grown to it
+    within node 2's bounds.
     """
     need = rows + fit.order
+    if need < (least := realization_minimum(fit.order, need)):
+        return RefusedArx.SHORT, (f"its window of {need} samples (rows + order) is shorter than the {least} (4 x "
+                                  f"order {fit.order}) a realization needs")
     if params.buffer_length <= 0:
         problem = buffer.grow_for(need, MAX_BUFFER_SAMPLES, "estimator.buffer_length")
-        return f"ARX model refused: {problem}" if problem else None
-    if buffer.cap < (least := realization_minimum(fit.order, need)):  # else "a gap", none there
-        return (f"ARX model refused: its window of {need} samples (rows + order) needs at least {least} buffered, "
-                f"more than estimator.buffer_length {buffer.cap} keeps")
+        return (RefusedArx.BUFFER, f"ARX model refused: {problem}") if problem else None
+    if buffer.cap < least:  # else "a gap", none there
+        return RefusedArx.BUFFER, (f"ARX model refused: its window of {need} samples (rows + order) needs at least "
+                                   f"{least} buffered, more than estimator.buffer_length {buffer.cap} keeps")
     return None
+
+
+def held_refusal(skipped: np.ndarray, *, need: int, order: int, max_gap: int) -> tuple[str, str] | None:
+    """Why the samples node 2 holds of a window of ``need`` (``skipped`` (N,): theirs, the newest) are too few, or None.
+
+    None too when a gap longer than ``max_gap`` or a time restart lies among them: that is the reason then
+    (:func:`newest_run_start`). Without one, node 2 started (or was reset) within the window, and the
+    reason was said to be a gap.
+    """
+    if skipped.size >= (least := realization_minimum(order, need)) or run_breaks(skipped, max_gap).size:
+        return None
+    return RefusedArx.NOT_HELD, (f"node 2 holds {skipped.size} of the ARX window's {need} samples (rows + order), "
+                                 f"having started or been reset within it; the realization needs at least {least}")

@@ -87,7 +87,7 @@ from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.realization_window import newest_run_start
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
-from okid_ros.service.arx_requests import buffer_refusal, stamp_refusal
+from okid_ros.service.arx_requests import held_refusal, stamp_refusal, window_refusal
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
@@ -230,8 +230,8 @@ class ModalEstimationService:
                 st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
                 return False
         rows = int(window_rows) if window_rows else int(fit.n_rows)
-        if problem := buffer_refusal(fit, rows, prm, self._buffer):
-            st.refuse_arx(RefusedArx.BUFFER, problem)
+        if refused := window_refusal(fit, rows, prm, self._buffer):
+            st.refuse_arx(*refused)
             return False
         with self._lock:
             if self._request is not None:
@@ -269,6 +269,8 @@ class ModalEstimationService:
                 return st.refuse_arx(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
                                      f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
             _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
+            if refused := held_refusal(skipped, need=need, order=fit.order, max_gap=prm.max_gap_samples):
+                return st.refuse_arx(*refused)
             try:  # the cheap part of realization_window here; its filling is the worker's (realize)
                 first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
             except ValueError as exc:

@@ -301,6 +301,43 @@ def test_a_model_whose_window_ends_before_the_first_sample_is_refused_with_its_r
     assert est.diagnostics()["arx_models_replaced"] == 0
 
 
+def test_a_window_shorter_than_a_realization_needs_is_refused_on_arrival_as_such(pipeline):
+    # An ArxModel of 20 rows at order 40 (node 1 with a low min_window_fill and forgetting, or forged)
+    # was taken, then refused as one "with too few samples after a gap": "60 samples of the ARX window
+    # of 60 follow its last gap longer than 10 samples", in a record without a gap.
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    assert not est.submit_arx(fit, 99 * 0.008, 1, 20) and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 whose window is shorter than a realization needs"), d
+    assert d["last_reason"] == "its window of 60 samples (rows + order) is shorter than the 160 (4 x order 40) a " \
+        "realization needs", d
+
+
+def test_a_window_node_2_started_within_is_refused_for_the_samples_it_holds():
+    # Node 2 started (or was reset) after the window's first samples: it holds only the newest of them,
+    # and too few were refused as if after a gap ("800 samples of the ARX window of 2040 follow its last
+    # gap longer than 10 samples"), with no gap in its record.
+    stamps, u, y, snap = _record_and_its_arx_model()
+
+    def node_2_from(first: int) -> ModalEstimationService:
+        est = ModalEstimationService(ModalEstimationParams(stamps[1] - stamps[0], 2, 2, n_states=6))
+        for k in range(first, len(stamps)):
+            est.step(stamps[k], u[k], y[k])
+        assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+        return est
+
+    assert node_2_from(1000).take_job() is not None  # 1600 of the window's 2040 samples: half suffices
+    est = node_2_from(1800)
+    assert est.take_job() is None and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 of whose window node 2 holds too few samples"), d
+    assert d["last_reason"] == "node 2 holds 800 of the ARX window's 2040 samples (rows + order), having started " \
+        "or been reset within it; the realization needs at least 1020", d
+
+
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
     est, results, _ = pipeline
     t = results[-1].stamp_s
