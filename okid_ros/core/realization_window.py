@@ -22,7 +22,7 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.gap_fill import fill_short_gaps, fit_and_fill
 from okid_ros.core.sensor_faults import spikes_left_out
 
-__all__ = ["RealizationWindow", "newest_run_start", "realization_minimum", "realization_window"]
+__all__ = ["RealizationWindow", "newest_run_start", "realization_minimum", "realization_window", "run_breaks"]
 
 
 @dataclass(frozen=True)
@@ -115,10 +115,16 @@ def newest_run_start(skipped: np.ndarray, *, max_gap: int, order: int, need: int
     ValueError when fewer than :func:`realization_minimum` samples follow the run's start.
     """
     skipped = np.asarray(skipped, dtype=np.int64)
-    breaks = np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
+    breaks = run_breaks(skipped, max_gap)
     first = int(breaks[-1]) if breaks.size else 0
     _check_run(skipped.size - first, max_gap=max_gap, order=order, need=need)
     return first
+
+
+def run_breaks(skipped: np.ndarray, max_gap: int) -> np.ndarray:
+    """Indices of the samples after a gap longer than ``max_gap`` or a restart in ``skipped`` (N,), the first not."""
+    skipped = np.asarray(skipped, dtype=np.int64)
+    return np.flatnonzero((skipped[1:] < 0) | (skipped[1:] > max_gap)) + 1
 
 
 def _check_run(samples: int, *, max_gap: int, order: int, need: int) -> None:

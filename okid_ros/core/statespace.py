@@ -291,13 +291,25 @@ class InnovationPredictor:
     def __init__(self, model: InnovationModel, state: np.ndarray | None = None) -> None:
         self._chunk_powers: tuple[list[np.ndarray], np.ndarray] | None = None  # made by advance()
         self.A, self.B, self.C, self.D = model.A, model.B, model.C, model.D
-        self.F, self.Gu, self.Gy = model.predictor()
+        self._model = model  # F, Gu, Gy made from it at their first use (__getattr__)
         m, p = model.n_inputs, model.n_outputs
         u_off, y_off = getattr(model, "input_offset", None), getattr(model, "output_offset", None)
         self.input_offset = np.zeros(m) if u_off is None else np.asarray(u_off, float).reshape(m)
         self.output_offset = np.zeros(p) if y_off is None else np.asarray(y_off, float).reshape(p)
         n = model.n_states
         self.x = np.zeros(n) if state is None else np.asarray(state, dtype=float).reshape(n).copy()
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        """``F``, ``G_u``, ``G_y`` of ``model.predictor()``, made at the first use of one of them.
+
+        A bridge over missing samples (:meth:`bridge`) and an innovation not followed by the step need
+        only ``A``, ``B``, ``C``, ``D``: node 2 does both on its sample path (a gap, a model switch), where the
+        predictor's matrices cost 30 us at 28 outputs and 104 states, most of a bridged sample's time.
+        """
+        if name not in ("F", "Gu", "Gy") or "_model" not in self.__dict__:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        self.F, self.Gu, self.Gy = self._model.predictor()
+        return self.__dict__[name]
 
     @property
     def memory_samples(self) -> int:
@@ -334,12 +346,13 @@ class InnovationPredictor:
             self.x = self.A @ self.x + bu
         return True
 
-    def step(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The innovation (p,) of one sample ``u`` (m,), ``y`` (p,); advances the state."""
+    def step(self, u: np.ndarray, y: np.ndarray, *, advance: bool = True) -> np.ndarray:
+        """The innovation (p,) of one sample ``u`` (m,), ``y`` (p,); advances the state (``advance``)."""
         u = np.asarray(u, dtype=float) - self.input_offset
         y = np.asarray(y, dtype=float) - self.output_offset
         e = y - self.D @ u - self.C @ self.x
-        self.x = self.F @ self.x + self.Gu @ u + self.Gy @ y
+        if advance:
+            self.x = self.F @ self.x + self.Gu @ u + self.Gy @ y
         return e
 
     def predicted_output(self, u: np.ndarray) -> np.ndarray:

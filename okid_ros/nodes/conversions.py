@@ -23,9 +23,11 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import Mode
+from okid_ros.core.regressors import regressor_length
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.identification import ArxSnapshot
 from okid_ros.service.inputs import SourceSpec
+from okid_ros.service.options import ArxIdentificationParams
 from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
 
@@ -212,7 +214,8 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
 
     Raises
     ------
-    ValueError when the coefficient array does not match its declared shape or holds NaN or Inf,
+    ValueError when the order or the window is beyond what node 1 publishes, the coefficient array
+    does not match its declared shape or holds NaN or Inf,
     the residual covariance is not a finite symmetric positive semidefinite p x p matrix, or the
     sample times differ.
     """
@@ -228,7 +231,11 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
     if int(msg.window_fill) > limits["arx.window_length"]:
         raise ValueError(f"ArxModel window of {int(msg.window_fill)} rows exceeds arx.window_length's limit "
                          f"{limits['arx.window_length']}")
-    d = m + q * (p + m)
+    # Node 1's rules of its order at its start (the regressor's length, an order node 2 can realize): an
+    # ArxModel of order 5000 kept node 2's worker busy for minutes, no other model realized meanwhile.
+    if problem := ArxIdentificationParams(order=q, n_inputs=m, n_outputs=p, window_length=0).size_problem():
+        raise ValueError(f"ArxModel beyond what node 1 publishes: {problem}")
+    d = regressor_length(q, p, m)
     rows, cols = int(msg.coefficients_rows), int(msg.coefficients_cols)
     theta = np.asarray(msg.coefficients, dtype=float)
     if (rows, cols) != (d, p) or theta.size != d * p:

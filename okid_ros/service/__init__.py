@@ -8,9 +8,9 @@
   offline tools use; :mod:`.options`: the services' options derived from it;
 - :mod:`.identification`: node 1, windowed ARX identification (`ArxIdentificationService`);
 - :mod:`.estimation`: node 2, the modal estimation service (`ModalEstimationService`), on its
-  parts: :mod:`.realization` (realization and its checks), :mod:`.model_switch` (model
-  switching, mode ids with :mod:`.mode_registry`), :mod:`.watch` (divergence and change
-  watch), :mod:`.results` (what it hands out);
+  parts: :mod:`.arx_requests` (which ARX fits it refuses), :mod:`.realization` (realization and
+  its checks), :mod:`.model_switch` (model switching, mode ids with :mod:`.mode_registry`),
+  :mod:`.watch` (divergence and change watch), :mod:`.results` (what it hands out);
 - :mod:`.windowed`: each node's step per sample, and both nodes in step offline
   (`WindowedPipeline`, ``okid-ros process``);
 - :mod:`.records`: the one serialized shape of a mode, a change and a model update.

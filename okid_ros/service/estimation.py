@@ -31,9 +31,10 @@ Life of a model update::
 (:class:`~okid_ros.service.windowed.WindowedPipeline`) each model is realized at once, and one
 delivered after the last sample is applied and published as live (``apply_ready_at_end``).
 
-The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the
-realization and its checks (:mod:`~okid_ros.service.realization`), model switching with mode
-ids (:mod:`~okid_ros.service.model_switch`), the divergence and change watch
+The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the ARX
+fits refused (:mod:`~okid_ros.service.arx_requests`), the realization and its checks
+(:mod:`~okid_ros.service.realization`), model switching with mode ids
+(:mod:`~okid_ros.service.model_switch`), the divergence and change watch
 (:mod:`~okid_ros.service.watch`), the diagnostics dict
 (:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them,
 with all its locking: one lock, around what the realization's thread and the sample path share
@@ -72,7 +73,6 @@ lies (:mod:`~okid_ros.service.watch`).
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from typing import Any
@@ -84,13 +84,14 @@ from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
-from okid_ros.core.realization_window import newest_run_start, realization_minimum
+from okid_ros.core.realization_window import newest_run_start
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
+from okid_ros.service.arx_requests import held_refusal, stamp_refusal, window_refusal
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
-from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, arx_lead_problem, check_runtime_change
+from okid_ros.service.options import ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
 from okid_ros.service.results import (
     JOB_GENERATIONS,
@@ -220,11 +221,8 @@ class ModalEstimationService:
             st.refuse_arx(RefusedArx.DIMENSIONS, f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator "
                           f"has n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
             return False
-        if not math.isfinite(stamp_end_s):
-            st.refuse_arx(RefusedArx.STAMP, "ARX model without a stamp")
-            return False
-        if far := arx_lead_problem(stamp_end_s, self._buffer.newest_stamp()):  # none buffered: judged in take_job
-            st.refuse_arx(RefusedArx.FUTURE, far)
+        if refused := stamp_refusal(stamp_end_s, self._buffer, prm.sample_time_s):
+            st.refuse_arx(*refused)
             return False
         pending = self._request
         for end in (self._last_request_end, None if pending is None else pending[1]):
@@ -232,15 +230,8 @@ class ModalEstimationService:
                 st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
                 return False
         rows = int(window_rows) if window_rows else int(fit.n_rows)
-        if prm.buffer_length <= 0:  # the buffer follows the ARX window, within node 2's bounds
-            problem = self._buffer.grow_for(rows + fit.order, MAX_BUFFER_SAMPLES, "estimator.buffer_length")
-            if problem:
-                st.refuse_arx(RefusedArx.BUFFER, f"ARX model refused: {problem}")
-                return False
-        elif self._buffer.cap < (least := realization_minimum(fit.order, rows + fit.order)):  # else "a gap", none there
-            st.refuse_arx(RefusedArx.BUFFER, f"ARX model refused: its window of {rows + fit.order} samples (rows + "
-                          f"order) needs at least {least} buffered, more than estimator.buffer_length "
-                          f"{self._buffer.cap} keeps")
+        if refused := window_refusal(fit, rows, prm, self._buffer):
+            st.refuse_arx(*refused)
             return False
         with self._lock:
             if self._request is not None:
@@ -251,34 +242,35 @@ class ModalEstimationService:
     def take_job(self) -> RealizationJob | None:
         """A realization job for the waiting ARX fit, once the buffer covers its window.
 
-        None when there is nothing to do, a job runs, or the window's last sample has not come (an
-        idle stream's newest sample ends it if at most ``max_gap_samples`` short). A request whose
-        window is not buffered (too few samples after a long gap, too many missing) is dropped, so is one
-        offered with nothing buffered whose window ends beyond ``MAX_ARX_LEAD_S`` of the first samples.
+        None when there is nothing to do, a job runs, nothing is buffered yet (node 2 started after node 1,
+        or lags it) or the window's last sample has not come (an idle stream's newest sample ends it if at
+        most ``max_gap_samples`` short). A request whose window is not buffered (too few samples after a
+        long gap, too many missing) is dropped; so is one offered with nothing buffered whose window ends
+        beyond ``MAX_ARX_LEAD_S`` of the first samples, or before them (the rules of :meth:`submit_arx`).
         """
         with self._lock:
-            if self._busy or self._request is None or not self.enabled:
+            if self._busy or self._request is None or not self.enabled or self._buffer.count == 0:
                 return None
             fit, stamp_end, arx_id, rows = self._request
-            if far := arx_lead_problem(stamp_end, self._buffer.newest_stamp()):  # offered with none buffered
-                self._request = None
-                return self._stats.refuse_arx(RefusedArx.FUTURE, far)
             dt, prm, st = self.params.sample_time_s, self.params, self._stats
-            short = (stamp_end - self._buffer.newest_stamp()) / dt if self._buffer.count > 0 else 0.0
+            if refused := stamp_refusal(stamp_end, self._buffer, dt):  # offered with none buffered, or a time jump
+                self._request = None
+                return st.refuse_arx(*refused)
+            short = (stamp_end - self._buffer.newest_stamp()) / dt
             if short > 0.5 and not (self._idle.still_idle(self._buffer.count) and short <= prm.max_gap_samples + 0.5):
                 return None  # the window's last sample has not arrived here yet
             self._request = None
             self._last_request_end = stamp_end
-            end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)
+            end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)  # found: its timeline starts before
             need = rows + fit.order
-            if end < 0:
-                return st.refuse_arx(RefusedArx.NO_SAMPLE, "no buffered sample at or before the ARX window's end")
             change = self._watch.change
             if change is not None and end + 1 - need < change.change_index:
                 st.windows_refused_for_change += 1
                 return st.refuse_arx(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
                                      f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
             _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
+            if refused := held_refusal(skipped, need=need, order=fit.order, max_gap=prm.max_gap_samples):
+                return st.refuse_arx(*refused)
             try:  # the cheap part of realization_window here; its filling is the worker's (realize)
                 first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
             except ValueError as exc:

@@ -136,7 +136,7 @@ class SwitchJump:
         x = old.estimator.state
         if skipped:
             x = bridge_state(old.model, x, u_prev, int(skipped), max_gap)
-        innovation = InnovationPredictor(old.model, x).step(u, y)  # offset-free signals
+        innovation = InnovationPredictor(old.model, x).step(u, y, advance=False)  # offset-free signals
         x_post = x + old.estimator.K_steady @ innovation
         coords = x_post[: 2 * old.n_modes].reshape(old.n_modes, 2)
         self._reference = {mode.id: coords[i] for i, mode in enumerate(old.modes)}

@@ -217,6 +217,8 @@ class RefusedArx:
     NO_SAMPLE = "whose window's end node 2 holds no sample at or before"
     CHANGE = "whose window starts before a structural change"
     GAP = "with too few samples after a gap (or a time jump) in their window"
+    SHORT = "whose window is shorter than a realization needs"
+    NOT_HELD = "of whose window node 2 holds too few samples (started or reset within it)"
 
 
 @dataclass

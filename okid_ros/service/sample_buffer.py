@@ -83,6 +83,7 @@ class SampleBuffer:
         self._alloc(max(int(capacity), 16))
         self.count = 0
         self._oldest = 0  # no sample before this one is held (a resize keeps only what the ring held)
+        self._restart = 0  # the newest sample appended after a restart (skipped < 0), or 0
         self._glitches: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # predicted_glitch's, by sample
 
     def _alloc(self, cap: int) -> None:
@@ -94,7 +95,7 @@ class SampleBuffer:
 
     def clear(self) -> None:
         with self.lock:
-            self.count = self._oldest = 0
+            self.count = self._oldest = self._restart = 0
             self._glitches = {}
 
     def resize(self, cap: int) -> None:
@@ -135,6 +136,8 @@ class SampleBuffer:
             self.u[i] = u
             self.y[i] = y
             self.skipped[i] = skipped
+            if skipped < 0:
+                self._restart = self.count
             self.count += 1
             return self.count - 1
 
@@ -202,8 +205,7 @@ class SampleBuffer:
             if hi == lo:
                 return -1, math.nan
             st = self._ordered(self.stamps, lo, hi)
-            restarts = np.flatnonzero(self._ordered(self.skipped, lo, hi) < 0)
-            start = int(restarts[-1]) if restarts.size else 0
+            start = self._timeline_start(lo)
             ok = np.flatnonzero(st[start:] <= stamp_s + tol)
             if ok.size == 0:
                 return -1, math.nan
@@ -227,7 +229,20 @@ class SampleBuffer:
             lo, hi = self.first, self.count
             if hi == lo:
                 return -1
-            restarts = np.flatnonzero(self._ordered(self.skipped, lo, hi) < 0)
-            start = int(restarts[-1]) if restarts.size else 0
+            start = self._timeline_start(lo)
             ok = np.flatnonzero(self._ordered(self.stamps, lo, hi)[start:] >= stamp_s - tol)
             return -1 if ok.size == 0 else lo + start + int(ok[0])
+
+    def timeline_start_stamp(self) -> float:
+        """Stamp of the oldest stored sample of the newest timeline (after the last restart); nan if none."""
+        with self.lock:
+            lo, hi = self.first, self.count
+            return math.nan if hi == lo else float(self.stamps[(lo + self._timeline_start(lo)) % self.cap])
+
+    def _timeline_start(self, lo: int) -> int:
+        """Offset from ``lo`` of the newest timeline's first sample among the samples from ``lo`` on (lock held).
+
+        Kept at each append: a search of the ring took 6 us at 6600 samples, and node 2 looks at every
+        sample while a model waits for its window's end (``ModalEstimationService.take_job``).
+        """
+        return max(self._restart, lo) - lo

@@ -18,7 +18,13 @@ from okid_ros.core.refit import refit_predictor
 from okid_ros.core.stabilization import StabilizationPole, _match, stabilization_diagram
 from okid_ros.core.stable_matrix import MAX_BASIS_CONDITION, _basis_inverse
 from okid_ros.core.state_completion import fit_from_states, regress_state_equations
-from okid_ros.core.statespace import InnovationModel, _run_states, one_step_prediction, predictor_states
+from okid_ros.core.statespace import (
+    InnovationModel,
+    InnovationPredictor,
+    _run_states,
+    one_step_prediction,
+    predictor_states,
+)
 from okid_ros.sim.inputs import white_input
 from okid_ros.sim.paper_model import paper_model
 from okid_ros.sim.simulators import simulate_innovation
@@ -102,6 +108,37 @@ def test_predictor_run_by_gemv_equals_the_plain_recursion():
         x = F @ x + G @ w[k]
     np.testing.assert_allclose(_run_states(F, G, w, x0), want, rtol=1e-12, atol=1e-12)
     assert _run_states(F, G, w[:0], x0).shape == (0, n)
+
+
+def test_a_bridge_and_an_innovation_alone_make_no_predictor_matrices(monkeypatch):
+    """Node 2 bridges each gap and takes a switch's innovation on its sample path: A, B, C, D, not F, G_u, G_y.
+
+    The predictor's matrices were made with every InnovationPredictor (30 us at 28 outputs and 104 states,
+    most of a bridged sample's time); now at their first use, the same as before.
+    """
+    truth = paper_model()
+    made = []
+    predictor = InnovationModel.predictor
+    monkeypatch.setattr(InnovationModel, "predictor", lambda model: made.append(model) or predictor(model))
+    rng = np.random.default_rng(9)
+    x0, u, y = rng.standard_normal(truth.n_states), rng.standard_normal(2), rng.standard_normal(2)
+    bridged = InnovationPredictor(truth, x0)
+    assert bridged.bridge(u, 3, 5)
+    x = x0
+    for _ in range(3):
+        x = truth.A @ x + truth.B @ u
+    np.testing.assert_array_equal(bridged.x, x)
+    assert made == []
+    alone = InnovationPredictor(truth, x0)
+    np.testing.assert_array_equal(alone.step(u, y, advance=False), y - truth.D @ u - truth.C @ x0)
+    np.testing.assert_array_equal(alone.x, x0)
+    assert made == []
+    e = alone.step(u, y)  # the step needs F, G_u, G_y: made once, as model.predictor() makes them
+    F, Gu, Gy = predictor(truth)
+    np.testing.assert_array_equal(e, y - truth.D @ u - truth.C @ x0)
+    np.testing.assert_array_equal(alone.x, F @ x0 + Gu @ u + Gy @ y)
+    alone.step(u, y)
+    assert made == [truth] and alone.F is alone.F
 
 
 def test_diagram_marks_equal_the_pairwise_test_of_every_pole():

@@ -6,6 +6,7 @@ imports no ROS package).
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from types import SimpleNamespace as NS
 
@@ -125,6 +126,24 @@ def test_an_arx_model_whose_coefficients_are_not_finite_is_malformed(identified,
     msg.coefficients = coefficients
     with pytest.raises(ValueError, match=r"ArxModel coefficients are not finite \(1 of 164 values NaN or Inf\)"):
         cv.arx_fit_from_msg(msg, msg.sample_time_s)
+
+
+@pytest.mark.parametrize("order, text", [
+    (5000, "arx.order 5000 with 2 inputs and 2 outputs gives regressors of d = m + q (p + m) = 20002 coefficients; "
+           "at most 2500"),
+    (1, "arx.order 1: node 2 realizes models from an ARX order of at least 2"),
+])
+def test_an_arx_model_of_an_order_node_1_never_publishes_is_malformed(identified, order, text):
+    # Well formed, coefficients of the size the order gives: one of order 5000 (the limit of arx.order
+    # alone) was taken and realized, node 2's worker busy for more than 4 minutes with its window of
+    # 20000 rows and no other model realized meanwhile; node 1 refuses both orders at its start.
+    msg = cv.arx_model_msg(identified[0], TYPES)
+    d = 2 + order * 4
+    msg.order, msg.coefficients_rows, msg.coefficients = order, d, np.full(2 * d, 1e-4)
+    with pytest.raises(ValueError, match=re.escape(f"ArxModel beyond what node 1 publishes: {text}")):
+        cv.arx_fit_from_msg(msg, msg.sample_time_s)
+    msg.order, msg.coefficients_rows, msg.coefficients = 2, 10, np.full(20, 1e-4)
+    assert cv.arx_fit_from_msg(msg, msg.sample_time_s)[0].order == 2
 
 
 def test_node_1_never_publishes_a_covariance_node_2_refuses(identified):

@@ -8,6 +8,8 @@ against every sample appended, kept aside in plain arrays.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from _hypothesis_profiles import settings  # noqa: F401 - registers and loads the profile
 from hypothesis import given
@@ -44,6 +46,9 @@ def test_get_returns_the_stored_samples_in_order(capacity, appended, m, p, lo, l
         j = min(max(lo, start), appended - 1)
         assert ring.find_end(stamps[j], 1e-9) == (j, stamps[j])
         assert ring.first_at_or_after(stamps[j]) == j
+        assert ring.timeline_start_stamp() == stamps[start]
+    else:
+        assert math.isnan(ring.timeline_start_stamp())
 
 
 def test_a_ring_that_grew_holds_only_what_it_held():

@@ -251,6 +251,93 @@ def test_a_far_window_offered_with_nothing_buffered_is_refused_at_the_first_samp
     assert est.take_job() is None and est.has_request
 
 
+def _record_and_its_arx_model(samples: int = 2600):
+    """The paper model's record (u, y, stamps from T0) and node 1's ArxModel of its last window (a snapshot)."""
+    model = paper_model()
+    u = lowpass_input(samples, 2, 50.0, model.sample_time_s, seed=3)
+    y, _ = simulate_innovation(model, u, seed=4)
+    stamps = T0 + np.arange(samples) * model.sample_time_s
+    ident = ArxIdentificationService(ArxIdentificationParams(model.sample_time_s, Q, 2, 2, W))
+    for k in range(samples):
+        ident.push(stamps[k], u[k], y[k])
+    return stamps, u, y, ident.snapshot()
+
+
+def test_a_model_offered_before_the_first_sample_waits_for_the_samples():
+    # Node 2 started after node 1, or lagging it by its input queue: an ArxModel that came while it
+    # buffered nothing, its job due at once, was refused as NO_SAMPLE ("no buffered sample at or
+    # before the ARX window's end") and lost, though its window's samples were still to come.
+    stamps, u, y, snap = _record_and_its_arx_model()
+    est = ModalEstimationService(ModalEstimationParams(stamps[1] - stamps[0], 2, 2, n_states=6))
+    assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+    assert est.take_job() is None and est.has_request  # judged by the first samples
+    jobs = []
+    for k in range(len(stamps)):  # as node 2's sample path: a job started when one is due
+        est.step(stamps[k], u[k], y[k])
+        if est.has_request and (job := est.take_job()) is not None:
+            jobs.append((k, job))
+    assert [(k, job.stamp_end_s) for k, job in jobs] == [(len(stamps) - 1, snap.stamp_s)]
+    assert est.diagnostics()["arx_models_refused"] == 0
+    est.deliver(est.run_job(jobs[0][1], follow=False))
+    assert est.step(stamps[-1] + 0.008, u[0], y[0]).update is not None
+
+
+def test_a_model_whose_window_ends_before_the_first_sample_is_refused_with_its_reason():
+    # Its window will never be buffered: refused once the first sample is (also when it came before
+    # them), or at once when samples are there (so a request waiting is kept), saying why.
+    stamps, u, y, snap = _record_and_its_arx_model()
+    dt = stamps[1] - stamps[0]
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    assert est.submit_arx(snap.fit, snap.stamp_s, 1, snap.window_rows)
+    est.step(snap.stamp_s + dt, u[0], y[0])  # node 2 started after that window's end
+    assert est.take_job() is None and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 whose window's end node 2 holds no sample at or before"), d
+    first = f"before the first sample node 2 holds ({snap.stamp_s + dt:.3f} s, since any time jump)"
+    assert first in d["last_reason"] and "will never be buffered here" in d["last_reason"], d
+    assert est.submit_arx(snap.fit, snap.stamp_s + 10.0, 2, snap.window_rows)  # waits for its end
+    assert not est.submit_arx(snap.fit, snap.stamp_s - 1.0, 3, snap.window_rows)  # refused at once
+    assert est.has_request and est.diagnostics()["arx_models_refused"] == 2
+    assert est.diagnostics()["arx_models_replaced"] == 0
+
+
+def test_a_window_shorter_than_a_realization_needs_is_refused_on_arrival_as_such(pipeline):
+    # An ArxModel of 20 rows at order 40 (node 1 with a low min_window_fill and forgetting, or forged)
+    # was taken, then refused as one "with too few samples after a gap": "60 samples of the ARX window
+    # of 60 follow its last gap longer than 10 samples", in a record without a gap.
+    est = ModalEstimationService(ModalEstimationParams(0.008, 2, 2, n_states=6))
+    fit = pipeline[2].snapshot().fit
+    for k in range(100):
+        est.step(k * 0.008, [0.0, 1.0], [1.0, 0.0])
+    assert not est.submit_arx(fit, 99 * 0.008, 1, 20) and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 whose window is shorter than a realization needs"), d
+    assert d["last_reason"] == "its window of 60 samples (rows + order) is shorter than the 160 (4 x order 40) a " \
+        "realization needs", d
+
+
+def test_a_window_node_2_started_within_is_refused_for_the_samples_it_holds():
+    # Node 2 started (or was reset) after the window's first samples: it holds only the newest of them,
+    # and too few were refused as if after a gap ("800 samples of the ARX window of 2040 follow its last
+    # gap longer than 10 samples"), with no gap in its record.
+    stamps, u, y, snap = _record_and_its_arx_model()
+
+    def node_2_from(first: int) -> ModalEstimationService:
+        est = ModalEstimationService(ModalEstimationParams(stamps[1] - stamps[0], 2, 2, n_states=6))
+        for k in range(first, len(stamps)):
+            est.step(stamps[k], u[k], y[k])
+        assert est.submit_arx(snap.fit, snap.stamp_s, snap.model_id, snap.window_rows)
+        return est
+
+    assert node_2_from(1000).take_job() is not None  # 1600 of the window's 2040 samples: half suffices
+    est = node_2_from(1800)
+    assert est.take_job() is None and not est.has_request
+    d = est.diagnostics()
+    assert d["arx_models_refused_why"].startswith("1 of whose window node 2 holds too few samples"), d
+    assert d["last_reason"] == "node 2 holds 800 of the ARX window's 2040 samples (rows + order), having started " \
+        "or been reset within it; the realization needs at least 1020", d
+
+
 def test_gaps_are_bridged_or_restart_the_estimator(pipeline):
     est, results, _ = pipeline
     t = results[-1].stamp_s
