@@ -18,6 +18,7 @@ from okid_ros.commands._args import (
     states_or_auto,
 )
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+from okid_ros.errors import shown_path
 
 #: The most of a --reference file read. It is an `identify --json` output: 40-75 kB for a model of two
 #: outputs (most of it the stabilization diagram), a few MB for hundreds of states of tens of outputs; 64 MiB
@@ -172,14 +173,15 @@ def run(args: argparse.Namespace) -> int:
     document["elapsed_s"] = elapsed
     with writing(out, "JSON model"):
         write_json(out, document)
-    _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
+    shown_source = shown_path(args.data) + source[len(args.data):]  # the JSON keeps the name as it is
+    _print_report(model, source=shown_source, output_only=output_only, elapsed_s=elapsed, out=out)
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
     print(_fit_line(fits, output_only=output_only))
     try:
         _write_exports(args, model, measured, reference=reference, pairs=pairs)
     except OutputError as exc:  # a full disk, a device that refuses: say what is written already
-        raise OutputError(f"{exc}; the JSON model is written ({out})") from None
+        raise OutputError(f"{exc}; the JSON model is written ({shown_path(out)})") from None
     return 0
 
 
@@ -214,7 +216,7 @@ def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, ou
     print(
         f"identified {front}, n={model.n_states} states, {len(model.modes)} physical modes "
         f"in {elapsed_s:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
-        f"{model.predictor_spectral_radius():.4f}) -> {out}"
+        f"{model.predictor_spectral_radius():.4f}) -> {shown_path(out)}"
     )
     for mode in model.modes:
         print(
@@ -234,7 +236,7 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
 
         with writing(args.csv, "modes CSV"):
             write_modal_csv(args.csv, model.modes)
-        print(f"modal table -> {args.csv}")
+        print(f"modal table -> {shown_path(args.csv)}")
     if args.uff:
         from okid_ros.core.validation import h1_frf, model_frf
         from okid_ros.tools.exports import write_uff
@@ -244,13 +246,13 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
         with writing(args.uff, "UFF file"):
             count = write_uff(args.uff, model.modes, frequency_hz=freq,
                               frfs={"model": modelled, "measured H1": measured})
-        print(f"UFF (datasets 55 and 58, {count} in all) -> {args.uff}")
+        print(f"UFF (datasets 55 and 58, {count} in all) -> {shown_path(args.uff)}")
     if args.plot_dir:
         from okid_ros.tools.validation_plots import ModelView, write_validation_figures
 
         written = write_validation_figures(ModelView.of(model), record.u, record.y, args.plot_dir, force=args.force,
                                            reference=reference, pairs=pairs)
-        print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
+        print(f"figures -> {shown_path(args.plot_dir)}: {', '.join(shown_path(p.name) for p in written)}")
 
 
 _JACKKNIFE = "delete-one jackknife over consecutive segments of the record"
@@ -356,7 +358,7 @@ def _load_reference(path: str, n_outputs: int) -> list:
     from okid_ros.tools.validation_plots import reference_modes
 
     if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
-        raise ParameterError(f"--reference {path}: not a regular file ({kind})")
+        raise ParameterError(f"--reference {shown_path(path)}: not a regular file ({kind})")
     too_large = (f"--reference {path}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference model (an "
                  "`okid-ros identify --json` output is a few kB to a few MB): another file?")
     try:
@@ -368,10 +370,11 @@ def _load_reference(path: str, n_outputs: int) -> list:
             raise ParameterError(too_large)
         document = json.loads(text)
     except (OSError, ValueError) as exc:
-        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output ({exc})") from None
+        raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output "
+                             f"({exc})") from None
     if not isinstance(document, dict) or "modes" not in document:
-        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output (no 'modes')")
-    return reference_modes(document["modes"], f"--reference {path}", n_outputs)
+        raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output (no 'modes')")
+    return reference_modes(document["modes"], f"--reference {shown_path(path)}", n_outputs)
 
 
 def _pm(std: float) -> str:

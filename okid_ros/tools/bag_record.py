@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
-from okid_ros.errors import DataError, OkidWarning
+from okid_ros.errors import DataError, OkidWarning, shown_path
 from okid_ros.records import Record, bridged_bounds, load_record
 
 __all__ = ["BagRecord", "RECORD_SUFFIXES", "record_from_bag", "load_any_record"]
@@ -141,7 +141,8 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         why = (f": {_rejected_messages(rejected, int(counters.messages), dt, inputs.wrong_size_note)}"
                if any(rejected.values()) else "")
         made = "no complete sample" if not samples else "one complete sample only"
-        raise DataError(f"{bag_path}: {made} on the topics {', '.join(s.topic for s in inputs.specs)}" + why)
+        raise DataError(f"{shown_path(bag_path)}: {made} on the topics "
+                        f"{', '.join(s.topic for s in inputs.specs)}" + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
@@ -192,16 +193,16 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     path = Path(path)
     if path.suffix.lower() in RECORD_SUFFIXES:
         if params or overrides or sources:
-            warnings.warn(f"{path}: --params, --param and --source say how to read a bag's topics; a record "
+            warnings.warn(f"{shown_path(path)}: --params, --param and --source say how to read a bag's topics; a "
                           "file holds its channels and sample time itself: ignored", OkidWarning, stacklevel=2)
         return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
-        raise DataError(f"{path}: no such file or bag")
+        raise DataError(f"{shown_path(path)}: no such file or bag")
     from okid_ros.tools.process import load_node_parameters
 
     est_values = load_node_parameters(params, overrides, sources)[1]
     from_bag = record_from_bag(path, est_values, missing_as_nan=allow_nonfinite)
     note = from_bag.rejection_note()
     if note:  # said before anything can fail on what it explains (a sample time half the stamps' spacing)
-        warnings.warn(f"{path}: {note}", OkidWarning, stacklevel=2)
+        warnings.warn(f"{shown_path(path)}: {note}", OkidWarning, stacklevel=2)
     return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

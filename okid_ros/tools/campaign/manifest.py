@@ -79,12 +79,13 @@ class Manifest:
         self._stream = None
 
     def _load(self) -> None:
-        from okid_ros.errors import DataError
+        from okid_ros.errors import DataError, shown_path
 
         try:
             data = self.path.read_bytes()
         except OSError as exc:
-            raise DataError(f"{self.path}: cannot read the campaign's manifest ({exc.strerror or exc})") from None
+            raise DataError(f"{shown_path(self.path)}: cannot read the campaign's manifest "
+                            f"({exc.strerror or exc})") from None
         lines = data.split(b"\n")
         for number, line in enumerate(lines, 1):
             if not line.strip():
