@@ -104,6 +104,20 @@ def _outputs(args: argparse.Namespace) -> list:
     return paths
 
 
+def _check_outputs(args: argparse.Namespace, outputs: list) -> None:
+    """Refuse, before the record is read and making nothing, an output that cannot or may not be written.
+
+    A bad ``--json``, ``--csv``, ``--uff`` or ``--plot-dir`` path was found only after reading the record (a big
+    bag read in vain): the folders are made later, once every option is checked.
+    """
+    from okid_ros.tools.output_paths import check_file_outputs, check_folder_option, check_output_paths
+
+    if args.plot_dir:
+        check_folder_option("--plot-dir", args.plot_dir)
+    check_output_paths(args.data, "record", outputs)
+    check_file_outputs(outputs, force=args.force)
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
     import time
@@ -114,12 +128,10 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, channel_without_values, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_folder_option, check_output_paths, prepare_file_outputs
+    from okid_ros.tools.output_paths import prepare_file_outputs
 
     out, outputs = Path(args.json), _outputs(args)
-    if args.plot_dir:
-        check_folder_option("--plot-dir", args.plot_dir)
-    check_output_paths(args.data, "record", outputs)
+    _check_outputs(args, outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):

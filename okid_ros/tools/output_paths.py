@@ -30,9 +30,9 @@ from pathlib import Path
 from okid_ros.errors import OutputError, is_special_file, name_beside, one_line, shown_path, special_file_kind
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_folder_option", "check_output_paths",
-           "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output",
-           "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_file_outputs", "check_folder_option",
+           "check_output_paths", "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs",
+           "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -171,12 +171,43 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     OutputExistsError, BagWriteError
         as :func:`prepare_output`.
     """
-    for path, kind in outputs:
-        check_file_name(path, kind)
-        check_replaceable(Path(path), force=force, kind=kind)
+    check_file_outputs(outputs, force=force)
     for path, kind in outputs:
         _make_folder(Path(path).parent, Path(path))
         _check_folder_takes_files(Path(path), kind)
+
+
+def check_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, force: bool) -> None:
+    """Check, making nothing, what :func:`prepare_file_outputs` checks before it makes the folders.
+
+    For a command that reads a long input before it may make anything (``identify``: an option's
+    error leaves no folder): a name of a folder, an output not to be replaced, a file where a folder
+    must be, or a nearest existing folder this user may not write in, each refused before the read.
+    The nameless temporary file of :func:`prepare_file_outputs` still tries each folder once made
+    (a pseudo file system, a quota, root's writes that a mode does not stop).
+
+    Raises
+    ------
+    OutputError, OutputExistsError, BagWriteError : as :func:`prepare_file_outputs`.
+    """
+    for path, kind in outputs:
+        check_file_name(path, kind)
+        check_replaceable(Path(path), force=force, kind=kind)
+        _check_writable_folder(Path(path), kind)
+
+
+def _check_writable_folder(out: Path, kind: str) -> None:
+    """BagWriteError when the nearest existing folder above ``out`` is no folder, or not one this user may write in."""
+    if is_special_file(out):  # a device is written into
+        return
+    if found := _non_folder(out.parent):
+        raise BagWriteError(f"{shown_path(out)}: {shown_path(found[0])} is {found[1]}, not a folder")
+    folder = next((part for part in out.parents if _is_dir(part)), None)
+    if folder is None or os.access(folder, os.W_OK | os.X_OK):
+        return
+    made = "" if folder == out.parent else f"its folder {shown_path(out.parent)} cannot be made: "
+    raise BagWriteError(f"{shown_path(out)}: {made}cannot write the {kind} in the folder {shown_path(folder)} "
+                        "(not writable by this user)")
 
 
 def _check_folder_takes_files(out: Path, kind: str) -> None:
