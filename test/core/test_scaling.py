@@ -78,6 +78,16 @@ def test_beyond_the_float64_range_is_a_clear_refusal(paper_record, peak, offset)
             identify(u, y * scale + offset, DT, order=40, refine=False)
 
 
+def test_inputs_of_a_subnormal_unit_are_a_clear_refusal_not_a_model_of_nan(paper_record) -> None:
+    # Inputs of a subnormal unit: B = B_s / Su beyond 1e308, written as NaN (after numpy's overflow warning), exit 0.
+    u, y = paper_record
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(IdentificationError, match=r"input gains B and D in the record's units are beyond the "
+                                                      r"float64 range \(input spreads 1e-312, 1; "):
+            identify(u * np.array([1e-312, 1.0]), y, DT, order=40, refine=False)
+
+
 def test_channel_mean_is_the_mean_without_its_overflow(paper_record) -> None:
     u, y = paper_record
     np.testing.assert_array_equal(channel_mean(y), y.mean(axis=0))  # divided by powers of two: exact
