@@ -118,6 +118,29 @@ def _check_outputs(args: argparse.Namespace, outputs: list) -> None:
     check_file_outputs(outputs, force=args.force)
 
 
+def _record_problem(record, output_only: bool) -> str:
+    """Why the record cannot be identified before any work ("" if nothing is found yet).
+
+    A channel without a value; outputs whose covariance float64 cannot hold in their units, refused
+    as ``track`` refuses them before its work, a dead output among them said first, as ``track``
+    says it (``identify`` refused them only after the work, where it got that far: outputs about
+    1e308 failed first in the gap filling or the ARX order's search, with numpy's overflow
+    warnings and another reason).
+    """
+    import numpy as np
+
+    from okid_ros.core.excitation import output_problem
+    from okid_ros.core.scaling import covariance_range_problem
+    from okid_ros.records import channel_without_values
+
+    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+        return problem
+    present = record.y[np.isfinite(record.y).all(axis=1)]
+    if problem := covariance_range_problem(present):
+        return output_problem(present) or problem  # a constant 1e308 is a dead output, not "spreads 1.48, inf"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
     import time
@@ -126,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, OutputError, ParameterError, writing
     from okid_ros.jsonio import write_json
-    from okid_ros.records import bridged_run, channel_without_values, longest_present_run
+    from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import prepare_file_outputs
 
@@ -134,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
     _check_outputs(args, outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
-    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+    if problem := _record_problem(record, output_only):
         raise DataError(problem)  # named with the record by run_command
     ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _gain_options_ignored(args)
     if ignored:

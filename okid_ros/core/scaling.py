@@ -86,9 +86,10 @@ def covariance_range_problem(y: np.ndarray) -> str:
     a glitch, not the record's units.
     """
     y = np.asarray(y, dtype=float)
-    deviation = MAD_TO_STD * np.median(np.abs(y - np.median(y, axis=0)), axis=0) if y.shape[0] else np.ones(y.shape[1])
-    spreads = np.where(deviation > 0, deviation, channel_spread(y))
-    with np.errstate(over="ignore", under="ignore"):
+    with np.errstate(over="ignore", under="ignore"):  # outputs about 1e308: their deviations overflow, refused
+        deviation = MAD_TO_STD * np.median(np.abs(y - np.median(y, axis=0)), axis=0) if y.shape[0] \
+            else np.ones(y.shape[1])
+        spreads = np.where(deviation > 0, deviation, channel_spread(y))
         squares = np.square(spreads)
     return "" if np.all(np.isfinite(squares) & (squares > 0)) else _beyond_range(spreads)
 
