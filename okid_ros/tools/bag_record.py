@@ -152,8 +152,14 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
-    return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     grid.rejections(), int(grid.missing))
+    found = BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
+                      grid.rejections(), int(grid.missing))
+    if hi - lo < 2:  # each sample alone between sample times without one: `export` wrote one sample, exit 0
+        note = found.rejection_note()
+        raise DataError(f"{shown_path(bag_path)}: no two complete samples in a row on the topics "
+                        f"{', '.join(s.topic for s in inputs.specs)} ({len(samples)} samples, each alone)"
+                        + (f": {note}" if note else ""))
+    return found
 
 
 def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:
