@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from okid_ros.errors import DataError
+    from okid_ros.errors import DataError, ParameterError
     from okid_ros.records import save_record
     from okid_ros.tools.bag_record import record_from_bag
     from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.npz)
     if out.suffix.lower() != ".npz":
-        raise DataError(f"--npz {shown_path(out)}: the record file must end in .npz")
+        raise ParameterError(f"--npz {shown_path(out)}: the record file must end in .npz")  # an option, not the bag
     check_output_paths(args.bag, "input bag", [(out, "record")])
     prepare_file_outputs([(args.npz, "record")], force=args.force)  # replaced when written: a failed read keeps it
     est_values = load_node_parameters(args.params, args.param, args.source)[1]

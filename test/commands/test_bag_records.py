@@ -119,6 +119,14 @@ def test_a_bag_without_the_source_topic_is_a_one_line_error(bag, tmp_path, capsy
     assert err.count("\n") == 1 and "/nowhere" in err
 
 
+def test_an_npz_name_without_its_suffix_is_the_options_error_not_the_bags(bag, tmp_path, capsys):
+    # It was a DataError, which the CLI prefixes with the bag: "BAG: --npz X: the record file must end in .npz".
+    capsys.readouterr()
+    assert main(["export", str(bag), "--npz", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"okid-ros export: error: --npz {tmp_path / 'run'}: the record file must end in .npz\n"
+
+
 def test_a_bag_of_which_no_sample_fits_says_why(bag, tmp_path, capsys):
     # As process says it: every message of the wrong size for n_inputs / n_outputs.
     capsys.readouterr()
