@@ -390,12 +390,13 @@ def _load_reference(path: str, n_outputs: int) -> list:
     import os
 
     from okid_ros.errors import ParameterError, special_file_kind
+    from okid_ros.jsonio import NOT_JSON
     from okid_ros.tools.validation_plots import reference_modes
 
     if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
         raise ParameterError(f"--reference {shown_path(path)}: not a regular file ({kind})")
-    too_large = (f"--reference {path}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference model (an "
-                 "`okid-ros identify --json` output is a few kB to a few MB): another file?")
+    too_large = (f"--reference {shown_path(path)}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference "
+                 "model (an `okid-ros identify --json` output is a few kB to a few MB): another file?")
     try:
         if os.stat(path).st_size > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
@@ -404,7 +405,7 @@ def _load_reference(path: str, n_outputs: int) -> list:
         if len(text) > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
         document = json.loads(text)
-    except (OSError, ValueError) as exc:
+    except (OSError, *NOT_JSON) as exc:
         raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output "
                              f"({exc})") from None
     if not isinstance(document, dict) or "modes" not in document:

@@ -167,12 +167,14 @@ class BagReader:
         """The JSON document stored under ``key`` in custom_data, or None."""
         import json
 
+        from okid_ros.jsonio import NOT_JSON
+
         text = self.custom_data.get(key)
         if text is None:
             return None
         try:
             return json.loads(text)
-        except ValueError as exc:
+        except NOT_JSON as exc:
             raise BagReadError(f"{shown_path(self.path)}: custom_data {key!r} is not valid JSON "
                                f"({one_line(exc)})") from None
 

@@ -21,6 +21,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from okid_ros.jsonio import NOT_JSON
+
 __all__ = ["MANIFEST_NAME", "OLD_PREFIX", "Manifest", "atomic_write_bytes", "parameters_hash", "replace_directory"]
 
 MANIFEST_NAME = "manifest.jsonl"
@@ -92,7 +94,7 @@ class Manifest:
                 continue
             try:
                 entry = json.loads(line.decode("utf-8"))
-            except ValueError:  # UnicodeDecodeError is one too
+            except NOT_JSON:
                 # The last line without its newline was torn by a kill during its append; others are spoilt.
                 self.unreadable += number < len(lines)
                 continue

@@ -15,6 +15,7 @@ import math
 from pathlib import Path
 
 from okid_ros.errors import one_line, shown_path
+from okid_ros.jsonio import NOT_JSON
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME
 
 __all__ = ["label_problem", "result_problem", "stored_result"]
@@ -130,7 +131,7 @@ def stored_result(entry: dict, out_dir: Path, retry_failed: bool) -> tuple[dict 
         return None, ""  # outputs removed by hand: do it again
     try:
         result = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+    except (OSError, *NOT_JSON) as exc:
         return None, f"{shown_path(path)}: unreadable ({one_line(exc)[:120]})"
     problem = result_problem(result, "ok")
     return (None, f"{shown_path(path)}: {problem}") if problem else (result, "")
