@@ -13,7 +13,7 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 
 from okid_ros import __version__
-from okid_ros.errors import DataError, OkidError, OkidWarning, OutputError
+from okid_ros.errors import DataError, OkidError, OkidWarning, OutputError, one_line, shown_path
 from okid_ros.tools.output_paths import made_folders_removed_on_failure
 
 PROG = "okid-ros"
@@ -45,7 +45,7 @@ class _OneLineParser(argparse.ArgumentParser):
     """argparse's parser whose usage errors are one line, as every other error (the usage is in --help)."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,7 +141,7 @@ def run_command(command: str, work: Callable[[], int], *, source: str | None = N
             if os.environ.get("OKID_ROS_TRACEBACK"):
                 raise
             print(f"{PROG} {command}: error: internal error, please report it with the command line "
-                  f"({type(exc).__name__}: {' '.join(str(exc).split())}; set OKID_ROS_TRACEBACK=1 "
+                  f"({type(exc).__name__}: {one_line(exc)}; set OKID_ROS_TRACEBACK=1 "
                   f"for the traceback)", file=sys.stderr)
             return 70
 
@@ -181,11 +181,12 @@ def _stdout_to_devnull() -> None:
 
 def _naming_source(exc: OkidError, source: str | None) -> str:
     """The message of ``exc``, prefixed with ``source`` when it is about the data and does not name it."""
-    text = " ".join(str(exc).split())
-    named = " ".join(str(source).split())  # as the message holds it (a line break in a file name: a space)
-    if source and isinstance(exc, DataError) and not isinstance(exc, OutputError) and named not in text:
-        return f"{source if str(source).isprintable() else repr(str(source))}: {text}"
-    return text
+    text = one_line(exc)
+    if not source or not isinstance(exc, DataError) or isinstance(exc, OutputError):
+        return text
+    # named as errors.shown_path shows it, or raw by a message that does not use it (one_line's form)
+    named = shown_path(source) in text or one_line(source) in text
+    return text if named else f"{shown_path(source)}: {text}"
 
 
 def _one_line_warning(command: str) -> Callable[..., None]:
@@ -195,7 +196,7 @@ def _one_line_warning(command: str) -> Callable[..., None]:
         # okid-ros's own warnings say what is wrong; another's (numpy's, scipy's) is located for a report
         where = f" ({category.__name__} at {os.path.basename(filename)}:{lineno})"
         where = "" if issubclass(category, OkidWarning) else where
-        print(f"{PROG} {command}: warning: {' '.join(str(message).split())}{where}",
+        print(f"{PROG} {command}: warning: {one_line(message)}{where}",
               file=sys.stderr if file is None else file)
 
     return show

@@ -123,8 +123,29 @@ def special_file_kind(path: str | os.PathLike, *, pipe: bool = False) -> str | N
 
 
 def one_line(text: object) -> str:
-    """``text`` as one line (an OS error's message may hold line breaks)."""
-    return " ".join(str(text).split())
+    """``text`` as one line, its line breaks and runs of blanks one space, other unprintable characters escaped.
+
+    An OS error's message may hold line breaks; a message naming a path not given through
+    :func:`shown_path` may hold ESC or another control character, written as Python's repr escapes it.
+    """
+    collapsed = " ".join(str(text).split())
+    return collapsed if collapsed.isprintable() else "".join(_escaped(char) for char in collapsed)
+
+
+def shown_path(path: str | bytes | os.PathLike) -> str:
+    """``path`` or a topic name as a message shows it: as given, or its repr when it holds an unprintable character.
+
+    A line break, tab, ESC, another C0/C1 control character or an undecodable byte (a surrogate)
+    was written raw: a message of two lines, a terminal's colours changed, or no message at all
+    (a surrogate on a strict UTF-8 stdout: UnicodeEncodeError). Quoted and escaped it is one
+    readable line, told apart from a name holding a backslash; an ordinary name is unchanged.
+    """
+    text = os.fsdecode(path)
+    return text if text.isprintable() else repr(text)
+
+
+def _escaped(char: str) -> str:
+    return char if char.isprintable() else repr(char)[1:-1]
 
 
 @contextlib.contextmanager

@@ -18,7 +18,11 @@ import numpy as np
 
 from okid_ros.errors import replacing, write_atomically, writing
 
-__all__ = ["to_strict", "dumps", "write_json"]
+__all__ = ["NOT_JSON", "to_strict", "dumps", "write_json"]
+
+#: What ``json.loads`` raises for a text that is no JSON: ValueError (UnicodeDecodeError among them),
+#: and RecursionError for arrays or objects nested some thousands deep (an internal error, exit 70, before).
+NOT_JSON = (ValueError, RecursionError)
 
 
 def to_strict(value: Any) -> Any:

@@ -38,7 +38,7 @@ from okid_ros.core.gap_fill import MAX_FILLED_FRACTION, MAX_GAP_SAMPLES
 from okid_ros.core.options import sample_time_problem
 from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.core.regressors import real_array
-from okid_ros.errors import DataError, OkidWarning, special_file_kind, write_atomically
+from okid_ros.errors import DataError, OkidWarning, one_line, shown_path, special_file_kind, write_atomically
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
 
@@ -91,8 +91,7 @@ class Record:
                 k, c = np.argwhere(bad)[0]
                 raise DataError(f"{name} holds {int(bad.sum())} NaN/Inf values (first at sample {k}, channel {c}; "
                                 f"values beyond +-1.8e308 read as Inf)")
-        dt = _sample_time(self.sample_time_s)
-        return Record(u, y, dt)
+        return Record(u, y, _sample_time(self.sample_time_s))
 
 
 def channel_without_values(u: np.ndarray, y: np.ndarray) -> str:
@@ -127,9 +126,7 @@ def first_present_run(present: np.ndarray, length: int) -> int | None:
 def _present(record: Record, use_inputs: bool) -> np.ndarray:
     """(N,) True at the samples without NaN/Inf (in ``y``, and in ``u`` when ``use_inputs``)."""
     present = np.isfinite(record.y).all(axis=1)
-    if use_inputs:
-        present &= np.isfinite(record.u).all(axis=1)
-    return present
+    return present & np.isfinite(record.u).all(axis=1) if use_inputs else present
 
 
 def longest_present_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, str]:
@@ -217,8 +214,7 @@ def _sample_time(value: object) -> float:
     if arr.size != 1 or arr.dtype.kind not in "iuf":
         raise DataError(f"sample_time_s must be one positive number of seconds, got {arr.dtype} of shape {arr.shape}")
     dt = float(arr.reshape(()))
-    problem = sample_time_problem(dt)
-    if problem:
+    if problem := sample_time_problem(dt):
         raise DataError(problem)
     if arr.dtype.kind == "f" and arr.dtype.itemsize < 4:  # float16: every frequency off by up to 5e-4
         warnings.warn(f"sample_time_s is stored as {arr.dtype} ({dt!r} s, about 3 significant digits): the frequencies "
@@ -235,8 +231,8 @@ def require_inputs(record: Record, source: str | Path, command: str = "this comm
     command : what needs the inputs, e.g. "identify".
     """
     if not record.has_inputs:
-        raise DataError(f"{source}: the record has no input channels (no 'u'); {command} needs the measured "
-                        f"inputs. For a record of outputs only use output-only identification "
+        raise DataError(f"{shown_path(source)}: the record has no input channels (no 'u'); {command} needs the "
+                        f"measured inputs. For a record of outputs only use output-only identification "
                         f"(identify --output-only)")
     return record
 
@@ -261,25 +257,26 @@ def _not_an_archive(path: Path) -> str:
 def _load_npz(path: Path) -> Record:
     try:
         if problem := _not_an_archive(path):
-            raise DataError(f"{path}: not a readable .npz file ({problem})")
+            raise DataError(f"{shown_path(path)}: not a readable .npz file ({problem})")
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):  # a bare .npy renamed .npz
-            raise DataError(f"{path}: a single array, not an .npz archive with y and sample_time_s")
+            raise DataError(f"{shown_path(path)}: a single array, not an .npz archive with y and sample_time_s")
         with data:
             missing = [k for k in ("y", "sample_time_s") if k not in data.files]
             if missing:
-                raise DataError(f"{path}: missing key(s) {', '.join(missing)} (has {', '.join(data.files) or 'none'})")
+                raise DataError(f"{shown_path(path)}: missing key(s) {', '.join(missing)} "
+                                f"(has {', '.join(data.files) or 'none'})")
             y = data["y"]
             u = data["u"] if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
             if "stamp_s" in data.files and (jump := stamp_jump_problem(
                     data["stamp_s"], data["sample_time_s"], n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
-                raise DataError(f"{path}: {jump}")
+                raise DataError(f"{shown_path(path)}: {jump}")
             return Record(u, y, data["sample_time_s"])
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - a damaged archive raises zipfile, zlib, EOF, OS, value errors
-        reason = " ".join(str(exc).split())
-        raise DataError(f"{path}: not a readable .npz file ({type(exc).__name__}: {reason})") from None
+        raise DataError(f"{shown_path(path)}: not a readable .npz file "
+                        f"({type(exc).__name__}: {one_line(exc)})") from None
 
 
 def _plain(text: str) -> bool:
@@ -306,7 +303,7 @@ def _csv_sample_time(path: Path, comment: str) -> float:
             raise ValueError(value)
         return float(value)
     except ValueError:
-        raise DataError(f"{path}: bad sample_time_s comment {comment!r}") from None
+        raise DataError(f"{shown_path(path)}: bad sample_time_s comment {comment!r}") from None
 
 
 def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
@@ -318,7 +315,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read as UTF-8 text ({exc})") from None
+        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({exc})") from None
     dt = None
     body, commented = [], []  # commented: (data rows before it, its text) of comment lines among the rows
     for line in lines:
@@ -329,21 +326,22 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             if _comment_setting(stripped)[0] == "sample_time_s":
                 given = _csv_sample_time(path, stripped)
                 if dt is not None and given != dt:  # the first must not be silently overridden
-                    raise DataError(f"{path}: two different sample_time_s comments ({dt:g} and {given:g} s)")
+                    raise DataError(f"{shown_path(path)}: two different sample_time_s comments "
+                                    f"({dt:g} and {given:g} s)")
                 dt = given
         elif stripped:
             body.append(line)
     if not body:
-        raise DataError(f"{path}: no header line")
+        raise DataError(f"{shown_path(path)}: no header line")
     try:
         rows = list(csv.reader(body))
     except csv.Error as exc:  # a field past the csv module's limit (131072 characters), e.g. an unclosed quote
-        raise DataError(f"{path}: not a CSV table the reader can take ({exc})") from None
+        raise DataError(f"{shown_path(path)}: not a CSV table the reader can take ({exc})") from None
     # Invisible characters (a zero-width space, a NUL, a second BOM) would hide a 'u1' from its prefix.
     header = ["".join(c for c in h if unicodedata.category(c) not in ("Cc", "Cf")).strip() for h in rows[0]]
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
-            raise DataError(f"{path}: data row {number} has {len(row)} values, the header {len(header)}"
+            raise DataError(f"{shown_path(path)}: data row {number} has {len(row)} values, the header {len(header)}"
                             f"{_separator_hint(header, body[0])}")
     _warn_commented_rows(path, commented, len(header), len(rows) - 1)
     values = np.full((len(rows) - 1, len(header)), np.nan)
@@ -352,11 +350,11 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
         try:
             values[:, column] = [float(text) for text in texts]
         except ValueError:
-            raise DataError(f"{path}: {_not_a_number(header, column, texts)}") from None
+            raise DataError(f"{shown_path(path)}: {_not_a_number(header, column, texts)}") from None
         loose = next((number for number, text in enumerate(texts, start=1) if not _plain(text)), None)
         if loose is not None:
-            raise DataError(f"{path}: data row {loose}, column {header[column]!r}: {texts[loose - 1].strip()!r} "
-                            f"is not a plain decimal number")
+            raise DataError(f"{shown_path(path)}: data row {loose}, column {header[column]!r}: "
+                            f"{texts[loose - 1].strip()!r} is not a plain decimal number")
     return dt, header, values
 
 
@@ -370,9 +368,9 @@ def _warn_commented_rows(path: Path, commented: list[tuple[int, str]], columns: 
                if 0 < before < n_rows and len(row := text.split(",")) == columns and all(map(_is_float, row))]
     if dropped:
         where = ", ".join(f"after data row {before}" for before in dropped[:3]) + (", ..." if len(dropped) > 3 else "")
-        warnings.warn(f"{path}: {len(dropped)} commented-out data row(s) between the samples ({where}): each is a "
-                      "sample missing from the record, its neighbours taken as consecutive; uncomment it or give a "
-                      "time_s column to mark the gap", OkidWarning, stacklevel=4)
+        warnings.warn(f"{shown_path(path)}: {len(dropped)} commented-out data row(s) between the samples ({where}): "
+                      "each is a sample missing from the record, its neighbours taken as consecutive; uncomment it or "
+                      "give a time_s column to mark the gap", OkidWarning, stacklevel=4)
 
 
 def _not_a_number(header: list[str], column: int, texts: list[str]) -> str:
@@ -407,26 +405,28 @@ def _load_csv(path: Path) -> Record:
     dt, header, values = _csv_rows(path, lambda header: sorted(sum(_csv_columns(header), [])))
     u_cols, y_cols, _ = _csv_columns(header)
     if not y_cols:
-        raise DataError(f"{path}: header needs output columns 'y...' (inputs 'u...' optional), got {header}")
+        raise DataError(f"{shown_path(path)}: header needs output columns 'y...' (inputs 'u...' optional), "
+                        f"got {header}")
     # 'uptime_s' or 'year' is a channel by the format's first-letter rule: say so, the user may not expect it.
     worded = [f"{header[i]!r} ({kind} {j})" for kind, cols in (("input", u_cols), ("output", y_cols))
               for j, i in enumerate(cols) if not re.match(r"[uy]([0-9_.\- ]|$)", header[i], re.IGNORECASE)]
     if worded:
-        warnings.warn(f"{path}: columns read as channels by their first letter: {', '.join(worded)}; rename or "
-                      f"remove those that are not channels", OkidWarning, stacklevel=3)
+        warnings.warn(f"{shown_path(path)}: columns read as channels by their first letter: {', '.join(worded)}; "
+                      f"rename or remove those that are not channels", OkidWarning, stacklevel=3)
     if dt is None and "time_s" not in header:
-        raise DataError(f"{path}: no '# sample_time_s=...' line and no time_s column")
+        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column")
     if "time_s" in header:
         times = values[:, header.index("time_s")]
         step, rounding, irregular = _uniform_step(times)
         if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
-            raise DataError(f"{path}: time_s is not uniformly increasing ({irregular})")
+            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular})")
         if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
-            raise DataError(f"{path}: the sample_time_s comment says {dt:g} s and the time_s column steps {step:g} s")
+            raise DataError(f"{shown_path(path)}: the sample_time_s comment says {dt:g} s and the time_s column "
+                            f"steps {step:g} s")
         dt = step if dt is None else dt
     if "stamp_s" in header and (jump := stamp_jump_problem(values[:, header.index("stamp_s")], dt,
                                                            n_samples=values.shape[0], rows=True)):
-        raise DataError(f"{path}: {jump}")
+        raise DataError(f"{shown_path(path)}: {jump}")
     return Record(values[:, u_cols], values[:, y_cols], dt)
 
 
@@ -473,22 +473,22 @@ def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:
     """
     path = Path(path)
     if not path.exists():
-        raise DataError(f"{path}: no such file")
+        raise DataError(f"{shown_path(path)}: no such file")
     if path.is_dir():
-        raise DataError(f"{path}: a folder, not a record file")
+        raise DataError(f"{shown_path(path)}: a folder, not a record file")
     if kind := special_file_kind(path):  # a FIFO would be waited on for ever
-        raise DataError(f"{path}: not a regular file ({kind}); a record is an .npz or .csv file")
+        raise DataError(f"{shown_path(path)}: not a regular file ({kind}); a record is an .npz or .csv file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         record = _load_npz(path)
     elif suffix == ".csv":
         record = _load_csv(path)
     else:
-        raise DataError(f"{path}: unknown format {suffix!r}; expected .npz or .csv")
+        raise DataError(f"{shown_path(path)}: unknown format {suffix!r}; expected .npz or .csv")
     try:
         return record.validate(allow_nonfinite=allow_nonfinite)
     except DataError as exc:
-        raise DataError(f"{path}: {exc}") from None
+        raise DataError(f"{shown_path(path)}: {exc}") from None
 
 
 def save_record(path: str | Path, u: np.ndarray, y: np.ndarray, sample_time_s: float, **extra) -> None:

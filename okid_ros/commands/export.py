@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from okid_ros.commands._args import add_bag_arguments, path_text
+from okid_ros.errors import shown_path
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -34,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from okid_ros.errors import DataError
+    from okid_ros.errors import DataError, ParameterError
     from okid_ros.records import save_record
     from okid_ros.tools.bag_record import record_from_bag
     from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
@@ -42,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.npz)
     if out.suffix.lower() != ".npz":
-        raise DataError(f"--npz {out}: the record file must end in .npz")
+        raise ParameterError(f"--npz {shown_path(out)}: the record file must end in .npz")  # an option, not the bag
     check_output_paths(args.bag, "input bag", [(out, "record")])
     prepare_file_outputs([(args.npz, "record")], force=args.force)  # replaced when written: a failed read keeps it
     est_values = load_node_parameters(args.params, args.param, args.source)[1]
@@ -51,10 +52,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         save_record(out, record.u, record.y, record.sample_time_s, stamp_s=from_bag.stamp_s)
     except OSError as exc:
-        raise DataError(f"cannot write {out}: {exc}") from None
+        raise DataError(f"cannot write {shown_path(out)}: {exc}") from None
     note = from_bag.rejection_note()
     if note:
-        print(f"okid-ros export: warning: {args.bag}: {note}", file=sys.stderr)
+        print(f"okid-ros export: warning: {shown_path(args.bag)}: {note}", file=sys.stderr)
     print(f"exported {from_bag.summary()} ({record.u.shape[1]} inputs, {record.y.shape[1]} outputs) "
-          f"from {args.bag} -> {out}")
+          f"from {shown_path(args.bag)} -> {shown_path(out)}")
     return 0

@@ -18,6 +18,7 @@ from okid_ros.commands._args import (
     states_or_auto,
 )
 from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+from okid_ros.errors import shown_path
 
 #: The most of a --reference file read. It is an `identify --json` output: 40-75 kB for a model of two
 #: outputs (most of it the stabilization diagram), a few MB for hundreds of states of tens of outputs; 64 MiB
@@ -103,6 +104,43 @@ def _outputs(args: argparse.Namespace) -> list:
     return paths
 
 
+def _check_outputs(args: argparse.Namespace, outputs: list) -> None:
+    """Refuse, before the record is read and making nothing, an output that cannot or may not be written.
+
+    A bad ``--json``, ``--csv``, ``--uff`` or ``--plot-dir`` path was found only after reading the record (a big
+    bag read in vain): the folders are made later, once every option is checked.
+    """
+    from okid_ros.tools.output_paths import check_file_outputs, check_folder_option, check_output_paths
+
+    if args.plot_dir:
+        check_folder_option("--plot-dir", args.plot_dir)
+    check_output_paths(args.data, "record", outputs)
+    check_file_outputs(outputs, force=args.force)
+
+
+def _record_problem(record, output_only: bool) -> str:
+    """Why the record cannot be identified before any work ("" if nothing is found yet).
+
+    A channel without a value; outputs whose covariance float64 cannot hold in their units, refused
+    as ``track`` refuses them before its work, a dead output among them said first, as ``track``
+    says it (``identify`` refused them only after the work, where it got that far: outputs about
+    1e308 failed first in the gap filling or the ARX order's search, with numpy's overflow
+    warnings and another reason).
+    """
+    import numpy as np
+
+    from okid_ros.core.excitation import output_problem
+    from okid_ros.core.scaling import covariance_range_problem
+    from okid_ros.records import channel_without_values
+
+    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+        return problem
+    present = record.y[np.isfinite(record.y).all(axis=1)]
+    if problem := covariance_range_problem(present):
+        return output_problem(present) or problem  # a constant 1e308 is a dead output, not "spreads 1.48, inf"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
     import time
@@ -111,17 +149,15 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.validation import prediction_fits
     from okid_ros.errors import DataError, OutputError, ParameterError, writing
     from okid_ros.jsonio import write_json
-    from okid_ros.records import bridged_run, channel_without_values, longest_present_run
+    from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
-    from okid_ros.tools.output_paths import check_folder_option, check_output_paths, prepare_file_outputs
+    from okid_ros.tools.output_paths import prepare_file_outputs
 
     out, outputs = Path(args.json), _outputs(args)
-    if args.plot_dir:
-        check_folder_option("--plot-dir", args.plot_dir)
-    check_output_paths(args.data, "record", outputs)
+    _check_outputs(args, outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
-    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+    if problem := _record_problem(record, output_only):
         raise DataError(problem)  # named with the record by run_command
     ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _gain_options_ignored(args)
     if ignored:
@@ -172,14 +208,15 @@ def run(args: argparse.Namespace) -> int:
     document["elapsed_s"] = elapsed
     with writing(out, "JSON model"):
         write_json(out, document)
-    _print_report(model, source=source, output_only=output_only, elapsed_s=elapsed, out=out)
+    shown_source = shown_path(args.data) + source[len(args.data):]  # the JSON keeps the name as it is
+    _print_report(model, source=shown_source, output_only=output_only, elapsed_s=elapsed, out=out)
     if not uncertainty.computed:
         print(f"  mode standard deviations {uncertainty.reason}")
     print(_fit_line(fits, output_only=output_only))
     try:
         _write_exports(args, model, measured, reference=reference, pairs=pairs)
     except OutputError as exc:  # a full disk, a device that refuses: say what is written already
-        raise OutputError(f"{exc}; the JSON model is written ({out})") from None
+        raise OutputError(f"{exc}; the JSON model is written ({shown_path(out)})") from None
     return 0
 
 
@@ -214,7 +251,7 @@ def _print_report(model, *, source: str, output_only: bool, elapsed_s: float, ou
     print(
         f"identified {front}, n={model.n_states} states, {len(model.modes)} physical modes "
         f"in {elapsed_s:.2f} s (spectral radius of A {model.spectral_radius():.4f}, of the predictor "
-        f"{model.predictor_spectral_radius():.4f}) -> {out}"
+        f"{model.predictor_spectral_radius():.4f}) -> {shown_path(out)}"
     )
     for mode in model.modes:
         print(
@@ -234,7 +271,7 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
 
         with writing(args.csv, "modes CSV"):
             write_modal_csv(args.csv, model.modes)
-        print(f"modal table -> {args.csv}")
+        print(f"modal table -> {shown_path(args.csv)}")
     if args.uff:
         from okid_ros.core.validation import h1_frf, model_frf
         from okid_ros.tools.exports import write_uff
@@ -244,13 +281,13 @@ def _write_exports(args: argparse.Namespace, model, record, *, reference, pairs)
         with writing(args.uff, "UFF file"):
             count = write_uff(args.uff, model.modes, frequency_hz=freq,
                               frfs={"model": modelled, "measured H1": measured})
-        print(f"UFF (datasets 55 and 58, {count} in all) -> {args.uff}")
+        print(f"UFF (datasets 55 and 58, {count} in all) -> {shown_path(args.uff)}")
     if args.plot_dir:
         from okid_ros.tools.validation_plots import ModelView, write_validation_figures
 
         written = write_validation_figures(ModelView.of(model), record.u, record.y, args.plot_dir, force=args.force,
                                            reference=reference, pairs=pairs)
-        print(f"figures -> {args.plot_dir}: {', '.join(p.name for p in written)}")
+        print(f"figures -> {shown_path(args.plot_dir)}: {', '.join(shown_path(p.name) for p in written)}")
 
 
 _JACKKNIFE = "delete-one jackknife over consecutive segments of the record"
@@ -353,12 +390,13 @@ def _load_reference(path: str, n_outputs: int) -> list:
     import os
 
     from okid_ros.errors import ParameterError, special_file_kind
+    from okid_ros.jsonio import NOT_JSON
     from okid_ros.tools.validation_plots import reference_modes
 
     if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
-        raise ParameterError(f"--reference {path}: not a regular file ({kind})")
-    too_large = (f"--reference {path}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference model (an "
-                 "`okid-ros identify --json` output is a few kB to a few MB): another file?")
+        raise ParameterError(f"--reference {shown_path(path)}: not a regular file ({kind})")
+    too_large = (f"--reference {shown_path(path)}: more than the {MAX_REFERENCE_BYTES >> 20} MiB read for a reference "
+                 "model (an `okid-ros identify --json` output is a few kB to a few MB): another file?")
     try:
         if os.stat(path).st_size > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
@@ -367,11 +405,12 @@ def _load_reference(path: str, n_outputs: int) -> list:
         if len(text) > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
         document = json.loads(text)
-    except (OSError, ValueError) as exc:
-        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output ({exc})") from None
+    except (OSError, *NOT_JSON) as exc:
+        raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output "
+                             f"({exc})") from None
     if not isinstance(document, dict) or "modes" not in document:
-        raise ParameterError(f"--reference {path}: not an `okid-ros identify --json` output (no 'modes')")
-    return reference_modes(document["modes"], f"--reference {path}", n_outputs)
+        raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output (no 'modes')")
+    return reference_modes(document["modes"], f"--reference {shown_path(path)}", n_outputs)
 
 
 def _pm(std: float) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from okid_ros.commands._args import int_between, namespace, path_text
+from okid_ros.errors import shown_path
 
 #: Bound of --terms, equal to okid_ros.tools.plots.MAX_TERMS (not imported: every parser is built at start-up).
 MAX_TERMS = 10_000
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     bag_path = Path(args.bag)
     folder = bag_folder(bag_path).resolve()  # the figures go beside the bag, never inside it
     if not args.out_dir and not folder.name:
-        raise ToolParameterError(f"{args.bag}: no folder to put the figures beside; give --out-dir")
+        raise ToolParameterError(f"{shown_path(args.bag)}: no folder to put the figures beside; give --out-dir")
     out_dir = _figure_folder(args, folder.with_name(folder.name + "_figures"))
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
@@ -107,15 +108,15 @@ def run(args: argparse.Namespace) -> int:
     if not written:  # e.g. `process` refused every model: say so instead of "wrote 0 figures"
         from okid_ros.errors import DataError
 
-        held = ", ".join(f"{count} on {topic}" for topic, count in data.counts.items())
+        held = ", ".join(f"{count} on {shown_path(topic)}" for topic, count in data.counts.items())
         if made_here:
             with contextlib.suppress(OSError):  # not empty, or gone: leave it
                 out_dir.rmdir()
-        raise DataError(f"{args.bag}: nothing to draw: no valid model and no modal states ({held} messages); "
-                        f"the diagnostics of the run that wrote it say why")
-    print(f"wrote {len(written)} figures to {out_dir}" + ("" if data.truth else " (no truth)") + note)
+        raise DataError(f"{shown_path(args.bag)}: nothing to draw: no valid model and no modal states "
+                        f"({held} messages); the diagnostics of the run that wrote it say why")
+    print(f"wrote {len(written)} figures to {shown_path(out_dir)}" + ("" if data.truth else " (no truth)") + note)
     for path in written:
-        print(f"  {path}")
+        print(f"  {shown_path(path)}")
     return 0
 
 
@@ -206,12 +207,12 @@ def _plot_campaign(args: argparse.Namespace) -> int:
     ignored = [option for option, value in given.items() if value]
     if ignored:
         print(f"okid-ros plot: warning: {', '.join(ignored)}: options of an output bag's figures; ignored for the "
-              f"campaign folder {args.bag} (campaign_modes.png)", file=sys.stderr)
+              f"campaign folder {shown_path(args.bag)} (campaign_modes.png)", file=sys.stderr)
     out_dir = _figure_folder(args, Path(args.bag) / "figures")
     written = write_campaign_figures(Path(args.bag), out_dir, force=args.force)
-    print(f"wrote {len(written)} figure(s) of the campaign {args.bag} to {out_dir}")
+    print(f"wrote {len(written)} figure(s) of the campaign {shown_path(args.bag)} to {shown_path(out_dir)}")
     for path in written:
-        print(f"  {path}")
+        print(f"  {shown_path(path)}")
     return 0
 
 

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from okid_ros.commands._args import add_progress_arguments, namespace, path_text
+from okid_ros.errors import shown_path
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -63,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
                           namespace=args.namespace)
     duration = summary.data_duration_s
     speed = duration / summary.elapsed_s if summary.elapsed_s > 0 else float("inf")
-    print(f"processed {args.bag}: {summary.input_messages} messages, {summary.samples} samples "
+    print(f"processed {shown_path(args.bag)}: {summary.input_messages} messages, {summary.samples} samples "
           f"({summary.data_text()}) in {summary.elapsed_s:.1f} s ({speed:.1f}x real time)")
-    print(f"wrote {args.out}: {summary.arx_models} ArxModel ({summary.valid_arx_models} valid), "
+    print(f"wrote {shown_path(args.out)}: {summary.arx_models} ArxModel ({summary.valid_arx_models} valid), "
           f"{summary.models} StateSpaceModel, {summary.modal_states} ModalStates"
-          + (f"; {args.jsonl}: {len(summary.updates)} lines" if args.jsonl else ""))
+          + (f"; {shown_path(args.jsonl)}: {len(summary.updates)} lines" if args.jsonl else ""))
     for change in summary.changes:
         if not change["modes_after"]:
             print(f"structural change {change['change_id']} at {change['change_stamp_s']:.3f} s, declared at "

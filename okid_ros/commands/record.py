@@ -15,6 +15,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from okid_ros.commands._args import namespace, path_text
+from okid_ros.errors import shown_path
 from okid_ros.tools.ros_domain import check_ros_environment, ros_context
 
 if TYPE_CHECKING:
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             staged.discard()  # the old bag stays; a new one that holds no message is no recording
         raise  # a new bag with messages stays, closed and readable
     staged.commit()
-    print(f"okid-ros record: wrote {args.out}: " + ", ".join(f"{t}: {n}" for t, n in counts.items()), flush=True)
+    written = ", ".join(f"{shown_path(topic)}: {count}" for topic, count in counts.items())
+    print(f"okid-ros record: wrote {shown_path(args.out)}: {written}", flush=True)
     return 0
 
 
@@ -101,7 +103,8 @@ def _record_live(writer: BagWriter, topics: dict[str, str], *, duration: float |
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         recorder = LiveRecorder(node, writer, topics)
-        print(f"okid-ros record: recording {', '.join(topics)} -> {out} (Ctrl-C stops)", flush=True)
+        print(f"okid-ros record: recording {', '.join(map(shown_path, topics))} -> {shown_path(out)} (Ctrl-C stops)",
+              flush=True)
         end = None if duration is None else time.monotonic() + duration
         try:
             while end is None or time.monotonic() < end:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 
 from okid_ros.commands._args import float_between, int_between, path_text
+from okid_ros.errors import shown_path
 
 
 def _delay_s(text: str) -> float:
@@ -92,5 +93,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"replayed {stats.total} messages on {len(stats.published)} topics in {stats.wall_time_s:.1f} s "
           f"({stats.passes} pass{'es' if stats.passes != 1 else ''}; largest lag {1e3 * stats.max_lag_s:.1f} ms)")
     for topic, count in sorted(stats.published.items()):
-        print(f"  {topic}: {count}")
+        print(f"  {shown_path(topic)}: {count}")
     return 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from okid_ros.commands._args import float_between, int_between, positive_finite_float
+from okid_ros.errors import shown_path
 
 
 def _start_time(text: str) -> float:
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     experiment = simulate_experiment(args.duration, seed=args.seed, cutoff_hz=args.cutoff,
                                      innovation_variance=args.noise, start_ns=start_ns)
     counts = write_experiment_bag(args.out, experiment, storage=args.storage, force=args.force)
-    print(f"wrote {args.out} ({args.storage}): {experiment.n_samples} samples at "
+    print(f"wrote {shown_path(args.out)} ({args.storage}): {experiment.n_samples} samples at "
           f"{1 / experiment.sample_time_s:g} Hz, {experiment.n_samples * experiment.sample_time_s:g} s, "
           f"{sum(counts.values())} messages")
     for topic, count in counts.items():

@@ -66,6 +66,7 @@ from okid_ros.commands._args import (
     states_or_auto,
 )
 from okid_ros.core.options import GAINS, RealizationOptions
+from okid_ros.errors import shown_path
 
 if TYPE_CHECKING:
     from okid_ros.service.tracked_record import TrackedRecord
@@ -243,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
     _print_summary(changes, dt, last_modes, points[-1])  # at least one update (_arx_order checked the length)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
-          f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {out}")
+          f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
     return 0
 
 

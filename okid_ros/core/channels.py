@@ -37,7 +37,12 @@ def power_of_two_scales(x: np.ndarray) -> np.ndarray:
     """
     peak = column_peaks(x)
     usable = (peak > 0) & (peak < np.inf)
-    return np.where(usable, 2.0 ** np.round(np.log2(np.where(usable, peak, 1.0))), 1.0)
+    return np.where(usable, _power_of_two(np.log2(np.where(usable, peak, 1.0))), 1.0)
+
+
+def _power_of_two(exponent: np.ndarray | float) -> np.ndarray:
+    """``2 ** round(exponent)``, at most 2**1023: a peak above 2**1023.5 (1.27e308) rounded to 2**1024, Inf."""
+    return 2.0 ** np.minimum(np.round(exponent), 1023)
 
 
 def channel_mean(x: np.ndarray) -> np.ndarray:
@@ -137,7 +142,7 @@ def group_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
     """
     def power(x: np.ndarray) -> float:
         peaks = _channel_peaks(x)
-        return float(2.0 ** np.round(np.mean(np.log2(peaks)))) if peaks.size else 1.0
+        return float(_power_of_two(np.mean(np.log2(peaks)))) if peaks.size else 1.0
 
     return ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))
 

@@ -50,12 +50,13 @@ def restore_model(model: IdentifiedModel, scales: ChannelScales, *,
     su, sy = scales.input, scales.output
     with np.errstate(over="ignore", under="ignore"):
         covariance = _covariance_in_units(model.innovation_covariance, sy)
+    b, d = _input_gains_in_units(model, su, sy)
     warnings = list(model.warnings)
     if offset_warnings is not None:
         warnings = offset_warnings + [w for w in warnings if not w.startswith("large offsets")]
     physical = replace(
         model,
-        B=model.B / su[None, :], C=model.C * sy[:, None], D=model.D * sy[:, None] / su[None, :],
+        B=b, C=model.C * sy[:, None], D=d,
         K=model.K / sy[None, :], innovation_covariance=covariance,
         input_offset=None if model.input_offset is None else model.input_offset * su,
         output_offset=None if model.output_offset is None else model.output_offset * sy,
@@ -85,11 +86,27 @@ def covariance_range_problem(y: np.ndarray) -> str:
     a glitch, not the record's units.
     """
     y = np.asarray(y, dtype=float)
-    deviation = MAD_TO_STD * np.median(np.abs(y - np.median(y, axis=0)), axis=0) if y.shape[0] else np.ones(y.shape[1])
-    spreads = np.where(deviation > 0, deviation, channel_spread(y))
-    with np.errstate(over="ignore", under="ignore"):
+    with np.errstate(over="ignore", under="ignore"):  # outputs about 1e308: their deviations overflow, refused
+        deviation = MAD_TO_STD * np.median(np.abs(y - np.median(y, axis=0)), axis=0) if y.shape[0] \
+            else np.ones(y.shape[1])
+        spreads = np.where(deviation > 0, deviation, channel_spread(y))
         squares = np.square(spreads)
     return "" if np.all(np.isfinite(squares) & (squares > 0)) else _beyond_range(spreads)
+
+
+def _input_gains_in_units(model: IdentifiedModel, su: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``B Su^-1`` and ``Sy D Su^-1``, or IdentificationError when float64 cannot hold them.
+
+    Inputs of a spread near 1e-308 (a subnormal unit) give gains beyond 1e308: they were written
+    as NaN in ``B`` with exit 0, the fits NaN, and numpy's overflow warning the only word.
+    """
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        b, d = model.B / su[None, :], model.D * sy[:, None] / su[None, :]
+    if np.isfinite(b).all() and np.isfinite(d).all():
+        return b, d
+    raise IdentificationError(f"the input gains B and D in the record's units are beyond the float64 range (input "
+                              f"spreads {', '.join(f'{v:.3g}' for v in su)}; gains beyond 1e+308 cannot be "
+                              f"represented): express the inputs in other units, e.g. multiplied by 1e100")
 
 
 def _beyond_range(spreads: np.ndarray) -> str:

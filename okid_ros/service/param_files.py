@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from okid_ros.errors import ParameterError, special_file_kind
+from okid_ros.errors import ParameterError, shown_path, special_file_kind
 
 __all__ = [
     "ROS_STANDARD_PARAMETERS",
@@ -378,23 +378,25 @@ def read_parameter_file(path: str | Path) -> Mapping:
 
     path = Path(path)
     if kind := special_file_kind(path, pipe=True):  # a FIFO would be waited on for ever; <(cmd) is read
-        raise ParameterError(f"parameter file {path}: not a regular file ({kind})")
+        raise ParameterError(f"parameter file {shown_path(path)}: not a regular file ({kind})")
     repeated: list[str] = []
     try:
         tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}", repeated=repeated)
     except OSError as exc:
-        raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+        raise ParameterError(f"cannot read parameter file {shown_path(path)}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
-        raise ParameterError(f"parameter file {path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        raise ParameterError(f"parameter file {shown_path(path)} is not UTF-8 text ({exc.reason} at byte "
+                             f"{exc.start})") from None
     except yaml.YAMLError as exc:
-        raise ParameterError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+        raise ParameterError(f"parameter file {shown_path(path)} is not valid YAML: "
+                             f"{' '.join(str(exc).split())}") from None
     if not isinstance(tree, Mapping):
-        raise ParameterError(f"parameter file {path} has no node sections (expected a mapping "
+        raise ParameterError(f"parameter file {shown_path(path)} has no node sections (expected a mapping "
                              f"'NODE: {{ros__parameters: {{...}}}}', got {type(tree).__name__})")
     try:
         list(_walk(tree))  # a name given twice, dotted and nested, is refused here, before any use
     except ParameterError as exc:
-        raise ParameterError(f"parameter file {path}: {exc}") from None
+        raise ParameterError(f"parameter file {shown_path(path)}: {exc}") from None
     return ParameterTree(tree, repeated)
 
 
@@ -418,7 +420,8 @@ def files_for_nodes(paths: Sequence[str | Path]) -> list[str]:
     checked = []
     for path in paths:
         if kind := special_file_kind(path):
-            raise ParameterError(f"parameter file {path}: not a regular file ({kind}); each node reads it itself")
+            raise ParameterError(f"parameter file {shown_path(path)}: not a regular file ({kind}); each node reads "
+                                 "it itself")
         read_parameter_file(path)
         checked.append(str(Path(path).resolve()))
     return checked

@@ -41,7 +41,7 @@ from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.core.modal import match_modes
 from okid_ros.core.options import GAINS, OFFSETS, SAMPLE_TIME_RANGE_S, RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS
-from okid_ros.errors import ParameterError
+from okid_ros.errors import ParameterError, shown_path
 from okid_ros.service.param_files import node_fqn, node_values_from_tree, read_parameter_file
 from okid_ros.service.topics import ARX_MODEL, IO_SAMPLE, MODAL_STATES, STATE_SPACE_MODEL, STRUCTURAL_CHANGE
 
@@ -367,4 +367,4 @@ def load_parameters(path: str | Path, node: str, strict: bool = False, namespace
     try:
         return resolve_parameters(node, merged)
     except ParameterError as exc:
-        raise ParameterError(f"{path}: {exc}") from None
+        raise ParameterError(f"{shown_path(path)}: {exc}") from None

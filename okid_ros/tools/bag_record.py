@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
-from okid_ros.errors import DataError, OkidWarning
+from okid_ros.errors import DataError, OkidWarning, shown_path
 from okid_ros.records import Record, bridged_bounds, load_record
 
 __all__ = ["BagRecord", "RECORD_SUFFIXES", "record_from_bag", "load_any_record"]
@@ -141,7 +141,8 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         why = (f": {_rejected_messages(rejected, int(counters.messages), dt, inputs.wrong_size_note)}"
                if any(rejected.values()) else "")
         made = "no complete sample" if not samples else "one complete sample only"
-        raise DataError(f"{bag_path}: {made} on the topics {', '.join(s.topic for s in inputs.specs)}" + why)
+        raise DataError(f"{shown_path(bag_path)}: {made} on the topics "
+                        f"{', '.join(s.topic for s in inputs.specs)}" + why)
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
@@ -151,8 +152,14 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
-    return BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                     grid.rejections(), int(grid.missing))
+    found = BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
+                      grid.rejections(), int(grid.missing))
+    if hi - lo < 2:  # each sample alone between sample times without one: `export` wrote one sample, exit 0
+        note = found.rejection_note()
+        raise DataError(f"{shown_path(bag_path)}: no two complete samples in a row on the topics "
+                        f"{', '.join(s.topic for s in inputs.specs)} ({len(samples)} samples, each alone)"
+                        + (f": {note}" if note else ""))
+    return found
 
 
 def _longest_stretch(samples: list, dt: float) -> tuple[Record, np.ndarray, int]:
@@ -192,16 +199,16 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     path = Path(path)
     if path.suffix.lower() in RECORD_SUFFIXES:
         if params or overrides or sources:
-            warnings.warn(f"{path}: --params, --param and --source say how to read a bag's topics; a record "
+            warnings.warn(f"{shown_path(path)}: --params, --param and --source say how to read a bag's topics; a "
                           "file holds its channels and sample time itself: ignored", OkidWarning, stacklevel=2)
         return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
-        raise DataError(f"{path}: no such file or bag")
+        raise DataError(f"{shown_path(path)}: no such file or bag")
     from okid_ros.tools.process import load_node_parameters
 
     est_values = load_node_parameters(params, overrides, sources)[1]
     from_bag = record_from_bag(path, est_values, missing_as_nan=allow_nonfinite)
     note = from_bag.rejection_note()
     if note:  # said before anything can fail on what it explains (a sample time half the stamps' spacing)
-        warnings.warn(f"{path}: {note}", OkidWarning, stacklevel=2)
+        warnings.warn(f"{shown_path(path)}: {note}", OkidWarning, stacklevel=2)
     return from_bag.record, f"{path} (bag: {from_bag.summary()}{'; ' + note if note else ''})"

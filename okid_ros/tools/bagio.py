@@ -38,7 +38,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from okid_ros.errors import OkidWarning, one_line, special_file_kind
+from okid_ros.errors import OkidWarning, one_line, shown_path, special_file_kind
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.interrupts import deferred
@@ -167,13 +167,16 @@ class BagReader:
         """The JSON document stored under ``key`` in custom_data, or None."""
         import json
 
+        from okid_ros.jsonio import NOT_JSON
+
         text = self.custom_data.get(key)
         if text is None:
             return None
         try:
             return json.loads(text)
-        except ValueError as exc:
-            raise BagReadError(f"{self.path}: custom_data {key!r} is not valid JSON ({one_line(exc)})") from None
+        except NOT_JSON as exc:
+            raise BagReadError(f"{shown_path(self.path)}: custom_data {key!r} is not valid JSON "
+                               f"({one_line(exc)})") from None
 
     def require_topic(self, topic: str, msgtypes: Sequence[str]) -> str:
         """Check that ``topic`` exists with one of ``msgtypes``; return its type.
@@ -184,12 +187,12 @@ class BagReader:
             the topic is missing or has another type.
         """
         if topic not in self.topics:
-            have = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics.items())) or "none"
-            raise BagReadError(f"{self.path}: no topic {topic}; the bag has: {have}")
+            have = ", ".join(f"{shown_path(t)} ({shown_path(m)})" for t, m in sorted(self.topics.items())) or "none"
+            raise BagReadError(f"{shown_path(self.path)}: no topic {shown_path(topic)}; the bag has: {have}")
         msgtype = self.topics[topic]
         if msgtype not in {msgtype_name(m) for m in msgtypes}:
-            raise BagReadError(f"{self.path}: topic {topic} has type {msgtype}, expected "
-                               f"{' or '.join(msgtype_name(m) for m in msgtypes)}")
+            raise BagReadError(f"{shown_path(self.path)}: topic {shown_path(topic)} has type {shown_path(msgtype)}, "
+                               f"expected {' or '.join(msgtype_name(m) for m in msgtypes)}")
         return msgtype
 
     def _stored(self, topics: Iterable[str] | None) -> Iterator[tuple[Any, int, bytes]]:
@@ -204,14 +207,15 @@ class BagReader:
         except BagReadError:
             raise
         except Exception as exc:  # corrupt chunk, truncated file, bad compression ...
-            raise BagReadError(f"{self.path}: cannot read messages ({type(exc).__name__}: {one_line(exc)})") from None
+            raise BagReadError(f"{shown_path(self.path)}: cannot read messages "
+                               f"({type(exc).__name__}: {one_line(exc)})") from None
 
     def _decode(self, connection: Any, stamp_ns: int, raw: bytes) -> Any:
         try:
             return self._reader.deserialize(raw, connection.msgtype)
         except Exception as exc:
-            raise BagReadError(f"{self.path}: cannot decode a {connection.msgtype} message on {connection.topic} "
-                               f"at {stamp_ns} ns ({one_line(exc)})") from None
+            raise BagReadError(f"{shown_path(self.path)}: cannot decode a {connection.msgtype} message on "
+                               f"{shown_path(connection.topic)} at {stamp_ns} ns ({one_line(exc)})") from None
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
         """Yield ``(topic, msgtype, log_time_ns, cdr_bytes)`` in log-time order.
@@ -292,9 +296,9 @@ class _OpenBag:
         try:
             found = path.exists()
         except OSError as exc:  # a name too long, a folder we may not enter ...
-            raise BagReadError(f"{path}: cannot open the bag ({one_line(exc.strerror or exc)})") from None
+            raise BagReadError(f"{shown_path(path)}: cannot open the bag ({one_line(exc.strerror or exc)})") from None
         if not found:
-            raise BagReadError(f"{path}: no such bag")
+            raise BagReadError(f"{shown_path(path)}: no such bag")
         _refuse_special_files(path)
         note = ""
         try:
@@ -305,7 +309,7 @@ class _OpenBag:
             except OSError:  # a data file that cannot be read at all (a folder, no permission): the reader's error
                 self._reader = None
             if self._reader is None:
-                raise BagReadError(f"{path}: not a readable rosbag2 or ROS 1 bag "
+                raise BagReadError(f"{shown_path(path)}: not a readable rosbag2 or ROS 1 bag "
                                    f"({type(exc).__name__}: {one_line(exc)})") from None
             warnings.warn(note, OkidWarning, stacklevel=2)
         return BagReader(path, self._reader, note)
@@ -344,9 +348,9 @@ def _whole_bag_of(path: Path) -> Path:
     if files == [path.name]:
         return folder
     if path.name in files:
-        warnings.warn(f"{path}: one of the {len(files)} storage files of the bag {folder}, read alone: the bag's "
-                      f"metadata.yaml (a simulation's truth, the run process recorded) is not read; give {folder} "
-                      "for the whole bag", OkidWarning, stacklevel=3)
+        warnings.warn(f"{shown_path(path)}: one of the {len(files)} storage files of the bag {shown_path(folder)}, "
+                      f"read alone: the bag's metadata.yaml (a simulation's truth, the run process recorded) is not "
+                      f"read; give {shown_path(folder)} for the whole bag", OkidWarning, stacklevel=3)
     return path
 
 
@@ -354,14 +358,15 @@ def _refuse_special_files(path: Path) -> None:
     """BagReadError for a bag that is, or whose folder holds, a FIFO, socket or device: its reader waits for ever."""
     kind = special_file_kind(path)
     if kind:
-        raise BagReadError(f"{path}: not a regular file ({kind}); a bag is a rosbag2 folder or a storage file")
+        raise BagReadError(f"{shown_path(path)}: not a regular file ({kind}); a bag is a rosbag2 folder or a "
+                           "storage file")
     try:
         entries = sorted(path.iterdir()) if path.is_dir() else []
     except OSError:  # a folder that cannot be listed: the reader says why
         entries = []
     for entry in entries:
         if kind := special_file_kind(entry):
-            raise BagReadError(f"{path}: {entry.name} in the bag is not a regular file ({kind})")
+            raise BagReadError(f"{shown_path(path)}: {entry.name} in the bag is not a regular file ({kind})")
 
 
 def open_bag(path: str | os.PathLike) -> _OpenBag:
@@ -424,7 +429,7 @@ class BagWriter:
         try:
             self._writer.open()
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot create the bag ({one_line(exc)})") from None
+            raise BagWriteError(f"{shown_path(self.path)}: cannot create the bag ({one_line(exc)})") from None
         self._open = True
         return self
 
@@ -439,7 +444,7 @@ class BagWriter:
             try:
                 self._writer.close()
             except Exception as exc:
-                raise BagWriteError(f"{self.path}: cannot finish the bag ({one_line(exc)})") from None
+                raise BagWriteError(f"{shown_path(self.path)}: cannot finish the bag ({one_line(exc)})") from None
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store a string in the metadata's ``custom_data``."""
@@ -449,7 +454,7 @@ class BagWriter:
         """Add a topic of ``msgtype`` (``pkg/msg/Name``; must be known to the typestore)."""
         msgtype = msgtype_name(msgtype)
         if msgtype not in self.typestore.types:
-            raise BagWriteError(f"{self.path}: unknown message type {msgtype} for {topic}")
+            raise BagWriteError(f"{shown_path(self.path)}: unknown message type {msgtype} for {topic}")
         connection = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
         self._connections[topic] = (connection, msgtype)
         self.counts[topic] = 0
@@ -462,7 +467,8 @@ class BagWriter:
             with deferred():  # a record is written whole: Ctrl-C or SIGTERM right after it
                 self._writer.write(connection, int(stamp_ns), raw)
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
+            raise BagWriteError(f"{shown_path(self.path)}: cannot write {msgtype} on {shown_path(topic)} "
+                                f"({one_line(exc)})") from None
         self.counts[topic] += 1
 
     def write_raw(self, topic: str, stamp_ns: int, data: bytes) -> None:
@@ -472,7 +478,8 @@ class BagWriter:
             with deferred():
                 self._writer.write(connection, int(stamp_ns), data)
         except Exception as exc:
-            raise BagWriteError(f"{self.path}: cannot write {msgtype} on {topic} ({one_line(exc)})") from None
+            raise BagWriteError(f"{shown_path(self.path)}: cannot write {msgtype} on {shown_path(topic)} "
+                                f"({one_line(exc)})") from None
         self.counts[topic] += 1
 
     def msg_class(self, msgtype: str) -> type:

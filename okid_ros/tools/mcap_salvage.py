@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from okid_ros.errors import shown_path
 from okid_ros.tools.errors import BagReadError
 
 __all__ = ["Cut", "mcap_files", "read_unclosed", "whole_records_end", "write_closed_copy"]
@@ -130,7 +131,7 @@ def read_unclosed(path: Path, open_reader: Callable[[list[Path]], Any]) -> tuple
         if reader is not None:
             reader.close()
         shutil.rmtree(scratch, ignore_errors=True)
-        raise BagReadError(f"{path}: the MCAP file {names} {were} cut off (a recording that was not "
+        raise BagReadError(f"{shown_path(path)}: the MCAP file {names} {were} cut off (a recording that was not "
                            f"closed) and no message before the cut could be read")
     read = f"read the {reader.message_count} messages, {(reader.end_time - reader.start_time) * 1e-9:.1f} s"
     if all(cuts[file].data_complete for file in cut_files):

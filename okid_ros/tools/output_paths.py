@@ -27,12 +27,12 @@ import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from okid_ros.errors import OutputError, is_special_file, name_beside, one_line, special_file_kind
+from okid_ros.errors import OutputError, is_special_file, name_beside, one_line, shown_path, special_file_kind
 from okid_ros.tools.errors import BagWriteError, OutputExistsError
 
-__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_folder_option", "check_output_paths",
-           "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs", "prepare_output",
-           "output_exists"]
+__all__ = ["StagedOutput", "bag_folder", "check_file_name", "check_file_outputs", "check_folder_option",
+           "check_output_paths", "check_replaceable", "made_folders_removed_on_failure", "prepare_file_outputs",
+           "prepare_output", "output_exists"]
 
 #: Files a rosbag2 directory may hold; --force removes nothing else.
 _BAG_SUFFIXES = {".db3", ".mcap", ".yaml", ".zstd", ".db3-shm", ".db3-wal"}
@@ -50,18 +50,19 @@ def check_output_paths(input_path: str | Path, input_kind: str, outputs: Sequenc
     outputs : ``(path, kind)`` of every output the command will write, in the order given.
     """
     data, root = _input_root(Path(input_path))
-    where = f"the {input_kind} {input_path}" + (f" (its directory {root})" if root != data else "")
+    where = f"the {input_kind} {shown_path(input_path)}"
+    where += f" (its directory {shown_path(root)})" if root != data else ""
     resolved = [(Path(path), kind, _resolved(Path(path))) for path, kind in outputs]
     for path, kind, real in resolved:
         relation = _relation(real, root)
         if relation:
-            raise OutputError(f"{path}: the {kind} cannot {relation} {where}, not even with --force")
+            raise OutputError(f"{shown_path(path)}: the {kind} cannot {relation} {where}, not even with --force")
     for i, (path, kind, real) in enumerate(resolved):
         for earlier, earlier_kind, earlier_real in resolved[:i]:
             relation = _relation(real, earlier_real)
             if relation and not (is_special_file(path) and is_special_file(earlier)):  # /dev/null twice
-                raise OutputError(f"{path}: the {kind} cannot {relation} the {earlier_kind} {earlier} "
-                                  "(one would replace the other)")
+                raise OutputError(f"{shown_path(path)}: the {kind} cannot {relation} the {earlier_kind} "
+                                  f"{shown_path(earlier)} (one would replace the other)")
 
 
 def _relation(path: Path, other: Path) -> str | None:
@@ -79,7 +80,7 @@ def _resolved(path: Path) -> Path:
     try:
         return path.resolve()
     except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
-        raise OutputError(f"{path}: cannot resolve the path ({one_line(exc)})") from None
+        raise OutputError(f"{shown_path(path)}: cannot resolve the path ({one_line(exc)})") from None
 
 
 def _input_root(path: Path) -> tuple[Path, Path]:
@@ -138,7 +139,8 @@ def prepare_output(path: str | os.PathLike, force: bool, kind: str = "bag") -> P
             else:
                 out.unlink()
         except OSError as exc:
-            raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
+            raise BagWriteError(f"{shown_path(out)}: cannot replace the {kind} "
+                                f"({one_line(exc.strerror or exc)})") from None
     _make_folder(out.parent, out)
     return out
 
@@ -169,12 +171,43 @@ def prepare_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, fo
     OutputExistsError, BagWriteError
         as :func:`prepare_output`.
     """
-    for path, kind in outputs:
-        check_file_name(path, kind)
-        check_replaceable(Path(path), force=force, kind=kind)
+    check_file_outputs(outputs, force=force)
     for path, kind in outputs:
         _make_folder(Path(path).parent, Path(path))
         _check_folder_takes_files(Path(path), kind)
+
+
+def check_file_outputs(outputs: Sequence[tuple[str | os.PathLike, str]], *, force: bool) -> None:
+    """Check, making nothing, what :func:`prepare_file_outputs` checks before it makes the folders.
+
+    For a command that reads a long input before it may make anything (``identify``: an option's
+    error leaves no folder): a name of a folder, an output not to be replaced, a file where a folder
+    must be, or a nearest existing folder this user may not write in, each refused before the read.
+    The nameless temporary file of :func:`prepare_file_outputs` still tries each folder once made
+    (a pseudo file system, a quota, root's writes that a mode does not stop).
+
+    Raises
+    ------
+    OutputError, OutputExistsError, BagWriteError : as :func:`prepare_file_outputs`.
+    """
+    for path, kind in outputs:
+        check_file_name(path, kind)
+        check_replaceable(Path(path), force=force, kind=kind)
+        _check_writable_folder(Path(path), kind)
+
+
+def _check_writable_folder(out: Path, kind: str) -> None:
+    """BagWriteError when the nearest existing folder above ``out`` is no folder, or not one this user may write in."""
+    if is_special_file(out):  # a device is written into
+        return
+    if found := _non_folder(out.parent):
+        raise BagWriteError(f"{shown_path(out)}: {shown_path(found[0])} is {found[1]}, not a folder")
+    folder = next((part for part in out.parents if _is_dir(part)), None)
+    if folder is None or os.access(folder, os.W_OK | os.X_OK):
+        return
+    made = "" if folder == out.parent else f"its folder {shown_path(out.parent)} cannot be made: "
+    raise BagWriteError(f"{shown_path(out)}: {made}cannot write the {kind} in the folder {shown_path(folder)} "
+                        "(not writable by this user)")
 
 
 def _check_folder_takes_files(out: Path, kind: str) -> None:
@@ -189,7 +222,7 @@ def _check_folder_takes_files(out: Path, kind: str) -> None:
         with tempfile.TemporaryFile(dir=out.parent):  # no name left behind, whatever happens
             pass
     except OSError as exc:
-        raise OutputError(f"{out}: cannot write the {kind} in the folder {out.parent} "
+        raise OutputError(f"{shown_path(out)}: cannot write the {kind} in the folder {shown_path(out.parent)} "
                           f"({one_line(exc.strerror or exc)})") from None
 
 
@@ -201,9 +234,9 @@ def check_file_name(path: str | os.PathLike, kind: str) -> None:
     """
     text, out = os.fspath(path), Path(path)
     if os.path.basename(text) in ("", ".", ".."):
-        raise OutputError(f"{text}: names a folder; the {kind} is a file: give a file name")
+        raise OutputError(f"{shown_path(text)}: names a folder; the {kind} is a file: give a file name")
     if _is_dir(out):  # found only after the work otherwise (IsADirectoryError)
-        raise OutputError(f"{out}: a folder; the {kind} is a file: give a file name")
+        raise OutputError(f"{shown_path(out)}: a folder; the {kind} is a file: give a file name")
 
 
 def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag") -> bool:
@@ -220,14 +253,16 @@ def check_replaceable(path: str | os.PathLike, *, force: bool, kind: str = "bag"
     if not output_exists(out) or (kind != "bag" and is_special_file(out)):  # /dev/null is written into
         return False
     if not force:
-        raise OutputExistsError(f"{out}: exists already, not overwriting (use --force to replace the {kind})")
+        raise OutputExistsError(f"{shown_path(out)}: exists already, not overwriting "
+                                f"(use --force to replace the {kind})")
     try:
         if out.is_symlink():
             return True  # the link goes, never what it points to
         if (kind == "bag" and not out.is_dir()) or (out.is_dir() and any(out.iterdir()) and not _is_bag_directory(out)):
-            raise OutputExistsError(f"{out}: exists and is not a rosbag2 directory; not removing it even with --force")
+            raise OutputExistsError(f"{shown_path(out)}: exists and is not a rosbag2 directory; not removing it "
+                                    "even with --force")
     except OSError as exc:
-        raise BagWriteError(f"{out}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
+        raise BagWriteError(f"{shown_path(out)}: cannot replace the {kind} ({one_line(exc.strerror or exc)})") from None
     return True
 
 
@@ -273,7 +308,8 @@ class StagedOutput:
         try:
             folder.mkdir()
         except OSError as exc:
-            raise BagWriteError(f"{self.path}: cannot write beside it ({one_line(exc.strerror or exc)})") from None
+            raise BagWriteError(f"{shown_path(self.path)}: cannot write beside it "
+                                f"({one_line(exc.strerror or exc)})") from None
         self._folder, self.staged, self._created = folder, folder / self.path.name, False
 
     def commit(self) -> Path:
@@ -285,13 +321,13 @@ class StagedOutput:
         try:
             os.replace(self.path, old)
         except OSError as exc:
-            raise BagWriteError(f"{self.path}: cannot replace the {self.kind} "
+            raise BagWriteError(f"{shown_path(self.path)}: cannot replace the {self.kind} "
                                 f"({one_line(exc.strerror or exc)})") from None
         try:
             os.replace(self.staged, self.path)
         except OSError as exc:
             os.replace(old, self.path)
-            raise BagWriteError(f"{self.path}: cannot put the new {self.kind} in place "
+            raise BagWriteError(f"{shown_path(self.path)}: cannot put the new {self.kind} in place "
                                 f"({one_line(exc.strerror or exc)})") from None
         self.discard()  # the old output and the emptied folder
         return self.path
@@ -341,8 +377,8 @@ def check_folder_option(option: str, path: str | os.PathLike) -> None:
     """
     if found := _non_folder(Path(path)):
         part, kind = found
-        where = "" if part == Path(path) else f"{part} "
-        raise OutputError(f"{option} {os.fspath(path)}: {where}is {kind}, not a folder")
+        where = "" if part == Path(path) else f"{shown_path(part)} "
+        raise OutputError(f"{option} {shown_path(path)}: {where}is {kind}, not a folder")
 
 
 def _non_folder(path: Path) -> tuple[Path, str] | None:
@@ -375,8 +411,9 @@ def _make_folder(folder: Path, out: Path) -> None:
             with contextlib.suppress(OSError):
                 folder.rmdir()  # made just now; rmdir, not rmtree: never more than an empty folder
         if found := _non_folder(folder):  # was "cannot create the parent folder (File exists)"
-            raise BagWriteError(f"{out}: {found[0]} is {found[1]}, not a folder") from None
-        raise BagWriteError(f"{out}: cannot create the parent folder ({one_line(exc.strerror or exc)})") from None
+            raise BagWriteError(f"{shown_path(out)}: {shown_path(found[0])} is {found[1]}, not a folder") from None
+        raise BagWriteError(f"{shown_path(out)}: cannot create the parent folder "
+                            f"({one_line(exc.strerror or exc)})") from None
     watching = _MADE_FOLDERS.get()
     if watching is not None:
         watching.extend(made)
@@ -398,4 +435,4 @@ def output_exists(path: str | os.PathLike) -> bool:
     try:
         return out.exists() or out.is_symlink()
     except OSError as exc:
-        raise BagWriteError(f"{out}: cannot write there ({one_line(exc.strerror or exc)})") from None
+        raise BagWriteError(f"{shown_path(out)}: cannot write there ({one_line(exc.strerror or exc)})") from None

@@ -107,7 +107,7 @@ def check_plot_metadata(path: Any, data: Any) -> None:
     """Leave out of ``data`` (a ``PlotData``) each metadata document a figure could not read, with a warning."""
     import warnings
 
-    from okid_ros.errors import OkidWarning
+    from okid_ros.errors import OkidWarning, shown_path
     from okid_ros.service.params import ESTIMATOR_NODE
     from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY
 
@@ -116,5 +116,5 @@ def check_plot_metadata(path: Any, data: Any) -> None:
     data.process_info, why_process = usable_process_info(data.process_info, ESTIMATOR_NODE)
     for key, why in ((TRUTH_KEY, why_truth), (STABILIZATION_KEY, why_stabilization), (PROCESS_KEY, why_process)):
         if why:
-            warnings.warn(f"{path}: metadata.yaml's {key} is not what plot can draw ({why}): left out",
+            warnings.warn(f"{shown_path(path)}: metadata.yaml's {key} is not what plot can draw ({why}): left out",
                           OkidWarning, stacklevel=3)

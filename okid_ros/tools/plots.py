@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from okid_ros.core.markov import markov_from_state_space, stochastic_markov_from_state_space
-from okid_ros.errors import OutputError, write_atomically
+from okid_ros.errors import OutputError, shown_path, write_atomically
 from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
 from okid_ros.tools.plot_metadata import check_plot_metadata
@@ -141,7 +141,7 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
     with open_bag(path) as bag:
         present = {t: bag.topics[t] for t in (ARX_TOPIC, STATE_SPACE_TOPIC, MODAL_STATES_TOPIC) if t in bag.topics}
         if not present:
-            raise BagReadError(f"{path}: none of {ARX_TOPIC}, {STATE_SPACE_TOPIC}, {MODAL_STATES_TOPIC}; "
+            raise BagReadError(f"{shown_path(path)}: none of {ARX_TOPIC}, {STATE_SPACE_TOPIC}, {MODAL_STATES_TOPIC}; "
                                f"is it the output of `okid-ros process`? It has: {', '.join(sorted(bag.topics))}")
         expected = {ARX_TOPIC: "okid_msgs/msg/ArxModel", STATE_SPACE_TOPIC: "okid_msgs/msg/StateSpaceModel",
                     MODAL_STATES_TOPIC: "okid_msgs/msg/ModalStates"}
@@ -429,9 +429,11 @@ def refuse_existing(out_dir: Path, names, force: bool) -> None:
     try:
         existing = [name for name in names if (Path(out_dir) / name).exists()]
     except OSError as exc:
-        raise OutputError(f"{out_dir}: cannot be the folder of the figures ({exc.strerror or exc})") from None
+        raise OutputError(f"{shown_path(out_dir)}: cannot be the folder of the figures "
+                          f"({exc.strerror or exc})") from None
     if existing and not force:
-        raise OutputExistsError(f"{out_dir}: {', '.join(existing)} exist already, not overwriting (use --force)")
+        raise OutputExistsError(f"{shown_path(out_dir)}: {', '.join(existing)} exist already, not overwriting "
+                                "(use --force)")
 
 
 def make_figure_dir(out_dir: str | Path) -> Path:
@@ -447,7 +449,8 @@ def make_figure_dir(out_dir: str | Path) -> Path:
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputError(f"{out_dir}: cannot create the folder of the figures ({exc.strerror or exc})") from None
+        raise OutputError(f"{shown_path(out_dir)}: cannot create the folder of the figures "
+                          f"({exc.strerror or exc})") from None
     return out_dir
 
 
@@ -463,7 +466,7 @@ def save_figure(plt, fig, path: Path, dpi: int = 110) -> Path:
                 fig.tight_layout()
             write_atomically(path, lambda stream: fig.savefig(stream, format="png", dpi=dpi))
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+        raise OutputError(f"{shown_path(path)}: cannot write the figure ({exc.strerror or exc})") from None
     finally:
         plt.close(fig)
     return path

@@ -40,7 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from okid_ros.errors import OkidWarning, ParameterError
+from okid_ros.errors import OkidWarning, ParameterError, shown_path
 from okid_ros.jsonio import JsonLines, dumps
 from okid_ros.tools.bagio import (
     PROCESS_KEY,
@@ -199,7 +199,7 @@ def _with_samples(summary: ProcessSummary, bag_path: Path) -> ProcessSummary:
     if summary.samples < 2:  # one sample is no record either (stamps all equal, every other message NaN)
         note = summary.rejection_note()
         made = "no input message made a complete sample" if not summary.samples else "one complete sample only"
-        raise BagReadError(f"{bag_path}: {made}" + (f"; {note}" if note else ""))
+        raise BagReadError(f"{shown_path(bag_path)}: {made}" + (f"; {note}" if note else ""))
     return summary
 
 
@@ -245,7 +245,7 @@ def _check_input(bag: Any, bag_path: Path, nodes: OfflineNodes, arx_values: dict
         bag.require_topic(topic, [msgtype])
     total = bag.message_count(nodes.input_topics)
     if total == 0:
-        raise BagReadError(f"{bag_path}: the input topics {', '.join(nodes.input_topics)} have no messages")
+        raise BagReadError(f"{shown_path(bag_path)}: the input topics {', '.join(nodes.input_topics)} have no messages")
     samples = max(bag.message_count([topic]) for topic in nodes.input_topics)  # one message per sample
     if warning := publish_rate_warning(arx_values, samples):
         warnings.warn(warning, OkidWarning, stacklevel=3)

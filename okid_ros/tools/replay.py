@@ -27,7 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import DataError, OkidWarning
+from okid_ros.errors import DataError, OkidWarning, shown_path
 from okid_ros.tools.bagio import open_bag
 from okid_ros.tools.errors import BagReadError, ReplayError, ToolParameterError
 from okid_ros.tools.ros_domain import ros_context
@@ -211,7 +211,7 @@ class BagPlayer:
             wanted = list(dict.fromkeys(topics)) if topics else sorted(bag.topics)  # a topic given twice is one
             unknown = [t for t in wanted if t not in bag.topics]
             if unknown:
-                raise BagReadError(f"{self.path}: no topic {', '.join(unknown)}; the bag has: "
+                raise BagReadError(f"{shown_path(self.path)}: no topic {', '.join(unknown)}; the bag has: "
                                    f"{', '.join(sorted(bag.topics)) or 'none'}")
             self.topics = wanted
             self.message_count = bag.message_count(wanted)

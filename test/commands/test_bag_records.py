@@ -119,6 +119,14 @@ def test_a_bag_without_the_source_topic_is_a_one_line_error(bag, tmp_path, capsy
     assert err.count("\n") == 1 and "/nowhere" in err
 
 
+def test_an_npz_name_without_its_suffix_is_the_options_error_not_the_bags(bag, tmp_path, capsys):
+    # It was a DataError, which the CLI prefixes with the bag: "BAG: --npz X: the record file must end in .npz".
+    capsys.readouterr()
+    assert main(["export", str(bag), "--npz", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"okid-ros export: error: --npz {tmp_path / 'run'}: the record file must end in .npz\n"
+
+
 def test_a_bag_of_which_no_sample_fits_says_why(bag, tmp_path, capsys):
     # As process says it: every message of the wrong size for n_inputs / n_outputs.
     capsys.readouterr()
@@ -147,11 +155,15 @@ def test_export_says_when_the_sample_time_does_not_fit_the_stamps(bag, tmp_path,
 
 
 def test_export_says_when_a_finer_sample_time_leaves_every_other_slot_empty(bag, tmp_path, capsys):
-    # Half the bag's spacing refuses no message: before, one sample was exported and nothing said.
+    # Half the bag's spacing refuses no message: before, one sample was exported and nothing said; then one
+    # sample was exported (exit 0) with the cause as a warning. A record of one sample is none: refused, as a bag
+    # that makes one sample is, the cause said.
     capsys.readouterr()
-    assert main(["export", str(bag), "--npz", str(tmp_path / "r.npz"), "--param", "sample_time_s=0.004"]) == 0
+    assert main(["export", str(bag), "--npz", str(tmp_path / "r.npz"), "--param", "sample_time_s=0.004"]) == 2
     err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no two complete samples in a row on the topics /okid/io_sample (1500 " in err
     assert "most of the 1500 samples stand alone between empty sample times: is sample_time_s 0.004 s right?" in err
+    assert not (tmp_path / "r.npz").exists()
     # identify fails on such a record (its outputs look dead between the empty slots): the cause is said first
     assert main(["identify", str(bag), "--json", str(tmp_path / "m.json"), "--param", "sample_time_s=0.004"]) == 2
     warning = capsys.readouterr().err.splitlines()[0]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 
 from okid_ros import cli
 from okid_ros.errors import DataError, OkidWarning, write_atomically
@@ -294,6 +295,26 @@ def test_track_without_inputs_runs_output_only(tmp_path: Path, capsys: pytest.Ca
     err = capsys.readouterr().err
     assert "Traceback" not in err and "updates gave a model (" in err.splitlines()[-1], err
     assert not (tmp_path / "m.jsonl").exists()
+
+
+@pytest.mark.parametrize("output_only", [False, True])
+def test_identify_refuses_outputs_beyond_the_float64_range_before_the_work(tmp_path: Path, capsys, output_only) -> None:
+    # Outputs about 1e308 (some beyond 1.8e308: Inf, missing): identify refused them after numpy's overflow
+    # warnings, or for another reason ("too few samples for output-only identification: 31 < 200", "no ARX
+    # order can be fitted ... 0 regressor rows"); now track's reason, at once.
+    u, y = _good_arrays()
+    with np.errstate(over="ignore"):
+        np.savez(tmp_path / "huge.npz", u=u, y=y * 1e308, sample_time_s=0.01)
+    code, _, err = run_cli(capsys, "identify", tmp_path / "huge.npz", "--json", tmp_path / "m.json",
+                           *(["--output-only"] if output_only else []))
+    assert_one_line_error(code, err, "the innovation covariance in the record's units is beyond the float64 range "
+                          "(output spreads ")
+    assert "RuntimeWarning" not in err and not (tmp_path / "m.json").exists()
+    # A dead output of 1e308 is a dead output first, as track says (not "output spreads 1.48, inf").
+    np.savez(tmp_path / "dead.npz", u=u, y=np.column_stack([y[:, 0], np.full(len(y), 1e308)]), sample_time_s=0.01)
+    code, _, err = run_cli(capsys, "identify", tmp_path / "dead.npz", "--json", tmp_path / "m.json",
+                           *(["--output-only"] if output_only else []))
+    assert_one_line_error(code, err, "output channel 1 carries no response (constant 1e+308)")
 
 
 def test_track_says_why_a_window_of_rejected_samples_waits(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -245,3 +245,50 @@ def test_a_file_given_for_a_folder_is_named_as_one(record, tmp_path, capsys):
     code, _, err = run_cli(capsys, "simulate", "--out", afile / "bag", "--duration", "1")
     assert_one_line_error(code, err, f"{afile / 'bag'}: {afile} is a file, not a folder")
     assert afile.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["afile", "rec.npz"]
+
+
+@pytest.fixture()
+def record_never_read(monkeypatch) -> list:
+    """The record reader of `identify` replaced by one that fails the test: the calls it had."""
+    import okid_ros.tools.bag_record
+
+    calls: list = []
+
+    def read(*args, **kwargs):
+        calls.append(args)
+        raise AssertionError("the record was read before the outputs were checked")
+
+    monkeypatch.setattr(okid_ros.tools.bag_record, "load_any_record", read)
+    return calls
+
+
+def test_identify_refuses_a_bad_output_before_it_reads_the_record(record, tmp_path, capsys, record_never_read,
+                                                                   monkeypatch):
+    # Each was found only after the record was read (a big bag read in vain); now before, making nothing.
+    afile, folder, kept = tmp_path / "afile", tmp_path / "figs", tmp_path / "old.csv"
+    afile.write_text("mine")
+    folder.mkdir()
+    kept.write_text("old")
+    model = ["--json", str(tmp_path / "m.json")]
+    for argv, says in (
+        (["--json", afile / "m.json"], f"{afile / 'm.json'}: {afile} is a file, not a folder"),
+        ([*model, "--uff", afile / "sub" / "x.uff"], f"{afile / 'sub' / 'x.uff'}: {afile} is a file, not a folder"),
+        ([*model, "--csv", kept], f"{kept}: exists already, not overwriting (use --force to replace the modes CSV)"),
+        ([*model, "--csv", f"{folder}/"], f"{folder}/: names a folder; the modes CSV is a file"),
+        ([*model, "--uff", folder], f"{folder}: a folder; the UFF file is a file"),
+    ):
+        code, out, err = run_cli(capsys, "identify", record, *argv)
+        assert_one_line_error(code, err, says)
+        assert out == ""
+    import okid_ros.tools.output_paths
+
+    # root writes where a mode forbids it: a folder this user may not write in is os.access's answer
+    monkeypatch.setattr(okid_ros.tools.output_paths.os, "access", lambda path, mode: Path(path) != folder)
+    code, _, err = run_cli(capsys, "identify", record, *model, "--uff", folder / "new" / "x.uff")
+    assert_one_line_error(code, err, f"{folder / 'new' / 'x.uff'}: its folder {folder / 'new'} cannot be made: "
+                          f"cannot write the UFF file in the folder {folder} (not writable by this user)")
+    code, _, err = run_cli(capsys, "identify", record, *model, "--plot-dir", folder)
+    assert_one_line_error(code, err, f"cannot write the figure in the folder {folder} (not writable by this user)")
+    assert record_never_read == [] and kept.read_text() == "old" and afile.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "figs", "old.csv", "rec.npz"]
+    assert list(folder.iterdir()) == []

@@ -79,6 +79,16 @@ def test_a_fifo_or_a_huge_file_as_the_reference_is_refused(record, tmp_path, cap
     assert sorted(p.name for p in tmp_path.iterdir()) == ["huge.json", "rec.npz", "ref.json"]
 
 
+def test_a_reference_nested_too_deeply_is_refused_as_no_model(record, tmp_path, capsys):
+    # json's RecursionError was taken for a bug: "internal error, please report it", exit 70.
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference", deep)
+    assert_one_line_error(code, err, f"--reference {deep}: not an `okid-ros identify --json` output (maximum "
+                          "recursion depth exceeded")
+    assert not (tmp_path / "m.json").exists()
+
+
 def test_a_fifo_given_to_batch_is_refused_as_no_bag(tmp_path, capsys):
     """It was searched as a folder: "left out 1 folder(s) ... that cannot be read (no permission?)"."""
     with _fifo(tmp_path / "run.mcap") as fifo:

@@ -8,13 +8,21 @@ well as the unscaled model predicts the unscaled ones.
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
 import pytest
 
 from okid_ros.core.arx import fit_arx
-from okid_ros.core.channels import channel_mean, channel_scales, channel_spread, channel_std, column_peaks
+from okid_ros.core.channels import (
+    channel_mean,
+    channel_scales,
+    channel_spread,
+    channel_std,
+    column_peaks,
+    group_scales,
+)
 from okid_ros.core.pipeline import IdentificationError, identify
 from okid_ros.core.statespace import one_step_prediction
 from okid_ros.sim.inputs import lowpass_input
@@ -78,6 +86,16 @@ def test_beyond_the_float64_range_is_a_clear_refusal(paper_record, peak, offset)
             identify(u, y * scale + offset, DT, order=40, refine=False)
 
 
+def test_inputs_of_a_subnormal_unit_are_a_clear_refusal_not_a_model_of_nan(paper_record) -> None:
+    # Inputs of a subnormal unit: B = B_s / Su beyond 1e308, written as NaN (after numpy's overflow warning), exit 0.
+    u, y = paper_record
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(IdentificationError, match=r"input gains B and D in the record's units are beyond the "
+                                                      r"float64 range \(input spreads 1e-312, 1; "):
+            identify(u * np.array([1e-312, 1.0]), y, DT, order=40, refine=False)
+
+
 def test_channel_mean_is_the_mean_without_its_overflow(paper_record) -> None:
     u, y = paper_record
     np.testing.assert_array_equal(channel_mean(y), y.mean(axis=0))  # divided by powers of two: exact
@@ -85,6 +103,18 @@ def test_channel_mean_is_the_mean_without_its_overflow(paper_record) -> None:
         warnings.simplefilter("error", RuntimeWarning)
         big = channel_mean(np.column_stack([y[:, 0] * 1e305 + 1e307, np.zeros(y.shape[0])]))
     np.testing.assert_allclose(big, [y[:, 0].mean() * 1e305 + 1e307, 0.0], rtol=1e-12)
+
+
+def test_channels_near_the_float64_limit_are_scaled_without_overflow() -> None:
+    # A peak above 2**1023.5 (1.27e308) was rounded to the power of two 2**1024: Inf, numpy's overflow
+    # warning, and the mean or the scaled window NaN (`track`, `identify` of a record in such units).
+    x = np.array([[1.7e308, 1.0], [-1.5e308, 2.0], [1.0e308, 4.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        mean = channel_mean(x)
+        scaled_u, scaled_y = group_scales(x[:, :1], x[:, 1:]).scale(x[:, :1], x[:, 1:])
+    np.testing.assert_allclose(mean, [math.fsum(x[:, 0] / 3), 7 / 3], rtol=1e-15)
+    assert np.isfinite(scaled_u).all() and np.abs(scaled_u).max() < 2 and np.array_equal(scaled_y, x[:, 1:] / 4)
 
 
 def test_arx_fit_of_extreme_units_has_no_overflow(paper_record) -> None:

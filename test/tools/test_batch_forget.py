@@ -100,6 +100,18 @@ def test_forget_warns_of_the_options_of_processing_and_refuses_a_name_several_ba
     assert "warning: --scheduler: options of processing bags" in capsys.readouterr().err
 
 
+def test_a_journal_line_nested_too_deeply_is_an_unreadable_line() -> None:
+    # json's RecursionError ended batch with an internal error (exit 70) at its journal's reading.
+    import tempfile
+    from pathlib import Path
+
+    from okid_ros.tools.campaign.manifest import Manifest
+
+    with tempfile.TemporaryDirectory() as folder:
+        (Path(folder) / "manifest.jsonl").write_text("[" * 100_000 + "]" * 100_000 + "\n{}\n")
+        assert Manifest(Path(folder)).unreadable == 1
+
+
 def test_forget_says_the_journal_lines_it_cannot_read(tmp_path, capsys):
     # The journal is rewritten without them, as by any run; a run processing bags said so, --forget
     # dropped them in silence.

@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from okid_ros.errors import OkidError, OkidWarning, special_file_kind
+from okid_ros.errors import OkidError, OkidWarning, one_line, shown_path, special_file_kind
 
 __all__ = ["BAG_SUFFIXES", "BagPlan", "bag_fingerprint", "bag_label", "find_bags", "plan_bag"]
 
@@ -83,12 +83,14 @@ def find_bags(paths: list[str | Path], *, exclude: Path | None = None) -> list[P
     for given in paths:
         path = Path(given)
         if not path.exists():
-            raise OkidError(f"{path}: no such bag or directory")
+            raise OkidError(f"{shown_path(path)}: no such bag or directory")
         if kind := special_file_kind(path):  # was searched as a folder: "cannot be read (no permission?)"
-            raise OkidError(f"{path}: not a regular file ({kind}); a bag is a rosbag2 folder or a storage file")
+            raise OkidError(f"{shown_path(path)}: not a regular file ({kind}); a bag is a rosbag2 folder or a "
+                            "storage file")
         if path.is_file():
             if path.suffix not in BAG_SUFFIXES:
-                raise OkidError(f"{path}: not a bag (expected a rosbag2 directory, {', '.join(BAG_SUFFIXES)})")
+                raise OkidError(f"{shown_path(path)}: not a bag (expected a rosbag2 directory, "
+                                f"{', '.join(BAG_SUFFIXES)})")
             found.setdefault(path.resolve(), path)
             continue
         for bag in _search(path, excluded):
@@ -174,8 +176,8 @@ def plan_bag(path: Path) -> BagPlan:
             return _plan_from_metadata(path)
         return _plan_from_reader(path)
     except Exception as exc:  # noqa: BLE001 - any unreadable metadata is a plan error, reported in one line
-        text = " ".join(str(exc).split()) or type(exc).__name__
-        return BagPlan(path=path, error=text if str(path) in text else f"{path}: {text}")
+        text = one_line(exc) or type(exc).__name__
+        return BagPlan(path=path, error=text if shown_path(path) in text else f"{shown_path(path)}: {text}")
 
 
 def _metadata(path: Path) -> dict:

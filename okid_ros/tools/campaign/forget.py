@@ -13,7 +13,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from okid_ros.errors import OkidError
+from okid_ros.errors import OkidError, shown_path
 from okid_ros.tools.campaign.manifest import Manifest
 from okid_ros.tools.campaign.stored import label_problem
 
@@ -45,15 +45,16 @@ def journaled_entries(manifest: Manifest, names: list[str], out_dir: Path) -> li
     for name in names:
         matches = _matches(manifest, name)
         if len(matches) > 1:
-            raise OkidError(f"--forget {name}: names {len(matches)} bags of the campaign {out_dir} "
-                            f"({', '.join(sorted(e['key'] for e in matches))}); give the one's path")
+            raise OkidError(f"--forget {shown_path(name)}: names {len(matches)} bags of the campaign "
+                            f"{shown_path(out_dir)} ({', '.join(sorted(shown_path(e['key']) for e in matches))}); "
+                            "give the one's path")
         if not matches:
-            held = sorted(Path(key).name for key in manifest.entries)
+            held = sorted(shown_path(Path(key).name) for key in manifest.entries)
             listed = (f"its journal holds {', '.join(held)}" if len(held) <= _MAX_LISTED
                       else f"its journal holds {len(held)} bags, summary.csv lists them") if held \
                 else "its journal holds no bag"
-            raise OkidError(f"--forget {name}: no bag of the campaign {out_dir} has that path, name or output "
-                            f"folder ({listed})")
+            raise OkidError(f"--forget {shown_path(name)}: no bag of the campaign {shown_path(out_dir)} has that "
+                            f"path, name or output folder ({listed})")
         chosen.setdefault(matches[0]["key"], matches[0])
     return list(chosen.values())
 
@@ -68,15 +69,17 @@ def forget_entries(manifest: Manifest, entries: list[dict], out_dir: Path, *, re
     manifest.compact()
     folders = [out_dir / "bags" / e["label"] for e in entries if not label_problem(e.get("label"))]
     folders = [folder for folder in folders if folder.is_dir() and not folder.is_symlink()]
-    print(f"okid-ros batch: forgot {len(entries)} bag(s) of the campaign: {', '.join(e['key'] for e in entries)}",
-          file=sys.stderr)
+    forgotten = ", ".join(shown_path(e["key"]) for e in entries)
+    print(f"okid-ros batch: forgot {len(entries)} bag(s) of the campaign: {forgotten}", file=sys.stderr)
     if not folders:
         return
-    names = ", ".join(folder.name for folder in folders)
+    names = ", ".join(shown_path(folder.name) for folder in folders)
     if remove:
         for folder in folders:
             shutil.rmtree(folder, ignore_errors=True)
-        print(f"okid-ros batch: removed their outputs under {out_dir / 'bags'} (--force): {names}", file=sys.stderr)
+        print(f"okid-ros batch: removed their outputs under {shown_path(out_dir / 'bags')} (--force): {names}",
+              file=sys.stderr)
     else:
-        print(f"okid-ros batch: kept their outputs under {out_dir / 'bags'}: {names} (--force removes them)",
+        print(f"okid-ros batch: kept their outputs under {shown_path(out_dir / 'bags')}: {names} "
+              "(--force removes them)",
               file=sys.stderr)

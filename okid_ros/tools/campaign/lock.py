@@ -24,7 +24,7 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
-from okid_ros.errors import OkidWarning, OutputError, one_line
+from okid_ros.errors import OkidWarning, OutputError, one_line, shown_path
 from okid_ros.tools.campaign.manifest import OLD_PREFIX
 from okid_ros.tools.campaign.worker import TMP_PREFIX
 
@@ -51,21 +51,22 @@ def campaign_lock(out_dir: Path) -> Iterator[bool]:
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
-        raise OutputError(f"--out {out_dir}: cannot create its lock file {LOCK_NAME} "
+        raise OutputError(f"--out {shown_path(out_dir)}: cannot create its lock file {LOCK_NAME} "
                           f"({one_line(exc.strerror or exc)})") from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                warnings.warn(f"--out {out_dir}: cannot lock the campaign ({one_line(exc.strerror or exc)}): a "
-                              "second batch on it would not be noticed, and no folder a killed run left under "
-                              "bags/ is removed", OkidWarning, stacklevel=3)
+                why = one_line(exc.strerror or exc)
+                warnings.warn(f"--out {shown_path(out_dir)}: cannot lock the campaign ({why}): a second batch on it "
+                              "would not be noticed, and no folder a killed run left under bags/ is removed",
+                              OkidWarning, stacklevel=3)
                 yield False
                 return
             holder = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip() or "its pid not written yet"
-            raise OutputError(f"--out {out_dir}: another okid-ros batch is running on this campaign ({holder}); "
-                              "wait for it to end, or give another --out") from None
+            raise OutputError(f"--out {shown_path(out_dir)}: another okid-ros batch is running on this campaign "
+                              f"({holder}); wait for it to end, or give another --out") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, started "
                       f"{time.strftime('%Y-%m-%d %H:%M:%S %Z')}\n".encode(), 0)

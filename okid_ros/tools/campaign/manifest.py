@@ -21,6 +21,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from okid_ros.jsonio import NOT_JSON
+
 __all__ = ["MANIFEST_NAME", "OLD_PREFIX", "Manifest", "atomic_write_bytes", "parameters_hash", "replace_directory"]
 
 MANIFEST_NAME = "manifest.jsonl"
@@ -79,19 +81,20 @@ class Manifest:
         self._stream = None
 
     def _load(self) -> None:
-        from okid_ros.errors import DataError
+        from okid_ros.errors import DataError, shown_path
 
         try:
             data = self.path.read_bytes()
         except OSError as exc:
-            raise DataError(f"{self.path}: cannot read the campaign's manifest ({exc.strerror or exc})") from None
+            raise DataError(f"{shown_path(self.path)}: cannot read the campaign's manifest "
+                            f"({exc.strerror or exc})") from None
         lines = data.split(b"\n")
         for number, line in enumerate(lines, 1):
             if not line.strip():
                 continue
             try:
                 entry = json.loads(line.decode("utf-8"))
-            except ValueError:  # UnicodeDecodeError is one too
+            except NOT_JSON:
                 # The last line without its newline was torn by a kill during its append; others are spoilt.
                 self.unreadable += number < len(lines)
                 continue

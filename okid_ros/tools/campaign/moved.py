@@ -23,7 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from okid_ros.errors import one_line
+from okid_ros.errors import one_line, shown_path
 from okid_ros.tools.campaign.discovery import bag_label
 from okid_ros.tools.campaign.manifest import Manifest, atomic_write_bytes, replace_directory
 from okid_ros.tools.campaign.stored import label_problem
@@ -57,13 +57,13 @@ def take_moved(manifest: Manifest, entry: dict, result: dict, bag: Path, fingerp
             replace_directory(out_dir / "bags" / entry["label"], folder)
             atomic_write_bytes(folder / "result.json", json.dumps(moved, allow_nan=True).encode())
         except OSError as exc:
-            print(f"okid-ros batch: warning: {bag}: cannot take the outputs of the same bag journaled at "
-                  f"{entry['key']} ({one_line(exc.strerror or exc)}); processing it again", file=sys.stderr)
+            print(f"okid-ros batch: warning: {shown_path(bag)}: cannot take the outputs of the same bag journaled at "
+                  f"{shown_path(entry['key'])} ({one_line(exc.strerror or exc)}); processing it again", file=sys.stderr)
             return None
     manifest.record(bag, *fingerprint, entry["params_hash"], moved)
     manifest.forget(entry["key"])
-    print(f"okid-ros batch: {bag}: the bag journaled at {entry['key']} (same name, size and modification time): "
-          "its outputs reused, its journal line moved to the new path", file=sys.stderr)
+    print(f"okid-ros batch: {shown_path(bag)}: the bag journaled at {shown_path(entry['key'])} (same name, size "
+          "and modification time): its outputs reused, its journal line moved to the new path", file=sys.stderr)
     return moved
 
 

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
+from okid_ros.errors import shown_path
 from okid_ros.tools.campaign.discovery import BagPlan, plan_bag
 
 __all__ = ["plan_campaign", "format_plan"]
@@ -35,7 +36,7 @@ def _stamp(seconds: float) -> str:
 def format_plan(plans: list[BagPlan], input_topics: list[str], elapsed_s: float,
                 emit: Callable[[str], None] = print) -> int:
     """Print the plan; returns the number of bags that would fail (metadata or input topics)."""
-    width = max([len(str(p.path)) for p in plans] + [3])
+    width = max([len(shown_path(p.path)) for p in plans] + [3])
     emit(f"{'bag':<{width}}  {'start (UTC)':<20}  {'duration_s':>10}  {'messages':>9}  {'inputs':>9}  note")
     problems = 0
     totals: dict[tuple[str, str], list[int]] = {}
@@ -50,13 +51,13 @@ def format_plan(plans: list[BagPlan], input_topics: list[str], elapsed_s: float,
             total[1] += 1
         if math.isfinite(plan.duration_s):
             duration += plan.duration_s
-        emit(f"{str(plan.path):<{width}}  {_stamp(plan.start_s):<20}  "
+        emit(f"{shown_path(plan.path):<{width}}  {_stamp(plan.start_s):<20}  "
              f"{plan.duration_s:>10.1f}  {plan.message_count():>9d}  {plan.message_count(input_topics):>9d}  {note}")
     emit("")
     emit(f"topics ({len(totals)}):")
     for (topic, msgtype), (count, n_bags) in sorted(totals.items()):
         flag = "  (input)" if topic in input_topics else ""
-        emit(f"  {topic} [{msgtype}]: {count} messages in {n_bags} bag(s){flag}")
+        emit(f"  {shown_path(topic)} [{shown_path(msgtype)}]: {count} messages in {n_bags} bag(s){flag}")
     emit("")
     emit(f"{len(plans)} bags, {duration:.1f} s of data, {sum(p.message_count() for p in plans)} messages "
          f"({sum(p.message_count(input_topics) for p in plans)} on the input topics "

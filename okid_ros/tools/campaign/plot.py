@@ -60,12 +60,13 @@ def write_campaign_figures(out_dir: Path, figure_dir: Path, *, force: bool = Fal
     ToolParameterError
         the campaign has no mode rows.
     """
+    from okid_ros.errors import shown_path
     from okid_ros.tools.errors import ToolParameterError
     from okid_ros.tools.plots import make_figure_dir, pyplot, refuse_existing, save_figure
 
     series = campaign_series(out_dir)
     if not series:
-        raise ToolParameterError(f"{out_dir}: modes.parquet has no modes to draw (no bag gave a model)")
+        raise ToolParameterError(f"{shown_path(out_dir)}: modes.parquet has no modes to draw (no bag gave a model)")
     refuse_existing(figure_dir, CAMPAIGN_FIGURES, force)
     make_figure_dir(figure_dir)
     t0 = min(float(s["stamp_s"].min()) for s in series.values())

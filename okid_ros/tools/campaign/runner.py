@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from okid_ros.errors import OkidError, OutputError
+from okid_ros.errors import OkidError, OutputError, shown_path
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.campaign.discovery import bag_fingerprint, bag_label, find_bags, plan_bag
 from okid_ros.tools.campaign.engines import run_jobs
@@ -103,11 +103,13 @@ def _check_out_dir(out_dir: Path) -> None:
     """
     try:
         if out_dir.is_dir() and any(out_dir.iterdir()) and not is_campaign_dir(out_dir):
-            raise OutputError(f"--out {out_dir}: a non-empty directory that is not a campaign of okid-ros batch "
+            raise OutputError(f"--out {shown_path(out_dir)}: a non-empty directory that is not a campaign of "
+                              "okid-ros batch "
                               f"(no {MANIFEST_NAME}); give a new or empty directory")
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a read-only place, /proc, a name too long, no permission
-        raise OutputError(f"--out {out_dir}: cannot create the campaign directory ({exc.strerror or exc})") from None
+        raise OutputError(f"--out {shown_path(out_dir)}: cannot create the campaign directory "
+                          f"({exc.strerror or exc})") from None
 
 
 def _job(options: CampaignOptions, bag: Path, state_space_topic: str) -> BagJob:
@@ -122,7 +124,7 @@ def _reused(entry: dict, out_dir: Path, retry_failed: bool, bag: Path) -> dict |
     """The result kept for an unchanged bag, or None when it must run again (a spoilt one: with a warning)."""
     result, problem = stored_result(entry, out_dir, retry_failed)
     if problem:
-        print(f"okid-ros batch: warning: {problem}; processing {bag} again", file=sys.stderr)
+        print(f"okid-ros batch: warning: {problem}; processing {shown_path(bag)} again", file=sys.stderr)
     return result
 
 
@@ -154,7 +156,8 @@ def _forget(options: CampaignOptions, started: float) -> CampaignReport:
     """Take ``options.forget`` out of the campaign (campaign/forget.py) and rebuild its tables, under its lock."""
     out_dir = options.out_dir
     if not is_campaign_dir(out_dir):
-        raise OutputError(f"--out {out_dir}: not a campaign of okid-ros batch (no {MANIFEST_NAME}): no bag to forget")
+        raise OutputError(f"--out {shown_path(out_dir)}: not a campaign of okid-ros batch (no {MANIFEST_NAME}): no "
+                          "bag to forget")
     params_hash = parameters_hash(options.arx_values, options.est_values, namespace=options.namespace,
                                   storage=options.storage)
     with campaign_lock(out_dir) as locked:
@@ -168,8 +171,9 @@ def _read_journal(out_dir: Path) -> Manifest:
     """The campaign's journal, its unreadable lines said (the journal is rewritten without them)."""
     manifest = Manifest(out_dir)
     if manifest.unreadable:
-        print(f"okid-ros batch: warning: {manifest.path}: {manifest.unreadable} unreadable line(s) ignored (not "
-              f"JSON text): their bags are left out of the tables, and processed again when given", file=sys.stderr)
+        print(f"okid-ros batch: warning: {shown_path(manifest.path)}: {manifest.unreadable} unreadable line(s) "
+              f"ignored (not JSON text): their bags are left out of the tables, and processed again when given",
+              file=sys.stderr)
     return manifest
 
 
@@ -181,12 +185,13 @@ def _start_campaign(out_dir: Path, *, locked: bool) -> None:
     """
     removed = remove_leftovers(out_dir) if locked else 0
     if removed:
-        print(f"okid-ros batch: removed {removed} unfinished folder(s) under {out_dir / 'bags'} left by a run that "
-              f"was killed ({', '.join(prefix + '*' for prefix in LEFTOVER_PREFIXES)})", file=sys.stderr)
+        print(f"okid-ros batch: removed {removed} unfinished folder(s) under {shown_path(out_dir / 'bags')} left by "
+              f"a run that was killed ({', '.join(prefix + '*' for prefix in LEFTOVER_PREFIXES)})", file=sys.stderr)
     try:
         (out_dir / MANIFEST_NAME).touch()
     except OSError as exc:
-        raise OutputError(f"--out {out_dir}: cannot write the campaign's journal ({exc.strerror or exc})") from None
+        raise OutputError(f"--out {shown_path(out_dir)}: cannot write the campaign's journal "
+                          f"({exc.strerror or exc})") from None
 
 
 def _run_locked(options: CampaignOptions, bags: list[Path], started: float) -> CampaignReport:
@@ -267,7 +272,7 @@ def _kept_from_journal(manifest: Manifest, bags: list[Path], fingerprints: dict[
         seen.add(same)
         result, problem = stored_result(entry, out_dir, retry_failed=False)
         if result is None:
-            why = problem or f"{key}: its outputs under {out_dir / 'bags'} are gone"
+            why = problem or f"{shown_path(key)}: its outputs under {shown_path(out_dir / 'bags')} are gone"
             print(f"okid-ros batch: warning: {why}; the bag is not given this time: left out of the tables (give "
                   "it again to process it)", file=sys.stderr)
             continue

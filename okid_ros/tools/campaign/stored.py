@@ -14,6 +14,8 @@ import json
 import math
 from pathlib import Path
 
+from okid_ros.errors import one_line, shown_path
+from okid_ros.jsonio import NOT_JSON
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME
 
 __all__ = ["label_problem", "result_problem", "stored_result"]
@@ -117,19 +119,19 @@ def stored_result(entry: dict, out_dir: Path, retry_failed: bool) -> tuple[dict 
             return None, ""
         summary = entry.get("summary")
         problem = result_problem(summary, "failed")
-        return (None, f"{out_dir / MANIFEST_NAME}: the entry of the bag is spoilt ({problem})") if problem \
+        return (None, f"{shown_path(out_dir / MANIFEST_NAME)}: the entry of the bag is spoilt ({problem})") if problem \
             else ({**summary, "updates": []}, "")
     if status != "ok":
-        return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag has the status {status!r}"
+        return None, f"{shown_path(out_dir / MANIFEST_NAME)}: the entry of the bag has the status {status!r}"
     problem = label_problem(entry.get("label"))
     if problem:
-        return None, f"{out_dir / MANIFEST_NAME}: the entry of the bag is spoilt ({problem})"
+        return None, f"{shown_path(out_dir / MANIFEST_NAME)}: the entry of the bag is spoilt ({problem})"
     path = out_dir / "bags" / entry["label"] / "result.json"
     if not path.is_file():
         return None, ""  # outputs removed by hand: do it again
     try:
         result = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
-        return None, f"{path}: unreadable ({' '.join(str(exc).split())[:120]})"
+    except (OSError, *NOT_JSON) as exc:
+        return None, f"{shown_path(path)}: unreadable ({one_line(exc)[:120]})"
     problem = result_problem(result, "ok")
-    return (None, f"{path}: {problem}") if problem else (result, "")
+    return (None, f"{shown_path(path)}: {problem}") if problem else (result, "")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from okid_ros.errors import shown_path
 from okid_ros.tools.campaign.runner import CampaignOptions, CampaignReport
 
 __all__ = ["print_summary"]
@@ -42,4 +43,5 @@ def print_summary(report: CampaignReport, options: CampaignOptions, emit: Callab
         emit(f"  {entry['status']}: {entry['reason']}")
     if len(problems) > _MAX_LISTED:
         emit(f"  ... and {len(problems) - _MAX_LISTED} more (summary.csv)")
-    emit(f"wrote {', '.join(str(p) for p in report.written)}; per-bag outputs in {options.out_dir / 'bags'}")
+    emit(f"wrote {', '.join(shown_path(p) for p in report.written)}; per-bag outputs in "
+         f"{shown_path(options.out_dir / 'bags')}")

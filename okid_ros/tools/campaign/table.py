@@ -131,7 +131,7 @@ def read_modes(out_dir: Path, columns: tuple[str, ...] = MODE_COLUMNS):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from okid_ros.errors import DataError
+    from okid_ros.errors import DataError, shown_path
 
     path = Path(out_dir) / "modes.parquet"
     again = "a rerun of `okid-ros batch` with the same bags and --out writes it again"
@@ -140,10 +140,12 @@ def read_modes(out_dir: Path, columns: tuple[str, ...] = MODE_COLUMNS):
     except (OSError, ValueError, pa.ArrowException) as exc:
         reason = " ".join(str(exc).replace(f"Could not open Parquet input source '{path}': ", "").split())
         reason = reason or type(exc).__name__
-        raise DataError(f"{path}: not a readable modes table of okid-ros batch ({reason}); {again}") from None
+        raise DataError(f"{shown_path(path)}: not a readable modes table of okid-ros batch ({reason}); "
+                        f"{again}") from None
     missing = [name for name in columns if name not in table.column_names]
     if missing:
-        raise DataError(f"{path}: not a modes table of okid-ros batch (no column {', '.join(missing)}); {again}")
+        raise DataError(f"{shown_path(path)}: not a modes table of okid-ros batch (no column {', '.join(missing)}); "
+                        f"{again}")
     return table
 
 

@@ -75,8 +75,9 @@ def failed_result(job: BagJob, reason: str, seconds: float = 0.0, *, transient: 
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text if text else type(exc).__name__
+    from okid_ros.errors import one_line
+
+    return one_line(exc) or type(exc).__name__
 
 
 def run_bag_job(job: BagJob) -> dict:
@@ -101,12 +102,13 @@ def run_bag_job(job: BagJob) -> dict:
         raise
     except Exception as exc:  # noqa: BLE001 - every failure of one bag is reported, the campaign goes on
         shutil.rmtree(tmp, ignore_errors=True)
-        from okid_ros.errors import OkidError
+        from okid_ros.errors import OkidError, shown_path
 
         reason = _one_line(exc) if isinstance(exc, OkidError) else f"{type(exc).__name__}: {_one_line(exc)}"
-        reason = reason.replace(job.bag, job.display)
-        if job.display not in reason:
-            reason = f"{job.display}: {reason}"
+        bag, display = shown_path(job.bag), shown_path(job.display)  # as the message names them
+        reason = reason.replace(bag, display)
+        if display not in reason:
+            reason = f"{display}: {reason}"
         return failed_result(job, reason, time.perf_counter() - started)
 
 
