@@ -36,6 +36,10 @@ Parts:
   the change sample, the structure unchanged (the optimal predictor gain changes with the
   disturbances against the sensor noise), with the detector of ``delay``: declared (a false
   alarm) or taken for a noise change (``core/noise_change.py``) and re-armed, and alarms after.
+- ``output-only``: the delay part's changes and the input forces made 0.5-3 times as strong or
+  low-passed (first order, pole a, unit variance) at the change sample, with the inputs unmeasured:
+  the reference is ``identify_output_only`` of the first full window, the monitor that of node 2
+  for a model without inputs (the detector's defaults), 10000 samples after the change.
 - ``calibration``: the detector alone on white unit innovations (2 outputs), calibrated on
   200 or 1000 samples: runs with an alarm within 20 000 samples, with the threshold of an exact
   calibration against the one that allows for the calibration's error (the default), 300 runs each.
@@ -51,7 +55,8 @@ import checkout
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--part", nargs="+",
-                     choices=("track", "delay", "stationary", "jump", "calibration", "short-reference", "louder"),
+                     choices=("track", "delay", "stationary", "jump", "calibration", "short-reference", "louder",
+                              "output-only"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -91,6 +96,7 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from scipy.signal import lfilter  # noqa: E402
 
 checkout.add()
 from okid_bench.changes import change_case  # noqa: E402
@@ -99,6 +105,7 @@ from okid_ros.cli import main as okid_ros_main  # noqa: E402
 from okid_ros.core.arx import fit_arx  # noqa: E402
 from okid_ros.core.change_detection import ChangeDetector, whitening_matrix  # noqa: E402
 from okid_ros.core.change_monitor import StructuralChangeMonitor  # noqa: E402
+from okid_ros.core.output_only import identify_output_only  # noqa: E402
 from okid_ros.core.pipeline import identify, identify_from_arx  # noqa: E402
 from okid_ros.core.state_jump import StateJumpTest  # noqa: E402
 from okid_ros.core.statespace import InnovationPredictor  # noqa: E402
@@ -400,10 +407,54 @@ def part_louder(factors=(1.5, 2.0, 3.0), after_samples: int = 10_000) -> None:
     print()
 
 
+#: The output-only part's changes of the unmeasured forces: their level, and their colour (a first-order pole).
+FORCE_CHANGES = {"forces x": [0.5, 2.0, 3.0], "forces low-passed, pole": [0.5, 0.8, 0.9, -0.5]}
+
+
+def _output_only_record(kind: str, size: float, seed: int, n_samples: int, change: int):
+    """``(case, y)``: a change of the structure (the delay part's) or of its forces at ``change``."""
+    if kind not in FORCE_CHANGES:
+        case = change_case(kind, size)
+        return case, case.simulate(n_samples, change, seed)[1]
+    case = change_case("frequency", 0.06)
+    u = case.make_input(n_samples, 100 + seed)
+    if kind == "forces x":
+        u[change:] *= size
+    else:
+        u[change:] = lfilter([np.sqrt(1 - size**2)], [1, -size], u[change:], axis=0)
+    return case, simulate_switched([case.before], [], u, seed=200 + seed)
+
+
+def part_output_only(after_samples: int = 10_000) -> None:
+    print(f"## output-only: the inputs unmeasured; the reference identify_output_only of the first {WINDOW + ORDER} "
+          f"samples, armed at their end, calibrated over the next 1000, the change 3000 samples after the "
+          f"arming; 'none' if not declared within {after_samples} samples after it")
+    print()
+    print("| change | size | seed | declared after (samples) | change point error (samples) | noise changes |")
+    print("|---|---|---|---|---|---|")
+    start, change = WINDOW + ORDER, WINDOW + ORDER + 3000
+    for kind, sizes in {**DELAY_SIZES, **FORCE_CHANGES}.items():
+        for seed in _args.seeds:
+            model = None
+            for size in sizes:
+                case, y = _output_only_record(kind, size, seed, change + after_samples, change)
+                no_inputs = np.zeros((y.shape[0], 0))
+                if model is None:
+                    model = identify_output_only(y[:start], case.sample_time_s)
+                monitor = armed(model, no_inputs[:start], y[:start])
+                alarm = monitor.process(no_inputs[start:], y[start:], start)
+                declared = "none" if alarm is None else str(alarm.alarm_index - change)
+                point = "-" if alarm is None else str(alarm.change_index - change)
+                print(f"| {kind} | {size:g} | {seed} | {declared} | {point} | {monitor.noise_changes} |")
+                sys.stdout.flush()
+    print()
+
+
 def main() -> int:
     for part in _args.part:
         {"track": part_track, "delay": part_delay, "stationary": part_stationary, "jump": part_jump,
-         "calibration": part_calibration, "short-reference": part_short_reference, "louder": part_louder}[part]()
+         "calibration": part_calibration, "short-reference": part_short_reference, "louder": part_louder,
+         "output-only": part_output_only}[part]()
     return 0
 
 
