@@ -67,6 +67,7 @@ from identification_accuracy import simulate_record  # noqa: E402
 from okid_bench.cases import benchmark_case, random_record  # noqa: E402
 from okid_bench.cases import random_case as io_random_case  # noqa: E402
 from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
+from okid_bench.physical_cases import physical_case  # noqa: E402
 from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
@@ -162,14 +163,18 @@ def random_input_output_case(index: int) -> FloorCase:
 def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     """An output-only case of ``bench/output_only.py`` driven by white forces alone (a finite-order truth).
 
-    ``random-K``: structure K of ``bench/output_only.py --cases random``, its record the one that
-    bench draws for it (seed K). The product's estimate: the modes ``identify_output_only`` lists
+    ``random-K`` / ``physical-K``: structure K of ``bench/output_only.py --cases random`` / ``physical``,
+    its record the one that bench draws for it (seed K; every mode scored, those the record does not
+    show too). The product's estimate: the modes ``identify_output_only`` lists
     with its defaults.
     """
     first_seed = 0
     if name.startswith("random-") and name[len("random-"):].isdigit():
         first_seed = int(name[len("random-"):])
         case = random_case(first_seed)
+    elif name.startswith("physical-") and name[len("physical-"):].isdigit():
+        first_seed = int(name[len("physical-"):])
+        case = physical_case(first_seed)
     else:
         case = output_only_case(name)
     if case.coloured_cutoff_hz is not None or case.harmonic_hz is not None:
