@@ -199,8 +199,9 @@ def load_any_record(path: str | Path, params: Sequence[str] = (), overrides: Seq
     path = Path(path)
     if path.suffix.lower() in RECORD_SUFFIXES:
         if params or overrides or sources:
-            warnings.warn(f"{shown_path(path)}: --params, --param and --source say how to read a bag's topics; a "
-                          "file holds its channels and sample time itself: ignored", OkidWarning, stacklevel=2)
+            warnings.warn(f"{shown_path(path)}: --params, --param and --source say how to read a bag's topics; "
+                          "a record file holds its channels and sample time itself: ignored", OkidWarning,
+                          stacklevel=2)
         return load_record(path, allow_nonfinite=allow_nonfinite), f"{path}"
     if not path.exists():
         raise DataError(f"{shown_path(path)}: no such file or bag")
