@@ -223,6 +223,9 @@ BAD_REFERENCES = {
     "imag_short": ({"shape_imag": [0.0]}, "shape_imag is not a list of 2 finite numbers"),
     "zero": ({"shape_real": [0, 0], "shape_imag": [0, 0]}, "its shape is all zero"),
     "freq_text": ({"frequency_hz": "fast"}, "frequency_hz is 'fast', not a finite number"),
+    "freq_negative": ({"frequency_hz": -5}, "frequency_hz is -5, not a frequency above 0 Hz and at most 500000 Hz"),
+    "freq_zero": ({"frequency_hz": 0.0}, "frequency_hz is 0.0, not a frequency above 0 Hz"),
+    "freq_huge": ({"frequency_hz": 1e308}, "frequency_hz is 1e+308, not a frequency above 0 Hz"),
 }
 
 
@@ -250,6 +253,18 @@ def test_a_malformed_reference_is_one_line_naming_it(record_file, tmp_path, caps
     assert err.startswith(f"okid-ros identify: error: --reference {reference}: ")  # not the record's name
     # The options are checked before the outputs: not even the figure folder is made.
     assert not out.exists() and not figures.exists()
+
+
+def test_a_reference_shape_of_huge_numbers_is_drawn_without_a_warning(record_file, tmp_path, capsys):
+    reference = tmp_path / "ref.json"
+    reference.write_text(json.dumps({"modes": [{**GOOD_MODE, "shape_real": [1e308, 1e308], "shape_imag": [0, 0]},
+                                               {**GOOD_MODE, "shape_real": [1e308, -1e308]}]}))
+    figures = tmp_path / "figs"
+    assert main(["identify", str(record_file), "--json", str(tmp_path / "m.json"), "--plot-dir", str(figures),
+                 "--reference", str(reference)]) == 0
+    said = capsys.readouterr().err.splitlines()  # the record is noise: only that is said (no overflow, no NaN)
+    assert [line for line in said if "warning" in line and "no dynamics identified" not in line] == []
+    assert (figures / "mac.png").exists()
 
 
 def test_a_reference_without_imaginary_parts_or_of_huge_numbers_is_compared():
