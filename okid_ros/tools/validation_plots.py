@@ -29,6 +29,7 @@ import numpy as np
 
 from okid_ros.core.options import HIGHEST_FREQUENCY_HZ, SAMPLE_TIME_RANGE_S
 from okid_ros.core.validation import h1_frf, mac_matrix, model_frf, output_singular_values
+from okid_ros.jsonio import finite_number
 
 __all__ = [
     "VALIDATION_FIGURES",
@@ -254,8 +255,7 @@ def mac_data(view: ModelView, reference: Sequence[Any] | None = None, *, referen
 def _shape_problem(mode: dict) -> str:
     """What is wrong with the shape of a reference mode ('' when nothing)."""
     def numbers(values) -> bool:
-        return isinstance(values, list) and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in values)
+        return isinstance(values, list) and all(map(finite_number, values))
 
     real, imag = mode.get("shape_real"), mode.get("shape_imag")
     if not numbers(real) or not real:
@@ -289,7 +289,7 @@ def reference_modes(modes: Any, source: str, n_outputs: int | None = None) -> li
         if not isinstance(mode, dict):
             raise ParameterError(f"{source}: mode {k} is not an object with frequency_hz and shape_real")
         frequency = mode.get("frequency_hz")
-        if isinstance(frequency, bool) or not isinstance(frequency, (int, float)) or not np.isfinite(frequency):
+        if not finite_number(frequency):
             raise ParameterError(f"{source}: mode {k}: frequency_hz is {frequency!r}, not a finite number")
         if not 0 < frequency <= HIGHEST_FREQUENCY_HZ:  # drawn as the MAC figure's labels (1e308: 309 digits)
             raise ParameterError(f"{source}: mode {k}: frequency_hz is {frequency!r}, not a frequency above 0 Hz and "

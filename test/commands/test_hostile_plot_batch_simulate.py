@@ -226,6 +226,9 @@ BAD_REFERENCES = {
     "freq_negative": ({"frequency_hz": -5}, "frequency_hz is -5, not a frequency above 0 Hz and at most 500000 Hz"),
     "freq_zero": ({"frequency_hz": 0.0}, "frequency_hz is 0.0, not a frequency above 0 Hz"),
     "freq_huge": ({"frequency_hz": 1e308}, "frequency_hz is 1e+308, not a frequency above 0 Hz"),
+    # JSON integers beyond 64 bits: numpy's isfinite raised TypeError, an internal error (exit 70)
+    "freq_int": ({"frequency_hz": 10**30}, f"frequency_hz is {10**30}, not a frequency above 0 Hz"),
+    "shape_int": ({"shape_real": [10**400, 1]}, "shape_real is not a non-empty list of finite numbers"),
 }
 
 
