@@ -334,6 +334,13 @@ SPOILT_RESULTS = {
     "random": (bytes(range(128, 256)), "unreadable"),
     "modes_text": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1.0, "model_id": 1, "modes": "abc"}]}',
                    "no list of modes"),
+    # JSON integers beyond float64: OverflowError, an internal error (exit 70), or one in the tables' floats
+    "huge_stamp": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1' + b"0" * 400 + b', "model_id": 1, '
+                   b'"modes": []}]}', "lacks its stamp_s"),
+    "huge_frequency": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1.0, "model_id": 1, "modes": '
+                       b'[{"id": 0, "frequency_rad_s": 1' + b"0" * 400 + b', "frequency_hz": 1.0, '
+                       b'"damping_ratio": 0.01}]}]}',
+                       "a mode's frequency_rad_s is 1000"),
 }
 
 
