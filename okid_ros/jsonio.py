@@ -18,11 +18,25 @@ import numpy as np
 
 from okid_ros.errors import replacing, write_atomically, writing
 
-__all__ = ["NOT_JSON", "to_strict", "dumps", "write_json"]
+__all__ = ["NOT_JSON", "finite_number", "to_strict", "dumps", "write_json"]
 
 #: What ``json.loads`` raises for a text that is no JSON: ValueError (UnicodeDecodeError among them),
 #: and RecursionError for arrays or objects nested some thousands deep (an internal error, exit 70, before).
 NOT_JSON = (ValueError, RecursionError)
+
+
+def finite_number(value: Any) -> bool:
+    """Whether a value read from JSON is a number float64 holds: an int or a finite float, not a bool.
+
+    JSON's integers have no bound: one beyond float64 (a 1 and 400 zeros) made math.isfinite raise
+    OverflowError, and numpy's isfinite TypeError from 2**64 on (an internal error, exit 70).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def to_strict(value: Any) -> Any:

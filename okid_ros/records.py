@@ -10,7 +10,8 @@
     A header line naming the columns, then one row per sample. Columns whose names start with
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
     appear (no ``u`` column: a record without inputs; a name such as ``uptime_s`` is a channel
-    too, with a warning); other columns are ignored (text too). The sample time comes from a
+    too, with a warning); other columns are ignored (text too), and a name read (a channel,
+    ``time_s``, ``stamp_s``) given twice is refused. The sample time comes from a
     comment line ``# sample_time_s=0.008`` (or ``: 0.008``; two that differ are refused, and so
     is one that a ``time_s`` column contradicts) or, failing that, from a ``time_s`` column. A
     ``time_s`` column must be a uniform grid (to the rounding of the times as written), with a
@@ -73,10 +74,7 @@ class Record:
 
         ``allow_nonfinite``: NaN/Inf samples are kept (missing samples, for ``track``).
         """
-        u = _as_real_array("u", self.u)
-        y = _as_real_array("y", self.y)
-        u = u[:, None] if u.ndim == 1 else u
-        y = y[:, None] if y.ndim == 1 else y
+        u, y = (arr[:, None] if arr.ndim == 1 else arr for arr in map(_as_real_array, ("u", "y"), (self.u, self.y)))
         if u.ndim != 2 or y.ndim != 2:
             raise DataError(f"u and y must be 2-D arrays (N, channels); got u{u.shape}, y{y.shape}")
         if u.shape[0] != y.shape[0]:
@@ -344,6 +342,9 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             raise DataError(f"{shown_path(path)}: data row {number} has {len(row)} values, the header {len(header)}"
                             f"{_separator_hint(header, body[0])}")
     _warn_commented_rows(path, commented, len(header), len(rows) - 1)
+    if repeated := sorted({header[i] for i in wanted(header) if header.count(header[i]) > 1}):  # read as 2 channels
+        names = ", ".join(f"{header.count(name)} columns {name!r}" for name in repeated)
+        raise DataError(f"{shown_path(path)}: the header names {names} (a column given twice?): rename or remove one")
     values = np.full((len(rows) - 1, len(header)), np.nan)
     for column in wanted(header):
         texts = [row[column] for row in rows[1:]]
@@ -433,9 +434,8 @@ def _load_csv(path: Path) -> Record:
 def _uniform_step(times: np.ndarray) -> tuple[float, float, str]:
     """The step of a time column, the rounding of its times and, if it is not a uniform grid, where not ("" if it is).
 
-    Uniform: every time within 1e-6 of a step of the grid from the first to the last, or within
-    the rounding of the times as written (``0.003`` for 1/300 s written to 3 decimals) or of
-    float64 (epoch seconds hold about 2e-7 s).
+    Uniform: every time within 1e-6 of a step of the grid from the first to the last, or within the rounding of
+    the times as written (``0.003`` for 1/300 s to 3 decimals) or of float64 (epoch seconds: about 2e-7 s).
     """
     steps = np.diff(times)
     if steps.size == 0 or not np.all(np.isfinite(steps)) or not np.all(steps > 0):

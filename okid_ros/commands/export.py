@@ -49,13 +49,37 @@ def run(args: argparse.Namespace) -> int:
     est_values = load_node_parameters(args.params, args.param, args.source)[1]
     from_bag = record_from_bag(args.bag, est_values)
     record = from_bag.record
+    note = _kept_note(from_bag)  # DataError where the run is too short for any command
     try:
         save_record(out, record.u, record.y, record.sample_time_s, stamp_s=from_bag.stamp_s)
     except OSError as exc:
         raise DataError(f"cannot write {shown_path(out)}: {exc}") from None
-    note = from_bag.rejection_note()
     if note:
         print(f"okid-ros export: warning: {shown_path(args.bag)}: {note}", file=sys.stderr)
     print(f"exported {from_bag.summary()} ({record.u.shape[1]} inputs, {record.y.shape[1]} outputs) "
           f"from {shown_path(args.bag)} -> {shown_path(out)}")
     return 0
+
+
+def _kept_note(from_bag) -> str:
+    """The warning on what the record leaves out of the bag ("" if nothing to say), or DataError.
+
+    The record is the longest contiguous run: one shorter than any command identifies from
+    (:func:`~okid_ros.tools.bag_record.fewest_usable_samples`) is refused with the cause; one that
+    leaves out a share worth saying (:func:`~okid_ros.tools.grid_hints.loss_worth_saying`) says the
+    share kept (a bag with many gaps wrote 13 of its 1393 samples, the warning naming only the gaps).
+    """
+    from okid_ros.errors import DataError
+    from okid_ros.tools.bag_record import fewest_usable_samples
+    from okid_ros.tools.grid_hints import loss_worth_saying
+
+    record, total, note = from_bag.record, from_bag.samples_total, from_bag.rejection_note()
+    (n, m), p = record.u.shape, record.y.shape[1]
+    run = (f"the longest of its {from_bag.runs} contiguous runs, {n} of the {total} samples ({100 * n / total:.2g} %)"
+           if from_bag.runs > 1 else f"its {n} samples")
+    if n < (fewest := fewest_usable_samples(p, m)):
+        raise DataError(f"{run}, is shorter than any command identifies from ({fewest} samples with {m} inputs and "
+                        f"{p} outputs)" + (f": {note}" if note else ""))
+    if loss_worth_saying(from_bag.samples_left_out, total):
+        return f"the record written is {run}" + (f"; {note}" if note else "")
+    return note

@@ -29,6 +29,7 @@ __all__ = [
     "RealizationOptions",
     "ArxOrderOptions",
     "SAMPLE_TIME_RANGE_S",
+    "HIGHEST_FREQUENCY_HZ",
     "sample_time_problem",
 ]
 
@@ -40,6 +41,8 @@ OFFSETS = ("remove", "none")
 #: lies inside, and the frequencies (1 / dt) and their squares stay far inside float64 (a record
 #: at 1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations).
 SAMPLE_TIME_RANGE_S = (1e-6, 3600.0)
+#: The highest frequency a record read can hold [Hz]: the Nyquist frequency of the shortest sample time.
+HIGHEST_FREQUENCY_HZ = 0.5 / SAMPLE_TIME_RANGE_S[0]
 
 
 def sample_time_problem(sample_time_s: Any) -> str | None:

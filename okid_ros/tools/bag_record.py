@@ -24,7 +24,7 @@ from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.errors import DataError, OkidWarning, shown_path
 from okid_ros.records import Record, bridged_bounds, load_record
 
-__all__ = ["BagRecord", "RECORD_SUFFIXES", "record_from_bag", "load_any_record"]
+__all__ = ["BagRecord", "RECORD_SUFFIXES", "fewest_usable_samples", "record_from_bag", "load_any_record"]
 
 RECORD_SUFFIXES = (".npz", ".csv")
 
@@ -109,6 +109,18 @@ def _rejected_messages(rejected: dict[str, int], messages: int, sample_time_s: f
     hint = rejection_hint(rejected, sample_time_s, messages=messages)
     text = f"{sum(rejected.values())} of the {messages} messages were rejected ({reasons})"
     return f"{text}; {hint}" if hint else text
+
+
+def fewest_usable_samples(n_outputs: int, n_inputs: int) -> int:
+    """The fewest contiguous samples any command identifies from, with these channels.
+
+    An ARX model of order 2, the smallest the realization takes (``check_record_length``; with
+    inputs), or output-only identification's :data:`~okid_ros.core.output_only_support.MIN_SAMPLES`.
+    """
+    from okid_ros.core.output_only_support import MIN_SAMPLES
+    from okid_ros.core.regressors import samples_for_order
+
+    return min(samples_for_order(2, n_outputs, n_inputs), MIN_SAMPLES) if n_inputs else MIN_SAMPLES
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:

@@ -10,10 +10,11 @@ figures.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
+
+from okid_ros.jsonio import finite_number
 
 __all__ = ["check_plot_metadata", "usable_process_info", "usable_stabilization", "usable_truth"]
 
@@ -21,17 +22,20 @@ _TRUTH_MATRICES = ("A", "B", "C", "D", "K")
 
 
 def _matrix(value: Any, name: str) -> np.ndarray:
+    finite = f"{name} is not a finite 2-D matrix"
     try:
         array = np.asarray(value, dtype=float)
+    except OverflowError:  # a JSON integer beyond float64 (exit 70 before)
+        raise ValueError(finite) from None
     except (TypeError, ValueError):
         raise ValueError(f"{name} is not a matrix of numbers") from None
     if array.ndim != 2 or not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} is not a finite 2-D matrix")
+        raise ValueError(finite)
     return array
 
 
 def _number(value: Any, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not finite_number(value):
         raise ValueError(f"{name} is not a finite number")
     return float(value)
 

@@ -170,7 +170,8 @@ class BagPlayer:
 
     Raises
     ------
-        BagReadError, ToolParameterError, ReplayError (at construction or start).
+        BagReadError, ToolParameterError, ReplayError (at construction or start); an OkidWarning at
+        construction when the topics played hold no message.
     """
 
     def __init__(
@@ -215,6 +216,10 @@ class BagPlayer:
                                    f"{', '.join(sorted(bag.topics)) or 'none'}")
             self.topics = wanted
             self.message_count = bag.message_count(wanted)
+        if not self.message_count:  # "replayed 0 messages", exit 0, was all it said (after waiting for subscribers)
+            where = f"on {', '.join(map(shown_path, wanted))}" if wanted else "(the bag has no topic)"
+            warnings.warn(f"{shown_path(self.path)}: no message to replay {where}: nothing is published",
+                          OkidWarning, stacklevel=2)
         bad_remaps = [t for t in self.remaps if t not in self.topics]
         if bad_remaps:
             raise ToolParameterError(f"--remap of {', '.join(bad_remaps)}: not a replayed topic "

@@ -27,7 +27,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from okid_ros.core.options import HIGHEST_FREQUENCY_HZ, SAMPLE_TIME_RANGE_S
 from okid_ros.core.validation import h1_frf, mac_matrix, model_frf, output_singular_values
+from okid_ros.jsonio import finite_number
 
 __all__ = [
     "VALIDATION_FIGURES",
@@ -253,8 +255,7 @@ def mac_data(view: ModelView, reference: Sequence[Any] | None = None, *, referen
 def _shape_problem(mode: dict) -> str:
     """What is wrong with the shape of a reference mode ('' when nothing)."""
     def numbers(values) -> bool:
-        return isinstance(values, list) and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in values)
+        return isinstance(values, list) and all(map(finite_number, values))
 
     real, imag = mode.get("shape_real"), mode.get("shape_imag")
     if not numbers(real) or not real:
@@ -269,9 +270,10 @@ def _shape_problem(mode: dict) -> str:
 def reference_modes(modes: Any, source: str, n_outputs: int | None = None) -> list[dict]:
     """Check the ``modes`` of a reference (an `okid-ros identify --json` document); returns them.
 
-    Each mode needs a finite ``frequency_hz`` and a shape: ``shape_real`` (and ``shape_imag``,
-    zero when left out: a real mode shape), finite numbers, not all zero, one per output of the
-    model (``n_outputs``, when given).
+    Each mode needs a ``frequency_hz`` above 0 and at most the highest a record can hold
+    (:data:`~okid_ros.core.options.HIGHEST_FREQUENCY_HZ`) and a shape: ``shape_real`` (and
+    ``shape_imag``, zero when left out: a real mode shape), finite numbers, not all zero, one per
+    output of the model (``n_outputs``, when given).
 
     Raises
     ------
@@ -287,8 +289,12 @@ def reference_modes(modes: Any, source: str, n_outputs: int | None = None) -> li
         if not isinstance(mode, dict):
             raise ParameterError(f"{source}: mode {k} is not an object with frequency_hz and shape_real")
         frequency = mode.get("frequency_hz")
-        if isinstance(frequency, bool) or not isinstance(frequency, (int, float)) or not np.isfinite(frequency):
+        if not finite_number(frequency):
             raise ParameterError(f"{source}: mode {k}: frequency_hz is {frequency!r}, not a finite number")
+        if not 0 < frequency <= HIGHEST_FREQUENCY_HZ:  # drawn as the MAC figure's labels (1e308: 309 digits)
+            raise ParameterError(f"{source}: mode {k}: frequency_hz is {frequency!r}, not a frequency above 0 Hz and "
+                                 f"at most {HIGHEST_FREQUENCY_HZ:g} Hz (the Nyquist frequency of a record sampled "
+                                 f"at {SAMPLE_TIME_RANGE_S[0]:g} s, the shortest sample time read)")
         problem = _shape_problem(mode)
         if not problem and n_outputs is not None and len(mode["shape_real"]) != n_outputs:
             problem = f"its shape has {len(mode['shape_real'])} entries, the record {n_outputs} outputs"

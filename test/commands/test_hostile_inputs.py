@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import warnings
 from pathlib import Path
 
@@ -124,6 +125,7 @@ CSV_CASES = {
     "no_y": ("# sample_time_s=0.01\nu1,u2\n1,2\n", "output columns"),
     "time_nan": ("u1,y1,time_s\n1,2,0\n3,4,nan\n5,6,0.2\n", "time_s is not uniformly"),
     "two_dt": ("# sample_time_s=0.01\nu1,y1\n1,2\n# sample_time_s=0.5\n3,4\n", "two different sample_time_s"),
+    "repeated_name": ("# sample_time_s=0.01\nu1,y1,y1\n1,2,2\n3,4,4\n", "the header names 2 columns 'y1'"),
     # A field past the csv module's limit (an unclosed quote swallows the rest of the file alike).
     "huge_field": ("# sample_time_s=0.01\ny1,note\n1,x\n2," + "x" * 140000 + "\n",
                    "not a CSV table the reader can take"),
@@ -183,6 +185,17 @@ def test_csv_columns_taken_by_their_first_letter_only_are_named(tmp_path: Path) 
     assert record.u.shape == (3, 2) and record.y.shape == (3, 3)
     path.write_text("# sample_time_s=0.01\nu,u_1,y1,Y-2,y.3\n1,2,3,4,5\n2,3,4,5,6\n")
     _load_without_warning(path)
+
+
+def test_a_column_name_given_twice_is_refused_unless_the_column_is_ignored(tmp_path: Path) -> None:
+    # 'u,y,y' was read as two outputs of one name, a second time_s column ignored, in silence.
+    path = tmp_path / "twice.csv"
+    for header, says in (("u,y,y", "'y'"), ("u1,u1,y1", "'u1'"), ("time_s,y1,time_s", "'time_s'")):
+        path.write_text(f"# sample_time_s=0.01\n{header}\n0,1,0\n0.01,3,0.01\n0.02,5,0.02\n")
+        with pytest.raises(DataError, match=re.escape(f"{path}: the header names 2 columns {says} ")):
+            load_record(path)
+    path.write_text("# sample_time_s=0.01\nnote,u1,y1,note\na,1,2,b\nc,3,4,d\ne,5,7,f\n")
+    assert load_record(path).y.shape == (3, 1)
 
 
 def test_a_commented_out_data_row_between_samples_is_named(tmp_path: Path) -> None:

@@ -223,6 +223,12 @@ BAD_REFERENCES = {
     "imag_short": ({"shape_imag": [0.0]}, "shape_imag is not a list of 2 finite numbers"),
     "zero": ({"shape_real": [0, 0], "shape_imag": [0, 0]}, "its shape is all zero"),
     "freq_text": ({"frequency_hz": "fast"}, "frequency_hz is 'fast', not a finite number"),
+    "freq_negative": ({"frequency_hz": -5}, "frequency_hz is -5, not a frequency above 0 Hz and at most 500000 Hz"),
+    "freq_zero": ({"frequency_hz": 0.0}, "frequency_hz is 0.0, not a frequency above 0 Hz"),
+    "freq_huge": ({"frequency_hz": 1e308}, "frequency_hz is 1e+308, not a frequency above 0 Hz"),
+    # JSON integers beyond 64 bits: numpy's isfinite raised TypeError, an internal error (exit 70)
+    "freq_int": ({"frequency_hz": 10**30}, f"frequency_hz is {10**30}, not a frequency above 0 Hz"),
+    "shape_int": ({"shape_real": [10**400, 1]}, "shape_real is not a non-empty list of finite numbers"),
 }
 
 
@@ -250,6 +256,18 @@ def test_a_malformed_reference_is_one_line_naming_it(record_file, tmp_path, caps
     assert err.startswith(f"okid-ros identify: error: --reference {reference}: ")  # not the record's name
     # The options are checked before the outputs: not even the figure folder is made.
     assert not out.exists() and not figures.exists()
+
+
+def test_a_reference_shape_of_huge_numbers_is_drawn_without_a_warning(record_file, tmp_path, capsys):
+    reference = tmp_path / "ref.json"
+    reference.write_text(json.dumps({"modes": [{**GOOD_MODE, "shape_real": [1e308, 1e308], "shape_imag": [0, 0]},
+                                               {**GOOD_MODE, "shape_real": [1e308, -1e308]}]}))
+    figures = tmp_path / "figs"
+    assert main(["identify", str(record_file), "--json", str(tmp_path / "m.json"), "--plot-dir", str(figures),
+                 "--reference", str(reference)]) == 0
+    said = capsys.readouterr().err.splitlines()  # the record is noise: only that is said (no overflow, no NaN)
+    assert [line for line in said if "warning" in line and "no dynamics identified" not in line] == []
+    assert (figures / "mac.png").exists()
 
 
 def test_a_reference_without_imaginary_parts_or_of_huge_numbers_is_compared():
@@ -316,6 +334,13 @@ SPOILT_RESULTS = {
     "random": (bytes(range(128, 256)), "unreadable"),
     "modes_text": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1.0, "model_id": 1, "modes": "abc"}]}',
                    "no list of modes"),
+    # JSON integers beyond float64: OverflowError, an internal error (exit 70), or one in the tables' floats
+    "huge_stamp": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1' + b"0" * 400 + b', "model_id": 1, '
+                   b'"modes": []}]}', "lacks its stamp_s"),
+    "huge_frequency": (b'{"status": "ok", "label": "x", "updates": [{"stamp_s": 1.0, "model_id": 1, "modes": '
+                       b'[{"id": 0, "frequency_rad_s": 1' + b"0" * 400 + b', "frequency_hz": 1.0, '
+                       b'"damping_ratio": 0.01}]}]}',
+                       "a mode's frequency_rad_s is 1000"),
 }
 
 

@@ -117,6 +117,25 @@ def test_a_topic_listed_twice_is_replayed_as_one(short_bag):
     assert player.topics == [IO_SAMPLE_TOPIC]
 
 
+@pytest.mark.dds  # a node and its publisher, nothing published
+def test_a_bag_without_messages_on_its_topics_is_said(capsys, tmp_path, short_bag):
+    """Was: "replayed 0 messages on 1 topics", exit 0, and not a word more."""
+    import warnings
+
+    from okid_ros.tools.bagio import BagWriter
+
+    empty = tmp_path / "empty"
+    with BagWriter(empty) as writer:
+        writer.add_topic(IO_SAMPLE_TOPIC, "okid_msgs/msg/IoSample")
+    assert cli.main(["replay", "--delay", "0", str(empty)]) == 0
+    err = capsys.readouterr().err
+    assert f"okid-ros replay: warning: {empty}: no message to replay on {IO_SAMPLE_TOPIC}: nothing is published" \
+        in err, err
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        BagPlayer(short_bag, log=lambda line: None)  # messages to replay: nothing said
+
+
 def test_two_topics_of_one_type_remapped_onto_one_are_named():
     """Two accelerometers on one topic: their messages interleave (was: said by nothing)."""
     from okid_ros.errors import OkidWarning

@@ -74,6 +74,11 @@ def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
     ("okid_ros.truth", '{"A": [[1, 0], [0, 1]], "B": [[1]], "C": [[1, 0]], "D": [[0]], "K": [[0], [0]]}',
      "matrix sizes do not fit together (B (1, 1))"),
     ("okid_ros.truth", '{"A": "x", "B": [], "C": [], "D": [], "K": []}', "A is not a matrix of numbers"),
+    # JSON integers beyond float64: OverflowError, an internal error (exit 70)
+    ("okid_ros.truth", '{"modes": [{"frequency_hz": 1' + "0" * 400 + ', "damping_ratio": 0.1}]}',
+     "a mode's frequency_hz is not a finite number"),
+    ("okid_ros.truth", '{"A": [[1' + "0" * 400 + ']], "B": [[1]], "C": [[1]], "D": [[0]], "K": [[0]]}',
+     "A is not a finite 2-D matrix"),
     ("okid_ros.stabilization", '[{"n_states": "x", "poles": []}]', "n_states is not an integer"),
     ("okid_ros.process", '{"parameters": {"x": 1}}', "no object for okid_modal_estimator"),
 ])

@@ -11,11 +11,10 @@ replaced by the complete folder of a new run (:func:`okid_ros.tools.campaign.man
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 from okid_ros.errors import one_line, shown_path
-from okid_ros.jsonio import NOT_JSON
+from okid_ros.jsonio import NOT_JSON, finite_number
 from okid_ros.tools.campaign.manifest import MANIFEST_NAME
 
 __all__ = ["label_problem", "result_problem", "stored_result"]
@@ -28,11 +27,8 @@ _MODE_OPTIONAL = ("mpc", "msv", "emac", "frequency_hz_std", "damping_ratio_std",
 
 
 def _number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _finite(value: object) -> bool:
-    return _number(value) and math.isfinite(value)
+    """A number float64 holds (NaN too, as json reads it); an integer beyond float64 is none (exit 70 before)."""
+    return finite_number(value) or isinstance(value, float)
 
 
 def label_problem(label: object) -> str:
@@ -66,7 +62,7 @@ def _mode_problem(mode: object) -> str:
 def _update_problem(update: object) -> str:
     if not isinstance(update, dict):
         return "a model update is not an object"
-    if not _finite(update.get("stamp_s")) or not isinstance(update.get("model_id"), int):
+    if not finite_number(update.get("stamp_s")) or not isinstance(update.get("model_id"), int):
         return "a model update lacks its stamp_s or model_id"
     for name in ("arx_model_id", "n_states"):
         if name in update and not isinstance(update[name], int):
