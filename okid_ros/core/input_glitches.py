@@ -1,4 +1,4 @@
-"""Input glitches kept out of node 1's window: one input sample absurdly far outside its channel's spread.
+"""Input glitches kept out of both nodes: one input sample absurdly far outside its channel's spread.
 
 An output glitch is judged by the model's prediction (:mod:`.arx_glitches`); an input has no
 prediction, and a large input is often real (an impact hammer's blow lies thousands of the
@@ -13,7 +13,8 @@ the paper's structure that mean left the ARX fits closer to the clean record's t
 lag history or the channel's median did. Otherwise it goes in as it came; so does the second
 sample of a run beyond the bound (an excitation switched on over a quiet floor). A channel of
 spread 0 (an input held at one value, exactly 0 between blows) is not judged: nothing to judge by.
-No rclpy; numpy only.
+Node 2's estimator cannot wait for the next sample: it refuses a glitch at once (:meth:`InputGlitchGate.refused`),
+as a sample beyond 1e150. No rclpy; numpy only.
 """
 
 from __future__ import annotations
@@ -78,6 +79,20 @@ class InputGlitchGate:
             self._centre = np.median(recent, axis=0)
             spread = MAD_TO_STD * np.median(np.abs(recent - self._centre), axis=0)
             self._limit = np.where(spread > 0, INPUT_GLITCH_SPREADS * spread, np.inf)
+
+    def refused(self, u: np.ndarray) -> bool:
+        """Judge ``u`` (m,) at once, for a path that cannot wait for the next sample (node 2): True for a glitch.
+
+        By the same bound; without the next sample a glitch is any sample beyond it after one within
+        it, so the first sample of an excitation switched on is refused too (and the rest taken).
+        """
+        far = self.n_inputs > 0 and bool(self._far(u).any())
+        after_far, self._after_far = self._after_far, far
+        if far and not after_far:
+            self.glitches += 1
+            return True
+        self._passed(u)
+        return False
 
     def offer(self, u: np.ndarray, y: np.ndarray, tag: object = None) -> list[tuple[np.ndarray, np.ndarray, object]]:
         """One sample ``u`` (m,), ``y`` (p,); returns the samples ``(u, y, tag)`` now due, in order.

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
+from okid_bench.live_chain import chain_modes
 from okid_ros.core.arx import fit_from_normal_equations
 from okid_ros.core.input_glitches import INPUT_GLITCH_SPREADS
 from okid_ros.core.recursive import SlidingWindowArx
+from okid_ros.service.estimation import ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
-from okid_ros.service.params import ARX_NODE, resolve_parameters
+from okid_ros.service.options import ModalEstimationParams
+from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 # The live fault rig's node 1 (test/fault_rig.py): models within seconds, a solve twice a second.
@@ -103,3 +108,36 @@ def test_an_excitation_switched_on_over_a_rounding_floor_goes_in_as_it_came(reco
     assert service.diagnostics()["input_glitches"] == 0
     u_window = service.window_samples()[0]
     np.testing.assert_array_equal(u_window, switched[-u_window.shape[0]:])
+
+
+def test_input_spikes_of_1e149_cost_the_live_chain_no_mode():
+    # Both nodes (as `process` and the live nodes run them): node 2's estimator stepped the spikes as
+    # they came, its states driven to 1e149 (numpy's overflow warnings, a change declared); the chain
+    # found 36 of the clean record's 55 modes with node 1's models off, 9 with node 1's alone right.
+    # Node 2 refuses such a sample as one beyond 1e150 (a gap of one, bridged by the model).
+    model = paper_model()
+    u = lowpass_input(12000, 2, 15.0, model.sample_time_s, seed=5)
+    y, _ = simulate_innovation(model, u, seed=6)
+    spiked = u.copy()
+    spiked[3000::SPIKE_EVERY, 0] = 1e149
+    clean = chain_modes(model, u, y, order=30, window=2000, every=500)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        chain = chain_modes(model, spiked, y, order=30, window=2000, every=500)
+    assert chain.changes == clean.changes == 0 and chain.updates >= clean.updates - 1
+    assert chain.found >= clean.found - 1 and chain.spurious <= clean.spurious + 1
+
+
+def test_node_2_refuses_an_input_glitch_and_counts_it_and_takes_a_hammers_blows(record):
+    dt, u, y = record
+    params = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, {"sample_time_s": dt}))
+    spiked = u.copy()
+    spiked[SPIKES_FROM::SPIKE_EVERY, 1] = -1e149
+    blows = u.copy()
+    blows[SPIKES_FROM::SPIKE_EVERY, 1] = 5e3 * np.median(np.abs(u[:, 1] - np.median(u[:, 1])))
+    for inputs, glitches in ((spiked, len(range(SPIKES_FROM, u.shape[0], SPIKE_EVERY))), (blows, 0), (u, 0)):
+        service = ModalEstimationService(params)
+        for k in range(u.shape[0]):
+            service.step(k * dt, inputs[k], y[k])
+        diagnostics = service.diagnostics()
+        assert diagnostics["input_glitches"] == diagnostics["rejected_samples"] == glitches
