@@ -23,7 +23,8 @@ import numpy as np
 
 from okid_ros.core.output_spikes import MAD_TO_STD
 
-__all__ = ["INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate"]
+__all__ = ["INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate", "input_glitch_warning",
+           "without_input_glitches"]
 
 #: Robust standard deviations of its channel beyond which an input is a glitch candidate. The
 #: impact-hammer records of the tests reach 5e3 (blows of 50 over a quiet force of 0.01), a
@@ -121,3 +122,27 @@ class InputGlitchGate:
             return due
         self._passed(u)
         return due + [(u, y, tag)]
+
+
+def without_input_glitches(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A record's inputs ``u`` (N, m) with each glitch replaced as node 1's window takes it (``track``).
+
+    Returns the inputs (a new array) and the glitches' samples (K,). A missing sample (NaN/Inf)
+    breaks the stream as a gap does on node 1; the record's last sample, held, goes on as it came.
+    """
+    gate, out, glitches = InputGlitchGate(u.shape[1]), u.copy(), []
+    finite = np.isfinite(u).all(axis=1)
+    for k in range(u.shape[0]):
+        for u_due, _, j in gate.offer(u[k], u[k], k) if finite[k] else gate.gap():
+            if not np.array_equal(u_due, u[j]):
+                out[j] = u_due
+                glitches.append(j)
+    return out, np.array(glitches, dtype=np.int64)
+
+
+def input_glitch_warning(samples: np.ndarray) -> str:
+    """What a record's input glitches (their samples, (K,)) are said as."""
+    shown = ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")
+    return (f"{samples.size} input sample(s) lie alone beyond {INPUT_GLITCH_SPREADS:.0e} robust standard deviations "
+            f"of their channel ({shown}): glitches, no measured force; each replaced by the mean of its neighbours, "
+            "as node 1 takes them")
