@@ -273,6 +273,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
     from okid_ros.core.channels import group_scales
     from okid_ros.core.excitation import output_problem
+    from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
     from okid_ros.core.scaling import covariance_range_problem
     from okid_ros.errors import DataError
     from okid_ros.records import channel_without_values
@@ -290,6 +291,9 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     u = record.u[:, :0] if args.output_only else record.u
     if problem := channel_without_values(u, record.y):
         raise DataError(problem)
+    u, glitches = without_input_glitches(u)  # as node 1's window takes them (core/input_glitches.py)
+    if glitches.size:
+        print(f"okid-ros track: warning: {input_glitch_warning(glitches)}", file=sys.stderr)
     if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
         print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     if ignored := _turned_off(args):

@@ -82,6 +82,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.change_detection import whitening_matrix
 from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.input_glitches import InputGlitchGate
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.realization_window import newest_run_start
@@ -148,6 +149,7 @@ class ModalEstimationService:
             self._stats = EstimationStats()
             self._u_prev: np.ndarray | None = None
             self._refused = 0  # samples refused since the last one stepped: a gap before the next
+            self._inputs = InputGlitchGate(self.params.n_inputs)
             self._selection = ModelSelection(self.params, self._stats)
             self._watch = InnovationWatch(self.params, self._buffer, self._stats)
             self._jump = SwitchJump(self._stats)
@@ -328,8 +330,10 @@ class ModalEstimationService:
         u, y = np.asarray(u, dtype=float).reshape(-1), np.asarray(y, dtype=float).reshape(-1)
         # Node 1's rule: wrong size, NaN/Inf or beyond 1e150 refused, counted, a missing slot before the next
         # (a finite 1e200 would overflow the estimator's, the watchdog's and the change test's squares).
-        if u.size != prm.n_inputs or y.size != prm.n_outputs or not in_bound(u, y):
+        absurd = u.size != prm.n_inputs or y.size != prm.n_outputs or not in_bound(u, y)
+        if absurd or self._inputs.refused(u):  # so is an input glitch, by node 1's bound (core/input_glitches.py)
             st.rejected_samples += 1
+            st.input_glitches += int(not absurd)
             self._refused += 1
             return None
         if self._refused:

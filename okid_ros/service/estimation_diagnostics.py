@@ -32,6 +32,7 @@ def estimation_diagnostics(stats: EstimationStats, buffer: SampleBuffer, watch: 
     return {
         "samples": st.samples,
         "rejected_samples": st.rejected_samples,
+        "input_glitches": st.input_glitches,
         "buffer_samples": min(buffer.count, buffer.cap),
         "buffer_capacity": buffer.cap,
         "arx_models_received": st.arx_received,

@@ -21,7 +21,8 @@ counted; its stamp is checked by the sample grid's rule
 (:class:`okid_ros.service.sample_grid.StampSequence`: it must advance by more than half a sample
 time over the previous accepted one, else duplicate or out of order: rejected and counted); a
 step of more than 1.5 sample times, or ``gap_before``, breaks the lag history so that no
-regressor spans the gap.
+regressor spans the gap. A glitch (one sample far off) goes in as its estimate, counted: an output's as the
+last fit's prediction (:mod:`okid_ros.core.arx_glitches`), an input's as its neighbours' mean (``input_glitches``).
 
 Structural change (:meth:`ArxIdentificationService.restart_at`): node 2 declares a change and
 its estimated first sample; the window is rebuilt from the recent samples from that stamp on
@@ -43,21 +44,15 @@ import numpy as np
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
+from okid_ros.core.input_glitches import InputGlitchGate
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
 
-__all__ = [
-    "ArxIdentificationParams",
-    "ArxIdentificationService",
-    "ArxSnapshot",
-    "WindowCapture",
-    "SolveResult",
-    "restart_window",
-    "solve_capture",
-]
+__all__ = ["ArxIdentificationParams", "ArxIdentificationService", "ArxSnapshot", "WindowCapture", "SolveResult",
+           "restart_window", "solve_capture"]
 
 
 #: How far after the newest sample of the window a structural change may be stamped: node 1 may
@@ -255,6 +250,7 @@ class ArxIdentificationService:
         self._recent = SampleBuffer(memory + params.order + 64, params.n_inputs, params.n_outputs)
         self._stamps = StampSequence(params.sample_time_s)
         self._gate = ArxGlitchGate(params.order, params.n_outputs, params.n_inputs)
+        self._inputs = InputGlitchGate(params.n_inputs)  # before the output gate: it judges by the inputs
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -267,6 +263,7 @@ class ArxIdentificationService:
         self._health = _Health()
         self._stamps.reset()
         self._gate.forget_model()
+        self._inputs.forget()
         self._last_good: ArxFit | None = None
         self._last_good_penalty = math.nan
         self._model_id = 0
@@ -305,10 +302,9 @@ class ArxIdentificationService:
         gap_before : the caller knows samples are missing before this one (or time restarted):
             the lag history is broken and the stamp need not advance.
         """
-        c = self._counters
+        c, prm = self._counters, self.params
         c.samples_seen += 1
         gaps_before = c.gaps
-        prm = self.params
         u = np.asarray(u, dtype=float).reshape(-1)
         y = np.asarray(y, dtype=float).reshape(-1)
         if u.size != prm.n_inputs or y.size != prm.n_outputs:
@@ -327,7 +323,7 @@ class ArxIdentificationService:
             return False
         bounded = in_bound(u, y)
         if step is StampStep.GAP or not bounded:
-            self._enter(self._gate.gap(), gap=False)  # a held sample goes in before the history breaks
+            self._flush()
         if step is StampStep.GAP:
             self._est.mark_gap()
             c.gaps += 1
@@ -336,16 +332,20 @@ class ArxIdentificationService:
             c.rejected_magnitude += 1
             return False
         self._stamps.accept(stamp_s)
-        self._enter(self._gate.offer(u, y, stamp_s), gap=c.gaps != gaps_before)
+        self._enter([out for due in self._inputs.offer(u, y, (stamp_s, c.gaps != gaps_before))
+                     for out in self._gate.offer(*due)])
         c.samples_used += 1
         return True
 
-    def _enter(self, due: list, *, gap: bool) -> None:
-        """Samples ``(u, y, stamp_s)`` the glitch gate lets into the window (the first after ``gap``)."""
-        for u, y, stamp_s in due:
+    def _flush(self) -> None:
+        """The glitch gates' held samples into the window as they came, before its history breaks."""
+        self._enter([out for due in self._inputs.gap() for out in self._gate.offer(*due)] + self._gate.gap())
+
+    def _enter(self, due: list) -> None:
+        """Samples ``(u, y, (stamp_s, after a gap))`` the glitch gates let into the window."""
+        for u, y, (stamp_s, gap) in due:
             self._est.push(u, y)
             self._recent.append(stamp_s, u, y, int(gap))
-            gap = False
 
     def restart_at(self, change_stamp_s: float) -> int:
         """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
@@ -368,7 +368,7 @@ class ArxIdentificationService:
                 or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
             c.restarts_ignored += 1
             return -1
-        self._enter(self._gate.gap(), gap=False)  # a held sample is part of the samples to replay
+        self._flush()  # a held sample is part of the samples to replay
         first = self._recent.first_at_or_after(change_stamp_s, tol)
         if first < 0:
             first = self._recent.count  # nothing after the change yet: an empty window
@@ -415,11 +415,9 @@ class ArxIdentificationService:
             self._gate.set_model(result.fit, window_intercept(capture.normal, result.fit)
                                  if capture.params.offsets == "remove" else None)
         h = self._health
-        h.snapshots += 1
-        h.valid_snapshots += int(valid)
-        h.last_reason = result.reason
-        h.last_condition_number = result.condition_number
-        h.last_solve_time_s = result.solve_time_s
+        h.snapshots, h.valid_snapshots = h.snapshots + 1, h.valid_snapshots + int(valid)
+        h.last_reason, h.last_condition_number, h.last_solve_time_s = (result.reason, result.condition_number,
+                                                                      result.solve_time_s)
         self._model_id += 1
         prm = self.params
         return ArxSnapshot(
@@ -483,6 +481,7 @@ class ArxIdentificationService:
             "rejected_magnitude": c.rejected_magnitude,
             "gaps": c.gaps,
             "glitches": self._gate.glitches,  # samples whose outputs went in as their prediction
+            "input_glitches": self._inputs.glitches,  # ... whose inputs went in as their neighbours' mean
             "window_restarts": c.window_restarts,
             "window_restarts_ignored": c.restarts_ignored,
             "last_restart_stamp_s": c.last_restart_stamp_s,

@@ -227,6 +227,7 @@ class EstimationStats:
 
     samples: int = 0
     rejected_samples: int = 0
+    input_glitches: int = 0  # of them: an input absurdly far beyond its spread (core/input_glitches.py)
     arx_received: int = 0
     arx_replaced: int = 0
     arx_refused: int = 0

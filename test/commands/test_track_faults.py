@@ -202,3 +202,22 @@ def test_a_re_zero_the_change_test_finds_is_taken_off_as_node_2_does(tmp_path, c
     found, spurious, changes = scored(_track(tmp_path, u, stepped, "--states", "auto", "--force"))
     assert "changes level at sample 4123" in capsys.readouterr().err
     assert changes == 0 and found >= clean[0] - 1 and spurious <= clean[1] + 1, (clean, found, spurious)
+
+
+def test_input_glitches_of_1e149_are_taken_as_node_1_takes_them(record, tmp_path, capsys):
+    # An input of 1e149 every half second (no force: a bit error in its exponent): track named input 0
+    # "clipped" and its windows held the spikes as they came: the first update found one of the clean record's
+    # three modes, the next the 5.9 Hz mode's damping twice the clean record's. Node 1's rule now replaces each
+    # by its neighbours' mean (core/input_glitches.py) and says so.
+    u, y = record
+    clean = _track(tmp_path, u, y)
+    capsys.readouterr()
+    spiked = u.copy()
+    spiked[400::62, 0] = 1e149
+    lines = _track(tmp_path, spiked, y, "--force")
+    said = _warnings(capsys.readouterr().err)
+    assert len(said) == 1 and said[0].startswith("okid-ros track: warning: 36 input sample(s) lie alone beyond 1e+09")
+    assert [len(line["modes"]) for line in lines] == [len(line["modes"]) for line in clean]
+    for key, tolerance in (("frequency_hz", 0.002), ("damping_ratio", 0.3)):
+        values = [[m[key] for m in line["modes"]] for line in (*clean, *lines)]
+        np.testing.assert_allclose(values[len(clean):], values[:len(clean)], rtol=tolerance)

@@ -1,0 +1,148 @@
+"""Input glitches kept out of both nodes: one input sample absurdly far outside its channel's spread.
+
+An output glitch is judged by the model's prediction (:mod:`.arx_glitches`); an input has no
+prediction, and a large input is often real (an impact hammer's blow lies thousands of the
+force's quiet spreads off). So an input sample is a glitch *candidate* only when some input lies
+beyond :data:`INPUT_GLITCH_SPREADS` robust standard deviations (1.4826 times the median absolute
+deviation) from its channel's median over the last :data:`INPUT_SPREAD_SAMPLES` samples passed on,
+a multiple no acquisition resolves (a 24-bit converter spans 1.7e7 of its steps); it is a glitch
+when the next sample's inputs are all within that bound again, as an output glitch's successor
+must be as the model expects. A glitch goes into the window with its far inputs replaced by the
+mean of that input before and after it (the next alone after a gap), the rest as they came: on
+the paper's structure that mean left the ARX fits closer to the clean record's than a gap in the
+lag history or the channel's median did. Otherwise it goes in as it came; so does the second
+sample of a run beyond the bound (an excitation switched on over a quiet floor). A channel of
+spread 0 (an input held at one value, exactly 0 between blows) is not judged: nothing to judge by.
+Node 2's estimator cannot wait for the next sample: it refuses a glitch at once (:meth:`InputGlitchGate.refused`),
+as a sample beyond 1e150. No rclpy; numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from okid_ros.core.output_spikes import MAD_TO_STD
+
+__all__ = ["INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate", "input_glitch_warning",
+           "without_input_glitches"]
+
+#: Robust standard deviations of its channel beyond which an input is a glitch candidate. The
+#: impact-hammer records of the tests reach 5e3 (blows of 50 over a quiet force of 0.01), a
+#: 24-bit converter's full scale over one step 1.7e7; a force of 1e149 N lies at about 1e149.
+INPUT_GLITCH_SPREADS = 1e9
+#: The inputs passed on that give each channel's median and spread (refreshed every quarter of them).
+INPUT_SPREAD_SAMPLES = 1024
+
+
+class InputGlitchGate:
+    """One-sample verdicts on input glitches before node 1's window (see the module docstring).
+
+    Parameters
+    ----------
+    n_inputs : m.
+    """
+
+    def __init__(self, n_inputs: int) -> None:
+        self.n_inputs = int(n_inputs)
+        self._recent = np.zeros((INPUT_SPREAD_SAMPLES, self.n_inputs))
+        self._held: tuple[np.ndarray, np.ndarray, object] | None = None
+        self.forget()
+
+    def forget(self) -> None:
+        """Forget the inputs seen, the spread and any held sample (a reset of the window)."""
+        self._seen = 0
+        self._limit: np.ndarray | None = None
+        self._centre = np.zeros(self.n_inputs)
+        self.glitches = 0
+        self.gap()
+
+    def gap(self) -> list[tuple[np.ndarray, np.ndarray, object]]:
+        """The sample stream breaks here: the held sample, if any, as it came (no neighbour after it)."""
+        held = [] if self._held is None else [self._held]
+        self._held = None
+        self._previous: np.ndarray | None = None
+        self._after_far = False  # the last sample offered lay beyond the bound
+        return held
+
+    def _far(self, u: np.ndarray) -> np.ndarray:
+        """The inputs of ``u`` (m,) beyond the bound: (m,) bool (all False before a spread is known)."""
+        if self._limit is None:
+            return np.zeros(self.n_inputs, bool)
+        return np.abs(u - self._centre) > self._limit
+
+    def _passed(self, u: np.ndarray) -> None:
+        """Remember an input that goes on as it came; refresh the spread every quarter of the span."""
+        self._recent[self._seen % INPUT_SPREAD_SAMPLES] = u
+        self._seen += 1
+        self._previous = u
+        if self._seen % (INPUT_SPREAD_SAMPLES // 4) == 0:
+            recent = self._recent[: min(self._seen, INPUT_SPREAD_SAMPLES)]
+            self._centre = np.median(recent, axis=0)
+            spread = MAD_TO_STD * np.median(np.abs(recent - self._centre), axis=0)
+            self._limit = np.where(spread > 0, INPUT_GLITCH_SPREADS * spread, np.inf)
+
+    def refused(self, u: np.ndarray) -> bool:
+        """Judge ``u`` (m,) at once, for a path that cannot wait for the next sample (node 2): True for a glitch.
+
+        By the same bound; without the next sample a glitch is any sample beyond it after one within
+        it, so the first sample of an excitation switched on is refused too (and the rest taken).
+        """
+        far = self.n_inputs > 0 and bool(self._far(u).any())
+        after_far, self._after_far = self._after_far, far
+        if far and not after_far:
+            self.glitches += 1
+            return True
+        self._passed(u)
+        return False
+
+    def offer(self, u: np.ndarray, y: np.ndarray, tag: object = None) -> list[tuple[np.ndarray, np.ndarray, object]]:
+        """One sample ``u`` (m,), ``y`` (p,); returns the samples ``(u, y, tag)`` now due, in order.
+
+        Empty when the sample is held for the next one's verdict; two samples when a held one is
+        judged by this one. Without inputs every sample is passed on at once.
+        """
+        if self.n_inputs == 0:
+            return [(u, y, tag)]
+        far_inputs = self._far(u)
+        far = bool(far_inputs.any())
+        after_far, self._after_far = self._after_far, far
+        due = []
+        if self._held is not None:
+            (u_held, y_held, tag_held), held_far = self._held, self._held_far
+            self._held = None
+            if far:  # not alone: as it came
+                self._passed(u_held)
+                due.append((u_held, y_held, tag_held))
+            else:
+                self.glitches += 1
+                before = u if self._previous is None else self._previous
+                due.append((np.where(held_far, 0.5 * (before + u), u_held), y_held, tag_held))
+        if far and not after_far:  # a glitch is one sample: the second of a run goes on as it came
+            self._held, self._held_far = (u, y, tag), far_inputs
+            return due
+        self._passed(u)
+        return due + [(u, y, tag)]
+
+
+def without_input_glitches(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A record's inputs ``u`` (N, m) with each glitch replaced as node 1's window takes it (``track``).
+
+    Returns the inputs (a new array) and the glitches' samples (K,). A missing sample (NaN/Inf)
+    breaks the stream as a gap does on node 1; the record's last sample, held, goes on as it came.
+    """
+    gate, out, glitches = InputGlitchGate(u.shape[1]), u.copy(), []
+    finite = np.isfinite(u).all(axis=1)
+    for k in range(u.shape[0]):
+        for u_due, _, j in gate.offer(u[k], u[k], k) if finite[k] else gate.gap():
+            if not np.array_equal(u_due, u[j]):
+                out[j] = u_due
+                glitches.append(j)
+    return out, np.array(glitches, dtype=np.int64)
+
+
+def input_glitch_warning(samples: np.ndarray) -> str:
+    """What a record's input glitches (their samples, (K,)) are said as."""
+    shown = ", ".join(str(int(k)) for k in samples[:5]) + (", ..." if samples.size > 5 else "")
+    return (f"{samples.size} input sample(s) lie alone beyond {INPUT_GLITCH_SPREADS:.0e} robust standard deviations "
+            f"of their channel ({shown}): glitches, no measured force; each replaced by the mean of its neighbours, "
+            "as node 1 takes them")
