@@ -141,13 +141,38 @@ def _record_problem(record, output_only: bool) -> str:
     return ""
 
 
+def _checked_record(record, output_only: bool):
+    """``record`` with its input glitches replaced as node 1 and ``track`` replace them; DataError for a problem.
+
+    The problem is :func:`_record_problem`'s (named with the record by ``run_command``). An input of
+    1e149 between ordinary ones (a bit error in a force's exponent) was named clipping, its mean taken
+    off as an offset of 1e147, and the fits fell by half: it is replaced by its neighbours' mean, as
+    node 1's window takes it (:mod:`okid_ros.core.input_glitches`), and said in one warning.
+    """
+    import dataclasses
+    import sys
+
+    from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
+    from okid_ros.errors import DataError
+
+    if problem := _record_problem(record, output_only):
+        raise DataError(problem)
+    if output_only:
+        return record
+    u, glitches = without_input_glitches(record.u)
+    if not glitches.size:
+        return record
+    print(f"okid-ros identify: warning: {input_glitch_warning(glitches)}", file=sys.stderr)
+    return dataclasses.replace(record, u=u)
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
     import time
     from pathlib import Path
 
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.errors import DataError, OutputError, ParameterError, writing
+    from okid_ros.errors import OutputError, ParameterError, writing
     from okid_ros.jsonio import write_json
     from okid_ros.records import bridged_run, longest_present_run
     from okid_ros.tools.bag_record import load_any_record
@@ -157,8 +182,7 @@ def run(args: argparse.Namespace) -> int:
     _check_outputs(args, outputs)
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
-    if problem := _record_problem(record, output_only):
-        raise DataError(problem)  # named with the record by run_command
+    record = _checked_record(record, output_only)
     ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _gain_options_ignored(args)
     if ignored:
         print(f"okid-ros identify: warning: {ignored}", file=sys.stderr)
