@@ -19,6 +19,7 @@ __all__ = [
     "StateSpaceDimensions",
     "as_matrix",
     "InnovationPredictor",
+    "held_input_response",
     "free_parameters",
     "one_step_prediction",
     "predictor_states",
@@ -300,7 +301,7 @@ class InnovationPredictor:
         self.x = np.zeros(n) if state is None else np.asarray(state, dtype=float).reshape(n).copy()
 
     def __getattr__(self, name: str) -> np.ndarray:
-        """``F``, ``G_u``, ``G_y`` of ``model.predictor()``, made at the first use of one of them.
+        """``F``, ``Gu``, ``Gy`` of ``model.predictor()``, made at the first use of one of them.
 
         A bridge over missing samples (:meth:`bridge`) and an innovation not followed by the step need
         only ``A``, ``B``, ``C``, ``D``: node 2 does both on its sample path (a gap, a model switch), where the
@@ -342,8 +343,7 @@ class InnovationPredictor:
             self.x = np.zeros_like(self.x)
             return False
         bu = self.B @ (np.asarray(u_held, dtype=float) - self.input_offset)
-        for _ in range(int(skipped)):
-            self.x = self.A @ self.x + bu
+        self.x = held_input_response(self.A, self.x, bu, int(skipped))
         return True
 
     def step(self, u: np.ndarray, y: np.ndarray, *, advance: bool = True) -> np.ndarray:
@@ -421,3 +421,23 @@ class InnovationPredictor:
                 self.run(u[lo:hi], y[lo:hi])
             u_held = u[hi - 1]
         return u_held
+
+
+def held_input_response(A: np.ndarray, x: np.ndarray, forcing: np.ndarray, steps: int) -> np.ndarray:
+    """The state (n,) after ``steps`` of ``x_{k+1} = A x_k + forcing`` from ``x`` (n,), ``A`` (n, n).
+
+    Step by step while that is cheaper; else as the power of the augmented matrix ``[[A, f], [0, 1]]``
+    (``numpy.linalg.matrix_power``, by squaring: about 2 log2(steps) products of (n+1)^2 entries each).
+    A long gap (``estimator.max_gap_samples`` goes to 1e6 at run time) cost one product a sample on
+    node 2's sample path: 0.23 s for 1e5 samples at 104 states. The gaps of the default (10) are
+    stepped, as before, to the last bit.
+    """
+    n = A.shape[0]
+    if steps * n * n <= 2 * (n + 1) ** 3 * steps.bit_length():
+        for _ in range(steps):
+            x = A @ x + forcing
+        return x
+    augmented = np.zeros((n + 1, n + 1))
+    augmented[:n, :n], augmented[:n, n], augmented[n, n] = A, forcing, 1.0
+    return (np.linalg.matrix_power(augmented, steps) @ np.append(x, 1.0))[:n]
+

@@ -22,6 +22,7 @@ from okid_ros.core.statespace import (
     InnovationModel,
     InnovationPredictor,
     _run_states,
+    held_input_response,
     one_step_prediction,
     predictor_states,
 )
@@ -222,3 +223,24 @@ def test_refit_of_a_defective_predictor_takes_the_convolution_route():
     assert refit._modal_normal_equations(Abar, C, u, y, [np.zeros((len(u), 0))] * 2, 10) is None
     fit = refit_predictor(Abar, C, u, y)
     assert np.all(np.isfinite(fit.innovations)) and fit.model.B.shape == (2, 2)
+
+
+@pytest.mark.parametrize("n, steps", [(6, 3), (6, 10), (6, 3000), (40, 100_000)])
+def test_a_long_bridge_by_the_augmented_matrix_power_is_the_steps_state(n, steps):
+    """A gap of up to ``estimator.max_gap_samples`` (1e6) was stepped one product a sample on node 2's path.
+
+    Beyond the steps' cost it is the augmented matrix's power; the state is the steps' to rounding
+    (short gaps, the default's 10, are stepped as before: to the last bit).
+    """
+    rng = np.random.default_rng(n + steps)
+    A = rng.standard_normal((n, n))
+    A *= 0.999 / max(abs(np.linalg.eigvals(A)))  # a lightly damped pole: the gap's response rings long
+    x0, forcing = rng.standard_normal(n), rng.standard_normal(n)
+    x = x0
+    for _ in range(steps):
+        x = A @ x + forcing
+    got = held_input_response(A, x0, forcing, steps)
+    if steps <= 10:
+        np.testing.assert_array_equal(got, x)
+    else:
+        np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-9 * np.abs(x).max())
