@@ -19,19 +19,30 @@ from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, 
 from okid_ros.service.results import RefusedArx
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["held_refusal", "stamp_refusal", "window_refusal"]
+__all__ = ["held_refusal", "stamp_refusal", "unbuffered_refusal", "window_refusal"]
 
 
-def stamp_refusal(stamp_end_s: float, buffer: SampleBuffer, sample_time_s: float) -> tuple[str, str] | None:
+def stamp_refusal(stamp_end_s: float, buffer: SampleBuffer) -> tuple[str, str] | None:
     """Why a window ending at ``stamp_end_s`` is refused for its stamp, as (``RefusedArx`` phrase, reason); or None.
 
-    No stamp; an end beyond ``MAX_ARX_LEAD_S`` after the newest sample ``buffer`` holds; or before its
-    first sample (of the newest timeline), which the window will never be in. Neither with nothing buffered.
+    No stamp, or an end beyond ``MAX_ARX_LEAD_S`` after the newest sample ``buffer`` holds (not judged
+    with nothing buffered).
     """
     if not math.isfinite(stamp_end_s):
         return RefusedArx.STAMP, "ARX model without a stamp"
     if far := arx_lead_problem(stamp_end_s, buffer.newest_stamp()):
         return RefusedArx.FUTURE, far
+    return None
+
+
+def unbuffered_refusal(stamp_end_s: float, buffer: SampleBuffer, sample_time_s: float) -> tuple[str, str] | None:
+    """Why a window ending at ``stamp_end_s`` will never be buffered (``RefusedArx.NO_SAMPLE``, reason), or None.
+
+    It ends before the first sample ``buffer`` holds (of the newest timeline); not judged with nothing
+    buffered. On arrival judged after :func:`window_refusal` has grown the buffer to the window: a node 2
+    whose ring let the first window's end go would otherwise never grow it, and refuse every later
+    window for the same lag.
+    """
     if gone := arx_unbuffered_problem(stamp_end_s, buffer.timeline_start_stamp(), 0.5 * sample_time_s):
         return RefusedArx.NO_SAMPLE, gone
     return None

@@ -88,7 +88,7 @@ from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.core.realization_window import newest_run_start
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
-from okid_ros.service.arx_requests import held_refusal, stamp_refusal, window_refusal
+from okid_ros.service.arx_requests import held_refusal, stamp_refusal, unbuffered_refusal, window_refusal
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
@@ -223,7 +223,7 @@ class ModalEstimationService:
             st.refuse_arx(RefusedArx.DIMENSIONS, f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator "
                           f"has n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
             return False
-        if refused := stamp_refusal(stamp_end_s, self._buffer, prm.sample_time_s):
+        if refused := stamp_refusal(stamp_end_s, self._buffer):
             st.refuse_arx(*refused)
             return False
         pending = self._request
@@ -232,7 +232,8 @@ class ModalEstimationService:
                 st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
                 return False
         rows = int(window_rows) if window_rows else int(fit.n_rows)
-        if refused := window_refusal(fit, rows, prm, self._buffer):
+        if refused := window_refusal(fit, rows, prm, self._buffer) or unbuffered_refusal(
+                stamp_end_s, self._buffer, prm.sample_time_s):
             st.refuse_arx(*refused)
             return False
         with self._lock:
@@ -255,7 +256,8 @@ class ModalEstimationService:
                 return None
             fit, stamp_end, arx_id, rows = self._request
             dt, prm, st = self.params.sample_time_s, self.params, self._stats
-            if refused := stamp_refusal(stamp_end, self._buffer, dt):  # offered with none buffered, or a time jump
+            # Offered with none buffered, or a time jump since: judged now.
+            if refused := stamp_refusal(stamp_end, self._buffer) or unbuffered_refusal(stamp_end, self._buffer, dt):
                 self._request = None
                 return st.refuse_arx(*refused)
             short = (stamp_end - self._buffer.newest_stamp()) / dt

@@ -603,3 +603,20 @@ def test_an_outcome_of_a_replaced_service_is_dropped_before_its_warm_start_goes_
     assert followed is not outcome and followed.estimator is not None
     old.reset()
     assert old.follow(outcome) is outcome  # taken before a reset: stale as well
+
+
+def test_a_window_whose_end_the_ring_let_go_still_grows_the_buffer_for_the_next():
+    # Node 2's ring (8192 samples until an ARX window sizes it) had let the first window's end go: a lag of
+    # more than its length behind node 1 (a loaded 1 kHz node). That window is refused (its end is never
+    # held again), but the ring grows to the window, as before the fortieth session's change; after it
+    # the refusal came first and the ring never grew, every later window refused for the same lag.
+    stamps, u, y, snap = _record_and_its_arx_model()
+    dt, fit = stamps[1] - stamps[0], snap.fit
+    est = ModalEstimationService(ModalEstimationParams(dt, 2, 2, n_states=6))
+    for k in range(9000):
+        est.step(k * dt, u[k % u.shape[0]], y[k % y.shape[0]])
+    assert not est.submit_arx(fit, 100 * dt, 1, 20000)  # before the ring's oldest sample (808)
+    assert est.diagnostics()["arx_models_refused_why"].startswith("1 whose window's end node 2 holds no sample")
+    for k in range(9000, 18000):
+        est.step(k * dt, u[k % u.shape[0]], y[k % y.shape[0]])
+    assert est.submit_arx(fit, 9000 * dt, 2, 20000)  # 9000 samples behind: held by the grown ring
