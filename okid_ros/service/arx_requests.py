@@ -15,7 +15,7 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.realization_window import realization_minimum, run_breaks
-from okid_ros.service.options import MAX_BUFFER_SAMPLES, ModalEstimationParams, arx_lead_problem, arx_unbuffered_problem
+from okid_ros.service.options import MAX_ARX_LEAD_S, MAX_BUFFER_SAMPLES, ModalEstimationParams
 from okid_ros.service.results import RefusedArx
 from okid_ros.service.sample_buffer import SampleBuffer
 
@@ -30,8 +30,9 @@ def stamp_refusal(stamp_end_s: float, buffer: SampleBuffer) -> tuple[str, str] |
     """
     if not math.isfinite(stamp_end_s):
         return RefusedArx.STAMP, "ARX model without a stamp"
-    if far := arx_lead_problem(stamp_end_s, buffer.newest_stamp()):
-        return RefusedArx.FUTURE, far
+    if stamp_end_s > (newest := buffer.newest_stamp()) + MAX_ARX_LEAD_S:  # nan: nothing buffered
+        return RefusedArx.FUTURE, (f"ARX window ends at {stamp_end_s:.3f} s, more than MAX_ARX_LEAD_S "
+                                   f"{MAX_ARX_LEAD_S:g} s after the newest sample here ({newest:.3f} s)")
     return None
 
 
@@ -43,8 +44,9 @@ def unbuffered_refusal(stamp_end_s: float, buffer: SampleBuffer, sample_time_s: 
     whose ring let the first window's end go would otherwise never grow it, and refuse every later
     window for the same lag.
     """
-    if gone := arx_unbuffered_problem(stamp_end_s, buffer.timeline_start_stamp(), 0.5 * sample_time_s):
-        return RefusedArx.NO_SAMPLE, gone
+    if (first := buffer.timeline_start_stamp()) > stamp_end_s + 0.5 * sample_time_s:  # nan: nothing buffered
+        return RefusedArx.NO_SAMPLE, (f"ARX window ends at {stamp_end_s:.3f} s, before the first sample node 2 holds "
+                                      f"({first:.3f} s, since any time jump): its window will never be buffered here")
     return None
 
 

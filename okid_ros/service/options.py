@@ -33,8 +33,8 @@ from okid_ros.service.params import (
 )
 from okid_ros.service.sample_buffer import memory_shortfall
 
-__all__ = ["ArxIdentificationParams", "ModalEstimationParams", "arx_lead_problem", "arx_unbuffered_problem",
-           "check_runtime_change", "HANDOVER_SAMPLES", "MAX_BUFFER_SAMPLES"]
+__all__ = ["ArxIdentificationParams", "ModalEstimationParams", "check_runtime_change", "HANDOVER_SAMPLES",
+           "MAX_ARX_LEAD_S", "MAX_BUFFER_SAMPLES"]
 
 #: Samples :meth:`~okid_ros.service.estimation.ModalEstimationService.follow` leaves to the
 #: switch on the sample path (not a parameter).
@@ -47,30 +47,6 @@ MAX_ARX_LEAD_S = 60.0
 #: The most samples node 2 buffers, the limit of ``estimator.buffer_length``; with 0 (the
 #: buffer follows the ARX window an ArxModel claims) the buffer grows no further.
 MAX_BUFFER_SAMPLES = int(option_specs(ESTIMATOR_NODE)["buffer_length"].high)
-
-
-def arx_lead_problem(stamp_end_s: float, newest_s: float) -> str | None:
-    """Why an ARX window ending at ``stamp_end_s`` is refused beyond :data:`MAX_ARX_LEAD_S`, or None.
-
-    None also with no newest sample (``newest_s`` nan): a request is then judged by the first sample.
-    """
-    if stamp_end_s > newest_s + MAX_ARX_LEAD_S:
-        return (f"ARX window ends at {stamp_end_s:.3f} s, more than MAX_ARX_LEAD_S {MAX_ARX_LEAD_S:g} s "
-                f"after the newest sample here ({newest_s:.3f} s)")
-    return None
-
-
-def arx_unbuffered_problem(stamp_end_s: float, first_s: float, tolerance_s: float) -> str | None:
-    """Why an ARX window ending at ``stamp_end_s`` will never be buffered, or None.
-
-    Its end lies more than ``tolerance_s`` before ``first_s``, the first sample node 2 holds (of its newest
-    timeline). None also with no sample (``first_s`` nan): a request then waits for the first samples
-    (node 2 started after node 1, or lags it).
-    """
-    if first_s > stamp_end_s + tolerance_s:
-        return (f"ARX window ends at {stamp_end_s:.3f} s, before the first sample node 2 holds ({first_s:.3f} s, "
-                "since any time jump): its window will never be buffered here")
-    return None
 
 
 def _default(node: str, option: str) -> Any:
