@@ -20,6 +20,7 @@ from okid_ros.core.symmetric_eigen import SymmetricEigen
 
 __all__ = [
     "NEGLIGIBLE_RELATIVE_SPREAD",
+    "SILENT_LAGGED_LEVEL",
     "NormalEquations",
     "center_normal_equations",
     "constant_columns",
@@ -230,11 +231,31 @@ def residual_covariance(normal: NormalEquations, theta: np.ndarray, dof: float) 
     return cov / max(normal.n_rows - dof, 1.0)
 
 
+#: An input whose lagged columns' mean square is at most this fraction of its feedthrough column's
+#: sum of squares is silent in them (a hammer's blow in the window's newest sample only, or an old
+#: blow that forgetting has decayed to 1e-300 of a new one): the whitening of
+#: :func:`solve_normal_equations` divides that sum by the mean square, and beyond about 1e306 the
+#: quotient, or the GCV grid above it, overflows.
+SILENT_LAGGED_LEVEL = 1e-300
+
+
 def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, order: int) -> np.ndarray:
-    """Mean square of each channel of ``v = [y; u]`` read from the diagonal of ``R``."""
+    """Mean square of each channel of ``v = [y; u]`` read from the diagonal of ``R``.
+
+    A channel's mean square is that of its lagged columns. An input silent in them
+    (:data:`SILENT_LAGGED_LEVEL`) takes its feedthrough column's, its only level in the window:
+    its own, floored at the smallest normal float, had the whitening multiply that column's sum of
+    squares by up to 4.5e307 (numpy's overflow warning, a failed solve). Above that level the mean
+    squares are as before, to the bit.
+    """
     m, w = n_inputs, n_outputs + n_inputs
-    diag = np.diag(normal.R)[m:].reshape(order, w)
-    return np.maximum(diag.mean(axis=0) / max(normal.n_rows, 1), np.finfo(float).tiny)
+    n_rows = max(normal.n_rows, 1)
+    diag = np.diag(normal.R)
+    mean_square = diag[m:].reshape(order, w).mean(axis=0) / n_rows
+    lagged_inputs = mean_square[n_outputs:]  # a view: the silent inputs are set in place
+    silent = lagged_inputs <= SILENT_LAGGED_LEVEL * diag[:m]  # 0 under a feedthrough of 0 too: floored as before
+    lagged_inputs[silent] = diag[:m][silent] / n_rows
+    return np.maximum(mean_square, np.finfo(float).tiny)
 
 
 #: A standard deviation at most this fraction of a channel's level is no variation (below the

@@ -210,3 +210,48 @@ def test_a_capture_is_current_only_for_its_own_window(record):
     capture = old.capture()
     old.reset()
     assert not old.is_current(capture)
+
+
+@pytest.mark.parametrize("regularization", ["ridge", "tc"])
+@pytest.mark.parametrize("blow", [50.0, 1e6])
+def test_a_hammers_blow_in_the_windows_newest_sample_alone_is_refused_as_unexcited_without_warnings(
+        record, regularization, blow):
+    """An input exactly 0 but for a blow in the newest sample: only its feedthrough column holds it.
+
+    Its lagged columns are zero, so its mean square, which scales its prior, was floored at the smallest
+    normal float: the whitening multiplied the blow's square by 4.5e307, numpy printed `overflow
+    encountered in multiply` into node 1's log and the window was refused as `solve failed: array must not
+    contain infs or NaNs`.
+    """
+    dt, u, y = record
+    hammer = u.copy()
+    hammer[:, 0] = 0.0
+    hammer[-1, 0] = blow
+    service = make_service(dt, **{"arx.regularization": regularization})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        service.push_block(dt * np.arange(u.shape[0]), hammer, y)
+        snapshot = service.snapshot()
+        batch = fit_arx(hammer[-W - Q:], y[-W - Q:], Q, regularization, center=True)
+    assert not snapshot.valid
+    assert snapshot.reason.startswith("unexcited window: condition number inf > arx.max_condition_number")
+    assert np.all(np.isfinite(batch.theta)) and batch.condition_number == math.inf
+
+
+def test_a_blow_after_one_that_forgetting_decayed_below_the_float_range_is_solved_without_warnings(record):
+    """Forgetting 0.5: a blow 1040 samples old weighs 2^-1040 (1e-313) of a new one in the newest sample.
+
+    The input's lagged mean square, subnormal, was floored at 2.2e-308: the whitening overflowed as for a
+    blow in a window of zeros (numpy's warning, `solve failed`); a blow 1000 samples old was solved.
+    """
+    dt, u, y = record
+    for age in (1000, 1040):
+        hammer = np.tile(u, (2, 1))
+        hammer[:, 0] = 0.0
+        hammer[[-1 - age, -1], 0] = 50.0
+        service = make_service(dt, **{"arx.window_length": 0, "arx.forgetting_factor": 0.5})
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            service.push_block(dt * np.arange(hammer.shape[0]), hammer, np.tile(y, (2, 1)))
+            snapshot = service.snapshot()
+        assert snapshot.valid and np.all(np.isfinite(snapshot.fit.theta)), snapshot.reason
