@@ -383,8 +383,27 @@ def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[s
     report = Excitation(np.sqrt(variance), np.sqrt(square), [int(i) for i in np.flatnonzero(dead)],
                         {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
     if not report.dead:
-        return []
+        return _late_excitation(normal, n_inputs)
     return [unexcited_reason(report)] if not report.excited else excitation_warnings_of(report)
+
+
+def _late_excitation(normal: NormalEquations, n_inputs: int) -> list[str]:
+    """Why a window is singular whose inputs vary only in its newest ``q`` samples (a first hammer blow); [].
+
+    The last ``m`` regressor columns are ``u_(k-q)``: the window's samples but its newest ``q``. An input
+    constant there leaves that column (centred: zero) without information, the window singular.
+    """
+    n_coefficients, n_outputs = normal.r.shape
+    order = (n_coefficients - n_inputs) // max(n_outputs + n_inputs, 1)
+    if n_inputs == 0 or order < 1:
+        return []
+    _, mean, _, dead = _window_columns(normal, slice(n_coefficients - n_inputs, n_coefficients))
+    if not dead.any():
+        return []
+    listed = ", ".join(f"input {i} ({_constant_text(float(mean[i]), None)})" for i in np.flatnonzero(dead))
+    return [f"no excitation on {listed} before the newest {order} samples of this window: it does not yet hold "
+            f"{'its' if dead.sum() == 1 else 'their'} response over the ARX order's {order} lags (a hammer's blow "
+            f"after a silence?); it will {order} samples on"]
 
 
 def excitation_warnings_of(report: Excitation) -> list[str]:

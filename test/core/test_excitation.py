@@ -269,6 +269,27 @@ def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_rec
     assert "no input carries excitation" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
 
 
+@pytest.mark.parametrize("age", [0, 9, 10])
+def test_a_refused_window_names_an_input_excited_only_in_its_newest_order_samples(one_input_record, age) -> None:
+    """A hammer's blow after a silence, ``age`` samples before the newest: the window is singular until q on.
+
+    Its input varies in the feedthrough column, so no input was named: the refusal gave the condition
+    number alone, with no cause.
+    """
+    from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+
+    u, y = one_input_record
+    u = u.copy()
+    u[-1 - age, 1] = 50.0
+    service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
+    service.push_block(DT * np.arange(u.shape[0]), u, y)
+    reason = service.snapshot().reason
+    late = "no excitation on input 1 (all zeros) before the newest 10 samples of this window"
+    if age < 10:
+        assert reason.startswith("unexcited window: condition number inf") and late in reason, reason
+    else:
+        assert "before the newest" not in reason, reason
+
 def test_a_long_run_of_repeated_outputs_is_named_and_a_short_one_or_noise_is_not():
     rng = np.random.default_rng(0)
     y = rng.standard_normal((1000, 3))
