@@ -46,6 +46,15 @@ SENSOR_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
+# What a rig's node 2 said, in a failure message: the keys of its estimation diagnostics that tell
+# where its ArxModels went, and the last lines of its log.
+ESTIMATION_KEYS = ("samples", "buffer_samples", "arx_models_received", "arx_models_refused_why",
+                   "arx_models_unchanged", "arx_models_replaced", "realizations", "models_accepted",
+                   "models_rejected", "models_applied_idle", "last_reason", "last_realization_time_s",
+                   "model_id", "busy", "arx_request_waiting")
+LOG_LINES = 30
+
+
 def stamp_s(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
@@ -159,7 +168,8 @@ def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
 
     for ns in RIGS:
         probe.wait_until(f"{ns}'s ArxModel over its samples", lambda ns=ns: window_seen(ns), 30)
-        probe.wait_until(f"{ns}'s modal states", lambda ns=ns: len(probe.states[ns]) > 0, 60)
+        probe.wait_until(f"{ns}'s modal states", lambda ns=ns: len(probe.states[ns]) > 0, 60,
+                         explain=lambda ns=ns: estimator_said(probe, rigs, ns))
     time.sleep(1.0)
     with probe.lock:
         for ns, t0 in RIGS.items():
@@ -187,6 +197,20 @@ def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
         # Untouched: the window it had (what best-effort delivery left of its 1100 samples: 982
         # in one loaded full run, below the 0.9 x 1100 this compared with once).
         assert probe.arx["/rig2"][-1].samples_used >= rig2_window >= 0.8 * n["/rig2"]
+
+
+def estimator_said(probe: RigProbe, rigs: list[RosProcess], ns: str) -> str:
+    """Rig ``ns``'s node 2 in its own words: its estimation diagnostics and its log's last lines."""
+    status = probe.diagnostics.get(f"{ns[1:]}/okid_modal_estimator: estimation")
+    said = "no estimation diagnostics of node 2" if status is None else "; ".join(
+        f"{key} {status.get(key)!r}" for key in ESTIMATION_KEYS)
+    # rig1's two nodes log through `okid-ros up` (each line tagged), rig2's node 2 on its own.
+    log = rigs[0] if ns == "/rig1" else rigs[2]
+    tag = "[rig1.okid_modal_estimator]" if ns == "/rig1" else ""
+    lines = [line for line in log.output().splitlines() if tag in line][-LOG_LINES:]
+    ends = {rig: max((stamp_s(m) for m in probe.arx[rig]), default=None) for rig in RIGS}
+    return (f"{ns} node 2's diagnostics: {said}\nnewest ArxModel stamps seen: {ends}\n"
+            f"{ns} node 2's log, the last {len(lines)} lines:\n" + "\n".join(lines))
 
 
 def set_params(probe: RigProbe, node: str, **values) -> list:
