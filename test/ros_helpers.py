@@ -155,15 +155,23 @@ class ProbeNode:
                 store.append(msg)
         return callback
 
-    def wait_until(self, what: str, predicate, timeout_s: float = 30.0) -> None:
-        """Wait until ``predicate()`` (called under the lock) holds; fail the test on timeout."""
+    def wait_until(self, what: str, predicate, timeout_s: float = 30.0, *, explain=None) -> None:
+        """Wait until ``predicate()`` (called under the lock) holds; fail the test on timeout.
+
+        ``explain``: called (under the lock) on a timeout, its text added to the failure message:
+        what the nodes said about why (their diagnostics, their log).
+        """
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             with self.lock:
                 if predicate():
                     return
             time.sleep(0.05)
-        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+        why = ""
+        if explain is not None:
+            with self.lock:
+                why = f"\n{explain()}"
+        pytest.fail(f"timed out after {timeout_s} s waiting for {what}{why}")
 
     def close(self) -> None:
         import rclpy
