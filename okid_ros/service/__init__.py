@@ -1,6 +1,8 @@
 """The nodes' logic without rclpy, shared by the live nodes and the offline tools.
 
-- :mod:`.sample_grid`: synchronized samples from per-topic channel updates (`SampleGrid`);
+- :mod:`.sample_grid`: synchronized samples from per-topic channel updates (`SampleGrid`), what
+  it hands out in :mod:`.grid_samples` (`GridSample`, `GridCounters`), its sources' channels in
+  :mod:`.grid_sources`;
   :mod:`.stamp_steps`: the rule for a stream's stamp steps (next, gap, duplicate, out of order);
 - :mod:`.inputs`: the input source specifications of the parameters (`parse_source`);
 - :mod:`.params`: the parameter table of both nodes (names, defaults, ranges, units, the
