@@ -28,9 +28,10 @@ from typing import Any
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.validation import prediction_fits
+from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalEstimationService, ModalStatesResult
 from okid_ros.service.grid_samples import RESTART_SKIP, GridSample
-from okid_ros.service.identification import ArxIdentificationService, ArxSnapshot
+from okid_ros.service.identification import ArxIdentificationService
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.records import change_record, update_record
 from okid_ros.service.results import IdleSwitch, ModelUpdate, StructuralChangeEvent
