@@ -22,13 +22,12 @@
         u1,u2,y1,y2
         0.12,-0.3,0.004,0.001
         ...
+
+The .csv reader is :mod:`okid_ros.record_csv`; the checks of a whole record, :meth:`Record.validate`, are here.
 """
 
 from __future__ import annotations
 
-import csv
-import re
-import unicodedata
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +39,7 @@ from okid_ros.core.options import sample_time_problem
 from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.core.regressors import real_array
 from okid_ros.errors import DataError, OkidWarning, one_line, shown_path, special_file_kind, write_atomically
+from okid_ros.record_csv import read_csv_record
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record"]
 
@@ -277,190 +277,6 @@ def _load_npz(path: Path) -> Record:
                         f"({type(exc).__name__}: {one_line(exc)})") from None
 
 
-def _plain(text: str) -> bool:
-    """Whether a number's text has neither Python's digit separator nor non-ASCII digits.
-
-    float() reads both ("1_000" as 1000, "0_01" as 1, "١٢" as 12), which no CSV writer emits: a
-    typo or a locale's grouping, refused.
-    """
-    return "_" not in text and text.isascii()
-
-
-def _comment_setting(comment: str) -> tuple[str, str]:
-    """The name and value of a ``# name=value`` (or ``# name: value``) comment line."""
-    text = comment.lstrip("#")
-    name, _, value = text.partition("=") if "=" in text else text.partition(":")
-    return name.strip(), value
-
-
-def _csv_sample_time(path: Path, comment: str) -> float:
-    """The value of a ``# sample_time_s=...`` comment line."""
-    value = _comment_setting(comment)[1]
-    try:
-        if not _plain(value):
-            raise ValueError(value)
-        return float(value)
-    except ValueError:
-        raise DataError(f"{shown_path(path)}: bad sample_time_s comment {comment!r}") from None
-
-
-def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
-    """The sample time of the comment (or None), the header and the (N, columns) values.
-
-    ``wanted(header)``: the indices of the columns read as numbers; the others are ignored
-    (a text column of labels does not stop the record), their values NaN.
-    """
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({exc})") from None
-    dt = None
-    body, commented = [], []  # commented: (data rows before it, its text) of comment lines among the rows
-    for line in lines:
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            if body:
-                commented.append((len(body) - 1, stripped.lstrip("#").strip()))
-            if _comment_setting(stripped)[0] == "sample_time_s":
-                given = _csv_sample_time(path, stripped)
-                if dt is not None and given != dt:  # the first must not be silently overridden
-                    raise DataError(f"{shown_path(path)}: two different sample_time_s comments "
-                                    f"({dt:g} and {given:g} s)")
-                dt = given
-        elif stripped:
-            body.append(line)
-    if not body:
-        raise DataError(f"{shown_path(path)}: no header line")
-    try:
-        rows = list(csv.reader(body))
-    except csv.Error as exc:  # a field past the csv module's limit (131072 characters), e.g. an unclosed quote
-        raise DataError(f"{shown_path(path)}: not a CSV table the reader can take ({exc})") from None
-    # Invisible characters (a zero-width space, a NUL, a second BOM) would hide a 'u1' from its prefix.
-    header = ["".join(c for c in h if unicodedata.category(c) not in ("Cc", "Cf")).strip() for h in rows[0]]
-    for number, row in enumerate(rows[1:], start=1):
-        if len(row) != len(header):
-            raise DataError(f"{shown_path(path)}: data row {number} has {len(row)} values, the header {len(header)}"
-                            f"{_separator_hint(header, body[0])}")
-    _warn_commented_rows(path, commented, len(header), len(rows) - 1)
-    if repeated := sorted({header[i] for i in wanted(header) if header.count(header[i]) > 1}):  # read as 2 channels
-        names = ", ".join(f"{header.count(name)} columns {name!r}" for name in repeated)
-        raise DataError(f"{shown_path(path)}: the header names {names} (a column given twice?): rename or remove one")
-    values = np.full((len(rows) - 1, len(header)), np.nan)
-    for column in wanted(header):
-        texts = [row[column] for row in rows[1:]]
-        try:
-            values[:, column] = [float(text) for text in texts]
-        except ValueError:
-            raise DataError(f"{shown_path(path)}: {_not_a_number(header, column, texts)}") from None
-        loose = next((number for number, text in enumerate(texts, start=1) if not _plain(text)), None)
-        if loose is not None:
-            raise DataError(f"{shown_path(path)}: data row {loose}, column {header[column]!r}: "
-                            f"{texts[loose - 1].strip()!r} is not a plain decimal number")
-    return dt, header, values
-
-
-def _warn_commented_rows(path: Path, commented: list[tuple[int, str]], columns: int, n_rows: int) -> None:
-    """Warn of comment lines between data rows that read as a row of numbers: a sample left out.
-
-    Without a ``time_s`` column nothing else shows the gap: the samples either side are taken as
-    neighbours (``commented``: (data rows before it, its text without the ``#``)).
-    """
-    dropped = [before for before, text in commented
-               if 0 < before < n_rows and len(row := text.split(",")) == columns and all(map(_is_float, row))]
-    if dropped:
-        where = ", ".join(f"after data row {before}" for before in dropped[:3]) + (", ..." if len(dropped) > 3 else "")
-        warnings.warn(f"{shown_path(path)}: {len(dropped)} commented-out data row(s) between the samples ({where}): "
-                      "each is a sample missing from the record, its neighbours taken as consecutive; uncomment it or "
-                      "give a time_s column to mark the gap", OkidWarning, stacklevel=4)
-
-
-def _not_a_number(header: list[str], column: int, texts: list[str]) -> str:
-    """Where a column of a CSV holds text that is no number, with a hint for a separator not a comma."""
-    row = next(number for number, text in enumerate(texts, start=1) if not _is_float(text))
-    hint = _separator_hint(header, texts[row - 1])
-    return f"non-numeric value in column {header[column]!r} (data row {row}: {texts[row - 1].strip()!r}){hint}"
-
-
-def _separator_hint(header: list[str], text: str) -> str:
-    """A hint when a one-column table's text holds semicolons or tabs (a CSV of another locale), else ""."""
-    return next((f" (values separated by {name}? a CSV here is separated by commas)"
-                 for mark, name in ((";", "semicolons"), ("\t", "tabs")) if len(header) == 1 and mark in text), "")
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _csv_columns(header: list[str]) -> tuple[list[int], list[int], list[int]]:
-    """Indices of the input, output and time columns (``time_s``, ``stamp_s``) of a CSV header."""
-    return ([i for i, h in enumerate(header) if h.lower().startswith("u")],
-            [i for i, h in enumerate(header) if h.lower().startswith("y")],
-            [i for i, h in enumerate(header) if h in ("time_s", "stamp_s")])
-
-
-def _load_csv(path: Path) -> Record:
-    dt, header, values = _csv_rows(path, lambda header: sorted(sum(_csv_columns(header), [])))
-    u_cols, y_cols, _ = _csv_columns(header)
-    if not y_cols:
-        raise DataError(f"{shown_path(path)}: header needs output columns 'y...' (inputs 'u...' optional), "
-                        f"got {header}")
-    # 'uptime_s' or 'year' is a channel by the format's first-letter rule: say so, the user may not expect it.
-    worded = [f"{header[i]!r} ({kind} {j})" for kind, cols in (("input", u_cols), ("output", y_cols))
-              for j, i in enumerate(cols) if not re.match(r"[uy]([0-9_.\- ]|$)", header[i], re.IGNORECASE)]
-    if worded:
-        warnings.warn(f"{shown_path(path)}: columns read as channels by their first letter: {', '.join(worded)}; "
-                      f"rename or remove those that are not channels", OkidWarning, stacklevel=3)
-    if dt is None and "time_s" not in header:
-        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column")
-    if "time_s" in header:
-        times = values[:, header.index("time_s")]
-        step, rounding, irregular = _uniform_step(times)
-        if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
-            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular})")
-        if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
-            raise DataError(f"{shown_path(path)}: the sample_time_s comment says {dt:g} s and the time_s column "
-                            f"steps {step:g} s")
-        dt = step if dt is None else dt
-    if "stamp_s" in header and (jump := stamp_jump_problem(values[:, header.index("stamp_s")], dt,
-                                                           n_samples=values.shape[0], rows=True)):
-        raise DataError(f"{shown_path(path)}: {jump}")
-    return Record(values[:, u_cols], values[:, y_cols], dt)
-
-
-def _uniform_step(times: np.ndarray) -> tuple[float, float, str]:
-    """The step of a time column, the rounding of its times and, if it is not a uniform grid, where not ("" if it is).
-
-    Uniform: every time within 1e-6 of a step of the grid from the first to the last, or within the rounding of
-    the times as written (``0.003`` for 1/300 s to 3 decimals) or of float64 (epoch seconds: about 2e-7 s).
-    """
-    steps = np.diff(times)
-    if steps.size == 0 or not np.all(np.isfinite(steps)) or not np.all(steps > 0):
-        bad = int(np.argmax(~(steps > 0))) if steps.size and np.isfinite(steps).all() else None
-        return 0.0, 0.0, ("fewer than two times" if steps.size == 0 else
-                          "NaN/Inf in it" if bad is None else f"data row {bad + 2} is not after row {bad + 1}")
-    step = float((times[-1] - times[0]) / steps.size)
-    rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
-    off = np.abs(times - (times[0] + step * np.arange(times.size)))
-    if np.max(off) <= max(1e-6 * step, 2 * rounding):
-        return step, rounding, ""
-    row = int(np.argmax(np.abs(steps - step) > max(1e-6 * step, 2 * rounding)))
-    return step, rounding, (f"data row {row + 2} follows row {row + 1} by {steps[row]:g} s, the column's mean "
-                            f"step is {step:g} s")
-
-
-def _decimals(times: np.ndarray) -> int:
-    """The fewest decimals (0-9) every value of ``times`` is written with (to float64's rounding), else 12."""
-    for decimals in range(10):
-        scaled = times * 10.0**decimals
-        if np.all(np.abs(scaled - np.round(scaled)) <= 1e-6):
-            return decimals
-    return 12
-
-
 def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:
     """Read and validate a record from .npz or .csv (see module docstring).
 
@@ -482,7 +298,7 @@ def load_record(path: str | Path, *, allow_nonfinite: bool = False) -> Record:
     if suffix == ".npz":
         record = _load_npz(path)
     elif suffix == ".csv":
-        record = _load_csv(path)
+        record = Record(*read_csv_record(path))
     else:
         raise DataError(f"{shown_path(path)}: unknown format {suffix!r}; expected .npz or .csv")
     try:

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from okid_bench.scoring import modes_of
+from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
-from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.windowed import WindowedPipeline
 
 __all__ = ["ChainScore", "chain_modes"]

@@ -20,11 +20,10 @@ checking sample stamps is the sample grid's (:mod:`okid_ros.service.sample_grid`
 How it stays fast and exact
 ---------------------------
 Rather than ``R``, ``r`` and ``Y^T Y`` separately, the window keeps one augmented Gram matrix
-``G = sum w_k psi_k psi_k^T`` (D, D), ``D = (q + 1)(p + m) = d + p``, of the extended rows
-``psi_k = [v_{k-q}; ...; v_{k-1}; v_k]``, and their sum ``s = sum w_k psi_k`` (D,): each
-``psi_k`` is a contiguous slice of the time-ordered sample buffer, ``R``, ``r``, ``Y^T Y``,
-``phi_sum`` and ``y_sum`` are sub-blocks of ``G`` and ``s`` (a fixed index permutation), and one
-symmetric rank-k BLAS update (``dsyrk``) adds or removes a whole block of rows. Samples are only
+``G`` (D, D), ``D = (q + 1)(p + m) = d + p``, of the extended rows ``psi_k = [v_{k-q}; ...; v_k]``
+and their sum ``s`` (:class:`okid_ros.core.window_gram.WindowGram`): each ``psi_k`` is a
+contiguous slice of the time-ordered sample buffer, and one symmetric rank-k BLAS update
+(``dsyrk``) adds or removes a whole block of rows. Samples are only
 stored (O(p + m) per sample); rows are added and removed in blocks of ``block_size``. Every
 ``refactor_every`` added rows ``G`` and ``s`` are recomputed from the stored window so that the
 rounding of the add/remove cycle never accumulates.
@@ -48,10 +47,10 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.linalg import blas
 
 from okid_ros.core.arx import NormalEquations
 from okid_ros.core.regressors import regressor_length
+from okid_ros.core.window_gram import CANCELLATION_RATIO, WindowGram
 from okid_ros.core.window_samples import (
     MAX_SAMPLE_MAGNITUDE,
     MAX_SQUARED_NORM,
@@ -59,17 +58,11 @@ from okid_ros.core.window_samples import (
     accepted_samples,
     block_arrays,
     count_rejection,
+    lag_runs,
+    needed_samples,
 )
 
 __all__ = ["CANCELLATION_RATIO", "MAX_SAMPLE_MAGNITUDE", "SlidingWindowArx", "WindowStatus"]
-
-#: A row leaving the window whose square exceeds this times what stays on its diagonal of ``G``
-#: has ``G`` recomputed from the stored rows: the subtraction would leave ~2e-10 of what stays
-#: (eps times this). Below it the rounding is harmless (a glitch of 1e4 output spreads leaving a
-#: window of 3750 rows, a ratio of 3e4: the same modes); an impact of hundreds of spreads, which
-#: the gate lets in, costs no recompute (at 28 outputs, q 20, a recompute of 6000 rows takes 0.08 s).
-CANCELLATION_RATIO = 1e6
-
 
 class SlidingWindowArx:
     """The normal equations of the ARX regressor rows in a sliding window, updated recursively.
@@ -141,16 +134,13 @@ class SlidingWindowArx:
             refactor_every = max(100_000, 4 * (window or 0))
         self.refactor_every = int(refactor_every)
 
-        # psi_k = [v_{k-q}, ..., v_{k-1}, v_k] (time order) -> ARX layout phi_k and target y_k.
-        lag_idx = [(q - lag) * w + c for lag in range(1, q + 1) for c in range(w)]
-        self._phi_index = np.array([q * w + p + j for j in range(m)] + lag_idx)
-        self._y_index = q * w + np.arange(p)
+        self._sums = WindowGram(q, p, m)  # G and s
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget all samples, rows and counters (the configuration is kept)."""
-        q, D = self.order, self._D
+        q = self.order
         cap = 2 * ((self.window or 0) + q + self.block_size) + 16
         self._alloc(cap)
         self._n = 0  # buffer positions in use
@@ -161,8 +151,7 @@ class SlidingWindowArx:
         self._n_eff = 0.0  # sum of the weights of the rows in G
         self._rows_since_refactor = 0
         self._run = 0  # accepted samples since the lag history was last broken
-        self._gram = np.zeros((D, D), order="F")  # G, upper triangle valid
-        self._row_sum = np.zeros(D)  # s
+        self._sums.clear()
         self._adapting = True
         self._status = WindowStatus()
 
@@ -255,7 +244,9 @@ class SlidingWindowArx:
         if n_in == 0:
             return 0
         accepted = accepted_samples(u, y, st)
-        run_after = self._runs_after(accepted)
+        run_after, gaps = lag_runs(accepted, self._run)
+        st.gaps += gaps
+        self._run = int(run_after[-1])
         acc_idx = np.flatnonzero(accepted)
         if acc_idx.size == 0:
             return 0
@@ -284,27 +275,7 @@ class SlidingWindowArx:
             start = stop
         return int(acc_idx.size)
 
-    def _runs_after(self, accepted: np.ndarray) -> np.ndarray:
-        """Run length of the lag history after each sample of a block; a rejected one breaks it.
-
-        Counts the gaps as :meth:`mark_gap` does and leaves the run of the last sample in place.
-        """
-        n_in = accepted.size
-        breaks = ~accepted
-        csum = np.cumsum(accepted.astype(np.int64))
-        last_break = np.maximum.accumulate(np.where(breaks, np.arange(n_in), -1))
-        before_break = np.where(last_break > 0, csum[np.maximum(last_break - 1, 0)], 0)
-        run_after = np.where(last_break >= 0, csum - before_break, self._run + csum)
-        run_before = np.concatenate([[self._run], run_after[:-1]])
-        self._status.gaps += int(np.count_nonzero(breaks & (run_before > 0)))
-        self._run = int(run_after[-1])
-        return run_after
-
     # ------------------------------------------------------------------ normal equations
-    def _syrk(self, psi: np.ndarray, alpha: float, beta: float) -> None:
-        """``G <- alpha psi^T psi + beta G`` on the upper triangle, in place."""
-        self._gram = blas.dsyrk(alpha, psi.T, beta=beta, c=self._gram, trans=0, lower=0, overwrite_c=1)
-
     def _flush(self) -> None:
         """Apply the pending rows to ``G`` and ``s`` (and remove the rows that leave the window)."""
         if self._n_pend == 0:
@@ -314,7 +285,8 @@ class SlidingWindowArx:
         add = hi + np.flatnonzero(self._elig[hi:n])
         cancelled = False
         if self.window is None:
-            self._add_weighted(self._rows[add - q])
+            discount, weight = self._sums.add_discounted(self._rows[add - q], self.forgetting)
+            self._n_eff = discount * self._n_eff + weight
             self._elig[add] = False
             self._lo = self._hi = n
         else:
@@ -327,17 +299,12 @@ class SlidingWindowArx:
                 self._lo = int(add[0])
                 self._n_acc = add.size
             else:
-                psi = self._rows[add - q]
-                self._syrk(psi, 1.0, 1.0)
-                self._row_sum += psi.sum(axis=0)
+                self._sums.add(self._rows[add - q])
                 if excess > 0:
                     lo = self._lo
                     old = lo + np.flatnonzero(self._elig[lo:hi])[:excess]
-                    psi_old = self._rows[old - q]
-                    self._syrk(psi_old, -1.0, 1.0)
-                    self._row_sum -= psi_old.sum(axis=0)
+                    cancelled = self._sums.remove(self._rows[old - q])  # a row far beyond what stays: recompute
                     self._lo = int(old[-1]) + 1
-                    cancelled = self._cancelled(psi_old)
                 self._n_acc += add.size - max(excess, 0)
                 self._rows_since_refactor += add.size
             self._hi = n
@@ -346,38 +313,9 @@ class SlidingWindowArx:
         if self.window is not None and (cancelled or self._rows_since_refactor >= self.refactor_every):
             self.refactor()
 
-    def _cancelled(self, psi_old: np.ndarray) -> bool:
-        """Whether removing rows ``psi_old`` left ``G`` with more than rounding of what stays.
-
-        Subtracting a row leaves about ``eps`` times its squares in ``G``: a glitch of 1e8 output
-        spreads that left the window ruined every fit until the next refactorization (1e5 rows
-        later), with a glitch of 1e100 NaN. A row whose square in some coordinate exceeds
-        :data:`CANCELLATION_RATIO` times what stays on that diagonal has ``G`` recomputed instead.
-        """
-        peak = np.max(psi_old * psi_old, axis=0)
-        return bool(np.any(peak > CANCELLATION_RATIO * np.diagonal(self._gram)))
-
-    def _add_weighted(self, psi: np.ndarray) -> None:
-        """Infinite history: discount ``G`` and ``s`` by lambda per row and add the new rows."""
-        lam, count = self.forgetting, psi.shape[0]
-        if lam == 1.0:
-            self._syrk(psi, 1.0, 1.0)
-            self._row_sum += psi.sum(axis=0)
-            self._n_eff += count
-            return
-        weights = lam ** np.arange(count - 1, -1, -1, dtype=float)
-        self._syrk(psi * np.sqrt(weights)[:, None], 1.0, lam**count)
-        self._row_sum = lam**count * self._row_sum + weights @ psi
-        self._n_eff = lam**count * self._n_eff + float(weights.sum())
-
-    def _recompute(self, positions: np.ndarray, chunk: int = 1024) -> None:
-        """Set ``G`` and ``s`` to the sums over the rows at ``positions``, in bounded chunks."""
-        self._gram[:] = 0.0
-        self._row_sum[:] = 0.0
-        for s in range(0, positions.size, chunk):
-            psi = self._rows[positions[s : s + chunk] - self.order]
-            self._syrk(psi, 1.0, 1.0)
-            self._row_sum += psi.sum(axis=0)
+    def _recompute(self, positions: np.ndarray) -> None:
+        """Set ``G`` and ``s`` to the sums over the rows at ``positions``."""
+        self._sums.recompute(self._rows, positions - self.order)
         self._rows_since_refactor = 0
 
     def refactor(self) -> None:
@@ -392,17 +330,8 @@ class SlidingWindowArx:
     def _make_room(self, count: int) -> None:
         """Compact the buffer to the samples still needed; grow it if they fill half of it."""
         q, n = self.order, self._n
-        keep = np.zeros(n + 1, dtype=np.int64)
-        keep[max(n - q, 0) : n] = 1  # lag history of the next sample
         lo = self._lo
-        rows = lo + np.flatnonzero(self._elig[lo:n])  # rows of the window and pending rows
-        if rows.size:
-            # Each row needs its own q past samples: mark [r - q, r] by a difference array.
-            cover = np.zeros(n + 1, dtype=np.int64)
-            np.add.at(cover, rows - q, 1)
-            np.add.at(cover, rows + 1, -1)
-            keep |= np.cumsum(cover) > 0
-        keep = keep[:n].astype(bool)
+        keep = needed_samples(n, q, lo + np.flatnonzero(self._elig[lo:n]))  # rows of the window and pending rows
         kept = np.flatnonzero(keep)
         count_before = np.concatenate([[0], np.cumsum(keep)])  # kept positions below index i
         needed = kept.size + count
@@ -435,25 +364,10 @@ class SlidingWindowArx:
         is the row count (an int), or with forgetting the effective row count ``sum w_k``.
         """
         self._flush()
-        G = np.triu(self._gram)
-        G += np.triu(self._gram, 1).T
-        row_sum = self._row_sum.copy()
-        if self.window is not None:
-            # A channel zero on every sample the window's rows hold sums to zero exactly; the
-            # downdates leave rounding residue instead (+-1e-16 of its former level), which looked
-            # like a live channel of tiny spread and kept a dead input from being named.
+        zero = np.empty(0, dtype=np.int64)
+        if self.window is not None:  # only downdates leave residue; infinite history subtracts nothing
             zero = np.flatnonzero(~np.any(self._buf[self._window_first():self._n] != 0, axis=0))
-            if zero.size:
-                columns = (np.arange(self.order + 1)[:, None] * self._w + zero[None, :]).ravel()
-                G[columns, :] = 0.0
-                G[:, columns] = 0.0
-                row_sum[columns] = 0.0
-        pi, yi = self._phi_index, self._y_index
-        n_rows = self._n_eff if self.window is None else self._n_acc
-        return NormalEquations(
-            R=G[np.ix_(pi, pi)], r=G[np.ix_(pi, yi)], yy=G[np.ix_(yi, yi)], n_rows=n_rows,
-            phi_sum=row_sum[pi], y_sum=row_sum[yi],
-        )
+        return self._sums.normal_equations(self._n_eff if self.window is None else self._n_acc, zero)
 
     def _window_first(self) -> int:
         """Buffer position of the first sample the window's rows reach (``q`` before its oldest row)."""
@@ -496,5 +410,5 @@ class SlidingWindowArx:
 
     def memory_bytes(self) -> int:
         """Bytes held by the sample buffer, ``G`` and ``s``."""
-        arrays = (self._buf, self._elig, self._start, self._gram, self._row_sum)
+        arrays = (self._buf, self._elig, self._start, self._sums.gram, self._sums.row_sum)
         return int(sum(a.nbytes for a in arrays))

@@ -1,4 +1,4 @@
-"""Which samples the sliding ARX window accepts, and its counters (split from :mod:`.recursive`).
+"""Which samples the sliding ARX window accepts and still needs, and its counters (split from :mod:`.recursive`).
 
 A sample with NaN/Inf or a value beyond :data:`MAX_SAMPLE_MAGNITUDE` is rejected and counted in
 :class:`WindowStatus`; the window then breaks its lag history (see :mod:`okid_ros.core.recursive`).
@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection", "in_bound"]
+__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection", "in_bound",
+           "lag_runs", "needed_samples"]
 
 #: Largest |value| a sample may hold: W (p + m) squares of it still fit in float64 (1.8e308) for
 #: windows up to 1e7 rows. Records in such units are identified in batch after scaling
@@ -88,3 +89,36 @@ def count_rejection(sample: np.ndarray, status: WindowStatus) -> None:
         status.rejected_magnitude += 1
     else:
         status.rejected_nonfinite += 1
+
+
+def lag_runs(accepted: np.ndarray, run: int) -> tuple[np.ndarray, int]:
+    """The lag history's run length after each sample of a block, and how many runs its rejections broke.
+
+    ``accepted`` (N,), N >= 1, from :func:`accepted_samples`: a rejected sample breaks the run
+    (a gap where one had begun, as ``mark_gap`` counts it); ``run``: the run before the block.
+    """
+    n_in = accepted.size
+    breaks = ~accepted
+    csum = np.cumsum(accepted.astype(np.int64))
+    last_break = np.maximum.accumulate(np.where(breaks, np.arange(n_in), -1))
+    before_break = np.where(last_break > 0, csum[np.maximum(last_break - 1, 0)], 0)
+    run_after = np.where(last_break >= 0, csum - before_break, run + csum)
+    run_before = np.concatenate([[run], run_after[:-1]])
+    return run_after, int(np.count_nonzero(breaks & (run_before > 0)))
+
+
+def needed_samples(n: int, order: int, rows: np.ndarray) -> np.ndarray:
+    """(n,) bool: the stored samples still needed, the next sample's lag history and each row's ``order`` past.
+
+    ``rows``: the buffer positions of the window's rows and of the pending ones (a row at ``r``
+    reads the samples ``r - order`` to ``r``).
+    """
+    keep = np.zeros(n + 1, dtype=np.int64)
+    keep[max(n - order, 0) : n] = 1  # lag history of the next sample
+    if rows.size:
+        # Each row needs its own q past samples: mark [r - q, r] by a difference array.
+        cover = np.zeros(n + 1, dtype=np.int64)
+        np.add.at(cover, rows - order, 1)
+        np.add.at(cover, rows + 1, -1)
+        keep |= np.cumsum(cover) > 0
+    return keep[:n].astype(bool)

@@ -37,15 +37,10 @@ from okid_ros.nodes.base import OkidNode
 from okid_ros.nodes.common import lower_priority, make_status, name_thread, reliable_qos
 from okid_ros.nodes.conversions import arx_model_msg, ros_message_types, stamp_to_seconds
 from okid_ros.nodes.runner import run_node
-from okid_ros.service.identification import (
-    ArxIdentificationParams,
-    ArxIdentificationService,
-    SolveResult,
-    WindowCapture,
-    solve_capture,
-)
+from okid_ros.service.arx_solve import SolveResult, WindowCapture, solve_capture
+from okid_ros.service.grid_samples import GridSample
+from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.service.params import ARX_NODE
-from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.windowed import identification_step
 
 NODE_NAME = ARX_NODE

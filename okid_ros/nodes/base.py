@@ -6,7 +6,7 @@ and ``~/enable`` services, the diagnostics timer with its health log, time jumps
 
 A node subclasses :class:`OkidNode` and implements the hooks:
 
-- ``on_sample(sample)``: one assembled :class:`~okid_ros.service.sample_grid.GridSample`;
+- ``on_sample(sample)``: one assembled :class:`~okid_ros.service.grid_samples.GridSample`;
 - ``reset_state(reason)``: forget the window / model (``~/reset``, a time jump);
 - ``set_enabled(on) -> str``: ``~/enable``; returns what is now on or off;
 - ``check_parameters(values)``: build the node's settings from ``values`` (all parameters
@@ -57,8 +57,8 @@ from okid_ros.nodes.common import (
     name_thread,
 )
 from okid_ros.nodes.input_frontend import InputFrontend
+from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.params import node_params, read_only_reason, validate_value
-from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.topics import resolve_topic
 
 __all__ = ["OkidNode"]

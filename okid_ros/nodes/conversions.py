@@ -24,8 +24,8 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.markov import markov_from_arx
 from okid_ros.core.modal import Mode
 from okid_ros.core.regressors import regressor_length
+from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
-from okid_ros.service.identification import ArxSnapshot
 from okid_ros.service.inputs import SourceSpec
 from okid_ros.service.options import ArxIdentificationParams
 from okid_ros.service.params import ARX_PARAMS

@@ -18,8 +18,8 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from okid_ros.nodes.common import SIM_CLOCK_SILENCE_S, SIM_TIME_WITHOUT_CLOCK, make_status, sensor_qos
 from okid_ros.nodes.conversions import source_values
 from okid_ros.nodes.raw_inputs import message_class, raw_reader
+from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.inputs import sources_and_grid, time_jump_note
-from okid_ros.service.sample_grid import GridSample
 
 __all__ = ["DRAIN_MAX", "InputFrontend"]
 
@@ -32,7 +32,7 @@ class InputFrontend:
     """Subscriptions of the input sources, assembly on the sample grid, rates and staleness.
 
     ``on_sample`` is called (on the executor thread) with every complete
-    :class:`~okid_ros.service.sample_grid.GridSample`.
+    :class:`~okid_ros.service.grid_samples.GridSample`.
     """
 
     def __init__(self, node: Node, values: dict[str, Any], on_sample: Callable[[GridSample], None]) -> None:

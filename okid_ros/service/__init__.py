@@ -1,12 +1,15 @@
 """The nodes' logic without rclpy, shared by the live nodes and the offline tools.
 
-- :mod:`.sample_grid`: synchronized samples from per-topic channel updates (`SampleGrid`);
+- :mod:`.sample_grid`: synchronized samples from per-topic channel updates (`SampleGrid`), what
+  it hands out in :mod:`.grid_samples` (`GridSample`, `GridCounters`), its sources' channels in
+  :mod:`.grid_sources`;
   :mod:`.stamp_steps`: the rule for a stream's stamp steps (next, gap, duplicate, out of order);
 - :mod:`.inputs`: the input source specifications of the parameters (`parse_source`);
 - :mod:`.params`: the parameter table of both nodes (names, defaults, ranges, units, the
   service option each sets, whether it may change at run time) and the YAML loader the
   offline tools use; :mod:`.options`: the services' options derived from it;
-- :mod:`.identification`: node 1, windowed ARX identification (`ArxIdentificationService`);
+- :mod:`.identification`: node 1, windowed ARX identification (`ArxIdentificationService`), its
+  solve of a captured window in :mod:`.arx_solve` (`solve_capture`, `ArxSnapshot`);
 - :mod:`.estimation`: node 2, the modal estimation service (`ModalEstimationService`), on its
   parts: :mod:`.arx_requests` (which ARX fits it refuses), :mod:`.realization` (realization and
   its checks), :mod:`.model_switch` (model switching, mode ids with :mod:`.mode_registry`),

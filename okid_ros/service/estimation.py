@@ -325,8 +325,8 @@ class ModalEstimationService:
         ----------
         stamp_s : the sample's stamp [s].
         u : (m,) inputs; y : (p,) outputs.
-        skipped : missing slots just before this sample (0: contiguous); -1 (``sample_grid.RESTART_SKIP``)
-            after a time jump or restart (see :class:`okid_ros.service.sample_grid.GridSample`).
+        skipped : missing slots just before this sample (0: contiguous); -1 (``grid_samples.RESTART_SKIP``)
+            after a time jump or restart (see :class:`okid_ros.service.grid_samples.GridSample`).
         """
         prm, st = self.params, self._stats
         u, y = np.asarray(u, dtype=float).reshape(-1), np.asarray(y, dtype=float).reshape(-1)

@@ -6,8 +6,9 @@ accelerometer, one ``geometry_msgs/WrenchStamped`` per thruster, ...), each with
 stamp. :class:`SampleGrid` collects them into whole samples.
 
 Each *source* provides a fixed list of channels (indices into ``[u_0 .. u_{m-1}, y_0 .. y_{p-1}]``);
-every channel is provided by exactly one source. :meth:`SampleGrid.add` takes one message's
-values with its stamp in seconds and returns the samples that became complete, oldest first.
+every channel is provided by exactly one source (:mod:`okid_ros.service.grid_sources`).
+:meth:`SampleGrid.add` takes one message's values with its stamp in seconds and returns the
+samples that became complete, oldest first (:class:`GridSample`, :mod:`okid_ros.service.grid_samples`).
 
 Policy
 ------
@@ -68,7 +69,9 @@ time jumps
 Whole samples
 -------------
 A stream of whole samples is checked by :class:`StampSequence` with the grid's step rule
-(:func:`classify_step`), both from :mod:`okid_ros.service.stamp_steps` and re-exported here.
+(:func:`classify_step`), both from :mod:`okid_ros.service.stamp_steps` and re-exported here, as
+are :class:`GridSample`, :class:`GridCounters`, :data:`RESTART_SKIP` and :data:`REJECTION_REASONS`
+from :mod:`okid_ros.service.grid_samples`.
 
 No rclpy: the nodes and the offline tools both use this module.
 """
@@ -76,88 +79,22 @@ No rclpy: the nodes and the offline tools both use this module.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from okid_ros.core.options import sample_time_problem
 from okid_ros.service.channels import channel_name
+from okid_ros.service.grid_samples import REJECTION_REASONS, RESTART_SKIP, GridCounters, GridSample
+from okid_ros.service.grid_sources import GridSource, grid_sources
 from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step, least_time_jump_s
 
 __all__ = ["GridSample", "GridCounters", "SampleGrid", "MAX_STAMP_S", "RESTART_SKIP", "REJECTION_REASONS",
            "StampStep", "StampSequence", "classify_step", "least_time_jump_s"]
 
-#: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
-RESTART_SKIP = -1
-
 #: Fraction of each accepted stamp's offset from its slot by which the grid phase follows it.
 PHASE_GAIN = 0.01
-
-
-@dataclass
-class GridSample:
-    """One complete sample on the grid.
-
-    Attributes
-    ----------
-    slot : grid index ``k`` (restarts at 0 after a re-anchoring).
-    stamp_s : stamp of the first message received for this slot [s].
-    u : (m,) inputs.
-    y : (p,) outputs.
-    skipped : slots dropped or never seen between the previous emitted sample and this one.
-    restart : True for the first sample after the start, a reset or a time jump.
-    time_jump : True for the first sample after a backward time jump (then ``restart`` too).
-    """
-
-    slot: int
-    stamp_s: float
-    u: np.ndarray
-    y: np.ndarray
-    skipped: int = 0
-    restart: bool = False
-    time_jump: bool = False
-
-    @property
-    def gap_before(self) -> bool:
-        """True when this sample is not contiguous with the previous emitted one."""
-        return self.skipped > 0 or self.restart
-
-
-#: The reasons a message is refused (fields of :class:`GridCounters`), the likeliest mistake first.
-REJECTION_REASONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid", "off_timeline")
-
-
-@dataclass
-class GridCounters:
-    """Message and sample counts of a :class:`SampleGrid` (since start or reset)."""
-
-    messages: int = 0
-    samples_emitted: int = 0
-    missing: int = 0
-    late: int = 0
-    duplicate: int = 0
-    out_of_order: int = 0
-    nonfinite: int = 0
-    wrong_size: int = 0
-    off_grid: int = 0
-    off_timeline: int = 0  # lone stamps far from the timeline that the next messages did not confirm
-    time_jumps: int = 0
-    reanchors: int = 0
-
-    @property
-    def rejected_messages(self) -> int:
-        """Messages refused as a whole or in part (late, duplicate, out of order, bad values, stamps)."""
-        return sum(getattr(self, reason) for reason in REJECTION_REASONS)
-
-    def rejections(self) -> dict[str, int]:
-        """The messages refused, by reason (:data:`REJECTION_REASONS`, only those that occurred)."""
-        return {reason: int(getattr(self, reason)) for reason in REJECTION_REASONS if getattr(self, reason)}
-
-    def as_dict(self) -> dict[str, int]:
-        out = {f.name: int(getattr(self, f.name)) for f in fields(self)}
-        out["rejected_messages"] = self.rejected_messages
-        return out
 
 
 @dataclass
@@ -165,16 +102,6 @@ class _Slot:
     values: np.ndarray
     filled: int  # bit c set: channel c has arrived (a Python int: cheaper per message than an array)
     stamp_s: float
-
-
-@dataclass
-class _Source:
-    channels: np.ndarray
-    index: slice | np.ndarray  # where its values go in a slot's: a slice when the channels are a run
-    bits: int  # its channels' bits of _Slot.filled
-    last_slot: int | None = None
-    before_jump: bool = False  # still sending stamps from before the last time jump or forward step
-    counters: GridCounters = field(default_factory=GridCounters)
 
 
 @dataclass
@@ -228,24 +155,8 @@ class SampleGrid:
         self.tolerance = float(tolerance)
         self.latency_samples = int(latency_samples)
         self.time_jump_s = float(time_jump_s)
-        owner = [-1] * n
-        self._sources: list[_Source] = []
-        for s, chans in enumerate(sources):
-            chans = np.asarray(list(chans), dtype=np.int64)
-            if chans.size == 0:
-                raise ValueError(f"source {s} provides no channel")
-            for c in chans:
-                if not 0 <= c < n:
-                    raise ValueError(f"source {s} names channel {c}; channels are 0..{n - 1}")
-                if owner[c] >= 0:
-                    raise ValueError(f"channel {self.channel_name(c)} is provided by sources {owner[c]} and {s}; "
-                                     "each channel must come from exactly one source")
-                owner[c] = s
-            index = slice(int(chans[0]), int(chans[-1]) + 1) if np.all(np.diff(chans) == 1) else chans
-            self._sources.append(_Source(chans, index, sum(1 << int(c) for c in chans)))
+        self._sources = grid_sources(sources, m, n)
         self._all_bits = (1 << n) - 1
-        if missing := [self.channel_name(c) for c in range(n) if owner[c] < 0]:
-            raise ValueError(f"no source provides channel(s) {', '.join(missing)}")
         self.reset()
 
     def channel_name(self, channel: int) -> str:
@@ -292,7 +203,7 @@ class SampleGrid:
         return len(self._pending)
 
     # ------------------------------------------------------------------ input
-    def _count(self, src: _Source, name: str, amount: int = 1) -> None:
+    def _count(self, src: GridSource, name: str, amount: int = 1) -> None:
         setattr(self.counters, name, getattr(self.counters, name) + amount)
         setattr(src.counters, name, getattr(src.counters, name) + amount)
 
@@ -378,7 +289,7 @@ class SampleGrid:
             s.before_jump = s is not src
         return out
 
-    def _place(self, src: _Source, stamp_s: float, vals: np.ndarray) -> list[GridSample]:
+    def _place(self, src: GridSource, stamp_s: float, vals: np.ndarray) -> list[GridSample]:
         """Put a message of the timeline into its slot; return the samples that became complete."""
         dt = self.sample_time_s
         out: list[GridSample] = []
@@ -430,7 +341,7 @@ class SampleGrid:
         k = int(math.floor(rel + 0.5))
         return k, (rel - k) * self.sample_time_s
 
-    def _time_jump(self, src: _Source, stamp_s: float) -> list[GridSample]:
+    def _time_jump(self, src: GridSource, stamp_s: float) -> list[GridSample]:
         out = self._drop_all_pending()
         self.counters.time_jumps += 1
         src.counters.time_jumps += 1

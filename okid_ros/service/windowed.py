@@ -1,7 +1,7 @@
 """The windowed pipeline of both nodes on one sample stream, written once.
 
 Per sample, what each node does with an assembled
-:class:`~okid_ros.service.sample_grid.GridSample` (:func:`identification_step` for node 1,
+:class:`~okid_ros.service.grid_samples.GridSample` (:func:`identification_step` for node 1,
 :func:`estimation_step` for node 2; the live nodes call these), and, in
 :class:`WindowedPipeline`, the two services in step without a middleware, as ``okid-ros
 process`` runs them over a bag:
@@ -28,12 +28,13 @@ from typing import Any
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.validation import prediction_fits
+from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalEstimationService, ModalStatesResult
-from okid_ros.service.identification import ArxIdentificationService, ArxSnapshot
+from okid_ros.service.grid_samples import RESTART_SKIP, GridSample
+from okid_ros.service.identification import ArxIdentificationService
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.records import change_record, update_record
 from okid_ros.service.results import IdleSwitch, ModelUpdate, StructuralChangeEvent
-from okid_ros.service.sample_grid import RESTART_SKIP, GridSample
 
 __all__ = ["WindowedPipeline", "PipelineSettings", "estimation_step", "identification_step"]
 

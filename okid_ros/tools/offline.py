@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from okid_ros.errors import ParameterError
-from okid_ros.service.sample_grid import REJECTION_REASONS
+from okid_ros.service.grid_samples import REJECTION_REASONS
 
 __all__ = ["TOPIC_PARAMETERS", "NodeInputs", "OfflineNodes", "ProcessSummary"]
 

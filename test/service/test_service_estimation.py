@@ -448,7 +448,7 @@ def test_the_sample_path_takes_a_window_as_buffered_and_the_realization_fills_it
 def test_process_scores_a_model_on_the_window_it_was_realized_from():
     # `okid-ros process`'s fit_one_step_pct: on the window as filled (gaps, spikes), not as buffered.
     from okid_ros.core.validation import prediction_fits
-    from okid_ros.service.sample_grid import GridSample
+    from okid_ros.service.grid_samples import GridSample
     from okid_ros.service.windowed import PipelineSettings, WindowedPipeline
 
     model = paper_model()

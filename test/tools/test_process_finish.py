@@ -14,9 +14,9 @@ import pytest
 
 from okid_ros.nodes.conversions import io_sample_msg
 from okid_ros.service import realization
+from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
-from okid_ros.service.sample_grid import GridSample
 from okid_ros.service.windowed import WindowedPipeline
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 from okid_ros.tools.process import OfflineNodes, load_node_parameters

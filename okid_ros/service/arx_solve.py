@@ -1,0 +1,133 @@
+"""Node 1's solve: a captured window's regularized ARX problem, and the snapshot ``ArxModel`` carries.
+
+:class:`okid_ros.service.identification.ArxIdentificationService` captures its window
+(:class:`WindowCapture`: a copy of the normal equations, cheap, on the thread that pushes
+samples); :func:`solve_capture` solves it on any thread (O(d^3), tens of milliseconds at
+d = 402) and the service accepts the :class:`SolveResult` into an :class:`ArxSnapshot`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
+from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
+from okid_ros.service.options import ArxIdentificationParams
+
+__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture"]
+
+
+@dataclass
+class WindowCapture:
+    """A copy of the window's normal equations and counters at one instant.
+
+    ``window_rows`` is the row count and ``window_fill`` the fraction full, as in
+    :class:`ArxSnapshot`.
+    """
+
+    normal: NormalEquations
+    stamp_s: float
+    window_rows: int
+    window_fill: float
+    samples_used: int
+    samples_rejected: int
+    params: ArxIdentificationParams
+    generation: int = -1  # the window's (:meth:`~okid_ros.service.identification.ArxIdentificationService.is_current`)
+
+
+@dataclass
+class SolveResult:
+    """The regularized least-squares solution of a captured window.
+
+    ``fit`` is None when the window could not give a model; ``reason`` says why.
+    """
+
+    fit: ArxFit | None
+    condition_number: float
+    reason: str
+    solve_time_s: float
+
+
+@dataclass
+class ArxSnapshot:
+    """What ``ArxModel`` carries: the window's ARX fit and its health.
+
+    Attributes
+    ----------
+    model_id : increments with every snapshot; 0 after a reset.
+    valid : the window is filled enough and its solve was accepted.
+    fit : this window's fit when valid, else the last good one (None if there never was one).
+    stamp_s : stamp of the newest sample in the window [s] (nan before the first sample).
+    reason : why the snapshot is invalid ('' if valid).
+    window_length : rows the window holds when full (0 with forgetting only).
+    window_rows : rows in the window now (effective number with forgetting); the ``window_fill``
+        field of the ``ArxModel`` message carries this count.
+    window_fill : the fraction full, window_rows / window_length (with forgetting: of
+        1 / (1 - lambda)), as ``WindowStatus.window_fill`` of the core window.
+    condition_number : condition number of the column-scaled normal equations of this window
+        (nan when not solved). The regressor matrix's own 2-norm condition number is its root.
+    penalty : regularization penalty of ``fit`` (the ``regularization`` field of ``ArxModel``;
+        the kind of prior is ``ArxIdentificationParams.regularization``).
+    samples_used, samples_rejected : since start or reset.
+    solve_time_s : seconds the solve took.
+    """
+
+    model_id: int
+    valid: bool
+    fit: ArxFit | None
+    stamp_s: float
+    reason: str
+    sample_time_s: float
+    order: int
+    n_inputs: int
+    n_outputs: int
+    window_length: int
+    window_rows: int
+    window_fill: float
+    forgetting_factor: float
+    condition_number: float
+    penalty: float
+    samples_used: int
+    samples_rejected: int
+    solve_time_s: float = 0.0
+
+
+def solve_capture(capture: WindowCapture) -> SolveResult:
+    """Solve a captured window (pure; safe to run on another thread)."""
+    prm = capture.params
+    t0 = time.perf_counter()
+    if capture.window_rows == 0:
+        return SolveResult(None, math.nan, "no regressor rows in the window yet", 0.0)
+    if capture.window_fill < prm.min_window_fill:
+        return SolveResult(
+            None, math.nan,
+            f"window fill {capture.window_fill:.2f} below arx.min_window_fill {prm.min_window_fill:.2f}", 0.0,
+        )
+    penalty: float | str = "gcv" if prm.penalty_by_gcv else prm.penalty
+    decay: float | str = "gcv" if prm.penalty_by_gcv else prm.tc_decay
+    try:
+        fit = fit_from_normal_equations(
+            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay=decay,
+            center=prm.offsets == "remove",
+        )
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
+    cond = float(fit.condition_number)
+    elapsed = time.perf_counter() - t0
+    if not cond <= prm.max_condition_number:
+        # Name what makes the window singular: dead inputs, dead or dependent outputs.
+        causes = window_excitation_warnings(capture.normal, prm.n_inputs)[:1]
+        causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
+        return SolveResult(
+            None, cond,
+            f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}"
+            + "".join(f"; {cause}" for cause in causes),
+            elapsed,
+        )
+    if not np.all(np.isfinite(fit.theta)):
+        return SolveResult(None, cond, "solution not finite", elapsed)
+    return SolveResult(fit, cond, "", elapsed)
