@@ -231,10 +231,17 @@ def residual_covariance(normal: NormalEquations, theta: np.ndarray, dof: float) 
 
 
 def channel_mean_square(normal: NormalEquations, n_outputs: int, n_inputs: int, order: int) -> np.ndarray:
-    """Mean square of each channel of ``v = [y; u]`` read from the diagonal of ``R``."""
-    m, w = n_inputs, n_outputs + n_inputs
-    diag = np.diag(normal.R)[m:].reshape(order, w)
-    return np.maximum(diag.mean(axis=0) / max(normal.n_rows, 1), np.finfo(float).tiny)
+    """Mean square of each channel of ``v = [y; u]`` read from the diagonal of ``R``.
+
+    Read from the lagged columns; an input zero in all of them, but not in its feedthrough column (a
+    single blow at the window's newest sample over a silent force), from that one: its square, scaled
+    by the floor of the prior (the tiny float), overflowed float64 in the prior's whitening.
+    """
+    m, p, w = n_inputs, n_outputs, n_outputs + n_inputs
+    diag = np.diag(normal.R)
+    square = diag[m:].reshape(order, w).mean(axis=0)
+    square[p:] = np.where(square[p:] > 0, square[p:], diag[:m])
+    return np.maximum(square / max(normal.n_rows, 1), np.finfo(float).tiny)
 
 
 #: A standard deviation at most this fraction of a channel's level is no variation (below the

@@ -98,6 +98,24 @@ def test_an_impact_hammers_blows_go_in_as_they_came(blow, quiet):
     np.testing.assert_array_equal(u_window, u[-u_window.shape[0]:])
 
 
+def test_a_first_blow_over_a_silent_input_at_the_windows_newest_sample_is_an_unexcited_window(record):
+    # The force exactly 0 (or float noise) for longer than the window, then a blow solved while it is
+    # the newest sample: its square was only in the feedthrough column, the prior scaled it by the
+    # tiny float, and the solve failed, 'array must not contain infs or NaNs', with numpy's
+    # 'overflow encountered in multiply' (core/least_squares.py). The window is unexcited: said so.
+    dt, u, y = record
+    silent = u.copy()
+    silent[:2000] = 0.0
+    silent[1500, 0] = 50.0
+    node_1 = ArxIdentificationService(ArxIdentificationParams.from_parameters(
+        resolve_parameters(ARX_NODE, {"sample_time_s": dt, **LIVE})))
+    node_1.push_block(np.arange(1501) * dt, silent[:1501], y[:1501])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        snapshot = node_1.snapshot()
+    assert not snapshot.valid and snapshot.reason.startswith("unexcited window: condition number inf"), snapshot.reason
+
+
 def test_an_excitation_switched_on_over_a_rounding_floor_goes_in_as_it_came(record):
     # A force of 1e-12 (rounding) and then the excitation: each of its samples lies 1e12 of the
     # floor's spreads off, but not alone: none is a glitch, and the window holds the record.
