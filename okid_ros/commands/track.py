@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
-    from okid_ros.service.identification import restart_window
+    from okid_ros.service.change_restarts import restart_window
     from okid_ros.service.tracked_record import TrackedRecord
     from okid_ros.service.watch import is_new_reference
 

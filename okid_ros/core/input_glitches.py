@@ -12,7 +12,9 @@ mean of that input before and after it (the next alone after a gap), the rest as
 the paper's structure that mean left the ARX fits closer to the clean record's than a gap in the
 lag history or the channel's median did. Otherwise it goes in as it came; so does the second
 sample of a run beyond the bound (an excitation switched on over a quiet floor). A channel of
-spread 0 (an input held at one value, exactly 0 between blows) is not judged: nothing to judge by.
+spread 0 (an input held at one value, exactly 0 between blows) is not judged: nothing to judge by;
+nor one whose spread is float noise (:func:`float_noise_spread`: within a few rounding steps of its
+centre, a held value's jitter, or subnormal, a filter's tail at 0).
 Node 2's estimator cannot wait for the next sample: it refuses a glitch at once (:meth:`InputGlitchGate.refused`),
 as a sample beyond 1e150. No rclpy; numpy only.
 """
@@ -23,8 +25,8 @@ import numpy as np
 
 from okid_ros.core.output_spikes import MAD_TO_STD
 
-__all__ = ["INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate", "input_glitch_warning",
-           "without_input_glitches"]
+__all__ = ["FLOAT_NOISE_STEPS", "INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate",
+           "float_noise_spread", "input_glitch_warning", "without_input_glitches"]
 
 #: Robust standard deviations of its channel beyond which an input is a glitch candidate. The
 #: impact-hammer records of the tests reach 5e3 (blows of 50 over a quiet force of 0.01), a
@@ -32,6 +34,19 @@ __all__ = ["INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate", "i
 INPUT_GLITCH_SPREADS = 1e9
 #: The inputs passed on that give each channel's median and spread (refreshed every quarter of them).
 INPUT_SPREAD_SAMPLES = 1024
+#: Rounding steps (units in the last place) of a channel's centre within which its spread is float
+#: noise: a value held and recomputed (0.3 as 0.1 * 3, a gain and an offset applied) jitters by a few.
+FLOAT_NOISE_STEPS = 16
+
+
+def float_noise_spread(spread: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Whether each channel's ``spread`` (m,) about its ``centre`` (m,) is float noise: (m,) bool.
+
+    Within :data:`FLOAT_NOISE_STEPS` rounding steps of the centre, or below the smallest normal float64
+    (subnormal: an IIR filter's tail at 0). A sample 1e9 such spreads off is no glitch but the first
+    real value of the channel (an excitation switched on), which node 2 refused for one.
+    """
+    return spread <= np.maximum(FLOAT_NOISE_STEPS * np.spacing(np.abs(centre)), np.finfo(float).tiny)
 
 
 class InputGlitchGate:
@@ -79,7 +94,7 @@ class InputGlitchGate:
             recent = self._recent[: min(self._seen, INPUT_SPREAD_SAMPLES)]
             self._centre = np.median(recent, axis=0)
             spread = MAD_TO_STD * np.median(np.abs(recent - self._centre), axis=0)
-            self._limit = np.where(spread > 0, INPUT_GLITCH_SPREADS * spread, np.inf)
+            self._limit = np.where(float_noise_spread(spread, self._centre), np.inf, INPUT_GLITCH_SPREADS * spread)
 
     def refused(self, u: np.ndarray) -> bool:
         """Judge ``u`` (m,) at once, for a path that cannot wait for the next sample (node 2): True for a glitch.

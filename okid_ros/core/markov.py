@@ -28,9 +28,11 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
+from okid_ros.core.window_samples import MAX_SAMPLE_MAGNITUDE
 
 __all__ = [
     "markov_from_arx",
+    "markov_problem",
     "markov_from_state_space",
     "stochastic_markov_from_state_space",
 ]
@@ -70,6 +72,23 @@ def markov_from_arx(arx: ArxFit, n_terms: int | None = None, extend_noise_free: 
             acc += np.tensordot(a_coef[:k], markov[j - k + 1 : j + 1][::-1], axes=([0, 2], [0, 1]))
         markov[j + 1] = acc
     return markov
+
+
+def markov_problem(arx: ArxFit) -> str:
+    """Why the Markov parameters of ``arx`` cannot be realized ("" if they can): beyond :data:`MAX_SAMPLE_MAGNITUDE`.
+
+    The realization starts from them (:func:`markov_from_arx`, ``q + 1`` terms); beyond the bound of a
+    sample their squares overflow float64 in it (the Hankel matrix's Gram, the modes' fit to them).
+    Coefficients of 1e150 (finite) overflow in the recursion itself, each term multiplying the last by
+    the output coefficients.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is the answer, not a warning to print
+        largest = float(np.max(np.abs(markov_from_arx(arx)), initial=0.0))
+    if largest <= MAX_SAMPLE_MAGNITUDE:
+        return ""
+    size = "overflow float64" if not np.isfinite(largest) else f"reach {largest:.3g}"
+    return (f"its Markov parameters (paper Eq. 24, {arx.order + 1} terms) {size}, beyond "
+            f"{MAX_SAMPLE_MAGNITUDE:g}: their squares overflow float64 in the realization")
 
 
 def markov_from_state_space(

@@ -8,7 +8,9 @@ the sample grid by header stamp, feeds them to
 
 Subscribes ``okid_msgs/StructuralChange`` (``structural_change_topic``, default
 ``structural_change`` in the rig namespace, from node 2): the window restarts at the change
-point (:meth:`~okid_ros.service.identification.ArxIdentificationService.restart_at`).
+point (:meth:`~okid_ros.service.identification.ArxIdentificationService.restart_at`); one it
+ignores (:mod:`okid_ros.service.change_restarts`) is counted by why, logged at most once per
+:data:`IGNORED_CHANGE_LOG_S`.
 
 Services: ``~/reset`` (std_srvs/Trigger) forgets the window; ``~/enable`` (std_srvs/SetBool)
 switches adaptation on and off (off: the window is frozen and the same model is republished).
@@ -44,6 +46,8 @@ from okid_ros.service.params import ARX_NODE
 from okid_ros.service.windowed import identification_step
 
 NODE_NAME = ARX_NODE
+#: At most one line per this many seconds of structural changes ignored (each is counted).
+IGNORED_CHANGE_LOG_S = 10.0
 
 
 class ArxIdentifierNode(OkidNode):
@@ -90,16 +94,20 @@ class ArxIdentifierNode(OkidNode):
         identification_step(self.service, sample)
 
     def _on_structural_change(self, msg) -> None:
-        """Restart the window at the change point (node 2 reports each change twice: once)."""
+        """Restart the window at the change point; a change ignored (node 2 reports each twice) is logged throttled."""
         if not self.active:
             return
         with self.state_lock, self._lock:  # the window is the input thread's too
             replayed = self.service.restart_at(stamp_to_seconds(msg.change_stamp))
+            ignored = self.service.last_ignored_change
         if replayed >= 0:
             self.get_logger().info(
                 f"structural change {msg.change_id}: window restarted at {stamp_to_seconds(msg.change_stamp):.3f} s "
                 f"with {replayed} samples"
             )
+        else:  # a flood of them (a replay, a misbehaving publisher) is one line per IGNORED_CHANGE_LOG_S
+            self.get_logger().info(f"structural change {msg.change_id} ignored: {ignored} (counted in "
+                                   "window_restarts_ignored_why)", throttle_duration_sec=IGNORED_CHANGE_LOG_S)
 
     # ------------------------------------------------------------------ publishing
     def _on_publish_timer(self) -> None:

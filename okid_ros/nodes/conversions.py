@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.markov import markov_from_arx
+from okid_ros.core.markov import markov_from_arx, markov_problem
 from okid_ros.core.modal import Mode
 from okid_ros.core.regressors import regressor_length
 from okid_ros.service.arx_solve import ArxSnapshot
@@ -215,7 +215,8 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
     Raises
     ------
     ValueError when the order or the window is beyond what node 1 publishes, the coefficient array
-    does not match its declared shape or holds NaN or Inf,
+    does not match its declared shape or holds NaN or Inf, its Markov parameters are beyond the bound of a
+    sample (:func:`~okid_ros.core.markov.markov_problem`),
     the residual covariance is not a finite symmetric positive semidefinite p x p matrix, or the
     sample times differ.
     """
@@ -256,6 +257,10 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
         condition_number=cond * cond, regularization="ridge", penalty=float(msg.regularization),
         n_rows=int(msg.window_fill),
     )
+    # Finite but absurd (coefficients of 1e150): realized, they failed as a rejected model, numpy's
+    # overflow warnings printed from node 2's worker.
+    if problem := markov_problem(fit):
+        raise ValueError(f"ArxModel coefficients are absurd: {problem}")
     return fit, stamp_to_seconds(msg.header.stamp), int(msg.window_fill)
 
 

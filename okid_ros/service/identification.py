@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -47,7 +47,9 @@ from okid_ros.core.input_glitches import InputGlitchGate
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service.arx_solve import ArxSnapshot, SolveResult, WindowCapture, solve_capture
+from okid_ros.service.change_restarts import change_refusal, replay_rows, restart_window, started_refusal
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
+from okid_ros.service.results import count_why, why_text
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
 
@@ -55,32 +57,9 @@ __all__ = ["ArxIdentificationParams", "ArxIdentificationService", "ArxSnapshot",
            "restart_window", "solve_capture"]
 
 
-#: How far after the newest sample of the window a structural change may be stamped: node 1 may
-#: lag node 2 by its input queue (at most a few hundred samples at the nodes' rates).
-MAX_CHANGE_LEAD_S = 2.0
 #: Generations of the window, unique across services: a capture solved after its window was reset,
 #: restarted or rebuilt (a lifecycle cleanup and configure: a new service) is not accepted.
 _WINDOW_GENERATIONS = itertools.count()
-
-
-def restart_window(window: SlidingWindowArx, u: np.ndarray, y: np.ndarray, gaps: np.ndarray | None = None) -> None:
-    """Restart a sliding ARX window at a structural change with the samples from the change point on.
-
-    ``u`` (N, m), ``y`` (N, p): the samples from the change point to the newest; ``gaps`` (N,):
-    non-zero where the lag history breaks before a sample (None: none, the samples go in as
-    one block). Adaptation on or off is kept. (Node 1 at a StructuralChange, ``okid-ros track``
-    at a change it declares.)
-    """
-    adapting = window.adaptation_enabled
-    window.reset()
-    window.adaptation_enabled = adapting
-    if gaps is None:
-        window.update(u, y)
-        return
-    for k in range(u.shape[0]):
-        if gaps[k]:
-            window.mark_gap()
-        window.push(u[k], y[k])
 
 
 @dataclass
@@ -95,6 +74,8 @@ class _Counters:
     gaps: int = 0
     window_restarts: int = 0
     restarts_ignored: int = 0
+    #: Structural changes ignored, by why (an IgnoredChange phrase) -> (count, the last one's reason in full).
+    restarts_ignored_why: dict = field(default_factory=dict)
     restart_samples: int = 0
     last_restart_stamp_s: float = math.nan
 
@@ -148,6 +129,8 @@ class ArxIdentificationService:
         self._est.reset()
         self._recent.clear()
         self._restarted = False
+        self._frozen = False  # adaptation was off since the reset or the last restart
+        self.last_ignored_change = ""  # the reason the last structural change was ignored for
         self._counters = _Counters()
         self._health = _Health()
         self._stamps.reset()
@@ -175,6 +158,7 @@ class ArxIdentificationService:
     def set_adaptation(self, on: bool) -> None:
         """Adaptation off: samples are still checked and counted, but the window is frozen."""
         self._est.adaptation_enabled = bool(on)
+        self._frozen |= not on  # its rows are no longer the samples' since: a restart's replay differs
 
     @property
     def newest_stamp_s(self) -> float:
@@ -239,36 +223,41 @@ class ArxIdentificationService:
     def restart_at(self, change_stamp_s: float) -> int:
         """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
 
-        A change at or before the last restart's (node 2 reports each change twice) is ignored, and
-        so is one stamped more than :data:`MAX_CHANGE_LEAD_S` after the newest sample here: node 2
-        declares changes at samples it has seen, which reach this window within its lag; a stamp
-        from the future would empty the window and, as the last restart, make every real change
-        before it ignored. So is one before the oldest sample held, or before 0 (no sample's): the
-        samples held are all of the new structure already, and a restart replayed them all for
-        nothing; and any while none is held (started, reset): nothing to restart, and one from the
-        future became the last restart. Returns the samples put back into the window (-1: ignored).
+        Refused, counted by why (:mod:`okid_ros.service.change_restarts`), when the window starts at or
+        after the change already (the same change again: node 2 reports each twice; or an older one),
+        it is stamped before the samples held, more than ``MAX_CHANGE_LEAD_S`` after the newest, or not
+        at all, or none is held. Returns the samples put back into the window (-1: ignored).
         """
-        c = self._counters
+        c, est = self._counters, self._est
         change_stamp_s = float(change_stamp_s)
         tol = 0.5 * self.params.sample_time_s
-        newest, oldest = self._stamps.newest_stamp_s, self._recent.stamp_at(self._recent.first)  # nan: none
-        if (not math.isfinite(oldest) or not math.isfinite(change_stamp_s) or change_stamp_s < max(0.0, oldest - tol)
-                or change_stamp_s <= c.last_restart_stamp_s + tol
-                or (math.isfinite(newest) and change_stamp_s > newest + MAX_CHANGE_LEAD_S)):
+        refused = change_refusal(change_stamp_s, oldest_s=self._recent.stamp_at(self._recent.first),
+                                 newest_s=self._stamps.newest_stamp_s, last_restart_s=c.last_restart_stamp_s,
+                                 sample_time_s=self.params.sample_time_s)
+        if refused is None and est.window is not None and not self._frozen:  # rows of the samples since
+            gaps = self._recent.get(self._replay_first(change_stamp_s, tol), self._recent.count)[3]
+            refused = started_refusal(change_stamp_s, rows_from_change=replay_rows(gaps, est.order),
+                                      window_rows=est.status.rows_in_window)
+        if refused is not None:
             c.restarts_ignored += 1
+            count_why(c.restarts_ignored_why, *refused)
+            self.last_ignored_change = refused[1]
             return -1
         self._flush()  # a held sample is part of the samples to replay
-        first = self._recent.first_at_or_after(change_stamp_s, tol)
-        if first < 0:
-            first = self._recent.count  # nothing after the change yet: an empty window
-        _, u, y, gaps = self._recent.get(first, self._recent.count)
-        restart_window(self._est, u, y, gaps)
+        _, u, y, gaps = self._recent.get(self._replay_first(change_stamp_s, tol), self._recent.count)
+        restart_window(est, u, y, gaps)
         self._restarted = True
+        self._frozen = not est.adaptation_enabled
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])
         c.last_restart_stamp_s = change_stamp_s
         self._generation = next(_WINDOW_GENERATIONS)  # a solve of the old window still running is stale
         return int(u.shape[0])
+
+    def _replay_first(self, change_stamp_s: float, tol: float) -> int:
+        """Index of the first sample held a restart at ``change_stamp_s`` replays (the count: none yet)."""
+        first = self._recent.first_at_or_after(change_stamp_s, tol)
+        return self._recent.count if first < 0 else first
 
     def push_block(self, stamps_s, u, y) -> int:
         """Push samples one by one (same checks); return how many were accepted."""
@@ -373,6 +362,7 @@ class ArxIdentificationService:
             "input_glitches": self._inputs.glitches,  # ... whose inputs went in as their neighbours' mean
             "window_restarts": c.window_restarts,
             "window_restarts_ignored": c.restarts_ignored,
+            "window_restarts_ignored_why": why_text(c.restarts_ignored_why),
             "last_restart_stamp_s": c.last_restart_stamp_s,
             "last_restart_samples": c.restart_samples,
             "window_rows": int(st.rows_in_window),

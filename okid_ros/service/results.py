@@ -32,6 +32,8 @@ __all__ = [
     "RealizationJob",
     "RealizationOutcome",
     "StructuralChangeEvent",
+    "count_why",
+    "why_text",
 ]
 
 
@@ -265,8 +267,18 @@ class EstimationStats:
         """Count an ArxModel refused for ``why`` (a :class:`RefusedArx` phrase); ``reason`` says it in full."""
         self.arx_refused += 1
         self.last_reason = reason
-        self.arx_refused_why[why] = (self.arx_refused_why.get(why, (0, ""))[0] + 1, reason)
+        count_why(self.arx_refused_why, why, reason)
 
     def arx_refused_text(self) -> str:
         """"N WHY (the last: REASON); ..." of the refused ArxModels ("" if none)."""
-        return "; ".join(f"{count} {why} (the last: {reason})" for why, (count, reason) in self.arx_refused_why.items())
+        return why_text(self.arx_refused_why)
+
+
+def count_why(counts: dict, why: str, reason: str) -> None:
+    """Count one refusal for ``why`` in ``counts`` (why -> (count, the last one's reason)), ``reason`` in full."""
+    counts[why] = (counts.get(why, (0, ""))[0] + 1, reason)
+
+
+def why_text(counts: dict) -> str:
+    """"N WHY (the last: REASON); ..." of refusals counted by :func:`count_why` ("" if none)."""
+    return "; ".join(f"{count} {why} (the last: {reason})" for why, (count, reason) in counts.items())

@@ -139,6 +139,10 @@ def test_node1_restarts_its_window_at_the_change_point(run):
     changes, arx, diagnostics, procs = run
     ident = diagnostics["okid_arx_identifier: identification"]
     assert ident["window_restarts"] == "1" and ident["window_restarts_ignored"] == "1"  # 2nd report ignored
+    assert ident["window_restarts_ignored_why"].startswith(
+        "1 whose stamp the window starts at or after already (the same change again, or an older one) "
+        "(the last: structural change at "), ident["window_restarts_ignored_why"]
+    assert f"structural change {changes[0].change_id} ignored: structural change at" in procs["arx"].output()
     change_s = stamp_s(changes[0].change_stamp)
     assert abs(float(ident["last_restart_stamp_s"]) - change_s) < 1e-6
     # The window fill drops at the restart: after it, no ArxModel window reaches back before the change.

@@ -7,6 +7,7 @@ imports no ROS package).
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import replace
 from types import SimpleNamespace as NS
 
@@ -126,6 +127,31 @@ def test_an_arx_model_whose_coefficients_are_not_finite_is_malformed(identified,
     msg.coefficients = coefficients
     with pytest.raises(ValueError, match=r"ArxModel coefficients are not finite \(1 of 164 values NaN or Inf\)"):
         cv.arx_fit_from_msg(msg, msg.sample_time_s)
+
+
+@pytest.mark.parametrize("scale, index, text", [
+    (1e150, None, "overflow float64"),  # every coefficient: the fuzz's model
+    (1e10, None, "reach 9.4e[+]205"),  # finite, and squared beyond float64 in the modes' fit
+    (1e150, 7, "overflow float64"),  # one lag coefficient (was 'realization failed: ... numerical rank 2')
+])
+def test_an_arx_model_of_absurd_finite_coefficients_is_malformed_without_a_warning(identified, scale, index, text):
+    # Was taken and realized on node 2's worker: 'realization failed: array must not contain infs or
+    # NaNs', counted in models_rejected, numpy's overflow warnings printed from the worker (times 1e10:
+    # accepted, with scipy's 'overflow encountered in square').
+    msg = cv.arx_model_msg(identified[0], TYPES)
+    coefficients = np.array(msg.coefficients)
+    if index is None:
+        coefficients *= scale
+    else:
+        coefficients[index] = scale
+    msg.coefficients = coefficients
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=f"ArxModel coefficients are absurd: its Markov parameters "
+                                             rf"\(paper Eq. 24, 21 terms\) {text}.*beyond 1e\+150"):
+            cv.arx_fit_from_msg(msg, msg.sample_time_s)
+    msg.coefficients = np.array(cv.arx_model_msg(identified[0], TYPES).coefficients) * 1e3  # within: taken
+    assert cv.arx_fit_from_msg(msg, msg.sample_time_s)[0].order == 20
 
 
 @pytest.mark.parametrize("order, text", [

@@ -165,6 +165,8 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
             if i == 75:  # 1e8 rows, node 1's limit: beyond what node 2 may buffer (it sized 1.1e8)
                 malformed.publish(well_formed_arx(998, f.last_stamp - 0.5, window_length=100_000_000,
                                                   window_fill=100_000_000))  # another window end
+            if i == 80:  # finite but absurd: realized, it failed, numpy's warnings printed from the worker
+                malformed.publish(well_formed_arx(980, f.last_stamp, coefficients=[1e150] * 164))
             time.sleep(0.02)
         rate_during = f.states_rate_hz(1.0)
         after = {name: counters(f, name) for name in MODULES}
@@ -183,13 +185,15 @@ def test_wrong_sizes_and_a_wrong_message_type_are_refused_and_counted(rig):
                                  r"of another type .*/okid_fault_wrong_type \(std_msgs/msg/Float64MultiArray\)", 10)
             assert int(inputs["/okid/io_sample wrong_type_publishers"]) == 1, inputs
         malformed_count = int(est_after["arx_models_malformed"]) - int(est_before["arx_models_malformed"])
-        figures("bad publishers estimator", malformed_arx_sent=8, malformed_arx_counted=malformed_count,
+        figures("bad publishers estimator", malformed_arx_sent=9, malformed_arx_counted=malformed_count,
                 buffer_capacity=int(est_after["buffer_capacity"]),
                 states_hz_during=rate_during)
-        assert malformed_count >= 7, (est_before, est_after)
+        assert malformed_count >= 8, (est_before, est_after)
         estimator = rig.nodes["okid_modal_estimator"]
         estimator.wait_for_output(r"ArxModel 999 ignored: .*window", 5)
         estimator.wait_for_output(r"ArxModel 9\d\d ignored: ArxModel coefficients", 5)
+        estimator.wait_for_output(r"ArxModel 980 ignored: ArxModel coefficients are absurd: its Markov parameters", 5)
+        assert "overflow" not in estimator.output().replace("overflow float64", ""), estimator.output()[-2000:]
         for reason in ("is not finite", "is not symmetric", "is not positive semidefinite"):
             estimator.wait_for_output(rf"ArxModel 9[67]\d ignored: ArxModel residual_covariance {reason}", 5)
         # The 1e8-row window: refused by node 2's own limit, the buffer as it was (not 1.1e8 samples).

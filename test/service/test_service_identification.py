@@ -168,6 +168,47 @@ def test_a_structural_change_while_no_sample_is_held_is_ignored(record):
         assert svc.restart_at(10.0 + 800 * dt) == 100  # the first real change restarts the window
 
 
+def test_a_structural_change_the_window_starts_after_already_is_ignored_and_counted(record):
+    # A replayed or misbehaving publisher: the same change again and again, or one the window has
+    # slid past. Each was a restart replaying the samples held (~9 ms at order 40, window 2000) and a
+    # new window generation (the solve running dropped), so a flood kept node 1 from publishing.
+    dt, u, y = record
+    svc = make_service(dt)
+    svc.push_block(np.arange(600) * dt, u[:600], y[:600])
+    assert svc.restart_at(400 * dt) == 200
+    svc.push_block(np.arange(600, 900) * dt, u[600:], y[600:])  # its W = 300 rows reach back to sample 592
+    generation = svc.capture().generation  # the samples held (W + Q + 64) from 528 on
+    for stamp in (400, 530, 560, 560, 592):  # the same change; ones the window has slid past, once or twice
+        assert svc.restart_at(stamp * dt) == -1, stamp
+    d = svc.diagnostics()
+    assert d["window_restarts"] == 1 and d["window_restarts_ignored"] == 5, d
+    assert d["window_restarts_ignored_why"] == (
+        "1 stamped before the samples node 1 holds (the last: structural change at 3.200 s, before the oldest "
+        "sample node 1 holds (4.224 s): they are all of the new structure); 4 whose stamp the window starts at or "
+        "after already (the same change again, or an older one) (the last: structural change at 4.736 s: the "
+        "window's 300 rows are all of samples from it on already)"), d
+    assert svc.capture().generation == generation and d["window_fill"] == 1.0  # the window and its solve kept
+    assert svc.restart_at(593 * dt) == 307  # a change among the window's rows still restarts it
+    assert svc.restart_at(593 * dt) == -1  # ... once
+    assert svc.last_ignored_change == "structural change at 4.744 s, at or before the last restart's (4.744 s)"
+    assert svc.restart_at(899 * dt + 3600.0) == -1  # refused as a change from the future, said as such
+    why = svc.diagnostics()["window_restarts_ignored_why"]
+    assert "; 1 stamped far after node 1's newest sample (the last: structural change at 3607.192 s, " in why, why
+
+
+def test_a_structural_change_after_adaptation_was_off_is_not_judged_by_the_window_rows(record):
+    # Frozen from sample 600 to 800, the window holds rows from 400 to 599 and from 800 on: a change at
+    # 550 leaves more rows after it (342) than the window holds (300), yet the window reaches before it.
+    dt, u, y = record
+    svc = make_service(dt)
+    svc.push_block(np.arange(600) * dt, u[:600], y[:600])
+    svc.set_adaptation(False)
+    svc.push_block(np.arange(600, 800) * dt, u[600:800], y[600:800])
+    svc.set_adaptation(True)
+    svc.push_block(np.arange(800, 900) * dt, u[800:], y[800:])
+    assert svc.restart_at(550 * dt) == 350
+
+
 @pytest.mark.parametrize("value", [1e151, 1e300])
 def test_a_sample_beyond_the_window_bound_is_a_counted_rejection_without_warnings(record, value):
     """As a NaN sample: refused, counted, a gap.

@@ -9,7 +9,7 @@ import pytest
 
 from okid_bench.live_chain import chain_modes
 from okid_ros.core.arx import fit_from_normal_equations
-from okid_ros.core.input_glitches import INPUT_GLITCH_SPREADS
+from okid_ros.core.input_glitches import INPUT_GLITCH_SPREADS, without_input_glitches
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.service.estimation import ModalEstimationService
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
@@ -98,6 +98,24 @@ def test_an_impact_hammers_blows_go_in_as_they_came(blow, quiet):
     np.testing.assert_array_equal(u_window, u[-u_window.shape[0]:])
 
 
+def test_a_first_blow_over_a_silent_input_at_the_windows_newest_sample_is_an_unexcited_window(record):
+    # The force exactly 0 (or float noise) for longer than the window, then a blow solved while it is
+    # the newest sample: its square was only in the feedthrough column, the prior scaled it by the
+    # tiny float, and the solve failed, 'array must not contain infs or NaNs', with numpy's
+    # 'overflow encountered in multiply' (core/least_squares.py). The window is unexcited: said so.
+    dt, u, y = record
+    silent = u.copy()
+    silent[:2000] = 0.0
+    silent[1500, 0] = 50.0
+    node_1 = ArxIdentificationService(ArxIdentificationParams.from_parameters(
+        resolve_parameters(ARX_NODE, {"sample_time_s": dt, **LIVE})))
+    node_1.push_block(np.arange(1501) * dt, silent[:1501], y[:1501])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        snapshot = node_1.snapshot()
+    assert not snapshot.valid and snapshot.reason.startswith("unexcited window: condition number inf"), snapshot.reason
+
+
 def test_an_excitation_switched_on_over_a_rounding_floor_goes_in_as_it_came(record):
     # A force of 1e-12 (rounding) and then the excitation: each of its samples lies 1e12 of the
     # floor's spreads off, but not alone: none is a glitch, and the window holds the record.
@@ -108,6 +126,32 @@ def test_an_excitation_switched_on_over_a_rounding_floor_goes_in_as_it_came(reco
     assert service.diagnostics()["input_glitches"] == 0
     u_window = service.window_samples()[0]
     np.testing.assert_array_equal(u_window, switched[-u_window.shape[0]:])
+
+
+@pytest.mark.parametrize("floor", ["held", "subnormal"])
+def test_a_floor_of_float_noise_gives_no_spread_to_judge_a_real_sample_by(record, floor):
+    # An input held at 0.3 with its rounding jitter (one step, 5.6e-17), or a filter's subnormal tail
+    # at 0 (1e-310), then a blow of 50 and the excitation switched on: node 2 refused the blow and the
+    # excitation's first sample as glitches (2 counted, each a sample bridged), node 1 and track
+    # replaced the blow by its neighbours' mean (1e9 spreads of rounding are no measure of a force).
+    dt, u, y = record
+    rng = np.random.default_rng(6)
+    switched = u.copy()
+    switched[:2000] = (0.3 * (1 + 2.2e-16 * rng.standard_normal((2000, 2))) if floor == "held"
+                       else 1e-310 * rng.standard_normal((2000, 2)))
+    switched[1500, 0] += 50.0
+    assert 0 < np.median(np.abs(switched[:2000] - np.median(switched[:2000], axis=0)))  # a spread, not 0
+    params = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, {"sample_time_s": dt}))
+    service = ModalEstimationService(params)
+    for k in range(u.shape[0]):
+        service.step(k * dt, switched[k], y[k])
+    assert service.diagnostics()["input_glitches"] == service.diagnostics()["rejected_samples"] == 0
+    node_1 = ArxIdentificationService(ArxIdentificationParams.from_parameters(
+        resolve_parameters(ARX_NODE, {"sample_time_s": dt, **LIVE})))  # no solve: the window as it is taken
+    assert node_1.push_block(np.arange(1600) * dt, switched[:1600], y[:1600]) == 1600
+    assert node_1.diagnostics()["input_glitches"] == 0
+    np.testing.assert_array_equal(node_1.window_samples()[0], switched[1600 - node_1.window_samples()[0].shape[0]:1600])
+    assert without_input_glitches(switched)[1].size == 0  # track's and identify's
 
 
 def test_input_spikes_of_1e149_cost_the_live_chain_no_mode():
