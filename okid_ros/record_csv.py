@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.column_names import repeated_column_names
 from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.errors import DataError, OkidWarning, shown_path
 
@@ -87,8 +88,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
             raise DataError(f"{shown_path(path)}: data row {number} has {len(row)} values, the header {len(header)}"
                             f"{_separator_hint(header, body[0])}")
     _warn_commented_rows(path, commented, len(header), len(rows) - 1)
-    if repeated := sorted({header[i] for i in wanted(header) if header.count(header[i]) > 1}):  # read as 2 channels
-        names = ", ".join(f"{header.count(name)} columns {name!r}" for name in repeated)
+    if names := repeated_column_names(header, wanted(header)):  # read as 2 channels ('y1' and 'Y1' too)
         raise DataError(f"{shown_path(path)}: the header names {names} (a column given twice?): rename or remove one")
     values = np.full((len(rows) - 1, len(header)), np.nan)
     for column in wanted(header):

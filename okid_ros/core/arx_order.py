@@ -20,9 +20,10 @@ from okid_ros.core.least_squares import (
 )
 from okid_ros.core.options import ArxOrderOptions, RealizationOptions
 from okid_ros.core.regressors import check_io_arrays, longest_given_order, regressor_length, samples_for_order
+from okid_ros.core.state_gram import fewest_state_samples
 
-__all__ = ["ArxOrderChoice", "arx_order_for_realization", "choose_arx_order", "longest_arx_order",
-           "select_arx_order", "most_states", "states_problem"]
+__all__ = ["ArxOrderChoice", "arx_order_for_realization", "choose_arx_order", "fewest_samples_to_identify",
+           "longest_arx_order", "select_arx_order", "most_states", "states_problem"]
 
 #: A record too short for the whole state search still gets a search of at least one mode.
 MIN_SEARCH_STATES = 2
@@ -152,6 +153,19 @@ def choose_arx_order(
     return choice.order, choice.scores
 
 
+def fewest_samples_to_identify(n_outputs: int, n_inputs: int) -> int:
+    """The fewest samples identify takes with inputs: the ARX fit of order 2 and the realization of its states.
+
+    At order 2 the Hankel matrix has one block row (``p`` states) and the state search begins at
+    :data:`MIN_SEARCH_STATES`, one mode's worth (1 state with one output); their equations are
+    regressed on the ``N - 1`` states the order leaves (:func:`~okid_ros.core.state_gram.fewest_state_samples`),
+    which needs more than the ARX fit with few inputs (2 inputs and 2 outputs: 14 samples, the fit 13).
+    ``export`` refuses a shorter record, and the automatic order's refusal names this number.
+    """
+    states = min(MIN_SEARCH_STATES, n_outputs)
+    return max(samples_for_order(2, n_outputs, n_inputs), fewest_state_samples(states, n_inputs, n_outputs) + 1)
+
+
 def min_arx_order(states: int, n_outputs: int) -> int:
     """The smallest ARX order whose Hankel matrix holds ``states`` (rows about half the lags)."""
     return 2 * int(np.ceil(states / n_outputs)) + 1
@@ -194,10 +208,11 @@ def states_problem(states: int, n_present: int, n_outputs: int, n_inputs: int, *
 def _too_short_for_a_search(n_present: int, smallest: int, p: int, m: int, arx_orders: ArxOrderOptions) -> str:
     """Why ``n_present`` samples take no automatic ARX order, and which given order they take (or that none does)."""
     needed = int(arx_orders.min_rows_per_coefficient * regressor_length(smallest, p, m)) + smallest
-    given = longest_given_order(n_present, p, m)
+    fewest = fewest_samples_to_identify(p, m)
+    given = longest_given_order(n_present, p, m) if n_present >= fewest else 0  # above order 2 the ARX fit needs more
     if given < 2:  # the realization needs two blocks of Markov parameters (ARX order 2)
         return (f"{n_present} samples are too few for any ARX order: the smallest a given order can be, 2 (with {m} "
-                f"inputs and {p} outputs), needs {samples_for_order(2, p, m)} samples, the automatic order's "
+                f"inputs and {p} outputs), needs {fewest} samples, the automatic order's "
                 f"smallest, {smallest} ({MIN_SEARCH_STATES} states' worth), {needed}")
     return (f"{n_present} samples are too few for an automatic ARX order: the smallest it takes, {smallest} "
             f"({MIN_SEARCH_STATES} states' worth), needs {needed} samples; a given order up to {given} fits them")

@@ -32,7 +32,7 @@ from scipy import linalg
 from okid_ros.core.kalman_gain import kalman_gain_from_covariances
 from okid_ros.core.refit import PredictorFit, gain_from_predictor, innovation_covariance
 from okid_ros.core.stable_matrix import stabilize_state_matrix, stabilize_with_eigen
-from okid_ros.core.state_gram import StateGram
+from okid_ros.core.state_gram import StateGram, fewest_state_samples
 from okid_ros.core.statespace import InnovationModel, free_parameters, predictor_states
 
 __all__ = [
@@ -75,7 +75,7 @@ def regress_state_equations(
     """
     n_samples, n = states.shape
     m, p = u.shape[1], y.shape[1]
-    if n_samples <= 2 * (n + m + p):
+    if n_samples < fewest_state_samples(n, m, p):
         raise ValueError(f"{n_samples} samples are too few to fit a {n}-state model")
     if not np.all(np.isfinite(states)):
         raise ValueError("the state sequence is not finite")

@@ -28,7 +28,12 @@ from okid_ros.core.arx_gram import lagged_gram
 from okid_ros.core.stable_matrix import stabilize_with_eigen
 from okid_ros.core.statespace import free_parameters
 
-__all__ = ["StateGram", "GramRegression"]
+__all__ = ["StateGram", "GramRegression", "fewest_state_samples"]
+
+
+def fewest_state_samples(n_states: int, n_inputs: int, n_outputs: int) -> int:
+    """The fewest samples of a state sequence its state and output equations are regressed on (twice the unknowns)."""
+    return 2 * (n_states + n_inputs + n_outputs) + 1
 
 
 class GramRegression:
@@ -211,7 +216,7 @@ class StateGram:
         if self._base is None or not 1 <= n <= self._top:
             raise ValueError(f"order {n} outside the Gram's states 1..{self.max_states}")
         m, p = self.m, self.p
-        if self.n_samples <= 2 * (n + m + p):
+        if self.n_samples < fewest_state_samples(n, m, p):
             raise ValueError(f"{self.n_samples} samples are too few to fit a {n}-state model")
         iu, ix, iy, ixn = self._indices(n)
         sub = np.concatenate([ix, iu, iy, ixn])

@@ -322,7 +322,8 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[
     ------
     ParameterError
         Nesting too deep for PyYAML, aliases that refer to their own container, or expand the
-        document by more than :data:`MAX_ALIAS_EXPANSION` values; the message starts with ``label``.
+        document by more than :data:`MAX_ALIAS_EXPANSION` values, a merge key ``<<`` (rcl merges
+        nothing: a node refuses the file); the message starts with ``label``.
     yaml.YAMLError
         Not YAML.
     """
@@ -334,6 +335,11 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[
         def construct_mapping(self, node, deep=False):
             lines: dict[str, int] = {}
             for key, _ in node.value:  # keys are names, never typed
+                if isinstance(key, yaml.ScalarNode) and key.value == "<<" and key.style is None:
+                    raise ParameterError(f"{label}: line {key.start_mark.line + 1}: the YAML merge key '<<' is not "
+                                         "read by rcl: a node refuses the alias it merges ('Will not support "
+                                         "aliasing') and takes an inline '<<: {...}' for parameters named '<<.NAME'; "
+                                         "write the parameters out in the section")
                 if isinstance(key, yaml.ScalarNode) and key.tag == tag:
                     key.tag = "tag:yaml.org,2002:str"
                 if repeated is not None and isinstance(key, yaml.ScalarNode):

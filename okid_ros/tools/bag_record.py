@@ -114,13 +114,14 @@ def _rejected_messages(rejected: dict[str, int], messages: int, sample_time_s: f
 def fewest_usable_samples(n_outputs: int, n_inputs: int) -> int:
     """The fewest contiguous samples any command identifies from, with these channels.
 
-    An ARX model of order 2, the smallest the realization takes (``check_record_length``; with
-    inputs), or output-only identification's :data:`~okid_ros.core.output_only_support.MIN_SAMPLES`.
+    identify's rule with inputs (:func:`~okid_ros.core.arx_order.fewest_samples_to_identify`: ARX
+    order 2 and its realization), or output-only identification's
+    :data:`~okid_ros.core.output_only_support.MIN_SAMPLES`.
     """
+    from okid_ros.core.arx_order import fewest_samples_to_identify
     from okid_ros.core.output_only_support import MIN_SAMPLES
-    from okid_ros.core.regressors import samples_for_order
 
-    return min(samples_for_order(2, n_outputs, n_inputs), MIN_SAMPLES) if n_inputs else MIN_SAMPLES
+    return min(fewest_samples_to_identify(n_outputs, n_inputs), MIN_SAMPLES) if n_inputs else MIN_SAMPLES
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:

@@ -69,6 +69,28 @@ def test_export_refuses_one_sample_and_a_failed_forced_export_keeps_the_old_reco
     assert out.read_bytes() == before
 
 
+def test_export_refuses_a_record_shorter_than_identify_takes_and_identify_takes_the_shortest(bag, tmp_path, capsys):
+    # export wrote 13 samples of 2 inputs and 2 outputs (the ARX fit of order 2), which identify refused:
+    # "no model order gave a usable predictor: n=2: 12 samples are too few to fit a 2-state model".
+    from okid_ros.tools.bagio import BagWriter
+
+    for n_samples, status in ((13, 2), (14, 0)):
+        short = tmp_path / f"first{n_samples}"
+        with open_bag(bag) as reader, BagWriter(short) as writer:
+            writer.add_topic(IO_SAMPLE_TOPIC, "okid_msgs/msg/IoSample")
+            for _, (_, log_ns, msg) in zip(range(n_samples), reader.messages([IO_SAMPLE_TOPIC])):
+                writer.write(IO_SAMPLE_TOPIC, log_ns, msg)
+        out = tmp_path / f"first{n_samples}.npz"
+        capsys.readouterr()
+        assert main(["export", str(short), "--npz", str(out)]) == status
+        if status:
+            assert "is shorter than any command identifies from (14 samples with 2 inputs and 2 outputs)" in (
+                capsys.readouterr().err) and not out.exists()
+            continue
+        assert main(["identify", str(out), "--order", "2", "--json", str(tmp_path / "m.json")]) == 0
+        assert main(["identify", str(short), "--order", "2", "--json", str(tmp_path / "b.json")]) == 0
+
+
 def test_a_sensor_topic_that_stops_half_way_is_said_by_export_and_process(bag, tmp_path, capsys):
     # One of the four sensor topics stops after 4 s of the 12 s bag: export wrote the 4 s and process
     # identified them, neither saying that two thirds of the sample times were dropped incomplete.

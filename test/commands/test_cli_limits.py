@@ -59,7 +59,10 @@ def test_the_most_states_follow_the_cost_limit_and_the_record():
 @pytest.mark.parametrize("n_samples, fragments", [
     # was: "... needs 31 samples; a given order may fit fewer (at most 0 here)"
     (5, ["5 samples are too few for any ARX order: the smallest a given order can be, 2 (with 2 inputs and 2 "
-         "outputs), needs 13 samples, the automatic order's smallest, 3 (2 states' worth), 31"]),
+         "outputs), needs 14 samples, the automatic order's smallest, 3 (2 states' worth), 31"]),
+    # was: "... a given order up to 2 fits them", where --order 2 then failed: "12 samples are too few to fit a
+    # 2-state model"
+    (13, ["13 samples are too few for any ARX order", "needs 14 samples"]),
     # was: "(at most 1 here)" although --order 2 and 3 fit 20 samples
     (20, ["20 samples are too few for an automatic ARX order", "needs 31 samples; a given order up to 3 fits them"]),
 ])
@@ -72,3 +75,21 @@ def test_a_record_too_short_for_an_automatic_order_says_its_samples_and_what_fit
     if n_samples == 20:  # the largest order said to fit does
         code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "out.json", "--order", "3")
         assert code == 0, err
+
+
+@pytest.mark.parametrize("n_inputs, n_outputs", [(1, 1), (2, 1), (2, 2), (1, 4), (3, 3), (4, 4)])
+def test_the_fewest_samples_export_takes_are_the_fewest_identify_takes(tmp_path, capsys, n_inputs, n_outputs):
+    # export took 13 samples of 2 inputs and 2 outputs (the ARX fit of order 2) that identify refused: its
+    # realization of 2 states regresses them on 12 states, too few (one rule now, arx_order.fewest_samples_to_identify).
+    from okid_ros.tools.bag_record import fewest_usable_samples
+
+    fewest = fewest_usable_samples(n_outputs, n_inputs)
+    rng = np.random.default_rng(1)
+    for n_samples, status in ((fewest, 0), (fewest - 1, 2)):
+        u = rng.standard_normal((n_samples, n_inputs))
+        y = np.cumsum(rng.standard_normal((n_samples, n_outputs)), axis=0) * 0.1 + u @ rng.standard_normal(
+            (n_inputs, n_outputs))
+        path = tmp_path / f"{n_samples}.npz"
+        np.savez(path, u=u, y=y, sample_time_s=DT)
+        code, _, err = run_cli(capsys, "identify", path, "--order", 2, "--json", tmp_path / f"{n_samples}.json")
+        assert code == status, (n_samples, err)

@@ -198,6 +198,20 @@ def test_a_column_name_given_twice_is_refused_unless_the_column_is_ignored(tmp_p
     assert load_record(path).y.shape == (3, 1)
 
 
+def test_column_names_alike_but_for_their_case_are_refused_as_given_twice(tmp_path: Path) -> None:
+    # 't,u1,y1,Y1' was read as two outputs, y1 then Y1, in silence: the reader takes 'Y' as 'y'.
+    path = tmp_path / "case.csv"
+    for header, says in (("t,u1,y1,Y1", "2 columns 'y1' and 'Y1', one name but for its case"),
+                         ("U,u,y,t", "2 columns 'U' and 'u', one name but for its case"),
+                         ("u1,y1,Y1,y1", "3 columns 'y1' and 'Y1', one name but for its case")):
+        rows = "".join(f"{i},{i + 1},{i % 3},{i % 2}\n" for i in range(4))
+        path.write_text(f"# sample_time_s=0.01\n{header}\n{rows}")
+        with pytest.raises(DataError, match=re.escape(f"{path}: the header names {says} (a column given twice?)")):
+            load_record(path)
+    path.write_text("# sample_time_s=0.01\nTIME_S,time_s,u1,y1\n9,0,1,2\n9,0.01,3,4\n9,0.02,5,7\n")
+    assert load_record(path).y.shape == (3, 1)  # 'TIME_S' is no time column to the reader: ignored, not twice
+
+
 def test_a_commented_out_data_row_between_samples_is_named(tmp_path: Path) -> None:
     # A '#' before a data row dropped its sample and joined its neighbours, in silence.
     path = tmp_path / "hash.csv"

@@ -8,6 +8,7 @@ behind, or for a spoilt result of an earlier `batch` run, a warning and the bag 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -352,6 +353,41 @@ def test_a_spoilt_stored_result_is_processed_again_with_a_warning(small_campaign
     assert "okid-ros batch: warning: " in err and fragment in err and "processing" in err
     assert read_summary(out)["run_000"]["reused"] == "False"
     assert json.loads((out / result).read_text())["status"] == "ok"  # a good result again
+    assert table_rows(out) == table_rows(small_campaign["out"])
+
+
+def _first_mode_changed(result: dict, name: str, value) -> dict:
+    mode = next(mode for update in result["updates"] for mode in update["modes"])
+    mode[name] = value if not name.startswith("shape") else [value, *mode[name][1:]]
+    return result
+
+
+NONFINITE_RESULTS = {  # a stored result's numbers NaN/Inf where node 2 never writes them so
+    "nan_frequency": (lambda r: _first_mode_changed(r, "frequency_hz", math.nan),
+                      "a mode's frequency_hz is nan, not finite"),
+    "inf_damping": (lambda r: _first_mode_changed(r, "damping_ratio", math.inf),
+                    "a mode's damping_ratio is inf, not finite"),
+    "nan_shape": (lambda r: _first_mode_changed(r, "shape_real", math.nan),
+                  "a mode's shape_real is not a list of finite numbers"),
+    "nan_samples": (lambda r: {**r, "samples": math.nan}, "its samples is nan, not finite"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(NONFINITE_RESULTS))
+def test_a_stored_result_of_nan_or_inf_is_spoilt_and_processed_again(small_campaign, tmp_path, capsys, case):
+    # NaN/Inf frequencies, damping ratios, shapes or counts in a result.json were taken as a good result.
+    from okid_ros.tools.campaign.stored import result_problem
+
+    spoil, fragment = NONFINITE_RESULTS[case]
+    result = Path("bags") / small_campaign["label"] / "result.json"
+
+    def write_spoilt(out: Path) -> None:
+        (out / result).write_text(json.dumps(spoil(json.loads((out / result).read_text())), allow_nan=True))
+
+    out, err = _rerun(small_campaign, tmp_path, capsys, write_spoilt)
+    assert f"okid-ros batch: warning: {out / result}: {fragment}; processing" in err
+    assert read_summary(out)["run_000"]["reused"] == "False"
+    assert result_problem(json.loads((out / result).read_text()), "ok") == ""  # a good result again
     assert table_rows(out) == table_rows(small_campaign["out"])
 
 

@@ -7,13 +7,15 @@ RecursionError (exit 70). Each is now one ParameterError naming the file, before
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 
 from okid_ros.errors import ParameterError
-from okid_ros.service.param_files import MAX_ALIAS_EXPANSION, load_yaml_as_rcl, read_parameter_file
+from okid_ros.service.param_files import MAX_ALIAS_EXPANSION, flatten, load_yaml_as_rcl, read_parameter_file
 from okid_ros.service.params import ARX_NODE, load_parameters
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -47,6 +49,25 @@ def test_a_recursive_alias_is_refused(tmp_path):
         read_parameter_file(path)
     with pytest.raises(ParameterError, match="contains it"):
         load_yaml_as_rcl("&l [1, *l]")
+
+
+@pytest.mark.parametrize("section, line", [
+    ("base: &base\n  arx: {order: 20}\n/**:\n  ros__parameters:\n    <<: *base\n    sample_time_s: 0.01\n", 5),
+    ("/**:\n  ros__parameters:\n    sample_time_s: 0.01\n    <<: {arx: {order: 20}}\n", 4),
+], ids=["alias", "inline"])
+def test_a_yaml_merge_key_is_refused_naming_the_file_and_line(tmp_path, capsys, section, line):
+    # '<<: *base' was read as a parameter named '<<' ('<<.arx.order', an unknown parameter's warning) while rcl
+    # refuses the file ("Will not support aliasing at line 5"); rcl reads the inline form as '<<.arx.order' too.
+    path = tmp_path / "merge.yaml"
+    path.write_text(section)
+    with pytest.raises(ParameterError, match=re.escape(f"parameter file {path}: line {line}: the YAML merge key '<<' "
+                                                       "is not read by rcl")):
+        read_parameter_file(path)
+    code, _, err = run_cli(capsys, "process", tmp_path / "no_bag", "--params", path, "--out", tmp_path / "out")
+    assert_one_line_error(code, err, f"merge.yaml: line {line}: the YAML merge key '<<'")
+    assert not (tmp_path / "out").exists()
+    path.write_text(section.replace("<<:", "'<<':"))  # quoted: a name, no merge key (rcl reads the inline one so)
+    assert flatten(read_parameter_file(path)["/**"]["ros__parameters"])["<<.arx.order"] == 20
 
 
 def test_a_value_nested_too_deeply_is_a_parameter_error():

@@ -117,21 +117,22 @@ def test_a_slow_grid_takes_every_sample_whatever_the_time_jump(tmp_path, capsys,
 
 
 @pytest.mark.parametrize("every, code, said", [
-    (14, 0, "warning: BAG: the record written is the longest of its 108 contiguous runs, 13 of the 1393 samples "
-            "(0.93 %); 107 sample times dropped incomplete"),
-    (13, 2, "error: BAG: the longest of its 116 contiguous runs, 12 of the 1385 samples (0.87 %), is shorter than any "
-            "command identifies from (13 samples with 2 inputs and 2 outputs): 115 sample times dropped incomplete"),
+    (15, 0, "warning: BAG: the record written is the longest of its 100 contiguous runs, 14 of the 1400 samples "
+            "(1 %); 99 sample times dropped incomplete"),
+    (14, 2, "error: BAG: the longest of its 108 contiguous runs, 13 of the 1393 samples (0.93 %), is shorter than any "
+            "command identifies from (14 samples with 2 inputs and 2 outputs): 107 sample times dropped incomplete"),
 ])
 def test_export_of_a_bag_with_many_gaps_says_the_share_kept_or_refuses_a_run_too_short(tmp_path, capsys, every,
                                                                                          code, said):
-    # Every 14th message lost: 13 of the 1393 samples exported, exit 0, the warning naming only the lost
-    # sample times. 13 is the fewest an ARX model of order 2 is fitted to with 2 inputs and 2 outputs.
+    # Every 15th message lost: 14 of the 1400 samples exported, exit 0, the warning naming only the lost
+    # sample times. 14 is the fewest identify takes with 2 inputs and 2 outputs (ARX order 2 and 2 states;
+    # arx_order.fewest_samples_to_identify): runs of 13 (every 14th lost) were exported before, then refused.
     stamps = grid_ns(1500)
     bag = write_io_bag(tmp_path / "gaps", stamps[np.arange(1500) % every != every - 1])
     out = tmp_path / "r.npz"
     got, _, err = run_cli(capsys, "export", bag, "--npz", out)
     assert got == code and err.startswith(f"okid-ros export: {said}".replace("BAG", str(bag))), err
-    assert out.exists() == (code == 0) and (code or np.load(out)["y"].shape[0] == 13)
+    assert out.exists() == (code == 0) and (code or np.load(out)["y"].shape[0] == 14)
 
 
 def test_a_publish_rate_above_the_sampling_rate_is_said_up_front(tmp_path, capsys):

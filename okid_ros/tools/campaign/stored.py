@@ -19,9 +19,11 @@ from okid_ros.tools.campaign.manifest import MANIFEST_NAME
 
 __all__ = ["label_problem", "result_problem", "stored_result"]
 
-#: Fields of a stored result that are numbers (or null) when present.
+#: Fields of a stored result that are numbers (or null) when present; the counts among them are finite.
 _NUMBERS = ("models", "samples", "input_messages", "duration_s", "start_s", "seconds")
-#: Fields of a stored mode that must be numbers, and those that may also be null.
+_COUNTS = ("models", "samples", "input_messages")
+#: Fields of a stored mode that must be finite numbers (a mode of node 2 always has them), and those
+#: that may also be null or NaN (a fresh mode's ``mac_previous``, an ``emac`` without its reference).
 _MODE_NUMBERS = ("id", "frequency_rad_s", "frequency_hz", "damping_ratio")
 _MODE_OPTIONAL = ("mpc", "msv", "emac", "frequency_hz_std", "damping_ratio_std", "mac_previous")
 
@@ -29,6 +31,13 @@ _MODE_OPTIONAL = ("mpc", "msv", "emac", "frequency_hz_std", "damping_ratio_std",
 def _number(value: object) -> bool:
     """A number float64 holds (NaN too, as json reads it); an integer beyond float64 is none (exit 70 before)."""
     return finite_number(value) or isinstance(value, float)
+
+
+def _finite_problem(what: str, value: object) -> str:
+    """Why ``value`` is no finite number ('' when it is one): NaN and Inf read as floats from the JSON."""
+    if finite_number(value):
+        return ""
+    return f"{what} is {value!r}, {'not finite' if _number(value) else 'not a number'}"
 
 
 def label_problem(label: object) -> str:
@@ -44,15 +53,15 @@ def _mode_problem(mode: object) -> str:
     if not isinstance(mode, dict):
         return "a mode is not an object"
     for name in _MODE_NUMBERS:
-        if not _number(mode.get(name)):
-            return f"a mode's {name} is {mode.get(name)!r}, not a number"
+        if problem := _finite_problem(f"a mode's {name}", mode.get(name)):
+            return problem
     for name in _MODE_OPTIONAL:
         if mode.get(name) is not None and not _number(mode[name]):
             return f"a mode's {name} is {mode[name]!r}, not a number"
     for name in ("shape_real", "shape_imag"):
         shape = mode.get(name)
-        if shape is not None and not (isinstance(shape, list) and all(_number(x) for x in shape)):
-            return f"a mode's {name} is not a list of numbers"
+        if shape is not None and not (isinstance(shape, list) and all(map(finite_number, shape))):
+            return f"a mode's {name} is not a list of finite numbers"
     real, imag = mode.get("shape_real") or [], mode.get("shape_imag") or []
     if real and imag and len(real) != len(imag):
         return f"a mode's shape_real has {len(real)} entries, its shape_imag {len(imag)}"
@@ -76,7 +85,7 @@ def result_problem(result: object, status: str) -> str:
     """What makes ``result`` unusable as the stored result of a bag of ``status``; '' when it is usable.
 
     Checked: the fields the tables read (status, label, counts and times as numbers, and for an
-    ok bag every model update with its modes).
+    ok bag every model update with its modes); counts, frequencies, damping ratios and shapes finite.
     """
     if not isinstance(result, dict):
         return f"not a JSON object but {type(result).__name__}"
@@ -86,8 +95,9 @@ def result_problem(result: object, status: str) -> str:
     if problem:
         return problem
     for name in _NUMBERS:
-        if result.get(name) is not None and not _number(result[name]):
-            return f"its {name} is {result[name]!r}, not a number"
+        value = result.get(name)
+        if value is not None and not finite_number(value) and (name in _COUNTS or not _number(value)):
+            return _finite_problem(f"its {name}", value)
     if status == "ok":
         if not isinstance(result.get("updates"), list):
             return "it has no list of model updates"
