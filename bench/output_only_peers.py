@@ -4,7 +4,7 @@ Every method gets the centred record, the sample time, the Hankel block rows and
 model order, and returns its modes as ``{"frequency_hz", "damping_ratio", "shape", and
 optionally "frequency_hz_std", "damping_ratio_std"}``:
 
-* ``okid-ssi-cov`` / ``okid-var``: :func:`okid_ros.core.output_only.identify_output_only`
+* ``okid-ssi-cov`` / ``okid-var`` / ``okid-ssi-cva``: :func:`okid_ros.core.output_only.identify_output_only`
   with its defaults (block rows and orders from the data; the arguments are not used);
 * ``pyoma2``: pyOMA2's ``SSI(method="cov")`` at the given block rows and orders 2..max (step 2),
   its automatic clustering with the "Magalhaes" preset (hierarchical, deterministic; most other
@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = ["METHODS", "run_method"]
 
-METHODS = ("okid-ssi-cov", "okid-var", "pyoma2", "koma")
+METHODS = ("okid-ssi-cov", "okid-var", "pyoma2", "koma", "okid-ssi-cva")
 
 
 def _okid(method: str):
@@ -84,7 +84,8 @@ def _koma(y, dt, block_rows, max_states):
              "shape": np.median(ph, axis=1)} for z, w, ph in zip(xi, omega_n, phi_c)]
 
 
-_RUNNERS = {"okid-ssi-cov": _okid("ssi-cov"), "okid-var": _okid("var"), "pyoma2": _pyoma2, "koma": _koma}
+_RUNNERS = {"okid-ssi-cov": _okid("ssi-cov"), "okid-var": _okid("var"), "pyoma2": _pyoma2, "koma": _koma,
+            "okid-ssi-cva": _okid("ssi-cva")}
 
 
 def run_method(name: str, y: np.ndarray, sample_time_s: float, block_rows: int, max_states: int) -> list[dict]:

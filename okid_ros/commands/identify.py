@@ -319,6 +319,7 @@ _UNCERTAINTY_METHODS = {
     "okid": "first-order propagation of the prediction-error covariance",
     "paper": "first-order propagation of the prediction-error covariance",
     "ssi-cov": _JACKKNIFE,
+    "ssi-cva": _JACKKNIFE,
     "var": "spread of the mode's poles across model orders",
 }
 

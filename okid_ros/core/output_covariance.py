@@ -24,6 +24,8 @@ from scipy import linalg, signal
 __all__ = [
     "OutputCorrelations",
     "output_correlations",
+    "record_correlations",
+    "RecordSums",
     "slowest_mode_hz",
     "choose_block_rows",
     "reference_channels",
@@ -45,10 +47,12 @@ class OutputCorrelations:
     ----------
     segments : (S, L + 1, p, p) ``R_k`` of each segment, ``R_k[i, j] = mean(y_i[t + k] y_j[t])``.
     weights : (S,) samples of each segment (the record's estimate is the weighted mean).
+    spans : (S, 2) each segment's first and past-the-end sample (None: not recorded).
     """
 
     segments: np.ndarray
     weights: np.ndarray
+    spans: np.ndarray | None = None
 
     @property
     def mean(self) -> np.ndarray:
@@ -62,11 +66,13 @@ class OutputCorrelations:
         return np.tensordot(w / w.sum(), self.segments, axes=1)
 
 
-def _correlations(y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> np.ndarray:
+def _correlations(y: np.ndarray, max_lag: int, present: np.ndarray | None = None, *, biased: bool = False
+                  ) -> np.ndarray:
     """(max_lag + 1, p, p) unbiased correlations of centred ``y`` (N, p), by FFT (N log N per pair).
 
     ``present`` (N,) bool: only the products of two present samples count (the lag's sum divided
-    by the number of such pairs); ``y`` may hold anything at the other rows.
+    by the number of such pairs); ``y`` may hold anything at the other rows. ``biased``: every
+    lag's sum divided by the present samples instead (a positive semidefinite sequence).
     """
     n, p = y.shape
     nfft = int(2 ** np.ceil(np.log2(n + max_lag + 1)))
@@ -77,6 +83,8 @@ def _correlations(y: np.ndarray, max_lag: int, present: np.ndarray | None = None
         mask = np.fft.rfft(present.astype(float), nfft)
         pairs = np.maximum(np.rint(np.fft.irfft(mask * np.conj(mask), nfft)[: max_lag + 1]), 1.0)
     spectrum = np.fft.rfft(y, nfft, axis=0)  # (F, p)
+    if biased:
+        pairs = np.full(max_lag + 1, float(n if present is None else max(present.sum(), 1)))
     out = np.empty((max_lag + 1, p, p))
     for j in range(p):
         cross = np.fft.irfft(spectrum * np.conj(spectrum[:, j : j + 1]), nfft, axis=0)
@@ -111,7 +119,52 @@ def output_correlations(y: np.ndarray, max_lag: int, n_segments: int = 8, *,
     segments = np.stack([_correlations(y[lo:hi], max_lag, None if present is None else present[lo:hi])
                          for lo, hi in spans])
     weights = np.diff(bounds) if present is None else np.array([present[lo:hi].sum() for lo, hi in spans])
-    return OutputCorrelations(segments, weights.astype(float))
+    return OutputCorrelations(segments, weights.astype(float), np.array(spans, dtype=int).reshape(-1, 2))
+
+
+def record_correlations(y: np.ndarray, max_lag: int, *, present: np.ndarray | None = None) -> np.ndarray:
+    """(max_lag + 1, p, p) biased correlations of the whole record: each lag's sum / the present samples.
+
+    Their block Toeplitz matrices are positive semidefinite (the correlations of the record with
+    its missing samples set to zero), as :mod:`.canonical_realization` needs; ``present`` as
+    :func:`output_correlations`'s.
+    """
+    return _correlations(y, max_lag, present, biased=True)
+
+
+@dataclass
+class RecordSums:
+    """The lag sums of a whole record, from which :func:`record_correlations` less one span follow cheaply.
+
+    A jackknife replicate leaves a segment out: the pairs that touch it lie within ``max_lag`` of
+    it, so its correlations are the record's sums less the stretch around the segment's sums
+    with and without the segment, not a transform of the whole record again.
+    """
+
+    y: np.ndarray  # (N, p) missing samples set to zero
+    max_lag: int
+    sums: np.ndarray  # (max_lag + 1, p, p)
+    counted: np.ndarray  # (N + 1,) present samples before each index
+
+    @classmethod
+    def of(cls, y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> RecordSums:
+        present = np.ones(y.shape[0], bool) if present is None else present
+        y = np.where(present[:, None], y, 0.0)
+        return cls(y, int(max_lag), cls._sums(y, max_lag), np.r_[0, np.cumsum(present)])
+
+    @staticmethod
+    def _sums(y: np.ndarray, max_lag: int) -> np.ndarray:
+        return _correlations(y, max_lag, biased=True) * y.shape[0] if y.shape[0] else 0.0
+
+    def without(self, start: int, stop: int) -> np.ndarray:
+        """(max_lag + 1, p, p) :func:`record_correlations` with samples ``start:stop`` absent too."""
+        lo, hi, lag = int(start), int(stop), self.max_lag
+        around = self.y[max(lo - lag, 0) : hi + lag].copy()
+        touching = self._sums(around, lag)
+        around[lo - max(lo - lag, 0) : hi - max(lo - lag, 0)] = 0.0
+        touching = touching - self._sums(around, lag)  # the stretch's pairs less those that miss the span
+        count = self.counted[-1] - (self.counted[hi] - self.counted[lo])
+        return (self.sums - touching) / max(count, 1)
 
 
 def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:

@@ -41,6 +41,7 @@ import numpy as np
 from scipy import linalg
 
 from okid_ros.core.arx_gram import arx_regressor_product
+from okid_ros.core.canonical_realization import canonical_decomposition, canonical_replicates
 from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
@@ -53,6 +54,7 @@ from okid_ros.core.output_covariance import (
     MAX_LAG_FRACTION_OF_SEGMENT,
     choose_block_rows,
     output_correlations,
+    record_correlations,
     reference_channels,
 )
 from okid_ros.core.output_only_harmonics import without_harmonics
@@ -90,7 +92,7 @@ from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
 __all__ = ["OUTPUT_ONLY_METHODS", "identify_output_only"]
 
-OUTPUT_ONLY_METHODS = ("ssi-cov", "var")
+OUTPUT_ONLY_METHODS = ("ssi-cov", "var", "ssi-cva")
 #: Most Hankel columns' channels (references); more outputs are represented by the best spread.
 MAX_REFERENCES = 12
 #: Highest model order tried by default, and the damping limit of a candidate pole.
@@ -142,8 +144,9 @@ def identify_output_only(
     ----------
     y : (N, p) outputs (accelerations, strains, ...), finite.
     sample_time_s : sample time in seconds.
-    method : "ssi-cov" (covariance-driven SSI / NExT-ERA, default) or "var" (vector AR and the
-        OKID recursion, the paper's route).
+    method : "ssi-cov" (covariance-driven SSI / NExT-ERA, default), "var" (vector AR and the
+        OKID recursion, the paper's route) or "ssi-cva" (ssi-cov's steps with the canonical-variate
+        realization of :mod:`.canonical_realization`).
     max_states : highest model order tried (default :data:`DEFAULT_MAX_STATES`, less when the
         Hankel is smaller).
     block_rows : Hankel block rows (default from the data: a period of the slowest mode).
@@ -197,7 +200,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
                            threads=threads)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
-    if method == "ssi-cov" and chosen.jackknife is None:
+    if var is None and chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
         warnings.append(f"the record holds fewer than 3 segments of {segment:.0f} samples ({chosen.block_rows} "
                         f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
@@ -214,7 +217,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
-            _select_modes(low, dt, method="ssi-cov", top=top, block_rows=rows, once=False, threads=threads), dt))
+            _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
     return model
 
 
@@ -248,13 +251,19 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     var = None
     if method == "ssi-cov":
         decomposition = covariance_decomposition(r_mean, references, block_rows, top, spare=SPARE_COLUMNS)
+    elif method == "ssi-cva":
+        decomposition = canonical_decomposition(record_correlations(y, 2 * block_rows, present=present), references,
+                                                block_rows, top)
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = _usable_order(top, decomposition.max_states)
     jackknife = None
-    if method == "ssi-cov" and correlations.segments.shape[0] >= 3:  # its replicates made beside the diagram
-        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis, threads=threads)
+    if var is None and correlations.segments.shape[0] >= 3:  # its replicates made beside the diagram
+        replicates = canonical_replicates(y, present, correlations, references, block_rows, top) \
+            if method == "ssi-cva" else None
+        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis, threads=threads,
+                              decompose=replicates)
     realizer = OrderRealizer(decomposition, top)
     realizer.decompose_orders(range(2, top + 1, 2), threads)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,

@@ -159,13 +159,16 @@ class Jackknife:
         replicate's decomposed from scratch.
     threads : the replicates are decomposed, and their poles read, side by side in these
         (:mod:`.worker_threads`; the same values for any number).
+    decompose : ``decompose(j)`` the decomposition without segment ``j`` (another realization,
+        :func:`.canonical_realization.canonical_replicates`); None: the covariance route's.
     """
 
     def __init__(self, correlations: OutputCorrelations, references: np.ndarray, block_rows: int,
-                 max_states: int, *, start: np.ndarray | None = None, threads: WorkerThreads = SERIAL) -> None:
+                 max_states: int, *, start: np.ndarray | None = None, threads: WorkerThreads = SERIAL,
+                 decompose: Callable | None = None) -> None:
         def replicate(j: int) -> OrderRealizer:
-            decomposition = covariance_decomposition(correlations.leave_one_out(j), references, block_rows, max_states,
-                                                     start=start, iterations=ITERATIONS)
+            decomposition = decompose(j) if decompose is not None else covariance_decomposition(
+                correlations.leave_one_out(j), references, block_rows, max_states, start=start, iterations=ITERATIONS)
             return OrderRealizer(decomposition, min(max_states, decomposition.max_states))
 
         # Started now, read when a mode is screened: the caller's diagram is made meanwhile.

@@ -111,7 +111,7 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     track`` choose the front end. With no input channel (``u`` (N, 0)) the ARX fit is a vector
     autoregression that defines the window; the model comes from the window's outputs by the
     core's output-only identification (:func:`okid_ros.core.output_only.identify_output_only`,
-    route ``output_only_method``: "ssi-cov" or "var"); ``options`` (the input-output
+    route ``output_only_method``: "ssi-cov", "var" or "ssi-cva"); ``options`` (the input-output
     realization's) do not apply to it.
 
     Parameters

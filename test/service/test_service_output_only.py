@@ -224,3 +224,15 @@ def test_the_var_route_declares_no_change_on_a_stationary_record():
     y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
     pipe, _, _ = run(y, method="var")
     assert not pipe.changes
+
+
+def test_node_2_realizes_with_the_canonical_variate_route_when_asked():
+    system = structure()
+    y = simulate_noisy(system, np.zeros((7000, 1)), seed=2)
+    pipe, _, results = run(y, method="ssi-cva", **{"change.enabled": False})
+    assert pipe.updates and all(line["n_inputs"] == 0 for line in pipe.updates)
+    assert pipe.est.current_model.method == "ssi-cva"
+    f_true = [f for f, _ in true_modes(system)]
+    found = [m["frequency_hz"] for m in pipe.updates[-1]["modes"]]
+    assert len(found) == len(f_true) and all(min(abs(f / t - 1) for f in found) < 0.005 for t in f_true), found
+    assert results[-1] is not None

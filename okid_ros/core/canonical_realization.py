@@ -1,0 +1,168 @@
+"""Canonical-variate (CVA) weighted realization: ``(A, C)`` of every order from the weighted Hankel.
+
+The covariance route of :mod:`.stochastic_realization` realizes the unweighted Hankel of the
+output correlations, which is not an efficient estimator (docs/benchmarks-output-only.md,
+"What the records allow"). Canonical-variate analysis (Larimore 1990; Bauer & Ljung 2002, Bauer
+2005 "Asymptotic properties of subspace estimators", Automatica 41) weights the past/future
+covariance Hankel by the inverse Cholesky factors of the past and the future covariances.
+Without observed inputs every quantity is a product of output correlations ``R_k`` (reference
+channels ``r`` of ``p``, ``i`` block rows)::
+
+    z_k  = [y_(k-1); ..; y_(k-i)],  y+_k = [y_k; ..; y_(k+i-1)]   (references)
+    Sigma_pp = E[z_k z_k^T] = L_p L_p^T,   Sigma_ff = E[y+_k y+_k^T] = L_f L_f^T
+    H(0) = E[y+_k z_k^T] (blocks R_(a+b+1)),   H(1) = E[y+_(k+1) z_k^T] (blocks R_(a+b+2))
+    L_f^-1 H(0) L_p^-T = U S V^T,   A = S^-1/2 U^T L_f^-1 H(1) L_p^-T V S^-1/2
+
+(ERA on the weighted Hankels: ``H(1) = Gamma A Ctrl`` exactly, so ``A`` is exact for exact
+correlations at any ``i``), ``C`` the first block row of the observability
+``H(0) L_p^-T V S^-1/2`` (every output) and ``G`` the first block column of ``S^1/2 V^T L_p^T``.
+Every order's ``A`` is a corner of one matrix, so the same
+:class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
+the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
+CVA) was measured too and rejected: states of a finite past are not the Kalman filter's, and a
+weakly observed mode's damping came out up to 8 times its own. The correlations must be the
+record's **biased** ones (:func:`.output_covariance.record_correlations`): their block Toeplitz
+matrices are positive semidefinite and consistent with one another, which the unbiased segment
+means are not (their past covariance is indefinite on a one-channel record).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg
+
+from okid_ros.core.identified_model import IdentificationError
+from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
+from okid_ros.core.stochastic_realization import leading_eigh
+
+__all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
+
+
+@dataclass
+class CanonicalDecomposition:
+    """The weighted Hankel's leading singular values and the realization of every order up to ``len(s)``.
+
+    The fields follow :class:`~.stochastic_realization.CovarianceDecomposition`'s, which
+    :class:`~.stochastic_realization.OrderRealizer` reads: with ``q = sqrt(s)`` it takes
+    ``A = shifted / (q q^T)``, ``C = first_rows q`` and ``G = q Vt[:, :r]``.
+
+    Attributes
+    ----------
+    blocks : (2 i, p, r) ``R_1 .. R_2i`` at the reference columns; block_rows : i.
+    s : (k,) canonical correlations (descending, at most 1).
+    shifted : (k, k) ``U^T L_f^-1 H(1) L_p^-T V``.
+    first_rows : (p, k) ``[R_1 .. R_i] T / s`` (``T = L_p^-T V``), every output.
+    Vt : (k, r) ``V^T L_p^T`` at the first block's columns.
+    transform : (i r, k) ``T``.
+    """
+
+    blocks: np.ndarray
+    block_rows: int
+    s: np.ndarray
+    shifted: np.ndarray
+    first_rows: np.ndarray
+    Vt: np.ndarray
+    transform: np.ndarray = field(repr=False)
+    basis: None = None
+    _left: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def n_outputs(self) -> int:
+        return self.blocks.shape[1]
+
+    @property
+    def n_block_inputs(self) -> int:
+        return self.blocks.shape[2]
+
+    @property
+    def max_states(self) -> int:
+        """Every singular value kept (those below ``1e-7`` of the first were dropped)."""
+        return int(self.s.size)
+
+    def projected(self, n_states: int) -> np.ndarray:
+        """``U_n^T L_f^-1 H(1) L_p^-T V_n`` (n, n)."""
+        return self.shifted[:n_states, :n_states]
+
+    def left_block_row(self, n_states: int) -> np.ndarray:
+        """The first block row of ``H(0) T / s`` (p, n), every output."""
+        return self.first_rows[:, :n_states]
+
+    def left_vectors(self, n_states: int) -> np.ndarray:
+        """``H(0) T / s`` (i p, n), every output (the observability divided by ``sqrt(s)``)."""
+        if self._left is None:
+            i, (_, p, r) = self.block_rows, self.blocks.shape
+            index = np.arange(i)[:, None] + np.arange(i)[None, :]
+            hankel = self.blocks[index].transpose(0, 2, 1, 3).reshape(i * p, i * r)
+            self._left = (hankel @ self.transform) / self.s
+        return self._left[:, :n_states]
+
+
+def _block_toeplitz(lagged: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    """The block matrix whose block ``(a, b)`` is ``lagged[lags[a, b]]`` ((i r, i r) from (K, r, r))."""
+    i, r = lags.shape[0], lagged.shape[1]
+    return lagged[lags].transpose(0, 2, 1, 3).reshape(i * r, i * r)
+
+
+def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
+                            max_states: int) -> CanonicalDecomposition:
+    """The CVA-weighted realization of the module docstring from the record's biased correlations.
+
+    Parameters
+    ----------
+    correlations : (L + 1, p, p) ``R_0 .. R_L``, ``L >= 2 i``, biased
+        (:func:`.output_covariance.record_correlations`).
+    references : (r,) the reference channels (past and future).
+    block_rows : i, the past's and the future's length.
+    max_states : keep this many singular triplets at most.
+
+    Raises IdentificationError when a covariance is not positive definite (references that are
+    linearly dependent).
+    """
+    i = int(block_rows)
+    blocks = correlations[1 : 2 * i + 1][:, :, references]
+    ref = correlations[: 2 * i + 1][:, references][:, :, references]  # (2 i + 1, r, r), R_0 .. R_2i
+    r = ref.shape[1]
+    lagged = np.concatenate([ref[i:0:-1].transpose(0, 2, 1), ref])  # lagged[i + k] = R_k, k = -i .. 2 i
+    a, b = np.arange(i)[:, None], np.arange(i)[None, :]
+    try:
+        low_past = linalg.cholesky(_block_toeplitz(lagged, i + b - a), lower=True, check_finite=False)
+        low_future = linalg.cholesky(_block_toeplitz(lagged, i + a - b), lower=True, check_finite=False)
+    except linalg.LinAlgError:
+        raise IdentificationError("the reference channels' covariance is not positive definite: "
+                                  "no canonical-variate weighting") from None
+
+    def weighted_transpose(shift: int) -> np.ndarray:  # (L_f^-1 H(shift) L_p^-T)^T
+        left = linalg.solve_triangular(low_future, _block_toeplitz(lagged, i + a + b + 1 + shift), lower=True,
+                                       check_finite=False)
+        return linalg.solve_triangular(low_past, left.T, lower=True, check_finite=False)
+
+    weighted = weighted_transpose(0)
+    values, V = leading_eigh(weighted @ weighted.T, int(min(max_states, i * r)))
+    s = np.sqrt(np.maximum(values, 0.0))
+    keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
+    s, V = s[keep], V[:, keep]
+    # U = M V / s with M = L_f^-1 H(0) L_p^-T, so U^T M(1) V = (V^T M^T M(1) V) / s.
+    shifted = (V.T @ (weighted @ weighted_transpose(1).T) @ V) / s[:, None]
+    transform = linalg.solve_triangular(low_past, V, lower=True, trans="T", check_finite=False)
+    first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], i * r)
+    return CanonicalDecomposition(blocks, i, s, shifted, (first_row @ transform) / s, V.T @ low_past[:r].T,
+                                  transform)
+
+
+def canonical_replicates(y: np.ndarray, present: np.ndarray | None, segments: OutputCorrelations,
+                         references: np.ndarray, block_rows: int, max_states: int
+                         ) -> Callable[[int], CanonicalDecomposition]:
+    """``replicate(j)``: the decomposition of the record with segment ``j`` of ``segments`` marked absent.
+
+    The jackknife's replicates (:class:`.output_only_support.Jackknife`, ``decompose=``), each from
+    the biased correlations of the whole record less one segment (:class:`.output_covariance.RecordSums`).
+    """
+    sums = RecordSums.of(y, 2 * block_rows, present)
+
+    def replicate(j: int) -> CanonicalDecomposition:
+        return canonical_decomposition(sums.without(*segments.spans[j]), references, block_rows, max_states)
+
+    return replicate
