@@ -17,7 +17,7 @@ from okid_ros.commands._args import (
     positive_int,
     states_or_auto,
 )
-from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
+from okid_ros.core.options import GAINS, OFFSETS, OUTPUT_ONLY_METHODS, RealizationOptions
 from okid_ros.errors import shown_path
 
 #: The most of a --reference file read. It is an `identify --json` output: 40-75 kB for a model of two
@@ -79,6 +79,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--output-only", action="store_true",
                         help="ignore the record's inputs and identify from its outputs alone (ambient vibration; "
                         "automatic for a record without u): the same JSON with n_inputs 0 and B, D empty")
+    parser.add_argument("--output-only-method", choices=OUTPUT_ONLY_METHODS, default=OUTPUT_ONLY_METHODS[0],
+                        help="how an output-only model is realized, as node 2's realization.output_only_method: "
+                        "ssi-cov (covariance-driven SSI, default), var (the paper's vector-AR route) or ssi-cva "
+                        "(canonical-variate weighting: nearer the efficient floor on long simulated records, "
+                        "slower; docs/benchmarks-output-only.md)")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
@@ -183,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     record, source = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     output_only = bool(args.output_only) or record.u.shape[1] == 0
     record = _checked_record(record, output_only)
-    ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _gain_options_ignored(args)
+    ignored = ignored_for_output_only(args, INPUT_OUTPUT_ONLY) if output_only else _input_output_ignored(args)
     if ignored:
         print(f"okid-ros identify: warning: {ignored}", file=sys.stderr)
     valid = None
@@ -242,6 +247,14 @@ def run(args: argparse.Namespace) -> int:
     except OutputError as exc:  # a full disk, a device that refuses: say what is written already
         raise OutputError(f"{exc}; the JSON model is written ({shown_path(out)})") from None
     return 0
+
+
+def _input_output_ignored(args: argparse.Namespace) -> str:
+    """The warning for options given that an input-output run passes over ("" if none)."""
+    output_only_method = ("--output-only-method applies to output-only identification (--output-only, or a "
+                          "record without u); ignored for this input-output one"
+                          if args.output_only_method != OUTPUT_ONLY_METHODS[0] else "")
+    return "; ".join(filter(None, (output_only_method, _gain_options_ignored(args))))
 
 
 def _gain_options_ignored(args: argparse.Namespace) -> str:
@@ -373,8 +386,8 @@ def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
 def _identify_output_only(record, args: argparse.Namespace, valid=None):
     """The output-only identification of ``record.y`` (its ``u``, if any, ignored).
 
-    Covariance-driven SSI: the paper's VAR route (``method="var"`` of the core) lost on every
-    record of ``docs/benchmarks-output-only.md``, so it is not offered here. ``valid``: False at
+    By ``--output-only-method`` (covariance-driven SSI by default: the measured winner of
+    ``docs/benchmarks-output-only.md``). ``valid``: False at
     missing samples, filled first by a VAR's prediction as node 2 fills its window, and left out
     of the output correlations. Its decompositions run in a thread per usable core (up to four;
     the same model as one thread gives).
@@ -388,7 +401,8 @@ def _identify_output_only(record, args: argparse.Namespace, valid=None):
         y = record.y if valid is None else fill_missing_outputs(record.y, valid)
     except ValueError as exc:
         raise DataError(f"the missing samples cannot be filled: {exc}") from None
-    return identify_output_only(y, record.sample_time_s, offsets=args.offsets, valid=valid, workers=identify_workers())
+    return identify_output_only(y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets,
+                                valid=valid, workers=identify_workers())
 
 
 def _fit_line(fits: dict, *, output_only: bool) -> str:

@@ -25,6 +25,7 @@ __all__ = [
     "GAINS",
     "COMPLETIONS",
     "OFFSETS",
+    "OUTPUT_ONLY_METHODS",
     "ModeCriteria",
     "RealizationOptions",
     "ArxOrderOptions",
@@ -37,6 +38,8 @@ AUTO = "auto"
 GAINS = ("refit", "riccati", "whitening")
 COMPLETIONS = ("auto", "predictor", "states")
 OFFSETS = ("remove", "none")
+#: How an output-only model is realized from its outputs (the first the default; :mod:`.output_only`).
+OUTPUT_ONLY_METHODS = ("ssi-cov", "var", "ssi-cva")
 #: Sample times the chain accepts [s], from 1 MHz to one sample an hour: every structural record
 #: lies inside, and the frequencies (1 / dt) and their squares stay far inside float64 (a record
 #: at 1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations).

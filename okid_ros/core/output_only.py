@@ -49,7 +49,7 @@ from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import SPARE_COLUMNS
-from okid_ros.core.options import ModeCriteria
+from okid_ros.core.options import OUTPUT_ONLY_METHODS, ModeCriteria
 from okid_ros.core.output_covariance import (
     MAX_LAG_FRACTION_OF_SEGMENT,
     choose_block_rows,
@@ -92,7 +92,6 @@ from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
 __all__ = ["OUTPUT_ONLY_METHODS", "identify_output_only"]
 
-OUTPUT_ONLY_METHODS = ("ssi-cov", "var", "ssi-cva")
 #: Most Hankel columns' channels (references); more outputs are represented by the best spread.
 MAX_REFERENCES = 12
 #: Highest model order tried by default, and the damping limit of a candidate pole.

@@ -117,3 +117,23 @@ def test_track_names_the_options_its_output_only_windows_pass_over(tmp_path: Pat
     assert "okid-ros track: warning: --states, --gain apply to input-output identification; ignored for this " \
            "output-only one" in err
     assert json.loads(out.read_text().splitlines()[0])["arx_order"] == 12
+
+
+def test_the_output_only_method_is_chosen_on_the_command_line(tmp_path: Path, koma_record, capsys) -> None:
+    # node 2's realization.output_only_method had no `identify` counterpart: ssi-cva only through the API.
+    y, dt, truth = koma_record
+    record = tmp_path / "y_only.npz"
+    np.savez(record, y=y, sample_time_s=dt)
+    out = tmp_path / "model.json"
+    assert cli.main(["identify", str(record), "--output-only-method", "ssi-cva", "--json", str(out)]) == 0
+    assert _check_document(out, truth)["method"] == "ssi-cva"
+    with_u = tmp_path / "with_u.npz"
+    rng = np.random.default_rng(2)
+    u = rng.standard_normal((2000, 1))
+    np.savez(with_u, u=u, y=np.convolve(u[:, 0], [0.0, 1.0, 0.5], "same")[:, None] + 0.01 * rng.standard_normal(
+        (2000, 1)), sample_time_s=0.01)
+    capsys.readouterr()
+    code = cli.main(["identify", str(with_u), "--output-only-method", "ssi-cva", "--json", str(tmp_path / "io.json")])
+    err = capsys.readouterr().err
+    assert "--output-only-method applies to output-only identification" in err, err
+    assert code == 0 and json.loads((tmp_path / "io.json").read_text())["n_inputs"] == 1
