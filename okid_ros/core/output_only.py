@@ -60,6 +60,7 @@ from okid_ros.core.output_covariance import (
 from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
+    MIN_REMAINING_DOMINANCE,
     ModeCluster,
     PoleSet,
     cluster_modes,
@@ -394,7 +395,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             # Its share may be held by candidates beside it (a close mode, its own twin family), not by
             # a flat noise floor: of what their poles leave, a mode stands out again, a noise pole not.
             others = [poles.eigenvalue[m.members[n_home]] for m in modes if m is not mode and n_home in m.members]
-            stands_out = dominance(n_home, target, others=others) >= MIN_SPECTRAL_DOMINANCE
+            stands_out = dominance(n_home, target, others=others) >= MIN_REMAINING_DOMINANCE
         if (stands_out or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
             best[mode.group] = (share, mode)
     if not once:
