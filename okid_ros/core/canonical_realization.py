@@ -36,22 +36,21 @@ from scipy import linalg
 
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
-from okid_ros.core.stochastic_realization import leading_eigh
+from okid_ros.core.stochastic_realization import CovarianceDecomposition, leading_eigh
 
 __all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
 
 
 @dataclass
-class CanonicalDecomposition:
+class CanonicalDecomposition(CovarianceDecomposition):
     """The weighted Hankel's leading singular values and the realization of every order up to ``len(s)``.
 
-    The fields follow :class:`~.stochastic_realization.CovarianceDecomposition`'s, which
-    :class:`~.stochastic_realization.OrderRealizer` reads: with ``q = sqrt(s)`` it takes
-    ``A = shifted / (q q^T)``, ``C = first_rows q`` and ``G = q Vt[:, :r]``.
+    :class:`~.stochastic_realization.CovarianceDecomposition`'s fields, read by
+    :class:`~.stochastic_realization.OrderRealizer` as there (with ``q = sqrt(s)``: ``A = shifted /
+    (q q^T)``, ``C = first_rows q``, ``G = q Vt[:, :r]``), of the weighted Hankel:
 
     Attributes
     ----------
-    blocks : (2 i, p, r) ``R_1 .. R_2i`` at the reference columns; block_rows : i.
     s : (k,) canonical correlations (descending, at most 1).
     shifted : (k, k) ``U^T L_f^-1 H(1) L_p^-T V``.
     first_rows : (p, k) ``[R_1 .. R_i] T / s`` (``T = L_p^-T V``), every output.
@@ -59,36 +58,12 @@ class CanonicalDecomposition:
     transform : (i r, k) ``T``.
     """
 
-    blocks: np.ndarray
-    block_rows: int
-    s: np.ndarray
-    shifted: np.ndarray
-    first_rows: np.ndarray
-    Vt: np.ndarray
-    transform: np.ndarray = field(repr=False)
-    basis: None = None
-    _left: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def n_outputs(self) -> int:
-        return self.blocks.shape[1]
-
-    @property
-    def n_block_inputs(self) -> int:
-        return self.blocks.shape[2]
+    transform: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def max_states(self) -> int:
         """Every singular value kept (those below ``1e-7`` of the first were dropped)."""
         return int(self.s.size)
-
-    def projected(self, n_states: int) -> np.ndarray:
-        """``U_n^T L_f^-1 H(1) L_p^-T V_n`` (n, n)."""
-        return self.shifted[:n_states, :n_states]
-
-    def left_block_row(self, n_states: int) -> np.ndarray:
-        """The first block row of ``H(0) T / s`` (p, n), every output."""
-        return self.first_rows[:, :n_states]
 
     def left_vectors(self, n_states: int) -> np.ndarray:
         """``H(0) T / s`` (i p, n), every output (the observability divided by ``sqrt(s)``)."""
@@ -148,8 +123,8 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     shifted = (V.T @ (weighted @ weighted_transpose(1).T) @ V) / s[:, None]
     transform = linalg.solve_triangular(low_past, V, lower=True, trans="T", check_finite=False)
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], i * r)
-    return CanonicalDecomposition(blocks, i, s, shifted, (first_row @ transform) / s, V.T @ low_past[:r].T,
-                                  transform)
+    return CanonicalDecomposition(blocks=blocks, block_rows=i, s=s, Vt=V.T @ low_past[:r].T, shifted=shifted,
+                                  first_rows=(first_row @ transform) / s, transform=transform)
 
 
 def canonical_replicates(y: np.ndarray, present: np.ndarray | None, segments: OutputCorrelations,

@@ -1,4 +1,4 @@
-"""Column names of a record's CSV header that name one column twice (records.py refuses them)."""
+"""Column names of a record's CSV header that name one column twice (record_csv.py refuses them)."""
 
 from __future__ import annotations
 
