@@ -127,16 +127,13 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
                                   first_rows=(first_row @ transform) / s, transform=transform)
 
 
-def canonical_replicates(y: np.ndarray, present: np.ndarray | None, segments: OutputCorrelations,
-                         references: np.ndarray, block_rows: int, max_states: int
-                         ) -> Callable[[int], CanonicalDecomposition]:
+def canonical_replicates(sums: RecordSums, segments: OutputCorrelations, references: np.ndarray, block_rows: int,
+                         max_states: int) -> Callable[[int], CanonicalDecomposition]:
     """``replicate(j)``: the decomposition of the record with segment ``j`` of ``segments`` marked absent.
 
     The jackknife's replicates (:class:`.output_only_support.Jackknife`, ``decompose=``), each from
-    the biased correlations of the whole record less one segment (:class:`.output_covariance.RecordSums`).
+    the biased correlations of the whole record (``sums``, lags ``2 block_rows``) less one segment.
     """
-    sums = RecordSums.of(y, 2 * block_rows, present)
-
     def replicate(j: int) -> CanonicalDecomposition:
         return canonical_decomposition(sums.without(*segments.spans[j]), references, block_rows, max_states)
 

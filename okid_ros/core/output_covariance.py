@@ -76,15 +76,16 @@ def _correlations(y: np.ndarray, max_lag: int, present: np.ndarray | None = None
     """
     n, p = y.shape
     nfft = int(2 ** np.ceil(np.log2(n + max_lag + 1)))
-    if present is None:
+    if present is not None:
+        y = np.where(present[:, None], y, 0.0)
+    if biased:
+        pairs = np.full(max_lag + 1, float(n if present is None else max(present.sum(), 1)))
+    elif present is None:
         pairs = n - np.arange(max_lag + 1.0)
     else:
-        y = np.where(present[:, None], y, 0.0)
         mask = np.fft.rfft(present.astype(float), nfft)
         pairs = np.maximum(np.rint(np.fft.irfft(mask * np.conj(mask), nfft)[: max_lag + 1]), 1.0)
     spectrum = np.fft.rfft(y, nfft, axis=0)  # (F, p)
-    if biased:
-        pairs = np.full(max_lag + 1, float(n if present is None else max(present.sum(), 1)))
     out = np.empty((max_lag + 1, p, p))
     for j in range(p):
         cross = np.fft.irfft(spectrum * np.conj(spectrum[:, j : j + 1]), nfft, axis=0)
@@ -143,14 +144,19 @@ class RecordSums:
 
     y: np.ndarray  # (N, p) missing samples set to zero
     max_lag: int
-    sums: np.ndarray  # (max_lag + 1, p, p)
+    correlations: np.ndarray  # (max_lag + 1, p, p) the whole record's, :func:`record_correlations`
     counted: np.ndarray  # (N + 1,) present samples before each index
 
     @classmethod
     def of(cls, y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> RecordSums:
+        correlations = record_correlations(y, max_lag, present=present)
         present = np.ones(y.shape[0], bool) if present is None else present
-        y = np.where(present[:, None], y, 0.0)
-        return cls(y, int(max_lag), cls._sums(y, max_lag), np.r_[0, np.cumsum(present)])
+        return cls(np.where(present[:, None], y, 0.0), int(max_lag), correlations, np.r_[0, np.cumsum(present)])
+
+    @property
+    def sums(self) -> np.ndarray:
+        """(max_lag + 1, p, p) the whole record's lag sums."""
+        return self.correlations * max(self.counted[-1], 1)
 
     @staticmethod
     def _sums(y: np.ndarray, max_lag: int) -> np.ndarray:

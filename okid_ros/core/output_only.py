@@ -52,9 +52,9 @@ from okid_ros.core.mode_jackknife import SPARE_COLUMNS
 from okid_ros.core.options import OUTPUT_ONLY_METHODS, ModeCriteria
 from okid_ros.core.output_covariance import (
     MAX_LAG_FRACTION_OF_SEGMENT,
+    RecordSums,
     choose_block_rows,
     output_correlations,
-    record_correlations,
     reference_channels,
 )
 from okid_ros.core.output_only_harmonics import without_harmonics
@@ -251,16 +251,16 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     var = None
     if method == "ssi-cov":
         decomposition = covariance_decomposition(r_mean, references, block_rows, top, spare=SPARE_COLUMNS)
-    elif method == "ssi-cva":
-        decomposition = canonical_decomposition(record_correlations(y, 2 * block_rows, present=present), references,
-                                                block_rows, top)
+    elif method == "ssi-cva":  # the whole record's sums, its correlations and its jackknife's replicates
+        record = RecordSums.of(y, 2 * block_rows, present)
+        decomposition = canonical_decomposition(record.correlations, references, block_rows, top)
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = _usable_order(top, decomposition.max_states)
     jackknife = None
     if var is None and correlations.segments.shape[0] >= 3:  # its replicates made beside the diagram
-        replicates = canonical_replicates(y, present, correlations, references, block_rows, top) \
+        replicates = canonical_replicates(record, correlations, references, block_rows, top) \
             if method == "ssi-cva" else None
         jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis, threads=threads,
                               decompose=replicates)
