@@ -17,6 +17,10 @@ refuse to start with ``strict_parameters``), ``okid-ros process`` prints it (or 
 nested (``inputs.sources`` and ``inputs: {sources}``), is refused by :func:`read_parameter_file`
 for both: rcl keeps the later in silence, which the writer of the other one did not mean.
 
+YAML that rcl does not read is refused by :func:`load_yaml_as_rcl`, naming the line: an alias
+(``*name``) anywhere (rcl: "Will not support aliasing"; an anchor alone is read) and a merge key
+``<<``. Every command and ``up`` therefore refuse such a file before a node does.
+
 No rclpy here.
 """
 
@@ -47,12 +51,6 @@ __all__ = [
 
 #: Names (or prefixes ending in '.') every rclpy node accepts besides its own parameters.
 ROS_STANDARD_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
-#: Most YAML values that aliases (``*name``) may add to a document. A parameter file holds a
-#: few hundred values; nested aliases multiply (a 1 KB "billion laughs" file held 9**9 values,
-#: and walking them hung `process` past a minute).
-MAX_ALIAS_EXPANSION = 10_000
-
-
 def node_fqn(node: str, namespace: str | None = None) -> str:
     """``/NAMESPACE/NODE`` (root namespace: ``/NODE``)."""
     ns = (namespace or "/").rstrip("/")
@@ -276,40 +274,17 @@ def rcl_scalar(text: str) -> bool | int | float | str:
     return text
 
 
-def _children(node: Any) -> list:
-    """The child nodes of a composed YAML node: a mapping's keys and values, a sequence's items."""
-    if not isinstance(node.value, list):
-        return []  # a scalar
-    return [child for item in node.value for child in (item if isinstance(item, tuple) else (item,))]
-
-
-def _expanded_size(root: Any) -> tuple[float, int]:
-    """(values with the aliases expanded, inf if one recurses; distinct values) of a composed document.
-
-    Memoized over the distinct nodes (an alias is the same node object again), without
-    recursion: no expansion, and no Python stack for a deep document.
-    """
-    size: dict[int, float] = {}  # -1 while the node's children are pending
-    stack = [(root, False)]
-    while stack:
-        node, children_done = stack.pop()
-        if children_done:
-            size[id(node)] = 1 + sum(size[id(child)] for child in _children(node))
-        elif id(node) not in size:
-            size[id(node)] = -1
-            stack.append((node, True))
-            stack.extend((child, False) for child in _children(node) if size.get(id(child), 0) <= 0)
-        elif size[id(node)] < 0:
-            return math.inf, len(size)  # reached from its own descendants: a cycle
-    return size[id(root)], len(size)
-
-
 class ParameterTree(dict):
     """A parameter file's YAML tree, with the keys it gives twice in one mapping (``repeated``)."""
 
     def __init__(self, tree: Mapping, repeated: Sequence[str] = ()) -> None:
         super().__init__(tree)
         self.repeated = tuple(repeated)
+
+
+def _not_for_rcl(label: str, line: int, what: str) -> ParameterError:
+    """The error for YAML that rcl does not read (an alias, a merge key): the file, the line, what to write instead."""
+    return ParameterError(f"{label}: line {line}: {what}")
 
 
 def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[str] | None = None) -> Any:
@@ -321,9 +296,11 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[
     Raises
     ------
     ParameterError
-        Nesting too deep for PyYAML, aliases that refer to their own container, or expand the
-        document by more than :data:`MAX_ALIAS_EXPANSION` values, a merge key ``<<`` (rcl merges
-        nothing: a node refuses the file); the message starts with ``label``.
+        Nesting too deep for PyYAML; an alias (``*name``) anywhere, or a merge key ``<<``: rcl
+        refuses the alias ("Will not support aliasing at line N", in a file and in ``-p``) and
+        reads an inline ``<<: {...}`` as parameters named ``<<.NAME``, so a node would not start
+        or not get the values. An anchor alone (``&name``) is read, as rcl reads it. The message
+        starts with ``label`` and names the line.
     yaml.YAMLError
         Not YAML.
     """
@@ -331,15 +308,30 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[
 
     tag = "tag:okid_ros,2026:rcl"
 
+    def merge_key(line: int) -> ParameterError:
+        return _not_for_rcl(label, line, "the YAML merge key '<<' is not read by rcl: a node refuses the alias it "
+                                         "merges ('Will not support aliasing') and takes an inline '<<: {...}' for "
+                                         "parameters named '<<.NAME'; write the parameters out in the section")
+
     class Loader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            # Refused where it stands, before PyYAML shares the anchored node: no alias bomb or
+            # recursive alias is ever expanded.
+            if self.check_event(yaml.AliasEvent):
+                alias = self.peek_event()
+                line = alias.start_mark.line + 1
+                if isinstance(index, yaml.ScalarNode) and index.value == "<<" and index.style is None:
+                    raise merge_key(line)
+                raise _not_for_rcl(label, line, f"the YAML alias '*{alias.anchor}' is not read by rcl: "
+                                                "a node refuses the file ('Will not support aliasing'); write the "
+                                                "values out where the alias stands")
+            return super().compose_node(parent, index)
+
         def construct_mapping(self, node, deep=False):
             lines: dict[str, int] = {}
             for key, _ in node.value:  # keys are names, never typed
                 if isinstance(key, yaml.ScalarNode) and key.value == "<<" and key.style is None:
-                    raise ParameterError(f"{label}: line {key.start_mark.line + 1}: the YAML merge key '<<' is not "
-                                         "read by rcl: a node refuses the alias it merges ('Will not support "
-                                         "aliasing') and takes an inline '<<: {...}' for parameters named '<<.NAME'; "
-                                         "write the parameters out in the section")
+                    raise merge_key(key.start_mark.line + 1)
                 if isinstance(key, yaml.ScalarNode) and key.tag == tag:
                     key.tag = "tag:yaml.org,2002:str"
                 if repeated is not None and isinstance(key, yaml.ScalarNode):
@@ -356,26 +348,11 @@ def load_yaml_as_rcl(text: str, label: str = "the YAML text", *, repeated: list[
     Loader.add_constructor(tag, lambda loader, node: rcl_scalar(loader.construct_scalar(node)))
     loader = Loader(text)
     try:
-        root = loader.get_single_node()
-        if root is None:
-            return None
-        _check_aliases(root, label)
-        return loader.construct_document(root)
+        return loader.get_single_data()
     except RecursionError:  # PyYAML composes and constructs recursively
         raise ParameterError(f"{label} is nested too deeply") from None
     finally:
         loader.dispose()
-
-
-def _check_aliases(root: Any, label: str) -> None:
-    """ParameterError when the aliases of a composed document recurse or expand it too much."""
-    expanded, distinct = _expanded_size(root)
-    if expanded == math.inf:
-        raise ParameterError(f"{label}: a YAML alias refers to a mapping or list that contains it "
-                             f"(an endless structure no parameter can hold)")
-    if expanded - distinct > MAX_ALIAS_EXPANSION:
-        raise ParameterError(f"{label}: its YAML aliases expand it by more than {MAX_ALIAS_EXPANSION} values "
-                             f"(a parameter file has a few hundred); write the values out instead of nesting aliases")
 
 
 def read_parameter_file(path: str | Path) -> Mapping:

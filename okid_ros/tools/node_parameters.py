@@ -106,7 +106,7 @@ def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tup
         if not sep or not name:
             raise ParameterError(f"--param {item!r} must be NAME=VALUE, e.g. publish_rate_hz=0.5")
         try:
-            value = load_yaml_as_rcl(text)
+            value = load_yaml_as_rcl(text, f"--param {item!r}")
         except yaml.YAMLError:
             raise ParameterError(f"--param {item!r}: the value is not valid YAML") from None
         if not any(name in known for known in names.values()):
