@@ -9,6 +9,7 @@ string to PyYAML's YAML 1.1 rules ("publish_rate_hz must be a number, got '1e-3'
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -116,3 +117,52 @@ def test_the_commands_say_a_files_problems_as_their_own_warning_lines(tmp_path: 
     assert capsys.readouterr().err.splitlines()[0] == (
         f"okid-ros identify: warning: {tmp_path / 'run.npz'}: --params, --param and --source say how to read a bag's "
         "topics; a record file holds its channels and sample time itself: ignored")
+
+
+RCL_VERDICTS = """
+import json, sys
+import rclpy
+out = {}
+for path in sys.argv[1:]:
+    try:
+        rclpy.init(args=["--ros-args", "--params-file", path])
+    except Exception as exc:
+        out[path] = " ".join(str(exc).split())
+    else:
+        out[path] = None
+        rclpy.shutdown()
+print("VERDICTS " + json.dumps(out), flush=True)
+"""
+
+ALIAS_FILES = {
+    "alias_scalar": "/**:\n  ros__parameters:\n    a: &x 5\n    b: *x\n",
+    "alias_in_list": "/**:\n  ros__parameters:\n    a: [&x 1, *x]\n",
+    "alias_key": "/**:\n  ros__parameters:\n    &k a: 1\n    *k : 2\n",
+    "alias_across_sections": "/**/okid_arx_identifier:\n  ros__parameters:\n    arx: &common {order: 20}\n"
+                             "/**/okid_estimator:\n  ros__parameters:\n    arx: *common\n",
+    "alias_section": "/**/a: &s\n  ros__parameters:\n    b: 1\n/**/c: *s\n",
+    "anchors_alone": "&doc\n/**/okid_arx_identifier: &section\n  &params ros__parameters: &values\n"
+                     "    a: &x 5\n    &k b: [&item 1, 2]\n    arx: &arx {order: 20}\n",
+}
+
+
+def test_rcl_and_okid_ros_refuse_the_same_aliases_and_read_the_same_anchors(tmp_path: Path, spawn_ros) -> None:
+    # The nodes' contract: rcl refuses every alias at its line and reads an anchor alone; okid_ros
+    # read aliases (their values copied), so `process` took a file no node would start with.
+    from okid_ros.service.param_files import read_parameter_file
+
+    paths = {case: tmp_path / f"{case}.yaml" for case in ALIAS_FILES}
+    for case, path in paths.items():
+        path.write_text(ALIAS_FILES[case])
+    probe = spawn_ros("-c", RCL_VERDICTS, *map(str, paths.values()))
+    rcl = json.loads(probe.wait_for_output(r"^VERDICTS (.*)$", timeout_s=60).group(1))
+    for case, path in paths.items():
+        rcl_line = re.search(r"Will not support aliasing at line (\d+)", rcl[str(path)] or "")
+        try:
+            read_parameter_file(path)
+            ours_line = None
+        except ParameterError as exc:
+            ours_line = re.search(r": line (\d+): the YAML alias '\*", str(exc))
+        assert (rcl[str(path)] is None) == (ours_line is None), (case, rcl[str(path)])
+        assert (rcl_line and rcl_line.group(1)) == (ours_line and ours_line.group(1)), (case, rcl[str(path)])
+    assert rcl[str(paths["anchors_alone"])] is None and sum(v is None for v in rcl.values()) == 1
