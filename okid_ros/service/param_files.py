@@ -51,6 +51,8 @@ __all__ = [
 
 #: Names (or prefixes ending in '.') every rclpy node accepts besides its own parameters.
 ROS_STANDARD_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
+
+
 def node_fqn(node: str, namespace: str | None = None) -> str:
     """``/NAMESPACE/NODE`` (root namespace: ``/NODE``)."""
     ns = (namespace or "/").rstrip("/")
