@@ -396,7 +396,9 @@ def files_for_nodes(paths: Sequence[str | Path]) -> list[str]:
     Read as every command reads one (:func:`read_parameter_file`), so a file that is missing, a
     folder, not YAML or not a parameter file is refused in one line before a node starts (was:
     "does not exist" for a folder or a device; rcl's parse error from each node, after the demo's
-    simulation). A pipe is refused too: read here, it would be empty for the two nodes.
+    simulation). A pipe is refused too: read here, it would be empty for the two nodes. So is a file
+    with a key that is not a node section (``/**: {a: 1}``, a typo ``ros_parameters:``): rcl refuses
+    the whole file, where the commands only warn of it (:func:`file_report`).
 
     Raises
     ------
@@ -407,6 +409,10 @@ def files_for_nodes(paths: Sequence[str | Path]) -> list[str]:
         if kind := special_file_kind(path):
             raise ParameterError(f"parameter file {shown_path(path)}: not a regular file ({kind}); each node reads "
                                  "it itself")
-        read_parameter_file(path)
+        if bare := _without_parameters(read_parameter_file(path)):
+            # Only a warning for the commands that read the file themselves: rcl refuses the whole file
+            raise ParameterError(f"parameter file {shown_path(path)}: section {bare[0]!r} holds no 'ros__parameters' "
+                                 "mapping: a node refuses the file (rcl: 'Cannot have a value before "
+                                 "ros__parameters'); put its values under '<node>: ros__parameters:' or remove it")
         checked.append(str(Path(path).resolve()))
     return checked

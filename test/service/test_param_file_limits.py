@@ -139,3 +139,26 @@ def test_an_anchor_alone_is_read_as_rcl_reads_it(tmp_path):
 def test_the_shipped_config_files_load(path):
     assert read_parameter_file(path)
     load_parameters(path, ARX_NODE)
+
+
+# Each refused by rclpy.init(args=["--ros-args", "--params-file", FILE]): "Cannot have a value before ros__parameters".
+NOT_SECTIONS = {
+    "flat_section": ("/**: {sample_time_s: 0.01}\n", "/**"),
+    "typo": ("/**:\n  ros_parameters:\n    sample_time_s: 0.01\n", "/**/ros_parameters"),
+    "top_level_value": ("/**:\n  ros__parameters:\n    sample_time_s: 0.01\nnote: 5\n", "note"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(NOT_SECTIONS))
+def test_up_refuses_a_file_with_a_key_no_node_reads_before_a_node_starts(tmp_path, capsys, case):
+    # Were started: each node then failed in rcl's parser ("Cannot have a value before ros__parameters").
+    text, key = NOT_SECTIONS[case]
+    path = tmp_path / "bare.yaml"
+    path.write_text(text)
+    with pytest.raises(ParameterError, match=re.escape(f"section {key!r} holds no 'ros__parameters' mapping: "
+                                                       "a node refuses the file")):
+        files_for_nodes([path])
+    code, out, err = run_cli(capsys, "up", "--params", path)
+    assert_one_line_error(code, err, "bare.yaml: section")
+    assert "started" not in out + err
+    assert read_parameter_file(path) is not None  # the commands that read it themselves warn (file_report)
