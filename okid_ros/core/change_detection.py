@@ -65,27 +65,10 @@ alarm within 20000 samples where 0.1 was expected at ``false_alarm_samples`` 1e7
 1000 samples). The threshold allows
 for the under-estimate that 90 % of calibrations stay below (:func:`calibration_scale`).
 
-Power also rises when the unmeasured excitation or the sensor noise grows, with the structure
-unchanged. With a :class:`~okid_ros.core.model_error_check.ModelErrorCheck` attached
-(``check``, as :class:`~okid_ros.core.change_monitor.StructuralChangeMonitor` does), an alarm is
-declared only when the residuals of its excursion carry a model error: a part the past inputs
-and residuals predict beyond what the calibration's did. Otherwise it is counted
-(``unconfirmed_alarms``), the CUSUM goes on, and the excursion is judged again later. Excitation
-that changes relative to the sensor noise colours the innovations too (the optimal gain depends
-on that ratio), and the check confirms it: a ``noise_test`` (the monitor attaches a
-:class:`~okid_ros.core.noise_change.NoiseChangeTest`) judges a confirmed excursion that no state
-jump explains, and one that a change of the noise model explains ends (``noise_changes``; the
-caller re-arms with the new noise model).
-
-A jump of the state raises the power too, and the model-error check confirms it (an impact,
-a bag replayed in a loop: the decaying mismatch is predictable from its own lags), but it is
-not a change: the excursion is the free response of the reference predictor to the jump. With
-a ``jump_test`` attached (the monitor attaches a
-:class:`~okid_ros.core.state_jump.StateJumpTest`), a confirmed alarm is judged as a state jump
-before it is declared; an excursion that a jump explains ends there (the statistic returns to
-0, the tracked mean takes the fit's constant, the whitening's lags refill), it is counted
-(``state_jumps``) and the caller corrects its predictor (``jump_at``). The judgement waits for
-enough samples after the excursion's loud samples begin (``StateJumpTest.needed_samples``).
+An alarm is declared only if no more mundane cause explains it: its judgement (a model error
+in the residuals, else a jump of the state or a change of the noise model) is
+:mod:`okid_ros.core.alarm_judgement`'s (:class:`~okid_ros.core.alarm_judgement.AlarmJudgement`,
+the detector's ``judgement``).
 
 The change point estimate is the sample after the last ``g = 0``
 before the alarm. The threshold ``h`` follows from ONE parameter, ``false_alarm_samples``, the expected number of
@@ -100,12 +83,12 @@ No rclpy; numpy and scipy only.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg
 
+from okid_ros.core.alarm_judgement import AlarmJudgement, Judged
 from okid_ros.core.cusum import (
     CALIBRATION_CONFIDENCE,
     DEFAULT_VARIANCE_RATIO,
@@ -119,8 +102,6 @@ from okid_ros.core.innovation_whitening import (
     WHITENING_MAX_COEFFICIENT_FRACTION,
     InnovationWhitening,
 )
-from okid_ros.core.model_error_check import ModelErrorCheck, ModelErrorVerdict
-from okid_ros.core.state_jump import StateJump
 
 __all__ = [
     "DEFAULT_FALSE_ALARM_SAMPLES", "DEFAULT_VARIANCE_RATIO", "DEFAULT_REFERENCE_SAMPLES",
@@ -210,19 +191,9 @@ class ChangeDetector:
     correlation_factor : r >= 1 measured on the calibration samples (1 before).
     scale : :func:`calibration_scale` of ``reference_samples`` calibration samples.
     whitening_order : lags of the whitening AR chosen at the calibration (0: none).
-    check : judges each alarm before it is declared (None: every alarm is declared); it is
-        given the tested residuals, the caller gives it the inputs.
-    last_verdict : the check's judgement of the last alarm, if any.
-    unconfirmed_alarms : excursions whose alarm the check did not confirm, since construction.
-    jump_test : ``(change_index, alarm_index, index) -> StateJump | None`` judging at sample
-        ``index`` the excursion from ``change_index`` whose alarm at ``alarm_index`` the check
-        confirmed, as a state jump, before it is declared (None: no such judgement); None from
-        it: not yet (too few samples).
-    state_jumps : excursions explained as a state jump, since construction.
-    jump_at : the sample of the last explained excursion's alarm, until the caller takes it
-        (sets it to None) and corrects its predictor by ``last_jump``.
-    noise_test : ``(change_index, index) -> NoiseVerdict | None``, as ``jump_test`` for a noise
-        change; ``noise_changes``, ``noise_at`` and ``last_noise`` as ``state_jumps``, ``jump_at``, ``last_jump``.
+    judgement : the :class:`~okid_ros.core.alarm_judgement.AlarmJudgement` of each alarm before
+        it is declared (its ``check``, ``jump_test`` and ``noise_test`` the caller attaches, their
+        verdicts and counts); the detector feeds the check the tested residuals.
     calibrated_at : the last calibration sample (-1 before the calibration).
     """
 
@@ -249,12 +220,7 @@ class ChangeDetector:
         self.whitening_max_order = min(int(whitening_max_order), int(
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
-        self.check: ModelErrorCheck | None = None
-        self.jump_test: Callable[[int, int, int], StateJump | None] | None = None
-        self.noise_test = None
-        self.unconfirmed_alarms = 0
-        self.state_jumps = 0
-        self.noise_changes = 0
+        self.judgement = AlarmJudgement()
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
@@ -292,14 +258,7 @@ class ChangeDetector:
         self._tracked_count = 0
         self._tracked_quiet = self._tracked  # the tracked mean where the statistic was last 0
         self.whitening = InnovationWhitening(self.n_outputs)
-        self.last_verdict: ModelErrorVerdict | None = None
-        self.last_jump: StateJump | None = None
-        self.jump_at: int | None = None
-        self._confirmed_at = -1  # the sample whose alarm the check confirmed, awaiting the state-jump test
-        self._jump_open = True
-        self._judge_from = -1  # no judgement of this excursion before this sample (-1: none refused yet)
-        self.last_noise = None
-        self.noise_at: int | None = None
+        self.judgement.restart()
         self.calibrated_at = -1
 
     @property
@@ -341,9 +300,9 @@ class ChangeDetector:
         cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (n + dof) / max(n - dof, 1.0)
         self.rewhiten = whitening_matrix(cov)
         w = (ref - self.mean) @ self.rewhiten.T
-        if self.check is not None:
-            self.check.push_residuals(last_index - n + 1, w)
-            self.check.calibrate(last_index, n)
+        if (check := self.judgement.check) is not None:
+            check.push_residuals(last_index - n + 1, w)
+            check.calibrate(last_index, n)
         if self.batch_samples:
             nis = np.einsum("ij,ij->i", w, w)
             n_batches = nis.shape[0] // self.batch_samples
@@ -378,17 +337,17 @@ class ChangeDetector:
         residuals, skipped = self.whitening.residuals(z[start:])
         start += skipped
         w = (residuals - self.mean) @ self.rewhiten.T
-        if self.check is not None:
-            self.check.push_residuals(first_index + start, w)
+        if self.judgement.check is not None:
+            self.judgement.check.push_residuals(first_index + start, w)
         nis = np.einsum("ij,ij->i", w, w)
         for k in range(nis.shape[0]):
             alarm = self._add(float(nis[k]), first_index + start + k)
             if alarm is not None:
                 return alarm
-            if self.jump_at is not None:  # the rest of the block is the caller's to correct and feed again
+            if self.judgement.jump_at is not None:  # the rest of the block is the caller's to correct and feed again
                 self._forget_jump()
                 return None
-            if self.noise_at is not None:  # the caller re-arms with the new noise model
+            if self.judgement.noise_at is not None:  # the caller re-arms with the new noise model
                 return None
         return None
 
@@ -405,15 +364,15 @@ class ChangeDetector:
         if z is None:  # its lags reach across a gap
             return None
         w = self.rewhiten @ (z - self.mean)
-        if self.check is not None:
-            self.check.push_residuals(index, w[None, :])
+        if self.judgement.check is not None:
+            self.judgement.check.push_residuals(index, w[None, :])
         alarm = self._add(float(w @ w), index)
-        if self.jump_at is not None:
+        if self.judgement.jump_at is not None:
             self._forget_jump()
         return alarm
 
     def _add(self, nis: float, index: int) -> ChangeAlarm | None:
-        """One CUSUM step with the calibrated ``|w|^2`` of sample ``index``."""
+        """One CUSUM step with the calibrated ``|w|^2`` of sample ``index``; an alarm the judgement declares."""
         g = self.statistic + self._a * nis - self._b
         if g <= 0.0:
             self._end_excursion(index)
@@ -421,41 +380,15 @@ class ChangeDetector:
         self.statistic = g
         self._sum_nis += nis
         self._n_nis += 1
-        if g > self.threshold and index >= self._judge_from:
-            alarm = ChangeAlarm(index, self._last_zero + 1, g, self.threshold,
-                                self._sum_nis / (self._n_nis * self.n_outputs))
-            if self._confirmed_at < 0:
-                if not self._confirmed(alarm):
-                    return None
-                self._confirmed_at = index  # declared unless a state jump or a noise change explains it
-            return self._explained_or(alarm, index)
-        return None
-
-    def _explained_or(self, alarm: ChangeAlarm, index: int) -> ChangeAlarm | None:
-        """A confirmed alarm judged as a state jump, then as a noise change: the alarm if neither explains it."""
-        if self.jump_test is not None and self._jump_open:
-            jump = self.jump_test(alarm.change_index, self._confirmed_at, index)
-            if jump is None:  # too few samples of the excursion yet
-                self._judge_from = index + 1
-                return None
-            if jump.explained:
-                self._end_excursion(index)
-                self.state_jumps += 1
-                self.last_jump, self.jump_at = jump, index
-                return None
-            self._jump_open = False
-        if self.noise_test is not None:
-            noise = self.noise_test(alarm.change_index, index)
-            if noise is None:  # judged on more samples
-                self._judge_from = index + 1
-                return None
-            if noise.explained:
-                self._end_excursion(index)
-                self.noise_changes += 1
-                self.last_noise, self.noise_at = noise, index
-                return None
-        self._confirmed_at = -1
-        return alarm
+        if g <= self.threshold:
+            return None
+        judged = self.judgement.judge(self._last_zero + 1, index)
+        if judged is Judged.EXPLAINED:
+            self._end_excursion(index)
+        if judged is not Judged.DECLARED:
+            return None
+        ratio = self._sum_nis / (self._n_nis * self.n_outputs)
+        return ChangeAlarm(index, self._last_zero + 1, g, self.threshold, ratio)
 
     def excursion_ended(self, index: int) -> None:
         """The caller explained the excursion up to sample ``index`` (an output's step taken off): forget it.
@@ -476,24 +409,10 @@ class ChangeDetector:
         self.statistic = 0.0
         self._last_zero = index
         self._sum_nis, self._n_nis = 0.0, 0
-        self._judge_from = -1
-        self._confirmed_at = -1
-        self._jump_open = True  # the confirmed alarm of the next excursion is judged as a state jump first
+        self.judgement.excursion_ended()
 
     def _forget_jump(self) -> None:
         """The tracked mean from the jump's fit (offsets may step with it); the whitening's lags refill."""
         if self.mean_tracking_samples:
-            self._tracked = self.last_jump.offset.copy()
+            self._tracked = self.judgement.last_jump.offset.copy()
         self.whitening.gap()
-
-    def _confirmed(self, alarm: ChangeAlarm) -> bool:
-        """Whether the check confirms the alarm; if not, its excursion is judged again later."""
-        if self.check is None:
-            return True
-        self.last_verdict = self.check.judge(alarm.change_index, alarm.alarm_index)
-        if self.last_verdict.confirmed:
-            return True
-        if self._judge_from < 0:  # the excursion's first refusal (reset when g returns to 0)
-            self.unconfirmed_alarms += 1
-        self._judge_from = alarm.alarm_index + self.check.judge_period
-        return False

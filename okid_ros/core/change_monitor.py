@@ -10,8 +10,8 @@ corrects its predictor's state by the fitted jump and goes on. One that no jump 
 judged as a change of the noise model (:mod:`okid_ros.core.noise_change`: the excitation changed
 relative to the sensor noise), and one that such a change explains is not declared either: the
 monitor re-arms with the reference's noise model refitted (and calibrates again). A glitch
-(:mod:`okid_ros.core.glitches`) is not tested: the predictor goes on from its prediction. See
-:mod:`okid_ros.core.change_detection` for the test.
+(:mod:`okid_ros.core.glitches`) is not tested: the predictor goes on from its prediction. The
+test: :mod:`okid_ros.core.change_detection`; the judgement of its alarms: :mod:`okid_ros.core.alarm_judgement`.
 
 No rclpy; numpy and scipy only.
 """
@@ -63,6 +63,7 @@ class StructuralChangeMonitor:
     def __init__(self, n_outputs: int, *, model_error_check: bool = True, state_jump_test: bool = True,
                  noise_change_test: bool = True, **detector_options) -> None:
         self.detector = ChangeDetector(n_outputs, **detector_options)
+        self._judgement = self.detector.judgement  # the detector's for its life: the tests attached to it here
         self.model_error_check = bool(model_error_check)
         self.state_jump_test = bool(state_jump_test)
         self.noise_change_test = bool(noise_change_test) and self.model_error_check
@@ -81,9 +82,9 @@ class StructuralChangeMonitor:
         self.reference_rows = 0
         self._hold = 0
         self.detector.restart()
-        self.detector.check = None
-        self.detector.jump_test = None
-        self.detector.noise_test = None
+        self._judgement.check = None
+        self._judgement.jump_test = None
+        self._judgement.noise_test = None
         self._jumps: StateJumpTest | None = None
         self._noise: NoiseChangeTest | None = None
         self._noise_model = None  # the reference with the noise model the last noise verdict fitted
@@ -117,15 +118,15 @@ class StructuralChangeMonitor:
         self._hold = 0
         self.detector.restart()
         # The check holds the calibration and a chunk beyond.
-        self.detector.check = ModelErrorCheck(
+        self._judgement.check = ModelErrorCheck(
             model.C.shape[0], model.B.shape[1], capacity=self.detector.reference_samples + 2 * _CHUNK_SAMPLES,
         ) if self.model_error_check else None
         self._ring.clear()
         self._calibration_power = [0.0, 0]
         self._jumps = StateJumpTest(self.predictor.F, whiten @ self.predictor.C) if self.state_jump_test else None
-        self.detector.jump_test = self._judge_jump if self.state_jump_test else None
+        self._judgement.jump_test = self._judge_jump if self.state_jump_test else None
         self._noise = self._noise_test(whiten) if self.noise_change_test else None
-        self.detector.noise_test = self._judge_noise if self.noise_change_test else None
+        self._judgement.noise_test = self._judge_noise if self.noise_change_test else None
         self._noise_excursion = -1
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
 
@@ -135,11 +136,11 @@ class StructuralChangeMonitor:
         Its samples grow with the check's regressors (many inputs): beyond the calibration's
         capacity a verdict would never come, and the ring was read on every sample meanwhile.
         """
-        check = self.detector.check
+        check = self._judgement.check
         test = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, check)
         needed = test.max_samples + check.lags + _CHUNK_SAMPLES
         if check.capacity < needed:
-            check = self.detector.check = ModelErrorCheck(check.n_outputs, check.n_inputs, capacity=needed)
+            check = self._judgement.check = ModelErrorCheck(check.n_outputs, check.n_inputs, capacity=needed)
             test = NoiseChangeTest(self.predictor.F, whiten @ self.predictor.C, check)
         if self._ring.capacity < needed:
             self._ring = SampleRing(check.n_outputs, needed)
@@ -245,7 +246,7 @@ class StructuralChangeMonitor:
         the state it started from: the old predictor's state after the verdict's sample is the
         new reference's start.
         """
-        k = self.detector.noise_at + 1 - first_index
+        k = self._judgement.noise_at + 1 - first_index
         self.predictor.x = x0.copy()
         self.predictor.advance(u[:k], y[:k])
         self._take_noise()
@@ -253,7 +254,7 @@ class StructuralChangeMonitor:
 
     def _take_noise(self) -> None:
         """After an explained noise change: re-arm with the refitted noise model from the predictor's state."""
-        if self.detector.noise_at is not None:
+        if self._judgement.noise_at is not None:
             self.arm(self._noise_model, self.predictor.x, reference_rows=self.reference_rows)
 
     def _record(self, first_index: int, z: np.ndarray) -> None:
@@ -271,11 +272,11 @@ class StructuralChangeMonitor:
 
         Returns the sample of the jump's alarm (None if there was none).
         """
-        at = self.detector.jump_at
+        at = self._judgement.jump_at
         if at is None:
             return None
-        self.detector.jump_at = None
-        jump, F, G_y = self.detector.last_jump, self.predictor.F, self.predictor.Gy
+        self._judgement.jump_at = None
+        jump, F, G_y = self._judgement.last_jump, self.predictor.F, self.predictor.Gy
         correction = jump.correction(F, next_index)
         total, count = self._calibration_power
         step = output_step(jump, F, G_y, self.predictor.C, self.whiten, baseline_power=total / max(count, 1))
@@ -294,12 +295,12 @@ class StructuralChangeMonitor:
     @property
     def state_jumps(self) -> int:
         """Alarms whose excursion was explained as a jump of the state (not declared)."""
-        return self.detector.state_jumps
+        return self._judgement.state_jumps
 
     @property
     def noise_changes(self) -> int:
         """Alarms whose excursion was explained as a change of the noise model (not declared; re-armed)."""
-        return self.detector.noise_changes
+        return self._judgement.noise_changes
 
     def gap(self, u_held: np.ndarray | None, skipped: int, max_gap: int) -> None:
         """Samples are missing before the next one (``skipped`` > 0) or time restarted (< 0).
@@ -391,14 +392,14 @@ class StructuralChangeMonitor:
         while lo < z.shape[0]:
             hi = min(lo + _CHUNK_SAMPLES, z.shape[0])
             self._record(first_index + lo, z[lo:hi])
-            if self.detector.check is not None:
-                self.detector.check.push_inputs(first_index + lo, u[lo:hi])
+            if self._judgement.check is not None:
+                self._judgement.check.push_inputs(first_index + lo, u[lo:hi])
             alarm = self.detector.process(z[lo:hi], first_index + lo)
             if alarm is not None:
                 self.disarm()
                 return alarm
             self._calibrate_noise()
-            if self.detector.noise_at is not None:
+            if self._judgement.noise_at is not None:
                 if block is None:  # a jump corrected the state in this block: re-armed from its end
                     self._take_noise()
                     return None
@@ -411,7 +412,7 @@ class StructuralChangeMonitor:
             # The samples after the jump's alarm again, less the jump's response.
             lo = at + 1 - first_index
             if lo < z.shape[0]:
-                z[lo:] -= self._jumps.response(self.detector.last_jump, at + 1, z.shape[0] - lo)
+                z[lo:] -= self._jumps.response(self._judgement.last_jump, at + 1, z.shape[0] - lo)
                 if self._offset_taken is not None:  # an output step the caller takes off these samples
                     z[lo:] -= self._offset_taken
         return None
@@ -461,8 +462,8 @@ class StructuralChangeMonitor:
             return None
         if not finite:
             return None
-        if self.detector.check is not None:
-            self.detector.check.push_inputs(index, u[None, :])
+        if self._judgement.check is not None:
+            self._judgement.check.push_inputs(index, u[None, :])
         alarm = self.detector.push(z, index)
         if alarm is not None:
             self.disarm()
@@ -483,4 +484,4 @@ class StructuralChangeMonitor:
     @property
     def unconfirmed_alarms(self) -> int:
         """Alarms of the power test that the model-error check did not confirm (not declared)."""
-        return self.detector.unconfirmed_alarms
+        return self._judgement.unconfirmed_alarms

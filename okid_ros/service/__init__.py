@@ -11,7 +11,8 @@
 - :mod:`.identification`: node 1, windowed ARX identification (`ArxIdentificationService`), its
   solve of a captured window in :mod:`.arx_solve` (`solve_capture`, `ArxSnapshot`);
 - :mod:`.estimation`: node 2, the modal estimation service (`ModalEstimationService`), on its
-  parts: :mod:`.arx_requests` (which ARX fits it refuses), :mod:`.realization` (realization and
+  parts: :mod:`.arx_requests` (which ARX fits it refuses), :mod:`.realization_handoff` (the
+  waiting request, the job in flight, the delivered outcome), :mod:`.realization` (realization and
   its checks), :mod:`.model_switch` (model switching, mode ids with :mod:`.mode_registry`),
   :mod:`.watch` (divergence and change watch), :mod:`.results` (what it hands out);
 - :mod:`.windowed`: each node's step per sample, and both nodes in step offline

@@ -7,41 +7,28 @@ modal states; for an ARX fit it realizes a model (:func:`okid_ros.core.pipeline.
 weighted ERA, least-squares refit of B, D and the gain, normalized modal form) from the fit
 and the samples of its window, which this service buffers itself.
 
-Life of a model update::
-
-    submit_arx(fit, stamp_end_s)   newest request kept; older waiting ones are replaced
-    take_job()                     when the buffer holds the window's end sample: a job with a
-                                   copy of the window (u, y), or None
-    realize(job)                   the expensive part (ERA + refit + refinement, ~1 s at
-                                   q = 100; then the modes' standard deviations, a few ms),
-                                   then a warm start: the new model's predictor runs
-                                   over the window; pure, any thread or process
-    follow(outcome)                the warm start goes on over the samples that arrived
-                                   meanwhile, so the state is converged when it takes over
-    deliver(outcome)               hands the result back
-    step(...)                      the next sample switches models at a sample boundary
-    apply_ready_if_idle()          or, when no sample came for a while (the end of a bag, a
-                                   sensor pause; :mod:`~okid_ros.service.idle`), a timer does,
-                                   after the newest buffered sample; then the next request
-                                   can be taken
-    apply_ready_at_end()           or, when the caller knows the stream has ended (the end of
-                                   a record offline), the same switch at once
+A model update goes from :meth:`~ModalEstimationService.submit_arx` through
+:meth:`~ModalEstimationService.take_job`, ``realize``, :meth:`~ModalEstimationService.follow`
+and :meth:`~ModalEstimationService.deliver` to the switch at a sample (:meth:`~ModalEstimationService.step`)
+or without one (``apply_ready_if_idle``, ``apply_ready_at_end``); its life, and the request,
+job and outcome it is on the way, are :mod:`~okid_ros.service.realization_handoff`'s.
 
 ``process_pending()`` runs take_job, realize and deliver synchronously. Offline
 (:class:`~okid_ros.service.windowed.WindowedPipeline`) each model is realized at once, and one
 delivered after the last sample is applied and published as live (``apply_ready_at_end``).
 
-The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the ARX
-fits refused (:mod:`~okid_ros.service.arx_requests`), the realization and its checks
-(:mod:`~okid_ros.service.realization`), model switching with mode ids
+The parts, each in a module of its own: the results (:mod:`~okid_ros.service.results`), the ARX fits
+refused (:mod:`~okid_ros.service.arx_requests`), the request, job and outcome handed between the sample
+path and the realization's thread (:mod:`~okid_ros.service.realization_handoff`), the realization and
+its checks (:mod:`~okid_ros.service.realization`), model switching with mode ids
 (:mod:`~okid_ros.service.model_switch`), the divergence and change watch
 (:mod:`~okid_ros.service.watch`), the diagnostics dict
-(:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them,
-with all its locking: one lock, around what the realization's thread and the sample path share
-(the waiting request, the job in flight, the delivered outcome and a change of options), held
-by :meth:`~ModalEstimationService.step` and the switches without a sample (``apply_ready_if_idle``,
-``apply_ready_at_end``) throughout, so that a delivered outcome is applied once, by one of them,
-between two samples.
+(:mod:`~okid_ros.service.estimation_diagnostics`); this module is the service that holds them, with all
+its locking: one lock, around what the realization's thread and the sample path share (the waiting
+request, the job in flight, the delivered outcome and a change of options), held by
+:meth:`~ModalEstimationService.step` and the switches without a sample (``apply_ready_if_idle``,
+``apply_ready_at_end``) throughout, so that a delivered outcome is applied once, by one of them, between
+two samples.
 
 Checks before a model is accepted (otherwise the current one is kept, with the reason in
 :meth:`diagnostics`, naming the check):
@@ -85,26 +72,22 @@ from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.input_glitches import InputGlitchGate
 from okid_ros.core.modal import Mode
 from okid_ros.core.pipeline import IdentifiedModel
-from okid_ros.core.realization_window import newest_run_start
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service import realization
-from okid_ros.service.arx_requests import held_refusal, stamp_refusal, unbuffered_refusal, window_refusal
 from okid_ros.service.estimation_diagnostics import estimation_diagnostics
 from okid_ros.service.idle import IdleWatch
 from okid_ros.service.model_switch import ModelSelection, SwitchJump
 from okid_ros.service.options import ModalEstimationParams, check_runtime_change
 from okid_ros.service.realization import realize
+from okid_ros.service.realization_handoff import RealizationHandoff
 from okid_ros.service.results import (
-    JOB_GENERATIONS,
     ActiveModel,
-    BufferedWindow,
     EstimationStats,
     IdleSwitch,
     ModalStatesResult,
     ModelUpdate,
     RealizationJob,
     RealizationOutcome,
-    RefusedArx,
     StructuralChangeEvent,
 )
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -141,11 +124,6 @@ class ModalEstimationService:
             self._buffer.clear()
             self._active: ActiveModel | None = None
             self._model_id = 0
-            self._request: tuple[ArxFit, float, int, int] | None = None
-            self._last_request_end: float | None = None
-            self._busy = False
-            self._ready: RealizationOutcome | None = None
-            self._generation = next(JOB_GENERATIONS)  # outcomes of older jobs (any service's) are dropped
             self._stats = EstimationStats()
             self._u_prev: np.ndarray | None = None
             self._refused = 0  # samples refused since the last one stepped: a gap before the next
@@ -157,6 +135,8 @@ class ModalEstimationService:
             self._held_change: StructuralChangeEvent | None = None
             self._accepted_change: StructuralChangeEvent | None = None  # set by _apply, reported by step
             self._idle = IdleWatch()
+            # The waiting request, the job in flight, the delivered outcome; a new generation of jobs.
+            self._handoff = RealizationHandoff(self._buffer, self._stats, self._watch, self._idle)
 
     def set_params(self, params: ModalEstimationParams) -> list[str]:
         """Take new options at once; returns the changed fields.
@@ -198,12 +178,12 @@ class ModalEstimationService:
     @property
     def has_request(self) -> bool:
         """An ARX fit is waiting for :meth:`take_job`."""
-        return self._request is not None
+        return self._handoff.request is not None
 
     @property
     def busy(self) -> bool:
         """A job was taken and its outcome not yet applied."""
-        return self._busy
+        return self._handoff.busy
 
     # ------------------------------------------------------------------ ARX fits
     def submit_arx(
@@ -211,79 +191,29 @@ class ModalEstimationService:
     ) -> bool:
         """Offer an ARX fit of the window ending at ``stamp_end_s``; False if refused at once.
 
-        The newest request waits until :meth:`take_job`; a request still waiting is replaced.
-        A fit whose window ends where the last taken or the waiting one ends (node 1
-        republishing an unchanged window, e.g. while the inputs are silent) is ignored.
+        The newest request waits until :meth:`take_job`; a request still waiting is replaced. What is
+        refused: :meth:`~okid_ros.service.realization_handoff.RealizationHandoff.arrival`.
         """
-        st, prm = self._stats, self.params
-        st.arx_received += 1
+        self._stats.arx_received += 1
         if not self.enabled:
             return False
-        if fit.n_inputs != prm.n_inputs or fit.n_outputs != prm.n_outputs:
-            st.refuse_arx(RefusedArx.DIMENSIONS, f"ARX model has m={fit.n_inputs}, p={fit.n_outputs}; this estimator "
-                          f"has n_inputs={prm.n_inputs}, n_outputs={prm.n_outputs}")
-            return False
-        if refused := stamp_refusal(stamp_end_s, self._buffer):
-            st.refuse_arx(*refused)
-            return False
-        pending = self._request
-        for end in (self._last_request_end, None if pending is None else pending[1]):
-            if end is not None and abs(stamp_end_s - end) <= 0.5 * prm.sample_time_s:
-                st.arx_unchanged += 1  # same window as one taken or waiting (no new samples)
-                return False
-        rows = int(window_rows) if window_rows else int(fit.n_rows)
-        if refused := window_refusal(fit, rows, prm, self._buffer) or unbuffered_refusal(
-                stamp_end_s, self._buffer, prm.sample_time_s):
-            st.refuse_arx(*refused)
+        request = self._handoff.arrival(fit, stamp_end_s, arx_model_id, window_rows, self.params)
+        if request is None:
             return False
         with self._lock:
-            if self._request is not None:
-                st.arx_replaced += 1
-            self._request = (fit, float(stamp_end_s), int(arx_model_id), rows)
+            self._handoff.wait(request)
         return True
 
     def take_job(self) -> RealizationJob | None:
-        """A realization job for the waiting ARX fit, once the buffer covers its window.
+        """A realization job for the waiting ARX fit, once the buffer covers its window; None disabled.
 
-        None when there is nothing to do, a job runs, nothing is buffered yet (node 2 started after node 1,
-        or lags it) or the window's last sample has not come (an idle stream's newest sample ends it if at
-        most ``max_gap_samples`` short). A request whose window is not buffered (too few samples after a
-        long gap, too many missing) is dropped; so is one offered with nothing buffered whose window ends
-        beyond ``MAX_ARX_LEAD_S`` of the first samples, or before them (the rules of :meth:`submit_arx`).
+        When taken, when dropped: :meth:`~okid_ros.service.realization_handoff.RealizationHandoff.take_job`.
         """
         with self._lock:
-            if self._busy or self._request is None or not self.enabled or self._buffer.count == 0:
+            if not self.enabled:
                 return None
-            fit, stamp_end, arx_id, rows = self._request
-            dt, prm, st = self.params.sample_time_s, self.params, self._stats
-            # Offered with none buffered, or a time jump since: judged now.
-            if refused := stamp_refusal(stamp_end, self._buffer) or unbuffered_refusal(stamp_end, self._buffer, dt):
-                self._request = None
-                return st.refuse_arx(*refused)
-            short = (stamp_end - self._buffer.newest_stamp()) / dt
-            if short > 0.5 and not (self._idle.still_idle(self._buffer.count) and short <= prm.max_gap_samples + 0.5):
-                return None  # the window's last sample has not arrived here yet
-            self._request = None
-            self._last_request_end = stamp_end
-            end, end_stamp = self._buffer.find_end(stamp_end, 0.5 * dt)  # found: its timeline starts before
-            need = rows + fit.order
-            change = self._watch.change
-            if change is not None and end + 1 - need < change.change_index:
-                st.windows_refused_for_change += 1
-                return st.refuse_arx(RefusedArx.CHANGE, f"ARX window starts before the structural change at "
-                                     f"{change.change_stamp_s:.3f} s; waiting for a model of post-change data")
-            _, u, y, skipped = self._buffer.get(end + 1 - need, end + 1)
-            if refused := held_refusal(skipped, need=need, order=fit.order, max_gap=prm.max_gap_samples):
-                return st.refuse_arx(*refused)
-            try:  # the cheap part of realization_window here; its filling is the worker's (realize)
-                first = newest_run_start(skipped, max_gap=prm.max_gap_samples, order=fit.order, need=need)
-            except ValueError as exc:
-                return st.refuse_arx(RefusedArx.GAP, str(exc))
-            self._busy = True
             hint = None if self._active is None else self._active.model.n_states  # warm start
-            buffered = BufferedWindow(skipped[first:], need, self._watch.level_step_within(end + 1 - need, end + 1))
-            return RealizationJob(fit, arx_id, end_stamp, u[first:], y[first:], end, self.params, self._generation,
-                                  order_hint=hint, buffered=buffered)
+            return self._handoff.take_job(self.params, order_hint=hint)
 
     def run_job(self, job: RealizationJob, follow: bool = True) -> RealizationOutcome:
         """:func:`realize` a job, then (``follow``) :meth:`follow` the samples that arrived since."""
@@ -297,17 +227,14 @@ class ModalEstimationService:
         the switch then has at most ``handover_samples`` left to catch up. An outcome of a job
         taken before a reset, or by another service, is returned as it is (:meth:`deliver` drops it).
         """
-        if outcome.job.generation != self._generation:
+        if outcome.job.generation != self._handoff.generation:
             return outcome  # followed over this buffer, of other samples, it was work for nothing
         return realization.follow(outcome, self._buffer)
 
     def deliver(self, outcome: RealizationOutcome) -> None:
         """Hand a job's outcome back; applied at the next :meth:`step` (or ``apply_ready_if_idle``, ``_at_end``)."""
         with self._lock:
-            if outcome.job.generation != self._generation:
-                return  # taken before a reset
-            self._stats.window_samples_filled += outcome.window_filled
-            self._ready = outcome
+            self._handoff.deliver(outcome)  # dropped if taken before a reset
 
     def process_pending(self) -> bool:
         """Synchronously: take a job if one is due, run it, deliver it. True if one ran."""
@@ -349,8 +276,7 @@ class ModalEstimationService:
         y = self._watch.level_corrected(y)  # a sensor re-zero found is taken off (service/watch.py)
         index = self._buffer.append(stamp_s, u, y, skipped)
         update = None
-        if self._ready is not None:
-            outcome, self._ready = self._ready, None
+        if (outcome := self._handoff.take_ready()) is not None:
             update = self._apply(outcome, index, u, y, skipped)
         active = self._active
         if active is None:
@@ -425,9 +351,8 @@ class ModalEstimationService:
 
     def _switch_after_newest(self) -> IdleSwitch | None:
         """The delivered outcome switched in after the newest buffered sample (the stream idle; lock held)."""
-        if self._ready is None:
+        if (outcome := self._handoff.take_ready()) is None:
             return None
-        outcome, self._ready = self._ready, None
         update = self._apply(outcome, self._buffer.count, None, None, 0)
         if update is None:
             return None
@@ -444,7 +369,7 @@ class ModalEstimationService:
         ``u`` None: sample ``index`` has not arrived (the stream is idle); the jump is measured when it does.
         """
         st = self._stats
-        self._busy = False
+        self._handoff.busy = False
         self._jump.cancel()
         job = outcome.job
         st.realizations += 1
@@ -494,5 +419,5 @@ class ModalEstimationService:
     def diagnostics(self) -> dict[str, Any]:
         """Counters and health as a flat dict (:mod:`okid_ros.service.estimation_diagnostics`)."""
         return estimation_diagnostics(self._stats, self._buffer, self._watch.diagnostics(), self._active,
-                                      model_id=self._model_id, busy=self._busy,
-                                      request_waiting=self._request is not None, enabled=self.enabled)
+                                      model_id=self._model_id, busy=self._handoff.busy,
+                                      request_waiting=self._handoff.request is not None, enabled=self.enabled)

@@ -198,10 +198,10 @@ def test_more_noise_alone_is_not_declared_a_change(identified, seed):
         monitor = _armed(model, u, y, model_error_check=check)
         declared[check] = monitor.process(u[FIT:n], y[FIT:n], FIT)
         if check:
-            assert monitor.unconfirmed_alarms >= 1 and not monitor.detector.last_verdict.confirmed
+            assert monitor.unconfirmed_alarms >= 1 and not monitor.detector.judgement.last_verdict.confirmed
             assert monitor.state == "monitoring"  # still armed: nothing was declared
     assert declared[False] is not None and rise <= declared[False].alarm_index < end, declared[False]
-    assert declared[True] is None, (declared[True], monitor.detector.last_verdict)
+    assert declared[True] is None, (declared[True], monitor.detector.judgement.last_verdict)
 
 
 def test_a_change_during_a_noisy_stretch_is_declared(identified):
