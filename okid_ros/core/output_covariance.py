@@ -7,7 +7,7 @@ are made from the data here:
 
 - the **lag window**: long enough to span several periods of the slowest mode (a window
   shorter than one period merges close low modes, ``../shared/identification-findings.md``),
-  from the lowest prominent peak of the output spectrum that the record holds enough periods of;
+  from the lowest prominent peak of the output spectrum;
 - the **reference channels**: with many outputs only the most independent channels serve as
   the Hankel's columns (pivoted QR of the normalized record);
 - **segments**: the correlations of consecutive segments, whose mean is the record's
@@ -37,11 +37,6 @@ PERIODS_PER_BLOCK_ROWS = 1.0
 MAX_LAG_FRACTION_OF_SEGMENT = 0.1
 #: Peaks in the summed output spectrum at least this prominent (decades) count as modes.
 PEAK_PROMINENCE_DECADES = 0.3
-#: Such a peak counts only when the record holds at least this many of its periods: a slower
-#: peak's period exceeds the record's cap on the block rows (a tenth of a fifth of the record: a
-#: hundred periods at one period per block row), so its mode is not resolved and, when the peak
-#: is a hump of drift or suspension motion below the modes, it only sets the rows to that cap.
-MIN_PEAK_PERIODS = 100.0
 
 
 @dataclass
@@ -179,11 +174,11 @@ class RecordSums:
 
 
 def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
-    """Frequency (Hz) of the lowest prominent peak of the summed, normalized output spectrum the record holds.
+    """Frequency (Hz) of the lowest prominent peak of the summed, normalized output spectrum.
 
     Welch spectrum with about 0.5 % of the sampling rate per bin or finer (at least 8 averages);
-    the channels are scaled to unit variance so that every sensor counts. A peak counts when the
-    record spans at least :data:`MIN_PEAK_PERIODS` of its periods. NaN when no peak stands out.
+    the channels are scaled to unit variance so that every sensor counts. NaN when no peak
+    stands out.
     """
     n = y.shape[0]
     scaled = y / np.maximum(y.std(axis=0), np.finfo(float).tiny)
@@ -193,7 +188,6 @@ def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
     total = np.log10(np.maximum(psd.sum(axis=1), np.finfo(float).tiny))
     peaks, _ = signal.find_peaks(total, prominence=PEAK_PROMINENCE_DECADES)
     peaks = peaks[peaks >= 2]  # the first bins hold the offsets and drifts, not a mode
-    peaks = peaks[freq[peaks] * n * sample_time_s >= MIN_PEAK_PERIODS]
     return float(freq[peaks[0]]) if peaks.size else float("nan")
 
 
@@ -208,11 +202,11 @@ def choose_block_rows(
     for the jackknife, which tells modes from noise poles, and wins over the orders: with one or
     two channels and a short record the orders tried stop lower instead (1 channel, 6000
     samples: 60 block rows and orders to 60 rather than 103 rows, two segments, no jackknife and
-    ~9 noise poles listed per record). The slowest mode is the lowest spectral peak the record
-    holds :data:`MIN_PEAK_PERIODS` periods of (:func:`slowest_mode_hz`): a slower peak wants
-    more rows than the record's bound allows, which then set the rows without resolving it (a
-    hump of drift or suspension motion below the modes, or with one channel a noise "peak"
-    0.15-2.2 Hz below a 3 Hz mode); the next peak sets them instead.
+    ~9 noise poles listed per record). It wins over the slowest mode's period as well (as it
+    did before): a record shorter than about a hundred periods of its slowest spectral peak gets
+    lags shorter than that period, which may lose that mode but lists no noise (with one channel
+    the lowest "peak" is often noise, 0.15-2.2 Hz below a 3 Hz mode, and honouring it cost the
+    jackknife).
     """
     n, p = y.shape
     f_low = slowest_mode_hz(y, sample_time_s)
