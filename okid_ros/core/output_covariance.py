@@ -37,6 +37,13 @@ PERIODS_PER_BLOCK_ROWS = 1.0
 MAX_LAG_FRACTION_OF_SEGMENT = 0.1
 #: Peaks in the summed output spectrum at least this prominent (decades) count as modes.
 PEAK_PROMINENCE_DECADES = 0.3
+#: With ``held_peaks_only``, a peak sets the lag window only when the record holds at least this
+#: many of its periods: a slower peak's period exceeds the record's cap on the block rows (a tenth
+#: of a fifth of the record: a hundred periods at one period per block row), so its mode is not
+#: resolved and, when the peak is a hump of drift or suspension motion below the modes, it only
+#: sets the rows to that cap (the steel subframe's 7 Hz hump, 58 periods in its 8.3 s: 71 rows
+#: where its lowest mode, 62 Hz, wants 17).
+MIN_PEAK_PERIODS = 100.0
 
 
 @dataclass
@@ -173,11 +180,12 @@ class RecordSums:
         return (self.sums - touching) / max(count, 1)
 
 
-def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
+def slowest_mode_hz(y: np.ndarray, sample_time_s: float, *, held_peaks_only: bool = False) -> float:
     """Frequency (Hz) of the lowest prominent peak of the summed, normalized output spectrum.
 
     Welch spectrum with about 0.5 % of the sampling rate per bin or finer (at least 8 averages);
-    the channels are scaled to unit variance so that every sensor counts. NaN when no peak
+    the channels are scaled to unit variance so that every sensor counts. ``held_peaks_only``:
+    only a peak the record holds :data:`MIN_PEAK_PERIODS` periods of counts. NaN when no peak
     stands out.
     """
     n = y.shape[0]
@@ -188,11 +196,13 @@ def slowest_mode_hz(y: np.ndarray, sample_time_s: float) -> float:
     total = np.log10(np.maximum(psd.sum(axis=1), np.finfo(float).tiny))
     peaks, _ = signal.find_peaks(total, prominence=PEAK_PROMINENCE_DECADES)
     peaks = peaks[peaks >= 2]  # the first bins hold the offsets and drifts, not a mode
+    if held_peaks_only:
+        peaks = peaks[freq[peaks] * n * sample_time_s >= MIN_PEAK_PERIODS]
     return float(freq[peaks[0]]) if peaks.size else float("nan")
 
 
 def choose_block_rows(
-    y: np.ndarray, sample_time_s: float, *, n_references: int, max_states: int
+    y: np.ndarray, sample_time_s: float, *, n_references: int, max_states: int, held_peaks_only: bool = False
 ) -> tuple[int, float]:
     """Hankel block rows ``i`` (lags 1 .. 2 i) from the data, and the slowest mode found (Hz).
 
@@ -206,10 +216,12 @@ def choose_block_rows(
     did before): a record shorter than about a hundred periods of its slowest spectral peak gets
     lags shorter than that period, which may lose that mode but lists no noise (with one channel
     the lowest "peak" is often noise, 0.15-2.2 Hz below a 3 Hz mode, and honouring it cost the
-    jackknife).
+    jackknife). ``held_peaks_only`` (:func:`slowest_mode_hz`): a peak the record cannot hold does
+    not set the rows, the next one does (the canonical-variate route's rule: measured, it wants
+    the lags of the modes rather than the record's cap; the covariance route loses with it).
     """
     n, p = y.shape
-    f_low = slowest_mode_hz(y, sample_time_s)
+    f_low = slowest_mode_hz(y, sample_time_s, held_peaks_only=held_peaks_only)
     fs = 1.0 / sample_time_s
     wanted = PERIODS_PER_BLOCK_ROWS * fs / f_low if np.isfinite(f_low) and f_low > 0 else 40.0
     needed = int(np.ceil((max_states + 2) / max(n_references, 1))) + 1

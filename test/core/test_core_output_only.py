@@ -12,7 +12,7 @@ from scipy import linalg
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.output_covariance import output_correlations
+from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_modes import collect_poles
 from okid_ros.core.stochastic_realization import (
@@ -390,6 +390,39 @@ def test_a_single_channel_of_a_short_record_lists_no_noise_poles() -> None:
         found = np.array([m.frequency_hz for m in model.modes])
         assert found.size and all(np.min(np.abs(f / np.array([3.0, 7.0, 12.0]) - 1)) < 0.02 for f in found), found
         assert not any("jackknife" in w for w in model.warnings)
+
+
+def _rows_and_slowest(y: np.ndarray, sample_time_s: float, *, held_peaks_only: bool = True) -> tuple[int, float]:
+    references = reference_channels(y, 12).size
+    return choose_block_rows(y - y.mean(axis=0), sample_time_s, n_references=references, max_states=100,
+                             held_peaks_only=held_peaks_only)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_low_hump_the_record_cannot_hold_does_not_set_the_block_rows(seed: int) -> None:
+    # A broad 0.4 Hz hump (48 periods in the 120 s record) below the 3, 7 and 12 Hz modes was the
+    # slowest peak and set the rows to the record's cap; the modes' own rows are what the
+    # canonical-variate route gets now.
+    y = _three_modes(6000, 4, seed=seed)
+    hump_system = modal_structure([0.4], 0.1, 1, 1, 0.02, seed=2, output="displacement")
+    hump = simulate_noisy(hump_system, np.zeros((6000, 1)), seed=seed + 10)
+    with_hump = y + y.std(axis=0) * hump / hump.std()
+    rows, slowest_hz = _rows_and_slowest(with_hump, 0.02)
+    assert abs(slowest_hz / 3.0 - 1) < 0.02
+    assert rows == _rows_and_slowest(y, 0.02)[0]
+
+
+def test_the_subframe_block_rows_span_a_period_of_its_lowest_mode() -> None:
+    # Its summed spectrum's lowest peak is a hump near 7 Hz, 58 periods in the 8.3 s record, which
+    # capped the rows at 2000 // 28; its lowest reference mode sets them for the canonical-variate route.
+    from real_helpers import load_record
+
+    _, y, sample_time_s, reference_hz = load_record()
+    rows, slowest_hz = _rows_and_slowest(y, sample_time_s)
+    assert abs(slowest_hz / min(reference_hz) - 1) < 0.02
+    assert rows == int(np.ceil(1.0 / (sample_time_s * slowest_hz)))
+    # the covariance route keeps the record's cap (it loses with the modes' rows: docs, forty-second session)
+    assert _rows_and_slowest(y, sample_time_s, held_peaks_only=False)[0] == 2000 // y.shape[1]
 
 
 def test_white_noise_has_no_modes() -> None:
