@@ -244,7 +244,7 @@ class ArxIdentificationService:
         c, est = self._counters, self._est
         change_stamp_s = float(change_stamp_s)
         pending_s = self._pending_restart_s
-        first = self._replay_first(change_stamp_s, 0.5 * self.params.sample_time_s)
+        first = self._replay_first(change_stamp_s)
         refused = change_refusal(change_stamp_s, oldest_s=self._recent.stamp_at(self._recent.first),
                                  newest_s=self._stamps.newest_stamp_s,
                                  last_restart_s=c.last_restart_stamp_s if math.isnan(pending_s) else pending_s,
@@ -275,20 +275,19 @@ class ArxIdentificationService:
             return -1
         self._pending_restart_s = math.nan
         self._flush()  # a held sample is part of the samples to replay
-        _, u, y, gaps = self._recent.get(self._replay_first(change_stamp_s, 0.5 * self.params.sample_time_s),
-                                         self._recent.count)
+        _, u, y, gaps = self._recent.get(self._replay_first(change_stamp_s), self._recent.count)
         restart_window(est, u, y, gaps)
         self._restarted = True
         self._frozen = not est.adaptation_enabled
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])
         c.last_restart_stamp_s = change_stamp_s
-        self._generation = next(_WINDOW_GENERATIONS)
+        self._generation = next(_WINDOW_GENERATIONS)  # the window rebuilt
         return int(u.shape[0])
 
-    def _replay_first(self, change_stamp_s: float, tol: float) -> int:
+    def _replay_first(self, change_stamp_s: float) -> int:
         """Index of the first sample held a restart at ``change_stamp_s`` replays (the count: none yet)."""
-        first = self._recent.first_at_or_after(change_stamp_s, tol)
+        first = self._recent.first_at_or_after(change_stamp_s, 0.5 * self.params.sample_time_s)
         return self._recent.count if first < 0 else first
 
     def push_block(self, stamps_s, u, y) -> int:
