@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
             alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
-            else:  # restart the window at the change point, as node 1 does
+            else:  # restart the window at the change point before this update's solve, as node 1 does
                 restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
                 record.origin = alarm.change_index
                 changes.append(alarm)

@@ -8,9 +8,11 @@ the sample grid by header stamp, feeds them to
 
 Subscribes ``okid_msgs/StructuralChange`` (``structural_change_topic``, default
 ``structural_change`` in the rig namespace, from node 2): the window restarts at the change
-point (:meth:`~okid_ros.service.identification.ArxIdentificationService.restart_at`); one it
-ignores (:mod:`okid_ros.service.change_restarts`) is counted by why, logged at most once per
-:data:`IGNORED_CHANGE_LOG_S`.
+point before the next solve
+(:meth:`~okid_ros.service.identification.ArxIdentificationService.restart_at`: the changes
+between two solves cost one replay, of the newest); one it ignores or supersedes
+(:mod:`okid_ros.service.change_restarts`) is counted by why, an ignored one logged at most once
+per :data:`IGNORED_CHANGE_LOG_S`.
 
 Services: ``~/reset`` (std_srvs/Trigger) forgets the window; ``~/enable`` (std_srvs/SetBool)
 switches adaptation on and off (off: the window is frozen and the same model is republished).
@@ -80,6 +82,7 @@ class ArxIdentifierNode(OkidNode):
         )
         self._solving = False
         self._skipped_publishes = 0
+        self._pending_change = (0, float("nan"))  # the id and stamp of the change the window restarts at next
         self._lock = threading.Lock()
         self._publish_timer = self.create_timer(1.0 / float(values["publish_rate_hz"]), self._on_publish_timer)
         self.start_inputs()
@@ -94,17 +97,15 @@ class ArxIdentifierNode(OkidNode):
         identification_step(self.service, sample)
 
     def _on_structural_change(self, msg) -> None:
-        """Restart the window at the change point; a change ignored (node 2 reports each twice) is logged throttled."""
+        """Restart the window at the change point before the next solve; one ignored is logged throttled."""
         if not self.active:
             return
+        stamp_s = stamp_to_seconds(msg.change_stamp)
         with self.state_lock, self._lock:  # the window is the input thread's too
-            replayed = self.service.restart_at(stamp_to_seconds(msg.change_stamp))
+            held = self.service.restart_at(stamp_s)
             ignored = self.service.last_ignored_change
-        if replayed >= 0:
-            self.get_logger().info(
-                f"structural change {msg.change_id}: window restarted at {stamp_to_seconds(msg.change_stamp):.3f} s "
-                f"with {replayed} samples"
-            )
+        if held >= 0:  # logged when applied: a flood of them is one restart and one line per solve
+            self._pending_change = (msg.change_id, stamp_s)
         else:  # a flood of them (a replay, a misbehaving publisher) is one line per IGNORED_CHANGE_LOG_S
             self.get_logger().info(f"structural change {msg.change_id} ignored: {ignored} (counted in "
                                    "window_restarts_ignored_why)", throttle_duration_sec=IGNORED_CHANGE_LOG_S)
@@ -116,10 +117,20 @@ class ArxIdentifierNode(OkidNode):
         if self._solving:
             self._skipped_publishes += 1  # the previous solve is still running
             return
-        with self.state_lock:  # the input thread pushes into the window being copied
+        # The input thread pushes into the window being copied; the worker checks its generation.
+        with self.state_lock, self._lock:
+            replayed = self.service.apply_pending_restart()
             capture = self.service.capture()
+        self._log_restart(replayed)
         self._solving = True  # before submit: the worker clears it when done
         self._pool.submit(self._solve, capture)
+
+    def _log_restart(self, replayed: int) -> None:
+        """Say the window restarted at the pending change with ``replayed`` samples (-1: none was pending)."""
+        if replayed >= 0:
+            change_id, stamp_s = self._pending_change
+            self.get_logger().info(f"structural change {change_id}: window restarted at {stamp_s:.3f} s "
+                                   f"with {replayed} samples")
 
     def _solve(self, capture: WindowCapture) -> None:
         """On the worker thread: solve, then accept and publish (rclpy publishers are thread-safe)."""
@@ -143,7 +154,10 @@ class ArxIdentifierNode(OkidNode):
         return "window, counters and model ids cleared"
 
     def set_enabled(self, on: bool) -> str:
-        self.service.set_adaptation(on)
+        with self._lock:  # a pending restart is applied first (a new window generation), under the old adaptation
+            replayed = self.service.apply_pending_restart()
+            self.service.set_adaptation(on)
+        self._log_restart(replayed)
         return f"adaptation {'on' if on else 'off (window frozen)'}"
 
     def check_parameters(self, values: dict[str, Any]) -> None:

@@ -6,6 +6,10 @@ order 40, p = m = 2, under the lock node 1's input thread needs). A change is re
 would change nothing or cannot be of the samples here: the window starts at or after its stamp already
 (node 2 reports each change twice; a replayed or misbehaving publisher sends it again and again, or older
 ones), it is stamped before the samples held, far after the newest, or not at all, or nothing is held.
+A change taken is a pending restart, applied once before the window's next solve; a newer change before
+then supersedes it (:func:`superseded_refusal`), so that however many come between two solves the window
+is replayed once. Node 2 declares no second change before a model of the first's new structure is
+accepted (its change test re-arms with such a model), so a change it sends never supersedes another.
 Each refusal is an :class:`IgnoredChange` phrase with the reason, counted as node 2 counts its refused
 ArxModels (:func:`~okid_ros.service.results.why_text`).
 """
@@ -19,7 +23,7 @@ import numpy as np
 from okid_ros.core.recursive import SlidingWindowArx
 
 __all__ = ["MAX_CHANGE_LEAD_S", "IgnoredChange", "change_refusal", "replay_rows", "restart_window",
-           "started_refusal"]
+           "started_refusal", "superseded_refusal"]
 
 #: How far after the newest sample of the window a structural change may be stamped: node 1 may
 #: lag node 2 by its input queue (at most a few hundred samples at the nodes' rates).
@@ -34,6 +38,7 @@ class IgnoredChange:
     BEFORE_HELD = "stamped before the samples node 1 holds"
     FUTURE = "stamped far after node 1's newest sample"
     STARTED = "whose stamp the window starts at or after already (the same change again, or an older one)"
+    SUPERSEDED = "superseded by a later one before the window's next solve"
 
 
 def change_refusal(change_stamp_s: float, *, oldest_s: float, newest_s: float, last_restart_s: float,
@@ -87,6 +92,16 @@ def started_refusal(change_stamp_s: float, *, rows_from_change: int, window_rows
         return None
     return IgnoredChange.STARTED, (f"structural change at {change_stamp_s:.3f} s: the window's {window_rows} rows "
                                    "are all of samples from it on already")
+
+
+def superseded_refusal(pending_stamp_s: float, change_stamp_s: float) -> tuple[str, str]:
+    """``IgnoredChange.SUPERSEDED`` with its reason: the restart pending at ``pending_stamp_s`` gives way to a later.
+
+    The window is read only by a solve, so the restart at the later ``change_stamp_s``, applied before
+    it, gives the window that restarting at both in turn would (its samples are the later one's).
+    """
+    return IgnoredChange.SUPERSEDED, (f"structural change at {pending_stamp_s:.3f} s, superseded by the one at "
+                                      f"{change_stamp_s:.3f} s before the window's restart was applied")
 
 
 def restart_window(window: SlidingWindowArx, u: np.ndarray, y: np.ndarray, gaps: np.ndarray | None = None) -> None:

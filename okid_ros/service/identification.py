@@ -26,8 +26,9 @@ regressor spans the gap. A glitch (one sample far off) goes in as its estimate, 
 last fit's prediction (:mod:`okid_ros.core.arx_glitches`), an input's as its neighbours' mean (``input_glitches``).
 
 Structural change (:meth:`ArxIdentificationService.restart_at`): node 2 declares a change and
-its estimated first sample; the window is rebuilt from the recent samples from that stamp on
-(this service keeps one window of them), so the next models use post-change data only, and
+its estimated first sample; before the window's next solve it is rebuilt from the recent samples from
+that stamp on (this service keeps one window of them; the newest of the changes since the last solve),
+so the next models use post-change data only, and
 snapshots are valid from ``restart_min_fill`` on (smaller than ``min_window_fill``) so that a
 model of the new structure comes soon.
 """
@@ -47,7 +48,13 @@ from okid_ros.core.input_glitches import InputGlitchGate
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service.arx_solve import ArxSnapshot, SolveResult, WindowCapture, solve_capture
-from okid_ros.service.change_restarts import change_refusal, replay_rows, restart_window, started_refusal
+from okid_ros.service.change_restarts import (
+    change_refusal,
+    replay_rows,
+    restart_window,
+    started_refusal,
+    superseded_refusal,
+)
 from okid_ros.service.options import ArxIdentificationParams, check_runtime_change
 from okid_ros.service.results import count_why, why_text
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -140,6 +147,7 @@ class ArxIdentificationService:
         self._last_good_penalty = math.nan
         self._model_id = 0
         self._due_stamp: float | None = None
+        self._pending_restart_s = math.nan  # the stamp of a structural change the window restarts at before it is read
         self._generation = next(_WINDOW_GENERATIONS)
 
     def set_params(self, params: ArxIdentificationParams) -> list[str]:
@@ -157,6 +165,7 @@ class ArxIdentificationService:
 
     def set_adaptation(self, on: bool) -> None:
         """Adaptation off: samples are still checked and counted, but the window is frozen."""
+        self.apply_pending_restart()  # with the adaptation the change came under
         self._est.adaptation_enabled = bool(on)
         self._frozen |= not on  # its rows are no longer the samples' since: a restart's replay differs
 
@@ -221,42 +230,64 @@ class ArxIdentificationService:
             self._recent.append(stamp_s, u, y, int(gap))
 
     def restart_at(self, change_stamp_s: float) -> int:
-        """Restart the window at a structural change: keep only the samples from ``change_stamp_s`` on.
+        """Restart the window at a structural change before its next solve: only the samples from ``change_stamp_s`` on.
 
+        The restart is pending until the window is next read (:meth:`apply_pending_restart`: by
+        :meth:`capture`, :meth:`window_samples`, a switch of adaptation): one replay however many
+        changes come before then, a later one superseding the pending one (counted as ignored, by why).
         Refused, counted by why (:mod:`okid_ros.service.change_restarts`), when the window starts at or
-        after the change already (the same change again: node 2 reports each twice; or an older one),
-        it is stamped before the samples held, more than ``MAX_CHANGE_LEAD_S`` after the newest, or not
-        at all, or none is held. Returns the samples put back into the window (-1: ignored).
+        after the change already (the same change again: node 2 reports each twice; or an older one, or
+        the pending one's), it is stamped before the samples held, more than ``MAX_CHANGE_LEAD_S`` after
+        the newest, or not at all, or none is held. Returns the samples held from the change on (the
+        restart replays them and those that come before it is applied; -1: ignored).
         """
         c, est = self._counters, self._est
         change_stamp_s = float(change_stamp_s)
-        tol = 0.5 * self.params.sample_time_s
+        pending_s = self._pending_restart_s
+        first = self._replay_first(change_stamp_s)
         refused = change_refusal(change_stamp_s, oldest_s=self._recent.stamp_at(self._recent.first),
-                                 newest_s=self._stamps.newest_stamp_s, last_restart_s=c.last_restart_stamp_s,
+                                 newest_s=self._stamps.newest_stamp_s,
+                                 last_restart_s=c.last_restart_stamp_s if math.isnan(pending_s) else pending_s,
                                  sample_time_s=self.params.sample_time_s)
         if refused is None and est.window is not None and not self._frozen:  # rows of the samples since
-            gaps = self._recent.get(self._replay_first(change_stamp_s, tol), self._recent.count)[3]
+            gaps = self._recent.get(first, self._recent.count)[3]
             refused = started_refusal(change_stamp_s, rows_from_change=replay_rows(gaps, est.order),
                                       window_rows=est.status.rows_in_window)
-        if refused is not None:
-            c.restarts_ignored += 1
-            count_why(c.restarts_ignored_why, *refused)
-            self.last_ignored_change = refused[1]
+        if refused is None and not math.isnan(pending_s):
+            self._ignore_change(*superseded_refusal(pending_s, change_stamp_s))
+        elif refused is not None:
+            self._ignore_change(*refused)
             return -1
+        self._pending_restart_s = change_stamp_s
+        self._generation = next(_WINDOW_GENERATIONS)  # a solve of the window before the change is stale
+        return self._recent.count - first
+
+    def _ignore_change(self, why: str, reason: str) -> None:
+        """Count a structural change ignored (an ``IgnoredChange`` phrase ``why``, ``reason`` in full)."""
+        self._counters.restarts_ignored += 1
+        count_why(self._counters.restarts_ignored_why, why, reason)
+        self.last_ignored_change = reason
+
+    def apply_pending_restart(self) -> int:
+        """Restart the window at the pending structural change (:meth:`restart_at`); the samples replayed (-1: none)."""
+        change_stamp_s, c, est = self._pending_restart_s, self._counters, self._est
+        if math.isnan(change_stamp_s):
+            return -1
+        self._pending_restart_s = math.nan
         self._flush()  # a held sample is part of the samples to replay
-        _, u, y, gaps = self._recent.get(self._replay_first(change_stamp_s, tol), self._recent.count)
+        _, u, y, gaps = self._recent.get(self._replay_first(change_stamp_s), self._recent.count)
         restart_window(est, u, y, gaps)
         self._restarted = True
         self._frozen = not est.adaptation_enabled
         c.window_restarts += 1
         c.restart_samples = int(u.shape[0])
         c.last_restart_stamp_s = change_stamp_s
-        self._generation = next(_WINDOW_GENERATIONS)  # a solve of the old window still running is stale
+        self._generation = next(_WINDOW_GENERATIONS)  # the window rebuilt
         return int(u.shape[0])
 
-    def _replay_first(self, change_stamp_s: float, tol: float) -> int:
+    def _replay_first(self, change_stamp_s: float) -> int:
         """Index of the first sample held a restart at ``change_stamp_s`` replays (the count: none yet)."""
-        first = self._recent.first_at_or_after(change_stamp_s, tol)
+        first = self._recent.first_at_or_after(change_stamp_s, 0.5 * self.params.sample_time_s)
         return self._recent.count if first < 0 else first
 
     def push_block(self, stamps_s, u, y) -> int:
@@ -265,7 +296,8 @@ class ArxIdentificationService:
 
     # ------------------------------------------------------------------ solving
     def capture(self) -> WindowCapture:
-        """Copy the window's normal equations and counters (cheap compared to the solve)."""
+        """Copy the window's normal equations and counters (cheap next to the solve, but a pending restart's replay)."""
+        self.apply_pending_restart()
         normal = self._est.normal_equations()
         status = self._est.status
         return WindowCapture(
@@ -342,6 +374,7 @@ class ArxIdentificationService:
     # ------------------------------------------------------------------ inspection
     def window_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The samples the window's rows are built from: u (n, m), y (n, p), segment_start (n,)."""
+        self.apply_pending_restart()
         return self._est.window_samples()
 
     def diagnostics(self) -> dict[str, Any]:
@@ -365,6 +398,7 @@ class ArxIdentificationService:
             "window_restarts_ignored_why": why_text(c.restarts_ignored_why),
             "last_restart_stamp_s": c.last_restart_stamp_s,
             "last_restart_samples": c.restart_samples,
+            "pending_restart_stamp_s": self._pending_restart_s,  # nan: none
             "window_rows": int(st.rows_in_window),
             "window_fill": float(st.window_fill),
             "adaptation": bool(st.adapting),

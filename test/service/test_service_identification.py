@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from okid_ros.core.arx import fit_arx
+from okid_ros.service.change_restarts import restart_window
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.service.params import ARX_NODE, resolve_parameters
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -207,6 +208,62 @@ def test_a_structural_change_after_adaptation_was_off_is_not_judged_by_the_windo
     svc.set_adaptation(True)
     svc.push_block(np.arange(800, 900) * dt, u[800:], y[800:])
     assert svc.restart_at(550 * dt) == 350
+
+
+def flood(svc: ArxIdentificationService, record, *, solve_every: int, lead: int = 100,
+          apply_each: bool = False) -> list:
+    """Samples 400 to 899, each followed by a structural change stamped ``lead`` samples before it; the snapshots.
+
+    A replayed or misbehaving publisher: 500 distinct changes, increasing, each among the window's rows.
+    ``apply_each``: each restart applied at once, as the old code did.
+    """
+    dt, u, y = record
+    svc.push_block(np.arange(400) * dt, u[:400], y[:400])
+    snapshots = []
+    for k in range(400, 900):
+        svc.push(k * dt, u[k], y[k])
+        assert svc.restart_at((k - lead) * dt) == lead + 1, k
+        if apply_each:
+            assert svc.apply_pending_restart() == lead + 1
+        if k % solve_every == solve_every - 1:
+            snapshots.append(svc.snapshot())
+    return snapshots
+
+
+def test_a_flood_of_increasing_structural_changes_costs_one_replay_a_solve(record, monkeypatch):
+    # Each was a restart: the samples from its stamp on replayed under the lock node 1's input thread
+    # needs, so 1000 a second cost seconds of CPU a second (bench/change_flood.py).
+    import okid_ros.service.identification as identification
+
+    replays = []
+    monkeypatch.setattr(identification, "restart_window",
+                        lambda window, u, *args: replays.append(u.shape[0]) or restart_window(window, u, *args))
+    svc = make_service(record[0])
+    snapshots = flood(svc, record, solve_every=100)
+    assert len(snapshots) == 5 and len(replays) == 5, replays  # the newest change before each solve, once
+    assert replays == [101] * 5  # from the newest change on
+    d = svc.diagnostics()
+    assert d["window_restarts"] == 5 and d["window_restarts_ignored"] == 495, d
+    assert d["window_restarts_ignored_why"] == (
+        "495 superseded by a later one before the window's next solve (the last: structural change at 6.384 s, "
+        "superseded by the one at 6.392 s before the window's restart was applied)"), d
+    assert d["last_restart_stamp_s"] == 799 * record[0] and math.isnan(d["pending_restart_stamp_s"])
+
+
+def test_the_window_after_a_flood_is_the_one_restarting_at_each_change_in_turn_gives(record):
+    """The changes between two solves cost one replay, of the newest, and the models are those of a replay each."""
+    dt = record[0]
+    coalesced, each = make_service(dt), make_service(dt)
+    snapshots = flood(coalesced, record, solve_every=70), flood(each, record, solve_every=70, apply_each=True)
+    assert [s.window_rows for s in snapshots[0]] == [s.window_rows for s in snapshots[1]] == [101 - Q] * 7
+    for ours, theirs in zip(*snapshots):
+        assert ours.valid and theirs.valid
+        np.testing.assert_array_equal(ours.fit.theta, theirs.fit.theta)
+    assert each.diagnostics()["window_restarts"] == 500 and coalesced.diagnostics()["window_restarts"] == 7
+    assert coalesced.restart_at(899 * dt) == 1 and coalesced.restart_at(899 * dt) == -1  # pending: once
+    assert coalesced.last_ignored_change == "structural change at 7.192 s, at or before the last restart's (7.192 s)"
+    coalesced.reset()
+    assert math.isnan(coalesced.diagnostics()["pending_restart_stamp_s"])  # forgotten with the window
 
 
 @pytest.mark.parametrize("value", [1e151, 1e300])
