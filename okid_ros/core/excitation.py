@@ -34,7 +34,8 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
-           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run"]
+           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run",
+           "dependent_inputs"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -289,13 +290,19 @@ def excitation_warnings(u: np.ndarray) -> list[str]:
     live = [i for i in range(report.n_inputs) if i not in report.dead]
     if len(live) > 1 and u.shape[0] >= len(live):
         x = _unit_centred(np.asarray(u, dtype=float)[:, live])
-        dependent = _dependent_columns(x.T @ x)
-        if dependent is not None:
-            listed, leave = ", ".join(str(live[j]) for j in dependent[0]), _leave_out(dependent[1])
-            warnings.append(f"inputs {listed} are linearly dependent (one is a combination of the others: a channel "
-                            f"recorded twice? one command sent to two actuators?): the model cannot tell their effects "
-                            f"apart and splits them between their columns of B and D arbitrarily; {leave}")
+        warnings += [dependent for dependent in [dependent_inputs(x.T @ x, live)] if dependent]
     return warnings
+
+
+def dependent_inputs(gram: np.ndarray, channels: list[int]) -> str:
+    """Why inputs ``channels`` whose (centred) Gram is ``gram`` (c, c) are linearly dependent, or ""."""
+    dependent = _dependent_columns(gram)
+    if dependent is None:
+        return ""
+    listed, leave = ", ".join(str(channels[j]) for j in dependent[0]), _leave_out(dependent[1])
+    return (f"inputs {listed} are linearly dependent (one is a combination of the others: a channel recorded twice? "
+            f"one command sent to two actuators?): the model cannot tell their effects apart and splits them between "
+            f"their columns of B and D arbitrarily; {leave}")
 
 
 def unexcited_reason(report: Excitation) -> str:
