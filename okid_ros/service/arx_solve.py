@@ -20,7 +20,7 @@ from okid_ros.core.least_squares import center_normal_equations
 from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "unexcited_reason"]
+__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal"]
 
 
 @dataclass
@@ -120,7 +120,7 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
         return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
     cond = float(fit.condition_number)
     elapsed = time.perf_counter() - t0
-    refusal = unexcited_reason(capture, cond) if not cond <= prm.max_condition_number else ""
+    refusal = condition_refusal(capture, cond) if not cond <= prm.max_condition_number else ""
     if refusal:
         return SolveResult(None, cond, refusal, elapsed)
     if not np.all(np.isfinite(fit.theta)):
@@ -128,7 +128,7 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     return SolveResult(fit, cond, "", elapsed)
 
 
-def unexcited_reason(capture: WindowCapture, condition: float) -> str:
+def condition_refusal(capture: WindowCapture, condition: float) -> str:
     """Why a window whose condition number exceeds the bound is refused, or "" when it is identified all the same.
 
     Named, in this order: dead inputs (or one excited only in the newest ``q`` samples, all zeros
