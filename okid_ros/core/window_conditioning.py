@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.excitation import dependent_inputs
+from okid_ros.core.excitation import dependent_inputs, leaving_excitation_text
 from okid_ros.core.least_squares import NormalEquations
 
 __all__ = ["QUIET_LAG_SHARE", "input_collinearity", "input_columns", "input_condition_number"]
@@ -109,7 +109,4 @@ def _uneven_input(square: np.ndarray, channel: int, order: int) -> str:
         return (f"input {channel} varies only in the newest {last + 1} samples of this window (its older samples hold "
                 f"{quiet:.1g} of that mean square: a hammer's blow over a quiet force?): the window does not yet hold "
                 f"its response over the ARX order's {order} lags; it will {order - last} samples on")
-    return (f"input {channel} varies only in the {order - first + 1} samples before this window's oldest row (the "
-            f"window's own hold {quiet:.1g} of that mean square: a hammer's blow leaving the window): its response is "
-            f"in the window, the force at lags 0-{first - 1} is not; it will be past the ARX order's {order} lags "
-            f"{order - first + 1} samples on, or take a longer arx.window_length")
+    return leaving_excitation_text(channel, first, order, f"hold {quiet:.1g} of that mean square")

@@ -138,7 +138,7 @@ def condition_refusal(capture: WindowCapture, condition: float) -> str:
     (that module's docstring). Without inputs (output-only) the window is refused, no cause named.
     """
     prm = capture.params
-    causes = window_excitation_warnings(capture.normal, prm.n_inputs)[:1]
+    causes = window_excitation_warnings(capture.normal, prm.n_inputs)
     causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
     if not causes and prm.n_inputs:
         normal = center_normal_equations(capture.normal) if prm.offsets == "remove" else capture.normal
