@@ -30,7 +30,7 @@ from scipy import linalg
 from okid_ros.core.excitation import dependent_inputs, leaving_excitation_text
 from okid_ros.core.least_squares import NormalEquations
 
-__all__ = ["QUIET_LAG_SHARE", "input_collinearity", "input_columns", "input_condition_number"]
+__all__ = ["QUIET_LAG_SHARE", "input_collinearity", "input_columns"]
 
 #: An input's lags whose mean square is at most this share of its loudest lags' hold none of its
 #: excitation: named as a blow entering or leaving the window's lag span (only in a refusal's text).
@@ -53,16 +53,9 @@ def _input_gram(normal: NormalEquations, columns: np.ndarray) -> np.ndarray:
 
 
 def _condition(gram: np.ndarray) -> float:
+    """Condition number of ``gram`` as scaled (least_squares.scaled_condition_number scales each column alone)."""
     eig = linalg.eigvalsh(gram)
     return float(eig[-1] / eig[0]) if eig[0] > 0 else float("inf")
-
-
-def input_condition_number(normal: NormalEquations, order: int, n_outputs: int, n_inputs: int) -> float:
-    """Condition number of a window's inputs' columns, each input's scaled by one level (module docstring).
-
-    ``normal`` holds the window's normal equations as solved (centred when offsets are removed).
-    """
-    return _condition(_input_gram(normal, input_columns(order, n_outputs, n_inputs)))
 
 
 def input_collinearity(normal: NormalEquations, order: int, n_outputs: int, n_inputs: int, *, bound: float) -> str:
