@@ -34,7 +34,8 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
-           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run"]
+           "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run",
+           "dependent_inputs", "leaving_excitation_text"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -289,13 +290,19 @@ def excitation_warnings(u: np.ndarray) -> list[str]:
     live = [i for i in range(report.n_inputs) if i not in report.dead]
     if len(live) > 1 and u.shape[0] >= len(live):
         x = _unit_centred(np.asarray(u, dtype=float)[:, live])
-        dependent = _dependent_columns(x.T @ x)
-        if dependent is not None:
-            listed, leave = ", ".join(str(live[j]) for j in dependent[0]), _leave_out(dependent[1])
-            warnings.append(f"inputs {listed} are linearly dependent (one is a combination of the others: a channel "
-                            f"recorded twice? one command sent to two actuators?): the model cannot tell their effects "
-                            f"apart and splits them between their columns of B and D arbitrarily; {leave}")
+        warnings += [dependent for dependent in [dependent_inputs(x.T @ x, live)] if dependent]
     return warnings
+
+
+def dependent_inputs(gram: np.ndarray, channels: list[int]) -> str:
+    """Why inputs ``channels`` whose (centred) Gram is ``gram`` (c, c) are linearly dependent, or ""."""
+    dependent = _dependent_columns(gram)
+    if dependent is None:
+        return ""
+    listed, leave = ", ".join(str(channels[j]) for j in dependent[0]), _leave_out(dependent[1])
+    return (f"inputs {listed} are linearly dependent (one is a combination of the others: a channel recorded twice? "
+            f"one command sent to two actuators?): the model cannot tell their effects apart and splits them between "
+            f"their columns of B and D arbitrarily; {leave}")
 
 
 def unexcited_reason(report: Excitation) -> str:
@@ -384,7 +391,40 @@ def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[s
                         {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
     if not report.dead:
         return _late_excitation(normal, n_inputs)
+    leaving = _leaving_excitation(normal, n_inputs, report)
+    still = [i for i in report.dead if i not in leaving]
+    if leaving:
+        rest = replace(report, dead=still, constant_value={i: report.constant_value[i] for i in still})
+        return list(leaving.values()) + (excitation_warnings_of(rest) if still else [])
     return [unexcited_reason(report)] if not report.excited else excitation_warnings_of(report)
+
+
+def _leaving_excitation(normal: NormalEquations, n_inputs: int, report: Excitation) -> dict[int, str]:
+    """Why each dead input of ``report`` whose lagged columns vary is (a blow before the window's oldest row).
+
+    Such an input is constant in the window's own samples (``u_k``) and varies in its lags from
+    some ``a`` on: ``a`` or more samples before the oldest row.
+    """
+    n_coefficients, n_outputs = normal.r.shape
+    width = n_outputs + n_inputs
+    texts = {}
+    for i in report.dead:
+        lags = _window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, width))[3]
+        if lags.size and not lags.all():
+            own = f"are {_constant_text(report.constant_value[i], None)}"
+            texts[i] = leaving_excitation_text(i, int(np.argmin(lags)) + 1, lags.size, own)
+    return texts
+
+
+def leaving_excitation_text(channel: int, first_lag: int, order: int, own: str) -> str:
+    """Why input ``channel``, varying only from its lag ``first_lag`` on (a blow leaving the window), is refused.
+
+    ``own`` says what the window's own samples of it hold ("are all zeros", "hold 4e-13 of that mean square").
+    """
+    return (f"input {channel} varies only {first_lag} or more samples before this window's oldest row (in its lags "
+            f"{first_lag}-{order} alone; the window's own samples {own}: a hammer's blow leaving the window): its "
+            f"response is in the window, the force at lags 0-{first_lag - 1} is not; it will be past the ARX order's "
+            f"{order} lags {order - first_lag + 1} samples on, or take a longer arx.window_length")
 
 
 def _late_excitation(normal: NormalEquations, n_inputs: int) -> list[str]:

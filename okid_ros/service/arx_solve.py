@@ -16,9 +16,11 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
+from okid_ros.core.least_squares import center_normal_equations
+from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture"]
+__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal"]
 
 
 @dataclass
@@ -118,16 +120,31 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
         return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
     cond = float(fit.condition_number)
     elapsed = time.perf_counter() - t0
-    if not cond <= prm.max_condition_number:
-        # Name what makes the window singular: dead inputs, dead or dependent outputs.
-        causes = window_excitation_warnings(capture.normal, prm.n_inputs)[:1]
-        causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
-        return SolveResult(
-            None, cond,
-            f"unexcited window: condition number {cond:.3g} > arx.max_condition_number {prm.max_condition_number:.3g}"
-            + "".join(f"; {cause}" for cause in causes),
-            elapsed,
-        )
+    refusal = condition_refusal(capture, cond) if not cond <= prm.max_condition_number else ""
+    if refusal:
+        return SolveResult(None, cond, refusal, elapsed)
     if not np.all(np.isfinite(fit.theta)):
         return SolveResult(None, cond, "solution not finite", elapsed)
     return SolveResult(fit, cond, "", elapsed)
+
+
+def condition_refusal(capture: WindowCapture, condition: float) -> str:
+    """Why a window whose condition number exceeds the bound is refused, or "" when it is identified all the same.
+
+    Named, in this order: dead inputs (or one excited only in the newest ``q`` samples, all zeros
+    before), dead or dependent outputs, then the inputs' columns beyond the bound
+    (:func:`~okid_ros.core.window_conditioning.input_collinearity`). When the inputs' columns are
+    within it, the condition number is the outputs': a response far above its noise, identified
+    (that module's docstring). Without inputs (output-only) the window is refused, no cause named.
+    """
+    prm = capture.params
+    causes = window_excitation_warnings(capture.normal, prm.n_inputs)
+    causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
+    if not causes and prm.n_inputs:
+        normal = center_normal_equations(capture.normal) if prm.offsets == "remove" else capture.normal
+        cause = input_collinearity(normal, prm.order, prm.n_outputs, prm.n_inputs, bound=prm.max_condition_number)
+        if not cause:
+            return ""
+        causes = [cause]
+    return (f"unexcited window: condition number {condition:.3g} > arx.max_condition_number "
+            f"{prm.max_condition_number:.3g}" + "".join(f"; {cause}" for cause in causes))

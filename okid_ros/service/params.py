@@ -192,7 +192,7 @@ ARX_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("arx.penalty", 1.0, "regularization penalty when arx.penalty_by_gcv is false", "", 0.0, 1e15, field="penalty", runtime=True),
     ParamSpec("arx.tc_decay", 0.95, "TC kernel decay per lag when arx.regularization is tc and arx.penalty_by_gcv is false", "", 0.01, 0.9999, field="tc_decay", runtime=True),
     ParamSpec("arx.min_window_fill", 0.5, "window fill below which published models are marked invalid", "", 0.0, 1.0, field="min_window_fill", runtime=True),
-    ParamSpec("arx.max_condition_number", 1e12, "condition number of the column-scaled normal equations above which the window counts as unexcited (last good model kept)", "", 1.0, 1e300, field="max_condition_number", runtime=True),
+    ParamSpec("arx.max_condition_number", 1e12, "condition number of the column-scaled normal equations above which the window counts as unexcited (last good model kept) when its inputs' columns exceed it too or an input or output is dead (only the outputs' lags collinear: a response far above its noise, identified)", "", 1.0, 1e300, field="max_condition_number", runtime=True),
     ParamSpec("publish_rate_hz", 1.0, "rate at which ArxModel is solved and published (node clock)", "Hz", 1e-3, 1000.0, field="publish_period_s", runtime=True, convert=_period),
     ParamSpec("arx_model_topic", ARX_MODEL, "output topic of okid_msgs/msg/ArxModel (relative: in the rig namespace, /okid/arx_model by default)", fixed=WIRING),
     ParamSpec("arx.restart_min_fill", 0.25, "after a structural change the window restarts at the change point, and models are valid from this fill on (instead of arx.min_window_fill) until the window is full again", "", 0.0, 1.0, field="restart_min_fill", runtime=True),
