@@ -8,14 +8,17 @@ by record, switching the order of the two trees every repeat, so that the machin
 on both alike. Printed per record group: the median CPU seconds per call of each, and the
 median and range of the per-call ratio new / base; the same for the wall time (what a user
 waits: the new tree may use threads, :mod:`okid_ros.core.worker_threads`). Records: ``koma`` (the koma frame),
-``subframe`` (the steel subframe's outputs), or a simulated case of
-:mod:`okid_bench.output_only_cases` with its seed, ``low-modes:0``. The peers' wrappers and
-block rows are those of ``bench/output_only.py``.
+``subframe`` (the steel subframe's outputs), a simulated case of
+:mod:`okid_bench.output_only_cases` with its seed, ``low-modes:0``, or a structure of
+``--cases random`` or ``physical`` with its number, ``physical:2`` (a beam). ``--method``: the
+okid_ros method both trees run (``okid-ssi-cov`` by default, or ``okid-ssi-cva``). The peers'
+wrappers and block rows are those of ``bench/output_only.py``.
 
 Usage::
 
     # base: git archive <commit> | tar -x -C BASE, with BASE/../shared the data (as this tree's)
     python bench/output_only_side_by_side.py --base BASE --records low-modes:0,low-modes:1 --repeat 8 --koma
+    python bench/output_only_side_by_side.py --base BASE --method okid-ssi-cva --records physical:2,subframe --repeat 3
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ def _worker(tree: str, method: str) -> None:
     from output_only import _koma, _subframe
     from output_only_peers import run_method
 
-    from okid_bench.output_only_cases import output_only_case
+    from okid_bench.output_only_cases import output_only_case, random_case
+    from okid_bench.physical_cases import physical_case
     from okid_ros.core.output_covariance import choose_block_rows, reference_channels
 
     records = {}
@@ -49,8 +53,10 @@ def _worker(tree: str, method: str) -> None:
             if name in ("koma", "subframe"):
                 y, dt = (_koma if name == "koma" else _subframe)()[:2]
             else:
-                case, seed = name.rsplit(":", 1)
-                y, dt = output_only_case(case).simulate(int(seed)), output_only_case(case).sample_time_s
+                kind, seed = name.rsplit(":", 1)
+                structures = {"random": random_case, "physical": physical_case}
+                case = structures[kind](int(seed)) if kind in structures else output_only_case(kind)
+                y, dt = case.simulate(int(seed)), case.sample_time_s
             y = y - y.mean(axis=0)
             rows, _ = choose_block_rows(y, dt, n_references=reference_channels(y, 12).size, max_states=100)
             records[name] = (y, dt, rows)
@@ -81,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--records", default="low-modes:0,low-modes:1,low-modes:2,low-modes:3,low-modes:4")
     parser.add_argument("--repeat", type=int, default=8)
     parser.add_argument("--koma", action="store_true", help="also koma (this tree's wrapper)")
+    parser.add_argument("--method", default="okid-ssi-cov", choices=["okid-ssi-cov", "okid-ssi-cva"],
+                        help="the okid_ros method both trees run")
     parser.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
@@ -88,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not args.base:
         parser.error("--base is required")
-    workers = {"base": _start(args.base, "okid-ssi-cov"), "new": _start(str(HERE.parent), "okid-ssi-cov")}
+    workers = {"base": _start(args.base, args.method), "new": _start(str(HERE.parent), args.method)}
     if args.koma:
         workers["koma"] = _start(str(HERE.parent), "koma")
     records = args.records.split(",")

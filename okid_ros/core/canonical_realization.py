@@ -33,12 +33,47 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
+from scipy.linalg import blas
 
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
 from okid_ros.core.stochastic_realization import CovarianceDecomposition, leading_eigh
 
-__all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
+__all__ = ["CanonicalDecomposition", "CanonicalWeights", "canonical_decomposition", "canonical_replicates"]
+
+
+@dataclass(frozen=True)
+class CanonicalWeights:
+    """The lower Cholesky factors ``L_p``, ``L_f`` (i r square) of the past and the future covariances."""
+
+    low_past: np.ndarray
+    low_future: np.ndarray
+
+    @classmethod
+    def of(cls, lagged: np.ndarray, block_rows: int) -> CanonicalWeights:
+        """The factors of the block Toeplitz covariances of ``lagged`` (:func:`_lagged`).
+
+        Raises IdentificationError when a covariance is not positive definite (references that
+        are linearly dependent).
+        """
+        try:  # blocks R_(b-a) and R_(a-b)
+            low_past = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, -1, 1), lower=True,
+                                       overwrite_a=True, check_finite=False)
+            low_future = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, 1, -1), lower=True,
+                                         overwrite_a=True, check_finite=False)
+        except linalg.LinAlgError:
+            raise IdentificationError("the reference channels' covariance is not positive definite: "
+                                      "no canonical-variate weighting") from None
+        return cls(low_past, low_future)
+
+    def weighted_transpose(self, hankel: np.ndarray) -> np.ndarray:
+        """``(L_f^-1 H L_p^-T)^T`` (i r square) of the Hankel ``H``."""
+        left = linalg.solve_triangular(self.low_future, hankel, lower=True, check_finite=False)
+        return linalg.solve_triangular(self.low_past, left.T, lower=True, overwrite_b=True, check_finite=False)
+
+    def past_transform(self, x: np.ndarray) -> np.ndarray:
+        """``L_p^-T x`` (i r, c)."""
+        return linalg.solve_triangular(self.low_past, x, lower=True, trans="T", check_finite=False)
 
 
 @dataclass
@@ -75,10 +110,36 @@ class CanonicalDecomposition(CovarianceDecomposition):
         return self._left[:, :n_states]
 
 
-def _block_toeplitz(lagged: np.ndarray, lags: np.ndarray) -> np.ndarray:
-    """The block matrix whose block ``(a, b)`` is ``lagged[lags[a, b]]`` ((i r, i r) from (K, r, r))."""
-    i, r = lags.shape[0], lagged.shape[1]
-    return lagged[lags].transpose(0, 2, 1, 3).reshape(i * r, i * r)
+def _block_matrix(lagged: np.ndarray, block_rows: int, start: int, row_step: int, column_step: int) -> np.ndarray:
+    """(i r, i r) the block matrix whose block ``(a, b)`` is ``lagged[start + row_step a + column_step b]``.
+
+    Steps of +-1 (block Toeplitz and Hankel): each block row is a run of consecutive blocks of
+    ``lagged`` laid side by side, so the matrix is a strided view of that one wide row, copied by
+    rows (fancy indexing the (i, i) blocks and transposing them took 10-20 times as long).
+    """
+    i, r = block_rows, lagged.shape[1]
+    if column_step < 0:  # the blocks in reverse: lagged[K - 1 - k] at k
+        lagged, start, row_step = lagged[::-1], lagged.shape[0] - 1 - start, -row_step
+    wide = lagged.transpose(1, 0, 2).reshape(r, -1)  # block k of lagged at columns k r ..
+    first = start + min(0, row_step * (i - 1))  # the leftmost block row's first block
+    if first < 0 or first + abs(row_step) * (i - 1) + i > lagged.shape[0]:
+        raise ValueError(f"blocks {start} + {row_step} a + {column_step} b are not all in 0 .. {lagged.shape[0] - 1}")
+    rows = np.lib.stride_tricks.as_strided(wide[:, first * r :], shape=(i, r, i * r),
+                                           strides=(abs(row_step) * r * wide.strides[1], *wide.strides),
+                                           writeable=False)
+    return (rows if row_step >= 0 else rows[::-1]).reshape(i * r, i * r)
+
+
+def _lagged(correlations: np.ndarray, references: np.ndarray, block_rows: int) -> np.ndarray:
+    """(3 i + 1, r, r) ``R_k`` at the references, ``lagged[i + k] = R_k`` for k = -i .. 2 i."""
+    i = block_rows
+    ref = correlations[: 2 * i + 1][:, references][:, :, references]  # (2 i + 1, r, r), R_0 .. R_2i
+    return np.concatenate([ref[i:0:-1].transpose(0, 2, 1), ref])
+
+
+def _hankel(lagged: np.ndarray, block_rows: int) -> np.ndarray:
+    """``H(0)`` (i r square) at the references: block ``(a, b)`` is ``R_(a+b+1)``."""
+    return _block_matrix(lagged, block_rows, block_rows + 1, 1, 1)
 
 
 def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
@@ -97,33 +158,27 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     linearly dependent).
     """
     i = int(block_rows)
-    blocks = correlations[1 : 2 * i + 1][:, :, references]
-    ref = correlations[: 2 * i + 1][:, references][:, :, references]  # (2 i + 1, r, r), R_0 .. R_2i
-    r = ref.shape[1]
-    lagged = np.concatenate([ref[i:0:-1].transpose(0, 2, 1), ref])  # lagged[i + k] = R_k, k = -i .. 2 i
-    a, b = np.arange(i)[:, None], np.arange(i)[None, :]
-    try:
-        low_past = linalg.cholesky(_block_toeplitz(lagged, i + b - a), lower=True, check_finite=False)
-        low_future = linalg.cholesky(_block_toeplitz(lagged, i + a - b), lower=True, check_finite=False)
-    except linalg.LinAlgError:
-        raise IdentificationError("the reference channels' covariance is not positive definite: "
-                                  "no canonical-variate weighting") from None
-
-    def weighted_transpose(shift: int) -> np.ndarray:  # (L_f^-1 H(shift) L_p^-T)^T
-        left = linalg.solve_triangular(low_future, _block_toeplitz(lagged, i + a + b + 1 + shift), lower=True,
-                                       check_finite=False)
-        return linalg.solve_triangular(low_past, left.T, lower=True, check_finite=False)
-
-    weighted = weighted_transpose(0)
-    values, V = leading_eigh(weighted @ weighted.T, int(min(max_states, i * r)))
+    lagged = _lagged(correlations, references, i)
+    r = lagged.shape[1]
+    weights = CanonicalWeights.of(lagged, i)
+    hankel = _hankel(lagged, i)
+    weighted = weights.weighted_transpose(hankel)  # M^T, M = L_f^-1 H(0) L_p^-T
+    # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
+    # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
+    values, V = leading_eigh(blas.dsyrk(1.0, weighted, lower=1), int(min(max_states, i * r)), alone=True)
     s = np.sqrt(np.maximum(values, 0.0))
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
-    # U = M V / s with M = L_f^-1 H(0) L_p^-T, so U^T M(1) V = (V^T M^T M(1) V) / s.
-    shifted = (V.T @ (weighted @ weighted_transpose(1).T) @ V) / s[:, None]
-    transform = linalg.solve_triangular(low_past, V, lower=True, trans="T", check_finite=False)
+    transform = weights.past_transform(V)
+    # U = M V / s, so U^T M(1) V = (M V)^T L_f^-1 H(1) T / s: products with k columns, M(1) never formed.
+    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
+    last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, i * r)
+    future = linalg.solve_triangular(weights.low_future, np.vstack([hankel[r:] @ transform, last_row @ transform]),
+                                     lower=True, overwrite_b=True, check_finite=False)
+    shifted = ((weighted.T @ V).T @ future) / s[:, None]
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], i * r)
-    return CanonicalDecomposition(blocks=blocks, block_rows=i, s=s, Vt=V.T @ low_past[:r].T, shifted=shifted,
+    return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,
+                                  Vt=V.T @ weights.low_past[:r].T, shifted=shifted,
                                   first_rows=(first_row @ transform) / s, transform=transform)
 
 

@@ -239,7 +239,7 @@ def hankel_grams(blocks: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarra
     return gram.reshape(i * r, i * r), cross.reshape(i * r, i * r)
 
 
-def leading_eigh(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def leading_eigh(matrix: np.ndarray, k: int, *, alone: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` largest eigenvalues (descending) and their eigenvectors of a symmetric matrix.
 
     ``matrix`` (m, m) -> values (k,), vectors (m, k). LAPACK's divide-and-conquer route
@@ -249,10 +249,14 @@ def leading_eigh(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     (``subset_by_index``: ``dsyevr`` / ``dsyevx``), slow on the clustered noise-floor eigenvalues
     of a Hankel Gram (500 x 500, k = 100: 19 ms, 10 of them for the tridiagonal vectors), or
     every vector back-transformed (``driver="evd"``: 16 ms); this takes 11 ms. The same pairs
-    to rounding (test/core/test_core_output_only.py). ValueError on NaN or Inf.
+    to rounding (test/core/test_core_output_only.py). ``alone``: the tridiagonal form's ``k``
+    largest pairs alone where the matrix is large enough for that to be cheaper
+    (:class:`~okid_ros.core.symmetric_eigen.SymmetricEigen`'s ``largest``; the same pairs to
+    rounding). ValueError on NaN or Inf.
     """
-    eigen = SymmetricEigen(matrix)
-    top = np.arange(eigen.size - 1, eigen.size - 1 - min(k, eigen.size), -1)
+    eigen = SymmetricEigen(matrix, largest=int(min(k, matrix.shape[0])) if alone else None)
+    count = eigen.values.size
+    top = np.arange(count - 1, count - 1 - min(k, count), -1)
     return eigen.values[top], eigen.vectors(top)
 
 

@@ -103,3 +103,43 @@ def test_the_record_sums_less_a_span_equal_the_correlations_with_the_span_absent
     expected = record_correlations(y, 60, present=mask)
     np.testing.assert_allclose(RecordSums.of(y, 60, present).without(*span), expected, rtol=1e-10,
                                atol=1e-12 * np.abs(expected).max())
+
+
+def _formed_realization(correlations: np.ndarray, block_rows: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """The module docstring's formulas on formed matrices: canonical correlations and ``A`` of one order."""
+    i, p = block_rows, correlations.shape[1]
+
+    def lag(k: int) -> np.ndarray:
+        return correlations[k] if k >= 0 else correlations[-k].T
+
+    def blocks(index) -> np.ndarray:
+        return np.block([[lag(index(a, b)) for b in range(i)] for a in range(i)])
+
+    low_past = linalg.cholesky(blocks(lambda a, b: b - a), lower=True)
+    low_future = linalg.cholesky(blocks(lambda a, b: a - b), lower=True)
+
+    def weighted(shift: int) -> np.ndarray:
+        hankel = blocks(lambda a, b: a + b + 1 + shift)
+        return linalg.solve_triangular(low_future, linalg.solve_triangular(low_past, hankel.T, lower=True).T,
+                                       lower=True)
+
+    U, s, Vt = np.linalg.svd(weighted(0))
+    assert p * i == s.size
+    q = np.sqrt(s[:order])
+    return s, (U[:, :order].T @ weighted(1) @ Vt[:order].T) / np.outer(q, q)
+
+
+def test_a_long_window_realizes_what_the_formed_weighted_hankel_does(close_pair_case) -> None:
+    # 70 block rows of 6 outputs: the Gram (420 square) is ten times the 40 pairs kept, so its leading pairs
+    # come alone from the tridiagonal form, and the shifted Hankel enters only through products with them.
+    _, y = close_pair_case
+    block_rows, top = 70, 40
+    correlations = record_correlations(y - y.mean(axis=0), 2 * block_rows)
+    decomposition = canonical_decomposition(correlations, np.arange(6), block_rows, top)
+    s, A = _formed_realization(correlations, block_rows, 8)
+    np.testing.assert_allclose(decomposition.s, s[:top], rtol=1e-10)
+    realizer = OrderRealizer(decomposition, top)
+    np.testing.assert_allclose(_sorted_poles(realizer.eigenvalues(8)), _sorted_poles(np.linalg.eigvals(A)), atol=1e-10)
+    for order in (16, 24):  # noise poles too, where the singular values are apart
+        expected = np.linalg.eigvals(_formed_realization(correlations, block_rows, order)[1])
+        np.testing.assert_allclose(np.sort_complex(realizer.eigenvalues(order)), np.sort_complex(expected), atol=1e-8)

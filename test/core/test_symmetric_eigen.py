@@ -5,7 +5,7 @@ import pytest
 from scipy import linalg
 
 from okid_ros.core.least_squares import NormalEquations, solve_normal_equations
-from okid_ros.core.symmetric_eigen import SymmetricEigen
+from okid_ros.core.symmetric_eigen import LARGEST_ALONE_RATIO, SymmetricEigen
 
 
 @pytest.mark.parametrize("size", [1, 2, 7, 60])
@@ -58,3 +58,22 @@ def test_a_diagonal_precision_that_is_not_positive_is_refused_as_cholesky_refuse
         linalg.cholesky(precision, lower=True)
     with pytest.raises(error):
         solve_normal_equations(normal, precision, 1.0)
+
+
+@pytest.mark.parametrize("largest", [1, 6])
+def test_the_largest_pairs_alone_are_those_of_eigh(largest):
+    # A matrix LARGEST_ALONE_RATIO times the pairs asked for: only those are computed (MRRR on the tridiagonal form).
+    size = LARGEST_ALONE_RATIO * largest + 3
+    rng = np.random.default_rng(largest)
+    x = rng.standard_normal((size + 5, size))
+    matrix = x.T @ x
+    eigen = SymmetricEigen(matrix, largest=largest)
+    values, vectors = linalg.eigh(matrix)
+    assert eigen.values.shape == (largest,)
+    np.testing.assert_allclose(eigen.values, values[-largest:], rtol=0, atol=1e-12 * values.max())
+    found = eigen.vectors(np.arange(largest))
+    signs = np.sign(np.sum(found * vectors[:, -largest:], axis=0))
+    np.testing.assert_allclose(found * signs, vectors[:, -largest:], atol=1e-10)
+    # Below the ratio every pair is computed, as without ``largest``.
+    small = matrix[: size - 4, : size - 4]
+    np.testing.assert_array_equal(SymmetricEigen(small, largest=largest).values, SymmetricEigen(small).values)
