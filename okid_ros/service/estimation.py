@@ -400,7 +400,7 @@ class ModalEstimationService:
             self._jump.before_switch(self._active, u, y, skipped, self._u_prev, self.params.max_gap_samples)
         rows = int(job.u.shape[0])
         self._active = ActiveModel(model, estimator, self._model_id, modes, len(modes), whiten, rows)
-        self._watch.new_model(model, x, rows - job.fit.order)  # regressor rows of the model's window
+        self._watch.new_model(model, x, rows - job.fit.order, window_inputs=job.u)  # regressor rows of its window
         self._u_prev = u_prev if u_prev is not None else self._u_prev
         return ModelUpdate(
             model=model, model_id=self._model_id, arx_model_id=job.arx_model_id, stamp_s=job.stamp_end_s,

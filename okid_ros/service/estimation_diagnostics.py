@@ -58,6 +58,7 @@ def estimation_diagnostics(stats: EstimationStats, buffer: SampleBuffer, watch: 
         "estimator_restarts": st.estimator_restarts,
         "diverged_samples": st.diverged_samples,
         "divergence_restarts": st.divergence_restarts,
+        "divergences_beyond_window": st.divergences_beyond_window,
         "state_jumps": st.state_jumps,
         # Samples the estimators left out as glitches (core/estimator.py, core/glitches.py), over the service's life.
         "estimator_glitches": st.estimator_glitches + (0 if active is None else active.estimator.glitches),

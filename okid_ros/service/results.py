@@ -252,6 +252,7 @@ class EstimationStats:
     switches_measured: int = 0
     diverged_samples: int = 0
     divergence_restarts: int = 0
+    divergences_beyond_window: int = 0  # divergences after a restart not declared: an input beyond the model's window
     state_jumps: int = 0  # divergences explained as a jump of the state (estimator corrected, no restart)
     estimator_glitches: int = 0  # glitches the estimators of replaced models left out (estimator.py)
     changes_detected: int = 0

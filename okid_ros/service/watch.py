@@ -14,7 +14,10 @@ Structural change: every sample also goes to a
 (the first model of a structure, then models of windows twice as long). An alarm, or a
 divergence that comes back right after a restart or a jump's correction, declares a
 :class:`~okid_ros.service.results.StructuralChangeEvent`, which waits (:attr:`InnovationWatch.change`)
-until a model of post-change data is accepted.
+until a model of post-change data is accepted. A divergence that comes back after the model in use was
+driven by an input far beyond its window's (an impact hammer's blow on an input its window held at a quiet
+force only) is not declared: the model's error there grows with the input, so its divergence says nothing of
+the structure (:meth:`InnovationWatch.beyond_window_inputs`; counted, ``divergences_beyond_window``).
 """
 
 from __future__ import annotations
@@ -89,6 +92,10 @@ class InnovationWatch:
         self.level = np.zeros(p)  # the outputs' level steps found, taken off each sample (level_corrected)
         self.level_steps: list[int] = []  # buffer indices where a step taken off lies, still buffered
         self.level_steps_taken = 0
+        # The model in use's window inputs: their median and largest distance from it, per input (None: none
+        # held); whether an input beyond them (beyond_window_inputs) has come since the model was accepted.
+        self._input_range: tuple[np.ndarray, np.ndarray] | None = None
+        self.driven_beyond_window = False
 
     def configure(self, params: ModalEstimationParams) -> None:
         """Take run-time options at once: the divergence ratio and the change test's tuning.
@@ -121,6 +128,8 @@ class InnovationWatch:
         if active.estimator.last_glitch is not None:  # the last sample, a glitch: warm starts follow the
             self._buffer.predicted_glitch(index - 1, *active.estimator.last_glitch)  # estimator's prediction
             active.estimator.last_glitch = None
+        if self._input_range is not None and not self.driven_beyond_window:
+            self.driven_beyond_window = self.beyond_window_inputs(u)
         z = active.whiten @ innovation
         # The estimator's divergence: a glitch candidate, whose far outputs it did not take
         # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
@@ -164,7 +173,9 @@ class InnovationWatch:
                 self._stats.state_jumps += 1
                 self.restart_failed = True  # diverging again at once: not a jump after all
                 return True, change, None
-            if self.restart_failed and prm.change_detection and self.change is None:
+            if self.restart_failed and prm.change_detection and self.change is None and self.driven_beyond_window:
+                self._stats.divergences_beyond_window += 1  # its error grows with an input it never saw
+            elif self.restart_failed and prm.change_detection and self.change is None:
                 # Diverged again right after a restart: the model no longer fits at all.
                 ratio = self.divergence.nis_ratio_now
                 change = self.declare(active, stamp_s, index, self.diverged[0], statistic=self.monitor.statistic,
@@ -238,15 +249,32 @@ class InnovationWatch:
         return event
 
     # ------------------------------------------------------------------ models
-    def new_model(self, model: IdentifiedModel, state: np.ndarray, rows: int) -> None:
+    def new_model(self, model: IdentifiedModel, state: np.ndarray, rows: int, *,
+                  window_inputs: np.ndarray | None = None) -> None:
         """A model was accepted (``state``: its state for the next sample; ``rows``: its window's rows).
 
-        It becomes the change test's reference by :func:`is_new_reference`.
+        It becomes the change test's reference by :func:`is_new_reference`. ``window_inputs``
+        (N, m): the inputs of its window (None or m = 0: no input is judged beyond them).
         """
+        self._input_range = None
+        self.driven_beyond_window = False
+        if window_inputs is not None and window_inputs.shape[1] and window_inputs.shape[0]:
+            center = np.median(window_inputs, axis=0)
+            self._input_range = (center, np.max(np.abs(window_inputs - center), axis=0))
         self.divergence.restart()
         self._innovations.clear()
         if self.params.change_detection and is_new_reference(self.monitor, rows):
             self.monitor.arm(model, state, reference_rows=rows)
+
+    def beyond_window_inputs(self, u: np.ndarray) -> bool:
+        """Whether an input of ``u`` (m,) lies beyond its distance from the median in the model's window.
+
+        Beyond ``sqrt(estimator.divergence_nis_ratio)`` times the largest distance there: the part of
+        the model's error that grows with an input grows in power with its square, so such an input
+        alone can take the window's largest error to the divergence's ratio.
+        """
+        center, reach = self._input_range
+        return bool(np.any(np.abs(u - center) > math.sqrt(self.params.divergence_nis_ratio) * reach))
 
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
