@@ -109,7 +109,7 @@ def test_a_cluster_with_two_poles_per_order_is_two_modes() -> None:
 
 
 def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
-    from okid_ros.core.output_only import _drop_noise_modes
+    from okid_ros.core.output_only import STEADY_FREQUENCY_STD_PER_WIDTH, _drop_noise_modes
     from okid_ros.core.output_only_modes import cluster_modes
 
     poles = _twin_poles()
@@ -122,7 +122,8 @@ def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
     def share(n, pole):  # both would pass MIN_SPECTRAL_DOMINANCE on their own
         return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
 
-    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False)
+    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False,
+                             steady_width=STEADY_FREQUENCY_STD_PER_WIDTH["ssi-cov"])
     assert [round(m.frequency_hz, 1) for m in kept] == [187.0]
 
 
