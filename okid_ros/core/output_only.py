@@ -73,6 +73,7 @@ from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
     check_output_only_options,
+    listed_within_limits,
     match_clusters,
     output_only_diagram,
     prepare_outputs,
@@ -119,8 +120,7 @@ MIN_SPECTRAL_DOMINANCE = 0.4
 #: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
 #: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles
 #: that passed the limits above scattered at least 1.8 times more (0.36 width or 0.54 cv;
-#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md). Per route: under ssi-cva
-#: such noise poles scattered 0.39 width or 0.44 cv, random 98's weak 49.5 Hz mode 0.27 width (0.09 ssi-cov).
+#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md; per route: ssi-cva's there).
 STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3}
 STEADY_DAMPING_CV = 0.3
 
@@ -316,7 +316,7 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,
                 matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
-    """The jackknife's standard deviations (kept: the clusters' spread without one)."""
+    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go."""
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
@@ -325,6 +325,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
+    model.modes = listed_within_limits(model.modes, _scattered, method=model.method)
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
