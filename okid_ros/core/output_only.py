@@ -25,7 +25,7 @@ Steps (one module each):
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
-   are the modes' (the spread of the cluster across orders for ``var``);
+   are the modes' (the clusters' spread for ``var``), and under ssi-cva a mode listed with ones beyond the limits goes;
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
 6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
