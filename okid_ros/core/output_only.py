@@ -25,7 +25,7 @@ Steps (one module each):
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
-   are the modes' (the spread of the cluster across orders for ``var``);
+   are the modes' (the clusters' spread for ``var``), and under ssi-cva a mode listed with ones beyond the limits goes;
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
 6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
@@ -73,6 +73,7 @@ from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
     check_output_only_options,
+    listed_within_limits,
     match_clusters,
     output_only_diagram,
     prepare_outputs,
@@ -119,8 +120,8 @@ MIN_SPECTRAL_DOMINANCE = 0.4
 #: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
 #: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles
 #: that passed the limits above scattered at least 1.8 times more (0.36 width or 0.54 cv;
-#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md).
-STEADY_FREQUENCY_STD_PER_WIDTH = 0.2
+#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md; per route: ssi-cva's there).
+STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3}
 STEADY_DAMPING_CV = 0.3
 
 
@@ -272,6 +273,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     modes, _ = cluster_modes(poles, keep_rejected=False)
     if jackknife is not None:
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
+                                  steady_width=STEADY_FREQUENCY_STD_PER_WIDTH[method],
                                   dominance=partial(spectral_dominance, realizer, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
@@ -314,7 +316,7 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,
                 matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
-    """The jackknife's standard deviations (kept: the clusters' spread without one)."""
+    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go."""
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
@@ -323,6 +325,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
+    model.modes = listed_within_limits(model.modes, _scattered, method=model.method)
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
@@ -369,7 +372,7 @@ def _scattered(f_std: float, z_std: float, frequency_hz: float, damping_ratio: f
 
 
 def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float, *,
-                      dominance, once: bool) -> list[ModeCluster]:
+                      dominance, once: bool, steady_width: float) -> list[ModeCluster]:
     """The candidate modes whose jackknife scatter and spectral share say they are structural (step 4).
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
@@ -379,6 +382,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     the families split from one cluster (``group``: nearly one frequency and one shape, a mode
     and the noise pole beside it) the one that passes with the largest share is kept; ``once``:
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
+    ``steady_width``: the route's :data:`STEADY_FREQUENCY_STD_PER_WIDTH`.
     """
     best: dict[int, tuple[float, ModeCluster]] = {}
     for mode in modes:
@@ -390,7 +394,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             continue
         (f_std, z_std), width = stds, mode.damping_ratio * mode.frequency_hz
         share = dominance(n_home, target)
-        steady = f_std <= STEADY_FREQUENCY_STD_PER_WIDTH * width and z_std <= STEADY_DAMPING_CV * mode.damping_ratio
+        steady = f_std <= steady_width * width and z_std <= STEADY_DAMPING_CV * mode.damping_ratio
         stands_out = share >= MIN_SPECTRAL_DOMINANCE
         if not (stands_out or steady):
             # Its share may be held by candidates beside it (a close mode, its own twin family), not by

@@ -381,12 +381,14 @@ def test_the_units_do_not_change_the_modes() -> None:
     assert sorted(round(m.frequency_hz) for m in mixed.modes) == [3, 7, 12]
 
 
-def test_a_single_channel_of_a_short_record_lists_no_noise_poles() -> None:
+@pytest.mark.parametrize("method", ["ssi-cov", "ssi-cva"])
+def test_a_single_channel_of_a_short_record_lists_no_noise_poles(method: str) -> None:
     # One channel, 120 s: the 103 block rows that orders to 100 need left two segments, no
     # jackknife, and about nine noise poles were listed per record; the record's bound on the
-    # lags now wins and the orders stop at 60.
+    # lags now wins and the orders stop at 60. Under ssi-cva seed 0's 18.3 Hz noise pole passed
+    # the screening at its home order and listed a std of 16.6 widths: such a mode is not listed.
     for seed in range(3):
-        model = identify_output_only(_three_modes(6000, 1, seed=seed), 0.02)
+        model = identify_output_only(_three_modes(6000, 1, seed=seed), 0.02, method=method)
         found = np.array([m.frequency_hz for m in model.modes])
         assert found.size and all(np.min(np.abs(f / np.array([3.0, 7.0, 12.0]) - 1)) < 0.02 for f in found), found
         assert not any("jackknife" in w for w in model.warnings)

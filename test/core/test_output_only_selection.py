@@ -109,7 +109,7 @@ def test_a_cluster_with_two_poles_per_order_is_two_modes() -> None:
 
 
 def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
-    from okid_ros.core.output_only import _drop_noise_modes
+    from okid_ros.core.output_only import STEADY_FREQUENCY_STD_PER_WIDTH, _drop_noise_modes
     from okid_ros.core.output_only_modes import cluster_modes
 
     poles = _twin_poles()
@@ -122,7 +122,8 @@ def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
     def share(n, pole):  # both would pass MIN_SPECTRAL_DOMINANCE on their own
         return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
 
-    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False)
+    kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False,
+                             steady_width=STEADY_FREQUENCY_STD_PER_WIDTH["ssi-cov"])
     assert [round(m.frequency_hz, 1) for m in kept] == [187.0]
 
 
@@ -158,17 +159,19 @@ def test_a_mode_whose_high_order_poles_fall_into_other_clusters_is_found() -> No
     np.testing.assert_allclose(np.sort(found), AMBIENT_FREQUENCIES_HZ, rtol=0.005)
 
 
-def test_a_weak_mode_beside_a_strong_one_of_its_shape_is_found() -> None:
+@pytest.mark.parametrize("method", ["ssi-cov", "ssi-cva"])
+def test_a_weak_mode_beside_a_strong_one_of_its_shape_is_found(method: str) -> None:
     """Two outputs: 9.64 Hz (1.8 %) 1.4 % above 9.51 Hz (0.45 %), and 49.5 Hz beside 47.4 Hz.
 
     The weak modes' poles are steady (jackknife scatter 0.06-0.09 of their width) but their share
     of the spectrum along their shape is ~0: the strong neighbour owns it. They were dropped as
-    noise; a steady pole is kept whatever its share.
+    noise; a steady pole is kept whatever its share. Under ssi-cva the 49.5 Hz pole scatters 0.27
+    width, steady by that route's limit (``STEADY_FREQUENCY_STD_PER_WIDTH``).
     """
     from okid_bench.output_only_cases import random_case
 
     case = random_case(98)
-    _check_modes(case, identify_output_only(case.simulate(98), case.sample_time_s))
+    _check_modes(case, identify_output_only(case.simulate(98), case.sample_time_s, method=method))
 
 
 def test_a_mode_whose_share_its_noise_twin_holds_is_found() -> None:
@@ -202,22 +205,26 @@ def test_two_families_close_in_damping_stay_one_mode() -> None:
     assert len(modes) == 1 and 10.42 < modes[0].frequency_hz < 10.58
 
 
-@pytest.mark.parametrize("index, frequency_hz", [(13, 55.879), (15, 17.301)])
-def test_a_modes_standard_deviation_is_its_own_where_the_model_order_loses_it(index: int, frequency_hz: float) -> None:
+@pytest.mark.parametrize("method", ["ssi-cov", "ssi-cva"])
+@pytest.mark.parametrize("index, true_hz", [(13, 55.963), (15, 17.313)])
+def test_a_modes_standard_deviation_is_its_own_where_the_model_order_loses_it(index: int, true_hz: float,
+                                                                              method: str) -> None:
     """Read at the model order, these modes' jackknife replicates matched other modes' poles.
 
     Their frequency standard deviations were 47 and 24 half-power widths (a 32 Hz std on a
     55.9 Hz mode 0.1 width off); the scatter at the order where the screening judged them is
-    taken instead, and it still covers the truth.
+    taken instead, and it still covers the truth. The mode is the one listed nearest its true
+    frequency (ssi-cov lists 55.879 Hz, ssi-cva 55.956 Hz).
     """
     from okid_bench.output_only_cases import random_case
 
     case = random_case(index)
-    model = identify_output_only(case.simulate(index), case.sample_time_s)
-    mode = min(model.modes, key=lambda m: abs(m.frequency_hz - frequency_hz))
-    true_f = min((t["frequency_hz"] for t in case.truth()), key=lambda f: abs(f - frequency_hz))
+    model = identify_output_only(case.simulate(index), case.sample_time_s, method=method)
+    true_f = min((t["frequency_hz"] for t in case.truth()), key=lambda f: abs(f - true_hz))
+    mode = min(model.modes, key=lambda m: abs(m.frequency_hz - true_f))
     width = mode.damping_ratio * mode.frequency_hz
-    assert abs(mode.frequency_hz / frequency_hz - 1) < 1e-3
+    assert abs(true_f / true_hz - 1) < 1e-4
+    assert abs(mode.frequency_hz / true_f - 1) < 0.005
     assert 0 < mode.frequency_hz_std < 0.5 * width
     assert abs(mode.frequency_hz - true_f) < 2 * mode.frequency_hz_std
 
@@ -356,25 +363,34 @@ def test_a_close_pair_member_whose_shape_mixes_with_its_partners_is_found() -> N
     assert all(np.min(np.abs(known - f) / known) < 0.02 for f in found)
 
 
+@pytest.mark.parametrize("method", ["ssi-cov", "ssi-cva"])
 @pytest.mark.parametrize("index", [7, 15])
-def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_and_nothing_else(index: int) -> None:
+def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_and_nothing_else(
+        index: int, method: str) -> None:
     """No noise pole listed: twin-chains 7's twin of a chain mode, building 15's pole above its modes.
 
     Twin-chains 7 listed 63.02 Hz beside 64.15 Hz, of its shape (MAC 0.99) 1.09 summed half-widths
     away, beyond the listed-twice band; building 15 listed 17.32 Hz, 6.7 % above its top mode. Both
     failed the spectral share (0.05, 0.26) and their jackknife scatter was not steady; what the other
     candidates' poles leave of the spectrum they held 0.41-0.42, which passed the limit of 0.4.
+    Two listed modes of one shape within two bands are two true modes, each within 0.5 % of its
+    own: ssi-cva lists twin-chains 7's 63.03 Hz mode (62.99 Hz, steady jackknife) with its
+    partner's estimated shape (docs/benchmarks-output-only.md, forty-second session).
     """
     from okid_bench.physical_cases import physical_case
     from okid_ros.core.modal import LISTED_TWICE_MAC, mac
 
     case = physical_case(index)
-    modes = identify_output_only(case.simulate(index), case.sample_time_s).modes
+    modes = identify_output_only(case.simulate(index), case.sample_time_s, method=method).modes
     known = np.array([t["frequency_hz"] for t in case.truth()] + case.hidden_hz())
     assert all(np.min(np.abs(known - m.frequency_hz) / known) < 0.02 for m in modes), "a noise pole is listed"
     for a, b in zip(modes, modes[1:]):
         band = a.damping_ratio * a.frequency_hz + b.damping_ratio * b.frequency_hz
-        assert abs(b.frequency_hz - a.frequency_hz) > 2 * band or mac(a.shape, b.shape) < LISTED_TWICE_MAC
+        if abs(b.frequency_hz - a.frequency_hz) > 2 * band or mac(a.shape, b.shape) < LISTED_TWICE_MAC:
+            continue
+        nearest = [np.argmin(np.abs(known - m.frequency_hz)) for m in (a, b)]
+        assert nearest[0] != nearest[1], f"{a.frequency_hz:.3f} Hz listed twice"
+        assert all(abs(known[k] / m.frequency_hz - 1) < 0.005 for k, m in zip(nearest, (a, b)))
 
 
 @pytest.mark.parametrize("seed", [11, 5])
