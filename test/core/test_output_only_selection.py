@@ -373,9 +373,11 @@ def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_a
     away, beyond the listed-twice band; building 15 listed 17.32 Hz, 6.7 % above its top mode. Both
     failed the spectral share (0.05, 0.26) and their jackknife scatter was not steady; what the other
     candidates' poles leave of the spectrum they held 0.41-0.42, which passed the limit of 0.4.
-    Two listed modes of one shape within two bands are two true modes, each within 0.5 % of its
-    own: ssi-cva lists twin-chains 7's 63.03 Hz mode (62.99 Hz, steady jackknife) with its
-    partner's estimated shape (docs/benchmarks-output-only.md, forty-second session).
+    ssi-cva lists twin-chains 7's 63.03 Hz mode (62.99 Hz, steady jackknife) with its partner's
+    estimated shape (MAC 0.98 with 64.06 Hz; 0.007 with its own true shape): a known defect
+    (docs/benchmarks-output-only.md, forty-second session), so under ssi-cva two listed modes of
+    one shape pass when each lies within 0.5 % of a true mode of its own; ssi-cov keeps the
+    stricter check it was fixed against.
     """
     from okid_bench.physical_cases import physical_case
     from okid_ros.core.modal import LISTED_TWICE_MAC, mac
@@ -388,6 +390,7 @@ def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_a
         band = a.damping_ratio * a.frequency_hz + b.damping_ratio * b.frequency_hz
         if abs(b.frequency_hz - a.frequency_hz) > 2 * band or mac(a.shape, b.shape) < LISTED_TWICE_MAC:
             continue
+        assert method == "ssi-cva", f"{a.frequency_hz:.3f} and {b.frequency_hz:.3f} Hz of one shape listed"
         nearest = [np.argmin(np.abs(known - m.frequency_hz)) for m in (a, b)]
         assert nearest[0] != nearest[1], f"{a.frequency_hz:.3f} Hz listed twice"
         assert all(abs(known[k] / m.frequency_hz - 1) < 0.005 for k, m in zip(nearest, (a, b)))
