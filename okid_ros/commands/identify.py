@@ -81,9 +81,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "automatic for a record without u): the same JSON with n_inputs 0 and B, D empty")
     parser.add_argument("--output-only-method", choices=OUTPUT_ONLY_METHODS, default=OUTPUT_ONLY_METHODS[0],
                         help="how an output-only model is realized, as node 2's realization.output_only_method: "
-                        "ssi-cov (covariance-driven SSI, default), var (the paper's vector-AR route) or ssi-cva "
-                        "(canonical-variate weighting: nearer the efficient floor on long simulated records, "
-                        "slower; docs/benchmarks-output-only.md)")
+                        "ssi-cva (covariance-driven SSI with canonical-variate weighting, default: the measured "
+                        "winner), ssi-cov (unweighted, faster on long lags) or var (the paper's vector-AR route); "
+                        "docs/benchmarks-output-only.md")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)

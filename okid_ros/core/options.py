@@ -38,8 +38,9 @@ AUTO = "auto"
 GAINS = ("refit", "riccati", "whitening")
 COMPLETIONS = ("auto", "predictor", "states")
 OFFSETS = ("remove", "none")
-#: How an output-only model is realized from its outputs (the first the default; :mod:`.output_only`).
-OUTPUT_ONLY_METHODS = ("ssi-cov", "var", "ssi-cva")
+#: How an output-only model is realized from its outputs (the first the default, the measured
+#: winner: docs/benchmarks-output-only.md, forty-second session; :mod:`.output_only`).
+OUTPUT_ONLY_METHODS = ("ssi-cva", "ssi-cov", "var")
 #: Sample times the chain accepts [s], from 1 MHz to one sample an hour: every structural record
 #: lies inside, and the frequencies (1 / dt) and their squares stay far inside float64 (a record
 #: at 1e-300 s gave frequencies of 1e299 Hz and NaN standard deviations).

@@ -13,11 +13,12 @@ Steps (one module each):
    spectral line whose band has the kurtosis of a sinusoid) found and removed by least squares
    (:mod:`.output_only_harmonics`); reference channels and the lag window from the data
    (:mod:`.output_covariance`);
-2. ``method="ssi-cov"`` (default): output correlations of consecutive segments, block Hankel,
-   ERA (:mod:`.stochastic_realization`); ``method="var"``: a vector AR whose stochastic Markov
-   parameters ``C A^(k-1) A K`` are realized by the same ERA (the paper's route);
+2. ``method="ssi-cva"`` (default): the record's correlations, the block Hankel weighted by the
+   covariances' Cholesky factors, ERA (:mod:`.canonical_realization`); ``"ssi-cov"``: unweighted
+   (:mod:`.stochastic_realization`); ``"var"``: a vector AR's stochastic Markov parameters
+   ``C A^(k-1) A K`` realized by the same ERA (the paper's route);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
-4. (ssi-cov) each candidate mode re-identified with each segment of the record left out
+4. (ssi-cva, ssi-cov) each candidate mode re-identified with each segment of the record left out
    (jackknife): a mode whose frequency scatters by more than its half-power half-width
    ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
    that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
@@ -25,11 +26,11 @@ Steps (one module each):
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
-   are the modes' (the clusters' spread for ``var``), and under ssi-cva a mode listed with ones beyond the limits goes;
+   are the modes' (the clusters' spread for ``var``; ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation (ssi-cov) or read from the VAR (var);
-6. (ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with
-   longer lags (:mod:`.output_only_low_band`).
+   by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
+6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
+   with longer lags (:mod:`.output_only_low_band`).
 """
 
 from __future__ import annotations
@@ -118,9 +119,8 @@ MAX_DAMPING_CV = 1.5
 MIN_SPECTRAL_DOMINANCE = 0.4
 #: A candidate whose jackknife scatter is below both of these (times ``zeta f`` and ``zeta``)
 #: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
-#: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles
-#: that passed the limits above scattered at least 1.8 times more (0.36 width or 0.54 cv;
-#: 120 random structures and the simulated cases, docs/benchmarks-output-only.md; per route: ssi-cva's there).
+#: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles that passed
+#: the limits above scattered at least 1.8 (ssi-cov) and 1.3 (ssi-cva) times more (docs/benchmarks-output-only.md).
 STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3}
 STEADY_DAMPING_CV = 0.3
 
@@ -129,7 +129,7 @@ def identify_output_only(
     y: np.ndarray,
     sample_time_s: float,
     *,
-    method: str = "ssi-cov",
+    method: str = OUTPUT_ONLY_METHODS[0],
     max_states: int | None = None,
     block_rows: int | None = None,
     offsets: str = "remove",
@@ -145,16 +145,16 @@ def identify_output_only(
     ----------
     y : (N, p) outputs (accelerations, strains, ...), finite.
     sample_time_s : sample time in seconds.
-    method : "ssi-cov" (covariance-driven SSI / NExT-ERA, default), "var" (vector AR and the
-        OKID recursion, the paper's route) or "ssi-cva" (ssi-cov's steps with the canonical-variate
-        realization of :mod:`.canonical_realization`).
+    method : "ssi-cva" (default: ssi-cov's steps with the canonical-variate realization of
+        :mod:`.canonical_realization`), "ssi-cov" (covariance-driven SSI / NExT-ERA) or "var"
+        (vector AR and the OKID recursion, the paper's route).
     max_states : highest model order tried (default :data:`DEFAULT_MAX_STATES`, less when the
         Hankel is smaller).
     block_rows : Hankel block rows (default from the data: a period of the slowest mode).
     offsets : "remove" (default, the means are kept with the model) or "none".
     harmonics : "remove" (default: harmonic lines are found, named in ``warnings`` and removed
         before identification) or "keep" (the record as it is).
-    low_band : (ssi-cov) re-estimate the modes far below the sampling rate from the record
+    low_band : (ssi-cva, ssi-cov) re-estimate the modes far below the sampling rate from the record
         decimated, with longer lags (:mod:`.output_only_low_band`; default True).
     valid : (N,) bool, False at samples that were missing and are filled in ``y`` by
         prediction (:func:`.gap_fill.fill_missing_outputs`, or node 2's window): the steps that

@@ -43,7 +43,7 @@ def test_output_only_ignores_the_inputs_of_a_record(tmp_path: Path, koma_record,
     out = tmp_path / "model.json"
     assert cli.main(["identify", str(record), "--output-only", "--json", str(out)]) == 0
     document = _check_document(out, truth)
-    assert document["method"] == "ssi-cov"
+    assert document["method"] == "ssi-cva"  # the default route
     stdout = capsys.readouterr().out
     assert "output-only" in stdout
     assert "one-step prediction [" in stdout and "free-run simulation" not in stdout, "no input: no free run"
@@ -120,20 +120,20 @@ def test_track_names_the_options_its_output_only_windows_pass_over(tmp_path: Pat
 
 
 def test_the_output_only_method_is_chosen_on_the_command_line(tmp_path: Path, koma_record, capsys) -> None:
-    # node 2's realization.output_only_method had no `identify` counterpart: ssi-cva only through the API.
+    # node 2's realization.output_only_method had no `identify` counterpart: a route only through the API.
     y, dt, truth = koma_record
     record = tmp_path / "y_only.npz"
     np.savez(record, y=y, sample_time_s=dt)
     out = tmp_path / "model.json"
-    assert cli.main(["identify", str(record), "--output-only-method", "ssi-cva", "--json", str(out)]) == 0
-    assert _check_document(out, truth)["method"] == "ssi-cva"
+    assert cli.main(["identify", str(record), "--output-only-method", "ssi-cov", "--json", str(out)]) == 0
+    assert _check_document(out, truth)["method"] == "ssi-cov"
     with_u = tmp_path / "with_u.npz"
     rng = np.random.default_rng(2)
     u = rng.standard_normal((2000, 1))
     np.savez(with_u, u=u, y=np.convolve(u[:, 0], [0.0, 1.0, 0.5], "same")[:, None] + 0.01 * rng.standard_normal(
         (2000, 1)), sample_time_s=0.01)
     capsys.readouterr()
-    code = cli.main(["identify", str(with_u), "--output-only-method", "ssi-cva", "--json", str(tmp_path / "io.json")])
+    code = cli.main(["identify", str(with_u), "--output-only-method", "ssi-cov", "--json", str(tmp_path / "io.json")])
     err = capsys.readouterr().err
     assert "--output-only-method applies to output-only identification" in err, err
     assert code == 0 and json.loads((tmp_path / "io.json").read_text())["n_inputs"] == 1

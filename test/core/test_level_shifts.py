@@ -209,18 +209,25 @@ def test_clipping_is_judged_on_the_raw_values(paper_record) -> None:
                                                                           "output 0 is clipped"]
 
 
-def test_output_only_identification_removes_a_shift() -> None:
+# How near the clean record's modes the cleaned one's are: the canonical-variate route's whole-record
+# correlations keep more of what the fitted step or drift leaves (3e-4 of a damping whose own
+# standard deviation is some 10 %) than the covariance route's segment correlations.
+RTOL = {"ssi-cov": 1e-4, "ssi-cva": 1e-3}
+
+
+@pytest.mark.parametrize("method", ["ssi-cov", "ssi-cva"])
+def test_output_only_identification_removes_a_shift(method: str) -> None:
     # The offsets are the means without the step: the raw means left the step's share of the level
     # in the channel (the 7 Hz mode at 6.9846 Hz, the clean record's at 6.9868 Hz).
     system = modal_structure([3.0, 7.0, 12.0], 0.01, 1, 4, 1 / 50, seed=3, output="acceleration",
                              disturbance_std=1.0)
     y = simulate_noisy(system, np.zeros((12000, 1)), seed=5)
-    clean = identify_output_only(y, 1 / 50).modes
-    model = identify_output_only(_shifted(y, [(2, 7000, 3.0)]), 1 / 50)
+    clean = identify_output_only(y, 1 / 50, method=method).modes
+    model = identify_output_only(_shifted(y, [(2, 7000, 3.0)]), 1 / 50, method=method)
     assert len(clean) == len(model.modes) == 3
     for attribute in ("frequency_hz", "damping_ratio"):
         np.testing.assert_allclose([getattr(m, attribute) for m in model.modes],
-                                   [getattr(m, attribute) for m in clean], rtol=1e-4)
+                                   [getattr(m, attribute) for m in clean], rtol=RTOL[method])
     assert len(model.warnings) == 1 and model.warnings[0].startswith("output 2 changes level at sample 7000 by +3.0")
 
 
