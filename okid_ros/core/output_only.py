@@ -159,7 +159,7 @@ def identify_output_only(
     valid : (N,) bool, False at samples that were missing and are filled in ``y`` by
         prediction (:func:`.gap_fill.fill_missing_outputs`, or node 2's window): the steps that
         need an unbroken record (spectrum, harmonics, gain, decimated band) use the filled
-        values, the output correlations (ssi-cov) leave them out (a prediction lacks the
+        values, the output correlations (ssi-cva, ssi-cov) leave them out (a prediction lacks the
         innovation's spread and would bias them). None: every sample measured. Held to the
         input-output record's rule (:func:`.gap_fill.missing_problem`): first and last samples
         measured, runs of at most ``max_gap`` filled, at most a tenth of the record.
