@@ -170,4 +170,4 @@ def test_the_output_only_example_is_read_strictly_by_both_nodes():
         specs = parse_sources(values["inputs.sources"], 0, 6)
         assert [s.kind for s in specs] == ["imu", "imu"]
         assert sorted(c for s in specs for c in s.channels) == list(range(6))
-    assert arx["arx.order"] == 10 and est["realization.output_only_method"] == "ssi-cov"
+    assert arx["arx.order"] == 10 and est["realization.output_only_method"] == "ssi-cva"
