@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from okid_bench.live_chain import run_pipeline
 from okid_bench.scoring import modes_of
-from okid_ros.service.grid_samples import GridSample
-from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
-from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
-from okid_ros.service.windowed import WindowedPipeline
 from okid_ros.sim import paper_model, simulate_innovation
 
 NODE_1 = {
@@ -39,16 +36,7 @@ def hammer_record(model, blow: float, quiet: float, seed: int) -> tuple[np.ndarr
 def run_chain(model, u: np.ndarray, y: np.ndarray, arx: dict) -> tuple[dict, int, int]:
     """Node 2's diagnostics, its model updates and the true modes they list (0.5 %), over the record."""
     dt = model.sample_time_s
-    common = {"sample_time_s": dt, "n_inputs": u.shape[1], "n_outputs": y.shape[1]}
-    pipeline = WindowedPipeline(
-        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {**common, **arx})),
-        ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, common)))
-    for k in range(u.shape[0]):
-        sample = GridSample(k, k * dt, u[k], y[k], restart=k == 0)
-        pipeline.estimate(sample)
-        snapshot = pipeline.identify(sample)
-        if snapshot is not None and snapshot.valid:
-            pipeline.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
+    pipeline, _ = run_pipeline(u, y, dt, arx)
     true_hz = np.array([mode.frequency_hz for mode in modes_of(model.A, dt)])
     found = 0
     for line in pipeline.updates:

@@ -16,7 +16,7 @@ from okid_ros.service.options import ArxIdentificationParams, ModalEstimationPar
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
 from okid_ros.service.windowed import WindowedPipeline
 
-__all__ = ["ChainScore", "chain_modes"]
+__all__ = ["ChainScore", "chain_modes", "run_pipeline"]
 
 
 @dataclass
@@ -36,6 +36,28 @@ class ChainScore:
     output_error: np.ndarray | None = None
 
 
+def run_pipeline(u: np.ndarray, y: np.ndarray, sample_time_s: float, arx: dict) -> tuple[WindowedPipeline, list]:
+    """Both services over ``u`` (N, m), ``y`` (N, p), each valid snapshot realized at once.
+
+    ``arx``: node 1's parameters besides the record's sizes (``arx.order``, ``publish_rate_hz``, ...);
+    node 2's are its defaults. Returns the pipeline and ``y - y_estimated`` of each sample published.
+    """
+    common = {"sample_time_s": sample_time_s, "n_inputs": u.shape[1], "n_outputs": y.shape[1]}
+    pipeline = WindowedPipeline(
+        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {**common, **arx})),
+        ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, common)))
+    errors = []
+    for k in range(u.shape[0]):
+        sample = GridSample(k, k * sample_time_s, u[k], y[k], restart=k == 0)
+        result = pipeline.estimate(sample)
+        if result is not None:
+            errors.append(y[k] - result.y_estimated)
+        snapshot = pipeline.identify(sample)
+        if snapshot is not None and snapshot.valid:
+            pipeline.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
+    return pipeline, errors
+
+
 def chain_modes(truth, u: np.ndarray, y: np.ndarray, *, order: int, window: int, every: int,
                 tol: float = 0.005) -> ChainScore:
     """Run the chain over ``u`` (N, m), ``y`` (N, p) with a snapshot every ``every`` samples; score it.
@@ -43,19 +65,8 @@ def chain_modes(truth, u: np.ndarray, y: np.ndarray, *, order: int, window: int,
     ``truth`` is the simulated model (``A``, ``sample_time_s``): its modes are the ones to find.
     """
     dt = truth.sample_time_s
-    common = {"sample_time_s": dt, "n_inputs": u.shape[1], "n_outputs": y.shape[1]}
-    arx = ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {
-        **common, "arx.order": order, "arx.window_length": window, "publish_rate_hz": 1.0 / (every * dt)}))
-    pipeline = WindowedPipeline(arx, ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, common)))
-    errors = []
-    for k in range(u.shape[0]):
-        sample = GridSample(k, k * dt, u[k], y[k], restart=k == 0)
-        result = pipeline.estimate(sample)
-        if result is not None:
-            errors.append(y[k] - result.y_estimated)
-        snapshot = pipeline.identify(sample)
-        if snapshot is not None and snapshot.valid:
-            pipeline.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
+    pipeline, errors = run_pipeline(u, y, dt, {"arx.order": order, "arx.window_length": window,
+                                               "publish_rate_hz": 1.0 / (every * dt)})
     true_hz = np.array([mode.frequency_hz for mode in modes_of(truth.A, dt)])
     found = spurious = 0
     for line in pipeline.updates:

@@ -7,16 +7,14 @@ import warnings
 import numpy as np
 import pytest
 
-from okid_bench.live_chain import chain_modes
+from okid_bench.live_chain import chain_modes, run_pipeline
 from okid_ros.core.arx import fit_from_normal_equations
 from okid_ros.core.input_glitches import INPUT_GLITCH_SPREADS, without_input_glitches
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.service.estimation import ModalEstimationService
-from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, resolve_parameters
-from okid_ros.service.windowed import WindowedPipeline
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 
 # The live fault rig's node 1 (test/fault_rig.py): models within seconds, a solve twice a second.
@@ -199,16 +197,7 @@ def test_a_hammers_blows_on_an_input_a_models_window_held_quiet_are_no_structura
     u = 0.01 * rng.standard_normal((4000, 2))
     u[rng.choice(np.arange(300, 3900), 12, replace=False), rng.integers(0, 2, 12)] += 1e6
     y, _ = simulate_innovation(model, u, seed=5)
-    common = {"sample_time_s": dt, "n_inputs": 2, "n_outputs": 2}
-    pipeline = WindowedPipeline(
-        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {**common, **LIVE})),
-        ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, common)))
-    for k in range(u.shape[0]):
-        sample = GridSample(k, k * dt, u[k], y[k], restart=k == 0)
-        pipeline.estimate(sample)
-        snapshot = pipeline.identify(sample)
-        if snapshot is not None and snapshot.valid:
-            pipeline.realize_now(snapshot.fit, snapshot.stamp_s, snapshot.model_id, snapshot.window_rows)
+    pipeline, _ = run_pipeline(u, y, dt, LIVE)
     diagnostics = pipeline.est.diagnostics()
     assert diagnostics["changes_detected"] == 0 and pipeline.changes == []
     assert diagnostics["divergences_beyond_window"] >= 1 and diagnostics["divergence_restarts"] >= 1
