@@ -143,3 +143,44 @@ def test_a_long_window_realizes_what_the_formed_weighted_hankel_does(close_pair_
     for order in (16, 24):  # noise poles too, where the singular values are apart
         expected = np.linalg.eigvals(_formed_realization(correlations, block_rows, order)[1])
         np.testing.assert_allclose(np.sort_complex(realizer.eigenvalues(order)), np.sort_complex(expected), atol=1e-8)
+
+
+def _damping(eigenvalues: np.ndarray, sample_time_s: float) -> np.ndarray:
+    s = np.log(_sorted_poles(eigenvalues)) / sample_time_s
+    return -s.real / np.abs(s)
+
+
+def test_the_hankels_undo_the_record_correlations_taper() -> None:
+    # What a record of N samples gives in expectation: R_k (1 - k / N). Its Hankels, factored as they
+    # are, decay faster than C A^(k-1) G and add 1 / (omega T) to each damping ratio (18 % of the 3 Hz
+    # mode's 0.5 % over 60 s); divided by the record's taper they give the true poles again.
+    system = _system(6)
+    block_rows, n_samples, dt = 12, 3000, 1 / 50
+    sums = RecordSums.of(np.ones((n_samples, 1)), 2 * block_rows)
+    tapered = _exact_correlations(system, 2 * block_rows) * sums.taper[:, None, None]
+    true_damping = _damping(np.linalg.eigvals(system.A), dt)
+    omega = np.abs(np.log(_sorted_poles(np.linalg.eigvals(system.A)))) / dt
+
+    def damping(**options) -> np.ndarray:
+        A = OrderRealizer(canonical_decomposition(tapered, np.arange(6), block_rows, 20, **options), 8).realize(8)[0]
+        return _damping(np.linalg.eigvals(A), dt)
+
+    added = damping() - true_damping
+    np.testing.assert_allclose(added, 1 / (omega * n_samples * dt), rtol=0.3)
+    np.testing.assert_allclose(damping(taper=sums.taper), true_damping, rtol=1e-7)
+
+
+@pytest.mark.parametrize("span", [(0, 500), (1200, 1700), (2500, 3000), (10, 40), (650, 800)])
+def test_the_taper_is_each_lags_share_of_present_pairs(span) -> None:
+    present = np.ones(3000, bool)
+    present[700:760] = False
+    sums = RecordSums.of(np.random.default_rng(2).standard_normal((3000, 2)), 60, present)
+
+    def share(mask: np.ndarray) -> np.ndarray:
+        return np.array([np.sum(mask[: mask.size - k] & mask[k:]) for k in range(61)]) / mask.sum()
+
+    np.testing.assert_allclose(sums.taper, share(present), rtol=1e-12)
+    np.testing.assert_allclose(sums.taper[:3], [1.0, (2940 - 2) / 2940, (2940 - 4) / 2940], rtol=1e-12)
+    mask = present.copy()
+    mask[span[0] : span[1]] = False
+    np.testing.assert_allclose(sums.taper_without(*span), share(mask), rtol=1e-12)
