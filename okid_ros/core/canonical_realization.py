@@ -23,12 +23,7 @@ CVA) was measured too and rejected: states of a finite past are not the Kalman f
 weakly observed mode's damping came out up to 8 times its own. The correlations must be the
 record's **biased** ones (:func:`.output_covariance.record_correlations`): their block Toeplitz
 matrices are positive semidefinite and consistent with one another, which the unbiased segment
-means are not (their past covariance is indefinite on a one-channel record). The Hankels are not
-weights but what is factored: from the biased ``R_k`` they hold ``R_k (1 - k / N)``, which decays
-faster than ``C A^(k-1) G`` and adds ``1 / (omega T)`` to every damping ratio (a record of ``T``
-seconds; 4 % of a 1 % damping at 3 Hz over 120 s), so they are built from the biased correlations
-divided by the record's ``taper`` (:attr:`.output_covariance.RecordSums.taper`), the weights from
-the biased ones.
+means are not (their past covariance is indefinite on a one-channel record).
 """
 
 from __future__ import annotations
@@ -148,7 +143,7 @@ def _hankel(lagged: np.ndarray, block_rows: int) -> np.ndarray:
 
 
 def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
-                            max_states: int, *, taper: np.ndarray | None = None) -> CanonicalDecomposition:
+                            max_states: int) -> CanonicalDecomposition:
     """The CVA-weighted realization of the module docstring from the record's biased correlations.
 
     Parameters
@@ -158,9 +153,6 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     references : (r,) the reference channels (past and future).
     block_rows : i, the past's and the future's length.
     max_states : keep this many singular triplets at most.
-    taper : (L + 1,) each lag's share of sample pairs behind ``correlations``
-        (:attr:`.output_covariance.RecordSums.taper`): the Hankels are built from ``correlations /
-        taper``. None: the correlations are exact (no record behind them).
 
     Raises IdentificationError when a covariance is not positive definite (references that are
     linearly dependent).
@@ -169,9 +161,6 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     lagged = _lagged(correlations, references, i)
     r = lagged.shape[1]
     weights = CanonicalWeights.of(lagged, i)
-    if taper is not None:
-        correlations = correlations / np.where(taper > 0, taper, 1.0)[:, None, None]
-        lagged = _lagged(correlations, references, i)
     hankel = _hankel(lagged, i)
     weighted = weights.weighted_transpose(hankel)  # M^T, M = L_f^-1 H(0) L_p^-T
     # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
@@ -201,8 +190,6 @@ def canonical_replicates(sums: RecordSums, segments: OutputCorrelations, referen
     the biased correlations of the whole record (``sums``, lags ``2 block_rows``) less one segment.
     """
     def replicate(j: int) -> CanonicalDecomposition:
-        span = segments.spans[j]
-        return canonical_decomposition(sums.without(*span), references, block_rows, max_states,
-                                       taper=sums.taper_without(*span))
+        return canonical_decomposition(sums.without(*segments.spans[j]), references, block_rows, max_states)
 
     return replicate

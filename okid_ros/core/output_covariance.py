@@ -146,24 +146,19 @@ class RecordSums:
 
     A jackknife replicate leaves a segment out: the pairs that touch it lie within ``max_lag`` of
     it, so its correlations are the record's sums less the stretch around the segment's sums
-    with and without the segment, not a transform of the whole record again. ``taper`` (and
-    :meth:`taper_without`) is each lag's share of pairs, ``biased = unbiased * taper`` (``1 - k / N``
-    for a record without gaps): what the division by the samples takes off each lag.
+    with and without the segment, not a transform of the whole record again.
     """
 
     y: np.ndarray  # (N, p) missing samples set to zero
     max_lag: int
     correlations: np.ndarray  # (max_lag + 1, p, p) the whole record's, :func:`record_correlations`
     counted: np.ndarray  # (N + 1,) present samples before each index
-    taper: np.ndarray  # (max_lag + 1,) pairs of present samples at each lag / present samples
 
     @classmethod
     def of(cls, y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> RecordSums:
         correlations = record_correlations(y, max_lag, present=present)
         present = np.ones(y.shape[0], bool) if present is None else present
-        counted = np.r_[0, np.cumsum(present)]
-        taper = _pair_counts(present, int(max_lag)) / max(counted[-1], 1)
-        return cls(np.where(present[:, None], y, 0.0), int(max_lag), correlations, counted, taper)
+        return cls(np.where(present[:, None], y, 0.0), int(max_lag), correlations, np.r_[0, np.cumsum(present)])
 
     @property
     def sums(self) -> np.ndarray:
@@ -183,29 +178,6 @@ class RecordSums:
         touching = touching - self._sums(around, lag)  # the stretch's pairs less those that miss the span
         count = self.counted[-1] - (self.counted[hi] - self.counted[lo])
         return (self.sums - touching) / max(count, 1)
-
-    def taper_without(self, start: int, stop: int) -> np.ndarray:
-        """(max_lag + 1,) :attr:`taper` of the record with samples ``start:stop`` absent too."""
-        lo, hi, lag = int(start), int(stop), self.max_lag
-        first = max(lo - lag, 0)
-        around = self._present(first, hi + lag)
-        touching = _pair_counts(around, lag)
-        around[lo - first : hi - first] = False
-        touching = touching - _pair_counts(around, lag)
-        count = self.counted[-1] - (self.counted[hi] - self.counted[lo])
-        return (self.taper * max(self.counted[-1], 1) - touching) / max(count, 1)
-
-    def _present(self, start: int, stop: int) -> np.ndarray:
-        """(stop - start,) bool, the samples present in ``start:stop`` (from the counts)."""
-        stop = min(stop, self.counted.size - 1)
-        return np.diff(self.counted[start : stop + 1]) > 0
-
-
-def _pair_counts(present: np.ndarray, max_lag: int) -> np.ndarray:
-    """(max_lag + 1,) how many pairs of present samples each lag ``0 .. max_lag`` holds."""
-    if not present.size:
-        return np.zeros(max_lag + 1)
-    return np.rint(_correlations(present.astype(float)[:, None], max_lag, biased=True)[:, 0, 0] * present.size)
 
 
 def slowest_mode_hz(y: np.ndarray, sample_time_s: float, *, held_peaks_only: bool = False) -> float:

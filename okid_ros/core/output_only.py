@@ -254,7 +254,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
         decomposition = covariance_decomposition(r_mean, references, block_rows, top, spare=SPARE_COLUMNS)
     elif method == "ssi-cva":  # the whole record's sums, its correlations and its jackknife's replicates
         record = RecordSums.of(y, 2 * block_rows, present)
-        decomposition = canonical_decomposition(record.correlations, references, block_rows, top, taper=record.taper)
+        decomposition = canonical_decomposition(record.correlations, references, block_rows, top)
     else:
         var = _var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
