@@ -1,0 +1,49 @@
+"""Hostile records on the output-only paths (`identify` without `u`, node 2's window with n_inputs 0)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from cli_helpers import assert_one_line_error, run_cli
+
+from okid_ros.core.identified_model import IdentificationError
+from okid_ros.service.realization import identify_window
+
+SAMPLE_TIME_S = 0.005
+
+
+def _sinusoids(n_samples: int = 12000, seed: int = 4) -> np.ndarray:
+    """Three outputs of two sinusoids (11 and 23 Hz, over 600 cycles each) and a little white noise: no mode."""
+    t = np.arange(n_samples) * SAMPLE_TIME_S
+    rng = np.random.default_rng(seed)
+    y = np.stack([np.sin(2 * np.pi * 11 * t + k) + 0.5 * np.sin(2 * np.pi * 23 * t + 2 * k) for k in range(3)], 1)
+    return y + 1e-3 * rng.standard_normal(y.shape)
+
+
+def test_a_record_of_sinusoids_alone_is_refused_naming_its_lines(tmp_path: Path, capsys) -> None:
+    """Was: "no stable mode found across model orders: is the record long and excited enough?" only."""
+    record = tmp_path / "sines.npz"
+    np.savez(record, y=_sinusoids(), sample_time_s=SAMPLE_TIME_S)
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "model.json")
+    assert_one_line_error(code, err, "sines.npz: ", "harmonic lines at 11 Hz, 23 Hz", "broadband")
+    assert not (tmp_path / "model.json").exists()
+
+
+def test_node_2s_output_only_window_of_sinusoids_says_why_it_gives_no_model() -> None:
+    y = _sinusoids()
+    try:
+        identify_window(None, np.zeros((y.shape[0], 0)), y, SAMPLE_TIME_S, options=None)
+    except IdentificationError as exc:
+        reason = str(exc)
+    else:
+        raise AssertionError("a window of sinusoids gave a model")
+    assert "harmonic lines at 11 Hz, 23 Hz" in reason and "broadband" in reason, reason
+
+
+def test_a_broadband_record_that_fails_gets_no_harmonic_note(tmp_path: Path, capsys) -> None:
+    record = tmp_path / "white.npz"
+    np.savez(record, y=np.random.default_rng(2).standard_normal((6000, 3)), sample_time_s=SAMPLE_TIME_S)
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "model.json")
+    assert_one_line_error(code, err, "white.npz: ")
+    assert "harmonic" not in err
