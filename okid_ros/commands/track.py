@@ -334,8 +334,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
 
     from okid_ros.core.arx_order import choose_arx_order, states_problem
     from okid_ros.core.options import ArxOrderOptions
-    from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
-    from okid_ros.core.realization_window import realization_minimum
+    from okid_ros.core.realization_window import window_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.records import first_present_run
@@ -369,7 +368,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
             f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
         )
-    minimum = max(realization_minimum(q, window + q), OUTPUT_ONLY_MIN_SAMPLES if m == 0 else 0)
+    minimum = window_minimum(q, window + q, m)
     if window + q < minimum:  # then every update would be refused
         raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
                              f"at least {minimum} (a window of at least {minimum - q} rows)")

@@ -21,7 +21,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
-from okid_ros.core.realization_window import realization_minimum
+from okid_ros.core.realization_window import window_minimum
 from okid_ros.core.regressors import regressor_length
 from okid_ros.errors import ParameterError
 from okid_ros.service.params import (
@@ -154,10 +154,11 @@ class ArxIdentificationParams:
         if m > 0 and q < 2:  # else every model would be refused, with nothing said at the start
             return (f"arx.order {q}: node 2 realizes models from an ARX order of at least 2 (its ERA Hankel needs "
                     f"two blocks of Markov parameters)")
-        if m > 0 and 0 < self.window_length and self.window_length + q < realization_minimum(q, self.window_length + q):
+        # Output-only (m = 0) too: a window under its 200 samples had every model refused, exit 0 (`process`).
+        minimum = window_minimum(q, self.window_length + q, m)
+        if 0 < self.window_length and self.window_length + q < minimum:
             return (f"arx.window_length {self.window_length} with arx.order {q}: node 2's realization needs at least "
-                    f"{realization_minimum(q, self.window_length + q)} samples of a window (arx.window_length at least "
-                    f"{3 * q})")
+                    f"{minimum} samples of a window (arx.window_length at least {minimum - q})")
         if self.regularization == "none" and 0 < self.window_length < d:
             return (f"arx.window_length {self.window_length} is smaller than the d = {d} coefficients of arx.order "
                     f"{q}: unregularized least squares (arx.regularization none) needs at least d rows")

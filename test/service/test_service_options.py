@@ -119,6 +119,11 @@ def test_a_core_rule_the_parameter_table_lets_through_names_the_parameter():
     # No model could ever come out: `process` ran to the end and said so only then.
     ({"arx.order": 1}, "arx.order 1: node 2 realizes models from an ARX order of at least 2"),
     ({"arx.window_length": 10}, "arx.window_length 10 with arx.order 100: node 2's realization needs at least 400"),
+    # Output-only: was taken, then every model refused ("too few samples for output-only identification: 160 <
+    # 200", or at 50 rows "unexcited window: condition number inf"), `process` exit 0.
+    ({"n_inputs": 0, "arx.order": 10, "arx.window_length": 150},
+     "arx.window_length 150 with arx.order 10: node 2's realization needs at least 200 samples of a window "
+     "(arx.window_length at least 190)"),
 ])
 def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(values, text):
     with pytest.raises(ParameterError, match=re.escape(text)):
@@ -127,6 +132,8 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"n_inputs": 0, "arx.order": 10,
+                                                                          "arx.window_length": 190}))
 
 
 def test_a_window_whose_buffers_do_not_fit_in_the_available_memory_is_refused(monkeypatch):
