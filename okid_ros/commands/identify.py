@@ -136,9 +136,10 @@ def _record_problem(record, output_only: bool) -> str:
 
     from okid_ros.core.excitation import output_problem
     from okid_ros.core.scaling import covariance_range_problem
-    from okid_ros.records import channel_without_values
+    from okid_ros.records import channel_without_values, transposed_problem
 
-    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+    if problem := transposed_problem(record.y) or channel_without_values(record.u[:, :0] if output_only else record.u,
+                                                                          record.y):
         return problem
     present = record.y[np.isfinite(record.y).all(axis=1)]
     if problem := covariance_range_problem(present):

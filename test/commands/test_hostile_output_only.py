@@ -47,3 +47,13 @@ def test_a_broadband_record_that_fails_gets_no_harmonic_note(tmp_path: Path, cap
     code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "model.json")
     assert_one_line_error(code, err, "white.npz: ")
     assert "harmonic" not in err
+
+
+def test_outputs_stored_transposed_are_refused_as_such(tmp_path: Path, capsys) -> None:
+    """Was "too few samples for output-only identification: 3 < 200" (identify), "3 samples of 6000 outputs" (track)."""
+    record = tmp_path / "transposed.npz"
+    np.savez(record, y=_sinusoids(n_samples=600).T, sample_time_s=SAMPLE_TIME_S)
+    for command, output in (("identify", "--json"), ("track", "--jsonl")):
+        code, _, err = run_cli(capsys, command, record, output, tmp_path / "out")
+        assert_one_line_error(code, err, "transposed.npz: y holds 3 samples of 600 channels", "stored transposed?")
+    assert not (tmp_path / "out").exists()
