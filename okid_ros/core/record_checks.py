@@ -10,9 +10,12 @@ from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
-__all__ = ["METHODS", "check_record_length", "checked_record", "narrowband_note"]
+__all__ = ["BROADBAND_NEEDED", "METHODS", "check_record_length", "checked_record", "narrowband_note"]
 
 METHODS = ("okid", "paper")
+#: The assumption of output-only identification, said where a record or window breaks it.
+BROADBAND_NEEDED = ("output-only identification needs the structure driven by broadband forces (wind, traffic, "
+                    "random excitation)")
 
 
 def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
@@ -93,6 +96,4 @@ def narrowband_note(y: np.ndarray, sample_time_s: float, valid: np.ndarray | Non
     rest = remove_harmonics(centred, sample_time_s, lines, valid=present)[present]
     share = 100.0 * max(0.0, 1.0 - float(np.mean(rest**2)) / float(np.mean(centred[present] ** 2)))
     listed = ", ".join(f"{line.frequency_hz:.5g} Hz" for line in sorted(lines, key=lambda line: line.frequency_hz))
-    return (f"the outputs hold harmonic lines at {listed} ({share:.3g} % of their variance): output-only "
-            f"identification needs the structure driven by broadband forces (wind, traffic, random "
-            f"excitation), not by sinusoids alone")
+    return f"the outputs hold harmonic lines at {listed} ({share:.3g} % of their variance): {BROADBAND_NEEDED}"

@@ -13,12 +13,12 @@ from okid_ros.service.realization import identify_window
 SAMPLE_TIME_S = 0.005
 
 
-def _sinusoids(n_samples: int = 12000, seed: int = 4) -> np.ndarray:
+def _sinusoids(n_samples: int = 12000, seed: int = 4, noise: float = 1e-3) -> np.ndarray:
     """Three outputs of two sinusoids (11 and 23 Hz, over 600 cycles each) and a little white noise: no mode."""
     t = np.arange(n_samples) * SAMPLE_TIME_S
     rng = np.random.default_rng(seed)
     y = np.stack([np.sin(2 * np.pi * 11 * t + k) + 0.5 * np.sin(2 * np.pi * 23 * t + 2 * k) for k in range(3)], 1)
-    return y + 1e-3 * rng.standard_normal(y.shape)
+    return y + noise * rng.standard_normal(y.shape)
 
 
 def test_a_record_of_sinusoids_alone_is_refused_naming_its_lines(tmp_path: Path, capsys) -> None:
@@ -57,3 +57,16 @@ def test_outputs_stored_transposed_are_refused_as_such(tmp_path: Path, capsys) -
         code, _, err = run_cli(capsys, command, record, output, tmp_path / "out")
         assert_one_line_error(code, err, "transposed.npz: y holds 3 samples of 600 channels", "stored transposed?")
     assert not (tmp_path / "out").exists()
+
+
+def test_node_1s_output_only_window_of_noise_free_sinusoids_names_the_cause() -> None:
+    """Was "unexcited window: condition number inf > arx.max_condition_number 1e+12" alone."""
+    from okid_bench.live_chain import run_pipeline
+
+    y = _sinusoids(n_samples=4000, noise=0.0)
+    pipe, _ = run_pipeline(np.zeros((y.shape[0], 0)), y, SAMPLE_TIME_S,
+                           {"arx.order": 10, "arx.window_length": 3000, "publish_rate_hz": 1 / (1000 * SAMPLE_TIME_S)})
+    snapshot = pipe.arx.snapshot()
+    assert not snapshot.valid and not pipe.updates
+    assert "unexcited window" in snapshot.reason and "own past predicts them" in snapshot.reason, snapshot.reason
+    assert "broadband" in snapshot.reason
