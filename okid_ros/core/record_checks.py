@@ -10,12 +10,15 @@ from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
-__all__ = ["BROADBAND_NEEDED", "METHODS", "check_record_length", "checked_record", "narrowband_note"]
+__all__ = ["BROADBAND_NEEDED", "HIGH_MODE_FRACTION", "METHODS", "check_record_length", "checked_record",
+           "high_modes_note", "narrowband_note"]
 
 METHODS = ("okid", "paper")
 #: The assumption of output-only identification, said where a record or window breaks it.
 BROADBAND_NEEDED = ("output-only identification needs the structure driven by broadband forces (wind, traffic, "
                     "random excitation)")
+#: A mode above this fraction of the sampling rate is near the Nyquist frequency (half of it).
+HIGH_MODE_FRACTION = 0.4
 
 
 def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
@@ -97,3 +100,20 @@ def narrowband_note(y: np.ndarray, sample_time_s: float, valid: np.ndarray | Non
     share = 100.0 * max(0.0, 1.0 - float(np.mean(rest**2)) / float(np.mean(centred[present] ** 2)))
     listed = ", ".join(f"{line.frequency_hz:.5g} Hz" for line in sorted(lines, key=lambda line: line.frequency_hz))
     return f"the outputs hold harmonic lines at {listed} ({share:.3g} % of their variance): {BROADBAND_NEEDED}"
+
+
+def high_modes_note(frequencies_hz, sample_time_s: float) -> str:
+    """A warning when modes of ``frequencies_hz`` lie above :data:`HIGH_MODE_FRACTION` of the sampling rate, or "".
+
+    Near the Nyquist frequency a mode's poles are not listed (the output-only selection keeps poles
+    below 0.475 of the rate) and one beyond it folds back to a wrong frequency: of a structure with
+    modes at 85, 90 and 95 Hz sampled at 200 Hz two were listed, in silence.
+    """
+    rate_hz = 1.0 / sample_time_s
+    high = [f for f in frequencies_hz if f > HIGH_MODE_FRACTION * rate_hz]
+    if not high:
+        return ""
+    listed = ", ".join(f"{f:.5g}" for f in high)
+    return (f"mode(s) at {listed} Hz lie above {HIGH_MODE_FRACTION:g} of the sampling rate ({rate_hz:.5g} Hz): a mode "
+            f"nearer the Nyquist frequency ({rate_hz / 2:.5g} Hz) may be missed, and one beyond it appears at a wrong "
+            f"frequency (aliasing); sample faster, or check the anti-alias filter")

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from cli_helpers import assert_one_line_error, run_cli
 
 from okid_ros.core.identified_model import IdentificationError
@@ -70,3 +72,23 @@ def test_node_1s_output_only_window_of_noise_free_sinusoids_names_the_cause() ->
     assert not snapshot.valid and not pipe.updates
     assert "unexcited window" in snapshot.reason and "own past predicts them" in snapshot.reason, snapshot.reason
     assert "broadband" in snapshot.reason
+
+
+@pytest.mark.parametrize("frequencies_hz, warned", [((85.0, 90.0, 95.0), True), ((3.0, 7.0, 12.0), False)])
+def test_modes_near_the_nyquist_frequency_are_warned_of(tmp_path: Path, capsys, frequencies_hz, warned) -> None:
+    """Modes at 85, 90 and 95 Hz sampled at 200 Hz: two listed (95 Hz beyond the selection's band), nothing said."""
+    from okid_ros.sim.models import modal_structure
+    from okid_ros.sim.simulators import simulate_noisy
+
+    system = modal_structure(list(frequencies_hz), 0.02, 1, 3, SAMPLE_TIME_S, seed=1, output="acceleration",
+                             disturbance_std=1.0)
+    record = tmp_path / "fast.npz"
+    np.savez(record, y=simulate_noisy(system, np.zeros((6000, 1)), seed=1), sample_time_s=SAMPLE_TIME_S)
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "model.json")
+    assert code == 0, err
+    document = json.loads((tmp_path / "model.json").read_text())
+    said = [w for w in document["warnings"] if "of the sampling rate (200 Hz)" in w]
+    assert len(said) == int(warned), document["warnings"]
+    assert ("okid-ros identify: warning: mode(s) at 85" in err) == warned, err
+    if warned:
+        assert "may be missed" in said[0] and "aliasing" in said[0]
