@@ -232,6 +232,23 @@ class ModalEstimationParams:
         """From the resolved node parameters (dotted names)."""
         return cls(**option_values(ESTIMATOR_NODE, values))
 
+    def output_only_ignored(self) -> str:
+        """With ``n_inputs`` 0, a sentence naming the input-output realization's parameters set off defaults, or "".
+
+        An output-only window is realized by ``realization.output_only_method`` alone
+        (:func:`~okid_ros.service.realization.identify_window`): ``realization.n_states`` 2 gave models of
+        8 states, and the mode criteria did nothing, in silence.
+        """
+        if self.n_inputs:
+            return ""
+        specs = option_specs(ESTIMATOR_NODE)
+        names = [specs[field].name for field in _INPUT_OUTPUT_REALIZATION
+                 if getattr(self, field) != specs[field].field_value(specs[field].default)]
+        if not names:
+            return ""
+        return (f"{', '.join(names)} appl{'ies' if len(names) == 1 else 'y'} to input-output realization; ignored "
+                f"with n_inputs 0 (output-only: realization.output_only_method chooses the model)")
+
     def realization_options(self) -> RealizationOptions:
         """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`).
 
@@ -269,6 +286,10 @@ class ModalEstimationParams:
 
 
 _NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}
+#: The fields of :meth:`ModalEstimationParams.realization_options`, which an output-only window does not read.
+_INPUT_OUTPUT_REALIZATION = ("n_states", "max_states", "max_states_limit", "gain", "refine", "jackknife_segments",
+                             "max_damping", "min_msv", "max_nyquist_fraction", "min_mpc", "min_dominance",
+                             "min_stable_fraction")
 
 
 def check_runtime_change(old: Any, new: Any) -> list[str]:

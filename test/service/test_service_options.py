@@ -156,3 +156,21 @@ def test_node_1s_first_model_takes_its_window_fill_plus_its_order():
     assert dataclasses.replace(forgetting, forgetting_factor=1.0).first_model_samples() == 1 + 100
     assert math.isinf(dataclasses.replace(forgetting, min_window_fill=1.0).first_model_samples())
     assert dataclasses.replace(arx, min_window_fill=0.0).first_model_samples() == 1 + 100  # a solve needs a row
+
+
+def test_input_output_realization_parameters_set_for_an_output_only_rig_are_named():
+    """``process --param realization.n_states=2`` with n_inputs 0 gave models of 8 states, in silence."""
+    values = {"n_inputs": 0, "realization.n_states": 2, "modes.max_damping": 0.05}
+    params = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, values))
+    assert params.output_only_ignored() == (
+        "realization.n_states, modes.max_damping apply to input-output realization; ignored with n_inputs 0 "
+        "(output-only: realization.output_only_method chooses the model)")
+    def said(values: dict) -> str:
+        return ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, values)).output_only_ignored()
+
+    assert said({"n_inputs": 0, "realization.gain": "riccati"}).startswith(
+        "realization.gain applies to input-output realization")
+    # Defaults, the output-only route's own parameter, or a rig with inputs: nothing to say.
+    for quiet in ({"n_inputs": 0}, {"n_inputs": 0, "realization.output_only_method": "var"},
+                  {"n_inputs": 2, "realization.n_states": 2}):
+        assert said(quiet) == ""
