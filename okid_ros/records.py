@@ -41,7 +41,7 @@ from okid_ros.core.regressors import real_array
 from okid_ros.errors import DataError, OkidWarning, one_line, shown_path, special_file_kind, write_atomically
 from okid_ros.record_csv import read_csv_record
 
-__all__ = ["Record", "load_record", "require_inputs", "save_record"]
+__all__ = ["Record", "load_record", "require_inputs", "save_record", "transposed_problem"]
 
 
 def _as_real_array(name: str, value: object) -> np.ndarray:
@@ -104,6 +104,19 @@ def channel_without_values(u: np.ndarray, y: np.ndarray) -> str:
             return (f"{kind} channel {int(empty[0])} holds no value (NaN/Inf in every sample): check its column or "
                     f"topic mapping, or leave the channel out")
     return ""
+
+
+def transposed_problem(y: np.ndarray) -> str:
+    """Why ``y`` (N, p) looks stored transposed for an identification (fewer samples than channels), or "".
+
+    `identify` said "too few samples for output-only identification: 3 < 200" of a (3, 6000) ``y``
+    of 3 channels, and `track` "3 samples of 6000 outputs". Other commands load such records as they are.
+    """
+    n, p = np.shape(y)
+    if n >= p:
+        return ""
+    return (f"y holds {n} samples of {p} channels: fewer samples than channels, an array stored transposed? A "
+            f"record's arrays are (samples, channels)")
 
 
 def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -136,9 +136,10 @@ def _record_problem(record, output_only: bool) -> str:
 
     from okid_ros.core.excitation import output_problem
     from okid_ros.core.scaling import covariance_range_problem
-    from okid_ros.records import channel_without_values
+    from okid_ros.records import channel_without_values, transposed_problem
 
-    if problem := channel_without_values(record.u[:, :0] if output_only else record.u, record.y):
+    if problem := transposed_problem(record.y) or channel_without_values(record.u[:, :0] if output_only else record.u,
+                                                                          record.y):
         return problem
     present = record.y[np.isfinite(record.y).all(axis=1)]
     if problem := covariance_range_problem(present):
@@ -393,7 +394,9 @@ def _identify_output_only(record, args: argparse.Namespace, valid=None):
     the same model as one thread gives).
     """
     from okid_ros.core.gap_fill import fill_missing_outputs
+    from okid_ros.core.identified_model import IdentificationError
     from okid_ros.core.output_only import identify_output_only
+    from okid_ros.core.record_checks import high_modes_note, narrowband_note
     from okid_ros.errors import DataError
     from okid_ros.tools.cores import identify_workers
 
@@ -401,8 +404,16 @@ def _identify_output_only(record, args: argparse.Namespace, valid=None):
         y = record.y if valid is None else fill_missing_outputs(record.y, valid)
     except ValueError as exc:
         raise DataError(f"the missing samples cannot be filled: {exc}") from None
-    return identify_output_only(y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets,
-                                valid=valid, workers=identify_workers())
+    try:
+        model = identify_output_only(y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets,
+                                     valid=valid, workers=identify_workers())
+    except IdentificationError as exc:
+        if note := narrowband_note(y, record.sample_time_s, valid):  # the method's assumption broken: say so
+            raise IdentificationError(f"{exc}; {note}") from None
+        raise
+    if note := high_modes_note([mode.frequency_hz for mode in model.modes], record.sample_time_s):
+        model.warnings.append(note)
+    return model
 
 
 def _fit_line(fits: dict, *, output_only: bool) -> str:

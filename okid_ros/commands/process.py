@@ -53,10 +53,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
+    from okid_ros.service.options import ModalEstimationParams
     from okid_ros.tools.process import load_node_parameters, process_bag
 
     arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=args.namespace,
                                                   strict=args.strict_params)
+    if ignored := ModalEstimationParams.from_parameters(est_values).output_only_ignored():
+        print(f"okid-ros process: warning: {ignored}", file=sys.stderr)
     summary = process_bag(args.bag, args.out, arx_values, est_values, jsonl_path=args.jsonl, force=args.force,
                           storage=args.storage, progress=args.progress,
                           provenance={"params_files": args.params, "param_overrides": args.param,

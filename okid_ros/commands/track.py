@@ -276,7 +276,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
     from okid_ros.core.scaling import covariance_range_problem
     from okid_ros.errors import DataError
-    from okid_ros.records import channel_without_values
+    from okid_ros.records import channel_without_values, transposed_problem
     from okid_ros.service.tracked_record import tracked_record_warnings
     from okid_ros.tools.bag_record import load_any_record
     from okid_ros.tools.output_paths import check_output_paths, prepare_file_outputs
@@ -289,7 +289,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     record, _ = load_any_record(args.data, args.params, args.param, args.source, allow_nonfinite=True)
     # A record without u, or --output-only: the window of outputs alone (m = 0, a VAR window).
     u = record.u[:, :0] if args.output_only else record.u
-    if problem := channel_without_values(u, record.y):
+    if problem := transposed_problem(record.y) or channel_without_values(u, record.y):
         raise DataError(problem)
     u, glitches = without_input_glitches(u)  # as node 1's window takes them (core/input_glitches.py)
     if glitches.size:
@@ -334,8 +334,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
 
     from okid_ros.core.arx_order import choose_arx_order, states_problem
     from okid_ros.core.options import ArxOrderOptions
-    from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
-    from okid_ros.core.realization_window import realization_minimum
+    from okid_ros.core.realization_window import window_minimum
     from okid_ros.core.regressors import regressor_length
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.records import first_present_run
@@ -369,7 +368,7 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
             f"--window {window} is smaller than the {d} ARX coefficients per output of order {q} "
             f"with {m} inputs and {p} outputs; unregularized least squares needs at least {d} rows"
         )
-    minimum = max(realization_minimum(q, window + q), OUTPUT_ONLY_MIN_SAMPLES if m == 0 else 0)
+    minimum = window_minimum(q, window + q, m)
     if window + q < minimum:  # then every update would be refused
         raise ParameterError(f"--window {window} rows with {q} lags are {window + q} samples; the realization needs "
                              f"at least {minimum} (a window of at least {minimum - q} rows)")

@@ -10,9 +10,15 @@ from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.options import AUTO, OFFSETS, ArxOrderOptions, RealizationOptions, sample_time_problem
 from okid_ros.core.regressors import check_io_arrays, regressor_length, samples_for_order
 
-__all__ = ["METHODS", "check_record_length", "checked_record"]
+__all__ = ["BROADBAND_NEEDED", "HIGH_MODE_FRACTION", "METHODS", "check_record_length", "checked_record",
+           "high_modes_note", "narrowband_note"]
 
 METHODS = ("okid", "paper")
+#: The assumption of output-only identification, said where a record or window breaks it.
+BROADBAND_NEEDED = ("output-only identification needs the structure driven by broadband forces (wind, traffic, "
+                    "random excitation)")
+#: A mode above this fraction of the sampling rate is near the Nyquist frequency (half of it).
+HIGH_MODE_FRACTION = 0.4
 
 
 def checked_record(u, y, sample_time_s: float, *, method: str, offsets: str, valid, options: RealizationOptions,
@@ -64,3 +70,50 @@ def check_record_length(n_samples: int, order: int, p: int, m: int) -> None:
             f"too few samples for ARX order {order} with {m} inputs and {p} outputs: {n_samples} "
             f"given, at least {needed} needed ({d} coefficients per output plus {order} lags)"
         )
+
+
+def narrowband_note(y: np.ndarray, sample_time_s: float, valid: np.ndarray | None = None) -> str:
+    """Why an output-only identification of ``y`` (N, p) that found no model may have failed: its harmonic lines.
+
+    Output-only identification assumes the structure is driven by broadband forces; a record whose
+    outputs are sinusoids (a machine's rotation alone, a shaker's sine) holds no mode to find. The
+    failure said only "no stable mode found ... is the record long and excited enough?" or "the
+    reference channels' covariance is not positive definite". "" when the outputs hold no harmonic
+    line (:func:`~okid_ros.core.output_only_harmonics.find_harmonics`). ``valid``: False at missing samples.
+    """
+    from okid_ros.core.channels import channel_mean
+    from okid_ros.core.output_only_harmonics import find_harmonics, remove_harmonics
+
+    y = np.asarray(y, float)
+    present = np.isfinite(y).all(axis=1) if valid is None else np.asarray(valid, bool) & np.isfinite(y).all(axis=1)
+    if present.sum() < 2:
+        return ""
+    centred = np.where(present[:, None], y - channel_mean(y[present]), 0.0)
+    spread = float(np.sqrt(np.mean(centred[present] ** 2)))
+    if not spread > 0 or not np.isfinite(spread):
+        return ""
+    centred /= spread
+    lines = find_harmonics(centred, sample_time_s)
+    if not lines:
+        return ""
+    rest = remove_harmonics(centred, sample_time_s, lines, valid=present)[present]
+    share = 100.0 * max(0.0, 1.0 - float(np.mean(rest**2)) / float(np.mean(centred[present] ** 2)))
+    listed = ", ".join(f"{line.frequency_hz:.5g} Hz" for line in sorted(lines, key=lambda line: line.frequency_hz))
+    return f"the outputs hold harmonic lines at {listed} ({share:.3g} % of their variance): {BROADBAND_NEEDED}"
+
+
+def high_modes_note(frequencies_hz, sample_time_s: float) -> str:
+    """A warning when modes of ``frequencies_hz`` lie above :data:`HIGH_MODE_FRACTION` of the sampling rate, or "".
+
+    Near the Nyquist frequency a mode's poles are not listed (the output-only selection keeps poles
+    below 0.475 of the rate) and one beyond it folds back to a wrong frequency: of a structure with
+    modes at 85, 90 and 95 Hz sampled at 200 Hz two were listed, in silence.
+    """
+    rate_hz = 1.0 / sample_time_s
+    high = [f for f in frequencies_hz if f > HIGH_MODE_FRACTION * rate_hz]
+    if not high:
+        return ""
+    listed = ", ".join(f"{f:.5g}" for f in high)
+    return (f"mode(s) at {listed} Hz lie above {HIGH_MODE_FRACTION:g} of the sampling rate ({rate_hz:.5g} Hz): a mode "
+            f"nearer the Nyquist frequency ({rate_hz / 2:.5g} Hz) may be missed, and one beyond it appears at a wrong "
+            f"frequency (aliasing); sample faster, or check the anti-alias filter")

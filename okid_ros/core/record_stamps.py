@@ -19,10 +19,11 @@ MAX_STAMP_SLIP = 2.0
 def stamp_jump_problem(stamps: object, sample_time_s: object, *, n_samples: int, rows: bool = False) -> str:
     """Why ``stamps`` (N,) [s] are not the stamps of ``n_samples`` consecutive samples, or "".
 
-    A step more than :data:`MAX_STAMP_SLIP` sample times off ``sample_time_s`` (forward or back)
-    is named with its samples (``rows``: a CSV's data rows, from 1) and its size; stamps of
-    another length than the samples are refused too. NaN stamps, and a sample time that is no
-    positive number (refused by the record's own check), are not judged.
+    A step more than :data:`MAX_STAMP_SLIP` sample times off ``sample_time_s`` (forward or back),
+    or any step back (samples out of time order), is named with its samples (``rows``: a CSV's data
+    rows, from 1) and its size; stamps of another length than the samples are refused too. NaN
+    stamps, and a sample time that is no positive number (refused by the record's own check), are
+    not judged.
     """
     try:
         dt = float(np.asarray(sample_time_s, dtype=float).reshape(-1)[0]) if np.size(sample_time_s) == 1 else 0.0
@@ -35,11 +36,16 @@ def stamp_jump_problem(stamps: object, sample_time_s: object, *, n_samples: int,
         return ""
     steps = np.diff(stamps)
     with np.errstate(invalid="ignore"):
-        off = np.flatnonzero(np.abs(steps - dt) > MAX_STAMP_SLIP * dt)
+        # A step back is samples out of time order (rows sorted or pasted wrong): two rows swapped step
+        # back by one sample time, within the slip, and were taken in silence.
+        off = np.flatnonzero((np.abs(steps - dt) > MAX_STAMP_SLIP * dt) | (steps < 0))
     if not off.size:
         return ""
     i = int(off[0])
     where = f"data rows {i + 1} and {i + 2}" if rows else f"samples {i} and {i + 1}"
+    if -MAX_STAMP_SLIP * dt <= steps[i] < 0:
+        return (f"stamp_s steps back by {-steps[i]:.6g} s between {where}: the samples are not in time order "
+                f"(rows sorted or pasted wrong?); identify and track take them as consecutive on one grid")
     more = f" (and {off.size - 1} more such step(s))" if off.size > 1 else ""
     return (f"stamp_s jumps by {steps[i]:+.6g} s ({steps[i] / dt:+.6g} sample times of {dt:g} s) between {where}"
             f"{more}: identify and track take the samples as consecutive on one grid (a record glued from two?); "

@@ -17,6 +17,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
 from okid_ros.core.least_squares import center_normal_equations
+from okid_ros.core.record_checks import BROADBAND_NEEDED
 from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
 
@@ -128,6 +129,12 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     return SolveResult(fit, cond, "", elapsed)
 
 
+#: Why an output-only window's lags are singular when no output is dead or a copy: a linear
+#: recurrence of the outputs holds over the window, as for sinusoids without noise.
+DETERMINISTIC_OUTPUTS = ("the outputs' own past predicts them almost exactly (sinusoids alone, or a response without "
+                         f"noise): {BROADBAND_NEEDED}")
+
+
 def condition_refusal(capture: WindowCapture, condition: float) -> str:
     """Why a window whose condition number exceeds the bound is refused, or "" when it is identified all the same.
 
@@ -135,11 +142,14 @@ def condition_refusal(capture: WindowCapture, condition: float) -> str:
     before), dead or dependent outputs, then the inputs' columns beyond the bound
     (:func:`~okid_ros.core.window_conditioning.input_collinearity`). When the inputs' columns are
     within it, the condition number is the outputs': a response far above its noise, identified
-    (that module's docstring). Without inputs (output-only) the window is refused, no cause named.
+    (that module's docstring). Without inputs (output-only) the window is refused; with no dead or
+    dependent output, the outputs' own past predicts them: :data:`DETERMINISTIC_OUTPUTS`.
     """
     prm = capture.params
     causes = window_excitation_warnings(capture.normal, prm.n_inputs)
     causes += [cause for cause in [window_output_problem(capture.normal, prm.n_inputs, prm.n_outputs)] if cause]
+    if not causes and not prm.n_inputs:  # was refused with the condition number alone
+        causes = [DETERMINISTIC_OUTPUTS]
     if not causes and prm.n_inputs:
         normal = center_normal_equations(capture.normal) if prm.offsets == "remove" else capture.normal
         cause = input_collinearity(normal, prm.order, prm.n_outputs, prm.n_inputs, bound=prm.max_condition_number)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
-from okid_ros.core.realization_window import realization_minimum
+from okid_ros.core.realization_window import window_minimum
 from okid_ros.core.regressors import regressor_length
 from okid_ros.errors import ParameterError
 from okid_ros.service.params import (
@@ -154,10 +154,11 @@ class ArxIdentificationParams:
         if m > 0 and q < 2:  # else every model would be refused, with nothing said at the start
             return (f"arx.order {q}: node 2 realizes models from an ARX order of at least 2 (its ERA Hankel needs "
                     f"two blocks of Markov parameters)")
-        if m > 0 and 0 < self.window_length and self.window_length + q < realization_minimum(q, self.window_length + q):
+        # Output-only (m = 0) too: a window under its 200 samples had every model refused, exit 0 (`process`).
+        minimum = window_minimum(q, self.window_length + q, m)
+        if 0 < self.window_length and self.window_length + q < minimum:
             return (f"arx.window_length {self.window_length} with arx.order {q}: node 2's realization needs at least "
-                    f"{realization_minimum(q, self.window_length + q)} samples of a window (arx.window_length at least "
-                    f"{3 * q})")
+                    f"{minimum} samples of a window (arx.window_length at least {minimum - q})")
         if self.regularization == "none" and 0 < self.window_length < d:
             return (f"arx.window_length {self.window_length} is smaller than the d = {d} coefficients of arx.order "
                     f"{q}: unregularized least squares (arx.regularization none) needs at least d rows")
@@ -231,6 +232,23 @@ class ModalEstimationParams:
         """From the resolved node parameters (dotted names)."""
         return cls(**option_values(ESTIMATOR_NODE, values))
 
+    def output_only_ignored(self) -> str:
+        """With ``n_inputs`` 0, a sentence naming the input-output realization's parameters set off defaults, or "".
+
+        An output-only window is realized by ``realization.output_only_method`` alone
+        (:func:`~okid_ros.service.realization.identify_window`): ``realization.n_states`` 2 gave models of
+        8 states, and the mode criteria did nothing, in silence.
+        """
+        if self.n_inputs:
+            return ""
+        specs = option_specs(ESTIMATOR_NODE)
+        names = [specs[field].name for field in _INPUT_OUTPUT_REALIZATION
+                 if getattr(self, field) != specs[field].field_value(specs[field].default)]
+        if not names:
+            return ""
+        return (f"{', '.join(names)} appl{'ies' if len(names) == 1 else 'y'} to input-output realization; ignored "
+                f"with n_inputs 0 (output-only: realization.output_only_method chooses the model)")
+
     def realization_options(self) -> RealizationOptions:
         """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`).
 
@@ -268,6 +286,10 @@ class ModalEstimationParams:
 
 
 _NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}
+#: The fields of :meth:`ModalEstimationParams.realization_options`, which an output-only window does not read.
+_INPUT_OUTPUT_REALIZATION = ("n_states", "max_states", "max_states_limit", "gain", "refine", "jackknife_segments",
+                             "max_damping", "min_msv", "max_nyquist_fraction", "min_mpc", "min_dominance",
+                             "min_stable_fraction")
 
 
 def check_runtime_change(old: Any, new: Any) -> list[str]:

@@ -32,6 +32,7 @@ from okid_ros.core.options import RealizationOptions
 from okid_ros.core.output_only import OUTPUT_ONLY_METHODS, identify_output_only
 from okid_ros.core.pipeline import IdentificationError, IdentifiedModel, identify_from_arx
 from okid_ros.core.realization_window import realization_window
+from okid_ros.core.record_checks import narrowband_note
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
 from okid_ros.service.sample_buffer import SampleBuffer
@@ -130,8 +131,13 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     IdentificationError, ValueError or numpy.linalg.LinAlgError with the reason.
     """
     if u.shape[1] == 0:
-        return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid,
-                                    max_gap=max_gap)
+        try:
+            return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid,
+                                        max_gap=max_gap)
+        except IdentificationError as exc:
+            if note := narrowband_note(y, sample_time_s, valid):  # the method's assumption broken: say so
+                raise IdentificationError(f"{exc}; {note}") from None
+            raise
     return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid,
                              order_hint=order_hint)
 

@@ -66,3 +66,24 @@ def test_the_stamps_rule():
                                                                  "0.008 s) between samples 3 and 4:")
     assert stamp_jump_problem(grid, DT, n_samples=11) == "stamp_s holds 10 stamps for 11 samples"
     assert stamp_jump_problem(grid, -1.0, n_samples=10) == ""  # the sample time's own check refuses it
+
+
+@pytest.mark.parametrize("kind", ["npz", "csv"])
+def test_a_record_with_two_samples_out_of_time_order_is_refused(tmp_path, capsys, kind):
+    """Two rows swapped step back by one sample time, within the slip: were identified in silence."""
+    _, y = _samples()  # output-only: no u
+    stamps = START_S + DT * np.arange(N)
+    stamps[[700, 701]] = stamps[[701, 700]]
+    record = tmp_path / f"swapped.{kind}"
+    if kind == "npz":
+        np.savez(record, y=y, sample_time_s=DT, stamp_s=stamps)
+        where = "between samples 700 and 701"
+    else:
+        rows = "\n".join(",".join(repr(float(v)) for v in (stamps[k], *y[k])) for k in range(N))
+        record.write_text(f"# sample_time_s={DT}\nstamp_s,y1,y2\n{rows}\n")
+        where = "between data rows 701 and 702"
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "out.json")
+    assert_one_line_error(code, err, f"{record}: stamp_s steps back by 0.008", f" s {where}: ",
+                          "the samples are not in time order")
+    assert not (tmp_path / "out.json").exists()
+    assert stamp_jump_problem(np.sort(stamps), DT, n_samples=N) == ""

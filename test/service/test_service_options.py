@@ -119,6 +119,11 @@ def test_a_core_rule_the_parameter_table_lets_through_names_the_parameter():
     # No model could ever come out: `process` ran to the end and said so only then.
     ({"arx.order": 1}, "arx.order 1: node 2 realizes models from an ARX order of at least 2"),
     ({"arx.window_length": 10}, "arx.window_length 10 with arx.order 100: node 2's realization needs at least 400"),
+    # Output-only: was taken, then every model refused ("too few samples for output-only identification: 160 <
+    # 200", or at 50 rows "unexcited window: condition number inf"), `process` exit 0.
+    ({"n_inputs": 0, "arx.order": 10, "arx.window_length": 150},
+     "arx.window_length 150 with arx.order 10: node 2's realization needs at least 200 samples of a window "
+     "(arx.window_length at least 190)"),
 ])
 def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(values, text):
     with pytest.raises(ParameterError, match=re.escape(text)):
@@ -127,6 +132,8 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 150, "arx.window_length": 500}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 20, "n_outputs": 28}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
+    ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"n_inputs": 0, "arx.order": 10,
+                                                                          "arx.window_length": 190}))
 
 
 def test_a_window_whose_buffers_do_not_fit_in_the_available_memory_is_refused(monkeypatch):
@@ -149,3 +156,21 @@ def test_node_1s_first_model_takes_its_window_fill_plus_its_order():
     assert dataclasses.replace(forgetting, forgetting_factor=1.0).first_model_samples() == 1 + 100
     assert math.isinf(dataclasses.replace(forgetting, min_window_fill=1.0).first_model_samples())
     assert dataclasses.replace(arx, min_window_fill=0.0).first_model_samples() == 1 + 100  # a solve needs a row
+
+
+def test_input_output_realization_parameters_set_for_an_output_only_rig_are_named():
+    """``process --param realization.n_states=2`` with n_inputs 0 gave models of 8 states, in silence."""
+    values = {"n_inputs": 0, "realization.n_states": 2, "modes.max_damping": 0.05}
+    params = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, values))
+    assert params.output_only_ignored() == (
+        "realization.n_states, modes.max_damping apply to input-output realization; ignored with n_inputs 0 "
+        "(output-only: realization.output_only_method chooses the model)")
+    def said(values: dict) -> str:
+        return ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE, values)).output_only_ignored()
+
+    assert said({"n_inputs": 0, "realization.gain": "riccati"}).startswith(
+        "realization.gain applies to input-output realization")
+    # Defaults, the output-only route's own parameter, or a rig with inputs: nothing to say.
+    for quiet in ({"n_inputs": 0}, {"n_inputs": 0, "realization.output_only_method": "var"},
+                  {"n_inputs": 2, "realization.n_states": 2}):
+        assert said(quiet) == ""
