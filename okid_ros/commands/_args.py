@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from okid_ros.core.options import RealizationOptions
+from okid_ros.core.options import OUTPUT_ONLY_METHODS, RealizationOptions
 
 __all__ = ["positive_int", "int_between", "float_between", "positive_finite_float", "states_or_auto",
            "penalty_or_gcv", "node_parameter_range", "NodeParameterDefault", "add_bag_arguments",
-           "add_progress_arguments", "namespace", "ignored_for_output_only"]
+           "add_progress_arguments", "namespace", "ignored_for_output_only", "add_output_only_method_argument",
+           "output_only_method_ignored"]
 
 
 def positive_int(text: str) -> int:
@@ -152,6 +153,23 @@ def ignored_for_output_only(args: argparse.Namespace, options) -> str:
         return ""
     verb = "applies" if len(given) == 1 else "apply"  # "--order apply to" was said of one option
     return f"{', '.join(given)} {verb} to input-output identification; ignored for this output-only one"
+
+
+def add_output_only_method_argument(parser) -> None:
+    """``--output-only-method``, as node 2's ``realization.output_only_method`` (`identify` and `track`)."""
+    parser.add_argument("--output-only-method", choices=OUTPUT_ONLY_METHODS, default=OUTPUT_ONLY_METHODS[0],
+                        help="how an output-only model is realized, as node 2's realization.output_only_method: "
+                        "ssi-cva (covariance-driven SSI with canonical-variate weighting, default: the measured "
+                        "winner), ssi-cov (unweighted, faster on long lags) or var (the paper's vector-AR route); "
+                        "docs/benchmarks-output-only.md")
+
+
+def output_only_method_ignored(args: argparse.Namespace) -> str:
+    """The warning for ``--output-only-method`` given to an input-output run ("" if not given)."""
+    if args.output_only_method == OUTPUT_ONLY_METHODS[0]:
+        return ""
+    return ("--output-only-method applies to output-only identification (--output-only, or a record without u); "
+            "ignored for this input-output one")
 
 
 def path_text(text: str) -> str:

@@ -12,12 +12,14 @@ import argparse
 
 from okid_ros.commands._args import (
     add_bag_arguments,
+    add_output_only_method_argument,
     ignored_for_output_only,
+    output_only_method_ignored,
     path_text,
     positive_int,
     states_or_auto,
 )
-from okid_ros.core.options import GAINS, OFFSETS, OUTPUT_ONLY_METHODS, RealizationOptions
+from okid_ros.core.options import GAINS, OFFSETS, RealizationOptions
 from okid_ros.errors import shown_path
 
 #: The most of a --reference file read. It is an `identify --json` output: 40-75 kB for a model of two
@@ -79,11 +81,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--output-only", action="store_true",
                         help="ignore the record's inputs and identify from its outputs alone (ambient vibration; "
                         "automatic for a record without u): the same JSON with n_inputs 0 and B, D empty")
-    parser.add_argument("--output-only-method", choices=OUTPUT_ONLY_METHODS, default=OUTPUT_ONLY_METHODS[0],
-                        help="how an output-only model is realized, as node 2's realization.output_only_method: "
-                        "ssi-cva (covariance-driven SSI with canonical-variate weighting, default: the measured "
-                        "winner), ssi-cov (unweighted, faster on long lags) or var (the paper's vector-AR route); "
-                        "docs/benchmarks-output-only.md")
+    add_output_only_method_argument(parser)
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
@@ -252,9 +250,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _input_output_ignored(args: argparse.Namespace) -> str:
     """The warning for options given that an input-output run passes over ("" if none)."""
-    output_only_method = ("--output-only-method applies to output-only identification (--output-only, or a "
-                          "record without u); ignored for this input-output one"
-                          if args.output_only_method != OUTPUT_ONLY_METHODS[0] else "")
+    output_only_method = output_only_method_ignored(args)
     return "; ".join(filter(None, (output_only_method, _gain_options_ignored(args))))
 
 
@@ -387,7 +383,7 @@ def _identify(record, args: argparse.Namespace, output_only: bool, valid=None):
 def _identify_output_only(record, args: argparse.Namespace, valid=None):
     """The output-only identification of ``record.y`` (its ``u``, if any, ignored).
 
-    By ``--output-only-method`` (covariance-driven SSI by default: the measured winner of
+    By ``--output-only-method`` (canonical-variate SSI by default: the measured winner of
     ``docs/benchmarks-output-only.md``). ``valid``: False at
     missing samples, filled first by a VAR's prediction as node 2 fills its window, and left out
     of the output correlations. Its decompositions run in a thread per usable core (up to four;

@@ -58,8 +58,10 @@ from typing import TYPE_CHECKING
 from okid_ros.commands._args import (
     NodeParameterDefault,
     add_bag_arguments,
+    add_output_only_method_argument,
     ignored_for_output_only,
     node_parameter_range,
+    output_only_method_ignored,
     path_text,
     penalty_or_gcv,
     positive_int,
@@ -150,6 +152,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--output-only", action="store_true",
                         help="identify from the outputs alone, ignoring the record's u (automatic for a record "
                         "without u): each window's model by output-only identification, n_inputs 0 in every line")
+    add_output_only_method_argument(parser)
     parser.add_argument("--jsonl", required=True, metavar="OUT.jsonl", help="where to write the updates")
     add_bag_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing OUT.jsonl (when the run ends)")
@@ -296,6 +299,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
         print(f"okid-ros track: warning: {input_glitch_warning(glitches)}", file=sys.stderr)
     if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
         print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
+    elif u.shape[1] and (ignored := output_only_method_ignored(args)):
+        print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     if ignored := _turned_off(args):
         print(f"okid-ros track: warning: {ignored}", file=sys.stderr)
     # A dead channel or one the others make up is the record's problem, as identify says (in the
@@ -418,11 +423,12 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
     model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
-                            max_gap=record.max_gap)
+                            output_only_method=args.output_only_method, max_gap=record.max_gap)
     fields = dict(
         warnings=list(model.warnings),  # dead input channels, large offsets, the order limit
         n_states=model.n_states,
         n_inputs=model.n_inputs,  # 0: output-only
+        method=model.method,  # the route: "okid" or "paper" (input-output), --output-only-method's (output-only)
         arx_order=int(q),
         max_states_reached=bool(model.max_states_reached),
         arx_penalty=float(fit.penalty),

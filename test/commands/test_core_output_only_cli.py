@@ -137,3 +137,23 @@ def test_the_output_only_method_is_chosen_on_the_command_line(tmp_path: Path, ko
     err = capsys.readouterr().err
     assert "--output-only-method applies to output-only identification" in err, err
     assert code == 0 and json.loads((tmp_path / "io.json").read_text())["n_inputs"] == 1
+
+
+def test_track_realizes_its_output_only_windows_by_the_method_chosen(tmp_path: Path, koma_record, capsys) -> None:
+    # track had no --output-only-method: its windows took the default route whatever the user wanted
+    # (node 2 has realization.output_only_method). Each line says its route.
+    y, dt, truth = koma_record
+    record = tmp_path / "y_only.npz"
+    np.savez(record, y=y[:6000], sample_time_s=dt)
+    lines = {}
+    for method in ("ssi-cva", "ssi-cov"):
+        out = tmp_path / f"{method}.jsonl"
+        code = cli.main(["track", str(record), "--jsonl", str(out), "--window", "5000", "--every", "5000",
+                         "--output-only-method", method, "--no-progress"])
+        assert code == 0, capsys.readouterr().err
+        lines[method] = json.loads(out.read_text().splitlines()[0])
+        assert lines[method]["method"] == method
+    frequencies = {method: sorted(mode["frequency_hz"] for mode in line["modes"]) for method, line in lines.items()}
+    assert frequencies["ssi-cva"] != frequencies["ssi-cov"]
+    for found in frequencies.values():  # each route's own model of the window, not a failed one
+        assert min(abs(f / truth[0]["discrete_frequency_hz"] - 1.0) for f in found) < 0.02
