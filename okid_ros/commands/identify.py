@@ -390,23 +390,17 @@ def _identify_output_only(record, args: argparse.Namespace, valid=None):
     the same model as one thread gives).
     """
     from okid_ros.core.gap_fill import fill_missing_outputs
-    from okid_ros.core.identified_model import IdentificationError
-    from okid_ros.core.output_only import identify_output_only
-    from okid_ros.core.record_checks import high_modes_note, narrowband_note
+    from okid_ros.core.record_checks import high_modes_note
     from okid_ros.errors import DataError
+    from okid_ros.service.realization import output_only_model
     from okid_ros.tools.cores import identify_workers
 
     try:
         y = record.y if valid is None else fill_missing_outputs(record.y, valid)
     except ValueError as exc:
         raise DataError(f"the missing samples cannot be filled: {exc}") from None
-    try:
-        model = identify_output_only(y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets,
-                                     valid=valid, workers=identify_workers())
-    except IdentificationError as exc:
-        if note := narrowband_note(y, record.sample_time_s, valid):  # the method's assumption broken: say so
-            raise IdentificationError(f"{exc}; {note}") from None
-        raise
+    model = output_only_model(y, record.sample_time_s, method=args.output_only_method, offsets=args.offsets,
+                              valid=valid, workers=identify_workers())
     if note := high_modes_note([mode.frequency_hz for mode in model.modes], record.sample_time_s):
         model.warnings.append(note)
     return model

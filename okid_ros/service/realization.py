@@ -37,7 +37,8 @@ from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "prepare_window", "realize"]
+__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "output_only_model",
+           "prepare_window", "realize"]
 
 
 def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -101,6 +102,21 @@ def bridge_state(model: IdentifiedModel, x: np.ndarray, u_prev: np.ndarray | Non
     return predictor.x
 
 
+def output_only_model(y: np.ndarray, sample_time_s: float, **options) -> IdentifiedModel:
+    """The output-only model of ``y`` (N, p), or an error that names the outputs' harmonic lines.
+
+    ``options`` are :func:`~okid_ros.core.output_only.identify_output_only`'s. Its method assumes
+    broadband excitation: when it finds no model of outputs that hold harmonic lines, the error says
+    so (:func:`~okid_ros.core.record_checks.narrowband_note`).
+    """
+    try:
+        return identify_output_only(y, sample_time_s, **options)
+    except IdentificationError as exc:
+        if note := narrowband_note(y, sample_time_s, options.get("valid")):
+            raise IdentificationError(f"{exc}; {note}") from None
+        raise
+
+
 def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
                     options: RealizationOptions, offsets: str = "remove",
                     output_only_method: str = OUTPUT_ONLY_METHODS[0],
@@ -131,13 +147,8 @@ def identify_window(fit: ArxFit, u: np.ndarray, y: np.ndarray, sample_time_s: fl
     IdentificationError, ValueError or numpy.linalg.LinAlgError with the reason.
     """
     if u.shape[1] == 0:
-        try:
-            return identify_output_only(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid,
-                                        max_gap=max_gap)
-        except IdentificationError as exc:
-            if note := narrowband_note(y, sample_time_s, valid):  # the method's assumption broken: say so
-                raise IdentificationError(f"{exc}; {note}") from None
-            raise
+        return output_only_model(y, sample_time_s, method=output_only_method, offsets=offsets, valid=valid,
+                                 max_gap=max_gap)
     return identify_from_arx(fit, u, y, sample_time_s, options=options, offsets=offsets, valid=valid,
                              order_hint=order_hint)
 
