@@ -75,9 +75,12 @@ MAX_SPLITS = 2
 TWIN_DAMPING_FACTOR = 3.0
 #: Two listed modes closer than this many summed half-power half-widths ``zeta1 f1 + zeta2 f2`` whose
 #: shapes read as one (MAC >= :data:`MAC_TOLERANCE`) are a close pair whose weaker pole's eigenvector
-#: took in its partner's (:func:`separate_twin_shapes`). Twin chains, one chain forced (physical
-#: structures 0-59): the six weaker twins listed with the partner's shape stood 0.70-1.24 apart.
+#: took in its partner's (:func:`separate_twin_shapes`) when they also lie within ``TWIN_SHAPE_DISTANCE``
+#: (relative). Twin chains, one chain forced (physical structures 0-59): the six weaker twins listed with
+#: the partner's shape stood 0.70-1.24 widths, 1.0-1.7 % apart; a building's true pair of one shape 8 %
+#: apart (2.9 % and 1.1 % damping: 2 widths) kept its shapes only with the distance.
 TWIN_SHAPE_BAND = 2.0
+TWIN_SHAPE_DISTANCE = 0.02
 
 
 @dataclass
@@ -399,7 +402,8 @@ def separate_twin_shapes(modes: list) -> list:
     ----------
     modes : listed modes (:class:`~okid_ros.core.modal.Mode`: ``frequency_hz``, ``damping_ratio``,
         ``msv`` the strength, ``shape`` unit norm, replaced in place) of two or more outputs; pairs
-        within :data:`TWIN_SHAPE_BAND` summed widths whose shapes' MAC is at least :data:`MAC_TOLERANCE`.
+        within :data:`TWIN_SHAPE_BAND` summed widths and :data:`TWIN_SHAPE_DISTANCE` whose shapes' MAC is at
+        least :data:`MAC_TOLERANCE`.
 
     Returns
     -------
@@ -411,8 +415,9 @@ def separate_twin_shapes(modes: list) -> list:
             continue  # one output: every shape is one shape
         partners = [j for j, strong in enumerate(modes)
                     if j != i and strong.msv > weak.msv and mac(shapes[i], shapes[j]) >= MAC_TOLERANCE
-                    and abs(strong.frequency_hz - weak.frequency_hz) < TWIN_SHAPE_BAND * (
-                        strong.damping_ratio * strong.frequency_hz + weak.damping_ratio * weak.frequency_hz)]
+                    and abs(strong.frequency_hz - weak.frequency_hz) < min(TWIN_SHAPE_BAND * (
+                        strong.damping_ratio * strong.frequency_hz + weak.damping_ratio * weak.frequency_hz),
+                        TWIN_SHAPE_DISTANCE * weak.frequency_hz)]
         if not partners:
             continue
         strong = shapes[min(partners, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))]
