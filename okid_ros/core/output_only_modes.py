@@ -28,7 +28,8 @@ The stabilization diagram without clicks:
    which left no cluster of that mode at all (:func:`_persists_near`).
 
 Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
-the lowest at which every mode has its pole.
+the lowest at which every mode has its pole. Of two close listed modes of one estimated shape the
+weaker is listed with the part of its shape its partner's leaves (:func:`separate_twin_shapes`).
 """
 
 from __future__ import annotations
