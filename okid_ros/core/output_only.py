@@ -69,6 +69,7 @@ from okid_ros.core.output_only_modes import (
     drop_listed_twice,
     lowest_complete_order,
     mark_stable,
+    separate_twin_shapes,
 )
 from okid_ros.core.output_only_support import (
     Jackknife,
@@ -190,7 +191,7 @@ def identify_output_only(
                             block_rows=block_rows, present=present, low_band=low_band, threads=threads,
                             warnings=warnings)
     model = restore_model(model, scales)
-    model.output_offset, model.warnings = offset, warnings
+    model.output_offset, model.warnings, model.modes = offset, warnings, separate_twin_shapes(model.modes)
     return model
 
 
@@ -362,8 +363,7 @@ def _cluster_of(eigenvalue: complex, matched: list[tuple[complex, ModeCluster]])
 
 def _home_order(mode: ModeCluster) -> int:
     """The median order of a cluster's members, where its pole is judged."""
-    orders = sorted(mode.members)
-    return orders[len(orders) // 2]
+    return sorted(mode.members)[len(mode.members) // 2]
 
 
 def _scattered(f_std: float, z_std: float, frequency_hz: float, damping_ratio: float) -> bool:
