@@ -58,6 +58,7 @@ __all__ = [
     "mac",
     "mpc",
     "match_modes",
+    "phase_reference_row",
     "response_dominance",
 ]
 
@@ -156,7 +157,8 @@ def mac(a: np.ndarray, b: np.ndarray) -> float:
     return float(abs(np.vdot(a, b)) ** 2 / den)
 
 
-def _reference_row(c_psi: np.ndarray) -> int:
+def phase_reference_row(c_psi: np.ndarray) -> int:
+    """The row a shape ``c_psi`` (p,) is made real at: the first whose magnitude is at least a tenth of the largest."""
     mags = np.abs(c_psi)
     if mags[0] >= 0.1 * mags.max():
         return 0
@@ -323,7 +325,7 @@ def _normalized_shape(psi_i: np.ndarray, shape: np.ndarray, C: np.ndarray) -> tu
 
     ``shape`` is ``C psi_i`` as computed with the other eigenvectors (the same rounding).
     """
-    rot = np.exp(-1j * np.angle(shape[_reference_row(shape)]))
+    rot = np.exp(-1j * np.angle(shape[phase_reference_row(shape)]))
     vec = psi_i * rot
     cn = np.linalg.norm(C @ np.column_stack([vec.real, vec.imag]))
     vec = vec / cn if cn > 0 else vec

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.cluster import hierarchy
 from scipy.spatial.distance import squareform
 
-from okid_ros.core.modal import _reference_row, mac, modes_listed_once, mpc
+from okid_ros.core.modal import mac, modes_listed_once, mpc, phase_reference_row
 
 __all__ = ["PoleSet", "ModeCluster", "collect_poles", "mark_stable", "cluster_modes", "lowest_complete_order",
            "drop_listed_twice", "separate_twin_shapes"]
@@ -426,5 +426,5 @@ def separate_twin_shapes(modes: list) -> list:
         if not np.linalg.norm(own) > np.sqrt(np.finfo(float).eps):
             continue  # nothing of its own to tell (one shape to rounding)
         own = own / np.linalg.norm(own)
-        weak.shape = own * np.exp(-1j * np.angle(own[_reference_row(own)]))
+        weak.shape = own * np.exp(-1j * np.angle(own[phase_reference_row(own)]))
     return modes

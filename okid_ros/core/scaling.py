@@ -31,7 +31,7 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.channels import ChannelScales, channel_scales, channel_spread
 from okid_ros.core.excitation import LiveInputs, excitation_warnings, output_problem
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
-from okid_ros.core.modal import _reference_row
+from okid_ros.core.modal import phase_reference_row
 from okid_ros.core.output_spikes import MAD_TO_STD
 
 __all__ = ["IdentificationFrame", "covariance_range_problem", "restore_model"]
@@ -132,7 +132,7 @@ def _normalize_mode_blocks(model: IdentifiedModel) -> IdentifiedModel:
         if not norm > 0:
             modes.append(mode)
             continue
-        g = np.exp(-1j * np.angle(shape[_reference_row(shape)])) / norm
+        g = np.exp(-1j * np.angle(shape[phase_reference_row(shape)])) / norm
         transform[i:i + 2, i:i + 2] = [[g.real, g.imag], [-g.imag, g.real]]
         modes.append(replace(mode, shape=shape * g))
     inverse = np.linalg.inv(transform)
