@@ -13,7 +13,8 @@ with the full-rate window; damping within 30 % on 20 of 20 seeds against 13).
 The lags are sized for the slowest mode: modes up to :data:`SLOWEST_FACTOR` times its
 frequency (and below :data:`BAND_FRACTION` of the decimated Nyquist frequency, the
 anti-aliasing filter's flat band) that the decimated identification finds again within
-:data:`MATCH_TOLERANCE` take its frequency, damping and standard deviations (a mode at twice
+:data:`MATCH_TOLERANCE` take its frequency, damping and standard deviations where its jackknife
+frequency standard deviation is the smaller of the two (a mode at twice
 the slowest one's frequency lost accuracy there: damping within 30 % on 18 of 20 seeds against
 20 at the full rate); their shapes and
 the model stay those of the full-rate identification (``extras["full_rate_frequency_hz"]`` and
@@ -91,6 +92,8 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
         if abs(found[j] / mode.frequency_hz - 1) > MATCH_TOLERANCE:
             continue
         better = decimated[j]
+        if better["frequency_hz_std"] >= mode.frequency_hz_std:
+            continue  # the longer lags did not pin this mode down better: the full-rate estimate stands
         mode.extras.update(full_rate_frequency_hz=mode.frequency_hz, full_rate_damping_ratio=mode.damping_ratio,
                            decimation=factor, block_rows=block_rows)
         mode.frequency_hz, mode.frequency_rad_s = better["frequency_hz"], 2 * np.pi * better["frequency_hz"]
