@@ -1,0 +1,42 @@
+"""The decimated band's frequency replaces a slow mode's full-rate one only where it is the more certain.
+
+Random records 82, 91 and 38 of ``bench/output_only.py --cases random`` (ssi-cva) lost a slow mode
+found within 0.5 % at the full rate to a decimated estimate 0.56-0.63 % off with a larger
+jackknife frequency standard deviation (docs/benchmarks-output-only.md, forty-third session).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from okid_bench.output_only_cases import random_case
+from okid_ros.core.modal import Mode
+from okid_ros.core.output_only import identify_output_only
+from okid_ros.core.output_only_low_band import refine_low_modes
+
+
+@pytest.mark.parametrize(("decimated_std", "frequency_replaced"), [(0.5e-3, True), (2e-3, False)])
+def test_a_slow_mode_takes_the_decimated_frequency_only_with_a_smaller_std_and_its_damping_always(
+        decimated_std: float, frequency_replaced: bool) -> None:
+    y = np.random.default_rng(0).standard_normal((20000, 2))
+    mode = Mode(2 * np.pi, 1.0, 0.02, 0.99 + 0.06j, np.ones(2, complex) / np.sqrt(2), 1.0, 1.0, 1.0, True, True,
+                frequency_hz_std=1e-3, damping_ratio_std=2e-3)
+    decimated = {"frequency_hz": 1.004, "damping_ratio": 0.025, "frequency_hz_std": decimated_std,
+                 "damping_ratio_std": 1e-3}
+    refine_low_modes(SimpleNamespace(modes=[mode]), y, 0.01, lambda low, dt, rows: [decimated])
+    frequency = (1.004, decimated_std) if frequency_replaced else (1.0, 1e-3)
+    assert (mode.frequency_hz, mode.frequency_hz_std, mode.frequency_rad_s) == (*frequency, 2 * np.pi * frequency[0])
+    assert (mode.damping_ratio, mode.damping_ratio_std) == (0.025, 1e-3)
+    assert (mode.extras["full_rate_frequency_hz"], mode.extras["full_rate_damping_ratio"]) == (1.0, 0.02)
+
+
+@pytest.mark.parametrize("index", [38, 82])
+def test_a_slow_mode_found_at_the_full_rate_is_kept(index: int) -> None:
+    case = random_case(index)
+    model = identify_output_only(case.simulate(index), case.sample_time_s, method="ssi-cva")
+    listed = np.array([m.frequency_hz for m in model.modes])
+    for true in case.truth():
+        assert np.min(np.abs(listed / true["frequency_hz"] - 1)) <= 0.005, f"{true['frequency_hz']:.3f} Hz missed"
