@@ -46,9 +46,9 @@ PEAK_PROMINENCE_DECADES = 0.3
 MIN_PEAK_PERIODS = 100.0
 #: The canonical-variate route's weighted Hankel (``n_references i`` square) is at most this size:
 #: its weights whiten the past and the future, so it needs fewer lags than the unweighted Hankel
-#: for the same modes, and each of its decompositions costs ``(n_references i)^3``. The slender
-#: beams' one period of the slowest mode asked for 1100-1900 and kept every mode and its accuracy
-#: at 1000; at 600 a beam mode's damping left 30 % (docs/benchmarks-output-only.md, forty-third session).
+#: for the same modes, and each of its decompositions costs ``(n_references i)^3``. The bound keeps
+#: a margin over the smallest that lost accuracy on the bench's beams (docs/benchmarks-output-only.md,
+#: forty-third session).
 MAX_WEIGHTED_HANKEL = 1000
 
 
