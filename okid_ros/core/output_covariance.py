@@ -44,6 +44,12 @@ PEAK_PROMINENCE_DECADES = 0.3
 #: sets the rows to that cap (the steel subframe's 7 Hz hump, 58 periods in its 8.3 s: 71 rows
 #: where its lowest mode, 62 Hz, wants 17).
 MIN_PEAK_PERIODS = 100.0
+#: The canonical-variate route's weighted Hankel (``n_references i`` square) is at most this size:
+#: its weights whiten the past and the future, so it needs fewer lags than the unweighted Hankel
+#: for the same modes, and each of its decompositions costs ``(n_references i)^3``. The bound keeps
+#: a margin over the smallest that lost accuracy on the bench's beams (docs/benchmarks-output-only.md,
+#: forty-third session).
+MAX_WEIGHTED_HANKEL = 1000
 
 
 @dataclass
@@ -202,7 +208,8 @@ def slowest_mode_hz(y: np.ndarray, sample_time_s: float, *, held_peaks_only: boo
 
 
 def choose_block_rows(
-    y: np.ndarray, sample_time_s: float, *, n_references: int, max_states: int, held_peaks_only: bool = False
+    y: np.ndarray, sample_time_s: float, *, n_references: int, max_states: int, held_peaks_only: bool = False,
+    weighted: bool = False
 ) -> tuple[int, float]:
     """Hankel block rows ``i`` (lags 1 .. 2 i) from the data, and the slowest mode found (Hz).
 
@@ -219,6 +226,9 @@ def choose_block_rows(
     jackknife). ``held_peaks_only`` (:func:`slowest_mode_hz`): a peak the record cannot hold does
     not set the rows, the next one does (the canonical-variate route's rule: measured, it wants
     the lags of the modes rather than the record's cap; the covariance route loses with it).
+    ``weighted`` (the canonical-variate route): the Hankel is at most :data:`MAX_WEIGHTED_HANKEL`
+    square as well (``n_references i``), a bound that wins over the slowest mode's period but not
+    over the orders.
     """
     n, p = y.shape
     f_low = slowest_mode_hz(y, sample_time_s, held_peaks_only=held_peaks_only)
@@ -226,6 +236,8 @@ def choose_block_rows(
     wanted = PERIODS_PER_BLOCK_ROWS * fs / f_low if np.isfinite(f_low) and f_low > 0 else 40.0
     needed = int(np.ceil((max_states + 2) / max(n_references, 1))) + 1
     cap = int(min(MAX_LAG_FRACTION_OF_SEGMENT * n / 5 / 2, 2000 // p))
+    if weighted:
+        wanted = min(wanted, MAX_WEIGHTED_HANKEL // max(n_references, 1))
     rows = int(min(max(np.ceil(wanted), needed), cap))
     return max(rows, 2), f_low
 

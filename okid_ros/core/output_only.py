@@ -247,7 +247,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     filled in gaps, left out of the correlations (the VAR route fits the filled record).
     """
     references = reference_channels(y, MAX_REFERENCES)
-    block_rows = _block_rows(y, sample_time_s, references, top, block_rows, held_peaks_only=method == "ssi-cva")
+    block_rows = _block_rows(y, sample_time_s, references, top, block_rows, canonical=method == "ssi-cva")
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS, present=present)
     r_mean = correlations.mean
     var = None
@@ -295,11 +295,11 @@ def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
 
 
 def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None,
-                *, held_peaks_only: bool) -> int:
+                *, canonical: bool) -> int:
     """The Hankel block rows asked for, or chosen from the data; IdentificationError if they do not fit."""
     if block_rows is None:
         block_rows, _ = choose_block_rows(y, sample_time_s, n_references=references.size, max_states=top,
-                                          held_peaks_only=held_peaks_only)
+                                          held_peaks_only=canonical, weighted=canonical)
     block_rows, n_samples = int(block_rows), y.shape[0]
     if block_rows < 2 or 2 * block_rows + 1 > n_samples // 4:
         raise IdentificationError(f"{block_rows} Hankel block rows do not fit a record of {n_samples} samples")

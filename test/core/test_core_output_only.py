@@ -12,7 +12,12 @@ from scipy import linalg
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.era import block_hankel
 from okid_ros.core.identified_model import IdentificationError
-from okid_ros.core.output_covariance import choose_block_rows, output_correlations, reference_channels
+from okid_ros.core.output_covariance import (
+    MAX_WEIGHTED_HANKEL,
+    choose_block_rows,
+    output_correlations,
+    reference_channels,
+)
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_modes import collect_poles
 from okid_ros.core.stochastic_realization import (
@@ -412,6 +417,23 @@ def test_a_low_hump_the_record_cannot_hold_does_not_set_the_block_rows(seed: int
     rows, slowest_hz = _rows_and_slowest(with_hump, 0.02)
     assert abs(slowest_hz / 3.0 - 1) < 0.02
     assert rows == _rows_and_slowest(y, 0.02)[0]
+
+
+def test_a_slender_beams_weighted_hankel_stays_within_its_bound_and_keeps_its_modes() -> None:
+    # Twelve sensors and a slow first mode (200 samples a period): a period of it asked for 200
+    # rows, cut to 2000 // 12 = 166, a 1992-square weighted Hankel decomposed 14 times per call.
+    # The canonical-variate route stops at MAX_WEIGHTED_HANKEL and finds the modes; the
+    # covariance route keeps its rows.
+    system = modal_structure([1.0, 4.0, 9.0, 16.0], 0.02, 1, 12, 0.005, seed=3)
+    y = simulate_noisy(system, np.zeros((30000, 1)), seed=4)
+    y = y - y.mean(axis=0)
+    references = reference_channels(y, 12).size
+    rows, _ = choose_block_rows(y, 0.005, n_references=references, max_states=100, held_peaks_only=True,
+                                weighted=True)
+    assert references == 12 and rows == MAX_WEIGHTED_HANKEL // references
+    assert choose_block_rows(y, 0.005, n_references=references, max_states=100)[0] == 2000 // 12
+    found = np.array([m.frequency_hz for m in identify_output_only(y, 0.005, method="ssi-cva").modes])
+    assert all(np.min(np.abs(found / f - 1)) < 0.01 for f in (1.0, 4.0, 9.0, 16.0)), found
 
 
 def test_the_subframe_block_rows_span_a_period_of_its_lowest_mode() -> None:
