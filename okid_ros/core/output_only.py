@@ -80,6 +80,7 @@ from okid_ros.core.output_only_support import (
 )
 from okid_ros.core.output_only_var import (
     MAX_GAIN_VAR_COEFFICIENTS,
+    VAR_ROUTE_WARNING,
     VarCovarianceModel,
     gain_from_var,
     var_markov,
@@ -179,7 +180,7 @@ def identify_output_only(
     y = y / scales.output
     check_channel_sizes(y)
     y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
-    warnings += removed
+    warnings += removed + ([VAR_ROUTE_WARNING] if method == "var" else [])
     with WorkerThreads(workers) as threads:
         model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                             block_rows=block_rows, present=present, low_band=low_band, threads=threads,

@@ -30,7 +30,8 @@ from okid_ros.core.stochastic_realization import (
     stochastic_markov_from_var,
 )
 
-__all__ = ["MAX_GAIN_VAR_COEFFICIENTS", "VarCovarianceModel", "gain_from_var", "var_markov", "var_replicates"]
+__all__ = ["MAX_GAIN_VAR_COEFFICIENTS", "VAR_ROUTE_WARNING", "VarCovarianceModel", "gain_from_var", "var_markov",
+           "var_replicates"]
 
 #: The VAR of the route keeps at most this many coefficients per output (and N / 10).
 MAX_VAR_COEFFICIENTS = 1500
@@ -38,6 +39,13 @@ MAX_VAR_COEFFICIENTS = 1500
 #: predictor's Markov parameters decay at the predictor's rate (4 outputs, 60000 samples: 15 s at
 #: q = 250, 1 s at q = 50).
 MAX_GAIN_VAR_COEFFICIENTS = 200
+
+#: Every model of the route says what it lacks: screened as the SSI routes' modes are, its poles
+#: scatter more across the jackknife's replicates, so more true modes are dropped (docs/benchmarks-output-only.md,
+#: forty-third session), and the modes far below the sampling rate are not re-estimated.
+VAR_ROUTE_WARNING = ("method 'var' (the paper's VAR route): its pole estimates scatter more than the SSI routes', so "
+                     "the noise screening drops more true modes (on simulated records it finds fewer and damps them "
+                     "worse), and the slowest modes are not re-estimated from the decimated record; prefer 'ssi-cva'")
 
 
 def _var_order(y: np.ndarray, block_rows: int, max_coefficients: int) -> int:

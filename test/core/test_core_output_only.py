@@ -402,6 +402,7 @@ def test_the_var_route_lists_no_noise_poles_on_a_clean_record() -> None:
         found = np.array([m.frequency_hz for m in model.modes])
         assert found.size and all(np.min(np.abs(f / np.array([3.0, 7.0, 12.0]) - 1)) < 0.02 for f in found), found
         assert model.uncertainty.method == "jackknife"
+        assert any("method 'var'" in w and "drops more true modes" in w for w in model.warnings)
 
 
 def _rows_and_slowest(y: np.ndarray, sample_time_s: float, *, held_peaks_only: bool = True) -> tuple[int, float]:
