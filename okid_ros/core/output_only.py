@@ -16,17 +16,19 @@ Steps (one module each):
 2. ``method="ssi-cva"`` (default): the record's correlations, the block Hankel weighted by the
    covariances' Cholesky factors, ERA (:mod:`.canonical_realization`); ``"ssi-cov"``: unweighted
    (:mod:`.stochastic_realization`); ``"var"``: a vector AR's stochastic Markov parameters
-   ``C A^(k-1) A K`` realized by the same ERA (the paper's route);
+   ``C A^(k-1) A K`` realized by the same ERA (the paper's route, :mod:`.output_only_var`; every
+   such model carries a warning of what the route lacks);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
-4. (ssi-cva, ssi-cov) each candidate mode re-identified with each segment of the record left out
-   (jackknife): a mode whose frequency scatters by more than its half-power half-width
-   ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
-   that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
+4. each candidate mode re-identified with each segment of the record left out (jackknife; the
+   var route's VAR refitted without the segment, its spectral share read with ``G`` fitted to the
+   record's correlations, :mod:`.output_only_var`): a mode whose frequency scatters by more than
+   its half-power half-width ``zeta f`` or whose damping scatters by more than itself is noise
+   and dropped, and so is one that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
    frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
-   are the modes' (the clusters' spread for ``var``; ssi-cva drops one listed beyond the limits);
+   are the modes' (ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
 6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
@@ -117,6 +119,7 @@ MIN_SPECTRAL_DOMINANCE = 0.4
 #: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
 #: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles that passed
 #: the limits above scattered at least 1.8 (ssi-cov) and 1.3 (ssi-cva) times more (docs/benchmarks-output-only.md).
+#: The var route takes the stricter of the two (not measured on its own noise poles).
 STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3, "var": 0.2}
 STEADY_DAMPING_CV = 0.3
 
