@@ -16,17 +16,19 @@ Steps (one module each):
 2. ``method="ssi-cva"`` (default): the record's correlations, the block Hankel weighted by the
    covariances' Cholesky factors, ERA (:mod:`.canonical_realization`); ``"ssi-cov"``: unweighted
    (:mod:`.stochastic_realization`); ``"var"``: a vector AR's stochastic Markov parameters
-   ``C A^(k-1) A K`` realized by the same ERA (the paper's route);
+   ``C A^(k-1) A K`` realized by the same ERA (the paper's route, :mod:`.output_only_var`; every
+   such model carries a warning of what the route lacks);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
-4. (ssi-cva, ssi-cov) each candidate mode re-identified with each segment of the record left out
-   (jackknife): a mode whose frequency scatters by more than its half-power half-width
-   ``zeta f`` or whose damping scatters by more than itself is noise and dropped, and so is one
-   that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
+4. each candidate mode re-identified with each segment of the record left out (jackknife; the
+   var route's VAR refitted without the segment, its spectral share read with ``G`` fitted to the
+   record's correlations, :mod:`.output_only_var`): a mode whose frequency scatters by more than
+   its half-power half-width ``zeta f`` or whose damping scatters by more than itself is noise
+   and dropped, and so is one that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
    frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
-   are the modes' (the clusters' spread for ``var``; ssi-cva drops one listed beyond the limits);
+   are the modes' (ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
 6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
@@ -41,13 +43,11 @@ from functools import partial
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.arx_gram import arx_regressor_product
 from okid_ros.core.canonical_realization import canonical_decomposition, canonical_replicates
 from okid_ros.core.channels import group_scales
 from okid_ros.core.era import decompose_hankel
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
-from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.modal import modal_form
 from okid_ros.core.mode_jackknife import SPARE_COLUMNS
 from okid_ros.core.options import OUTPUT_ONLY_METHODS, ModeCriteria
@@ -81,15 +81,19 @@ from okid_ros.core.output_only_support import (
     prepare_outputs,
     spectral_dominance,
 )
+from okid_ros.core.output_only_var import (
+    MAX_GAIN_VAR_COEFFICIENTS,
+    VAR_ROUTE_WARNING,
+    VarCovarianceModel,
+    gain_from_var,
+    var_markov,
+    var_replicates,
+)
 from okid_ros.core.scaling import restore_model
-from okid_ros.core.statespace import simulate
 from okid_ros.core.stochastic_realization import (
     OrderRealizer,
     covariance_decomposition,
-    fit_var,
     forward_innovation,
-    gain_from_markov,
-    stochastic_markov_from_var,
 )
 from okid_ros.core.uncertainty import UncertaintyResult
 from okid_ros.core.worker_threads import SERIAL, WorkerThreads
@@ -103,12 +107,6 @@ DEFAULT_MAX_STATES = 100
 MAX_DAMPING = 0.1
 #: Segments of the record for the correlations' jackknife.
 N_SEGMENTS = 8
-#: The VAR of route (a) keeps at most this many coefficients per output (and N / 10).
-MAX_VAR_COEFFICIENTS = 1500
-#: The VAR that only supplies a gain (no modes) is kept smaller: its cost is N (q p)^2 and the
-#: predictor's Markov parameters decay at the predictor's rate (4 outputs, 60000 samples: 15 s at
-#: q = 250, 1 s at q = 50).
-MAX_GAIN_VAR_COEFFICIENTS = 200
 #: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
 #: std this times ``zeta`` (structural modes: up to 0.9 and 1.0 on the simulated cases and the
 #: subframe; noise poles 1-20, nearly always caught by the frequency).
@@ -122,7 +120,8 @@ MIN_SPECTRAL_DOMINANCE = 0.4
 #: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
 #: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles that passed
 #: the limits above scattered at least 1.8 (ssi-cov) and 1.3 (ssi-cva) times more (docs/benchmarks-output-only.md).
-STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3}
+#: The var route takes the stricter of the two (not measured on its own noise poles).
+STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3, "var": 0.2}
 STEADY_DAMPING_CV = 0.3
 
 
@@ -185,7 +184,7 @@ def identify_output_only(
     y = y / scales.output
     check_channel_sizes(y)
     y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
-    warnings += removed
+    warnings += removed + ([VAR_ROUTE_WARNING] if method == "var" else [])
     with WorkerThreads(workers) as threads:
         model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                             block_rows=block_rows, present=present, low_band=low_band, threads=threads,
@@ -202,7 +201,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
                            threads=threads)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
-    if var is None and chosen.jackknife is None:
+    if chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
         warnings.append(f"the record holds fewer than 3 segments of {segment:.0f} samples ({chosen.block_rows} "
                         f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
@@ -211,13 +210,13 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     if var is None:
         L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
     else:
-        L, Re, gain_method = _gain_from_var(A, C, y, *var)
+        L, Re, gain_method = gain_from_var(A, C, y, *var)
     matched = match_clusters(modes, poles, n_model)
     model = _package(A, C, L, Re, matched, sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
-    if low_band and chosen.jackknife is not None:
+    if low_band and var is None and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
     return model
@@ -257,16 +256,19 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
         record = RecordSums.of(y, 2 * block_rows, present)
         decomposition = canonical_decomposition(record.correlations, references, block_rows, top)
     else:
-        var = _var_markov(y, block_rows)
+        var = var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = _usable_order(top, decomposition.max_states)
     jackknife = None
-    if var is None and correlations.segments.shape[0] >= 3:  # its replicates made beside the diagram
-        replicates = canonical_replicates(record, correlations, references, block_rows, top) \
-            if method == "ssi-cva" else None
-        jackknife = Jackknife(correlations, references, block_rows, top, start=decomposition.basis, threads=threads,
-                              decompose=replicates)
+    n_segments = correlations.segments.shape[0]
+    if n_segments >= 3:  # its replicates made beside the diagram
+        replicates = {"ssi-cva": lambda: canonical_replicates(record, correlations, references, block_rows, top),
+                      "var": lambda: var_replicates(y, block_rows, n_segments, top)}.get(method, lambda: None)()
+        jackknife = Jackknife(correlations, references, block_rows, top, threads=threads, decompose=replicates,
+                              start=None if var is not None else decomposition.basis)
     realizer = OrderRealizer(decomposition, top)
+    # The spectral share reads a covariance model: the VAR route's A, C with G from the record's correlations.
+    spectrum = realizer if var is None else VarCovarianceModel(realizer, r_mean, references, block_rows)
     realizer.decompose_orders(range(2, top + 1, 2), threads)
     poles = collect_poles(realizer.realize, range(2, top + 1, 2), sample_time_s,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s, eigen=realizer.eigen)
@@ -275,7 +277,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     if jackknife is not None:
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
                                   steady_width=STEADY_FREQUENCY_STD_PER_WIDTH[method],
-                                  dominance=partial(spectral_dominance, realizer, r0=r_mean[0], references=references))
+                                  dominance=partial(spectral_dominance, spectrum, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
@@ -422,14 +424,6 @@ def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.nd
     return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
 
 
-def _var_markov(y: np.ndarray, block_rows: int, max_coefficients: int = MAX_VAR_COEFFICIENTS):
-    """A VAR over the lag window (``max_coefficients`` per output, N / 10 at most), its stochastic Markov parameters."""
-    budget = min(max_coefficients, y.shape[0] // 10)
-    order = int(max(2, min(2 * block_rows, budget // y.shape[1])))
-    var = fit_var(y, order)
-    return var, stochastic_markov_from_var(var, 2 * block_rows + 1)
-
-
 def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     """``L``, ``Re`` of the forward innovation model at this order, and how they were obtained.
 
@@ -444,30 +438,7 @@ def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
     solved = forward_innovation(A, C, G, correlations[0])
     if solved is not None:
         return solved[0], solved[1], "riccati"
-    return _gain_from_var(A, C, y, *_var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
-
-
-def _gain_from_var(A, C, y, var, markov):
-    """``L``, ``Re`` from a VAR of the record.
-
-    Fitted to its stochastic Markov parameters, or if that predictor is unstable, the Kalman
-    gain of the noise covariances of a state sequence.
-    """
-    L = gain_from_markov(A, C, markov)
-    if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
-        return L, var.residual_covariance, "var-markov"
-    # States driven by the VAR's innovations through the stable A (x+ = A x + L e), the noise
-    # covariances of their residuals and the Kalman gain of the filtering Riccati equation,
-    # stable by construction (as :mod:`.state_completion`).
-    targets = y[var.order :]
-    drive = (targets - arx_regressor_product(np.zeros((y.shape[0], 0)), y, var.order, var.theta)) @ L.T
-    n = A.shape[0]
-    states = simulate(A, np.eye(n), np.eye(n), np.zeros((n, n)), drive)  # x_0 = 0
-    try:
-        L, Re = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
-    except ValueError as exc:
-        raise IdentificationError(f"no stable innovation model: {exc}") from None
-    return L, Re, "riccati-residuals"
+    return gain_from_var(A, C, y, *var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
 
 
 def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time_s: float, *,

@@ -207,11 +207,9 @@ def test_the_var_route_gives_an_output_only_model_too():
     assert pipe.updates and all(line["n_inputs"] == 0 for line in pipe.updates)
     f_true = [f for f, _ in true_modes(system)]
     found = [m["frequency_hz"] for m in pipe.updates[-1]["modes"]]
-    # The route's known weakness (the next test): a model of it may miss one mode or list a noise
-    # pole beside one (11.1 Hz beside 12 Hz, seen on one machine's rounding); two of the three
-    # true modes it places within 2 %.
-    near = [t for t in f_true if found and min(abs(f / t - 1) for f in found) < 0.02]
-    assert len(near) >= 2, found
+    # The route's known weakness (its models' warning): screened as the SSI routes' are, its scattered
+    # poles are dropped, true modes among them (3 and 7 Hz here); what it lists is within 2 % of a true mode.
+    assert found and all(min(abs(f / t - 1) for t in f_true) < 0.02 for f in found), found
     assert results[-1] is not None
 
 
