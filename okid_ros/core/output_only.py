@@ -71,6 +71,7 @@ from okid_ros.core.output_only_modes import (
     mark_stable,
     separate_twin_shapes,
 )
+from okid_ros.core.output_only_routes import ROUTES
 from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
@@ -83,7 +84,6 @@ from okid_ros.core.output_only_support import (
 )
 from okid_ros.core.output_only_var import (
     MAX_GAIN_VAR_COEFFICIENTS,
-    VAR_ROUTE_WARNING,
     VarCovarianceModel,
     gain_from_var,
     var_markov,
@@ -116,12 +116,8 @@ MAX_DAMPING_CV = 1.5
 #: shape (:func:`.output_only_support.spectral_dominance`; modes 0.57-1.1, noise poles below 0.2
 #: on 80 simulated records, the koma frame and the subframe).
 MIN_SPECTRAL_DOMINANCE = 0.4
-#: A candidate whose jackknife scatter is below both of these (times ``zeta f`` and ``zeta``)
-#: needs no spectral share: a weak mode beside a strong one of nearly its shape (two outputs,
-#: 9.65 Hz at 1.7 % under 9.51 Hz at 0.45 %) has almost none but a steady pole. Noise poles that passed
-#: the limits above scattered at least 1.8 (ssi-cov) and 1.3 (ssi-cva) times more (docs/benchmarks-output-only.md).
-#: The var route takes the stricter of the two (not measured on its own noise poles).
-STEADY_FREQUENCY_STD_PER_WIDTH = {"ssi-cov": 0.2, "ssi-cva": 0.3, "var": 0.2}
+#: A candidate whose jackknife damping scatter is below this times ``zeta`` (and its frequency's below
+#: its route's ``steady_frequency_std_per_width``, :mod:`.output_only_routes`) needs no spectral share.
 STEADY_DAMPING_CV = 0.3
 
 
@@ -184,7 +180,7 @@ def identify_output_only(
     y = y / scales.output
     check_channel_sizes(y)
     y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
-    warnings += removed + ([VAR_ROUTE_WARNING] if method == "var" else [])
+    warnings += removed + [ROUTES[method].warning] * bool(ROUTES[method].warning)
     with WorkerThreads(workers) as threads:
         model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                             block_rows=block_rows, present=present, low_band=low_band, threads=threads,
@@ -216,7 +212,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
-    if low_band and var is None and chosen.jackknife is not None:
+    if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
     return model
@@ -246,7 +242,8 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     filled in gaps, left out of the correlations (the VAR route fits the filled record).
     """
     references = reference_channels(y, MAX_REFERENCES)
-    block_rows = _block_rows(y, sample_time_s, references, top, block_rows, canonical=method == "ssi-cva")
+    route = ROUTES[method]
+    block_rows = _block_rows(y, sample_time_s, references, top, block_rows, canonical=route.canonical_lags)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS, present=present)
     r_mean = correlations.mean
     var = None
@@ -276,7 +273,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     modes, _ = cluster_modes(poles, keep_rejected=False)
     if jackknife is not None:
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
-                                  steady_width=STEADY_FREQUENCY_STD_PER_WIDTH[method],
+                                  steady_width=route.steady_frequency_std_per_width,
                                   dominance=partial(spectral_dominance, spectrum, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
@@ -328,7 +325,8 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
-    model.modes = listed_within_limits(model.modes, _scattered, method=model.method)
+    if ROUTES[model.method].screens_listed_std:
+        model.modes = listed_within_limits(model.modes, _scattered)
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
@@ -384,7 +382,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     the families split from one cluster (``group``: nearly one frequency and one shape, a mode
     and the noise pole beside it) the one that passes with the largest share is kept; ``once``:
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
-    ``steady_width``: the route's :data:`STEADY_FREQUENCY_STD_PER_WIDTH`.
+    ``steady_width``: the route's :attr:`.output_only_routes.OutputOnlyRoute.steady_frequency_std_per_width`.
     """
     best: dict[int, tuple[float, ModeCluster]] = {}
     for mode in modes:

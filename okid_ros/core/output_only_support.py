@@ -27,10 +27,6 @@ __all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknif
 
 #: Fewest samples per output channel and per Hankel lag worth identifying from.
 MIN_SAMPLES = 200
-#: Routes whose listed modes are screened again by their own standard deviations (at the model order, or
-#: at the home order where it lost them): under ssi-cva a one-channel noise pole passed the screening and
-#: listed a std of 16.6 widths ``zeta f``; 1065 true modes of the bench records at most 1 (docs, forty-second session).
-STD_SCREENED_METHODS = ("ssi-cva",)
 
 
 def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_gap: int = MAX_GAP_SAMPLES
@@ -88,13 +84,12 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_ga
     return y - mean, valid, mean, warnings
 
 
-def listed_within_limits(modes: list[Mode], scattered, *, method: str) -> list[Mode]:
+def listed_within_limits(modes: list[Mode], scattered) -> list[Mode]:
     """The modes whose standard deviations ``scattered(f_std, z_std, f, zeta)`` takes for no noise, renumbered.
 
-    Only for :data:`STD_SCREENED_METHODS`; the others' modes are returned as they are.
+    The standard deviations are those listed (at the model order, or at the home order where it
+    lost the mode's pole).
     """
-    if method not in STD_SCREENED_METHODS:
-        return modes
     kept = [m for m in modes if not scattered(m.frequency_hz_std, m.damping_ratio_std, m.frequency_hz, m.damping_ratio)]
     for i, mode in enumerate(kept):
         mode.id = i

@@ -109,7 +109,7 @@ def test_a_cluster_with_two_poles_per_order_is_two_modes() -> None:
 
 
 def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
-    from okid_ros.core.output_only import STEADY_FREQUENCY_STD_PER_WIDTH, _drop_noise_modes
+    from okid_ros.core.output_only import ROUTES, _drop_noise_modes
     from okid_ros.core.output_only_modes import cluster_modes
 
     poles = _twin_poles()
@@ -123,7 +123,7 @@ def test_of_a_modes_twins_the_one_that_dominates_the_spectrum_is_kept() -> None:
         return 0.8 if abs(np.log(pole)) / (2 * np.pi * 1e-3) < 187.6 else 0.6
 
     kept = _drop_noise_modes(modes, poles, Quiet(), 1e-3, dominance=share, once=False,
-                             steady_width=STEADY_FREQUENCY_STD_PER_WIDTH["ssi-cov"])
+                             steady_width=ROUTES["ssi-cov"].steady_frequency_std_per_width)
     assert [round(m.frequency_hz, 1) for m in kept] == [187.0]
 
 
@@ -166,7 +166,7 @@ def test_a_weak_mode_beside_a_strong_one_of_its_shape_is_found(method: str) -> N
     The weak modes' poles are steady (jackknife scatter 0.06-0.09 of their width) but their share
     of the spectrum along their shape is ~0: the strong neighbour owns it. They were dropped as
     noise; a steady pole is kept whatever its share. Under ssi-cva the 49.5 Hz pole scatters 0.27
-    width, steady by that route's limit (``STEADY_FREQUENCY_STD_PER_WIDTH``).
+    width, steady by that route's limit (``ROUTES["ssi-cva"].steady_frequency_std_per_width``).
     """
     from okid_bench.output_only_cases import random_case
 
