@@ -259,8 +259,11 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     jackknife = None
     n_segments = correlations.segments.shape[0]
     if n_segments >= 3:  # its replicates made beside the diagram
-        replicates = {"ssi-cva": lambda: canonical_replicates(record, correlations, references, block_rows, top),
-                      "var": lambda: var_replicates(y, block_rows, n_segments, top)}.get(method, lambda: None)()
+        replicates = None  # ssi-cov: the Jackknife's own, from the correlations' segments
+        if method == "ssi-cva":
+            replicates = canonical_replicates(record, correlations, references, block_rows, top)
+        elif var is not None:
+            replicates = var_replicates(y, block_rows, n_segments, top)
         jackknife = Jackknife(correlations, references, block_rows, top, threads=threads, decompose=replicates,
                               start=None if var is not None else decomposition.basis)
     realizer = OrderRealizer(decomposition, top)
