@@ -18,7 +18,9 @@ Records:
 * ``physical`` (idem): ``--seeds`` physical structures drawn at random
   (:func:`okid_bench.physical_cases.physical_case`: shear buildings, coupled chains with close
   pairs, beams; forces at 1-3 points), scored by family; a mode the record does not show is
-  neither found nor missed, nor spurious when listed.
+  neither found nor missed, nor spurious when listed;
+* ``koma-frame`` (idem): the koma frame's own recipe with ``--seeds`` noise seeds
+  (:func:`okid_bench.physical_cases.koma_frame_case`), scored against its discrete modes.
 
 Every method gets the centred record; the peers get the Hankel block rows okid_ros chooses from
 the data and orders 2..``--max-order`` (step 2): ``bench/output_only_peers.py``. A true mode is
@@ -37,6 +39,7 @@ Usage::
     python bench/output_only.py --records koma,subframe --cases none
     python bench/output_only.py --records none --cases random --seeds 120 --methods okid-ssi-cov,koma
     python bench/output_only.py --records none --cases physical --seeds 36 --methods okid-ssi-cov,koma
+    python bench/output_only.py --records koma --cases koma-frame --seeds 100 --methods okid-ssi-cva
     python bench/output_only.py --out /tmp/oo.md [--force]
 """
 
@@ -53,7 +56,7 @@ import numpy as np
 from output_only_peers import METHODS, run_method
 
 from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, random_case, score_modes
-from okid_bench.physical_cases import physical_case
+from okid_bench.physical_cases import KOMA_FRAME, koma_frame_case, physical_case
 from okid_bench.report import add_output_options, refuse_existing, write_output
 from okid_ros.core.output_covariance import choose_block_rows, reference_channels
 
@@ -94,7 +97,10 @@ def _runs(args):
                 case = physical_case(seed)
                 yield case.family, seed, case.simulate(seed), case.sample_time_s, case.truth(), case.hidden_hz()
                 continue
-            case = random_case(seed) if name == "random" else output_only_case(name)
+            if name == KOMA_FRAME:  # koma's recipe, noise seeds of one structure
+                case = koma_frame_case()
+            else:
+                case = random_case(seed) if name == "random" else output_only_case(name)
             yield name, seed, case.simulate(seed), case.sample_time_s, case.truth(), []
 
 
@@ -175,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--records", default="koma,subframe", help="koma,subframe or none")
     parser.add_argument("--cases", default=",".join(OUTPUT_ONLY_CASES),
-                        help="simulated cases (or random, physical), or none")
+                        help="simulated cases (or random, physical, koma-frame), or none")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0,

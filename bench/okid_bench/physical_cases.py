@@ -27,8 +27,8 @@ from scipy import linalg
 from okid_bench.output_only_cases import OutputOnlyCase, system_modes
 from okid_ros.sim.models import NoisyStateSpace, zero_order_hold
 
-__all__ = ["PHYSICAL_FAMILIES", "VISIBLE_SHARE", "PhysicalCase", "physical_case", "physical_system",
-           "variance_shares"]
+__all__ = ["KOMA_FRAME", "PHYSICAL_FAMILIES", "VISIBLE_SHARE", "PhysicalCase", "koma_frame_case", "physical_case",
+           "physical_system", "trapezoidal_system", "variance_shares"]
 
 #: The families, drawn in turn (structure ``index`` is of family ``index % 3``).
 PHYSICAL_FAMILIES = ("building", "twin-chains", "beam")
@@ -38,6 +38,8 @@ VISIBLE_SHARE = 0.01
 SAMPLING_RATES_HZ = (20.0, 50.0, 100.0, 200.0, 256.0, 512.0, 1000.0, 2048.0)
 #: Samples of a record: at least, at most.
 MIN_SAMPLES, MAX_SAMPLES = 3000, 60000
+#: The name of :func:`koma_frame_case` among the bench's ``--cases``.
+KOMA_FRAME = "koma-frame"
 
 
 @dataclass
@@ -116,6 +118,49 @@ def physical_system(M: np.ndarray, C: np.ndarray, K: np.ndarray, *, forces: np.n
     p = sensors.shape[0]
     return NoisyStateSpace(A, np.zeros((2 * n, 1)), C_out, np.zeros((p, 1)), Q, R, sample_time_s,
                            cross_covariance=S)
+
+
+def trapezoidal_system(M: np.ndarray, C: np.ndarray, K: np.ndarray, *, sample_time_s: float,
+                       noise_ratio: float) -> NoisyStateSpace:
+    """``M q'' + C q' + K q = d``, white ``d`` at every degree of freedom, stepped by the trapezoidal rule, ``q`` seen.
+
+    The trapezoidal rule (Newmark's average acceleration) is ``x_{k+1} = A x_k + B (d_k + d_{k+1})``
+    with ``A = (I - Ac dt/2)^-1 (I + Ac dt/2)`` (the Tustin images of the continuous poles) and
+    ``B = (I - Ac dt/2)^-1 Bc dt/2``; with ``xi_k = x_k - B d_k`` it is the state space
+    ``xi_{k+1} = A xi_k + (A + I) B d_k``, ``y_k = C_q xi_k + C_q B d_k + v_k``, whose forces reach
+    the outputs directly too. The sensor noise ``v`` has the same standard deviation on every
+    channel: ``noise_ratio`` times the noise-free record's, over all channels (koma's recipe).
+    """
+    n = M.shape[0]
+    Ac = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+    Bc = np.vstack([np.zeros((n, n)), np.linalg.inv(M)])
+    left = np.eye(2 * n) - Ac * sample_time_s / 2
+    A = np.linalg.solve(left, np.eye(2 * n) + Ac * sample_time_s / 2)
+    B = np.linalg.solve(left, Bc * sample_time_s / 2)
+    Bw, C_out = (A + np.eye(2 * n)) @ B, np.hstack([np.eye(n), np.zeros((n, n))])
+    Dw = C_out @ B
+    Q, S = Bw @ Bw.T, Bw @ Dw.T
+    noise_free = np.diag(C_out @ linalg.solve_discrete_lyapunov(A, Q) @ C_out.T + Dw @ Dw.T)
+    R = Dw @ Dw.T + noise_ratio ** 2 * noise_free.mean() * np.eye(n)
+    return NoisyStateSpace(A, np.zeros((2 * n, 1)), C_out, np.zeros((n, 1)), Q, R, sample_time_s,
+                           cross_covariance=S)
+
+
+def koma_frame_case() -> OutputOnlyCase:
+    """The koma shear frame's own recipe as a case with noise seeds (``../shared/data/oma/koma-shear-frame``).
+
+    koma's example: 5 storeys, masses 500, storey stiffnesses 8000, a damper of 50 from every
+    storey to the ground (modes 0.18-1.22 Hz, damping 4.4-0.65 %), white forces at every storey,
+    Newmark's average acceleration at 12 Hz for 1200 s, the displacements with white noise of
+    0.6 times their standard deviation. The truth is the trapezoidal rule's discrete modes, the
+    record's own ``discrete_frequency_hz`` / ``discrete_damping_ratio``; every mode is scored (the
+    record shows all five).
+    """
+    storeys, m, k, c = 5, 500.0, 8000.0, 50.0
+    top_first = _chain_stiffness(np.full(storeys, k))[::-1, ::-1]  # koma's channel order: the top storey first
+    system = trapezoidal_system(m * np.eye(storeys), c * np.eye(storeys), top_first, sample_time_s=1 / 12,
+                                noise_ratio=0.6)
+    return OutputOnlyCase(KOMA_FRAME, system, 14_400, "koma's 5-storey shear frame, fs 12 Hz, 1200 s")
 
 
 def _chain_stiffness(k: np.ndarray) -> np.ndarray:

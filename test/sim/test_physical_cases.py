@@ -4,9 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import linalg
 
 from okid_bench.output_only_cases import system_modes
-from okid_bench.physical_cases import PHYSICAL_FAMILIES, VISIBLE_SHARE, physical_case, physical_system, variance_shares
+from okid_bench.physical_cases import (
+    PHYSICAL_FAMILIES,
+    VISIBLE_SHARE,
+    koma_frame_case,
+    physical_case,
+    physical_system,
+    trapezoidal_system,
+    variance_shares,
+)
 
 
 def _two_storeys(*, m, k, zeta):
@@ -70,3 +79,42 @@ def test_every_physical_structure_is_well_posed(index):
     if case.family == "twin-chains":  # close pairs: each mode has a partner within 3 %
         gaps = np.diff(f) / f[:-1]
         assert np.all(gaps[::2] < 0.03)
+
+
+def test_the_trapezoidal_systems_output_covariances_are_the_rules():
+    # The rule x_{k+1} = A x_k + B (d_k + d_{k+1}) written with the force as part of the state,
+    # z_k = [x_k; d_k]: its stationary covariances, against the system's form.
+    M, C, K = _two_storeys(m=2.0, k=3000.0, zeta=0.02)
+    dt = 1 / 100
+    system = trapezoidal_system(M, C, K, sample_time_s=dt, noise_ratio=0.0)
+    Ac = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+    Bc = np.vstack([np.zeros((2, 2)), np.linalg.inv(M)])
+    A = np.linalg.solve(np.eye(4) - Ac * dt / 2, np.eye(4) + Ac * dt / 2)
+    B = np.linalg.solve(np.eye(4) - Ac * dt / 2, Bc * dt / 2)
+    F = np.block([[A, B], [np.zeros((2, 4)), np.zeros((2, 2))]])
+    G = np.vstack([B, np.eye(2)])
+    P_z = linalg.solve_discrete_lyapunov(F, G @ G.T)
+    seen = np.hstack([np.eye(2), np.zeros((2, 4))])  # q of z
+    P = linalg.solve_discrete_lyapunov(system.A, system.process_noise_covariance)
+    lag0 = system.C @ P @ system.C.T + system.measurement_noise_covariance
+    lag1 = system.C @ (system.A @ P @ system.C.T + system.cross_covariance)
+    np.testing.assert_allclose(lag0, seen @ P_z @ seen.T, rtol=1e-9)
+    np.testing.assert_allclose(lag1, seen @ F @ P_z @ seen.T, rtol=1e-9)
+
+
+def test_the_koma_frames_modes_are_the_tustin_images_of_komas_shear_frame():
+    case = koma_frame_case()
+    # koma's frame: w_j = 2 sqrt(k / m) sin((2 j - 1) pi / 22), a damper c to the ground: zeta_j = c / (2 m w_j)
+    w = 2 * np.sqrt(8000 / 500) * np.sin((2 * np.arange(1, 6) - 1) * np.pi / 22)
+    zeta = 50 / (2 * 500 * w)
+    s = -zeta * w + 1j * w * np.sqrt(1 - zeta ** 2)
+    dt = case.sample_time_s
+    s_discrete = np.log((1 + s * dt / 2) / (1 - s * dt / 2)) / dt
+    modes = case.truth()
+    np.testing.assert_allclose([m["frequency_hz"] for m in modes], np.abs(s_discrete) / (2 * np.pi), rtol=1e-10)
+    np.testing.assert_allclose([m["damping_ratio"] for m in modes], -s_discrete.real / np.abs(s_discrete), rtol=1e-8)
+    assert dt == pytest.approx(1 / 12) and case.n_samples == 14_400
+    slowest = modes[0]["shape"].real  # the top storey, koma's first channel, moves most
+    assert np.argmax(np.abs(slowest)) == 0 and np.all(np.abs(np.diff(np.abs(slowest))) > 0)
+    y = case.simulate(0, 3000)
+    assert y.shape == (3000, 5) and np.all(np.isfinite(y))
