@@ -173,6 +173,8 @@ class ModalEstimatorNode(OkidNode):
             if refused:
                 self.get_logger().warning(f"realtime_priority not applied: {refused}; ordinary scheduling")
         self.start_inputs()
+        if ignored := params.output_only_ignored():  # as `process` and `batch` say it
+            self.get_logger().warning(ignored)
         order = "auto" if params.n_states == 0 else str(params.n_states)
         if params.n_inputs == 0:  # the realization's order options do not apply
             order = f"auto, output-only ({params.output_only_method})"
