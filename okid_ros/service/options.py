@@ -17,7 +17,7 @@ True
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
@@ -242,12 +242,26 @@ class ModalEstimationParams:
         if self.n_inputs:
             return ""
         specs = option_specs(ESTIMATOR_NODE)
-        names = [specs[field].name for field in _INPUT_OUTPUT_REALIZATION
-                 if getattr(self, field) != specs[field].field_value(specs[field].default)]
+        names = [spec.name for field, spec in specs.items()
+                 if getattr(self, field) != spec.field_value(spec.default)
+                 and self._realization_reads(field, spec.field_value(spec.default))]
         if not names:
             return ""
         return (f"{', '.join(names)} appl{'ies' if len(names) == 1 else 'y'} to input-output realization; ignored "
                 f"with n_inputs 0 (output-only: realization.output_only_method chooses the model)")
+
+    def _realization_reads(self, field: str, other: Any) -> bool:
+        """Whether :meth:`realization_options` depends on ``field``: its value and ``other`` give different options.
+
+        Asked of the method itself, so that a parameter it comes to read is named without a list kept by hand.
+        """
+        def options(params: ModalEstimationParams) -> RealizationOptions | str:
+            try:
+                return params.realization_options()
+            except ValueError as exc:  # a refusal depends on the field too when only one value has it
+                return str(exc)
+
+        return options(self) != options(replace(self, **{field: other}))
 
     def realization_options(self) -> RealizationOptions:
         """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`).
@@ -286,10 +300,6 @@ class ModalEstimationParams:
 
 
 _NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}
-#: The fields of :meth:`ModalEstimationParams.realization_options`, which an output-only window does not read.
-_INPUT_OUTPUT_REALIZATION = ("n_states", "max_states", "max_states_limit", "gain", "refine", "jackknife_segments",
-                             "max_damping", "min_msv", "max_nyquist_fraction", "min_mpc", "min_dominance",
-                             "min_stable_fraction")
 
 
 def check_runtime_change(old: Any, new: Any) -> list[str]:
