@@ -124,6 +124,15 @@ def test_a_core_rule_the_parameter_table_lets_through_names_the_parameter():
     ({"n_inputs": 0, "arx.order": 10, "arx.window_length": 150},
      "arx.window_length 150 with arx.order 10: node 2's realization needs at least 200 samples of a window "
      "(arx.window_length at least 190)"),
+    # Forgetting: node 1's windows were refused as unexcited (0.5), or node 2 refused every one as shorter
+    # than a realization needs (0.99 at order 100: 200 of 400 samples), exit 0 and nothing said at the start.
+    ({"arx.window_length": 0, "arx.forgetting_factor": 0.5},
+     "arx.forgetting_factor 0.5 with arx.window_length 0 and arx.order 100: the window's effective memory, "
+     "1 / (1 - 0.5) = 2 rows, plus the order is 102 samples; node 2's realization needs at least 400 "
+     "(arx.forgetting_factor at least 0.99667, or arx.window_length at least 300 with arx.forgetting_factor 1.0)"),
+    ({"arx.window_length": 0, "arx.forgetting_factor": 0.99}, "= 100 rows, plus the order is 200 samples"),
+    ({"n_inputs": 0, "arx.order": 10, "arx.window_length": 0, "arx.forgetting_factor": 0.99},
+     "needs at least 200 (arx.forgetting_factor at least 0.99474, or arx.window_length at least 190"),
 ])
 def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(values, text):
     with pytest.raises(ParameterError, match=re.escape(text)):
@@ -134,6 +143,11 @@ def test_an_arx_regressor_too_long_for_the_window_or_the_live_update_is_refused(
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"arx.order": 1, "n_inputs": 0}))
     ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, {"n_inputs": 0, "arx.order": 10,
                                                                           "arx.window_length": 190}))
+    # The least forgetting factor it names is taken; no forgetting with an infinite history too.
+    for values in ({"arx.window_length": 0, "arx.forgetting_factor": 0.99667},
+                   {"n_inputs": 0, "arx.order": 10, "arx.window_length": 0, "arx.forgetting_factor": 0.99474},
+                   {"arx.window_length": 0, "arx.forgetting_factor": 1.0}):
+        ArxIdentificationParams.from_parameters(resolve_parameters(ARX_NODE, values))
 
 
 def test_a_window_whose_buffers_do_not_fit_in_the_available_memory_is_refused(monkeypatch):
