@@ -468,8 +468,11 @@ def test_white_noise_has_no_modes() -> None:
 
 @pytest.mark.parametrize("method", ["var", "ssi-cva"])
 def test_candidates_all_screened_out_as_noise_are_said_so(monkeypatch, method) -> None:
-    """The var route on 1200 samples of the coloured case: its one candidate was screened out, and the error said
-    "no stable mode found across model orders: is the record long and excited enough?" as for white noise."""
+    """Every candidate screened out as noise is said so, with their count and the route's warning.
+
+    The var route on 1200 samples of the coloured case: its one candidate was screened out, and the error said
+    "no stable mode found across model orders: is the record long and excited enough?" as for white noise.
+    """
     from okid_bench.output_only_cases import output_only_case
     from okid_ros.core import output_only
     from okid_ros.core.output_only_routes import ROUTES

@@ -293,10 +293,13 @@ def test_a_refused_window_names_an_input_excited_only_in_its_newest_order_sample
 
 @pytest.mark.parametrize("age", [0, 5, 9])
 def test_a_blow_entering_the_window_is_said_in_one_text_after_a_silence_or_a_quiet_force(one_input_record, age):
-    """Both rules hold for a blow after a silence: the constant oldest lag (``_late_excitation``) was said first,
-    "no excitation on input 1 (all zeros) before the newest 10 samples ... it will 10 samples on" at any age, while
-    over a quiet force the lags' share (:func:`.window_conditioning.input_collinearity`) said "input 1 varies only in
-    the newest {age + 1} samples ... it will {10 - age} samples on"."""
+    """Both rules that hold for a blow after a silence say one text, with when the window heals.
+
+    The constant oldest lag (``_late_excitation``) was said first, "no excitation on input 1 (all zeros) before the
+    newest 10 samples ... it will 10 samples on" at any age, while over a quiet force the lags' share
+    (:func:`.window_conditioning.input_collinearity`) said "input 1 varies only in the newest {age + 1} samples ...
+    it will {10 - age} samples on".
+    """
     from okid_ros.core.least_squares import center_normal_equations
     from okid_ros.core.window_conditioning import input_collinearity
     from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
