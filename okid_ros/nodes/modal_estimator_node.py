@@ -282,7 +282,10 @@ class ModalEstimatorNode(OkidNode):
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
         # The service hands each option to the part that uses it: at once.
-        self.service.set_params(ModalEstimationParams.from_parameters(values))
+        params = ModalEstimationParams.from_parameters(values)
+        self.service.set_params(params)
+        if set(changed) & set(params.output_only_ignored_names()):  # a change the output-only route ignores
+            self.get_logger().warning(params.output_only_ignored())
 
     def before_diagnostics(self) -> None:
         while self._changes_to_log:

@@ -258,16 +258,20 @@ class ModalEstimationParams:
         (:func:`~okid_ros.service.realization.identify_window`): ``realization.n_states`` 2 gave models of
         8 states, and the mode criteria did nothing, in silence.
         """
-        if self.n_inputs:
-            return ""
-        specs = option_specs(ESTIMATOR_NODE)
-        names = [spec.name for field, spec in specs.items()
-                 if getattr(self, field) != spec.field_value(spec.default)
-                 and self._realization_reads(field, spec.field_value(spec.default))]
+        names = self.output_only_ignored_names()
         if not names:
             return ""
         return (f"{', '.join(names)} appl{'ies' if len(names) == 1 else 'y'} to input-output realization; ignored "
                 f"with n_inputs 0 (output-only: realization.output_only_method chooses the model)")
+
+    def output_only_ignored_names(self) -> list[str]:
+        """The parameters :meth:`output_only_ignored` names (none with inputs), in the table's order."""
+        if self.n_inputs:
+            return []
+        specs = option_specs(ESTIMATOR_NODE)
+        return [spec.name for field, spec in specs.items()
+                if getattr(self, field) != spec.field_value(spec.default)
+                and self._realization_reads(field, spec.field_value(spec.default))]
 
     def _realization_reads(self, field: str, other: Any) -> bool:
         """Whether :meth:`realization_options` depends on ``field``: its value and ``other`` give different options.

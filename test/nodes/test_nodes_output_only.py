@@ -192,3 +192,25 @@ def test_node_2_names_the_input_output_parameters_an_output_only_rig_ignores(spa
     out = proc.output()
     assert out.count(said) == 1 and out.index(said) < out.index("ready:"), out
     assert out.split(said)[0].splitlines()[-1].startswith("[WARN]") and f"[{ESTIMATOR_NODE}]: {said}" in out, out
+    # A run-time change of one is said again, naming it; one back to its default is not.
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    probe = ProbeNode("okid_output_only_ignored_probe")
+    probe.start()
+    try:
+        def set_parameter(name: str, value) -> None:
+            client = probe.node.create_client(SetParameters, f"/{ESTIMATOR_NODE}/set_parameters")
+            assert client.wait_for_service(timeout_sec=15.0)
+            request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+            future = client.call_async(request)
+            probe.wait_until("the SetParameters answer", future.done, 15)
+            assert all(result.successful for result in future.result().results)
+
+        set_parameter("realization.gain", "riccati")
+        proc.wait_for_output(r"realization\.n_states, realization\.gain, modes\.max_damping apply to input-output", 15)
+        set_parameter("realization.gain", "refit")
+        proc.wait_for_output(r"parameters set: realization\.gain: 'riccati' -> 'refit'", 15)
+        assert proc.output().count("apply to input-output realization") == 2, proc.output()
+    finally:
+        probe.close()
