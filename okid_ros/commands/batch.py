@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from okid_ros.errors import OkidError
-    from okid_ros.service.options import ModalEstimationParams
+    from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
     from okid_ros.tools.campaign.runner import CampaignOptions, input_topics, run_campaign
     from okid_ros.tools.campaign.summary import print_summary
     from okid_ros.tools.output_paths import check_folder_option
@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     arx_values, est_values = load_node_parameters(args.params, args.param, args.source, namespace=namespace,
                                                   strict=args.strict_params)
     _check_bags_given(args)
+    if args.forget is None:  # what every bag's processing would refuse, refused once at the start
+        ArxIdentificationParams.from_parameters(arx_values)
     if ignored := ModalEstimationParams.from_parameters(est_values).output_only_ignored():
         print(f"okid-ros batch: warning: {ignored}", file=sys.stderr)
     if args.forget is not None and (ignored := _ignored_with_forget(args)):

@@ -35,7 +35,7 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
            "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run",
-           "dependent_inputs", "leaving_excitation_text"]
+           "dependent_inputs", "entering_excitation_text", "leaving_excitation_text"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -427,23 +427,34 @@ def leaving_excitation_text(channel: int, first_lag: int, order: int, own: str) 
             f"{order} lags {order - first_lag + 1} samples on, or take a longer arx.window_length")
 
 
+def entering_excitation_text(channel: int, newest: int, order: int, own: str) -> str:
+    """Why input ``channel``, varying only in the window's newest ``newest`` samples (a blow entering it), is refused.
+
+    ``own``: what its older samples hold. Said for a constant (:func:`_late_excitation`) or a quiet force before.
+    """
+    heals = order - newest + 1
+    return (f"input {channel} varies only in the newest {newest} samples of this window (its older samples {own}: a "
+            f"hammer's blow entering the window): the window does not yet hold its response over the ARX order's "
+            f"{order} lags; it will {heals} sample{'s' if heals > 1 else ''} on")
+
+
 def _late_excitation(normal: NormalEquations, n_inputs: int) -> list[str]:
     """Why a window is singular whose inputs vary only in its newest ``q`` samples (a first hammer blow); [].
 
-    The last ``m`` regressor columns are ``u_(k-q)``: the window's samples but its newest ``q``. An input
-    constant there leaves that column (centred: zero) without information, the window singular.
+    The last ``m`` regressor columns are ``u_(k-q)``: the window's samples but its newest ``q``. An input constant
+    there leaves that column (centred: zero) without information; its live lags count its newest varying samples.
     """
     n_coefficients, n_outputs = normal.r.shape
     order = (n_coefficients - n_inputs) // max(n_outputs + n_inputs, 1)
     if n_inputs == 0 or order < 1:
         return []
     _, mean, _, dead = _window_columns(normal, slice(n_coefficients - n_inputs, n_coefficients))
-    if not dead.any():
-        return []
-    listed = ", ".join(f"input {i} ({_constant_text(float(mean[i]), None)})" for i in np.flatnonzero(dead))
-    return [f"no excitation on {listed} before the newest {order} samples of this window: it does not yet hold "
-            f"{'its' if dead.sum() == 1 else 'their'} response over the ARX order's {order} lags (a hammer's blow "
-            f"after a silence?); it will {order} samples on"]
+    texts = []
+    for i in np.flatnonzero(dead):  # its lags 1 .. q: dead from the first its newest samples do not reach
+        lags = _window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, n_outputs + n_inputs))[3]
+        own = f"are {_constant_text(float(mean[i]), None)}"
+        texts.append(entering_excitation_text(int(i), int(np.argmax(lags)) + 1, order, own))
+    return texts
 
 
 def excitation_warnings_of(report: Excitation) -> list[str]:

@@ -274,14 +274,28 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
                           max_damping=MAX_DAMPING, max_frequency_hz=0.475 / sample_time_s, eigen=realizer.eigen)
     mark_stable(poles)
     modes, _ = cluster_modes(poles, keep_rejected=False)
+    candidates = len(modes)
     if jackknife is not None:
         modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
                                   steady_width=route.steady_frequency_std_per_width,
                                   dominance=partial(spectral_dominance, spectrum, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
     if n_model is None:
-        raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
+        raise IdentificationError(_no_mode_reason(candidates, route.warning))
     return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+
+
+def _no_mode_reason(candidates: int, route_warning: str) -> str:
+    """Why no mode is left of ``candidates`` stable across model orders: none, or all screened out as noise.
+
+    The second said "no stable mode found" too, which sent the user to the record's length while
+    the screening (the var route's above all: ``route_warning``) had dropped what the orders held.
+    """
+    if not candidates:
+        return "no stable mode found across model orders: is the record long and excited enough?"
+    said = (f"no mode found: {candidates} stable across model orders, all screened out as noise (their poles "
+            f"scattered across the jackknife's replicates, or held too little of the output spectrum)")
+    return f"{said}; {route_warning}" if route_warning else said
 
 
 def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.excitation import dependent_inputs, leaving_excitation_text
+from okid_ros.core.excitation import dependent_inputs, entering_excitation_text, leaving_excitation_text
 from okid_ros.core.least_squares import NormalEquations
 
 __all__ = ["QUIET_LAG_SHARE", "input_collinearity", "input_columns"]
@@ -98,8 +98,7 @@ def _uneven_input(square: np.ndarray, channel: int, order: int) -> str:
     first, last = int(np.argmax(held)), int(held.size - 1 - np.argmax(held[::-1]))
     if not held[first : last + 1].all() or (first > 0) == (last < order) or quiet > QUIET_LAG_SHARE:
         return ""
+    own = f"hold {quiet:.1g} of that mean square"
     if first == 0:
-        return (f"input {channel} varies only in the newest {last + 1} samples of this window (its older samples hold "
-                f"{quiet:.1g} of that mean square: a hammer's blow over a quiet force?): the window does not yet hold "
-                f"its response over the ARX order's {order} lags; it will {order - last} samples on")
-    return leaving_excitation_text(channel, first, order, f"hold {quiet:.1g} of that mean square")
+        return entering_excitation_text(channel, last + 1, order, own)
+    return leaving_excitation_text(channel, first, order, own)

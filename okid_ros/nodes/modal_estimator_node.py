@@ -173,6 +173,8 @@ class ModalEstimatorNode(OkidNode):
             if refused:
                 self.get_logger().warning(f"realtime_priority not applied: {refused}; ordinary scheduling")
         self.start_inputs()
+        if ignored := params.output_only_ignored():  # as `process` and `batch` say it
+            self.get_logger().warning(ignored)
         order = "auto" if params.n_states == 0 else str(params.n_states)
         if params.n_inputs == 0:  # the realization's order options do not apply
             order = f"auto, output-only ({params.output_only_method})"
@@ -280,7 +282,10 @@ class ModalEstimatorNode(OkidNode):
 
     def apply_parameters(self, values: dict[str, Any], changed: dict[str, Any]) -> None:
         # The service hands each option to the part that uses it: at once.
-        self.service.set_params(ModalEstimationParams.from_parameters(values))
+        params = ModalEstimationParams.from_parameters(values)
+        self.service.set_params(params)
+        if set(changed) & set(params.output_only_ignored_names()):  # a change the output-only route ignores
+            self.get_logger().warning(params.output_only_ignored())
 
     def before_diagnostics(self) -> None:
         while self._changes_to_log:

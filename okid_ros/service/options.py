@@ -17,7 +17,7 @@ True
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
@@ -139,6 +139,18 @@ class ArxIdentificationParams:
             rows = math.ceil(math.log1p(-fill) / math.log(lam))
         return max(rows, 1) + self.order  # a solve needs a row; each row its order lags before it
 
+    def full_window_rows(self) -> float:
+        """Regressor rows of a full window: ``window_length``, or with forgetting its effective memory 1 / (1 - lambda).
+
+        As node 1's window reports them (:attr:`~okid_ros.core.recursive.SlidingWindowArx.status`, rounded) and node
+        2 sizes its realization's window by; inf for an infinite history without forgetting.
+        """
+        if self.window_length > 0:
+            return self.window_length
+        if self.forgetting_factor >= 1.0:
+            return math.inf
+        return round(1.0 / (1.0 - self.forgetting_factor))
+
     def size_problem(self) -> str:
         """Why the regressor of ``order`` is too long for the window or the live update, or ""."""
         q, p, m = self.order, self.n_outputs, self.n_inputs
@@ -155,10 +167,17 @@ class ArxIdentificationParams:
             return (f"arx.order {q}: node 2 realizes models from an ARX order of at least 2 (its ERA Hankel needs "
                     f"two blocks of Markov parameters)")
         # Output-only (m = 0) too: a window under its 200 samples had every model refused, exit 0 (`process`).
-        minimum = window_minimum(q, self.window_length + q, m)
+        rows = self.full_window_rows()
+        minimum = window_minimum(q, rows + q, m) if math.isfinite(rows) else 0
         if 0 < self.window_length and self.window_length + q < minimum:
             return (f"arx.window_length {self.window_length} with arx.order {q}: node 2's realization needs at least "
                     f"{minimum} samples of a window (arx.window_length at least {minimum - q})")
+        if rows + q < minimum:  # forgetting: arx.forgetting_factor 0.99 at order 100 had every window refused
+            lam, least = self.forgetting_factor, math.ceil((1.0 - 1.0 / (minimum - q)) * 1e5) / 1e5
+            return (f"arx.forgetting_factor {lam:g} with arx.window_length 0 and arx.order {q}: the window's "
+                    f"effective memory, 1 / (1 - {lam:g}) = {rows} rows, plus the order is {rows + q} samples; node "
+                    f"2's realization needs at least {minimum} (arx.forgetting_factor at least {least:.5f}, or "
+                    f"arx.window_length at least {minimum - q} with arx.forgetting_factor 1.0)")
         if self.regularization == "none" and 0 < self.window_length < d:
             return (f"arx.window_length {self.window_length} is smaller than the d = {d} coefficients of arx.order "
                     f"{q}: unregularized least squares (arx.regularization none) needs at least d rows")
@@ -239,15 +258,33 @@ class ModalEstimationParams:
         (:func:`~okid_ros.service.realization.identify_window`): ``realization.n_states`` 2 gave models of
         8 states, and the mode criteria did nothing, in silence.
         """
-        if self.n_inputs:
-            return ""
-        specs = option_specs(ESTIMATOR_NODE)
-        names = [specs[field].name for field in _INPUT_OUTPUT_REALIZATION
-                 if getattr(self, field) != specs[field].field_value(specs[field].default)]
+        names = self.output_only_ignored_names()
         if not names:
             return ""
         return (f"{', '.join(names)} appl{'ies' if len(names) == 1 else 'y'} to input-output realization; ignored "
                 f"with n_inputs 0 (output-only: realization.output_only_method chooses the model)")
+
+    def output_only_ignored_names(self) -> list[str]:
+        """The parameters :meth:`output_only_ignored` names (none with inputs), in the table's order."""
+        if self.n_inputs:
+            return []
+        specs = option_specs(ESTIMATOR_NODE)
+        return [spec.name for field, spec in specs.items()
+                if getattr(self, field) != spec.field_value(spec.default)
+                and self._realization_reads(field, spec.field_value(spec.default))]
+
+    def _realization_reads(self, field: str, other: Any) -> bool:
+        """Whether :meth:`realization_options` depends on ``field``: its value and ``other`` give different options.
+
+        Asked of the method itself, so that a parameter it comes to read is named without a list kept by hand.
+        """
+        def options(params: ModalEstimationParams) -> RealizationOptions | str:
+            try:
+                return params.realization_options()
+            except ValueError as exc:  # a refusal depends on the field too when only one value has it
+                return str(exc)
+
+        return options(self) != options(replace(self, **{field: other}))
 
     def realization_options(self) -> RealizationOptions:
         """The core's options of the realization (:class:`okid_ros.core.options.RealizationOptions`).
@@ -286,10 +323,6 @@ class ModalEstimationParams:
 
 
 _NODES = {ArxIdentificationParams: ARX_NODE, ModalEstimationParams: ESTIMATOR_NODE}
-#: The fields of :meth:`ModalEstimationParams.realization_options`, which an output-only window does not read.
-_INPUT_OUTPUT_REALIZATION = ("n_states", "max_states", "max_states_limit", "gain", "refine", "jackknife_segments",
-                             "max_damping", "min_msv", "max_nyquist_fraction", "min_mpc", "min_dominance",
-                             "min_stable_fraction")
 
 
 def check_runtime_change(old: Any, new: Any) -> list[str]:

@@ -284,11 +284,39 @@ def test_a_refused_window_names_an_input_excited_only_in_its_newest_order_sample
     service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
     service.push_block(DT * np.arange(u.shape[0]), u, y)
     reason = service.snapshot().reason
-    late = "no excitation on input 1 (all zeros) before the newest 10 samples of this window"
+    late = "input 1 varies only in the newest"
     if age < 10:
         assert reason.startswith("unexcited window: condition number inf") and late in reason, reason
     else:
-        assert "before the newest" not in reason, reason
+        assert late not in reason, reason
+
+
+@pytest.mark.parametrize("age", [0, 5, 9])
+def test_a_blow_entering_the_window_is_said_in_one_text_after_a_silence_or_a_quiet_force(one_input_record, age):
+    """Both rules that hold for a blow after a silence say one text, with when the window heals.
+
+    The constant oldest lag (``_late_excitation``) was said first, "no excitation on input 1 (all zeros) before the
+    newest 10 samples ... it will 10 samples on" at any age, while over a quiet force the lags' share
+    (:func:`.window_conditioning.input_collinearity`) said "input 1 varies only in the newest {age + 1} samples ...
+    it will {10 - age} samples on".
+    """
+    from okid_ros.core.least_squares import center_normal_equations
+    from okid_ros.core.window_conditioning import input_collinearity
+    from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
+
+    u, y = one_input_record
+    u = u.copy()
+    u[-1 - age, 1] = 50.0
+    service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
+    service.push_block(DT * np.arange(u.shape[0]), u, y)
+    heals = f"it will {10 - age} sample{'s' if age < 9 else ''} on"
+    said = (f"input 1 varies only in the newest {age + 1} samples of this window (its older samples {{}}: a hammer's "
+            f"blow entering the window): the window does not yet hold its response over the ARX order's 10 lags; "
+            f"{heals}")
+    assert service.snapshot().reason.endswith("; " + said.format("are all zeros")), service.snapshot().reason
+    # The rule of a quiet force, asked of the same window, says the same but what the older samples hold.
+    normal = center_normal_equations(service.capture().normal)
+    assert input_collinearity(normal, 10, 2, 2, bound=1e12) == said.format("hold 0 of that mean square")
 
 def test_a_long_run_of_repeated_outputs_is_named_and_a_short_one_or_noise_is_not():
     rng = np.random.default_rng(0)

@@ -171,3 +171,46 @@ def test_the_output_only_example_is_read_strictly_by_both_nodes():
         assert [s.kind for s in specs] == ["imu", "imu"]
         assert sorted(c for s in specs for c in s.channels) == list(range(6))
     assert arx["arx.order"] == 10 and est["realization.output_only_method"] == "ssi-cva"
+
+
+def test_node_2_names_the_input_output_parameters_an_output_only_rig_ignores(spawn_ros, tmp_path):
+    # `process` and `batch` said it; node 2 started with realization.n_states 2 and n_inputs 0 said
+    # nothing and realized models of another order, as realization.output_only_method chose.
+    from okid_ros.service.options import ModalEstimationParams
+    from okid_ros.service.params import ESTIMATOR_NODE
+    from okid_ros.tools.node_parameters import load_node_parameters
+
+    overrides = tmp_path / "off_defaults.yaml"
+    overrides.write_text("/**/okid_modal_estimator:\n  ros__parameters:\n    realization: {n_states: 2, worker: thread}"
+                         "\n    modes: {max_damping: 0.05}\n")
+    files = [REPO_ROOT / "config" / "okid.yaml", REPO_ROOT / "config" / "okid_output_only.yaml", overrides]
+    said = ModalEstimationParams.from_parameters(load_node_parameters(files)[1]).output_only_ignored()
+    assert said.startswith("realization.n_states, modes.max_damping apply to input-output realization")
+    proc = spawn_ros("-m", "okid_ros.nodes.modal_estimator_node", "--ros-args",
+                     *[a for f in files for a in ("--params-file", str(f))])
+    proc.wait_for_output(r"ready:", timeout_s=60)
+    out = proc.output()
+    assert out.count(said) == 1 and out.index(said) < out.index("ready:"), out
+    assert out.split(said)[0].splitlines()[-1].startswith("[WARN]") and f"[{ESTIMATOR_NODE}]: {said}" in out, out
+    # A run-time change of one is said again, naming it; one back to its default is not.
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    probe = ProbeNode("okid_output_only_ignored_probe")
+    probe.start()
+    try:
+        def set_parameter(name: str, value) -> None:
+            client = probe.node.create_client(SetParameters, f"/{ESTIMATOR_NODE}/set_parameters")
+            assert client.wait_for_service(timeout_sec=15.0)
+            request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+            future = client.call_async(request)
+            probe.wait_until("the SetParameters answer", future.done, 15)
+            assert all(result.successful for result in future.result().results)
+
+        set_parameter("realization.gain", "riccati")
+        proc.wait_for_output(r"realization\.n_states, realization\.gain, modes\.max_damping apply to input-output", 15)
+        set_parameter("realization.gain", "refit")
+        proc.wait_for_output(r"parameters set: realization\.gain: 'riccati' -> 'refit'", 15)
+        assert proc.output().count("apply to input-output realization") == 2, proc.output()
+    finally:
+        probe.close()

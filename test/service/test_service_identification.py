@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -347,7 +348,9 @@ def test_a_blow_after_one_that_forgetting_decayed_below_the_float_range_is_solve
         hammer = np.tile(u, (2, 1))
         hammer[:, 0] = 0.0
         hammer[[-1 - age, -1], 0] = 50.0
-        service = make_service(dt, **{"arx.window_length": 0, "arx.forgetting_factor": 0.5})
+        # Past the start's check (node 2 realizes no window of 2 rows' memory): node 1's solve alone.
+        params = dataclasses.replace(make_service(dt).params, window_length=0, forgetting_factor=0.5)
+        service = ArxIdentificationService(params)
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             service.push_block(dt * np.arange(hammer.shape[0]), hammer, np.tile(y, (2, 1)))

@@ -383,6 +383,18 @@ def test_a_missing_bag_and_bad_options_are_one_line(tmp_path, capsys):
     assert_one_line_error(code, err, "--duration")
 
 
+def test_a_forgetting_factor_no_window_could_be_realized_with_is_refused_at_the_start(small_bag, tmp_path, capsys):
+    # Was: every ArxModel refused (node 1: unexcited at 0.5; node 2: shorter than a realization needs at 0.99),
+    # `process` exit 0, `batch` one failure per bag.
+    forgetting = ("--param", "arx.window_length=0", "--param", "arx.forgetting_factor=0.99")
+    said = "arx.forgetting_factor 0.99 with arx.window_length 0 and arx.order 100: the window's effective memory"
+    code, _, err = run_cli(capsys, "process", small_bag, "--out", tmp_path / "out", "--no-progress", *forgetting)
+    assert_one_line_error(code, err, said)
+    code, _, err = run_cli(capsys, "batch", small_bag, "--out", tmp_path / "campaign", "--no-progress", *forgetting)
+    assert_one_line_error(code, err, said)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "campaign").exists()
+
+
 def _sorted_before(messages: list, stamp_ns: int) -> list:
     return sorted(m for m in messages if m[2] < stamp_ns)
 
