@@ -153,18 +153,43 @@ class RecordSums:
     A jackknife replicate leaves a segment out: the pairs that touch it lie within ``max_lag`` of
     it, so its correlations are the record's sums less the stretch around the segment's sums
     with and without the segment, not a transform of the whole record again.
+
+    ``taper`` is what the division by the present samples takes off each lag, ``correlations =
+    unbiased * taper`` (``1 - k / N`` without gaps): their Hankels decay faster than ``C A^(k-1) G``,
+    as if every pole were ``exp(-taper_rate)`` times its own (``1 / (omega T)`` on each damping ratio).
     """
 
     y: np.ndarray  # (N, p) missing samples set to zero
     max_lag: int
     correlations: np.ndarray  # (max_lag + 1, p, p) the whole record's, :func:`record_correlations`
     counted: np.ndarray  # (N + 1,) present samples before each index
+    taper: np.ndarray  # (max_lag + 1,) pairs of present samples at each lag / present samples
 
     @classmethod
     def of(cls, y: np.ndarray, max_lag: int, present: np.ndarray | None = None) -> RecordSums:
         correlations = record_correlations(y, max_lag, present=present)
         present = np.ones(y.shape[0], bool) if present is None else present
-        return cls(np.where(present[:, None], y, 0.0), int(max_lag), correlations, np.r_[0, np.cumsum(present)])
+        counted = np.r_[0, np.cumsum(present)]
+        taper = _pair_counts(present, int(max_lag)) / max(counted[-1], 1)
+        return cls(np.where(present[:, None], y, 0.0), int(max_lag), correlations, counted, taper)
+
+    @property
+    def unbiased(self) -> np.ndarray:
+        """(max_lag + 1, p, p) each lag's sum over its own pairs of present samples (the correlations' expectation)."""
+        return self.correlations / np.maximum(self.taper, np.finfo(float).tiny)[:, None, None]
+
+    @property
+    def taper_rate(self) -> float:
+        """``rho`` of ``taper ~ c exp(-rho k)`` over the Hankels' lags 1 .. max_lag (least squares).
+
+        ``1 / N`` for a record without gaps. Lag 0 is left out: a missing sample takes pairs off
+        every other lag, a step that scales a Hankel (``c``) and moves no pole.
+        """
+        lags = np.arange(1.0, self.taper.size)
+        if lags.size < 2:
+            return 0.0
+        slope = np.polyfit(lags, np.log(np.maximum(self.taper[1:], np.finfo(float).tiny)), 1)[0]
+        return float(-slope)
 
     @property
     def sums(self) -> np.ndarray:
@@ -184,6 +209,13 @@ class RecordSums:
         touching = touching - self._sums(around, lag)  # the stretch's pairs less those that miss the span
         count = self.counted[-1] - (self.counted[hi] - self.counted[lo])
         return (self.sums - touching) / max(count, 1)
+
+
+def _pair_counts(present: np.ndarray, max_lag: int) -> np.ndarray:
+    """(max_lag + 1,) how many pairs of present samples each lag ``0 .. max_lag`` holds."""
+    if not present.size:
+        return np.zeros(max_lag + 1)
+    return np.rint(_correlations(present.astype(float)[:, None], max_lag, biased=True)[:, 0, 0] * present.size)
 
 
 def slowest_mode_hz(y: np.ndarray, sample_time_s: float, *, held_peaks_only: bool = False) -> float:

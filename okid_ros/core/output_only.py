@@ -202,16 +202,23 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
         warnings.append(f"the record holds fewer than 3 segments of {segment:.0f} samples ({chosen.block_rows} "
                         f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
                         f"their standard deviations are the clusters' spread across orders")
-    A, C, gamma = _stable_part(*realizer.realize(n_model)[:2], realizer.observability(n_model))
+    realized = match_clusters(modes, poles, n_model)
+    # The model of the correlations' expectation: every pole exp(rate) times the realized one, the
+    # observability's block a exp(a rate) times (the gain's correlations are the unbiased ones).
+    rate = _untapered_rate(chosen.taper_rate, np.array([ev for ev, _ in realized]))
+    A, C = realizer.realize(n_model)[:2]
+    gamma = realizer.observability(n_model)
+    gamma = gamma * np.repeat(np.exp(rate * np.arange(gamma.shape[0] // C.shape[0])), C.shape[0])[:, None]
+    A, C, gamma = _stable_part(A * np.exp(rate), C, gamma)
     if var is None:
         L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
     else:
         L, Re, gain_method = gain_from_var(A, C, y, *var)
-    matched = match_clusters(modes, poles, n_model)
+    matched = [(ev * np.exp(rate), cluster) for ev, cluster in realized]
     model = _package(A, C, L, Re, matched, sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
-    _attach_std(model, chosen.jackknife, n_model, matched, poles)
+    _attach_std(model, chosen.jackknife, n_model, matched, poles, rate=rate)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
@@ -225,11 +232,12 @@ class _Selection:
     modes: list[ModeCluster]
     poles: PoleSet
     realizer: OrderRealizer
-    correlations: np.ndarray  # (L + 1, p, p) the record's
+    correlations: np.ndarray  # (L + 1, p, p) the record's, unbiased (the gain's)
     block_rows: int
     jackknife: Jackknife | None
     var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
     n_model: int
+    taper_rate: float = 0.0  # the realized poles are exp(-taper_rate) times the correlations' expectation's
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
@@ -246,12 +254,13 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     block_rows = _block_rows(y, sample_time_s, references, top, block_rows, canonical=route.canonical_lags)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS, present=present)
     r_mean = correlations.mean
-    var = None
+    var, gain_correlations, taper_rate = None, r_mean, 0.0
     if method == "ssi-cov":
         decomposition = covariance_decomposition(r_mean, references, block_rows, top, spare=SPARE_COLUMNS)
     elif method == "ssi-cva":  # the whole record's sums, its correlations and its jackknife's replicates
         record = RecordSums.of(y, 2 * block_rows, present)
         decomposition = canonical_decomposition(record.correlations, references, block_rows, top)
+        gain_correlations, taper_rate = record.unbiased, record.taper_rate
     else:
         var = var_markov(y, block_rows)
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
@@ -281,7 +290,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError("no stable mode found across model orders: is the record long and excited enough?")
-    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+    return _Selection(modes, poles, realizer, gain_correlations, block_rows, jackknife, var, n_model, taper_rate)
 
 
 def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
@@ -291,7 +300,7 @@ def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
         return []
     targets = np.array([ev for ev, _ in pairs])
     f_std, z_std = _jackknife_std(chosen.jackknife, pairs, chosen.poles, chosen.n_model, sample_time_s)
-    s = np.log(targets) / sample_time_s
+    s = (np.log(targets) + _untapered_rate(chosen.taper_rate, targets)) / sample_time_s
     return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si),
              "frequency_hz_std": float(fs), "damping_ratio_std": float(zs)} for si, fs, zs in zip(s, f_std, z_std)]
 
@@ -318,18 +327,24 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,
-                matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
-    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go."""
+                matched: list[tuple[complex, ModeCluster]], poles: PoleSet, *, rate: float = 0.0) -> None:
+    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go.
+
+    ``rate``: the model's poles are ``exp(rate)`` times the realized ones (:func:`_untapered_rate`);
+    the replicates' and the limits' are the realized poles, as in the screening.
+    """
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
-    by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
+    by_pole = [(mode.eigenvalue * np.exp(-rate), _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
     f_std, z_std = _jackknife_std(jackknife, by_pole, poles, n_model, model.sample_time_s)
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
     if ROUTES[model.method].screens_listed_std:
-        model.modes = listed_within_limits(model.modes, _scattered)
+        s = np.log(np.array([pole for pole, _ in by_pole], dtype=complex)) / model.sample_time_s
+        realized = None if not rate else list(zip(np.abs(s) / (2 * np.pi), -s.real / np.abs(s)))
+        model.modes = listed_within_limits(model.modes, _scattered, values=realized)
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
@@ -357,6 +372,19 @@ def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluste
             f_std[i] = np.hypot(home_f[0], f - abs(s_home) / (2 * np.pi))
             z_std[i] = np.hypot(home_z[0], zeta + s_home.real / abs(s_home))
     return f_std, z_std
+
+
+def _untapered_rate(rate: float, poles: np.ndarray) -> float:
+    """The share of the correlations' taper ``rate`` taken off the realized ``poles``: all, or half their slowest decay.
+
+    A record's biased correlations hold ``R_k exp(-rate k)`` (:attr:`.output_covariance.RecordSums.taper`),
+    realized as poles ``exp(-rate)`` times their own, ``1 / (omega T)`` on each damping ratio. A pole whose
+    realized decay is under twice ``rate`` decays by less than two e-folds over the record, which does
+    not resolve it; it keeps half (the model stays stable).
+    """
+    if not rate or not poles.size:
+        return rate
+    return float(min(rate, -0.5 * np.log(np.abs(poles).max())))
 
 
 def _cluster_of(eigenvalue: complex, matched: list[tuple[complex, ModeCluster]]) -> ModeCluster | None:

@@ -84,13 +84,15 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_ga
     return y - mean, valid, mean, warnings
 
 
-def listed_within_limits(modes: list[Mode], scattered) -> list[Mode]:
+def listed_within_limits(modes: list[Mode], scattered, *, values: list[tuple[float, float]] | None = None
+                         ) -> list[Mode]:
     """The modes whose standard deviations ``scattered(f_std, z_std, f, zeta)`` takes for no noise, renumbered.
 
     The standard deviations are those listed (at the model order, or at the home order where it
-    lost the mode's pole).
+    lost the mode's pole); ``f``, ``zeta`` the listed ones, or each mode's of ``values``.
     """
-    kept = [m for m in modes if not scattered(m.frequency_hz_std, m.damping_ratio_std, m.frequency_hz, m.damping_ratio)]
+    values = [(m.frequency_hz, m.damping_ratio) for m in modes] if values is None else values
+    kept = [m for m, (f, zeta) in zip(modes, values) if not scattered(m.frequency_hz_std, m.damping_ratio_std, f, zeta)]
     for i, mode in enumerate(kept):
         mode.id = i
     return kept
