@@ -29,8 +29,8 @@ Steps (one module each):
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
    twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
    are the modes' (ssi-cva drops one listed beyond the limits);
-5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
+5. the model at the lowest order (stable ``A``; ssi-cva: freed of its correlations' taper, :func:`_untapered_rate`)
+   holding every mode; its innovation model by the stochastic Riccati equation (ssi-cva, ssi-cov) or from the VAR (var);
 6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
    with longer lags (:mod:`.output_only_low_band`).
 """
@@ -203,8 +203,6 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                         f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
                         f"their standard deviations are the clusters' spread across orders")
     realized = match_clusters(modes, poles, n_model)
-    # The model of the correlations' expectation: every pole exp(rate) times the realized one, the
-    # observability's block a exp(a rate) times (the gain's correlations are the unbiased ones).
     rate = _untapered_rate(chosen.taper_rate, np.array([ev for ev, _ in realized]))
     A, C = realizer.realize(n_model)[:2]
     gamma = realizer.observability(n_model)
@@ -378,9 +376,11 @@ def _untapered_rate(rate: float, poles: np.ndarray) -> float:
     """The share of the correlations' taper ``rate`` taken off the realized ``poles``: all, or half their slowest decay.
 
     A record's biased correlations hold ``R_k exp(-rate k)`` (:attr:`.output_covariance.RecordSums.taper`),
-    realized as poles ``exp(-rate)`` times their own, ``1 / (omega T)`` on each damping ratio. A pole whose
-    realized decay is under twice ``rate`` decays by less than two e-folds over the record, which does
-    not resolve it; it keeps half (the model stays stable).
+    realized as poles ``exp(-rate)`` times their own, ``1 / (omega T)`` on each damping ratio. The model
+    of the correlations' expectation has ``A exp(rate)``, the observability's block ``a`` ``exp(a rate)``
+    times the realized one and its gain from the unbiased correlations; the selection, the screens and
+    the standard deviations read the realized poles, as ever. A pole realized with under twice ``rate``'s
+    decay decays by less than two e-folds over the record, unresolved: it keeps half (a stable model).
     """
     if not rate or not poles.size:
         return rate
