@@ -282,7 +282,12 @@ def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> lis
 
 
 def _resolved_pair(poles: PoleSet, first: np.ndarray, second: np.ndarray, index: np.ndarray) -> bool:
-    """Whether two families of a linkage cluster (``index``) are two modes of a close pair (:data:`PAIR_COMMON_ORDERS`)."""
+    """Whether two families of a linkage cluster (``index``) are two modes of a resolved close pair.
+
+    Each holds one pole per order, the two hold one each at :data:`PAIR_COMMON_ORDERS` of the
+    orders from their first common one to the cluster's last, and their median frequencies lie
+    :data:`PAIR_SEPARATION_PER_SPREAD` times their summed robust spreads apart.
+    """
     held = [np.unique(poles.order[part]) for part in (first, second)]
     if any(orders.size < part.size for orders, part in zip(held, (first, second))):
         return False  # a family with two poles at an order is no one mode
