@@ -334,11 +334,10 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     clusters = []
     labels_kept = np.unique(labels) if keep_rejected else _labels_with_orders(labels, poles.order[index], orders.size)
     for label in labels_kept:
-        for mode in _families(poles, index[labels == label]):
-            group = len(clusters)  # the families of one mode share it; two modes of a pair do not
-            for family in mode:
+        for k, mode in enumerate(_families(poles, index[labels == label])):
+            for family in mode:  # the families of one mode share a group; two modes of a pair do not
                 clusters.append(_cluster(poles, family, p))
-                clusters[-1].group = group
+                clusters[-1].group = int(label) * 2 ** MAX_SPLITS + k  # at most 2 ** MAX_SPLITS modes a label
     persisting_elsewhere = []  # clusters that fail only the persistence test
     for cluster in clusters:
         count = len(cluster.members)
