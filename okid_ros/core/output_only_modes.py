@@ -11,7 +11,8 @@ The stabilization diagram without clicks:
    (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
    ``CLUSTER_DISTANCE`` (:func:`cluster_modes`); a cluster holding two poles at ``MIN_ORDERS``
    orders or more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split
-   (a mode has one pole per order; :func:`_families`);
+   (a mode has one pole per order; :func:`_families`), and so is one whose two families are a
+   resolved close pair, two modes (:func:`_resolved_pair`);
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
@@ -74,6 +75,14 @@ MAX_SPLITS = 2
 #: estimate on 2 of 120 random records the rule was not built on (10.43 Hz against 10.49 true,
 #: the cluster's median 10.51).
 TWIN_DAMPING_FACTOR = 3.0
+#: Two families of one cluster, close in damping, are a resolved close pair (two modes) when each holds
+#: one pole per order, they hold a pole each at this share of the orders from their first common one to
+#: the cluster's last (a pair once resolved stays resolved as the order grows; a mode split by noise into
+#: two families comes and goes), and their median frequencies lie ``PAIR_SEPARATION_PER_SPREAD`` times
+#: their summed frequency scatters apart (each family stays put). Twin chains and buildings 60-119: the
+#: six pairs one cluster held at every order from 10-16 on, 6-34 scatters apart.
+PAIR_COMMON_ORDERS = 0.9
+PAIR_SEPARATION_PER_SPREAD = 5.0
 #: Two listed modes closer than this many summed half-power half-widths ``zeta1 f1 + zeta2 f2`` whose
 #: shapes read as one (MAC >= :data:`MAC_TOLERANCE`) are a close pair whose weaker pole's eigenvector
 #: took in its partner's (:func:`separate_twin_shapes`) when they also lie within ``TWIN_SHAPE_DISTANCE``
@@ -119,7 +128,8 @@ class ModeCluster:
     damping_ratio_spread: float
     mpc: float
     energy: float
-    #: The linkage cluster the mode's poles came from; modes split from one (:func:`_families`) share it.
+    #: Which mode the poles are of: the families one linkage cluster holds of one mode (a mode and its
+    #: noise twin, :func:`_families`) share it; the two modes of a resolved pair do not.
     group: int = -1
 
 
@@ -244,27 +254,52 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
     )
 
 
-def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> list[np.ndarray]:
-    """The poles of one linkage cluster as the families of poles it holds: one mode has one pole per order.
+def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> list[list[np.ndarray]]:
+    """The poles of one linkage cluster as the modes it holds, each a list of families: one mode has one pole per order.
 
     A cluster with two poles at :data:`MIN_ORDERS` orders or more may hold two families (a mode
-    and a noise pole beside it with nearly its shape): it is split in two by Ward linkage on log
-    frequency, in units of the cluster's damping ratio (half-power bandwidths), and log damping,
-    the split kept when the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR`, and each
-    part is looked at again.
+    and a noise pole beside it with nearly its shape, or two modes of a close pair): it is split
+    in two by Ward linkage on log frequency, in units of the cluster's damping ratio (half-power
+    bandwidths), and log damping. When the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR`
+    they are one mode's families (a mode and its noise twin: the screening keeps one); else when
+    they are a resolved pair (:func:`_resolved_pair`) two modes; each part is looked at again.
     """
     if depth == 0 or index.size < 2 * MIN_ORDERS:  # too few poles for two at MIN_ORDERS orders
-        return [index]
+        return [[index]]
     _, counts = np.unique(poles.order[index], return_counts=True)
     if np.sum(counts >= 2) < MIN_ORDERS:
-        return [index]
+        return [[index]]
     zeta = poles.damping_ratio[index]
     features = np.column_stack([np.log(poles.frequency_hz[index]) / max(_median(zeta), MIN_DAMPING), np.log(zeta)])
     labels = hierarchy.fcluster(hierarchy.linkage(features, method="ward"), t=2, criterion="maxclust")
-    low, high = sorted(_median(zeta[labels == label]) for label in (1, 2))
-    if high < TWIN_DAMPING_FACTOR * low:
-        return [index]  # one mode's poles scattered by noise: their median estimates it best
-    return [part for label in (1, 2) for part in _families(poles, index[labels == label], depth - 1)]
+    parts = [index[labels == label] for label in (1, 2)]
+    low, high = sorted(_median(poles.damping_ratio[part]) for part in parts)
+    if high >= TWIN_DAMPING_FACTOR * low:
+        return [[family for part in parts for mode in _families(poles, part, depth - 1) for family in mode]]
+    if _resolved_pair(poles, parts[0], parts[1], index):
+        return [mode for part in parts for mode in _families(poles, part, depth - 1)]
+    return [[index]]  # one mode's poles scattered by noise: their median estimates it best
+
+
+def _resolved_pair(poles: PoleSet, first: np.ndarray, second: np.ndarray, index: np.ndarray) -> bool:
+    """Whether two families of a linkage cluster (``index``) are two modes of a resolved close pair.
+
+    Each holds one pole per order, the two hold one each at :data:`PAIR_COMMON_ORDERS` of the
+    orders from their first common one to the cluster's last, and their median frequencies lie
+    :data:`PAIR_SEPARATION_PER_SPREAD` times their summed robust spreads apart.
+    """
+    held = [np.unique(poles.order[part]) for part in (first, second)]
+    if any(orders.size < part.size for orders, part in zip(held, (first, second))):
+        return False  # a family with two poles at an order is no one mode
+    common = np.intersect1d(*held)
+    if common.size < MIN_ORDERS:
+        return False
+    orders = np.unique(poles.order)
+    span = np.count_nonzero((orders >= common[0]) & (orders <= poles.order[index].max()))
+    if common.size < PAIR_COMMON_ORDERS * span:
+        return False
+    (f1, spread1), (f2, spread2) = (_median_and_spread(poles.frequency_hz[part]) for part in (first, second))
+    return abs(f1 - f2) >= PAIR_SEPARATION_PER_SPREAD * (spread1 + spread2)
 
 
 def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_rejected: bool = True
@@ -299,9 +334,10 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     clusters = []
     labels_kept = np.unique(labels) if keep_rejected else _labels_with_orders(labels, poles.order[index], orders.size)
     for label in labels_kept:
-        for family in _families(poles, index[labels == label]):
-            clusters.append(_cluster(poles, family, p))
-            clusters[-1].group = int(label)
+        for k, mode in enumerate(_families(poles, index[labels == label])):
+            for family in mode:  # the families of one mode share a group; two modes of a pair do not
+                clusters.append(_cluster(poles, family, p))
+                clusters[-1].group = int(label) * 2 ** MAX_SPLITS + k  # at most 2 ** MAX_SPLITS modes a label
     persisting_elsewhere = []  # clusters that fail only the persistence test
     for cluster in clusters:
         count = len(cluster.members)
