@@ -21,8 +21,8 @@ __all__ = ["SymmetricEigen", "LARGEST_ALONE_RATIO"]
 #: A few largest pairs are taken alone from the tridiagonal form (MRRR, ``dstemr``) where the matrix
 #: is at least this many times their number: ``dstevd`` forms all ``m`` tridiagonal vectors
 #: (``m^3``), MRRR only those asked for, but it is the slower of the two on small matrices (k = 100
-#: of a canonical-variate Gram: 6.7 against 3.0 ms at m = 300, 11.9 against 10.5 at 528, 16.9
-#: against 24.5 at 768, 23.7 against 45.9 at 996).
+#: of a canonical-variate Gram: even near m = 550, twice as fast at 1000; docs/benchmarks-output-only.md,
+#: forty-fourth session).
 LARGEST_ALONE_RATIO = 6
 
 
