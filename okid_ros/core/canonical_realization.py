@@ -4,18 +4,22 @@ The covariance route of :mod:`.stochastic_realization` realizes the unweighted H
 output correlations, which is not an efficient estimator (docs/benchmarks-output-only.md,
 "What the records allow"). Canonical-variate analysis (Larimore 1990; Bauer & Ljung 2002, Bauer
 2005 "Asymptotic properties of subspace estimators", Automatica 41) weights the past/future
-covariance Hankel by the inverse Cholesky factors of the past and the future covariances.
-Without observed inputs every quantity is a product of output correlations ``R_k`` (reference
-channels ``r`` of ``p``, ``i`` block rows)::
+covariance Hankel by inverse factors of the past and the future covariances. Without observed
+inputs every quantity is a product of output correlations ``R_k`` (reference channels ``r`` of
+``p``, ``i`` block rows)::
 
     z_k  = [y_(k-1); ..; y_(k-i)],  y+_k = [y_k; ..; y_(k+i-1)]   (references)
-    Sigma_pp = E[z_k z_k^T] = L_p L_p^T,   Sigma_ff = E[y+_k y+_k^T] = L_f L_f^T
+    Sigma_pp = E[z_k z_k^T] = L_p L_p^T,   Sigma_ff = E[y+_k y+_k^T] = J Sigma_pp J = (J L_p) (J L_p)^T
     H(0) = E[y+_k z_k^T] (blocks R_(a+b+1)),   H(1) = E[y+_(k+1) z_k^T] (blocks R_(a+b+2))
-    L_f^-1 H(0) L_p^-T = U S V^T,   A = S^-1/2 U^T L_f^-1 H(1) L_p^-T V S^-1/2
+    L_p^-1 J H(0) L_p^-T = U S V^T,   A = S^-1/2 U^T L_p^-1 J H(1) L_p^-T V S^-1/2
 
 (ERA on the weighted Hankels: ``H(1) = Gamma A Ctrl`` exactly, so ``A`` is exact for exact
 correlations at any ``i``), ``C`` the first block row of the observability
 ``H(0) L_p^-T V S^-1/2`` (every output) and ``G`` the first block column of ``S^1/2 V^T L_p^T``.
+``J`` reverses the block rows: the future is the past read backwards, so one Cholesky factor
+whitens both, and ``J H(0)`` is block Toeplitz (blocks ``R_(i-a+b)``). Any factor ``F`` of
+``Sigma_ff = F F^T`` gives the same ``S``, ``V`` and ``A``: ``F^-1 = Q L_f^-1`` (``L_f`` the
+future's Cholesky factor, ``Q`` orthogonal) only turns ``U`` into ``Q U``.
 Every order's ``A`` is a corner of one matrix, so the same
 :class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
 the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
@@ -44,32 +48,40 @@ __all__ = ["CanonicalDecomposition", "CanonicalWeights", "canonical_decompositio
 
 @dataclass(frozen=True)
 class CanonicalWeights:
-    """The lower Cholesky factors ``L_p``, ``L_f`` (i r square) of the past and the future covariances."""
+    """The lower Cholesky factor ``L_p`` (i r square) of the past covariance, which whitens the future too.
+
+    The future's covariance is the past's with its block rows and columns reversed,
+    ``Sigma_ff = J Sigma_pp J`` (blocks ``R_(a-b)`` and ``R_(b-a)``), so ``J L_p`` is a factor of
+    it: ``L_p^-1 J`` whitens the future. It differs from ``L_f^-1`` by an orthogonal matrix on the
+    left (``L_p^-1 J L_f``), which leaves the weighted Hankel's singular values and right vectors,
+    and ``A``, ``C``, ``G``, as they are; one Cholesky factor instead of two.
+    """
 
     low_past: np.ndarray
-    low_future: np.ndarray
 
     @classmethod
     def of(cls, lagged: np.ndarray, block_rows: int) -> CanonicalWeights:
-        """The factors of the block Toeplitz covariances of ``lagged`` (:func:`_lagged`).
+        """The factor of the block Toeplitz past covariance of ``lagged`` (:func:`_lagged`).
 
-        Raises IdentificationError when a covariance is not positive definite (references that
-        are linearly dependent).
+        Raises IdentificationError when it is not positive definite (references that are
+        linearly dependent).
         """
-        try:  # blocks R_(b-a) and R_(a-b)
+        try:  # blocks R_(b-a)
             low_past = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, -1, 1), lower=True,
                                        overwrite_a=True, check_finite=False)
-            low_future = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, 1, -1), lower=True,
-                                         overwrite_a=True, check_finite=False)
         except linalg.LinAlgError:
             raise IdentificationError("the reference channels' covariance is not positive definite: "
                                       "no canonical-variate weighting") from None
-        return cls(low_past, low_future)
+        return cls(low_past)
 
-    def weighted_transpose(self, hankel: np.ndarray) -> np.ndarray:
-        """``(L_f^-1 H L_p^-T)^T`` (i r square) of the Hankel ``H``."""
-        left = linalg.solve_triangular(self.low_future, hankel, lower=True, check_finite=False)
-        return linalg.solve_triangular(self.low_past, left.T, lower=True, overwrite_b=True, check_finite=False)
+    def weighted_transpose(self, reversed_hankel: np.ndarray) -> np.ndarray:
+        """``(L_p^-1 J H L_p^-T)^T`` (i r square, Fortran order) of ``J H`` (the Hankel ``H``'s block rows reversed)."""
+        right = blas.dtrsm(1.0, self.low_past, reversed_hankel.T, side=1, lower=1, trans_a=1)  # H^T J L_p^-T
+        return blas.dtrsm(1.0, self.low_past, right, lower=1, overwrite_b=1)
+
+    def future_transform(self, x: np.ndarray) -> np.ndarray:
+        """``L_p^-1 x`` (i r, c): the future's whitening of ``x`` with its block rows reversed."""
+        return linalg.solve_triangular(self.low_past, x, lower=True, overwrite_b=True, check_finite=False)
 
     def past_transform(self, x: np.ndarray) -> np.ndarray:
         """``L_p^-T x`` (i r, c)."""
@@ -87,7 +99,7 @@ class CanonicalDecomposition(CovarianceDecomposition):
     Attributes
     ----------
     s : (k,) canonical correlations (descending, at most 1).
-    shifted : (k, k) ``U^T L_f^-1 H(1) L_p^-T V``.
+    shifted : (k, k) ``U^T L_p^-1 J H(1) L_p^-T V``.
     first_rows : (p, k) ``[R_1 .. R_i] T / s`` (``T = L_p^-T V``), every output.
     Vt : (k, r) ``V^T L_p^T`` at the first block's columns.
     transform : (i r, k) ``T``.
@@ -137,11 +149,6 @@ def _lagged(correlations: np.ndarray, references: np.ndarray, block_rows: int) -
     return np.concatenate([ref[i:0:-1].transpose(0, 2, 1), ref])
 
 
-def _hankel(lagged: np.ndarray, block_rows: int) -> np.ndarray:
-    """``H(0)`` (i r square) at the references: block ``(a, b)`` is ``R_(a+b+1)``."""
-    return _block_matrix(lagged, block_rows, block_rows + 1, 1, 1)
-
-
 def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
                             max_states: int) -> CanonicalDecomposition:
     """The CVA-weighted realization of the module docstring from the record's biased correlations.
@@ -161,8 +168,8 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     lagged = _lagged(correlations, references, i)
     r = lagged.shape[1]
     weights = CanonicalWeights.of(lagged, i)
-    hankel = _hankel(lagged, i)
-    weighted = weights.weighted_transpose(hankel)  # M^T, M = L_f^-1 H(0) L_p^-T
+    reversed_hankel = _block_matrix(lagged, i, 2 * i, -1, 1)  # J H(0): block (a, b) is R_(i-a+b)
+    weighted = weights.weighted_transpose(reversed_hankel)  # M^T, M = L_p^-1 J H(0) L_p^-T
     # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
     # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
     values, V = leading_eigh(blas.dsyrk(1.0, weighted, lower=1), int(min(max_states, i * r)), alone=True)
@@ -170,11 +177,10 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
     transform = weights.past_transform(V)
-    # U = M V / s, so U^T M(1) V = (M V)^T L_f^-1 H(1) T / s: products with k columns, M(1) never formed.
-    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
+    # U = M V / s, so U^T M(1) V = (M V)^T L_p^-1 J H(1) T / s: products with k columns, M(1) never formed.
+    # J H(1)'s block row 0 is H(1)'s last, R_(i+1) .. R_2i, its block row a J H(0)'s a - 1.
     last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, i * r)
-    future = linalg.solve_triangular(weights.low_future, np.vstack([hankel[r:] @ transform, last_row @ transform]),
-                                     lower=True, overwrite_b=True, check_finite=False)
+    future = weights.future_transform(np.vstack([last_row @ transform, reversed_hankel[: (i - 1) * r] @ transform]))
     shifted = ((weighted.T @ V).T @ future) / s[:, None]
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], i * r)
     return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,

@@ -20,9 +20,10 @@ __all__ = ["SymmetricEigen", "LARGEST_ALONE_RATIO"]
 
 #: A few largest pairs are taken alone from the tridiagonal form (MRRR, ``dstemr``) where the matrix
 #: is at least this many times their number: ``dstevd`` forms all ``m`` tridiagonal vectors
-#: (``m^3``), MRRR only those asked for, but it is the slower of the two on small matrices (k = 100:
-#: 0.6 times as fast at m = 500, even at 850, 3-4 times faster at 1300-1900).
-LARGEST_ALONE_RATIO = 10
+#: (``m^3``), MRRR only those asked for, but it is the slower of the two on small matrices (k = 100
+#: of a canonical-variate Gram: even near m = 550, twice as fast at 1000; docs/benchmarks-output-only.md,
+#: forty-fourth session).
+LARGEST_ALONE_RATIO = 6
 
 
 class SymmetricEigen:
@@ -53,9 +54,13 @@ class SymmetricEigen:
         if info:
             raise np.linalg.LinAlgError(f"symmetric eigendecomposition failed (dsytrd {info})")
         if largest is not None and 0 < largest and m >= LARGEST_ALONE_RATIO * largest:
-            self.values, self._z = linalg.eigh_tridiagonal(diagonal, off_diagonal, select="i",
-                                                           select_range=(m - largest, m - 1), check_finite=False)
-            return
+            try:  # scipy's default for a subset is bisection and inverse iteration (stebz, stein): 1.4 times slower
+                self.values, self._z = linalg.eigh_tridiagonal(diagonal, off_diagonal, select="i",
+                                                               select_range=(m - largest, m - 1), check_finite=False,
+                                                               lapack_driver="stemr")
+                return
+            except linalg.LinAlgError:  # MRRR's rare failure to separate a cluster: every pair by divide and conquer
+                pass
         self.values, self._z, info_d = lapack.dstevd(diagonal, off_diagonal)
         if info_d:
             raise np.linalg.LinAlgError(f"symmetric eigendecomposition failed (dstevd {info_d})")

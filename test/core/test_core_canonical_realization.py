@@ -105,12 +105,14 @@ def test_the_record_sums_less_a_span_equal_the_correlations_with_the_span_absent
                                atol=1e-12 * np.abs(expected).max())
 
 
-def _formed_realization(correlations: np.ndarray, block_rows: int, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """The module docstring's formulas on formed matrices: canonical correlations and ``A`` of one order."""
+def _formed_realization(correlations: np.ndarray, block_rows: int, order: int, references: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The textbook formulas on formed matrices, two Cholesky factors: canonical correlations, ``A``, ``C``, ``G``."""
     i, p = block_rows, correlations.shape[1]
+    references = np.arange(p) if references is None else references
 
-    def lag(k: int) -> np.ndarray:
-        return correlations[k] if k >= 0 else correlations[-k].T
+    def lag(k: int, rows=references) -> np.ndarray:
+        return correlations[k][rows][:, references] if k >= 0 else correlations[-k][references][:, rows].T
 
     def blocks(index) -> np.ndarray:
         return np.block([[lag(index(a, b)) for b in range(i)] for a in range(i)])
@@ -124,9 +126,12 @@ def _formed_realization(correlations: np.ndarray, block_rows: int, order: int) -
                                        lower=True)
 
     U, s, Vt = np.linalg.svd(weighted(0))
-    assert p * i == s.size
+    assert references.size * i == s.size
     q = np.sqrt(s[:order])
-    return s, (U[:, :order].T @ weighted(1) @ Vt[:order].T) / np.outer(q, q)
+    first_row = np.hstack([lag(b + 1, rows=np.arange(p)) for b in range(i)])  # every output
+    C = first_row @ linalg.solve_triangular(low_past, Vt[:order].T, lower=True, trans="T") / q
+    G = q[:, None] * (Vt[:order] @ low_past[: references.size].T)
+    return s, (U[:, :order].T @ weighted(1) @ Vt[:order].T) / np.outer(q, q), C, G
 
 
 def test_a_long_window_realizes_what_the_formed_weighted_hankel_does(close_pair_case) -> None:
@@ -136,10 +141,28 @@ def test_a_long_window_realizes_what_the_formed_weighted_hankel_does(close_pair_
     block_rows, top = 70, 40
     correlations = record_correlations(y - y.mean(axis=0), 2 * block_rows)
     decomposition = canonical_decomposition(correlations, np.arange(6), block_rows, top)
-    s, A = _formed_realization(correlations, block_rows, 8)
+    s, A = _formed_realization(correlations, block_rows, 8)[:2]
     np.testing.assert_allclose(decomposition.s, s[:top], rtol=1e-10)
     realizer = OrderRealizer(decomposition, top)
     np.testing.assert_allclose(_sorted_poles(realizer.eigenvalues(8)), _sorted_poles(np.linalg.eigvals(A)), atol=1e-10)
     for order in (16, 24):  # noise poles too, where the singular values are apart
         expected = np.linalg.eigvals(_formed_realization(correlations, block_rows, order)[1])
         np.testing.assert_allclose(np.sort_complex(realizer.eigenvalues(order)), np.sort_complex(expected), atol=1e-8)
+
+
+def test_one_factor_whitening_the_past_and_the_future_realizes_what_two_did(close_pair_case) -> None:
+    # The future whitened by the past's factor with its block rows reversed: the same canonical correlations
+    # and, up to a change of state basis, the same A, C and G as with the future's own Cholesky factor. Three
+    # references of six outputs, a Gram (180 square) 7.5 times the 24 pairs kept.
+    _, y = close_pair_case
+    block_rows, top, order, references = 60, 24, 8, np.array([0, 2, 5])
+    correlations = record_correlations(y - y.mean(axis=0), 2 * block_rows)
+    decomposition = canonical_decomposition(correlations, references, block_rows, top)
+    s, A, C, G = _formed_realization(correlations, block_rows, order, references)
+    np.testing.assert_allclose(decomposition.s, s[:top], rtol=1e-10)
+    A_new, C_new, G_new = OrderRealizer(decomposition, top).realize(order)
+    np.testing.assert_allclose(_sorted_poles(np.linalg.eigvals(A_new)), _sorted_poles(np.linalg.eigvals(A)), atol=1e-10)
+    for power in (0, 1, 5):  # the covariance model's R_(k+1) = C A^k G, invariant to the state basis
+        expected = C @ np.linalg.matrix_power(A, power) @ G
+        np.testing.assert_allclose(C_new @ np.linalg.matrix_power(A_new, power) @ G_new, expected, rtol=0,
+                                   atol=1e-10 * np.abs(expected).max())

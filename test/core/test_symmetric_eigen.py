@@ -77,3 +77,20 @@ def test_the_largest_pairs_alone_are_those_of_eigh(largest):
     # Below the ratio every pair is computed, as without ``largest``.
     small = matrix[: size - 4, : size - 4]
     np.testing.assert_array_equal(SymmetricEigen(small, largest=largest).values, SymmetricEigen(small).values)
+
+
+def test_the_largest_pairs_come_from_every_pair_where_mrrr_fails(monkeypatch):
+    size, largest = LARGEST_ALONE_RATIO * 4 + 3, 4
+    rng = np.random.default_rng(7)
+    x = rng.standard_normal((size + 5, size))
+    matrix = x.T @ x
+
+    def failing(*args, **kwargs):
+        raise linalg.LinAlgError("dstemr failed")
+
+    monkeypatch.setattr(linalg, "eigh_tridiagonal", failing)
+    eigen = SymmetricEigen(matrix, largest=largest)
+    values, vectors = np.linalg.eigh(matrix)
+    np.testing.assert_allclose(eigen.values[-largest:], values[-largest:], rtol=0, atol=1e-12 * values.max())
+    found = eigen.vectors(np.arange(eigen.values.size - largest, eigen.values.size))
+    np.testing.assert_allclose(np.abs(np.sum(found * vectors[:, -largest:], axis=0)), 1.0, atol=1e-10)
