@@ -69,8 +69,8 @@ from okid_ros.core.output_only_modes import (
     drop_listed_twice,
     lowest_complete_order,
     mark_stable,
+    separate_twin_shapes,
 )
-from okid_ros.core.output_only_residues import fit_residue_shapes
 from okid_ros.core.output_only_routes import ROUTES
 from okid_ros.core.output_only_support import (
     Jackknife,
@@ -185,21 +185,15 @@ def identify_output_only(
         model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
                             block_rows=block_rows, present=present, low_band=low_band, threads=threads,
                             warnings=warnings)
-    model, correlations, references = model
     model = restore_model(model, scales)
-    correlations = correlations * np.outer(scales.output, scales.output)  # powers of two: exact
-    model.output_offset, model.warnings = offset, warnings
-    model.modes = fit_residue_shapes(model.modes, correlations, np.linalg.eigvals(model.A), references)
+    model.output_offset, model.warnings, model.modes = offset, warnings, separate_twin_shapes(model.modes)
     return model
 
 
 def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
                 present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str]
-                ) -> tuple[IdentifiedModel, np.ndarray, np.ndarray]:
-    """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``).
-
-    Returns the model, the record's correlations and the reference channels (the shapes' fit).
-    """
+                ) -> IdentifiedModel:
+    """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``)."""
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
                            threads=threads)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
@@ -221,7 +215,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
-    return model, chosen.correlations, chosen.references
+    return model
 
 
 @dataclass
@@ -232,7 +226,6 @@ class _Selection:
     poles: PoleSet
     realizer: OrderRealizer
     correlations: np.ndarray  # (L + 1, p, p) the record's
-    references: np.ndarray  # (r,) reference channels
     block_rows: int
     jackknife: Jackknife | None
     var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
@@ -289,7 +282,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError(_no_mode_reason(candidates, route.warning))
-    return _Selection(modes, poles, realizer, r_mean, references, block_rows, jackknife, var, n_model)
+    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
 
 
 def _no_mode_reason(candidates: int, route_warning: str) -> str:
