@@ -27,7 +27,8 @@ Steps (one module each):
    frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
-   twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
+   twice, :func:`.output_only_modes.drop_listed_twice`) unless the two hold poles side by side
+   across the orders (a close pair); the jackknife's standard deviations
    are the modes' (ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
