@@ -6,7 +6,6 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy import linalg
-from scipy.optimize import linear_sum_assignment
 
 from okid_ros.core.channels import channel_mean, channel_std, column_peaks
 from okid_ros.core.excitation import output_problem
@@ -16,7 +15,7 @@ from okid_ros.core.modal import Mode
 from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
-from okid_ros.core.output_only_modes import FREQUENCY_TOLERANCE, MAC_TOLERANCE, ModeCluster, PoleSet
+from okid_ros.core.output_only_modes import ModeCluster, PoleSet
 from okid_ros.core.regressors import real_array
 from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
@@ -98,29 +97,8 @@ def listed_within_limits(modes: list[Mode], scattered) -> list[Mode]:
 
 
 def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> list[tuple[complex, ModeCluster]]:
-    """The eigenvalue of each mode's pole at order ``n_model``, one pole per mode (modes without one are left out).
-
-    A mode's candidates are its member at that order and the order's poles within the stability
-    tolerances of it (``FREQUENCY_TOLERANCE`` of its frequency, MAC >= ``MAC_TOLERANCE`` with its
-    shape at its median order); the modes take them one to one at the least total clustering
-    distance ``|df| / f + (1 - MAC)`` (``scipy.optimize.linear_sum_assignment``): of a close pair
-    each member gets the pole of its frequency and shape, not the one its cluster met first.
-    """
-    at = np.flatnonzero(poles.order == n_model)
-    if not modes or not at.size:
-        return []
-    cost = np.full((len(modes), at.size), np.inf)
-    for i, mode in enumerate(modes):
-        home = sorted(mode.members)[len(mode.members) // 2]
-        shape = poles.shape[mode.members[home]]
-        offset = np.abs(poles.frequency_hz[at] / mode.frequency_hz - 1)
-        similar = np.abs(poles.shape[at] @ np.conj(shape)) ** 2
-        near = (offset <= FREQUENCY_TOLERANCE) & (similar >= MAC_TOLERANCE) | (at == mode.members.get(n_model, -1))
-        cost[i, near] = offset[near] + 1 - similar[near]
-    allowed = np.isfinite(cost)
-    rows, cols = linear_sum_assignment(np.where(allowed, cost, 1e6))
-    chosen = {int(r): int(at[c]) for r, c in zip(rows, cols) if allowed[r, c]}
-    return [(complex(poles.eigenvalue[chosen[i]]), mode) for i, mode in enumerate(modes) if i in chosen]
+    """The eigenvalue of each mode's pole at order ``n_model`` (modes without one are left out)."""
+    return [(complex(poles.eigenvalue[mode.members[n_model]]), mode) for mode in modes if n_model in mode.members]
 
 
 def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str, ...], max_states, block_rows,
