@@ -356,8 +356,8 @@ def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarr
     modes : (M,) objects with ``frequency_hz`` and ``damping_ratio``; strengths : (M,) how
         strongly each stands out (the stronger twin stays); shapes : (M,) their (p,) complex
         output shapes.
-    distinct : ``distinct(i, j)`` True where modes ``i`` and ``j`` are known to be two (never
-        twins, whatever their band and shape); None: no pair is.
+    distinct : ``distinct(i, j)`` True where mode ``i`` and the stronger ``j`` are known to be
+        two (never twins, whatever their band and shape); None: no pair is.
 
     Returns
     -------

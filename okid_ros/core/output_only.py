@@ -388,7 +388,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
     ``steady_width``: the route's :attr:`.output_only_routes.OutputOnlyRoute.steady_frequency_std_per_width`.
     """
-    best: dict[int, tuple[float, ModeCluster]] = {}
+    best: dict[int, tuple[float, ModeCluster, bool]] = {}
     for mode in modes:
         n_home = _home_order(mode)
         target = poles.eigenvalue[mode.members[n_home]]
@@ -405,12 +405,12 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             # a flat noise floor: of what their poles leave, a mode stands out again, a noise pole not.
             others = [poles.eigenvalue[m.members[n_home]] for m in modes if m is not mode and n_home in m.members]
             stands_out = dominance(n_home, target, others=others) >= MIN_REMAINING_DOMINANCE
-        if (stands_out or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
-            best[mode.group] = (share, mode)
+        if (stands_out or steady) and share > best.get(mode.group, (-np.inf,))[0]:
+            best[mode.group] = (share, mode, steady)
     if not once:
-        return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
-    shares, modes = [s for s, _ in best.values()], [m for _, m in best.values()]
-    return drop_listed_twice(modes, shares, [poles.shape[m.members[_home_order(m)]] for m in modes])
+        return sorted((mode for _, mode, _ in best.values()), key=lambda mode: mode.frequency_hz)
+    shares, modes, steady = (list(column) for column in zip(*best.values())) if best else ([], [], [])
+    return drop_listed_twice(modes, shares, [poles.shape[m.members[_home_order(m)]] for m in modes], steady=steady)
 
 
 def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

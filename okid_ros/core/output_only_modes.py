@@ -85,11 +85,12 @@ TWIN_DAMPING_FACTOR = 3.0
 TWIN_SHAPE_BAND = 2.0
 TWIN_SHAPE_DISTANCE = 0.02
 #: Two candidates within the listed-twice band and of one shape are two modes, not one listed twice,
-#: when they hold distinct poles together at this share of the orders the one with more orders holds
-#: (the persistence test's share; and at ``MIN_ORDERS``), the first such order among the first
-#: ``MIN_ORDERS`` either holds (:func:`_side_by_side`). Read on every bench set (docs/benchmarks-output-only.md,
-#: forty-fourth session): the three noise twins 0.34-0.48, together first at the 10th-22nd order either
-#: holds; the five true pairs 0.82-1.0, at the 1st or 2nd.
+#: when the weaker is steady in the jackknife and they hold distinct poles together at this share of
+#: the orders the one with more orders holds (the persistence test's share; and at ``MIN_ORDERS``), the
+#: first such order among the first ``MIN_ORDERS`` either holds (:func:`drop_listed_twice`). Read on every
+#: bench set (docs/benchmarks-output-only.md, forty-fourth session): the ssi-cva noise twins 0.34-0.48,
+#: together first at the 10th-22nd order, none steady; the true pairs 0.82-1.0, at the 1st or 2nd, four
+#: of five steady; one mode split in two under ssi-cov (beam 83) 0.82 from the 2nd, not steady.
 TWIN_COEXISTENCE = MIN_ORDER_FRACTION
 
 
@@ -382,19 +383,23 @@ def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset())
     return next(n for n, c in zip(orders, counts) if c == best)
 
 
-def drop_listed_twice(modes: list[ModeCluster], shares: list[float], shapes: list[np.ndarray]) -> list[ModeCluster]:
+def drop_listed_twice(modes: list[ModeCluster], shares: list[float], shapes: list[np.ndarray], *,
+                      steady: list[bool] | None = None) -> list[ModeCluster]:
     """The modes with each mode listed once: of two twins the one with the smaller spectral share goes.
 
-    :func:`.modal.modes_listed_once` (its band and MAC measured on the output-only records), but two
-    modes that hold poles of their own side by side across the orders (:func:`_side_by_side`) are
-    a close pair, never one mode listed twice.
+    :func:`.modal.modes_listed_once` (its band and MAC measured on the output-only records), but a
+    steady weaker one that holds poles of its own side by side with its partner's across the
+    orders (:func:`_side_by_side`) is the other mode of a close pair, not the partner listed twice.
 
     Parameters
     ----------
     modes : selected modes; shares : (M,) their spectral shares; shapes : (M,) their (p,) complex
-        output shapes at their home orders.
+        output shapes at their home orders; steady : (M,) whether the jackknife places each one's
+        pole steadily (``output_only._drop_noise_modes``); None: none is.
     """
-    kept = modes_listed_once(modes, shares, shapes, distinct=lambda i, j: _side_by_side(modes[i], modes[j]))
+    steady = [False] * len(modes) if steady is None else steady
+    kept = modes_listed_once(modes, shares, shapes,
+                             distinct=lambda weaker, j: steady[weaker] and _side_by_side(modes[weaker], modes[j]))
     return sorted((modes[i] for i in kept), key=lambda mode: mode.frequency_hz)
 
 

@@ -458,7 +458,7 @@ def test_separate_twin_shapes_gives_the_weaker_twin_the_part_its_partner_leaves(
 
 
 def test_two_modes_of_one_shape_holding_poles_side_by_side_are_a_close_pair() -> None:
-    """Within the listed-twice band and of one shape, two modes with poles together at most orders are two.
+    """Within the listed-twice band and of one shape, two modes with poles together from the first are two.
 
     A mode listed twice is a mode and a noise pole that the high orders place beside it (random 36: at
     14 of its partner's 41 orders, from its 22nd on); a close pair's modes come in together (random 5:
@@ -472,14 +472,18 @@ def test_two_modes_of_one_shape_holding_poles_side_by_side_are_a_close_pair() ->
     shape = np.array([1.0, 0.5j, -0.2])
     # 13.69 Hz at 1.6 % and 13.90 Hz at 1.1 %: 0.56 of their summed half-widths apart (random record 5).
     pair = [mode(13.69, 0.016, range(10, 102, 2), 0), mode(13.90, 0.011, range(10, 102, 2), 1000)]
-    assert [m.frequency_hz for m in drop_listed_twice(pair, [-0.13, 0.99], [shape, shape])] == [13.69, 13.90]
+    steady = [True, True]
+    assert [m.frequency_hz for m in drop_listed_twice(pair, [-0.13, 0.99], [shape, shape], steady=steady)] == [
+        13.69, 13.90]
+    # The same, the weaker's pole not steady in the jackknife (a mode split in two, beam 83 under ssi-cov).
+    assert [m.frequency_hz for m in drop_listed_twice(pair, [-0.13, 0.99], [shape, shape])] == [13.90]
     late = [mode(13.69, 0.016, range(70, 102, 2), 0), mode(13.90, 0.011, range(10, 102, 2), 1000)]
-    assert [m.frequency_hz for m in drop_listed_twice(late, [-0.13, 0.99], [shape, shape])] == [13.90]
+    assert [m.frequency_hz for m in drop_listed_twice(late, [-0.13, 0.99], [shape, shape], steady=steady)] == [13.90]
     # Together at 31 of 46 orders, but from the 16th on (low-modes 8's noise twin: from the 12th).
     later = [mode(13.69, 0.016, range(40, 102, 2), 0), mode(13.90, 0.011, range(10, 102, 2), 1000)]
-    assert [m.frequency_hz for m in drop_listed_twice(later, [-0.13, 0.99], [shape, shape])] == [13.90]
+    assert [m.frequency_hz for m in drop_listed_twice(later, [-0.13, 0.99], [shape, shape], steady=steady)] == [13.90]
     few = [mode(13.69, 0.016, range(10, 18, 2), 0), mode(13.90, 0.011, range(10, 18, 2), 1000)]  # 4 orders
-    assert [m.frequency_hz for m in drop_listed_twice(few, [-0.13, 0.99], [shape, shape])] == [13.90]
+    assert [m.frequency_hz for m in drop_listed_twice(few, [-0.13, 0.99], [shape, shape], steady=steady)] == [13.90]
 
 
 @pytest.mark.parametrize("family, index, low_hz, high_hz", [("random", 5, 13.5, 14.0), ("physical", 49, 30.4, 31.0),
