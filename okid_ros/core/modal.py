@@ -347,7 +347,8 @@ LISTED_TWICE_BAND = 0.85
 LISTED_TWICE_MAC = 0.95
 
 
-def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarray]) -> list[int]:
+def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarray], *,
+                      distinct: Callable[[int, int], bool] | None = None) -> list[int]:
     """Indices of the ``modes`` to keep, each mode listed once: of two twins the weaker goes.
 
     Parameters
@@ -355,6 +356,8 @@ def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarr
     modes : (M,) objects with ``frequency_hz`` and ``damping_ratio``; strengths : (M,) how
         strongly each stands out (the stronger twin stays); shapes : (M,) their (p,) complex
         output shapes.
+    distinct : ``distinct(i, j)`` True where mode ``i`` and the stronger ``j`` are known to be
+        two (never twins, whatever their band and shape); None: no pair is.
 
     Returns
     -------
@@ -366,7 +369,7 @@ def modes_listed_once(modes: list, strengths: list[float], shapes: list[np.ndarr
         for j in kept:
             b = modes[j]
             band = a.damping_ratio * a.frequency_hz + b.damping_ratio * b.frequency_hz
-            if abs(a.frequency_hz - b.frequency_hz) < LISTED_TWICE_BAND * band:
+            if abs(a.frequency_hz - b.frequency_hz) < LISTED_TWICE_BAND * band and not (distinct and distinct(i, j)):
                 twin = twin or mac(shapes[i], shapes[j]) > LISTED_TWICE_MAC
         if not twin:
             kept.append(i)

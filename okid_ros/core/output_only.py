@@ -27,7 +27,8 @@ Steps (one module each):
    frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
    unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
    cluster one is kept, and of two of one shape within their half-power bands (a mode listed
-   twice, :func:`.output_only_modes.drop_listed_twice`); the jackknife's standard deviations
+   twice, :func:`.output_only_modes.drop_listed_twice`) unless the two hold poles side by side
+   across the orders (a close pair); the jackknife's standard deviations
    are the modes' (ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
    by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
@@ -401,7 +402,7 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
     ``steady_width``: the route's :attr:`.output_only_routes.OutputOnlyRoute.steady_frequency_std_per_width`.
     """
-    best: dict[int, tuple[float, ModeCluster]] = {}
+    best: dict[int, tuple[float, ModeCluster, bool]] = {}
     for mode in modes:
         n_home = _home_order(mode)
         target = poles.eigenvalue[mode.members[n_home]]
@@ -418,12 +419,12 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             # a flat noise floor: of what their poles leave, a mode stands out again, a noise pole not.
             others = [poles.eigenvalue[m.members[n_home]] for m in modes if m is not mode and n_home in m.members]
             stands_out = dominance(n_home, target, others=others) >= MIN_REMAINING_DOMINANCE
-        if (stands_out or steady) and share > best.get(mode.group, (-np.inf, None))[0]:
-            best[mode.group] = (share, mode)
+        if (stands_out or steady) and share > best.get(mode.group, (-np.inf,))[0]:
+            best[mode.group] = (share, mode, steady)
     if not once:
-        return sorted((mode for _, mode in best.values()), key=lambda mode: mode.frequency_hz)
-    shares, modes = [s for s, _ in best.values()], [m for _, m in best.values()]
-    return drop_listed_twice(modes, shares, [poles.shape[m.members[_home_order(m)]] for m in modes])
+        return sorted((mode for _, mode, _ in best.values()), key=lambda mode: mode.frequency_hz)
+    shares, modes, steady = (list(column) for column in zip(*best.values())) if best else ([], [], [])
+    return drop_listed_twice(modes, shares, [poles.shape[m.members[_home_order(m)]] for m in modes], steady=steady)
 
 
 def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -29,7 +29,9 @@ The stabilization diagram without clicks:
    which left no cluster of that mode at all (:func:`_persists_near`).
 
 Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
-the lowest at which every mode has its pole. Of two close listed modes of one estimated shape the
+the lowest at which every mode has its pole. Of two modes of one shape within their half-power
+bands the weaker goes (a mode listed twice) unless the two hold poles side by side across the orders
+(a close pair, :func:`drop_listed_twice`). Of two close listed modes of one estimated shape the
 weaker is listed with the part of its shape its partner's leaves (:func:`separate_twin_shapes`).
 """
 
@@ -91,6 +93,14 @@ PAIR_SEPARATION_PER_SPREAD = 5.0
 #: apart (2.9 % and 1.1 % damping: 2 widths) kept its shapes only with the distance.
 TWIN_SHAPE_BAND = 2.0
 TWIN_SHAPE_DISTANCE = 0.02
+#: Two candidates within the listed-twice band and of one shape are two modes, not one listed twice,
+#: when the weaker is steady in the jackknife and they hold distinct poles together at this share of
+#: the orders the one with more orders holds (the persistence test's share; and at ``MIN_ORDERS``), the
+#: first such order among the first ``MIN_ORDERS`` either holds (:func:`drop_listed_twice`). Read on every
+#: bench set (docs/benchmarks-output-only.md, forty-fourth session): the ssi-cva noise twins 0.34-0.48,
+#: together first at the 10th-22nd order, none steady; the true pairs 0.82-1.0, at the 1st or 2nd, four
+#: of five steady; one mode split in two under ssi-cov (beam 83) 0.82 from the 2nd, not steady.
+TWIN_COEXISTENCE = MIN_ORDER_FRACTION
 
 
 @dataclass
@@ -409,18 +419,37 @@ def lowest_complete_order(modes: list[ModeCluster], unstable_orders=frozenset())
     return next(n for n, c in zip(orders, counts) if c == best)
 
 
-def drop_listed_twice(modes: list[ModeCluster], shares: list[float], shapes: list[np.ndarray]) -> list[ModeCluster]:
+def drop_listed_twice(modes: list[ModeCluster], shares: list[float], shapes: list[np.ndarray], *,
+                      steady: list[bool] | None = None) -> list[ModeCluster]:
     """The modes with each mode listed once: of two twins the one with the smaller spectral share goes.
 
-    :func:`.modal.modes_listed_once` (its band and MAC measured on the output-only records).
+    :func:`.modal.modes_listed_once` (its band and MAC measured on the output-only records), but a
+    steady weaker one that holds poles of its own side by side with its partner's across the
+    orders (:func:`_side_by_side`) is the other mode of a close pair, not the partner listed twice.
 
     Parameters
     ----------
     modes : selected modes; shares : (M,) their spectral shares; shapes : (M,) their (p,) complex
-        output shapes at their home orders.
+        output shapes at their home orders; steady : (M,) whether the jackknife places each one's
+        pole steadily (``output_only._drop_noise_modes``); None: none is.
     """
-    kept = modes_listed_once(modes, shares, shapes)
+    steady = [False] * len(modes) if steady is None else steady
+    kept = modes_listed_once(modes, shares, shapes,
+                             distinct=lambda weaker, j: steady[weaker] and _side_by_side(modes[weaker], modes[j]))
     return sorted((modes[i] for i in kept), key=lambda mode: mode.frequency_hz)
+
+
+def _side_by_side(a: ModeCluster, b: ModeCluster) -> bool:
+    """Whether two modes hold distinct poles together from their first orders on (:data:`TWIN_COEXISTENCE`).
+
+    A mode listed twice is a mode and a noise pole the surplus states of high orders place beside
+    it: the twin's poles come in many orders after the mode's. The two modes of a close pair are
+    poles of the orders that resolve them, together from (nearly) the first.
+    """
+    together = sorted(n for n in a.members.keys() & b.members.keys() if a.members[n] != b.members[n])
+    either = sorted(a.members.keys() | b.members.keys())
+    return (len(together) >= max(MIN_ORDERS, TWIN_COEXISTENCE * max(len(a.members), len(b.members)))
+            and together[0] in either[:MIN_ORDERS])
 
 
 def separate_twin_shapes(modes: list) -> list:
