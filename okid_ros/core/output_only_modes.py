@@ -329,9 +329,9 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     distance /= np.maximum.outer(f, f)
     apart = _shapes_apart(poles, index)
     shape_distance = _mac_matrix(poles.shape[index], poles.shape[index])
-    # A weaker pole beside a stronger one whose estimated shape does not read as another pole's may by its own part.
+    # A weaker pole beside a stronger one: one shape with another pole by its estimated shape or its own part.
     changed = np.flatnonzero(np.any(apart[index] != poles.shape[index], axis=1))
-    own = np.where(shape_distance[changed] < MAC_TOLERANCE, _mac_matrix(apart[index[changed]], apart[index]), 0.0)
+    own = _mac_matrix(apart[index[changed]], apart[index])
     shape_distance[changed] = np.maximum(shape_distance[changed], own)
     shape_distance[:, changed] = np.maximum(shape_distance[:, changed], own.T)
     distance += np.subtract(1.0, shape_distance, out=shape_distance)
