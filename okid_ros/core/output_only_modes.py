@@ -7,9 +7,9 @@ The stabilization diagram without clicks:
 2. a pole is *stable* when the order just below or just above has a pole within
    ``FREQUENCY_TOLERANCE`` in frequency, ``DAMPING_TOLERANCE`` (relative) in damping and with
    MAC >= ``MAC_TOLERANCE`` (:func:`mark_stable`);
-3. stable poles are grouped by average-linkage hierarchical clustering (``scipy.cluster.hierarchy``) on the
-   distance ``|df| / f + (1 - MAC)``, a weaker pole beside a stronger one read also by the part of its shape the
-   other's leaves (:func:`_shapes_apart`), cut at ``CLUSTER_DISTANCE``; a cluster with two poles at ``MIN_ORDERS``
+3. stable poles are grouped by average-linkage hierarchical clustering
+   (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
+   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`); a cluster holding two poles at ``MIN_ORDERS``
    orders or more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split
    (a mode has one pole per order; :func:`_families`), and so is one whose two families are a
    resolved close pair, two modes (:func:`_resolved_pair`);
@@ -229,11 +229,8 @@ def _median_and_spread(values: np.ndarray) -> tuple[float, float]:
     return median, float(1.4826 * _median(np.abs(values - median)))
 
 
-def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int, *, apart: np.ndarray | None = None) -> ModeCluster:
-    """One pole per order (nearest the median frequency), outliers in damping dropped; MPC the better of two shapes.
-
-    ``apart``: the shapes of :func:`_shapes_apart` (a weaker pole's estimated one mixes in its neighbour's).
-    """
+def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
+    """One pole per order (nearest the median frequency), outliers in damping dropped."""
     f_med = _median(poles.frequency_hz[index])
     ranked = index[np.argsort(np.abs(poles.frequency_hz[index] - f_med))]
     _, first = np.unique(poles.order[ranked], return_index=True)  # each order's first, i.e. nearest, pole
@@ -243,8 +240,7 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int, *, apart: np.nda
     inliers = np.abs(z - z_median) <= 3.0 * max(spread, 1e-12) + 1e-12
     chosen = chosen[inliers]
     members = dict(zip(poles.order[chosen].tolist(), chosen.tolist()))
-    own = poles.shape if apart is None else apart
-    shapes_mpc = [max(mpc(poles.shape[i]), mpc(own[i])) for i in chosen] if n_outputs >= MIN_OUTPUTS_FOR_MPC else [1.0]
+    shapes_mpc = [mpc(poles.shape[i]) for i in chosen] if n_outputs >= MIN_OUTPUTS_FOR_MPC else [1.0]
     frequency, frequency_spread = _median_and_spread(poles.frequency_hz[chosen])
     damping, damping_spread = _median_and_spread(poles.damping_ratio[chosen])
     return ModeCluster(
@@ -327,13 +323,7 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     distance = np.subtract.outer(f, f)
     np.abs(distance, out=distance)
     distance /= np.maximum.outer(f, f)
-    apart = _shapes_apart(poles, index)
     shape_distance = _mac_matrix(poles.shape[index], poles.shape[index])
-    # A weaker pole beside a stronger one: one shape with another pole by its estimated shape or its own part.
-    changed = np.flatnonzero(np.any(apart[index] != poles.shape[index], axis=1))
-    own = _mac_matrix(apart[index[changed]], apart[index])
-    shape_distance[changed] = np.maximum(shape_distance[changed], own)
-    shape_distance[:, changed] = np.maximum(shape_distance[:, changed], own.T)
     distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
     tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
@@ -346,7 +336,7 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     for label in labels_kept:
         for k, mode in enumerate(_families(poles, index[labels == label])):
             for family in mode:  # the families of one mode share a group; two modes of a pair do not
-                clusters.append(_cluster(poles, family, p, apart=apart))
+                clusters.append(_cluster(poles, family, p))
                 clusters[-1].group = int(label) * 2 ** MAX_SPLITS + k  # at most 2 ** MAX_SPLITS modes a label
     persisting_elsewhere = []  # clusters that fail only the persistence test
     for cluster in clusters:
@@ -368,32 +358,6 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
-
-
-def _shapes_apart(poles: PoleSet, index: np.ndarray) -> np.ndarray:
-    """The shapes, each weaker of two close poles of one order (``index``) less its stronger neighbour's component.
-
-    Close: within :data:`TWIN_SHAPE_BAND` summed widths and :data:`TWIN_SHAPE_DISTANCE`. The weaker's eigenvector
-    error lies along its neighbour's (:func:`separate_twin_shapes`) by a share that changes with the order.
-    """
-    shapes = poles.shape.copy()
-    for n in np.unique(poles.order[index]) if shapes.shape[1] > 1 else []:
-        at = index[poles.order[index] == n]
-        f, width, energy = poles.frequency_hz[at], poles.damping_ratio[at] * poles.frequency_hz[at], poles.energy[at]
-        apart = np.abs(np.subtract.outer(f, f))
-        near = (apart < np.minimum(TWIN_SHAPE_BAND * np.add.outer(width, width), TWIN_SHAPE_DISTANCE * f[:, None]))
-        near &= energy[None, :] > energy[:, None]  # row: the weaker pole; column: a stronger neighbour
-        for k in np.flatnonzero(near.any(axis=1)):
-            strong = np.flatnonzero(near[k])
-            own = _less_component(poles.shape[at[k]], poles.shape[at[strong[np.argmin(apart[k, strong])]]])
-            shapes[at[k]] = poles.shape[at[k]] if own is None else own
-    return shapes
-
-
-def _less_component(shape: np.ndarray, strong: np.ndarray) -> np.ndarray | None:
-    """``shape`` less its component along ``strong``, unit norm; None when nothing is left (one shape to rounding)."""
-    own = shape - np.vdot(strong, shape) / np.vdot(strong, strong).real * strong
-    return own / np.linalg.norm(own) if np.linalg.norm(own) > np.sqrt(np.finfo(float).eps) else None
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:
@@ -494,7 +458,9 @@ def separate_twin_shapes(modes: list) -> list:
         if not partners:
             continue
         strong = shapes[min(partners, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))]
-        own = _less_component(shapes[i], strong)
-        if own is not None:  # else nothing of its own to tell (one shape to rounding)
-            weak.shape = own * np.exp(-1j * np.angle(own[phase_reference_row(own)]))
+        own = shapes[i] - np.vdot(strong, shapes[i]) / np.vdot(strong, strong).real * strong
+        if not np.linalg.norm(own) > np.sqrt(np.finfo(float).eps):
+            continue  # nothing of its own to tell (one shape to rounding)
+        own = own / np.linalg.norm(own)
+        weak.shape = own * np.exp(-1j * np.angle(own[phase_reference_row(own)]))
     return modes
