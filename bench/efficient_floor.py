@@ -166,8 +166,8 @@ def output_only_floor_case(name: str, length: int | None) -> FloorCase:
 
     ``random-K`` / ``physical-K``: structure K of ``bench/output_only.py --cases random`` / ``physical``,
     its record the one that bench draws for it (seed K; every mode scored, those the record does not
-    show too); ``koma-frame``: koma's shear frame with noise seeds. The product's estimate: the modes ``identify_output_only`` lists
-    with its defaults.
+    show too); ``koma-frame``: koma's shear frame with noise seeds. The product's estimate: the modes
+    ``identify_output_only`` lists with its defaults.
     """
     first_seed = 0
     if name.startswith("random-") and name[len("random-"):].isdigit():
