@@ -38,6 +38,7 @@ Usage::
     python bench/efficient_floor.py                                        # close-pair, 15000 samples, 40 seeds
     python bench/efficient_floor.py --cases paper-lp15,more-outputs --length 3750 --seeds 20
     python bench/efficient_floor.py --output-only --cases low-modes,close-pair --seeds 20
+    python bench/efficient_floor.py --output-only --cases koma-frame --seeds 100       # koma's frame, noise seeds
     python bench/efficient_floor.py --cases random --seeds 120                   # bench/random_structures.py's 0-119
     python bench/efficient_floor.py --output-only --cases random --seeds 120     # bench/output_only.py's
     python bench/efficient_floor.py --out /tmp/floor.md [--force]
@@ -67,7 +68,7 @@ from identification_accuracy import simulate_record  # noqa: E402
 from okid_bench.cases import benchmark_case, random_record  # noqa: E402
 from okid_bench.cases import random_case as io_random_case  # noqa: E402
 from okid_bench.output_only_cases import output_only_case, random_case  # noqa: E402
-from okid_bench.physical_cases import physical_case  # noqa: E402
+from okid_bench.physical_cases import KOMA_FRAME, koma_frame_case, physical_case  # noqa: E402
 from okid_bench.report import add_output_options, refuse_existing, write_output  # noqa: E402
 from okid_bench.scoring import assign_by_frequency, match_modes, modes_of, physical_modes  # noqa: E402
 from okid_ros.core.output_only import identify_output_only  # noqa: E402
@@ -165,8 +166,8 @@ def output_only_floor_case(name: str, length: int | None) -> FloorCase:
 
     ``random-K`` / ``physical-K``: structure K of ``bench/output_only.py --cases random`` / ``physical``,
     its record the one that bench draws for it (seed K; every mode scored, those the record does not
-    show too). The product's estimate: the modes ``identify_output_only`` lists
-    with its defaults.
+    show too); ``koma-frame``: koma's shear frame with noise seeds. The product's estimate: the modes
+    ``identify_output_only`` lists with its defaults.
     """
     first_seed = 0
     if name.startswith("random-") and name[len("random-"):].isdigit():
@@ -175,6 +176,8 @@ def output_only_floor_case(name: str, length: int | None) -> FloorCase:
     elif name.startswith("physical-") and name[len("physical-"):].isdigit():
         first_seed = int(name[len("physical-"):])
         case = physical_case(first_seed)
+    elif name == KOMA_FRAME:
+        case = koma_frame_case()
     else:
         case = output_only_case(name)
     if case.coloured_cutoff_hz is not None or case.harmonic_hz is not None:

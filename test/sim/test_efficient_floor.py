@@ -84,3 +84,17 @@ def test_an_existing_table_is_not_replaced_without_force(tmp_path, capsys):
     with pytest.raises(SystemExit):
         efficient_floor.main(["--out", str(out), "--seeds", "3"])
     assert out.read_text() == "kept\n" and "--force" in capsys.readouterr().err
+
+
+def test_the_koma_frame_is_scored_on_the_output_only_bench_records_against_its_discrete_modes():
+    """``--output-only --cases koma-frame``: koma's recipe, seed K's record, its trapezoidal rule's modes as truth."""
+    from okid_bench.physical_cases import koma_frame_case
+
+    case = efficient_floor.output_only_floor_case("koma-frame", None)
+    drawn = koma_frame_case()
+    _, y = case.record(2)
+    record = drawn.simulate(2)
+    assert np.allclose(y, record - record.mean(axis=0))
+    truth = sorted(drawn.truth(), key=lambda mode: mode["frequency_hz"])
+    assert np.allclose([mode.frequency_hz for mode in case.true_modes], [mode["frequency_hz"] for mode in truth])
+    assert np.allclose([mode.damping_ratio for mode in case.true_modes], [mode["damping_ratio"] for mode in truth])
