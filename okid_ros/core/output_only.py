@@ -31,7 +31,8 @@ Steps (one module each):
    across the orders (a close pair); the jackknife's standard deviations
    are the modes' (ssi-cva drops one listed beyond the limits);
 5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation (ssi-cva, ssi-cov) or read from the VAR (var);
+   by the stochastic Riccati equation or a VAR's Markov parameters, the better predictor of the record
+   (ssi-cva, ssi-cov, :mod:`.output_only_gain`), or read from the VAR (var);
 6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
    with longer lags (:mod:`.output_only_low_band`).
 """
@@ -59,6 +60,7 @@ from okid_ros.core.output_covariance import (
     output_correlations,
     reference_channels,
 )
+from okid_ros.core.output_only_gain import covariance_innovation
 from okid_ros.core.output_only_harmonics import without_harmonics
 from okid_ros.core.output_only_low_band import refine_low_modes
 from okid_ros.core.output_only_modes import (
@@ -84,18 +86,13 @@ from okid_ros.core.output_only_support import (
     spectral_dominance,
 )
 from okid_ros.core.output_only_var import (
-    MAX_GAIN_VAR_COEFFICIENTS,
     VarCovarianceModel,
     gain_from_var,
     var_markov,
     var_replicates,
 )
 from okid_ros.core.scaling import restore_model
-from okid_ros.core.stochastic_realization import (
-    OrderRealizer,
-    covariance_decomposition,
-    forward_innovation,
-)
+from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
 from okid_ros.core.uncertainty import UncertaintyResult
 from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
@@ -205,7 +202,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                         f"their standard deviations are the clusters' spread across orders")
     A, C, gamma = _stable_part(*realizer.realize(n_model)[:2], realizer.observability(n_model))
     if var is None:
-        L, Re, gain_method = _covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
+        L, Re, gain_method = covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
     else:
         L, Re, gain_method = gain_from_var(A, C, y, *var)
     matched = match_clusters(modes, poles, n_model)
@@ -438,23 +435,6 @@ def _stable_part(A: np.ndarray, C: np.ndarray, gamma: np.ndarray) -> tuple[np.nd
     if k == A.shape[0]:
         return A, C, gamma
     return T[:k, :k], C @ Z[:, :k], gamma @ Z[:, :k]
-
-
-def _covariance_innovation(A, C, gamma, correlations, block_rows, y):
-    """``L``, ``Re`` of the forward innovation model at this order, and how they were obtained.
-
-    The stochastic Riccati equation when the covariance model is positive real; otherwise (a
-    truncated model often is not: its spectrum dips below zero somewhere) the gain fitted to the
-    stochastic Markov parameters of a VAR of the record with ``A`` and ``C`` fixed, if its
-    predictor is stable, else the Kalman gain of the noise covariances of a state sequence.
-    """
-    p = C.shape[0]
-    stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
-    G = linalg.lstsq(gamma, stacked)[0]
-    solved = forward_innovation(A, C, G, correlations[0])
-    if solved is not None:
-        return solved[0], solved[1], "riccati"
-    return gain_from_var(A, C, y, *var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
 
 
 def _package(A, C, L, Re, chosen: list[tuple[complex, ModeCluster]], sample_time_s: float, *,

@@ -94,7 +94,7 @@ class VarCovarianceModel:
 
     ``A`` and ``C`` are the route's; ``G`` (n, r) is fitted to the record's correlations
     ``R_k = C A^(k-1) G``, k = 1 .. i (reference columns), as the SSI routes' innovation model
-    is (:func:`.output_only._covariance_innovation`), so that
+    is (:func:`.output_only_gain.covariance_innovation`), so that
     :func:`.output_only_support.spectral_dominance` reads the share of the record's spectrum.
     """
 

@@ -1,0 +1,63 @@
+"""The innovation gain of an output-only model: the covariance model's Riccati gain or a VAR's, the better predictor.
+
+At the model order ``(A, C)`` are fixed; two gains are at hand. The stochastic Riccati equation
+of the covariance model ``(A, C, G, R_0)``, ``G`` fitted to the record's correlations, gives the
+Kalman predictor of that model, but only when the model is positive real, and its ``G`` is an
+estimate: a truncated or noisy ``G`` gives a predictor worse than the alternative. A VAR of the
+record gives stochastic Markov parameters ``C A^(k-1) L`` to which ``L`` is fitted with ``A``
+and ``C`` fixed (:func:`.output_only_var.gain_from_var`). Where both exist, the one whose
+one-step predictions of the record itself have the smaller innovation covariance (its
+determinant, the Gaussian likelihood's term: no channel's units weigh) is kept, so the model
+handed to the estimator is never the worse predictor of its own record
+(docs/benchmarks-output-only.md, forty-fourth session: the in-sample choice agreed with the
+predictors' exact variances on fresh data; a two-fold cross-validation did not).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import linalg
+
+from okid_ros.core.output_only_var import MAX_GAIN_VAR_COEFFICIENTS, gain_from_var, var_markov
+from okid_ros.core.statespace import simulate
+from okid_ros.core.stochastic_realization import forward_innovation
+
+__all__ = ["BURN_IN_FRACTION", "covariance_innovation", "prediction_log_det"]
+
+#: The first part of the record the predictors' errors leave out (their start from a zero state).
+BURN_IN_FRACTION = 0.1
+
+
+def prediction_log_det(A: np.ndarray, C: np.ndarray, L: np.ndarray, y: np.ndarray) -> float:
+    """Log determinant of the covariance of ``y``'s one-step prediction errors by ``x+ = A x + L (y - C x)``.
+
+    The first :data:`BURN_IN_FRACTION` of the record is left out; an unstable predictor scores ``inf``.
+    """
+    if np.max(np.abs(linalg.eigvals(A - L @ C)), initial=0.0) >= 1.0:
+        return float(np.inf)
+    p = C.shape[0]
+    errors = simulate(A - L @ C, L, -C, np.eye(p), y)[int(BURN_IN_FRACTION * y.shape[0]):]
+    sign, log_det = np.linalg.slogdet(np.atleast_2d(errors.T @ errors / errors.shape[0]))
+    return float(log_det) if sign > 0 else float(np.inf)
+
+
+def covariance_innovation(A, C, gamma, correlations, block_rows, y):
+    """``L``, ``Re`` of the forward innovation model at this order, and how they were obtained.
+
+    ``gamma``: the observability matrix of ``(A, C)`` over ``block_rows``; ``correlations``
+    ``R_0 .. R_i`` (at least), of the record ``y`` (N, p). The Riccati gain of the covariance
+    model when it is positive real and predicts ``y`` at least as well as the VAR's gain; otherwise
+    the VAR's (:func:`.output_only_var.gain_from_var`: fitted to its stochastic Markov parameters,
+    or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable).
+    """
+    p = C.shape[0]
+    stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
+    G = linalg.lstsq(gamma, stacked)[0]
+    solved = forward_innovation(A, C, G, correlations[0])
+    var = gain_from_var(A, C, y, *var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
+    if solved is None:
+        return var
+    riccati = (solved[0], solved[1], "riccati")
+    if prediction_log_det(A, C, riccati[0], y) <= prediction_log_det(A, C, var[0], y):
+        return riccati
+    return var
