@@ -218,8 +218,16 @@ def test_a_finalized_node_ends_its_process(probe, spawn_ros, module, start, shut
     name = NODES[0] if module == "arx_identifier_node" else NODES[1]
     if not start:
         node.wait_for_output(r"ready:", 30)
-    answer = probe.call(ChangeState, f"{name}/change_state", ChangeState.Request(transition=Transition(id=shutdown)))
-    assert answer.success
+    request = ChangeState.Request(transition=Transition(id=shutdown))
+    try:
+        answer = probe.call(ChangeState, f"{name}/change_state", request)
+    except AssertionError:
+        # A reply lost over DDS is sent again, but a node that took the request has finalized and
+        # gone (a loaded machine, full suite): its own log says whether it did.
+        if "shut down (finalized): the process ends" not in node.output():
+            raise
+    else:
+        assert answer.success
     try:
         code = node.proc.wait(timeout=10)
     except subprocess.TimeoutExpired:
