@@ -50,6 +50,8 @@ from okid_ros.service.windowed import identification_step
 NODE_NAME = ARX_NODE
 #: At most one line per this many seconds of structural changes ignored (each is counted).
 IGNORED_CHANGE_LOG_S = 10.0
+#: Seconds between two log lines of models fitted without an input silent over their window.
+SILENT_INPUT_LOG_S = 10.0
 
 
 class ArxIdentifierNode(OkidNode):
@@ -144,6 +146,10 @@ class ArxIdentifierNode(OkidNode):
                     return  # solved before a reset or restart, or by the service before a reconfigure
                 snapshot = self.service.accept(capture, result)
             self.publisher.publish(arx_model_msg(snapshot, self.types, frame_id=self.frame_id))
+            if result.warning:  # a sensor that stays disconnected is one line per SILENT_INPUT_LOG_S
+                self.get_logger().warning(f"model {snapshot.model_id} fitted without its silent input(s): "
+                                          f"{result.warning} (counted in silent_input_snapshots)",
+                                          throttle_duration_sec=SILENT_INPUT_LOG_S)
         finally:
             self._solving = False
 

@@ -10,18 +10,18 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
 from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
-from okid_ros.core.least_squares import center_normal_equations
+from okid_ros.core.least_squares import center_normal_equations, constant_columns
 from okid_ros.core.record_checks import BROADBAND_NEEDED
 from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal"]
+__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal", "silent_inputs"]
 
 
 @dataclass
@@ -46,13 +46,15 @@ class WindowCapture:
 class SolveResult:
     """The regularized least-squares solution of a captured window.
 
-    ``fit`` is None when the window could not give a model; ``reason`` says why.
+    ``fit`` is None when the window could not give a model; ``reason`` says why. ``warning``
+    names the inputs without excitation the fit was made without (their coefficients zero), or "".
     """
 
     fit: ArxFit | None
     condition_number: float
     reason: str
     solve_time_s: float
+    warning: str = ""
 
 
 @dataclass
@@ -112,10 +114,14 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
         )
     penalty: float | str = "gcv" if prm.penalty_by_gcv else prm.penalty
     decay: float | str = "gcv" if prm.penalty_by_gcv else prm.tc_decay
+    # An input silent over the whole window (a disconnected sensor) is left out, as identify and
+    # track leave it out (core.excitation.LiveInputs): its coefficients are zero, the warning names it.
+    silent = silent_inputs(capture.normal, prm.order, prm.n_outputs, prm.n_inputs)
+    live = _live_columns(prm.order, prm.n_outputs, prm.n_inputs, silent)
     try:
         fit = fit_from_normal_equations(
-            capture.normal, prm.order, prm.n_outputs, prm.n_inputs, prm.regularization, penalty, decay=decay,
-            center=prm.offsets == "remove",
+            _columns(capture.normal, live), prm.order, prm.n_outputs, prm.n_inputs - len(silent),
+            prm.regularization, penalty, decay=decay, center=prm.offsets == "remove",
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return SolveResult(None, math.nan, f"solve failed: {exc}", time.perf_counter() - t0)
@@ -126,7 +132,41 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
         return SolveResult(None, cond, refusal, elapsed)
     if not np.all(np.isfinite(fit.theta)):
         return SolveResult(None, cond, "solution not finite", elapsed)
-    return SolveResult(fit, cond, "", elapsed)
+    if not silent:
+        return SolveResult(fit, cond, "", elapsed)
+    theta = np.zeros((live.size, fit.theta.shape[1]))
+    theta[live] = fit.theta
+    warning = window_excitation_warnings(capture.normal, prm.n_inputs)[0]
+    return SolveResult(replace(fit, theta=theta, n_inputs=prm.n_inputs), cond, "", elapsed, warning)
+
+
+def silent_inputs(normal: NormalEquations, order: int, n_outputs: int, n_inputs: int) -> list[int]:
+    """The inputs constant in every column of a window (``u_k`` and its ``order`` lags), if some input is not.
+
+    [] when every input varies somewhere in the window, or none does (a window without excitation,
+    refused). An input constant in ``u_k`` only (a blow leaving or entering the window) is not silent.
+    """
+    n = max(normal.n_rows, 1)
+    square = np.maximum(np.diag(normal.R) / n, 0.0)
+    mean = normal.phi_sum / n if normal.phi_sum is not None else np.zeros(square.size)
+    constant = constant_columns(square, np.maximum(square - mean**2, 0.0))
+    width = n_outputs + n_inputs
+    silent = [i for i in range(n_inputs) if constant[i] and constant[n_inputs + n_outputs + i::width][:order].all()]
+    return silent if len(silent) < n_inputs else []
+
+
+def _live_columns(order: int, n_outputs: int, n_inputs: int, silent: list[int]) -> np.ndarray:
+    """(m + q (p + m),) bool: the regressor columns (layout of ArxFit.theta) of all outputs and non-silent inputs."""
+    live = ~np.isin(np.arange(n_inputs), silent)
+    return np.concatenate([live, np.tile(np.concatenate([np.ones(n_outputs, bool), live]), order)])
+
+
+def _columns(normal: NormalEquations, keep: np.ndarray) -> NormalEquations:
+    """The normal equations of the regressor columns ``keep`` (bool) only."""
+    if keep.all():
+        return normal
+    phi_sum = normal.phi_sum[keep] if normal.phi_sum is not None else None
+    return replace(normal, R=normal.R[np.ix_(keep, keep)], r=normal.r[keep], phi_sum=phi_sum)
 
 
 #: Why an output-only window's lags are singular when no output is dead or a copy: a linear

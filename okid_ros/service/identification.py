@@ -99,6 +99,8 @@ class _Health:
     last_solve_time_s: float = 0.0
     snapshots: int = 0
     valid_snapshots: int = 0
+    silent_input_snapshots: int = 0  # valid ones fitted without an input silent over their window
+    last_warning: str = ""  # the last such snapshot's warning, naming the inputs
 
 
 class ArxIdentificationService:
@@ -326,6 +328,8 @@ class ArxIdentificationService:
                                  if capture.params.offsets == "remove" else None)
         h = self._health
         h.snapshots, h.valid_snapshots = h.snapshots + 1, h.valid_snapshots + int(valid)
+        if result.warning:
+            h.silent_input_snapshots, h.last_warning = h.silent_input_snapshots + 1, result.warning
         h.last_reason, h.last_condition_number, h.last_solve_time_s = (result.reason, result.condition_number,
                                                                       result.solve_time_s)
         self._model_id += 1
@@ -406,6 +410,8 @@ class ArxIdentificationService:
             "last_solve_time_s": h.last_solve_time_s,
             "snapshots": h.snapshots,
             "valid_snapshots": h.valid_snapshots,
+            "silent_input_snapshots": h.silent_input_snapshots,
+            "last_silent_input_warning": h.last_warning,
             "model_id": self._model_id,
             "has_good_model": self._last_good is not None,
             "last_reason": h.last_reason,

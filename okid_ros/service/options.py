@@ -81,10 +81,11 @@ class ArxIdentificationParams:
     tc_decay : fixed TC decay otherwise.
     min_window_fill : snapshots of a window filled less than this are invalid.
     max_condition_number : condition number of the column-scaled normal equations above which
-        the window is unexcited (snapshot invalid, last good fit kept) when a cause is found: a dead
-        input, dead or dependent outputs, or the inputs' columns beyond it too; else only the outputs'
-        lags are collinear (a response far above its noise) and the window is identified
-        (:mod:`okid_ros.core.window_conditioning`).
+        the window is unexcited (snapshot invalid, last good fit kept) when a cause is found: no
+        input varying, one varying in part of the window only, dead or dependent outputs, or the
+        inputs' columns beyond it too; else only the outputs' lags are collinear (a response far above
+        its noise) and the window is identified (:mod:`okid_ros.core.window_conditioning`). An input
+        silent over the whole window is left out before (:func:`~okid_ros.service.arx_solve.silent_inputs`).
     publish_period_s : period of the snapshots by sample time (offline processing), 1 /
         ``publish_rate_hz``.
     restart_min_fill : after a restart at a structural change, snapshots are valid from this

@@ -244,29 +244,47 @@ def test_identify_and_track_report_dead_inputs_in_json(tmp_path, one_input_recor
     assert "gave a model (6 failed, 0 waiting for rows); the first: not identified: no input carries" in err, err
 
 
-def test_the_live_service_names_the_dead_input_of_a_refused_window(one_input_record) -> None:
-    """The ARX service refuses an unexcited window (condition number) and says which input and why."""
+@pytest.mark.parametrize("silent_value", [0.0, 2.5])
+def test_the_live_service_fits_without_a_silent_input_as_track_does_and_counts_it(one_input_record, silent_value):
+    """Node 1 leaves an input silent over its window out, as identify and track do, and names it.
+
+    A disconnected force sensor (all zeros, or a constant) had every window refused as unexcited;
+    identify and track fit the live inputs and warn (core.excitation.LiveInputs).
+    """
     from okid_ros.core.arx import normal_equations
-    from okid_ros.core.excitation import window_excitation_warnings
+    from okid_ros.core.markov import markov_from_arx
     from okid_ros.core.regressors import arx_regressors
     from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 
     u, y = one_input_record
     u = u.copy()
-    u[:, 1] = 2.5
+    u[:, 1] = silent_value
     service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
     assert service.push_block(DT * np.arange(900), u[:900], y[:900]) == 900
     snap = service.snapshot()
-    assert not snap.valid
-    assert "unexcited window" in snap.reason and "no excitation on input 1 (constant 2.5)" in snap.reason
-    # The same from the normal equations directly, and nothing for a well-excited window.
+    assert snap.valid, snap.reason
+    diagnostics = service.diagnostics()
+    named = "all zeros" if silent_value == 0.0 else "constant 2.5"
+    assert diagnostics["silent_input_snapshots"] == 1
+    assert f"no excitation on input 1 ({named}) in this window" in diagnostics["last_silent_input_warning"]
+    # The fit of input 0 is the batch fit of the live input over the same samples; input 1's effect zero.
+    u_window, y_window, _ = service.window_samples()
+    batch = fit_arx(u_window[:, :1], y_window, 10, "ridge", "gcv", center=True)
+    markov = markov_from_arx(snap.fit, 11)
+    np.testing.assert_allclose(markov[..., :1], markov_from_arx(batch, 11), rtol=0, atol=1e-6 * np.abs(markov).max())
+    assert not markov[..., 1].any()
+    # No input varies: refused, naming them; the window's warnings from its normal equations alike.
+    u[:900, 0] = 0.0
+    service = ArxIdentificationService(ArxIdentificationParams(DT, 10, 2, 2, 600))
+    service.push_block(DT * np.arange(900), u[:900], y[:900])
+    snap = service.snapshot()
+    assert not snap.valid and "no input carries excitation" in snap.reason
+    assert service.diagnostics()["silent_input_snapshots"] == 0
     phi, targets, _ = arx_regressors(*one_input_record, 10)
     assert "input 1 (all zeros)" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
     live = lowpass_input(900, 2, 15.0, DT, seed=3)
     phi, targets, _ = arx_regressors(live, y[:900], 10)
     assert window_excitation_warnings(normal_equations(phi, targets), 2) == []
-    phi, targets, _ = arx_regressors(np.zeros((900, 2)), y[:900], 10)
-    assert "no input carries excitation" in window_excitation_warnings(normal_equations(phi, targets), 2)[0]
 
 
 @pytest.mark.parametrize("age", [0, 9, 10])
