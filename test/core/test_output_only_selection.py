@@ -407,7 +407,7 @@ def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_a
     candidates' poles leave of the spectrum they held 0.41-0.42, which passed the limit of 0.4.
     ssi-cva listed twin-chains 7's 63.03 Hz mode (62.99 Hz) with its partner's estimated shape (MAC
     0.98 with 64.06 Hz): the weaker twin's shape is now told from its partner's
-    (:func:`~okid_ros.core.output_only_modes.separate_twin_shapes`), and both routes keep the strict check.
+    (:func:`~okid_ros.core.output_only_twins.separate_twin_shapes`), and both routes keep the strict check.
     """
     from okid_bench.physical_cases import physical_case
     from okid_ros.core.modal import LISTED_TWICE_MAC, mac
@@ -469,7 +469,7 @@ def test_separate_twin_shapes_gives_the_weaker_twin_the_part_its_partner_leaves(
     from types import SimpleNamespace
 
     from okid_ros.core.modal import mac
-    from okid_ros.core.output_only_modes import separate_twin_shapes
+    from okid_ros.core.output_only_twins import separate_twin_shapes
 
     def mode(frequency_hz, msv, shape):
         unit = np.asarray(shape, dtype=complex) / np.linalg.norm(shape)
