@@ -51,7 +51,8 @@ from okid_ros.core.regressors import valid_regressor_rows
 from okid_ros.core.state_gram import StateGram
 from okid_ros.core.uncertainty import UncertaintyResult
 
-__all__ = ["attach_jackknife_std", "nearest_modes", "jackknife_std", "realization_jackknife"]
+__all__ = ["attach_jackknife_std", "nearest_modes", "nearest_poles", "jackknife_std", "stands_out",
+           "realization_jackknife"]
 
 #: Fewest rows a segment must hold (fewer segments otherwise).
 MIN_SEGMENT_ROWS = 100
@@ -61,9 +62,29 @@ ITERATIONS = 2
 SPARE_COLUMNS = 10
 
 
+def nearest_poles(eigenvalues: np.ndarray, targets: np.ndarray, sample_time_s: float) -> np.ndarray:
+    """Index of the eigenvalue nearest each target (distance of ``ln z``), of those in the upper half plane.
+
+    Parameters
+    ----------
+    eigenvalues : (n,) a replicate's discrete-time poles; targets : (M,) the model's (upper half plane).
+
+    Returns
+    -------
+    (M,) indices into ``eigenvalues``; -1 when there is no complex pole.
+    """
+    ev = np.asarray(eigenvalues, dtype=complex)
+    upper = np.flatnonzero(ev.imag > 0)
+    if upper.size == 0:
+        return np.full(np.size(targets), -1)
+    s_all = np.log(ev[upper]) / sample_time_s
+    s_target = np.log(np.asarray(targets, dtype=complex)) / sample_time_s
+    return upper[np.argmin(np.abs(s_all[None, :] - s_target[:, None]), axis=1)]
+
+
 def nearest_modes(eigenvalues: np.ndarray, targets: np.ndarray, sample_time_s: float
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Frequency (Hz) and damping of the eigenvalue nearest each target (distance of ``ln z``).
+    """Frequency (Hz) and damping of the eigenvalue nearest each target (:func:`nearest_poles`).
 
     Parameters
     ----------
@@ -73,14 +94,10 @@ def nearest_modes(eigenvalues: np.ndarray, targets: np.ndarray, sample_time_s: f
     -------
     frequency_hz, damping_ratio : (M,) each (NaN when there is no complex pole).
     """
-    ev = np.asarray(eigenvalues, dtype=complex)
-    ev = ev[ev.imag > 0]
-    if ev.size == 0:
+    nearest = nearest_poles(eigenvalues, targets, sample_time_s)
+    if np.any(nearest < 0):
         return np.full(targets.size, np.nan), np.full(targets.size, np.nan)
-    s_all = np.log(ev) / sample_time_s
-    s_target = np.log(np.asarray(targets, dtype=complex)) / sample_time_s
-    nearest = np.argmin(np.abs(s_all[None, :] - s_target[:, None]), axis=1)
-    s = s_all[nearest]
+    s = np.log(np.asarray(eigenvalues, dtype=complex)[nearest]) / sample_time_s
     return np.abs(s) / (2 * np.pi), -s.real / np.abs(s)
 
 
@@ -89,6 +106,18 @@ def jackknife_std(replicates: np.ndarray) -> np.ndarray:
     n_seg = replicates.shape[0]
     deviations = replicates - replicates.mean(axis=0)
     return np.sqrt((n_seg - 1) / n_seg * np.sum(deviations**2, axis=0))
+
+
+def stands_out(value: complex, replicates: np.ndarray, stds: float) -> bool:
+    """Whether ``|value|`` exceeds ``stds`` jackknife standard deviations of its (S,) complex ``replicates``.
+
+    The standard deviation is the real and imaginary parts' (:func:`jackknife_std`) in quadrature; a
+    NaN or infinite replicate makes it NaN, and the value does not stand out.
+    """
+    replicates = np.asarray(replicates, dtype=complex)
+    with np.errstate(invalid="ignore"):
+        spread = np.hypot(*jackknife_std(np.column_stack([replicates.real, replicates.imag])))
+    return bool(abs(value) > stds * spread)
 
 
 def _segment_bounds(rows: np.ndarray, n_segments: int) -> np.ndarray:

@@ -39,6 +39,7 @@ Steps (one module each):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -72,7 +73,6 @@ from okid_ros.core.output_only_modes import (
     drop_listed_twice,
     lowest_complete_order,
     mark_stable,
-    separate_twin_shapes,
 )
 from okid_ros.core.output_only_routes import ROUTES
 from okid_ros.core.output_only_support import (
@@ -85,6 +85,7 @@ from okid_ros.core.output_only_support import (
     prepare_outputs,
     spectral_dominance,
 )
+from okid_ros.core.output_only_twins import separate_twin_shapes
 from okid_ros.core.output_only_var import (
     VarCovarianceModel,
     gain_from_var,
@@ -180,18 +181,23 @@ def identify_output_only(
     y, removed = without_harmonics(y, sample_time_s) if harmonics == "remove" else (y, [])
     warnings += removed + [ROUTES[method].warning] * bool(ROUTES[method].warning)
     with WorkerThreads(workers) as threads:
-        model = _identified(y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES),
-                            block_rows=block_rows, present=present, low_band=low_band, threads=threads,
-                            warnings=warnings)
-    model = restore_model(model, scales)
-    model.output_offset, model.warnings, model.modes = offset, warnings, separate_twin_shapes(model.modes)
+        model, replicate_shapes = _identified(
+            y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES), block_rows=block_rows,
+            present=present, low_band=low_band, threads=threads, warnings=warnings)
+        model = restore_model(model, scales)  # one scale for every output: the replicates' shapes keep their ratios
+        model.modes = separate_twin_shapes(model.modes, replicate_shapes=replicate_shapes)
+    model.output_offset, model.warnings = offset, warnings
     return model
 
 
 def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
                 present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str]
-                ) -> IdentifiedModel:
-    """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``)."""
+                ) -> tuple[IdentifiedModel, Callable | None]:
+    """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``).
+
+    Also ``replicate_shapes(mode)``, the jackknife's replicates' shapes of a listed mode's pole
+    (:meth:`.output_only_support.Jackknife.shapes`; None without a jackknife).
+    """
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
                            threads=threads)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
@@ -213,7 +219,9 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
-    return model
+    if chosen.jackknife is None:
+        return model, None
+    return model, lambda mode: chosen.jackknife.shapes(mode.eigenvalue, n_model, sample_time_s)
 
 
 @dataclass

@@ -32,7 +32,7 @@ Each mode keeps one pole per order (the one nearest the cluster's median); the m
 the lowest at which every mode has its pole. Of two modes of one shape within their half-power
 bands the weaker goes (a mode listed twice) unless the two hold poles side by side across the orders
 (a close pair, :func:`drop_listed_twice`). Of two close listed modes of one estimated shape the
-weaker is listed with the part of its shape its partner's leaves (:func:`separate_twin_shapes`).
+weaker is listed with the part of its shape its partner's leaves (:mod:`.output_only_twins`).
 """
 
 from __future__ import annotations
@@ -43,10 +43,10 @@ import numpy as np
 from scipy.cluster import hierarchy
 from scipy.spatial.distance import squareform
 
-from okid_ros.core.modal import mac, modes_listed_once, mpc, phase_reference_row
+from okid_ros.core.modal import modes_listed_once, mpc
 
 __all__ = ["PoleSet", "ModeCluster", "collect_poles", "mark_stable", "cluster_modes", "lowest_complete_order",
-           "drop_listed_twice", "separate_twin_shapes"]
+           "drop_listed_twice"]
 
 FREQUENCY_TOLERANCE = 0.01
 DAMPING_TOLERANCE = 0.3
@@ -85,14 +85,6 @@ TWIN_DAMPING_FACTOR = 3.0
 #: six pairs one cluster held at every order from 10-16 on, 6-34 scatters apart.
 PAIR_COMMON_ORDERS = 0.9
 PAIR_SEPARATION_PER_SPREAD = 5.0
-#: Two listed modes closer than this many summed half-power half-widths ``zeta1 f1 + zeta2 f2`` whose
-#: shapes read as one (MAC >= :data:`MAC_TOLERANCE`) are a close pair whose weaker pole's eigenvector
-#: took in its partner's (:func:`separate_twin_shapes`) when they also lie within ``TWIN_SHAPE_DISTANCE``
-#: (relative). Twin chains, one chain forced (physical structures 0-59): the six weaker twins listed with
-#: the partner's shape stood 0.70-1.24 widths, 1.0-1.7 % apart; a building's true pair of one shape 8 %
-#: apart (2.9 % and 1.1 % damping: 2 widths) kept its shapes only with the distance.
-TWIN_SHAPE_BAND = 2.0
-TWIN_SHAPE_DISTANCE = 0.02
 #: Two candidates within the listed-twice band and of one shape are two modes, not one listed twice,
 #: when the weaker is steady in the jackknife and they hold distinct poles together at this share of
 #: the orders the one with more orders holds (the persistence test's share; and at ``MIN_ORDERS``), the
@@ -450,46 +442,3 @@ def _side_by_side(a: ModeCluster, b: ModeCluster) -> bool:
     either = sorted(a.members.keys() | b.members.keys())
     return (len(together) >= max(MIN_ORDERS, TWIN_COEXISTENCE * max(len(a.members), len(b.members)))
             and together[0] in either[:MIN_ORDERS])
-
-
-def separate_twin_shapes(modes: list) -> list:
-    """Give the weaker of two close modes of one estimated shape the part of its shape its partner's leaves.
-
-    Of a close pair the eigenvectors are ill-conditioned: the error of the weaker pole's
-    eigenvector is mostly along its partner's, divided by the poles' distance, and where the
-    partner's response is much the larger (twin chains, the force on one chain: 30 times in
-    amplitude) that error outweighs the weaker mode's own shape, which then reads as the partner's
-    (twin-chains 7, 63.03 Hz: MAC 0.98 with 64.02 Hz, 0.007 with its own). The weaker pole's
-    shape with the stronger's component removed is what of it belongs to that pole; it is exact
-    for twins (shapes on two chains, orthogonal) and leaves ``1 - MAC`` of a pair's true shapes.
-    Only the listed shape changes: the model's ``C`` keeps the realization's columns (its fit).
-
-    Parameters
-    ----------
-    modes : listed modes (:class:`~okid_ros.core.modal.Mode`: ``frequency_hz``, ``damping_ratio``,
-        ``msv`` the strength, ``shape`` unit norm, replaced in place) of two or more outputs; pairs
-        within :data:`TWIN_SHAPE_BAND` summed widths and :data:`TWIN_SHAPE_DISTANCE` whose shapes' MAC is at
-        least :data:`MAC_TOLERANCE`.
-
-    Returns
-    -------
-    ``modes``, the same objects.
-    """
-    shapes = [mode.shape for mode in modes]  # as estimated: a shape once separated is no partner's
-    for i, weak in enumerate(modes):
-        if weak.shape.size < 2:
-            continue  # one output: every shape is one shape
-        partners = [j for j, strong in enumerate(modes)
-                    if j != i and strong.msv > weak.msv and mac(shapes[i], shapes[j]) >= MAC_TOLERANCE
-                    and abs(strong.frequency_hz - weak.frequency_hz) < min(TWIN_SHAPE_BAND * (
-                        strong.damping_ratio * strong.frequency_hz + weak.damping_ratio * weak.frequency_hz),
-                        TWIN_SHAPE_DISTANCE * weak.frequency_hz)]
-        if not partners:
-            continue
-        strong = shapes[min(partners, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))]
-        own = shapes[i] - np.vdot(strong, shapes[i]) / np.vdot(strong, strong).real * strong
-        if not np.linalg.norm(own) > np.sqrt(np.finfo(float).eps):
-            continue  # nothing of its own to tell (one shape to rounding)
-        own = own / np.linalg.norm(own)
-        weak.shape = own * np.exp(-1j * np.angle(own[phase_reference_row(own)]))
-    return modes

@@ -12,7 +12,7 @@ from okid_ros.core.excitation import output_problem
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES, missing_mask, missing_problem
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.modal import Mode
-from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes
+from okid_ros.core.mode_jackknife import ITERATIONS, jackknife_std, nearest_modes, nearest_poles
 from okid_ros.core.options import OFFSETS, sample_time_problem
 from okid_ros.core.output_covariance import OutputCorrelations
 from okid_ros.core.output_only_modes import ModeCluster, PoleSet
@@ -206,6 +206,24 @@ class Jackknife:
         for j, eigenvalues in enumerate(values):
             freqs[j], damps[j] = nearest_modes(eigenvalues, targets, sample_time_s)
         return jackknife_std(freqs), jackknife_std(damps)
+
+    def shapes(self, target: complex, n_model: int, sample_time_s: float) -> np.ndarray:
+        """(S, p) output shapes ``C psi`` (unit norm) of each replicate's pole nearest ``target`` at ``n_model``.
+
+        The pole is the one :meth:`std` reads (:func:`.mode_jackknife.nearest_poles`); a row is NaN
+        where a replicate has no complex pole.
+        """
+        def shape(realizer: OrderRealizer) -> np.ndarray:
+            n_states = min(n_model, realizer.max_states)
+            eigenvalues, vectors = realizer.eigen(n_states)
+            k = int(nearest_poles(eigenvalues, np.array([target]), sample_time_s)[0])
+            C = realizer.realize(n_states)[1]
+            if k < 0:
+                return np.full(C.shape[0], np.nan, dtype=complex)
+            column = C @ vectors[:, k]
+            return column / np.linalg.norm(column)
+
+        return np.array(self._threads.map(shape, self.realizers))
 
     def screened_std(self, target: complex, n_model: int, sample_time_s: float, *,
                      scattered: Callable[[float, float], bool]) -> tuple[float, float] | None:

@@ -407,7 +407,7 @@ def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_a
     candidates' poles leave of the spectrum they held 0.41-0.42, which passed the limit of 0.4.
     ssi-cva listed twin-chains 7's 63.03 Hz mode (62.99 Hz) with its partner's estimated shape (MAC
     0.98 with 64.06 Hz): the weaker twin's shape is now told from its partner's
-    (:func:`~okid_ros.core.output_only_modes.separate_twin_shapes`), and both routes keep the strict check.
+    (:func:`~okid_ros.core.output_only_twins.separate_twin_shapes`), and both routes keep the strict check.
     """
     from okid_bench.physical_cases import physical_case
     from okid_ros.core.modal import LISTED_TWICE_MAC, mac
@@ -469,7 +469,7 @@ def test_separate_twin_shapes_gives_the_weaker_twin_the_part_its_partner_leaves(
     from types import SimpleNamespace
 
     from okid_ros.core.modal import mac
-    from okid_ros.core.output_only_modes import separate_twin_shapes
+    from okid_ros.core.output_only_twins import separate_twin_shapes
 
     def mode(frequency_hz, msv, shape):
         unit = np.asarray(shape, dtype=complex) / np.linalg.norm(shape)
@@ -487,6 +487,59 @@ def test_separate_twin_shapes_gives_the_weaker_twin_the_part_its_partner_leaves(
     np.testing.assert_array_equal(far.shape, far_shape)
     separate_twin_shapes(lone)
     assert [m.shape[0] for m in lone] == [1.0, 1.0]
+
+
+def test_a_true_pair_of_nearly_one_shape_keeps_its_shapes() -> None:
+    """Random 5's pair 13.67 / 13.91 Hz (4 outputs, true shapes' MAC 0.955): both listed with their own shape.
+
+    The weaker's estimated shape (MAC 0.999 with its own) was given its shape less its partner's
+    (MAC 0.043), as a twin's; the jackknife resolves its likeness to the partner's (9 stds), a twin's not.
+    """
+    from okid_bench.output_only_cases import random_case
+    from okid_ros.core.modal import mac
+
+    case = random_case(5)
+    y = case.simulate(5)
+    modes = identify_output_only(y - y.mean(axis=0), case.sample_time_s).modes
+    found = np.array([m.frequency_hz for m in modes])
+    pair = [t for t in case.truth() if 13.5 < t["frequency_hz"] < 14.0]
+    assert len(pair) == 2 and mac(pair[0]["shape"], pair[1]["shape"]) > 0.95
+    for t in pair:
+        k = int(np.argmin(np.abs(found - t["frequency_hz"])))
+        assert abs(found[k] / t["frequency_hz"] - 1) < 0.005
+        assert mac(modes[k].shape, t["shape"]) >= 0.99, f"{found[k]:.3f} Hz: MAC {mac(modes[k].shape, t['shape']):.3f}"
+
+
+def test_separate_twin_shapes_keeps_a_component_the_jackknife_resolves() -> None:
+    """Replicates that agree on the weaker shape's part along its partner's keep it; scattered ones, NaN, not."""
+    from types import SimpleNamespace
+
+    from okid_ros.core.modal import mac
+    from okid_ros.core.output_only_twins import separate_twin_shapes
+
+    rng = np.random.default_rng(0)
+    own, partner = np.array([1.0, 2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0, -1.0])
+
+    def pair():
+        shape = 0.2 * own + partner
+        weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.3, shape=shape / np.linalg.norm(shape))
+        return [weak, SimpleNamespace(frequency_hz=64.0, damping_ratio=0.007, msv=1.0, shape=partner / np.sqrt(2))]
+
+    def replicates(along_partner):  # each replicate at its own scale and phase
+        rows = np.array([0.2 * own + a * partner for a in along_partner], dtype=complex)
+        return rows * np.exp(1j * rng.uniform(0, 2 * np.pi, (len(rows), 1))) * rng.uniform(0.5, 2, (len(rows), 1))
+
+    steady = 1.0 + 0.01 * rng.standard_normal(8)  # 1 +- 0.01 per replicate: about 30 jackknife stds
+    scattered = 1.0 + 0.5 * rng.standard_normal(8)  # 0.5 per replicate: below 1 std
+    for along, separated in ((steady, False), (scattered, True), (np.r_[steady[:7], np.nan], True)):
+        modes = pair()
+        before = modes[0].shape.copy()
+        shapes = replicates(along)
+        separate_twin_shapes(modes, replicate_shapes=lambda mode, shapes=shapes: shapes)
+        if separated:
+            assert mac(modes[0].shape, own) > 1 - 1e-12
+        else:
+            np.testing.assert_array_equal(modes[0].shape, before)
 
 
 def test_two_modes_of_one_shape_holding_poles_side_by_side_are_a_close_pair() -> None:
