@@ -18,14 +18,24 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.output_only_var import MAX_GAIN_VAR_COEFFICIENTS, gain_from_var, var_markov
-from okid_ros.core.statespace import simulate
+from okid_ros.core.output_only_var import (
+    BURN_IN_FRACTION,
+    MAX_GAIN_VAR_COEFFICIENTS,
+    gain_from_var,
+    prediction_error_covariance,
+    var_markov,
+)
 from okid_ros.core.stochastic_realization import forward_innovation
 
 __all__ = ["BURN_IN_FRACTION", "covariance_innovation", "prediction_log_det"]
 
-#: The first part of the record the predictors' errors leave out (their start from a zero state).
-BURN_IN_FRACTION = 0.1
+
+def _log_det(covariance: np.ndarray | None) -> float:
+    """Log determinant of a prediction-error covariance; ``inf`` for an unstable predictor (None) or a singular one."""
+    if covariance is None:
+        return float(np.inf)
+    sign, log_det = np.linalg.slogdet(np.atleast_2d(covariance))
+    return float(log_det) if sign > 0 else float(np.inf)
 
 
 def prediction_log_det(A: np.ndarray, C: np.ndarray, L: np.ndarray, y: np.ndarray) -> float:
@@ -33,12 +43,7 @@ def prediction_log_det(A: np.ndarray, C: np.ndarray, L: np.ndarray, y: np.ndarra
 
     The first :data:`BURN_IN_FRACTION` of the record is left out; an unstable predictor scores ``inf``.
     """
-    if np.max(np.abs(linalg.eigvals(A - L @ C)), initial=0.0) >= 1.0:
-        return float(np.inf)
-    p = C.shape[0]
-    errors = simulate(A - L @ C, L, -C, np.eye(p), y)[int(BURN_IN_FRACTION * y.shape[0]):]
-    sign, log_det = np.linalg.slogdet(np.atleast_2d(errors.T @ errors / errors.shape[0]))
-    return float(log_det) if sign > 0 else float(np.inf)
+    return _log_det(prediction_error_covariance(A, C, L, y))
 
 
 def covariance_innovation(A, C, gamma, correlations, block_rows, y):
@@ -48,7 +53,8 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     ``R_0 .. R_i`` (at least), of the record ``y`` (N, p). The Riccati gain of the covariance
     model when it is positive real and predicts ``y`` at least as well as the VAR's gain; otherwise
     the VAR's (:func:`.output_only_var.gain_from_var`: fitted to its stochastic Markov parameters,
-    or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable).
+    or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable),
+    whose ``Re`` is its predictor's error covariance on ``y``.
     """
     p = C.shape[0]
     stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
@@ -58,6 +64,7 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     if solved is None:
         return var
     riccati = (solved[0], solved[1], "riccati")
-    if prediction_log_det(A, C, riccati[0], y) <= prediction_log_det(A, C, var[0], y):
+    # The VAR gain's Re is its predictor's error covariance on this record already: not run twice.
+    if prediction_log_det(A, C, riccati[0], y) <= _log_det(var[1]):
         return riccati
     return var
