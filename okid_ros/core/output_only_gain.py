@@ -10,7 +10,12 @@ one-step predictions of the record itself have the smaller innovation covariance
 determinant, the Gaussian likelihood's term: no channel's units weigh) is kept, so the model
 handed to the estimator is never the worse predictor of its own record
 (docs/benchmarks-output-only.md, forty-fourth session: the in-sample choice agreed with the
-predictors' exact variances on fresh data; a two-fold cross-validation did not).
+predictors' exact variances on fresh data; a two-fold cross-validation did not). The ``Re``
+handed with either gain is that predictor's error covariance on the record: the VAR's residual
+covariance is smaller (the VAR, of many more coefficients, predicts the record better than the
+model) and the covariance model's Riccati ``Re`` is that model's, not the predictor's, so either
+scaled the model's normalized innovations wrongly (same docs, "The innovation covariance handed
+with the gain").
 """
 
 from __future__ import annotations
@@ -53,8 +58,8 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     ``R_0 .. R_i`` (at least), of the record ``y`` (N, p). The Riccati gain of the covariance
     model when it is positive real and predicts ``y`` at least as well as the VAR's gain; otherwise
     the VAR's (:func:`.output_only_var.gain_from_var`: fitted to its stochastic Markov parameters,
-    or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable),
-    whose ``Re`` is its predictor's error covariance on ``y``.
+    or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable).
+    ``Re`` is the chosen predictor's error covariance on ``y`` (:func:`.output_only_var.prediction_error_covariance`).
     """
     p = C.shape[0]
     stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
@@ -63,8 +68,9 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     var = gain_from_var(A, C, y, *var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
     if solved is None:
         return var
-    riccati = (solved[0], solved[1], "riccati")
-    # The VAR gain's Re is its predictor's error covariance on this record already: not run twice.
-    if prediction_log_det(A, C, riccati[0], y) <= _log_det(var[1]):
+    # Each candidate's Re is its predictor's error covariance on this record (the VAR gain's computed with it):
+    # the covariance model's Riccati Re is that of a model fitted to the correlations, not of this predictor.
+    riccati = (solved[0], prediction_error_covariance(A, C, solved[0], y), "riccati")
+    if _log_det(riccati[1]) <= _log_det(var[1]):
         return riccati
     return var

@@ -68,14 +68,18 @@ def test_the_gain_is_the_better_predictor(case, seed, method, bound) -> None:
     assert np.max(np.abs(linalg.eigvals(model.A - model.A @ model.K @ model.C))) < 1.0
 
 
-@pytest.mark.parametrize("seed", [11, 20])
-def test_the_var_gains_innovation_covariance_is_its_predictors(seed) -> None:
-    # The VAR's residual covariance, handed with its gain before, made the model's normalized innovations
-    # (their exact stationary mean square over p) 1.017 and 1.027 on these records; the predictor's own
-    # error covariance on the record makes them 1.005 and 1.000.
-    case = output_only_case("close-pair")
+@pytest.mark.parametrize(("case", "seed", "method"), [
+    # the VAR's residual covariance, handed with its gain, made the normalized innovations 1.017 and 1.027
+    (output_only_case("close-pair"), 11, "var-markov"),
+    (output_only_case("close-pair"), 20, "var-markov"),
+    # the covariance model's Riccati Re made them 1.028 and 1.025
+    (koma_frame_case(), 4, "riccati"),
+    (koma_frame_case(), 20, "riccati"),
+])
+def test_the_innovation_covariance_is_the_predictors(case, seed, method) -> None:
+    # The model's normalized innovations: their exact stationary mean square over p, 1 for the right Re.
     model = identify_output_only(case.simulate(seed=seed), case.sample_time_s)
-    assert model.gain_method == "var-markov"
+    assert model.gain_method == method
     errors = _exact_error_covariance(case.system, model.A, model.C, model.A @ model.K)
     normalized = np.trace(linalg.solve(model.innovation_covariance, errors)) / errors.shape[0]
     assert normalized == pytest.approx(1.0, abs=0.01)
