@@ -10,7 +10,12 @@ one-step predictions of the record itself have the smaller innovation covariance
 determinant, the Gaussian likelihood's term: no channel's units weigh) is kept, so the model
 handed to the estimator is never the worse predictor of its own record
 (docs/benchmarks-output-only.md, forty-fourth session: the in-sample choice agreed with the
-predictors' exact variances on fresh data; a two-fold cross-validation did not).
+predictors' exact variances on fresh data; a two-fold cross-validation did not). The ``Re``
+handed with either gain is that predictor's error covariance on the record: the VAR's residual
+covariance is smaller (the VAR, of many more coefficients, predicts the record better than the
+model) and the covariance model's Riccati ``Re`` is that model's, not the predictor's, so either
+scaled the model's normalized innovations wrongly (same docs, "The innovation covariance handed
+with the gain").
 """
 
 from __future__ import annotations
@@ -18,14 +23,24 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from okid_ros.core.output_only_var import MAX_GAIN_VAR_COEFFICIENTS, gain_from_var, var_markov
-from okid_ros.core.statespace import simulate
+from okid_ros.core.output_only_var import (
+    BURN_IN_FRACTION,
+    MAX_GAIN_VAR_COEFFICIENTS,
+    gain_from_var,
+    prediction_error_covariance,
+    var_markov,
+)
 from okid_ros.core.stochastic_realization import forward_innovation
 
 __all__ = ["BURN_IN_FRACTION", "covariance_innovation", "prediction_log_det"]
 
-#: The first part of the record the predictors' errors leave out (their start from a zero state).
-BURN_IN_FRACTION = 0.1
+
+def _log_det(covariance: np.ndarray | None) -> float:
+    """Log determinant of a prediction-error covariance; ``inf`` for an unstable predictor (None) or a singular one."""
+    if covariance is None:
+        return float(np.inf)
+    sign, log_det = np.linalg.slogdet(np.atleast_2d(covariance))
+    return float(log_det) if sign > 0 else float(np.inf)
 
 
 def prediction_log_det(A: np.ndarray, C: np.ndarray, L: np.ndarray, y: np.ndarray) -> float:
@@ -33,12 +48,7 @@ def prediction_log_det(A: np.ndarray, C: np.ndarray, L: np.ndarray, y: np.ndarra
 
     The first :data:`BURN_IN_FRACTION` of the record is left out; an unstable predictor scores ``inf``.
     """
-    if np.max(np.abs(linalg.eigvals(A - L @ C)), initial=0.0) >= 1.0:
-        return float(np.inf)
-    p = C.shape[0]
-    errors = simulate(A - L @ C, L, -C, np.eye(p), y)[int(BURN_IN_FRACTION * y.shape[0]):]
-    sign, log_det = np.linalg.slogdet(np.atleast_2d(errors.T @ errors / errors.shape[0]))
-    return float(log_det) if sign > 0 else float(np.inf)
+    return _log_det(prediction_error_covariance(A, C, L, y))
 
 
 def covariance_innovation(A, C, gamma, correlations, block_rows, y):
@@ -49,6 +59,7 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     model when it is positive real and predicts ``y`` at least as well as the VAR's gain; otherwise
     the VAR's (:func:`.output_only_var.gain_from_var`: fitted to its stochastic Markov parameters,
     or the Kalman gain of the noise covariances of a state sequence where that predictor is unstable).
+    ``Re`` is the chosen predictor's error covariance on ``y`` (:func:`.output_only_var.prediction_error_covariance`).
     """
     p = C.shape[0]
     stacked = correlations[1 : block_rows + 1].reshape(block_rows * p, p)  # [R_1; ..; R_i], all columns
@@ -57,7 +68,9 @@ def covariance_innovation(A, C, gamma, correlations, block_rows, y):
     var = gain_from_var(A, C, y, *var_markov(y, block_rows, MAX_GAIN_VAR_COEFFICIENTS))
     if solved is None:
         return var
-    riccati = (solved[0], solved[1], "riccati")
-    if prediction_log_det(A, C, riccati[0], y) <= prediction_log_det(A, C, var[0], y):
+    # Each candidate's Re is its predictor's error covariance on this record (the VAR gain's computed with it):
+    # the covariance model's Riccati Re is that of a model fitted to the correlations, not of this predictor.
+    riccati = (solved[0], prediction_error_covariance(A, C, solved[0], y), "riccati")
+    if _log_det(riccati[1]) <= _log_det(var[1]):
         return riccati
     return var

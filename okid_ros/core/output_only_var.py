@@ -20,6 +20,7 @@ from okid_ros.core.arx_gram import arx_normal_equations, arx_regressor_product
 from okid_ros.core.era import HankelDecomposition
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
+from okid_ros.core.refit import innovation_covariance
 from okid_ros.core.statespace import simulate
 from okid_ros.core.stochastic_realization import (
     CovarianceDecomposition,
@@ -30,8 +31,8 @@ from okid_ros.core.stochastic_realization import (
     stochastic_markov_from_var,
 )
 
-__all__ = ["MAX_GAIN_VAR_COEFFICIENTS", "VAR_ROUTE_WARNING", "VarCovarianceModel", "gain_from_var", "var_markov",
-           "var_replicates"]
+__all__ = ["BURN_IN_FRACTION", "MAX_GAIN_VAR_COEFFICIENTS", "VAR_ROUTE_WARNING", "VarCovarianceModel",
+           "gain_from_var", "prediction_error_covariance", "var_markov", "var_replicates"]
 
 #: The VAR of the route keeps at most this many coefficients per output (and N / 10).
 MAX_VAR_COEFFICIENTS = 1500
@@ -39,6 +40,8 @@ MAX_VAR_COEFFICIENTS = 1500
 #: predictor's Markov parameters decay at the predictor's rate (4 outputs, 60000 samples: 15 s at
 #: q = 250, 1 s at q = 50).
 MAX_GAIN_VAR_COEFFICIENTS = 200
+#: The first part of the record a predictor's errors leave out (its start from a zero state).
+BURN_IN_FRACTION = 0.1
 
 #: Every model of the route says what it lacks: screened as the SSI routes' modes are, its poles
 #: scatter more across the jackknife's replicates, so more true modes are dropped (docs/benchmarks-output-only.md,
@@ -111,15 +114,31 @@ class VarCovarianceModel:
         return A, C, linalg.lstsq(self._realizer.observability(n_states), self._stacked)[0]
 
 
+def prediction_error_covariance(A, C, L, y) -> np.ndarray | None:
+    """Covariance of ``y``'s one-step prediction errors by ``x+ = A x + L (y - C x)``; None if it is unstable.
+
+    The first :data:`BURN_IN_FRACTION` of the record is left out.
+    """
+    if np.max(np.abs(linalg.eigvals(A - L @ C)), initial=0.0) >= 1.0:
+        return None
+    errors = simulate(A - L @ C, L, -C, np.eye(C.shape[0]), y)[int(BURN_IN_FRACTION * y.shape[0]):]
+    return innovation_covariance(errors)
+
+
 def gain_from_var(A, C, y, var, markov):
     """``L``, ``Re`` from a VAR of the record.
 
-    Fitted to its stochastic Markov parameters, or if that predictor is unstable, the Kalman
-    gain of the noise covariances of a state sequence.
+    ``L`` fitted to its stochastic Markov parameters, or if that predictor is unstable, the Kalman
+    gain of the noise covariances of a state sequence. ``Re`` is the covariance of that predictor's
+    errors on the record (:func:`prediction_error_covariance`), not the VAR's residual covariance:
+    the VAR, of many more coefficients, predicts its own record better than the model does, and an
+    ``Re`` that small makes the model's normalized innovations too large (docs/benchmarks-output-only.md,
+    forty-fourth session).
     """
     L = gain_from_markov(A, C, markov)
-    if np.max(np.abs(linalg.eigvals(A - L @ C))) < 1.0:
-        return L, var.residual_covariance, "var-markov"
+    Re = prediction_error_covariance(A, C, L, y)
+    if Re is not None:
+        return L, Re, "var-markov"
     # States driven by the VAR's innovations through the stable A (x+ = A x + L e), the noise
     # covariances of their residuals and the Kalman gain of the filtering Riccati equation,
     # stable by construction (as :mod:`.state_completion`).
@@ -128,7 +147,10 @@ def gain_from_var(A, C, y, var, markov):
     n = A.shape[0]
     states = simulate(A, np.eye(n), np.eye(n), np.zeros((n, n)), drive)  # x_0 = 0
     try:
-        L, Re = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
+        L, _ = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
     except ValueError as exc:
         raise IdentificationError(f"no stable innovation model: {exc}") from None
+    Re = prediction_error_covariance(A, C, L, y)
+    if Re is None:
+        raise IdentificationError("no stable innovation model: the Kalman gain's predictor is unstable")
     return L, Re, "riccati-residuals"

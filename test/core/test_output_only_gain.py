@@ -10,10 +10,12 @@ from okid_bench.output_only_cases import output_only_case
 from okid_bench.physical_cases import koma_frame_case
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_gain import prediction_log_det
+from okid_ros.core.output_only_var import BURN_IN_FRACTION, prediction_error_covariance
+from okid_ros.core.statespace import one_step_prediction
 
 
-def _variance_ratio(system, A, C, L) -> float:
-    """Stationary innovation variance of the predictor ``(A, C, L)`` on ``system``'s outputs over the optimal one's.
+def _exact_error_covariance(system, A, C, L) -> np.ndarray:
+    """Stationary covariance of the predictor ``(A, C, L)``'s errors on ``system``'s outputs.
 
     The true state and the prediction as one stationary process: ``e = C_t x - C xhat + v``.
     """
@@ -24,7 +26,12 @@ def _variance_ratio(system, A, C, L) -> float:
     W = np.block([[np.eye(nt), np.zeros((nt, R.shape[0]))], [np.zeros((n, nt)), L]])
     X = linalg.solve_discrete_lyapunov(F, W @ np.block([[Q, S], [S.T, R]]) @ W.T)
     H = np.hstack([Ct, -C])
-    identified = H @ X @ H.T + R
+    return H @ X @ H.T + R
+
+
+def _variance_ratio(system, A, C, L) -> float:
+    """Stationary innovation variance of the predictor ``(A, C, L)`` on ``system``'s outputs over the optimal one's."""
+    identified = _exact_error_covariance(system, A, C, L)
     return float(np.trace(identified) / np.trace(system.to_innovation_form().innovation_covariance))
 
 
@@ -59,3 +66,36 @@ def test_the_gain_is_the_better_predictor(case, seed, method, bound) -> None:
     ratio = _variance_ratio(case.system, model.A, model.C, model.A @ model.K)
     assert 1.0 <= ratio < bound
     assert np.max(np.abs(linalg.eigvals(model.A - model.A @ model.K @ model.C))) < 1.0
+
+
+@pytest.mark.parametrize(("case", "seed", "route", "method", "tolerance"), [
+    # the VAR's residual covariance, handed with its gain, made the normalized innovations 1.017 and 1.027
+    (output_only_case("close-pair"), 11, "ssi-cva", "var-markov", 0.01),
+    (output_only_case("close-pair"), 20, "ssi-cva", "var-markov", 0.01),
+    # the covariance model's Riccati Re made them 1.028 and 1.025
+    (koma_frame_case(), 4, "ssi-cva", "riccati", 0.01),
+    (koma_frame_case(), 20, "ssi-cva", "riccati", 0.01),
+    # the VAR route's own VAR (hundreds of coefficients per output) made them 33.7; its predictor's, 1.054
+    (output_only_case("close-pair"), 11, "var", "var-markov", 0.1),
+])
+def test_the_innovation_covariance_is_the_predictors(case, seed, route, method, tolerance) -> None:
+    # The model's normalized innovations: their exact stationary mean square over p, 1 for the right Re.
+    model = identify_output_only(case.simulate(seed=seed), case.sample_time_s, method=route)
+    assert model.gain_method == method
+    errors = _exact_error_covariance(case.system, model.A, model.C, model.A @ model.K)
+    normalized = np.trace(linalg.solve(model.innovation_covariance, errors)) / errors.shape[0]
+    assert normalized == pytest.approx(1.0, abs=tolerance)
+
+
+def test_prediction_error_covariance_is_that_of_the_errors_after_the_burn_in() -> None:
+    case = output_only_case("close-pair")
+    oracle = case.system.to_innovation_form()
+    y = case.simulate(seed=2, n_samples=20_000)
+    L = oracle.A @ oracle.K
+    covariance = prediction_error_covariance(oracle.A, oracle.C, L, y)
+    n, p = oracle.A.shape[0], oracle.C.shape[0]
+    predictor = (oracle.A, np.zeros((n, 0)), oracle.C, np.zeros((p, 0)), oracle.K)
+    errors = one_step_prediction(predictor, np.zeros((y.shape[0], 0)), y)[1]
+    kept = errors[int(BURN_IN_FRACTION * y.shape[0]):]
+    np.testing.assert_allclose(covariance, kept.T @ kept / kept.shape[0], rtol=1e-9, atol=1e-12)
+    assert prediction_error_covariance(oracle.A, oracle.C, -20.0 * L, y) is None  # an unstable predictor
