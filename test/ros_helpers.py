@@ -194,3 +194,19 @@ def rosbags_typestore():
         types.update(get_types_from_msg(path.read_text(), f"okid_msgs/msg/{path.stem}"))
     store.register(types)
     return store
+
+
+def publish_io_samples(publisher, u, y, *, t0_s: float, sample_time_s: float, rate_hz: float = 1000.0) -> None:
+    """Publish ``u``, ``y`` (N, m), (N, p) as IoSample stamped ``t0_s + k sample_time_s``, ``rate_hz`` a second."""
+    from okid_msgs.msg import IoSample  # here: the helpers' other users need no message package
+
+    start = time.monotonic()
+    for k in range(len(y)):
+        msg = IoSample()
+        ns = int(round((t0_s + k * sample_time_s) * 1e9))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+        msg.u, msg.y = [float(v) for v in u[k]], [float(v) for v in y[k]]
+        publisher.publish(msg)
+        wait = start + (k + 1) / rate_hz - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)

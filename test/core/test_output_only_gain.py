@@ -29,6 +29,13 @@ def _exact_error_covariance(system, A, C, L) -> np.ndarray:
     return H @ X @ H.T + R
 
 
+def _optimal_predictor_and_record(*, seed: int):
+    """The close-pair case's optimal innovation form, its predictor gain ``A K`` and a 20 000-sample record."""
+    case = output_only_case("close-pair")
+    oracle = case.system.to_innovation_form()
+    return oracle, oracle.A @ oracle.K, case.simulate(seed=seed, n_samples=20_000)
+
+
 def _variance_ratio(system, A, C, L) -> float:
     """Stationary innovation variance of the predictor ``(A, C, L)`` on ``system``'s outputs over the optimal one's."""
     identified = _exact_error_covariance(system, A, C, L)
@@ -43,10 +50,7 @@ def test_the_exact_variance_ratio_of_the_optimal_predictor_is_one() -> None:
 
 
 def test_prediction_log_det_scores_the_optimal_gain_lowest() -> None:
-    case = output_only_case("close-pair")
-    oracle = case.system.to_innovation_form()
-    y = case.simulate(seed=1, n_samples=20_000)
-    L = oracle.A @ oracle.K
+    oracle, L, y = _optimal_predictor_and_record(seed=1)
     best = prediction_log_det(oracle.A, oracle.C, L, y)
     assert np.isfinite(best)
     assert best < prediction_log_det(oracle.A, oracle.C, 0.7 * L, y)
@@ -88,10 +92,7 @@ def test_the_innovation_covariance_is_the_predictors(case, seed, route, method, 
 
 
 def test_prediction_error_covariance_is_that_of_the_errors_after_the_burn_in() -> None:
-    case = output_only_case("close-pair")
-    oracle = case.system.to_innovation_form()
-    y = case.simulate(seed=2, n_samples=20_000)
-    L = oracle.A @ oracle.K
+    oracle, L, y = _optimal_predictor_and_record(seed=2)
     covariance = prediction_error_covariance(oracle.A, oracle.C, L, y)
     n, p = oracle.A.shape[0], oracle.C.shape[0]
     predictor = (oracle.A, np.zeros((n, 0)), oracle.C, np.zeros((p, 0)), oracle.K)

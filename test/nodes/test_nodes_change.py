@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, start_nodes, subprocess_env, wait_ready
+from ros_helpers import REPO_ROOT, ProbeNode, publish_io_samples, start_nodes, subprocess_env, wait_ready
 
 from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
@@ -97,16 +97,7 @@ def run(ros_domain_id, tmp_path_factory):
         before, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
         u = lowpass_input(N, 2, 40.0, DT, seed=3)
         y = simulate_switched([before, after], CHANGE, u, seed=4)
-        start = time.monotonic()
-        for k in range(N):
-            msg = IoSample()
-            ns = int(round((T0 + k * DT) * 1e9))
-            msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-            msg.u, msg.y = [float(v) for v in u[k]], [float(v) for v in y[k]]
-            probe.io.publish(msg)
-            wait = start + (k + 1) / 1000.0 - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+        publish_io_samples(probe.io, u, y, t0_s=T0, sample_time_s=DT)
         probe.wait_until("the change with the modes of the new structure",
                          lambda: any(m.identified for m in probe.changes), 30)
         probe.wait_until("node 1's diagnostics after the restart",

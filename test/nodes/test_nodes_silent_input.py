@@ -6,12 +6,10 @@ record from input 0 with a warning naming input 1, and node 1 refused every wind
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, start_nodes, subprocess_env, wait_ready
+from ros_helpers import REPO_ROOT, ProbeNode, publish_io_samples, start_nodes, subprocess_env, wait_ready
 
 from okid_msgs.msg import ArxModel, IoSample
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -70,16 +68,7 @@ def test_node_1_fits_without_a_silent_input_names_it_and_counts_it(ros_domain_id
         u = lowpass_input(N, 2, 15.0, truth.sample_time_s, seed=7)
         u[:, 1] = 0.0
         y, _ = simulate_innovation(truth, u, seed=1007)
-        start = time.monotonic()
-        for k in range(N):
-            msg = IoSample()
-            ns = int(round((T0 + k * truth.sample_time_s) * 1e9))
-            msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-            msg.u, msg.y = [float(v) for v in u[k]], [float(v) for v in y[k]]
-            probe.io.publish(msg)
-            wait = start + (k + 1) / 1000.0 - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+        publish_io_samples(probe.io, u, y, t0_s=T0, sample_time_s=truth.sample_time_s)
         probe.wait_until("a valid ArxModel", lambda: any(valid for valid, _ in probe.arx), 20)
         probe.wait_until("node 1's count of them", lambda: int(probe.diagnostics.get(
             "okid_arx_identifier: identification", {}).get("silent_input_snapshots", "0")) > 0, 10)
