@@ -130,6 +130,7 @@ class ProbeNode:
         self.lock = threading.Lock()
         self.executor = None
         self.thread: threading.Thread | None = None
+        self._clients: dict = {}
 
     def start(self) -> None:
         """Spin the node on a daemon thread until :meth:`close`."""
@@ -154,6 +155,27 @@ class ProbeNode:
             with self.lock:
                 store.append(msg)
         return callback
+
+    def call(self, srv_type, name: str, request, *, attempts: int = 4, wait_s: float = 20.0):
+        """Answer of one service call; the request is sent again when no answer comes.
+
+        A client's first request can be lost over DDS while the service's reply path is still
+        being matched (wait_for_service sees only the request path), so one silent request is
+        not a failure of the node; ``attempts`` are (AssertionError).
+        """
+        if name not in self._clients:
+            self._clients[name] = self.node.create_client(srv_type, name)
+        client = self._clients[name]
+        assert client.wait_for_service(timeout_sec=60), name
+        for _ in range(attempts):
+            future = client.call_async(request)
+            deadline = time.monotonic() + wait_s  # a call on a loaded machine may take seconds
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError(f"{name}: no answer to {attempts} requests of {wait_s} s each")
 
     def wait_until(self, what: str, predicate, timeout_s: float = 30.0, *, explain=None) -> None:
         """Wait until ``predicate()`` (called under the lock) holds; fail the test on timeout.

@@ -44,7 +44,6 @@ class Probe(ProbeNode):
         super().__init__("okid_lifecycle_probe")
         self.arx: list[ArxModel] = []
         self.diagnostics: list[str] = []
-        self.clients: dict = {}
         self.io = self.node.create_publisher(IoSample, f"{NS}/io_sample",
                                              QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -75,27 +74,6 @@ class Probe(ProbeNode):
             self.stamp += DT
             self.k += 1
             time.sleep(1.0 / rate_hz)
-
-    def call(self, srv_type, name: str, request, *, attempts: int = 4, wait_s: float = 20.0):
-        """Answer of one service call; the request is sent again when no answer comes.
-
-        A client's first request can be lost over DDS while the service's reply path is still
-        being matched (wait_for_service sees only the request path), so one silent request is
-        not a failure of the node; four are.
-        """
-        if name not in self.clients:
-            self.clients[name] = self.node.create_client(srv_type, name)
-        client = self.clients[name]
-        assert client.wait_for_service(timeout_sec=60), name
-        for _ in range(attempts):
-            future = client.call_async(request)
-            deadline = time.monotonic() + wait_s  # a transition on a loaded machine may take seconds
-            while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.02)
-            if future.done():
-                return future.result()
-            client.remove_pending_request(future)
-        raise AssertionError(f"{name}: no answer to {attempts} requests of {wait_s} s each")
 
     def state(self, node: str) -> int:
         return self.call(GetState, f"{node}/get_state", GetState.Request()).current_state.id

@@ -101,13 +101,6 @@ class RigProbe(ProbeNode):
             for status in msg.status:
                 self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
-    def call(self, srv_type, name: str, request, timeout_s: float = 15.0):
-        client = self.node.create_client(srv_type, name)
-        assert client.wait_for_service(timeout_sec=timeout_s), f"no service {name}"
-        future = client.call_async(request)
-        self.wait_until(f"the answer of {name}", future.done, timeout_s)
-        return future.result()
-
 
 
 def value(kind: str, v) -> ParameterValue:
