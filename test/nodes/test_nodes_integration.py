@@ -339,17 +339,9 @@ def test_bad_input_is_counted_while_the_nodes_keep_the_last_good_model(probe, io
     # node 2 keeps its model and its modal states flow on.
     with probe.lock:
         n_arx = len(probe.arx)
-    client = probe.node.create_client(Trigger, "/okid_arx_identifier/reset")
-    assert client.wait_for_service(timeout_sec=10)
-    future = client.call_async(Trigger.Request())
-    probe.wait_until("the reset", future.done, 10)
-    assert future.result().success
+    assert probe.call(Trigger, "/okid_arx_identifier/reset", Trigger.Request()).success
     for node in NODES.values():  # the enable services answer (adaptation / model updates stay on)
-        enable = probe.node.create_client(SetBool, f"/{node}/enable")
-        assert enable.wait_for_service(timeout_sec=10)
-        answer = enable.call_async(SetBool.Request(data=True))
-        probe.wait_until(f"{node}/enable", answer.done, 10)
-        assert answer.result().success
+        assert probe.call(SetBool, f"/{node}/enable", SetBool.Request(data=True)).success
     constant = ([1.0, -1.0], [0.5, 0.25])
     # Constant samples until node 2 has applied any realization it started before the reset
     # (and realized any good window still waiting); from then on no model may change.

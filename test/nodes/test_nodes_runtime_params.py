@@ -103,11 +103,8 @@ class Probe(ProbeNode):
     def set(self, **values) -> None:
         """Set parameters of node 2 (``a__b`` for ``a.b``) with the SetParameters service."""
         params = [Parameter(name.replace("__", "."), value=value).to_parameter_msg() for name, value in values.items()]
-        client = self.node.create_client(SetParameters, f"{EST}/set_parameters")
-        assert client.wait_for_service(timeout_sec=15.0)
-        future = client.call_async(SetParameters.Request(parameters=params))
-        self.wait_until("the SetParameters answer", future.done, 15)
-        for result in future.result().results:
+        answer = self.call(SetParameters, f"{EST}/set_parameters", SetParameters.Request(parameters=params))
+        for result in answer.results:
             assert result.successful, result.reason
 
     def models_after(self, count: int) -> list[StateSpaceModel]:

@@ -34,14 +34,6 @@ POLICY = REPO_ROOT / "config" / "sros2" / "policy.xml"
 NODE_MODULES = {"okid_arx_identifier": "arx_identifier_node", "okid_modal_estimator": "modal_estimator_node"}
 
 
-def _call(probe: ProbeNode, srv_type, name: str, request):
-    client = probe.node.create_client(srv_type, name)
-    assert client.wait_for_service(timeout_sec=20), name
-    future = client.call_async(request)
-    probe.wait_until(f"the answer of {name}", future.done, 20)
-    return future.result()
-
-
 def _double(name: str, value: float) -> Parameter:
     return Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))
 
@@ -100,12 +92,12 @@ def test_service_calls_and_parameter_changes_are_logged_with_the_caller(spawn_ro
     probe = ProbeNode("okid_audit_probe")
     probe.start()
     try:
-        assert _call(probe, Trigger, "/okid_arx_identifier/reset", Trigger.Request()).success
-        assert _call(probe, SetBool, "/okid_arx_identifier/enable", SetBool.Request(data=False)).success
+        assert probe.call(Trigger, "/okid_arx_identifier/reset", Trigger.Request()).success
+        assert probe.call(SetBool, "/okid_arx_identifier/enable", SetBool.Request(data=False)).success
         set_params = SetParameters.Request(parameters=[_double("arx.penalty", 2.5)])
-        assert _call(probe, SetParameters, "/okid_arx_identifier/set_parameters", set_params).results[0].successful
+        assert probe.call(SetParameters, "/okid_arx_identifier/set_parameters", set_params).results[0].successful
         refused = SetParameters.Request(parameters=[_double("arx.penalty", -1.0)])
-        assert not _call(probe, SetParameters, "/okid_arx_identifier/set_parameters", refused).results[0].successful
+        assert not probe.call(SetParameters, "/okid_arx_identifier/set_parameters", refused).results[0].successful
     finally:
         probe.close()
     who = r"by /okid_audit_probe: request"
