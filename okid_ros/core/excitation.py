@@ -35,7 +35,7 @@ from okid_ros.core.least_squares import NEGLIGIBLE_RELATIVE_SPREAD, constant_col
 __all__ = ["NEGLIGIBLE_RELATIVE_SPREAD", "Excitation", "LiveInputs", "dead_channels", "input_excitation",
            "excitation_warnings", "output_problem", "unexcited_reason", "unexplained_warnings",
            "window_excitation_warnings", "window_output_problem", "frozen_output_warnings", "longest_held_run",
-           "dependent_inputs", "entering_excitation_text", "leaving_excitation_text"]
+           "dependent_inputs", "entering_excitation_text", "leaving_excitation_text", "window_columns"]
 
 
 #: Outputs are linearly dependent when a combination of the unit-spread channels has at most this
@@ -159,7 +159,7 @@ def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int
     output's level, spread and the outputs' covariance in the window.
     """
     cols = slice(n_inputs, n_inputs + n_outputs)
-    square, mean, _, dead = _window_columns(normal, cols)
+    square, mean, _, dead = window_columns(normal, cols)
     if dead.any():
         j = int(np.flatnonzero(dead)[0])
         return _dead_output(j, float(mean[j]), None)
@@ -168,8 +168,8 @@ def window_output_problem(normal: NormalEquations, n_inputs: int, n_outputs: int
     return _dependent_outputs(normal.R[cols, cols] / max(normal.n_rows, 1) - np.outer(mean, mean))
 
 
-def _window_columns(normal: NormalEquations, cols: slice
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def window_columns(normal: NormalEquations, cols: slice
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean square, mean, variance and the dead mask of regressor columns ``cols`` of a window."""
     n = max(normal.n_rows, 1)
     # A sliding window's downdates can leave an all-zero column's sum of squares at -1e-17.
@@ -386,7 +386,7 @@ def window_excitation_warnings(normal: NormalEquations, n_inputs: int) -> list[s
     The first ``m`` regressor columns are ``u_k``: their centered mean squares (from ``R`` and
     the column sums) and the mean magnitudes give each input's spread and level in the window.
     """
-    square, mean, variance, dead = _window_columns(normal, slice(0, n_inputs))
+    square, mean, variance, dead = window_columns(normal, slice(0, n_inputs))
     report = Excitation(np.sqrt(variance), np.sqrt(square), [int(i) for i in np.flatnonzero(dead)],
                         {int(i): float(mean[i]) for i in np.flatnonzero(dead)})
     if not report.dead:
@@ -409,7 +409,7 @@ def _leaving_excitation(normal: NormalEquations, n_inputs: int, report: Excitati
     width = n_outputs + n_inputs
     texts = {}
     for i in report.dead:
-        lags = _window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, width))[3]
+        lags = window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, width))[3]
         if lags.size and not lags.all():
             own = f"are {_constant_text(report.constant_value[i], None)}"
             texts[i] = leaving_excitation_text(i, int(np.argmin(lags)) + 1, lags.size, own)
@@ -448,10 +448,10 @@ def _late_excitation(normal: NormalEquations, n_inputs: int) -> list[str]:
     order = (n_coefficients - n_inputs) // max(n_outputs + n_inputs, 1)
     if n_inputs == 0 or order < 1:
         return []
-    _, mean, _, dead = _window_columns(normal, slice(n_coefficients - n_inputs, n_coefficients))
+    _, mean, _, dead = window_columns(normal, slice(n_coefficients - n_inputs, n_coefficients))
     texts = []
     for i in np.flatnonzero(dead):  # its lags 1 .. q: dead from the first its newest samples do not reach
-        lags = _window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, n_outputs + n_inputs))[3]
+        lags = window_columns(normal, slice(n_inputs + n_outputs + i, n_coefficients, n_outputs + n_inputs))[3]
         own = f"are {_constant_text(float(mean[i]), None)}"
         texts.append(entering_excitation_text(int(i), int(np.argmax(lags)) + 1, order, own))
     return texts

@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from okid_ros.core.arx import ArxFit, NormalEquations, fit_from_normal_equations
-from okid_ros.core.excitation import window_excitation_warnings, window_output_problem
-from okid_ros.core.least_squares import center_normal_equations, constant_columns
+from okid_ros.core.excitation import window_columns, window_excitation_warnings, window_output_problem
+from okid_ros.core.least_squares import center_normal_equations
 from okid_ros.core.record_checks import BROADBAND_NEEDED
 from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
@@ -146,10 +146,7 @@ def silent_inputs(normal: NormalEquations, order: int, n_outputs: int, n_inputs:
     [] when every input varies somewhere in the window, or none does (a window without excitation,
     refused). An input constant in ``u_k`` only (a blow leaving or entering the window) is not silent.
     """
-    n = max(normal.n_rows, 1)
-    square = np.maximum(np.diag(normal.R) / n, 0.0)
-    mean = normal.phi_sum / n if normal.phi_sum is not None else np.zeros(square.size)
-    constant = constant_columns(square, np.maximum(square - mean**2, 0.0))
+    constant = window_columns(normal, slice(None))[3]
     width = n_outputs + n_inputs
     silent = [i for i in range(n_inputs) if constant[i] and constant[n_inputs + n_outputs + i::width][:order].all()]
     return silent if len(silent) < n_inputs else []
