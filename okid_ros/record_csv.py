@@ -176,7 +176,9 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
         times = values[:, header.index("time_s")]
         step, rounding, irregular = _uniform_step(times)
         if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
-            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular})")
+            advice = ("; the identification needs samples on one uniform grid: resample the record onto one, or cut "
+                      "it where the step changes" if " follows row " in irregular else "")
+            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular}){advice}")
         if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
             raise DataError(f"{shown_path(path)}: the sample_time_s comment says {dt:g} s and the time_s column "
                             f"steps {step:g} s")

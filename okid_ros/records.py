@@ -2,8 +2,8 @@
 
 .npz
     Arrays ``u`` (N, m), ``y`` (N, p) and a scalar ``sample_time_s``. One-dimensional ``u`` or
-    ``y`` are read as a single channel. Without ``u`` the record has no inputs (``u`` (N, 0),
-    for output-only identification). Arrays must be real numbers (bool, integer or float);
+    ``y`` are read as a single channel. Without ``u`` (or with an empty one) the record has no inputs
+    (``u`` (N, 0), for output-only identification). Arrays must be real numbers (bool, integer or float);
     pickled objects are never loaded. Stamps ``stamp_s`` (N,), as `export` writes them, may come too.
 
 .csv

@@ -127,3 +127,27 @@ def test_output_only_gaps_are_said_filled_by_the_autoregression_that_fills_them(
     assert "its 5 missing samples filled by a vector autoregression's prediction (as node 2 fills its window)" in err
     assert "ARX" not in err
     assert "vector autoregression" in json.loads((tmp_path / "m.json").read_text())["source"]
+
+
+@pytest.mark.parametrize("units, advice", [((1e-200, 1e-200, 1e-200), "multiplied by 1e100"),
+                                           ((1e200, 1.0, 1.0), "divided by 1e100"),
+                                           ((1e200, 1e-200, 1.0), "the large ones divided and the small ones "
+                                                                  "multiplied by 1e100")])
+def test_outputs_beyond_float64s_range_are_told_the_way_back(tmp_path: Path, capsys, units, advice) -> None:
+    """Spreads of 1e-200 were told "express the outputs in other units, e.g. divided by 1e100": further out."""
+    record = tmp_path / "units.npz"
+    np.savez(record, y=_ambient(600) * np.array(units), sample_time_s=SAMPLE_TIME_S)
+    for command, output in (("identify", "--json"), ("track", "--jsonl")):
+        code, _, err = run_cli(capsys, command, record, output, tmp_path / "out")
+        assert_one_line_error(code, err, "units.npz: the innovation covariance in the record's units is beyond the "
+                              "float64 range", f"express the outputs in other units, e.g. {advice}")
+
+
+def test_an_irregular_time_column_is_refused_saying_what_to_do(tmp_path: Path, capsys) -> None:
+    """Was refused naming the row only: the way on (resample, or cut at the change) was not said."""
+    y = _ambient(300)
+    times = SAMPLE_TIME_S * np.arange(y.shape[0]) + np.random.default_rng(3).uniform(-1e-3, 1e-3, y.shape[0])
+    record = _csv(tmp_path / "jitter.csv", "time_s,y1,y2,y3", np.column_stack([np.sort(times), y]), comment="")
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json")
+    assert_one_line_error(code, err, "jitter.csv: time_s is not uniformly increasing (data row",
+                          "resample the record onto one, or cut it where the step changes")
