@@ -168,7 +168,7 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
         warnings.warn(f"{shown_path(input_bag)}: {unmatched}: not drawn from", OkidWarning, stacklevel=2)
         data.measured, data.truth, data.experiment_start_ns = None, truth, start_ns
         return None, None, without
-    return input_bag, est_values, note + f"; measured outputs from {input_bag} ({matched} samples)"
+    return input_bag, est_values, note + f"; measured outputs from {shown_path(input_bag)} ({matched} samples)"
 
 
 def _run_span_ns(data: Any) -> tuple:
