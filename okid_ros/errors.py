@@ -154,4 +154,4 @@ def writing(path: str | os.PathLike, kind: str) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write the {kind} ({exc.strerror or exc})") from None
+        raise OutputError(f"{shown_path(path)}: cannot write the {kind} ({exc.strerror or exc})") from None

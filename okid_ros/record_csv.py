@@ -86,7 +86,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
             raise DataError(f"{shown_path(path)}: data row {number} has {len(row)} values, the header {len(header)}"
-                            f"{_separator_hint(header, body[0])}")
+                            f"{_separator_hint(header, body[number] if number < len(body) else body[0])}")
     _warn_commented_rows(path, commented, len(header), len(rows) - 1)
     if names := repeated_column_names(header, wanted(header)):  # read as 2 channels ('y1' and 'Y1' too)
         raise DataError(f"{shown_path(path)}: the header names {names} (a column given twice?): rename or remove one")
@@ -127,9 +127,19 @@ def _not_a_number(header: list[str], column: int, texts: list[str]) -> str:
 
 
 def _separator_hint(header: list[str], text: str) -> str:
-    """A hint when a one-column table's text holds semicolons or tabs (a CSV of another locale), else ""."""
-    return next((f" (values separated by {name}? a CSV here is separated by commas)"
-                 for mark, name in ((";", "semicolons"), ("\t", "tabs")) if len(header) == 1 and mark in text), "")
+    """A hint when a table's text looks written in another locale (semicolons, tabs, decimal commas), else "".
+
+    ``text``: a data row's raw line (or, for a one-column table, its value). Numbers written with a
+    decimal comma split a comma-separated row into about twice the header's values, each an integer.
+    """
+    if len(header) == 1 and (mark := next((m for m in (";", "\t") if m in text), "")):
+        name = "semicolons" if mark == ";" else "tabs"
+        comma = ", numbers with decimal commas" if re.search(r"[0-9],[0-9]", text) else ""
+        return f" (values separated by {name}{comma}? a CSV here is separated by commas, with decimal points)"
+    fields = [field.strip() for field in text.split(",")]
+    if len(fields) > len(header) and all(re.fullmatch(r"[-+]?[0-9]+", field) for field in fields):
+        return " (numbers written with decimal commas? a CSV here has decimal points: 0.25, not 0,25)"
+    return ""
 
 
 def _is_float(text: str) -> bool:
@@ -161,12 +171,14 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
         warnings.warn(f"{shown_path(path)}: columns read as channels by their first letter: {', '.join(worded)}; "
                       f"rename or remove those that are not channels", OkidWarning, stacklevel=3)
     if dt is None and "time_s" not in header:
-        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column")
+        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column{_time_hint(header)}")
     if "time_s" in header:
         times = values[:, header.index("time_s")]
         step, rounding, irregular = _uniform_step(times)
         if irregular:  # also with a sample_time_s comment: the samples either side of a gap are not neighbours
-            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular})")
+            advice = ("; the identification needs samples on one uniform grid: resample the record onto one, or cut "
+                      "it where the step changes" if " follows row " in irregular else "")
+            raise DataError(f"{shown_path(path)}: time_s is not uniformly increasing ({irregular}){advice}")
         if dt is not None and abs(step - dt) > max(1e-6 * dt, rounding / max(times.size - 1, 1)):
             raise DataError(f"{shown_path(path)}: the sample_time_s comment says {dt:g} s and the time_s column "
                             f"steps {step:g} s")
@@ -175,6 +187,16 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
                                                            n_samples=values.shape[0], rows=True)):
         raise DataError(f"{shown_path(path)}: {jump}")
     return values[:, u_cols], values[:, y_cols], dt
+
+
+def _time_hint(header: list[str]) -> str:
+    """A hint naming a column that looks like the samples' times but is not read as them ("" if none)."""
+    named = next((name for name in header if re.fullmatch(r"t|times?|timestamps?|seconds|sec|s|t_s|time[ _\[(].*",
+                                                           name, re.IGNORECASE)), None)
+    if named is None:
+        return ""
+    return (f" (the column {named!r} is not read as the time: name it time_s, in seconds from any start, or give "
+            f"the sample time as a first line '# sample_time_s=0.005')")
 
 
 def _uniform_step(times: np.ndarray) -> tuple[float, float, str]:

@@ -2,8 +2,8 @@
 
 .npz
     Arrays ``u`` (N, m), ``y`` (N, p) and a scalar ``sample_time_s``. One-dimensional ``u`` or
-    ``y`` are read as a single channel. Without ``u`` the record has no inputs (``u`` (N, 0),
-    for output-only identification). Arrays must be real numbers (bool, integer or float);
+    ``y`` are read as a single channel. Without ``u`` (or with an empty one) the record has no inputs
+    (``u`` (N, 0), for output-only identification). Arrays must be real numbers (bool, integer or float);
     pickled objects are never loaded. Stamps ``stamp_s`` (N,), as `export` writes them, may come too.
 
 .csv
@@ -77,8 +77,11 @@ class Record:
         u, y = (arr[:, None] if arr.ndim == 1 else arr for arr in map(_as_real_array, ("u", "y"), (self.u, self.y)))
         if u.ndim != 2 or y.ndim != 2:
             raise DataError(f"u and y must be 2-D arrays (N, channels); got u{u.shape}, y{y.shape}")
+        if u.size == 0:  # u saved empty ((0,), (0, 0), (M, 0)): no inputs, as a record without u
+            u = np.zeros((y.shape[0], 0))
         if u.shape[0] != y.shape[0]:
-            raise DataError(f"length mismatch: u has {u.shape[0]} samples, y has {y.shape[0]}")
+            raise DataError(f"length mismatch: u has {u.shape[0]} samples, y has {y.shape[0]}: a row of u and y is "
+                            f"one sample, so both must hold the same samples (for y alone, output-only, store no u)")
         if y.shape[0] == 0:
             raise DataError("the record has no samples")
         if y.shape[1] == 0:
@@ -116,7 +119,8 @@ def transposed_problem(y: np.ndarray) -> str:
     if n >= p:
         return ""
     return (f"y holds {n} samples of {p} channels: fewer samples than channels, an array stored transposed? A "
-            f"record's arrays are (samples, channels)")
+            f"record's arrays are (samples, channels): store y.T; read as it is stored, {n} samples are too few "
+            f"to identify {p} channels from")
 
 
 def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -214,8 +218,10 @@ def bridged_run(record: Record, *, use_inputs: bool = True) -> tuple[Record, np.
     filled = int(hi - lo - present[lo:hi].sum())
     where = "the whole record" if (lo, hi) == (0, n) else (
         f"samples {lo} to {hi - 1} (the longest stretch without a gap of more than {MAX_GAP_SAMPLES} of them)")
+    # Output-only, the core fills them by a vector autoregression (gap_fill.fill_missing_outputs), not an ARX model.
+    predictor = "the ARX prediction" if use_inputs else "a vector autoregression's prediction"
     note = (f"{n - int(present.sum())} of the {n} samples hold NaN/Inf: identified on {where}, its {filled} missing "
-            f"samples filled by the ARX prediction (as node 2 fills its window)")
+            f"samples filled by {predictor} (as node 2 fills its window)")
     return Record(record.u[lo:hi], record.y[lo:hi], record.sample_time_s), present[lo:hi].copy(), note
 
 
@@ -265,6 +271,27 @@ def _not_an_archive(path: Path) -> str:
     return "not an .npz (zip) archive"
 
 
+#: What each member of an .npz record holds, for the message refusing one stored as Python objects.
+_MEMBER_FORMS = {"u": "(samples, inputs)", "y": "(samples, channels)", "sample_time_s": "(one number of seconds)",
+                 "stamp_s": "(one time a sample)"}
+
+
+def _member(data, key: str, path: Path) -> np.ndarray:
+    """The member ``key`` of an open .npz, or DataError naming it where it is stored as pickled objects.
+
+    numpy said "Object arrays cannot be loaded when allow_pickle=False", as if the fix were to allow
+    pickles (never loaded here: a pickle runs code); the cause is usually channels of unequal lengths.
+    """
+    try:
+        return data[key]
+    except ValueError as exc:
+        if "allow_pickle" not in str(exc):
+            raise
+        raise DataError(f"{shown_path(path)}: not a readable .npz file ({key} is stored as Python objects: an object "
+                        f"array, as np.savez makes of a list of channels of unequal lengths or of a dict; pickled "
+                        f"objects are never loaded): store {key} as one numeric array {_MEMBER_FORMS[key]}") from None
+
+
 def _load_npz(path: Path) -> Record:
     try:
         if problem := _not_an_archive(path):
@@ -277,12 +304,13 @@ def _load_npz(path: Path) -> Record:
             if missing:
                 raise DataError(f"{shown_path(path)}: missing key(s) {', '.join(missing)} "
                                 f"(has {', '.join(data.files) or 'none'})")
-            y = data["y"]
-            u = data["u"] if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
+            y = _member(data, "y", path)
+            u = _member(data, "u", path) if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
+            sample_time_s = _member(data, "sample_time_s", path)
             if "stamp_s" in data.files and (jump := stamp_jump_problem(
-                    data["stamp_s"], data["sample_time_s"], n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
+                    _member(data, "stamp_s", path), sample_time_s, n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
                 raise DataError(f"{shown_path(path)}: {jump}")
-            return Record(u, y, data["sample_time_s"])
+            return Record(u, y, sample_time_s)
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - a damaged archive raises zipfile, zlib, EOF, OS, value errors

@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from okid_ros.errors import OkidError
+    from okid_ros.errors import OkidError, shown_path
     from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
     from okid_ros.tools.campaign.runner import CampaignOptions, input_topics, run_campaign
     from okid_ros.tools.campaign.summary import print_summary
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
 
         bags = find_bags(args.paths, exclude=Path(args.out) if args.out else None)
         if not bags:
-            raise OkidError(f"no bags found in {', '.join(args.paths)}")
+            raise OkidError(f"no bags found in {', '.join(map(shown_path, args.paths))}")
         plans, elapsed_s = plan_campaign(bags)
         format_plan(plans, input_topics(arx_values, est_values, namespace), elapsed_s)
         return 0

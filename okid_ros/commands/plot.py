@@ -141,8 +141,8 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
         input_bag = info["source"]
     without = "; no input bag: measured output drawn as the one-step prediction + innovation"
     if input_bag is None:  # a source recorded and gone: a bag moved (batch reuses its outputs: docs/batch.md)
-        gone = f"; {info['source']}, the bag `process` read, is not there (moved? give --input)" if info.get(
-            "source") else ""
+        source = info.get("source")
+        gone = f"; {shown_path(source)}, the bag `process` read, is not there (moved? give --input)" if source else ""
         return None, None, gone + without
     if args.params or "parameters" not in info:
         est_values = load_node_parameters(args.params, namespace=args.namespace)[1]
@@ -150,25 +150,25 @@ def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple
         est_values = info["parameters"]["okid_modal_estimator"]
     check_output_paths(Path(input_bag), "input bag", [(out_dir, "figure folder")])
     if changed := changed_since(input_bag, info.get("source_files")):
-        warnings.warn(f"{input_bag}: not the bag `process` read ({changed}): the measured outputs, the truth and "
-                      "the FRF may be of another recording", OkidWarning, stacklevel=2)
+        warnings.warn(f"{shown_path(input_bag)}: not the bag `process` read ({changed}): the measured outputs, the "
+                      "truth and the FRF may be of another recording", OkidWarning, stacklevel=2)
     note, truth, start_ns, run_span_ns = "", data.truth, data.experiment_start_ns, _run_span_ns(data)
     if data.truth is None:
         with open_bag(input_bag) as bag:
             data.truth, why = usable_truth(bag.custom_json(TRUTH_KEY))
         if why:
-            note += f"; the truth in {input_bag}'s metadata left out ({why})"
+            note += f"; the truth in {shown_path(input_bag)}'s metadata left out ({why})"
     matched = add_measured_outputs(data, input_bag, est_values, namespace=args.namespace)
     # Samples apart from the run in time, or within its span but on none of its stamps (another grid).
     unmatched = not matched and (stamps_apart(data.measured_span_ns, run_span_ns) or (
         data.modal_stamp_ns and "none of its samples has the stamp of a ModalStates of the run"))
     if unmatched:
         if args.input is not None:
-            raise DataError(f"--input {input_bag}: {unmatched}: another recording?")
-        warnings.warn(f"{input_bag}: {unmatched}: not drawn from", OkidWarning, stacklevel=2)
+            raise DataError(f"--input {shown_path(input_bag)}: {unmatched}: another recording?")
+        warnings.warn(f"{shown_path(input_bag)}: {unmatched}: not drawn from", OkidWarning, stacklevel=2)
         data.measured, data.truth, data.experiment_start_ns = None, truth, start_ns
         return None, None, without
-    return input_bag, est_values, note + f"; measured outputs from {input_bag} ({matched} samples)"
+    return input_bag, est_values, note + f"; measured outputs from {shown_path(input_bag)} ({matched} samples)"
 
 
 def _run_span_ns(data: Any) -> tuple:

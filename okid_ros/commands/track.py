@@ -314,7 +314,10 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     # a group of ordinary size keeps its units. The record's faults are said once, in the record's units as
     # identify says them (not the windows' scaled values), judged on the samples the windows accept.
     scaled_u, scaled_y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
-    for warning in tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)):
+    # A record shorter than one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
+    faults = tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)) \
+        if record.y.shape[0] > args.window else []
+    for warning in faults:
         print(f"okid-ros track: warning: {warning}", file=sys.stderr)
     return out, (scaled_u, scaled_y, record.sample_time_s)
 

@@ -110,9 +110,19 @@ def _input_gains_in_units(model: IdentifiedModel, su: np.ndarray, sy: np.ndarray
 
 
 def _beyond_range(spreads: np.ndarray) -> str:
+    """The refusal of outputs whose squared spreads float64 cannot hold, with the units that would hold them.
+
+    It said "divided by 1e100" of spreads of 1e-200 too, which takes them further out of range.
+    """
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        squares = np.square(spreads)
+    beyond = ~(np.isfinite(squares) & (squares > 0))
+    large, small = beyond & ~(np.abs(spreads) < 1.0), beyond & (np.abs(spreads) < 1.0)  # NaN/Inf: overflowed
+    advice = ("the large ones divided and the small ones multiplied by 1e100" if large.any() and small.any()
+              else "multiplied by 1e100" if small.any() else "divided by 1e100")
     return (f"the innovation covariance in the record's units is beyond the float64 range (output spreads "
             f"{', '.join(f'{v:.3g}' for v in spreads)}; squares beyond 1e+-308 cannot be represented): express "
-            f"the outputs in other units, e.g. divided by 1e100")
+            f"the outputs in other units, e.g. {advice}")
 
 
 def _normalize_mode_blocks(model: IdentifiedModel) -> IdentifiedModel:

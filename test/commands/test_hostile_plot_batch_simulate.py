@@ -423,3 +423,14 @@ def test_an_intact_campaign_is_reused_without_a_warning(small_campaign, tmp_path
     assert result_problem(stored, "ok") == ""
     out, err = _rerun(small_campaign, tmp_path, capsys, lambda out: None)
     assert "warning" not in err and read_summary(out)["run_000"]["reused"] == "True"
+
+
+@pytest.mark.parametrize("plan", [False, True])
+def test_batch_names_a_folder_without_bags_as_it_is_spelt(tmp_path, capsys, plan):
+    """A tab in the folder's name was shown as a blank: "no bags found in empty dir", a folder not there."""
+    folder = tmp_path / "empty\tdir"
+    folder.mkdir()
+    argv = ["batch", str(folder), *(["--plan"] if plan else ["--out", str(tmp_path / "campaign")])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"no bags found in {str(folder)!r}" in err, err

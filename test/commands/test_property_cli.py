@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,7 @@ def _assert_one_line_messages(err: str, command: str) -> None:
     for line in err.splitlines():
         assert line.startswith(f"okid-ros {command}: "), line
     assert "Traceback" not in err and "internal error" not in err
+    assert not re.search(r"\b[A-Z]\w*(Error|Exception)\b", err), err  # a Python exception's name: not said clearly
 
 
 def _finite_numbers(value, where: str = "") -> None:
@@ -161,3 +163,51 @@ def test_the_record_strategy_reaches_success_and_failure(tmp_path: Path, capsys)
     np.savez(tmp_path / "bad.npz", u=u, y=y, sample_time_s=0.01)
     status, err = _run(["identify", str(tmp_path / "bad.npz"), "--json", str(tmp_path / "n.json")], capsys)
     assert status == 2 and "no two samples in a row are free of NaN/Inf" in err
+
+
+@st.composite
+def output_only_records(draw):
+    """Outputs of three resonances as a user might store them: dtypes, dead, copied, loud, missing, transposed."""
+    from scipy.signal import lfilter
+
+    n, p = draw(st.sampled_from([150, 400, 1500])), draw(st.integers(1, 4))
+    rng = np.random.default_rng(draw(st.integers(0, 2**16)))
+    modes = [lfilter([1.0], [1.0, -2 * 0.995 * np.cos(w), 0.995**2], rng.standard_normal(n)) for w in (0.1, 0.25, 0.6)]
+    y = np.column_stack(modes) @ rng.standard_normal((3, p)) + 0.05 * rng.standard_normal((n, p))
+    fault = draw(st.sampled_from(["none", "constant", "zeros", "copy", "loud", "nan_run", "inf_run", "transposed"]))
+    channel, start = draw(st.integers(0, p - 1)), draw(st.integers(0, n - 1))
+    if fault == "constant":
+        y[:, channel] = 2.5
+    elif fault == "zeros":
+        y[:, channel] = 0.0
+    elif fault == "copy":
+        y = np.column_stack([y, y[:, channel]])
+    elif fault == "loud":
+        y[:, channel] *= 1e6
+    dtype = draw(st.sampled_from(["float64", "float32", "int32", "int64"]))
+    counts = min(1000.0, 1e9 / np.abs(y).max()) if dtype == "int32" else 1000.0  # a loud channel within int32
+    y = np.round(counts * y).astype(dtype) if dtype.startswith("int") else y.astype(dtype)
+    if fault in ("nan_run", "inf_run"):  # an integer array holds neither: stored as float64
+        y = y.astype(np.result_type(y, np.float16))
+        y[start : start + draw(st.integers(1, 60)), channel] = np.nan if fault == "nan_run" else np.inf
+    arrays = {"y": y.T if fault == "transposed" else y, "sample_time_s": draw(st.sampled_from([0.005, 0.01, 2e-4]))}
+    inputs = draw(st.sampled_from(["none", "empty", "zeros"]))
+    if inputs != "none":
+        arrays["u"] = np.zeros(0) if inputs == "empty" else np.zeros((n, 1))
+    return arrays
+
+
+@SLOW
+@given(arrays=output_only_records(), command=st.sampled_from(["identify", "track"]))
+def test_any_output_only_record_is_a_model_or_one_clear_line(tmp_path_factory, capsys, arrays, command) -> None:
+    """Exit 0 with finite modes, or exit 2 with one line naming the record and no Python exception's name."""
+    options = (["--json", "--output-only"] if command == "identify" else
+               ["--jsonl", "--output-only", "--window", "600", "--every", "500", "--no-progress"])
+    out = _run_on_record(tmp_path_factory, capsys, arrays, command, "out", options)
+    if out is None:
+        return
+    lines = out.read_text().splitlines() if command == "track" else [out.read_text()]
+    for document in map(json.loads, lines):
+        assert document.get("error") or document.get("waiting") or document["n_inputs"] == 0
+        for mode in document.get("modes", []):
+            assert math.isfinite(mode["frequency_rad_s"]) and math.isfinite(mode["damping_ratio"])

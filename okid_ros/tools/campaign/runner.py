@@ -143,7 +143,7 @@ def run_campaign(options: CampaignOptions) -> CampaignReport:
         return _forget(options, started)
     bags = find_bags(options.paths, exclude=out_dir)
     if not bags:
-        raise OkidError(f"no bags found in {', '.join(map(str, options.paths))}")
+        raise OkidError(f"no bags found in {', '.join(map(shown_path, options.paths))}")
     for bag in bags:  # a campaign inside a bag would fail every bag and spoil it as a bag
         check_output_paths(bag, "input bag", [(out_dir, "campaign folder")])
     _check_out_dir(out_dir)
