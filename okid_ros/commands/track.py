@@ -253,9 +253,7 @@ def run(args: argparse.Namespace) -> int:
             changes += [late] if late is not None else []
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
-    _print_summary(changes, dt, last_modes, points[-1])  # at least one update (_arx_order checked the length)
-    if watch is not None and (counted := {name: n for name, n in watch.counts().items() if n}):
-        print("node 2's watch: " + ", ".join(f"{name} {n}" for name, n in counted.items()))
+    _print_summary(changes, dt, last_modes, points[-1], watch.counts() if watch else {})  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -456,13 +454,15 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int) -> None:
-    """The changes found and the last update's modes, on stdout."""
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict) -> None:
+    """The changes found, node 2's watch's counts not 0 and the last update's modes, on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
         print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
+    if counted := [f"{name} {n}" for name, n in counts.items() if n]:
+        print("node 2's watch: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
