@@ -7,9 +7,12 @@ spread at sample 3000 + seed over a 15 Hz low-passed force or a quiet force of 0
 the measured input (the structure never felt it) or a blow (it did); output-only, every output 1e3
 spreads off at that sample over the quiet force; and the hammer record of docs/robustness-live.md (i)
 (12 blows of 1e6 over 0.01, 4000 samples). Every change declared is a false one. ``--old-tree DIR``
-adds a column of `track` run from another checkout (its own ``.venv``), to compare versions::
+adds a column of `track` run from another checkout (its own ``.venv``), to compare versions.
+``--timing``: instead, the seconds `track` takes over 60000 samples of the structure (a 15 Hz
+low-passed force; order 20, window 2000, an update every 10000 samples, so that the identifications
+weigh little), with and without change detection, from this checkout and ``--old-tree``::
 
-    OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD:$PWD/bench python bench/track_watch.py [--old-tree DIR]
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD:$PWD/bench python bench/track_watch.py [--old-tree DIR] [--timing]
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -69,11 +73,38 @@ def track(tree: Path, data: Path) -> tuple[list[int], dict]:
     return [line["change_declared_index"] for line in lines if line["change_detected"]], lines[-1].get("watch", {})
 
 
+def timing(model, trees: list[Path]) -> None:
+    """The seconds `track` takes over 60000 samples from each checkout, with and without change detection."""
+    dt = model.sample_time_s
+    u = lowpass_input(60000, 2, 15.0, dt, seed=1)
+    y, _ = simulate_innovation(model, u, seed=2)
+    print("| checkout | change detection | run (s) | of it tracking (s) |")
+    print("|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "long.npz"
+        save_record(data, u, y, dt)
+        for tree in trees:
+            for extra in ([], ["--no-change-detection"]):
+                env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1"}
+                started = time.perf_counter()
+                run = subprocess.run([str(tree / ".venv/bin/python"), "-m", "okid_ros.cli", "track", str(data),
+                                      "--order", "20", "--window", "2000", "--every", "10000", "--jsonl",
+                                      str(data.with_suffix(".jsonl")), "--no-progress", "--force", *extra],
+                                     capture_output=True, text=True, env=env, cwd=tree, check=True)
+                tracking = run.stdout.strip().splitlines()[-1].split(" in ")[-1].split(" s ")[0]
+                print(f"| {tree} | {'off' if extra else 'on'} | {time.perf_counter() - started:.1f} | {tracking} |")
+                sys.stdout.flush()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--old-tree", type=Path, default=None, help="another checkout whose track to compare")
+    parser.add_argument("--timing", action="store_true", help="the seconds track takes over a long record")
     args = parser.parse_args()
     model = paper_model()
+    if args.timing:
+        timing(model, [args.old_tree, HERE] if args.old_tree else [HERE])
+        return
     dt = model.sample_time_s
     old = "track (old tree): changes at | " if args.old_tree else ""
     print(f"| record | {old}track: changes at | track: {', '.join(WATCH)} | node 2: changes | node 2: the same |")

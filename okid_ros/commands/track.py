@@ -145,7 +145,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
-                        help="do not test for structural changes (the window only slides)")
+                        help="do not test for structural changes (the window only slides; node 2's watch does "
+                        "not run: no 'watch' counts)")
     parser.add_argument("--no-noise-test", dest="noise_test", action="store_false",
                         help="declare an alarm without judging it as a change of the noise model (louder or quieter "
                         "excitation against the sensor noise): ~250 samples sooner, and such changes declared too "
