@@ -25,8 +25,8 @@ it was. ``--force`` replaces the name OUT (a link there, never the file it point
 
 Structural change (on unless ``--no-change-detection``): node 2's innovation watch runs over the
 record (:class:`okid_ros.service.record_watch.RecordWatch`, on node 2's
-:class:`~okid_ros.service.watch.InnovationWatch`): each update's model that node 2 would accept
-steps its estimator over the following samples, whose divergence watchdog keeps diverged samples
+:class:`~okid_ros.service.watch.InnovationWatch`): each update's model that passes node 2's checks
+of a realized model steps its estimator over the following samples, whose divergence watchdog keeps diverged samples
 out of the change test, corrects jumps of the state and restarts from the buffered samples, and
 the innovations of a reference model (the first model, and after a change the first model of the
 new structure) are tested sample by sample with the calibrated CUSUM of
