@@ -23,10 +23,18 @@ it was. ``--force`` replaces the name OUT (a link there, never the file it point
 ``change_declared_index`` (the sample at which it was declared), ``change_statistic`` and
 ``change_threshold`` [nats].
 
-Structural change (on unless ``--no-change-detection``): the innovations of a reference model
-(the first model, and after a change the first model of the new structure) are tested sample by
-sample with the calibrated CUSUM of :mod:`okid_ros.core.change_detection`, whose threshold
-follows from ``--false-alarm-samples``. When a change is declared, the window restarts at the
+Structural change (on unless ``--no-change-detection``): node 2's innovation watch runs over the
+record (:class:`okid_ros.service.record_watch.RecordWatch`, on node 2's
+:class:`~okid_ros.service.watch.InnovationWatch`): each update's model that passes node 2's checks
+of a realized model steps its estimator over the following samples, whose divergence watchdog keeps diverged samples
+out of the change test, corrects jumps of the state and restarts from the buffered samples, and
+the innovations of a reference model (the first model, and after a change the first model of the
+new structure) are tested sample by sample with the calibrated CUSUM of
+:mod:`okid_ros.core.change_detection`, whose threshold follows from ``--false-alarm-samples``.
+Every line then carries ``watch``, node 2's counts so far under its diagnostics' names
+(``diverged_samples``, ``divergence_restarts``, ``state_jumps``, ``divergences_beyond_window``,
+``change_glitches``, ``change_alarms_state_jump``, ...), and ``watch_refused`` when node 2 would
+refuse the update's model (the model in use is kept). When a change is declared, the window restarts at the
 change point: the next models use post-change data only, from ``--restart-min-fill`` of the
 window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
 grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline. The
@@ -47,7 +55,7 @@ judged by the next), and the change test bridges them. ``window_first_index`` co
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
 (:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
 spikes, a drift, harmonic lines the inputs lack. The windows are what node 1 sees live; an output's
-re-zero the change test finds is taken off from where it lies, as node 2 does (``take_steps``).
+re-zero the change test finds is taken off from where it lies, as node 2 does.
 """
 
 from __future__ import annotations
@@ -137,7 +145,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
-                        help="do not test for structural changes (the window only slides)")
+                        help="do not test for structural changes (the window only slides; node 2's watch does "
+                        "not run: no 'watch' counts)")
     parser.add_argument("--no-noise-test", dest="noise_test", action="store_false",
                         help="declare an alarm without judging it as a change of the noise model (louder or quieter "
                         "excitation against the sensor noise): ~250 samples sooner, and such changes declared too "
@@ -175,14 +184,12 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from okid_ros.core.change_monitor import StructuralChangeMonitor
     from okid_ros.core.pipeline import IdentificationError
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
     from okid_ros.service.change_restarts import restart_window
     from okid_ros.service.tracked_record import TrackedRecord
-    from okid_ros.service.watch import is_new_reference
 
     out, (u, y, dt) = _output_and_record(args)
     (n_samples, m), p, window = u.shape, y.shape[1], args.window
@@ -193,8 +200,7 @@ def run(args: argparse.Namespace) -> int:
     q = _arx_order(args, u, y, options)
     record = TrackedRecord(u, y, q)
     estimator = SlidingWindowArx(q, p, m, window=window)
-    monitor = StructuralChangeMonitor(p, false_alarm_samples=float(args.false_alarm_samples),
-                                      noise_change_test=args.noise_test)
+    watch = _record_watch(args, record, dt)
     restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     points = _update_points(args, n_samples, q)
     changes: list = []
@@ -206,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
     with handle, bar:  # the bar closed on a failure too: its line ends before the error's
         fed = 0
         for k in points:
-            alarm = record.test(monitor, fed, k + 1) if monitor.armed else None
+            alarm = watch.run(fed, k + 1) if watch is not None else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
             else:  # restart the window at the change point before this update's solve, as node 1 does
@@ -218,6 +224,8 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
+            if watch is not None:
+                entry["watch"] = watch.counts()
             why = record.waiting(k, rows, restart_rows, estimator.status, changes)
             if why:
                 entry.update(n_states=None, modes=[], waiting=why)
@@ -229,8 +237,8 @@ def run(args: argparse.Namespace) -> int:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
-                if args.change_detection and is_new_reference(monitor, rows) and not model.stability_problem():
-                    _arm_reference(monitor, model, u_w, y_w, rows)
+                if watch is not None and (refused := watch.new_model(model, u_w, y_w, rows)):
+                    entry["watch_refused"] = refused  # node 2's reason: the model in use is kept
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 first_reason, failures = first_reason or reason, failures + 1
@@ -240,11 +248,13 @@ def run(args: argparse.Namespace) -> int:
         if failures + waits == len(points):  # a failure: the lines go with it, an old OUT stays (JsonLines)
             raise DataError(f"none of the {len(points)} updates gave a model ({failures} failed, {waits} waiting "
                             f"for rows); the first: {first_reason}")
-        late = record.test_rest(monitor, fed)  # a change after the last update: said in the summary
-        changes += [late] if late is not None else []
+        if watch is not None:  # a change after the last update: said in the summary
+            late = watch.run(fed, n_samples)
+            watch.finish()
+            changes += [late] if late is not None else []
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
-    _print_summary(changes, dt, last_modes, points[-1])  # at least one update (_arx_order checked the length)
+    _print_summary(changes, dt, last_modes, points[-1], watch.counts() if watch else {})  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -403,13 +413,20 @@ def _line_head(k: int, first: int, rows: int, dt: float, alarm) -> dict:
     return entry
 
 
-def _arm_reference(monitor, model, u_window, y_window, rows: int) -> None:
-    """Make ``model`` the change test's reference, with its predictor's state after its window."""
-    from okid_ros.core.statespace import InnovationPredictor
+def _record_watch(args: argparse.Namespace, record: "TrackedRecord", dt: float):
+    """Node 2's innovation watch over the record with track's change options (None: --no-change-detection)."""
+    from dataclasses import replace
 
-    warm = InnovationPredictor(model)
-    warm.run(u_window, y_window)
-    monitor.arm(model, warm.x, reference_rows=rows)
+    from okid_ros.service.options import ModalEstimationParams
+    from okid_ros.service.params import ESTIMATOR_NODE, resolve_parameters
+    from okid_ros.service.record_watch import RecordWatch
+
+    if not args.change_detection:
+        return None
+    defaults = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE))
+    params = replace(defaults, sample_time_s=float(dt), n_inputs=record.u.shape[1], n_outputs=record.y.shape[1],
+                     change_false_alarm_samples=float(args.false_alarm_samples), change_noise_test=args.noise_test)
+    return RecordWatch(record, params, capacity=max(8192, 2 * (args.window + record.order)))
 
 
 def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
@@ -441,13 +458,15 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int) -> None:
-    """The changes found and the last update's modes, on stdout."""
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict) -> None:
+    """The changes found, node 2's watch's counts not 0 and the last update's modes, on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
         print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
+    if counted := [f"{name} {n}" for name, n in counts.items() if n]:
+        print("node 2's watch: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "

@@ -272,7 +272,7 @@ class ModalEstimationService:
             return self._step(float(stamp_s), u, y, int(skipped))
 
     def _step(self, stamp_s: float, u: np.ndarray, y: np.ndarray, skipped: int) -> ModalStatesResult | None:
-        prm, st = self.params, self._stats
+        prm = self.params
         y = self._watch.level_corrected(y)  # a sensor re-zero found is taken off (service/watch.py)
         index = self._buffer.append(stamp_s, u, y, skipped)
         update = None
@@ -282,24 +282,12 @@ class ModalEstimationService:
         if active is None:
             self._u_prev = u
             return None
-        est = active.estimator
         # A switch made while the stream was idle has its jump measured at this sample.
         switched = update is not None or self._jump.measure_deferred(u, y, skipped, self._u_prev,
                                                                      prm.max_gap_samples)
-        if skipped:
-            self._watch.gap(self._u_prev, skipped)
-            bridged = realization.bridge_state(active.model, est.state, self._u_prev, skipped, prm.max_gap_samples)
-            if 0 < skipped <= prm.max_gap_samples:
-                st.gaps_bridged += 1
-            else:
-                st.estimator_restarts += 1
-            est.set_state(bridged)
-        x_post, y_est, innov = est.step(u, y)
-        self._u_prev = u
-        diverged, change, u_restart = self._watch.observe(active, stamp_s, index, u, y, innov)
+        x_post, y_est, innov, diverged, change, self._u_prev = self._watch.step(
+            active, stamp_s, index, u, y, skipped=skipped, u_prev=self._u_prev)
         change, self._accepted_change = change or self._accepted_change, None
-        if u_restart is not None:
-            self._u_prev = u_restart
         if diverged:
             # Never published: outputs of this sample wait for the next good one.
             self._held_update = update or self._held_update

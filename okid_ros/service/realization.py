@@ -37,8 +37,8 @@ from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.results import RealizationJob, RealizationOutcome
 from okid_ros.service.sample_buffer import SampleBuffer
 
-__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "output_only_model",
-           "prepare_window", "realize"]
+__all__ = ["advance_state", "bridge_state", "catch_up", "follow", "identify_window", "model_problem",
+           "output_only_model", "prepare_window", "realize", "warm_start"]
 
 
 def advance_state(model: IdentifiedModel, x: np.ndarray, u: np.ndarray, y: np.ndarray, skipped: np.ndarray,
@@ -176,21 +176,42 @@ def realize(job: RealizationJob) -> RealizationOutcome:
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         return refused(f"realization failed: {exc}")
     elapsed = time.perf_counter() - t0
+    reason, whiten = model_problem(model)
+    if reason:
+        return refused(reason)
+    x, u_prev, settled = warm_start(model, job.u, job.y, max_gap=prm.max_gap_samples)
+    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, settled, whiten,
+                              window_filled=filled)
+
+
+def model_problem(model: IdentifiedModel) -> tuple[str, np.ndarray | None]:
+    """Why a realized model is not used (node 2 refuses it; ``track`` runs no watch on it), or "".
+
+    Returns the reason and, for a model that passes, the whitening matrix of its innovation covariance.
+    """
     problem = model.stability_problem()
     if problem:
-        return refused(f"check failed: {problem}")
+        return f"check failed: {problem}", None
     try:
         whiten = whitening_matrix(model.innovation_covariance)
     except ValueError as exc:
-        return refused(f"check: innovation covariance: {exc}")
+        return f"check: innovation covariance: {exc}", None
     if not model.modes:
-        return refused("model has no physical mode")
-    # The warm start from zero over the window's last samples that the state depends on.
-    first = max(0, job.u.shape[0] - InnovationPredictor(model).settle_samples)
-    x, u_prev = advance_state(model, np.zeros(model.n_states), job.u[first:], job.y[first:],
-                              np.zeros(job.u.shape[0] - first, dtype=np.int64), None, max_gap=prm.max_gap_samples)
-    return RealizationOutcome(job, model, "", x, job.end_index, u_prev, elapsed, job.u.shape[0] - first, whiten,
-                              window_filled=filled)
+        return "model has no physical mode", None
+    return "", whiten
+
+
+def warm_start(model: IdentifiedModel, u: np.ndarray, y: np.ndarray, *,
+               max_gap: int) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """A model's predicted state after its window ``u`` (N, m), ``y`` (N, p), from zero.
+
+    Run over the window's last samples the state depends on (:attr:`InnovationPredictor.settle_samples`).
+    Returns the state (n,), the last input (m,) and how many samples it ran over.
+    """
+    first = max(0, u.shape[0] - InnovationPredictor(model).settle_samples)
+    x, u_prev = advance_state(model, np.zeros(model.n_states), u[first:], y[first:],
+                              np.zeros(u.shape[0] - first, dtype=np.int64), None, max_gap=max_gap)
+    return x, u_prev, u.shape[0] - first
 
 
 def prepare_window(job: RealizationJob) -> tuple[RealizationJob, int]:

@@ -1,9 +1,9 @@
 """A record tracked offline (``okid-ros track``): what it holds besides the structure's response, and its samples.
 
 The windows are fitted on the record as recorded: they are what node 1 sees live. Only a sensor
-re-zero the change test finds is taken off the samples from where it lies, as node 2 does
-(:meth:`TrackedRecord.take_steps`). :class:`TrackedRecord` keeps which samples are missing, where
-the window restarted, and hands the change test and the realization their samples. What is named
+re-zero node 2's watch finds is taken off the samples from where it lies, as node 2 does
+(:class:`okid_ros.service.record_watch.RecordWatch`, which runs the watch over the record). :class:`TrackedRecord`
+keeps which samples are missing, where the window restarted, and hands the realization its samples. What is named
 before the tracking (:func:`tracked_record_warnings`): the missing samples (NaN/Inf, skipped as the nodes skip
 them) and the sensor faults ``identify`` names (:func:`okid_ros.core.sensor_faults.record_fault_warnings`:
 clipping, an output held alone, frozen outputs, level shifts, spikes, drift, harmonic lines the inputs lack), on the
@@ -59,7 +59,8 @@ class TrackedRecord:
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))
         self.max_gap = int(ModalEstimationParams.max_gap_samples)  # the nodes' default bridge
         self.origin = 0  # the window's first sample (the last change point)
-        self.steps: list[int] = []  # where output steps taken off lie (the window's ARX fit may hold them)
+        self.steps: list[int] = []  # where output steps taken off lie (service/record_watch.py; a window's ARX
+        # fit may hold them)
         self._realized = (-1, -1)  # the newest row of the last window realized, its update's sample
         # A regressor row k needs samples k - q .. k; rows_before[i]: such rows before sample i.
         missing_before = np.concatenate([[0], np.cumsum(~self.present)])
@@ -67,51 +68,6 @@ class TrackedRecord:
         whole = np.zeros(self.present.size, dtype=bool)
         whole[k] = missing_before[k + 1] == missing_before[k - self.order]
         self._rows_before = np.concatenate([[0], np.cumsum(whole)])
-
-    def test(self, monitor, lo: int, hi: int):
-        """Samples ``lo .. hi - 1`` through the change test, output steps it finds taken off. The first alarm."""
-        alarm = self._test(monitor, lo, hi)
-        self.take_steps(monitor)
-        return alarm
-
-    def _test(self, monitor, lo: int, hi: int):
-        """Samples ``lo .. hi - 1`` through the change test; a run of missing samples is a gap. The first alarm."""
-        if self.present[lo:hi].all():
-            return monitor.process(self.u[lo:hi], self.y[lo:hi], lo)
-        edges = lo + np.flatnonzero(np.diff(self.present[lo:hi].astype(np.int8))) + 1
-        for start, end in zip(np.concatenate([[lo], edges]), np.concatenate([edges, [hi]])):
-            if not monitor.armed:
-                return None
-            if self.present[start]:
-                alarm = monitor.process(self.u[start:end], self.y[start:end], int(start))
-                if alarm is not None:
-                    return alarm
-            else:
-                held = self.u[start - 1] if start > 0 and self.present[start - 1] else None
-                monitor.gap(held, int(end - start), self.max_gap)
-        return None
-
-    def take_steps(self, monitor) -> None:
-        """Output steps the change test found (a sensor re-zeroed) taken off the record from where they lie."""
-        for first, step in monitor.steps:
-            self.y[first:] -= step
-            self.steps.append(first)
-        monitor.steps.clear()
-
-    def test_rest(self, monitor, lo: int):
-        """The samples from ``lo`` on (after the last update) through the change test, then its end. The alarm."""
-        alarm, end = None, lo
-        if monitor.armed and lo < self.present.size:
-            alarm, end = self.test(monitor, lo, self.present.size), self.present.size
-        self.finish(monitor, end)  # a glitch candidate held at the last sample tested
-        return alarm
-
-    def finish(self, monitor, end: int) -> None:
-        """The change test ends before sample ``end``: a candidate it holds judged by that sample (none: a glitch)."""
-        if end < self.present.size and not self.present[end]:
-            self.test(monitor, end, end + 1)  # a gap: the candidate run as it came
-        else:
-            monitor.finish(*((self.u[end], self.y[end]) if end < self.present.size else ()))
 
     def window_samples(self, fit, k: int, rows: int):
         """The samples of the window of ``rows`` rows ending at sample ``k`` for its realization.

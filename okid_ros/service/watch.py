@@ -117,6 +117,27 @@ class InnovationWatch:
         if self.params.change_detection:
             self.monitor.gap(u_prev, int(skipped), self.params.max_gap_samples)
 
+    def step(self, active: ActiveModel, stamp_s: float, index: int, u: np.ndarray, y: np.ndarray, *, skipped: int,
+             u_prev: np.ndarray | None) -> tuple:
+        """One sample through the model in use's estimator, then :meth:`observe` (node 2's sample path, ``track``'s).
+
+        ``skipped``: missing slots before it (< 0: a restart), bridged from ``u_prev``, the last input stepped.
+        Returns ``(x_post, y_estimated, innovation, diverged, change, u_prev)``: the estimator's step, what
+        :meth:`observe` says of it, and the input to bridge the next gap from.
+        """
+        est, max_gap = active.estimator, self.params.max_gap_samples
+        if skipped:
+            self.gap(u_prev, skipped)
+            bridged = bridge_state(active.model, est.state, u_prev, skipped, max_gap)
+            if 0 < skipped <= max_gap:
+                self._stats.gaps_bridged += 1
+            else:
+                self._stats.estimator_restarts += 1
+            est.set_state(bridged)
+        x_post, y_est, innov = est.step(u, y)
+        diverged, change, u_restart = self.observe(active, stamp_s, index, u, y, innov)
+        return x_post, y_est, innov, diverged, change, u if u_restart is None else u_restart
+
     def observe(self, active: ActiveModel, stamp_s: float, index: int, u: np.ndarray, y: np.ndarray,
                 innovation: np.ndarray) -> tuple[bool, StructuralChangeEvent | None, np.ndarray | None]:
         """One sample's innovation under the model in use.

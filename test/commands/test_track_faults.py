@@ -78,9 +78,11 @@ def test_a_drifting_record_is_named_and_tracked_as_recorded(record, tmp_path, ca
                                sorted(m.frequency_rad_s for m in batch.modes), rtol=1e-6)
 
 
-def test_a_level_shift_is_named_and_tracked_as_recorded(record, tmp_path, capsys):
-    # Output 1 re-zeroed at sample 1700 by 3 of its spreads: named once, with its sample and time,
-    # and not removed from the windows (the last update is the batch chain on the raw window).
+def test_a_level_shift_is_named_and_taken_off_where_node_2s_watch_finds_it(record, tmp_path, capsys):
+    # Output 1 re-zeroed at sample 1700 by 3 of its spreads: named once, with its sample and time. The
+    # windows are fitted as recorded until node 2's watch (service/record_watch.py) finds the step: its
+    # watchdog's state-jump fit (the change test still calibrating) gives it, and it is taken off from
+    # there, as node 2 does; the last update then lists the clean record's modes (as recorded: one lost).
     u, y = record
     shifted = y.copy()
     shifted[1700:, 1] += 3.0 * y[:, 1].std()
@@ -89,11 +91,12 @@ def test_a_level_shift_is_named_and_tracked_as_recorded(record, tmp_path, capsys
     assert len(warnings) == 1 and warnings[0].startswith(
         "okid-ros track: warning: output 1 changes level at sample 1700 (13.6 s) by +3.0 standard deviations"), warnings
     assert "NOT removed: track fits its windows as recorded" in warnings[0]
+    assert [line["watch"]["output_level_steps"] for line in lines] == [0, 1, 1]
     k = lines[-1]["sample_index"]
-    u_w, y_w = u[k - WINDOW - Q + 1 : k + 1], shifted[k - WINDOW - Q + 1 : k + 1]
-    batch = identify_from_arx(fit_arx(u_w, y_w, Q, "ridge", "gcv", center=True), u_w, y_w, DT, n_states=6)
+    u_w, y_w = u[k - WINDOW - Q + 1 : k + 1], y[k - WINDOW - Q + 1 : k + 1]
+    clean = identify_from_arx(fit_arx(u_w, y_w, Q, "ridge", "gcv", center=True), u_w, y_w, DT, n_states=6)
     np.testing.assert_allclose(sorted(m["frequency_rad_s"] for m in lines[-1]["modes"]),
-                               sorted(m.frequency_rad_s for m in batch.modes), rtol=1e-6)
+                               sorted(m.frequency_rad_s for m in clean.modes), rtol=1e-3)
 
 
 @pytest.mark.parametrize("units", [1e150, 1e-150])
@@ -156,30 +159,22 @@ def test_missing_samples_leave_the_faults_named_on_the_others(record, tmp_path, 
 
 
 @pytest.mark.parametrize("glitch", [1919, 2319])
-def test_a_glitch_at_an_updates_sample_is_judged_by_the_change_test(record, tmp_path, capsys, monkeypatch, glitch):
-    # The change test is fed a block of samples per update (1520-1919, 1920-2319). A glitch of 1e200
+def test_a_glitch_at_an_updates_sample_is_judged_by_the_change_test(record, tmp_path, capsys, glitch):
+    # The change test was fed a block of samples per update (1520-1919, 1920-2319). A glitch of 1e200
     # in one output at a block's last sample, or at the record's last (2319), was tested as it came:
-    # numpy's overflow in the model-error check's squares, and no glitch counted. Now the next block's
-    # first sample judges it, or, at the record's end, it is counted.
-    import okid_ros.core.change_monitor as change_monitor
-
-    monitors = []
-
-    class Recorded(change_monitor.StructuralChangeMonitor):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            monitors.append(self)
-
-    monkeypatch.setattr(change_monitor, "StructuralChangeMonitor", Recorded)
+    # numpy's overflow in the model-error check's squares, and no glitch counted. Now node 2's watch
+    # steps sample by sample (service/record_watch.py): the next sample judges it, or, at the record's
+    # end, it is counted, and the far sample's squares beyond the floats in the gates are not warned of.
     u, y = record
     u, y = u[:2320], y[:2320].copy()
     y[glitch, 0] = 1e200
     lines = _track(tmp_path, u, y)
-    err = capsys.readouterr().err
+    captured = capsys.readouterr()
     assert not any(line["change_detected"] for line in lines)
     # (The realization of the window that ends at the glitch warns: its own matter.)
-    assert not any(name in err for name in ("model_error_check", "change_detection", "change_monitor")), err
-    assert monitors[0].glitches == 1 and monitors[0].armed
+    assert not any(name in captured.err for name in ("model_error_check", "change_detection", "change_monitor",
+                                                     "estimator.py")), captured.err
+    assert "node 2's watch: " in captured.out and "change_glitches 1" in captured.out, captured.out
 
 
 def test_a_re_zero_the_change_test_finds_is_taken_off_as_node_2_does(tmp_path, capsys):

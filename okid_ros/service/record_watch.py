@@ -1,0 +1,140 @@
+"""Node 2's innovation watch over a record tracked offline (``okid-ros track``).
+
+``track`` has no node 2: its models come from its own window. What node 2 does with them on the
+sample path is run here by node 2's own objects, not a copy: the model in use (each model that
+passes node 2's checks, :func:`~okid_ros.service.realization.model_problem`, warm-started as node 2
+warm-starts one, :func:`~okid_ros.service.realization.warm_start`) steps a
+:class:`~okid_ros.core.estimator.ModalStateEstimator` over every sample, and
+:meth:`InnovationWatch.step <okid_ros.service.watch.InnovationWatch.step>` runs its divergence
+watchdog (diverged samples kept out of the change test, state jumps corrected, restarts from the
+buffered samples) and the change test of the reference model. The counts are node 2's diagnostics'
+(:meth:`RecordWatch.counts`).
+
+What differs from node 2, because ``track`` is not a live stream: its samples carry their record
+index as their stamp's multiple of the sample time; a model takes over at the sample after its
+update's; a sensor re-zero the watch finds is taken off the record from where it lies (its
+windows are fitted on the record).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from okid_ros.core.change_detection import ChangeAlarm
+from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.service.options import ModalEstimationParams
+from okid_ros.service.realization import model_problem, warm_start
+from okid_ros.service.results import ActiveModel, EstimationStats
+from okid_ros.service.sample_buffer import SampleBuffer
+from okid_ros.service.watch import InnovationWatch
+
+__all__ = ["RecordWatch"]
+
+#: Node 2's counts (its diagnostics' names) that ``track`` writes in each line.
+_STATS_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "divergences_beyond_window",
+                 "estimator_restarts", "gaps_bridged")
+_WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_unconfirmed",
+                 "output_level_steps")
+
+
+class RecordWatch:
+    """The model in use's estimator and node 2's :class:`InnovationWatch` over a record's samples.
+
+    Parameters
+    ----------
+    record : the :class:`~okid_ros.service.tracked_record.TrackedRecord` (``u``, ``y``, ``present``;
+        its ``y`` loses the sensor re-zeros found, ``steps`` lists where).
+    params : node 2's options (``change.*``, ``estimator.*``; sizes and sample time of the record).
+    capacity : samples buffered for the restarts (at least the window's).
+    """
+
+    def __init__(self, record, params: ModalEstimationParams, *, capacity: int) -> None:
+        self.record, self.params = record, params
+        self.stats = EstimationStats()
+        self.buffer = SampleBuffer(capacity, params.n_inputs, params.n_outputs)
+        self.watch = InnovationWatch(params, self.buffer, self.stats)
+        self.active: ActiveModel | None = None
+        self._u_prev: np.ndarray | None = None
+        self._missing = 0  # samples missing since the last one buffered
+        self._levels = 0  # the watch's level steps already taken off the record, and their sum
+        self._level = np.zeros(params.n_outputs)
+
+    @property
+    def monitor(self):
+        """The change test (:class:`~okid_ros.core.change_monitor.StructuralChangeMonitor`)."""
+        return self.watch.monitor
+
+    def run(self, lo: int, hi: int) -> ChangeAlarm | None:
+        """Samples ``lo .. hi - 1`` through the watch (missing ones bridged); the first change declared.
+
+        The change's indices are the record's (``alarm_index``: the sample it was declared at).
+        """
+        # The record's units may be scaled by powers of two (a record near 1e+-150, or one sample far beyond
+        # the others: core/channels.py), and a model of such windows squares a far sample's whitened
+        # innovation beyond the floats in its glitch gates: inf, which the gates judge as they should.
+        with np.errstate(over="ignore"):
+            return self._run(lo, hi)
+
+    def _run(self, lo: int, hi: int) -> ChangeAlarm | None:
+        """:meth:`run` (overflow not warned of)."""
+        rec, dt, first = self.record, self.params.sample_time_s, None
+        for k in range(lo, hi):
+            if not rec.present[k]:
+                self._missing += 1
+                continue
+            u, y = rec.u[k], rec.y[k]  # y less the re-zeros found so far (node 2: level_corrected)
+            skipped, self._missing = self._missing, 0
+            index = self.buffer.append(k * dt, u, y, skipped)
+            if self.active is None:
+                self._u_prev = u
+                continue
+            *_, change, self._u_prev = self.watch.step(self.active, k * dt, index, u, y, skipped=skipped,
+                                                       u_prev=self._u_prev)
+            self._take_level_steps()
+            if change is not None and first is None:
+                first = ChangeAlarm(alarm_index=k, change_index=int(round(change.change_stamp_s / dt)),
+                                    statistic=change.statistic, threshold=change.threshold,
+                                    variance_ratio=change.variance_ratio)
+        return first
+
+    def _take_level_steps(self) -> None:
+        """A sensor re-zero the watch found taken off the record from where it lies (the buffer has it off)."""
+        if self.watch.level_steps_taken == self._levels:
+            return
+        self._levels = self.watch.level_steps_taken
+        first = int(round(self.buffer.stamp_at(self.watch.level_steps[-1]) / self.params.sample_time_s))
+        self.record.y[first:] -= self.watch.level - self._level
+        self._level = self.watch.level.copy()
+        self.record.steps.append(first)
+
+    def new_model(self, model: IdentifiedModel, u: np.ndarray, y: np.ndarray, rows: int) -> str:
+        """The model of a window (``u`` (N, m), ``y`` (N, p); ``rows`` regressor rows) in use from the next sample.
+
+        As node 2 switches to an accepted model: its estimator warm-started over the window, the change
+        test's reference by :func:`~okid_ros.service.watch.is_new_reference`, a change waiting for it
+        taken (the window restarted at the change: the model is of the new structure). Returns why node 2
+        would refuse it ("" if not; the model in use is kept).
+        """
+        reason, whiten = model_problem(model)
+        if reason:
+            return reason
+        x, _, _ = warm_start(model, u, y, max_gap=self.params.max_gap_samples)
+        estimator = ModalStateEstimator.from_model(model)
+        estimator.set_state(x)
+        model_id = 1 if self.active is None else self.active.model_id + 1
+        self.active = ActiveModel(model, estimator, model_id, list(model.modes), len(model.modes), whiten, u.shape[0])
+        self.watch.change = None
+        self.watch.new_model(model, x, rows, window_inputs=u)
+        self.stats.models_accepted += 1
+        return ""
+
+    def finish(self) -> None:
+        """The record ends: a glitch candidate the change test holds at its last sample is one."""
+        self.monitor.finish()
+
+    def counts(self) -> dict:
+        """Node 2's counts of the watch so far (its diagnostics' names)."""
+        diagnostics = self.watch.diagnostics()
+        return {**{name: int(getattr(self.stats, name)) for name in _STATS_COUNTS},
+                **{name: int(diagnostics[name]) for name in _WATCH_COUNTS}}
