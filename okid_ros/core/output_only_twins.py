@@ -28,6 +28,11 @@ TWIN_SHAPE_DISTANCE = 0.02
 #: Jackknife standard deviations a weaker twin's component along its partner's must reach to be kept
 #: (:func:`separate_twin_shapes`). Physical 0-59: the seven twins of orthogonal true shapes 0.2-2.6; random 5, 9.0.
 TWIN_COMPONENT_RESOLVED = 3.0
+#: MAC of a close pair's two estimated shapes from which the stronger's component along the weaker's outweighs
+#: the rest of it (MAC 0.5: equal parts); only then is the stronger a candidate for separation. The bench's
+#: close pair (true MAC 0.087) read 0.03-0.19, its stronger's true component unresolved (1.2-2.4 stds);
+#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81.
+STRONGER_TOOK_IN_MAC = 0.5
 
 
 def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
@@ -44,9 +49,11 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     true component of a pair of nearly one shape does not (random 5: true MAC 0.955). The stronger
     pole's eigenvector errs along the weaker's too, and of two poles of nearly one strength its error
     can be the larger (twin-chains 55, 191.40 Hz: MAC 0.19 with its own, its partner's own at 1.000):
-    where the weaker's component along the stronger's is resolved (its shape is its own) and the
-    stronger's along the weaker's is not, the stronger is listed with its shape less the weaker's
-    component. Only the listed shape changes: the model's ``C`` keeps the realization's columns (its fit).
+    where the two shapes' MAC is at least :data:`STRONGER_TOOK_IN_MAC` (the stronger's component
+    along the weaker's outweighs the rest of it), the weaker's component along the stronger's is
+    resolved (its shape is its own) and the stronger's along the weaker's is not, the stronger is
+    listed with its shape less the weaker's component. Only the listed shape changes: the model's
+    ``C`` keeps the realization's columns (its fit).
 
     Parameters
     ----------
@@ -78,7 +85,8 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     if replicate_shapes is None:
         return modes
     for i, weak in enumerate(modes):
-        close = [j for j in _stronger_close(modes, i) if j not in separated]
+        close = [j for j in _stronger_close(modes, i)
+                 if j not in separated and mac(shapes[i], shapes[j]) >= STRONGER_TOOK_IN_MAC]
         if i in separated or not close:
             continue
         j = min(close, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))

@@ -597,6 +597,13 @@ def test_separate_twin_shapes_gives_the_stronger_member_its_part_where_only_the_
     strong_before = strong.shape.copy()
     separate_twin_shapes([weak, strong])  # no jackknife: no stronger member is separated
     np.testing.assert_array_equal(strong.shape, strong_before)
+    # a stronger mostly of its own shape (MAC 0.35 with the weaker's, below STRONGER_TOOK_IN_MAC) keeps its part
+    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+    strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + 0.3 * own))
+    reps = {id(weak): replicates(own, partner, 0.3 + steady), id(strong): replicates(partner, own, 0.3 + scattered)}
+    strong_before = strong.shape.copy()
+    separate_twin_shapes([weak, strong], replicate_shapes=lambda mode, reps=reps: reps[id(mode)])
+    np.testing.assert_array_equal(strong.shape, strong_before)
 
 
 def test_two_modes_of_one_shape_holding_poles_side_by_side_are_a_close_pair() -> None:
