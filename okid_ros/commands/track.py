@@ -33,8 +33,12 @@ new structure) are tested sample by sample with the calibrated CUSUM of
 :mod:`okid_ros.core.change_detection`, whose threshold follows from ``--false-alarm-samples``.
 Every line then carries ``watch``, node 2's counts so far under its diagnostics' names
 (``diverged_samples``, ``divergence_restarts``, ``state_jumps``, ``divergences_beyond_window``,
-``change_glitches``, ``change_alarms_state_jump``, ...), and ``watch_refused`` when node 2 would
-refuse the update's model (the model in use is kept). When a change is declared, the window restarts at the
+``change_glitches``, ``change_alarms_state_jump``, ..., ``models_accepted``, ``models_rejected``), and
+``watch_refused`` when node 2 refuses the update's model (its checks, or its switch,
+:class:`~okid_ros.service.model_switch.ModelSelection`: the model lost the modes in use; the model in use is
+kept). A line whose model node 2 takes carries ``mode_ids``: node 2's persistent id of each of its ``modes``, in
+order (each mode's ``id`` is its window's own numbering); the switch runs with ``--no-change-detection`` too.
+When a change is declared, the window restarts at the
 change point: the next models use post-change data only, from ``--restart-min-fill`` of the
 window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
 grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline. The
