@@ -3,16 +3,17 @@
 
 Run:  OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD:$PWD/bench python bench/watch_step.py [--old-tree DIR] [--rounds 3]
 
-Two records: the paper's structure (p = 2, m = 2; 60000 samples of a 15 Hz low-passed force, the
-record of ``bench/track_watch.py --timing``; the model of its first 2000 rows, ARX order 20) and the
-DaISy steel subframe (p = 28, m = 2, 1/1024 s; the model node 2's worker realizes of its first 3000
-rows, ``bench/live_pace_profile.py``'s job), each stepped by node 2's estimator and watch with node 2's
-defaults (change detection on) over every sample after the model's window. Each checkout (this one and
-``--old-tree``, in turn, ``--rounds`` times, one process each) prints the CPU time per sample (the
-least over its rounds) and a digest of what the watch decided at every sample (the estimator's state,
-the change statistic, the counts and the changes): the digests of two checkouts are equal when every
-verdict is. ``--profile N``: instead, cProfile of this checkout's run on the paper's record, the N
-functions of most own time.
+Three records: the paper's structure (p = 2, m = 2; 60000 samples of a 15 Hz low-passed force, the
+record of ``bench/track_watch.py --timing``; the model of its first 2000 rows, ARX order 20); the same
+structure under a force of 0.01 with 12 blows of 1e6 after the model's window (``bench/track_watch.py``'s
+hammer record, longer: divergences, restarts); and the DaISy steel subframe (p = 28, m = 2, 1/1024 s; the
+model node 2's worker realizes of its first 3000 rows, ``bench/live_pace_profile.py``'s job). Each is
+stepped by node 2's estimator and watch with node 2's defaults (change detection on) over every sample
+after the model's window. Each checkout (this one and ``--old-tree``, in turn, ``--rounds`` times, one
+process each) prints the CPU time per sample (the least over its rounds) and a digest of what the watch
+decided at every sample (the estimator's state, the change statistic, the counts and the changes): the
+digests of two checkouts are equal when every verdict is. ``--profile N``: instead, cProfile of this
+checkout's run on the paper's record, the N functions of most own time.
 """
 
 from __future__ import annotations
@@ -46,6 +47,22 @@ def _paper_case():
     u = lowpass_input(60000, 2, 15.0, dt, seed=1)
     y, _ = simulate_innovation(truth, u, seed=2)
     end = WINDOW + ORDER
+    return u, y, dt, identify(u[:end], y[:end], dt, order=ORDER), end
+
+
+def _hammer_case():
+    """(u, y, dt, model, window end) of the paper's structure, a force of 0.01, 12 blows of 1e6 after the window."""
+    import numpy as np
+
+    from okid_ros.core.pipeline import identify
+    from okid_ros.sim import paper_model, simulate_innovation
+
+    truth = paper_model()
+    dt, end = truth.sample_time_s, WINDOW + ORDER
+    rng = np.random.default_rng(4)
+    u = 0.01 * rng.standard_normal((end + 6000, 2))
+    u[rng.choice(np.arange(end + 300, end + 5900), 12, replace=False), rng.integers(0, 2, 12)] += 1e6
+    y, _ = simulate_innovation(truth, u, seed=5)
     return u, y, dt, identify(u[:end], y[:end], dt, order=ORDER), end
 
 
@@ -84,7 +101,7 @@ def worker(case: str, rounds: int) -> dict:
     """The least CPU time per sample over ``rounds`` runs of the checkout imported, and the verdicts' digest."""
     import numpy as np
 
-    u, y, dt, model, end = _paper_case() if case == "paper" else _daisy_case()
+    u, y, dt, model, end = {"paper": _paper_case, "hammer": _hammer_case, "daisy": _daisy_case}[case]()
     times = []
     for _ in range(rounds):
         watch = _watch(u, y, dt, model, end)
@@ -137,7 +154,7 @@ def main() -> None:
     print(f"load average (1 min) {os.getloadavg()[0]:.2f}\n")
     print("| record | checkout | samples | CPU per sample (us) | verdicts' digest | counts not 0 |")
     print("|---|---|---|---|---|---|")
-    for case in ("paper", "daisy"):
+    for case in ("paper", "hammer", "daisy"):
         for tree in trees:
             env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), str(tree / "bench"), str(HERE / "bench")]),
                    "OPENBLAS_NUM_THREADS": "1"}

@@ -200,7 +200,7 @@ class ModalStateEstimator:
         if self._start_up:
             self._start_up_gain()
         kf = self.kf
-        du = self.D @ u
+        du = self.D.dot(u)  # (ndarray.dot: @ without the ufunc's dispatch, as the filter's dot below)
         # KalmanFilter.update_steadystate and predict_steadystate, written out with the same
         # operations on the filter's arrays: the methods also copy z, P (twice) and x at every
         # step, bookkeeping this estimator never reads, which cost as much as the step itself.
@@ -225,7 +225,7 @@ class ModalStateEstimator:
             kf.x = x_prior + dot(kf.K, np.where(near, kf.y, 0.0))
             self._held_outputs = (~near[:, 0], predicted)
         x_post = kf.x[:, 0].copy()
-        y_est = kf.H @ x_post + du + self.output_offset
+        y_est = kf.H.dot(x_post) + du + self.output_offset
         kf.x = dot(kf.F, kf.x) + dot(kf.B, u)
         return x_post, y_est, innovation
 

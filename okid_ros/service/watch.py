@@ -95,6 +95,7 @@ class InnovationWatch:
         # The model in use's window inputs: their median and largest distance from it, per input (None: none
         # held); whether an input beyond them (beyond_window_inputs) has come since the model was accepted.
         self._input_range: tuple[np.ndarray, np.ndarray] | None = None
+        self._input_limit: tuple[float, np.ndarray | None] = (math.nan, None)
         self.driven_beyond_window = False
 
     def configure(self, params: ModalEstimationParams) -> None:
@@ -151,12 +152,12 @@ class InnovationWatch:
             active.estimator.last_glitch = None
         if self._input_range is not None and not self.driven_beyond_window:
             self.driven_beyond_window = self.beyond_window_inputs(u)
-        z = active.whiten @ innovation
+        z = active.whiten.dot(innovation)  # (ndarray.dot: @ without the ufunc's dispatch)
         # The estimator's divergence: a glitch candidate, whose far outputs it did not take
         # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
         # watchdog's 25 samples and had the state corrected). The state-jump fit keeps the sample's own.
         diverged = self.divergence.check(np.zeros_like(z) if active.estimator.holding else z)
-        self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
+        self._innovations.push_one(index, z)  # a non-finite one makes the jump fit refuse
         change = None
         if prm.change_detection:
             alarm = self.monitor.step(u, y, index, test=not diverged)
@@ -278,6 +279,7 @@ class InnovationWatch:
         (N, m): the inputs of its window (None or m = 0: no input is judged beyond them).
         """
         self._input_range = None
+        self._input_limit = (math.nan, None)  # (divergence_nis_ratio, the distance beyond_window_inputs allows)
         self.driven_beyond_window = False
         if window_inputs is not None and window_inputs.shape[1] and window_inputs.shape[0]:
             center = np.median(window_inputs, axis=0)
@@ -295,7 +297,10 @@ class InnovationWatch:
         alone can take the window's largest error to the divergence's ratio.
         """
         center, reach = self._input_range
-        return bool(np.any(np.abs(u - center) > math.sqrt(self.params.divergence_nis_ratio) * reach))
+        ratio = self.params.divergence_nis_ratio
+        if self._input_limit[0] != ratio:  # (the ratio may change at run time)
+            self._input_limit = (ratio, math.sqrt(ratio) * reach)
+        return bool((np.abs(u - center) > self._input_limit[1]).any())
 
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
