@@ -241,10 +241,7 @@ def run(args: argparse.Namespace) -> int:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
-                if refused := watch.new_model(model, u_w, y_w, rows, first=entry["window_first_index"]):
-                    entry["watch_refused"] = refused  # node 2's reason: the model in use is kept
-                else:  # node 2's persistent ids of the modes ("modes" keeps each window's own ids)
-                    entry["mode_ids"] = watch.mode_ids
+                _switch(watch, entry, model, (u_w, y_w), rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 first_reason, failures = first_reason or reason, failures + 1
@@ -436,6 +433,15 @@ def _record_watch(args: argparse.Namespace, record: "TrackedRecord", dt: float):
                      change_false_alarm_samples=float(args.false_alarm_samples), change_noise_test=args.noise_test,
                      change_detection=bool(args.change_detection))
     return RecordWatch(record, params, capacity=max(8192, 2 * (args.window + record.order)))
+
+
+def _switch(watch, entry: dict, model, window: tuple, rows: int) -> None:
+    """Node 2's switch to an update's model: its reason in the line if refused, else its modes' persistent ids."""
+    u_w, y_w = window
+    if refused := watch.new_model(model, u_w, y_w, rows, first=entry["window_first_index"]):
+        entry["watch_refused"] = refused  # node 2's reason: the model in use is kept
+    else:  # node 2's persistent ids of the modes ("modes" keeps each window's own ids)
+        entry["mode_ids"] = watch.mode_ids
 
 
 def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
