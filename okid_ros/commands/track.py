@@ -480,8 +480,8 @@ def _print_summary(changes: list, dt: float, last_modes: list, last_update: int,
             f"after the last update (sample {last_update}): no window of the new structure")
         print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
-    if counted := [f"{name} {n}" for name, n in counts.items() if n]:
-        print("node 2's watch: " + ", ".join(counted))
+    if counted := [f"{name} {n}" for name, n in counts.items() if n]:  # (--no-change-detection: the switch's only)
+        print(f"node 2's {'watch' if 'diverged_samples' in counts else 'model switch'}: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
