@@ -35,7 +35,7 @@ from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.options import ModalEstimationParams
-from okid_ros.service.realization import advance_state, bridge_state
+from okid_ros.service.realization import bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
 from okid_ros.service.sample_buffer import SampleBuffer
 
@@ -88,7 +88,7 @@ class InnovationWatch:
         self.restart_failed = False  # no good sample since the last divergence restart or jump
         self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
-        self._settle: list[tuple[IdentifiedModel, int]] = []  # the last two models' settle_samples
+        self._settle: list[tuple] = []  # the last two models' (model, predictor, settle_samples)
         self.level = np.zeros(p)  # the outputs' level steps found, taken off each sample (level_corrected)
         self.level_steps: list[int] = []  # buffer indices where a step taken off lies, still buffered
         self.level_steps_taken = 0
@@ -314,33 +314,36 @@ class InnovationWatch:
         diverged one.
         """
         buffer, max_gap = self._buffer, self.params.max_gap_samples
+        predictor, settle = self._predictor(model)
         open_loop_from = min([index + 1, *(i for i in self.diverged if i >= buffer.first)])
-        first = max(buffer.first, open_loop_from - self._settle_samples(model))
+        first = max(buffer.first, open_loop_from - settle)
         _, u, y, skipped = buffer.get(first, index + 1, predicted_glitches=True)
-        x, u_prev = np.zeros(model.n_states), None
+        # realization.advance_state and bridge_state, on the model's one predictor (its chunk powers made once).
+        predictor.x, u_prev = np.zeros(model.n_states), None
         lo = 0
         for k in sorted(i - first for i in self.diverged if first <= i <= index) + [u.shape[0]]:
             if k > lo:
-                x, u_prev = advance_state(model, x, u[lo:k], y[lo:k], skipped[lo:k], u_prev, max_gap=max_gap,
-                                          chunked=True)
+                u_prev = predictor.run_with_gaps(u[lo:k], y[lo:k], skipped[lo:k], u_prev, max_gap, chunked=True)
             if k < u.shape[0]:
                 if skipped[k]:
-                    x = bridge_state(model, x, u_prev, int(skipped[k]), max_gap)
-                x = bridge_state(model, x, u[k], 1, 1)  # the diverged sample predicted over, open loop
+                    predictor.bridge(u_prev, int(skipped[k]), max_gap)
+                predictor.bridge(u[k], 1, 1)  # the diverged sample predicted over, open loop
                 u_prev = u[k]
             lo = k + 1
+        x = predictor.x
         if not np.all(np.isfinite(x)):
             x = np.zeros(model.n_states)
         return x, u_prev
 
-    def _settle_samples(self, model: IdentifiedModel) -> int:
-        """:attr:`InnovationPredictor.settle_samples` of the model in use or the change test's (kept)."""
-        for known, samples in self._settle:
+    def _predictor(self, model: IdentifiedModel) -> tuple[InnovationPredictor, int]:
+        """The predictor of the model in use or the change test's and its ``settle_samples`` (kept)."""
+        for known, predictor, samples in self._settle:
             if known is model:
-                return samples
-        samples = InnovationPredictor(model).settle_samples
-        self._settle = [(model, samples), *self._settle[:1]]
-        return samples
+                return predictor, samples
+        predictor = InnovationPredictor(model)
+        samples = predictor.settle_samples
+        self._settle = [(model, predictor, samples), *self._settle[:1]]
+        return predictor, samples
 
     def _restart_from_buffer(self, active: ActiveModel, index: int) -> np.ndarray | None:
         """Restart the estimator after sustained divergence, warm-started over the buffer up to ``index``."""
