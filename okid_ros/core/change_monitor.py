@@ -267,6 +267,15 @@ class StructuralChangeMonitor:
             z = z[:self.detector.reference_samples - count]
             self._calibration_power = [total + float(np.einsum("ij,ij->", z, z)) / z.shape[1], count + z.shape[0]]
 
+    def _record_one(self, index: int, z: np.ndarray) -> None:
+        """:meth:`_record` of one sample's ``z`` (p,) (the per-sample path)."""
+        if self._jumps is None and self._noise is None:
+            return
+        if self._calibration_power[1] < self.detector.reference_samples:
+            self._record(index, z[None, :])
+        else:
+            self._ring.push_one(index, z)
+
     def _take_jump(self, next_index: int) -> int | None:
         """After an explained jump: correct the predictor's state for sample ``next_index``.
 
@@ -441,9 +450,9 @@ class StructuralChangeMonitor:
         if self._hold:
             self._hold -= 1
             return None
-        z = self.whiten @ e
+        z = self.whiten.dot(e)  # (ndarray.dot: @ without the ufunc's dispatch, statespace.InnovationPredictor.step)
         # |z|^2 = e^T Re^-1 e bounds every (e_i / sigma_i)^2: below GLITCH_STD^2 no output is past it.
-        if test and float(z @ z) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
+        if test and float(z.dot(z)) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
             after = self.predictor.x
             self.predictor.x = before
             prediction = self.predictor.predicted_output(u)
@@ -454,16 +463,16 @@ class StructuralChangeMonitor:
 
     def _test_one(self, z: np.ndarray, u: np.ndarray, index: int, *, test: bool) -> ChangeAlarm | None:
         """The test of one sample's whitened innovation ``z`` (p,), the predictor's state already past it."""
-        finite = bool(np.all(np.isfinite(z)))
+        finite = bool(np.isfinite(z).all())
         if finite:
-            self._record(index, z[None, :])
+            self._record_one(index, z)
         if not test:
             self.detector.gap()  # untested samples are a gap to the whitening's lags
             return None
         if not finite:
             return None
         if self._judgement.check is not None:
-            self._judgement.check.push_inputs(index, u[None, :])
+            self._judgement.check.push_sample(index, u=u)
         alarm = self.detector.push(z, index)
         if alarm is not None:
             self.disarm()
