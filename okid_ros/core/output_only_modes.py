@@ -16,7 +16,8 @@ The stabilization diagram without clicks:
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
-   more outputs its median MPC is at least ``MIN_MPC``, its median share of the correlations'
+   more outputs its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise
+   alone exceed, :func:`mpc_floor`), its median share of the correlations'
    energy (modal singular value relative to the order's strongest pole) is at least
    ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
    than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
@@ -60,7 +61,12 @@ MIN_DAMPING = 5e-4
 #: Low enough for one mode of a close pair whose true shapes are orthogonal (two mistuned chains): its
 #: estimated shape mixes in its partner's, out of phase, and its cluster's median MPC reads 0.38 at
 #: 20-35 orders (bench/okid_bench/physical_cases.py); noise clusters are screened after (jackknife, share).
+#: With many outputs the floor is lowered to :func:`noise_mpc_floor` (:func:`mpc_floor`).
 MIN_MPC = 0.3
+#: A shape of independent complex Gaussian components (noise alone) at ``p`` outputs has an MPC above ``x``
+#: with probability ``(1 - x) ** ((p - 1) / 2)``; a cluster's median MPC is read as no evidence against a
+#: mode where this share of such shapes reads more: 0.293 at 5 outputs (about ``MIN_MPC``), 0.06 at 23.
+NOISE_MPC_SHARE = 0.5
 MIN_ENERGY = 0.0
 #: A candidate that fails the spectral share and is not steady is a mode when, of what the other
 #: candidates' poles leave of the spectrum, it holds this share (``output_only._drop_noise_modes``).
@@ -342,10 +348,11 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
                 clusters.append(_cluster(poles, family, p))
                 clusters[-1].group = int(label) * 2 ** MAX_SPLITS + k  # at most 2 ** MAX_SPLITS modes a label
     persisting_elsewhere = []  # clusters that fail only the persistence test
+    floor = mpc_floor(p)
     for cluster in clusters:
         count = len(cluster.members)
         ok = (not _too_few_orders(count, orders.size)
-              and cluster.damping_ratio >= min_damping and cluster.mpc >= MIN_MPC and cluster.energy >= MIN_ENERGY
+              and cluster.damping_ratio >= min_damping and cluster.mpc >= floor and cluster.energy >= MIN_ENERGY
               and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
               * cluster.frequency_hz)
         persistent = count >= MIN_ORDER_FRACTION * np.sum(orders >= min(cluster.members))
@@ -361,6 +368,27 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
+
+
+def noise_mpc_floor(n_outputs: int, share: float = NOISE_MPC_SHARE) -> float:
+    """The MPC that a shape of noise alone at ``n_outputs`` outputs exceeds with probability ``share``.
+
+    The real and imaginary parts of ``n_outputs`` independent complex Gaussian components form a
+    2 x 2 Wishart matrix of ``n_outputs`` degrees of freedom; its MPC ``((l1 - l2) / (l1 + l2)) ** 2``
+    is one minus the sphericity ratio, whose tail is ``(1 - x) ** ((n_outputs - 1) / 2)``.
+    """
+    return float(1.0 - share ** (2.0 / max(n_outputs - 1, 1)))
+
+
+def mpc_floor(n_outputs: int) -> float:
+    """The clustering's MPC floor at ``n_outputs`` outputs: ``MIN_MPC``, or the noise's where that is lower.
+
+    A weak mode seen well by some of many outputs has its estimated shape read in all of them, the
+    others' noise included: its MPC falls with the number of outputs as a noise shape's does (two
+    torsion-frame modes at 23 outputs, true MPC 1.000, read 0.15 and 0.20), and the MPC tells it from
+    noise no better than that; the jackknife and the spectral share screen the clusters after.
+    """
+    return min(MIN_MPC, noise_mpc_floor(n_outputs))
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:
