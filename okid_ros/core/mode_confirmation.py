@@ -186,9 +186,11 @@ class ModeConfirmation:
         index = first_index + y.shape[0] - 1
         self.push(first_index, y)
         while True:
+            need = self.stages[self._stage]
+            if self._job is None and index < self.alarm.change_index + need - 1:
+                return None  # (the held outputs not read on every sample while they fill)
             if self._job is None:
                 held, first = self._outputs.since(self.alarm.change_index, index)
-                need = self.stages[self._stage]
                 if held.shape[0] < need:
                     return None
                 self._job, self._job_end = self._submit(held[:need]), first + need - 1

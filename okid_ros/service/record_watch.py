@@ -34,8 +34,8 @@ __all__ = ["RecordWatch"]
 #: Node 2's counts (its diagnostics' names) that ``track`` writes in each line.
 _STATS_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "divergences_beyond_window",
                  "estimator_restarts", "gaps_bridged")
-_WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_unconfirmed",
-                 "output_level_steps")
+_WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_excitation",
+                 "change_alarms_unconfirmed", "output_level_steps")
 
 
 class RecordWatch:
