@@ -84,7 +84,8 @@ class InnovationWatch:
         self.monitor = StructuralChangeMonitor(
             p, false_alarm_samples=params.change_false_alarm_samples,
             variance_ratio=params.change_variance_ratio, reference_samples=params.change_reference_samples,
-            noise_change_test=params.change_noise_test, confirm_executor=confirm_executor,
+            noise_change_test=params.change_noise_test, mode_confirmation=params.change_mode_confirmation,
+            confirm_executor=confirm_executor,
         )
         self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
         self.changes = 0
