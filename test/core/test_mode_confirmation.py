@@ -20,7 +20,7 @@ from okid_bench.changes import change_case
 from okid_bench.switching import simulate_switched
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_monitor import StructuralChangeMonitor
-from okid_ros.core.mode_confirmation import CONFIRM_STDS, MATCH_TOLERANCE, compare_modes
+from okid_ros.core.mode_confirmation import CONFIRM_STDS, MATCH_TOLERANCE, ModeConfirmation, compare_modes
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
@@ -128,3 +128,36 @@ def test_compare_modes_moved_unmoved_missing():
     assert lost.structural is None and lost.missing == 1 and lost.appeared == 0
     unknown = compare_modes(reference, [_mode(5.0, math.nan), _mode(14.0, 0.05)])
     assert unknown.structural is None
+
+
+def _staged(monkeypatch, modes_by_samples):
+    """A confirmation of a 5 Hz reference at 100 Hz (stages of 800 and 2000 samples) whose identifications give
+    the modes ``modes_by_samples[len(y)]``."""
+    def identify(y, sample_time_s, *, method):
+        return SimpleNamespace(modes=modes_by_samples[y.shape[0]])
+    monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only", identify)
+    reference = SimpleNamespace(modes=[_mode(5.0, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva")
+    confirmation = ModeConfirmation(reference)
+    assert confirmation.stages == [800, 2000]
+    confirmation.start(SimpleNamespace(change_index=100, alarm_index=299), np.zeros((300, 2)), 0)
+    return confirmation
+
+
+def test_unmoved_modes_on_the_first_stage_wait_for_the_last(monkeypatch):
+    # 40 periods: the mode 4 % lower but scattered (2.5 standard deviations); 100 periods: it moved.
+    confirmation = _staged(monkeypatch, {800: [_mode(4.8, 0.08)], 2000: [_mode(4.8, 0.02)]})
+    assert confirmation.take(np.zeros((1200, 2)), 300) is None  # samples 300-1499: the first stage, no verdict
+    verdict, at = confirmation.take(np.zeros((1000, 2)), 1500)
+    assert verdict.structural is True and verdict.samples == 2000 and at == 100 + 2000 - 1
+
+
+def test_a_mode_that_moved_on_the_first_stage_is_declared_there(monkeypatch):
+    confirmation = _staged(monkeypatch, {800: [_mode(4.8, 0.02)]})
+    verdict, at = confirmation.take(np.zeros((2000, 2)), 300)
+    assert verdict.structural is True and verdict.samples == 800 and at == 100 + 800 - 1
+
+
+def test_unmoved_modes_on_the_last_stage_are_the_excitation(monkeypatch):
+    confirmation = _staged(monkeypatch, {800: [_mode(5.0, 0.02)], 2000: [_mode(5.01, 0.02)]})
+    verdict, at = confirmation.take(np.zeros((2000, 2)), 300)
+    assert verdict.structural is False and verdict.samples == 2000 and at == 2099
