@@ -131,8 +131,10 @@ def test_compare_modes_moved_unmoved_missing():
 
 
 def _staged(monkeypatch, modes_by_samples):
-    """A confirmation of a 5 Hz reference at 100 Hz (stages of 800 and 2000 samples) whose identifications give
-    the modes ``modes_by_samples[len(y)]``."""
+    """A confirmation of a 5 Hz reference at 100 Hz, its stages 800 and 2000 samples, its modes ``modes_by_samples``.
+
+    The identification of ``y`` gives ``modes_by_samples[len(y)]``.
+    """
     def identify(y, sample_time_s, *, method):
         return SimpleNamespace(modes=modes_by_samples[y.shape[0]])
     monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only", identify)
