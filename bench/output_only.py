@@ -19,6 +19,9 @@ Records:
   (:func:`okid_bench.physical_cases.physical_case`: shear buildings, coupled chains with close
   pairs, beams; forces at 1-3 points), scored by family; a mode the record does not show is
   neither found nor missed, nor spurious when listed;
+* ``new-families`` (idem): structures of kinds no selection rule was tuned on
+  (:func:`okid_bench.new_families.new_family_case`: plate grids, torsion frames with local dashpots,
+  buildings under coloured forces), scored by family like ``physical``;
 * ``koma-frame`` (idem): the koma frame's own recipe with ``--seeds`` noise seeds
   (:func:`okid_bench.physical_cases.koma_frame_case`), scored against its discrete modes.
 
@@ -55,6 +58,7 @@ import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np
 from output_only_peers import METHODS, run_method
 
+from okid_bench.new_families import NEW_FAMILY_CASES, new_family_case
 from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, random_case, score_modes
 from okid_bench.physical_cases import KOMA_FRAME, koma_frame_case, physical_case
 from okid_bench.report import add_output_options, refuse_existing, write_output
@@ -93,8 +97,8 @@ def _runs(args):
         yield name, 0, y, dt, truth, uncertain
     for name in args.cases:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            if name == "physical":  # scored by family; the modes the record does not show are not counted
-                case = physical_case(seed)
+            if name in ("physical", NEW_FAMILY_CASES):  # scored by family; the modes it does not show not counted
+                case = physical_case(seed) if name == "physical" else new_family_case(seed)
                 yield case.family, seed, case.simulate(seed), case.sample_time_s, case.truth(), case.hidden_hz()
                 continue
             if name == KOMA_FRAME:  # koma's recipe, noise seeds of one structure
@@ -181,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--records", default="koma,subframe", help="koma,subframe or none")
     parser.add_argument("--cases", default=",".join(OUTPUT_ONLY_CASES),
-                        help="simulated cases (or random, physical, koma-frame), or none")
+                        help="simulated cases (or random, physical, new-families, koma-frame), or none")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0,

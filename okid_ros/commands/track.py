@@ -33,8 +33,12 @@ new structure) are tested sample by sample with the calibrated CUSUM of
 :mod:`okid_ros.core.change_detection`, whose threshold follows from ``--false-alarm-samples``.
 Every line then carries ``watch``, node 2's counts so far under its diagnostics' names
 (``diverged_samples``, ``divergence_restarts``, ``state_jumps``, ``divergences_beyond_window``,
-``change_glitches``, ``change_alarms_state_jump``, ...), and ``watch_refused`` when node 2 would
-refuse the update's model (the model in use is kept). When a change is declared, the window restarts at the
+``change_glitches``, ``change_alarms_state_jump``, ..., ``models_accepted``, ``models_rejected``), and
+``watch_refused`` when node 2 refuses the update's model (its checks, or its switch,
+:class:`~okid_ros.service.model_switch.ModelSelection`: the model lost the modes in use; the model in use is
+kept). A line whose model node 2 takes carries ``mode_ids``: node 2's persistent id of each of its ``modes``, in
+order (each mode's ``id`` is its window's own numbering); the switch runs with ``--no-change-detection`` too.
+When a change is declared, the window restarts at the
 change point: the next models use post-change data only, from ``--restart-min-fill`` of the
 window on (until then the lines have ``"modes": []`` and a ``"waiting"`` note), and the window
 grows back to W rows. This is what the nodes do live and ``okid-ros process`` offline. The
@@ -216,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
     with handle, bar:  # the bar closed on a failure too: its line ends before the error's
         fed = 0
         for k in points:
-            alarm = watch.run(fed, k + 1) if watch is not None else None
+            alarm = watch.run(fed, k + 1) if args.change_detection else None
             if alarm is None:
                 estimator.update(u[fed : k + 1], y[fed : k + 1])
             else:  # restart the window at the change point before this update's solve, as node 1 does
@@ -228,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             rows = int(estimator.status.rows_in_window)
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
-            if watch is not None:
+            if args.change_detection:
                 entry["watch"] = watch.counts()
             why = record.waiting(k, rows, restart_rows, estimator.status, changes)
             if why:
@@ -241,8 +245,7 @@ def run(args: argparse.Namespace) -> int:
                 fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
-                if watch is not None and (refused := watch.new_model(model, u_w, y_w, rows)):
-                    entry["watch_refused"] = refused  # node 2's reason: the model in use is kept
+                _switch(watch, entry, model, (u_w, y_w), rows)
             except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 first_reason, failures = first_reason or reason, failures + 1
@@ -252,13 +255,14 @@ def run(args: argparse.Namespace) -> int:
         if failures + waits == len(points):  # a failure: the lines go with it, an old OUT stays (JsonLines)
             raise DataError(f"none of the {len(points)} updates gave a model ({failures} failed, {waits} waiting "
                             f"for rows); the first: {first_reason}")
-        if watch is not None:  # a change after the last update: said in the summary
+        if args.change_detection:  # a change after the last update: said in the summary
             late = watch.run(fed, n_samples)
             watch.finish()
             changes += [late] if late is not None else []
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
-    _print_summary(changes, dt, last_modes, points[-1], watch.counts() if watch else {})  # (_arx_order: an update)
+    _print_summary(changes, dt, last_modes, points[-1], watch.counts() if args.change_detection else
+                   watch.switch_counts())  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -418,20 +422,30 @@ def _line_head(k: int, first: int, rows: int, dt: float, alarm) -> dict:
 
 
 def _record_watch(args: argparse.Namespace, record: "TrackedRecord", dt: float):
-    """Node 2's innovation watch over the record with track's change options (None: --no-change-detection)."""
+    """Node 2's model switch and innovation watch over the record with track's change options.
+
+    ``--no-change-detection``: the switch only (no sample is stepped: no watch, no test).
+    """
     from dataclasses import replace
 
     from okid_ros.service.options import ModalEstimationParams
     from okid_ros.service.params import ESTIMATOR_NODE, resolve_parameters
     from okid_ros.service.record_watch import RecordWatch
 
-    if not args.change_detection:
-        return None
     defaults = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE))
     params = replace(defaults, sample_time_s=float(dt), n_inputs=record.u.shape[1], n_outputs=record.y.shape[1],
                      change_false_alarm_samples=float(args.false_alarm_samples), change_noise_test=args.noise_test,
-                     change_mode_confirmation=args.mode_confirmation)
+                     change_mode_confirmation=args.mode_confirmation, change_detection=bool(args.change_detection))
     return RecordWatch(record, params, capacity=max(8192, 2 * (args.window + record.order)))
+
+
+def _switch(watch, entry: dict, model, window: tuple, rows: int) -> None:
+    """Node 2's switch to an update's model: its reason in the line if refused, else its modes' persistent ids."""
+    u_w, y_w = window
+    if refused := watch.new_model(model, u_w, y_w, rows, first=entry["window_first_index"]):
+        entry["watch_refused"] = refused  # node 2's reason: the model in use is kept
+    else:  # node 2's persistent ids of the modes ("modes" keeps each window's own ids)
+        entry["mode_ids"] = watch.mode_ids
 
 
 def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
@@ -464,14 +478,14 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
 
 
 def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict) -> None:
-    """The changes found, node 2's watch's counts not 0 and the last update's modes, on stdout."""
+    """The changes found, node 2's watch's and switch's counts not 0 and the last update's modes, on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
         print(f"structural change at sample {alarm.change_index} ({alarm.change_index * dt:.2f} s), declared at "
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
-    if counted := [f"{name} {n}" for name, n in counts.items() if n]:
-        print("node 2's watch: " + ", ".join(counted))
+    if counted := [f"{name} {n}" for name, n in counts.items() if n]:  # (--no-change-detection: the switch's only)
+        print(f"node 2's {'watch' if 'diverged_samples' in counts else 'model switch'}: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "

@@ -66,8 +66,8 @@ class CanonicalWeights:
         Raises IdentificationError when it is not positive definite (references that are
         linearly dependent).
         """
-        try:  # blocks R_(b-a)
-            low_past = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, -1, 1), lower=True,
+        try:  # blocks R_(b-a); symmetric, so its transpose is itself in Fortran order: factored in place
+            low_past = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, -1, 1).T, lower=True,
                                        overwrite_a=True, check_finite=False)
         except linalg.LinAlgError:
             raise IdentificationError("the reference channels' covariance is not positive definite: "

@@ -363,10 +363,10 @@ class ChangeDetector:
         z = self.whitening.step(z)
         if z is None:  # its lags reach across a gap
             return None
-        w = self.rewhiten @ (z - self.mean)
+        w = self.rewhiten.dot(z - self.mean)  # (ndarray.dot: statespace.InnovationPredictor.step)
         if self.judgement.check is not None:
-            self.judgement.check.push_residuals(index, w[None, :])
-        alarm = self._add(float(w @ w), index)
+            self.judgement.check.push_sample(index, w=w)
+        alarm = self._add(float(w.dot(w)), index)
         if self.judgement.jump_at is not None:
             self._forget_jump()
         return alarm

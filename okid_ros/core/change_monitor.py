@@ -24,7 +24,7 @@ import dataclasses
 import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
-from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled, without_glitches
+from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, held_last, settled, without_glitches
 from okid_ros.core.mode_confirmation import ModeConfirmation
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.noise_change import NoiseChangeTest, NoiseVerdict, with_noise
@@ -184,20 +184,6 @@ class StructuralChangeMonitor:
             self._ring = SampleRing(check.n_outputs, needed)
         return test
 
-    def _hold_last(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray, first_index: int) -> None:
-        """Hold a block's last sample, a glitch candidate, for the next sample's verdict, as :meth:`step` does.
-
-        ``u`` (N, m), ``y`` (N, p) the block run from ``x0``, its glitches' predictions in place;
-        ``e`` (N, p) its innovations. The predictor goes on from the last sample's prediction;
-        the next block's first sample (or :meth:`finish`) judges it. Tested as it came, an absurd
-        sample (1e200) overflowed the model-error check's squares or was declared a change.
-        """
-        as_came = self.predictor.x
-        self.predictor.x = x0.copy()
-        self.predictor.advance(u[:-1], y[:-1])
-        self.predictor.step(u[-1], self.predictor.predicted_output(u[-1]))  # its prediction in its place
-        self._pending = (e[-1], u[-1], first_index + e.shape[0] - 1, as_came)
-
     def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """The held sample's verdict, given the next one (u, y): its (whitened innovation, inputs, index) to test.
 
@@ -271,6 +257,15 @@ class StructuralChangeMonitor:
         if count < self.detector.reference_samples:  # the calibration's samples
             z = z[:self.detector.reference_samples - count]
             self._calibration_power = [total + float(np.einsum("ij,ij->", z, z)) / z.shape[1], count + z.shape[0]]
+
+    def _record_one(self, index: int, z: np.ndarray) -> None:
+        """:meth:`_record` of one sample's ``z`` (p,) (the per-sample path)."""
+        if self._jumps is None and self._noise is None:
+            return
+        if self._calibration_power[1] < self.detector.reference_samples:
+            self._record(index, z[None, :])
+        else:
+            self._ring.push_one(index, z)
 
     def _take_jump(self, next_index: int) -> int | None:
         """After an explained jump: correct the predictor's state for sample ``next_index``.
@@ -387,7 +382,7 @@ class StructuralChangeMonitor:
         block = (u, y_taken, first_index)  # as it came (u and first_index move below)
         end = first_index + e.shape[0]  # the predictor's state is that of sample `end`
         if test and self._hold < e.shape[0] and glitch_candidates(e[-1:], self._innovation_std)[0]:
-            self._hold_last(u, y_taken, e, x0, first_index)
+            self._pending = held_last(self.predictor, u, y_taken, e, x0, first_index)
             e, u = e[:-1], u[:-1]
         if not test:
             self._record(first_index, self._finite(e @ self.whiten.T))
@@ -445,7 +440,7 @@ class StructuralChangeMonitor:
         if self._confirm is not None:
             if self._holding:
                 return self._confirming(u[None, :], y[None, :], index)
-            self._confirm.push(index, y[None, :])
+            self._confirm.push_one(index, y)
         if self._pending is not None:
             alarm = self._test_one(*self._step_pending(u, y), test=True)
             if alarm is not None or self._holding:
@@ -455,9 +450,9 @@ class StructuralChangeMonitor:
         if self._hold:
             self._hold -= 1
             return None
-        z = self.whiten @ e
+        z = self.whiten.dot(e)  # (ndarray.dot: @ without the ufunc's dispatch, statespace.InnovationPredictor.step)
         # |z|^2 = e^T Re^-1 e bounds every (e_i / sigma_i)^2: below GLITCH_STD^2 no output is past it.
-        if test and float(z @ z) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
+        if test and float(z.dot(z)) > GLITCH_STD ** 2 and glitch_candidates(e[None, :], self._innovation_std)[0]:
             after = self.predictor.x
             self.predictor.x = before
             prediction = self.predictor.predicted_output(u)
@@ -468,16 +463,16 @@ class StructuralChangeMonitor:
 
     def _test_one(self, z: np.ndarray, u: np.ndarray, index: int, *, test: bool) -> ChangeAlarm | None:
         """The test of one sample's whitened innovation ``z`` (p,), the predictor's state already past it."""
-        finite = bool(np.all(np.isfinite(z)))
+        finite = bool(np.isfinite(z).all())
         if finite:
-            self._record(index, z[None, :])
+            self._record_one(index, z)
         if not test:
             self.detector.gap()  # untested samples are a gap to the whitening's lags
             return None
         if not finite:
             return None
         if self._judgement.check is not None:
-            self._judgement.check.push_inputs(index, u[None, :])
+            self._judgement.check.push_sample(index, u=u)
         alarm = self.detector.push(z, index)
         if alarm is not None:
             return self._alarmed(alarm, u[:0, None], u[:0, None], index)

@@ -42,7 +42,7 @@ class DivergenceMonitor:
 
     def check(self, whitened: np.ndarray) -> bool:
         """One sample's whitened innovation (p,); returns whether the sample is diverged."""
-        nis = float(np.dot(whitened, whitened))
+        nis = float(whitened.dot(whitened))  # (ndarray.dot: numpy.dot without its function dispatch)
         if not math.isfinite(nis):
             self.consecutive += 1
             return True

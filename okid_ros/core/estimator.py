@@ -200,20 +200,21 @@ class ModalStateEstimator:
         if self._start_up:
             self._start_up_gain()
         kf = self.kf
-        du = self.D @ u
+        # ndarray.dot: numpy.dot's product (bit for bit) without its function dispatch, @ without the ufunc's.
+        du = self.D.dot(u)
         # KalmanFilter.update_steadystate and predict_steadystate, written out with the same
         # operations on the filter's arrays: the methods also copy z, P (twice) and x at every
         # step, bookkeeping this estimator never reads, which cost as much as the step itself.
         z = (y - du).reshape(self.n_outputs, 1)
-        kf.y = z - dot(kf.H, kf.x)
+        kf.y = z - kf.H.dot(kf.x)
         if self._held is not None:
             self._judge_held(z)
         innovation = kf.y[:, 0].copy()
         u = u.reshape(self.n_inputs, 1)
         x_prior = kf.x
-        kf.x = kf.x + dot(kf.K, kf.y)
+        kf.x = kf.x + kf.K.dot(kf.y)
         # sum_i (e_i / sigma_i)^2 bounds every output's (e_i / sigma_i)^2: an ordinary sample pays one dot.
-        if (self._gate and dot(innovation * innovation, self._inverse_variance) > GLITCH_STD ** 2
+        if (self._gate and (innovation * innovation).dot(self._inverse_variance) > GLITCH_STD ** 2
                 and glitch_candidates(innovation[None, :], self._innovation_std)[0]):
             with np.errstate(invalid="ignore", over="ignore"):  # an infinite output: used only if no glitch
                 self._held = dot(kf.F, kf.x) + dot(kf.B, u)  # the filter's next prediction without the rule
@@ -225,8 +226,8 @@ class ModalStateEstimator:
             kf.x = x_prior + dot(kf.K, np.where(near, kf.y, 0.0))
             self._held_outputs = (~near[:, 0], predicted)
         x_post = kf.x[:, 0].copy()
-        y_est = kf.H @ x_post + du + self.output_offset
-        kf.x = dot(kf.F, kf.x) + dot(kf.B, u)
+        y_est = kf.H.dot(x_post) + du + self.output_offset
+        kf.x = kf.F.dot(kf.x) + kf.B.dot(u)
         return x_post, y_est, innovation
 
     def _judge_held(self, z: np.ndarray) -> None:

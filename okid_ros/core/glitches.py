@@ -21,7 +21,7 @@ import numpy as np
 
 from okid_ros.core.output_spikes import most_spikes
 
-__all__ = ["GLITCH_STD", "QUIET_STD", "glitch_candidates", "settled", "without_glitches"]
+__all__ = ["GLITCH_STD", "QUIET_STD", "glitch_candidates", "held_last", "settled", "without_glitches"]
 
 #: Innovation standard deviations of the model that some output of a glitch's sample is beyond.
 #: Without the rule, ten glitches of 30 output spreads in a 20000-sample record made `track`
@@ -86,3 +86,22 @@ def without_glitches(predictor, innovation_std: np.ndarray, u: np.ndarray, y: np
             rejected.add(k)
     predictor.x = end_state
     return e, y, taken
+
+
+def held_last(predictor, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray, first_index: int) -> tuple:
+    """A block's last sample, a glitch candidate, held for the next sample's verdict, as the change monitor's step does.
+
+    ``u`` (N, m), ``y`` (N, p) the block run by ``predictor`` from ``x0``, its glitches' predictions
+    in place; ``e`` (N, p) its innovations. The predictor goes on from the last sample's prediction;
+    the next block's first sample (or the monitor's ``finish``) judges it. Tested as it came, an
+    absurd sample (1e200) overflowed the model-error check's squares or was declared a change.
+
+    Returns
+    -------
+    (its innovation, its inputs, its index, the predictor's state after it as it came).
+    """
+    as_came = predictor.x
+    predictor.x = x0.copy()
+    predictor.advance(u[:-1], y[:-1])
+    predictor.step(u[-1], predictor.predicted_output(u[-1]))  # its prediction in its place
+    return e[-1], u[-1], first_index + e.shape[0] - 1, as_came

@@ -121,4 +121,4 @@ class InnovationWhitening:
         if self.refill:
             self.refill -= 1
             return None
-        return z - lags @ self.coefficients
+        return z - lags.dot(self.coefficients)  # (ndarray.dot: statespace.InnovationPredictor.step)

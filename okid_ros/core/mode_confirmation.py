@@ -160,6 +160,10 @@ class ModeConfirmation:
         """Outputs (N, p) of samples ``first_index ..``."""
         self._outputs.push(first_index, y)
 
+    def push_one(self, index: int, y: np.ndarray) -> None:
+        """Outputs (p,) of sample ``index`` (the per-sample path)."""
+        self._outputs.push_one(index, y)
+
     def start(self, alarm, y: np.ndarray, first_index: int) -> None:
         """Hold ``alarm`` until a verdict; ``y`` (N, p) the block of samples ``first_index ..`` it came in.
 

@@ -186,6 +186,13 @@ class ModelErrorCheck:
         """Inputs ``u`` (N, m) of samples ``first_index ..``."""
         self._u.push(first_index, u)
 
+    def push_sample(self, index: int, u: np.ndarray | None = None, w: np.ndarray | None = None) -> None:
+        """One sample's input ``u`` (m,) or tested residual ``w`` (p,) (the per-sample path)."""
+        if u is not None:
+            self._u.push_one(index, u)
+        if w is not None:
+            self._w.push_one(index, w)
+
     def push_residuals(self, first_index: int, w: np.ndarray) -> None:
         """Tested residuals ``w`` (N, p) of samples ``first_index ..``."""
         self._w.push(first_index, w)

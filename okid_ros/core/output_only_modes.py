@@ -32,7 +32,8 @@ Each mode keeps one pole per order (the one nearest the cluster's median); the m
 the lowest at which every mode has its pole. Of two modes of one shape within their half-power
 bands the weaker goes (a mode listed twice) unless the two hold poles side by side across the orders
 (a close pair, :func:`drop_listed_twice`). Of two close listed modes of one estimated shape the
-weaker is listed with the part of its shape its partner's leaves (:mod:`.output_only_twins`).
+weaker is listed with the part of its shape its partner's leaves, and a stronger that took in its
+weaker partner's shape likewise (:mod:`.output_only_twins`).
 """
 
 from __future__ import annotations

@@ -38,12 +38,16 @@ class SampleRing:
         z = np.asarray(z, dtype=float)
         if z.shape[0] > cap:  # only the newest fit
             first_index, z = first_index + z.shape[0] - cap, z[-cap:]
-        if z.shape[0] == 1:  # the per-sample path
-            slot = int(first_index) % cap
-            self._z[slot], self._index[slot] = z[0], first_index
+        if z.shape[0] == 1:
+            self.push_one(int(first_index), z[0])
             return
         index = int(first_index) + np.arange(z.shape[0])
         self._z[index % cap], self._index[index % cap] = z, index
+
+    def push_one(self, index: int, row: np.ndarray) -> None:
+        """The row (width,) of sample ``index``: :meth:`push` of one sample, for the per-sample path."""
+        slot = index % self.capacity
+        self._z[slot], self._index[slot] = row, index
 
     def since(self, first_index: int, last_index: int) -> tuple[np.ndarray, int]:
         """The held rows of samples ``first_index .. last_index`` that run without a gap to the last.

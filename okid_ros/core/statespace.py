@@ -350,9 +350,10 @@ class InnovationPredictor:
         """The innovation (p,) of one sample ``u`` (m,), ``y`` (p,); advances the state (``advance``)."""
         u = np.asarray(u, dtype=float) - self.input_offset
         y = np.asarray(y, dtype=float) - self.output_offset
-        e = y - self.D @ u - self.C @ self.x
+        # ndarray.dot: the same BLAS product as @, without the matmul ufunc's dispatch (half the time at this size).
+        e = y - self.D.dot(u) - self.C.dot(self.x)
         if advance:
-            self.x = self.F @ self.x + self.Gu @ u + self.Gy @ y
+            self.x = self.F.dot(self.x) + self.Gu.dot(u) + self.Gy.dot(y)
         return e
 
     def predicted_output(self, u: np.ndarray) -> np.ndarray:

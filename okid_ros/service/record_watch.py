@@ -2,8 +2,9 @@
 
 ``track`` has no node 2: its models come from its own window. What node 2 does with them on the
 sample path is run here by node 2's own objects, not a copy: the model in use (each model that
-passes node 2's checks, :func:`~okid_ros.service.realization.model_problem`, warm-started as node 2
-warm-starts one, :func:`~okid_ros.service.realization.warm_start`) steps a
+passes node 2's checks, :func:`~okid_ros.service.realization.model_problem`, and node 2's switch,
+:class:`~okid_ros.service.model_switch.ModelSelection`: lost modes refused, persistent mode ids;
+warm-started as node 2 warm-starts one, :func:`~okid_ros.service.realization.warm_start`) steps a
 :class:`~okid_ros.core.estimator.ModalStateEstimator` over every sample, and
 :meth:`InnovationWatch.step <okid_ros.service.watch.InnovationWatch.step>` runs its divergence
 watchdog (diverged samples kept out of the change test, state jumps corrected, restarts from the
@@ -23,6 +24,7 @@ import numpy as np
 from okid_ros.core.change_detection import ChangeAlarm
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.service.model_switch import ModelSelection
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import model_problem, warm_start
 from okid_ros.service.results import ActiveModel, EstimationStats
@@ -34,6 +36,8 @@ __all__ = ["RecordWatch"]
 #: Node 2's counts (its diagnostics' names) that ``track`` writes in each line.
 _STATS_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "divergences_beyond_window",
                  "estimator_restarts", "gaps_bridged")
+#: Node 2's counts of its model switch (service/model_switch.py), in the same place.
+_SWITCH_COUNTS = ("models_accepted", "models_rejected", "forced_accepts", "windows_refused_for_change", "modes_retired")
 _WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_excitation",
                  "change_alarms_unconfirmed", "output_level_steps")
 
@@ -54,6 +58,7 @@ class RecordWatch:
         self.stats = EstimationStats()
         self.buffer = SampleBuffer(capacity, params.n_inputs, params.n_outputs)
         self.watch = InnovationWatch(params, self.buffer, self.stats)
+        self.selection = ModelSelection(params, self.stats)
         self.active: ActiveModel | None = None
         self._u_prev: np.ndarray | None = None
         self._missing = 0  # samples missing since the last one buffered
@@ -108,33 +113,52 @@ class RecordWatch:
         self._level = self.watch.level.copy()
         self.record.steps.append(first)
 
-    def new_model(self, model: IdentifiedModel, u: np.ndarray, y: np.ndarray, rows: int) -> str:
+    def new_model(self, model: IdentifiedModel, u: np.ndarray, y: np.ndarray, rows: int, *, first: int) -> str:
         """The model of a window (``u`` (N, m), ``y`` (N, p); ``rows`` regressor rows) in use from the next sample.
 
-        As node 2 switches to an accepted model: its estimator warm-started over the window, the change
-        test's reference by :func:`~okid_ros.service.watch.is_new_reference`, a change waiting for it
-        taken (the window restarted at the change: the model is of the new structure). Returns why node 2
-        would refuse it ("" if not; the model in use is kept).
+        ``first``: the record index of the window's first sample. As node 2 switches to a model: its
+        checks (:func:`~okid_ros.service.realization.model_problem`), then its switch
+        (:meth:`ModelSelection.select <okid_ros.service.model_switch.ModelSelection.select>`: a model
+        that lost the modes in use refused, the modes' persistent ids given, a change waiting for its model
+        taken); its estimator warm-started over the window, the change test's reference by
+        :func:`~okid_ros.service.watch.is_new_reference`. Returns why node 2 refuses it ("" if it does not;
+        a refused model is counted, the model in use kept).
         """
+        st = self.stats
         reason, whiten = model_problem(model)
-        if reason:
+        if reason:  # counted as node 2 counts a realization its checks refuse
+            st.models_rejected += 1
+            st.last_reason = reason
             return reason
+        dt = self.params.sample_time_s
+        window_first = self.buffer.first_at_or_after((first - 0.5) * dt)
+        modes = self.selection.select(model, window_first, self.active, self.watch.change)
+        if modes is None:
+            return st.last_reason
         x, _, _ = warm_start(model, u, y, max_gap=self.params.max_gap_samples)
         estimator = ModalStateEstimator.from_model(model)
         estimator.set_state(x)
         model_id = 1 if self.active is None else self.active.model_id + 1
-        self.active = ActiveModel(model, estimator, model_id, list(model.modes), len(model.modes), whiten, u.shape[0])
+        self.active = ActiveModel(model, estimator, model_id, modes, len(modes), whiten, u.shape[0])
         self.watch.change = None
         self.watch.new_model(model, x, rows, window_inputs=u)
-        self.stats.models_accepted += 1
         return ""
+
+    @property
+    def mode_ids(self) -> list[int]:
+        """The persistent ids of the model in use's modes (node 2's, :mod:`~okid_ros.service.mode_registry`)."""
+        return [] if self.active is None else [int(mode.id) for mode in self.active.modes]
 
     def finish(self) -> None:
         """The record ends: a glitch candidate the change test holds at its last sample is one."""
         self.monitor.finish()
 
     def counts(self) -> dict:
-        """Node 2's counts of the watch so far (its diagnostics' names)."""
+        """Node 2's counts of the watch and the model switch so far (its diagnostics' names)."""
         diagnostics = self.watch.diagnostics()
         return {**{name: int(getattr(self.stats, name)) for name in _STATS_COUNTS},
-                **{name: int(diagnostics[name]) for name in _WATCH_COUNTS}}
+                **{name: int(diagnostics[name]) for name in _WATCH_COUNTS}, **self.switch_counts()}
+
+    def switch_counts(self) -> dict:
+        """Node 2's counts of the model switch so far: models taken and refused, modes retired."""
+        return {name: int(getattr(self.stats, name)) for name in _SWITCH_COUNTS}

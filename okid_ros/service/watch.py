@@ -35,7 +35,7 @@ from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.options import ModalEstimationParams
-from okid_ros.service.realization import advance_state, bridge_state
+from okid_ros.service.realization import bridge_state
 from okid_ros.service.results import ActiveModel, EstimationStats, StructuralChangeEvent
 from okid_ros.service.sample_buffer import SampleBuffer
 
@@ -93,13 +93,14 @@ class InnovationWatch:
         self.restart_failed = False  # no good sample since the last divergence restart or jump
         self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
-        self._settle: list[tuple[IdentifiedModel, int]] = []  # the last two models' settle_samples
+        self._settle: list[tuple] = []  # the last two models' (model, predictor, settle_samples)
         self.level = np.zeros(p)  # the outputs' level steps found, taken off each sample (level_corrected)
         self.level_steps: list[int] = []  # buffer indices where a step taken off lies, still buffered
         self.level_steps_taken = 0
         # The model in use's window inputs: their median and largest distance from it, per input (None: none
         # held); whether an input beyond them (beyond_window_inputs) has come since the model was accepted.
         self._input_range: tuple[np.ndarray, np.ndarray] | None = None
+        self._input_limit: tuple[float, np.ndarray | None] = (math.nan, None)
         self.driven_beyond_window = False
 
     def configure(self, params: ModalEstimationParams) -> None:
@@ -156,12 +157,12 @@ class InnovationWatch:
             active.estimator.last_glitch = None
         if self._input_range is not None and not self.driven_beyond_window:
             self.driven_beyond_window = self.beyond_window_inputs(u)
-        z = active.whiten @ innovation
+        z = active.whiten.dot(innovation)  # (ndarray.dot: @ without the ufunc's dispatch)
         # The estimator's divergence: a glitch candidate, whose far outputs it did not take
         # (core/estimator.py), is no part of it (0; else one glitch of 30 output spreads withheld the
         # watchdog's 25 samples and had the state corrected). The state-jump fit keeps the sample's own.
         diverged = self.divergence.check(np.zeros_like(z) if active.estimator.holding else z)
-        self._innovations.push(index, z[None, :])  # a non-finite one makes the jump fit refuse
+        self._innovations.push_one(index, z)  # a non-finite one makes the jump fit refuse
         change = None
         if prm.change_detection:
             alarm = self.monitor.step(u, y, index, test=not diverged)
@@ -283,6 +284,7 @@ class InnovationWatch:
         (N, m): the inputs of its window (None or m = 0: no input is judged beyond them).
         """
         self._input_range = None
+        self._input_limit = (math.nan, None)  # (divergence_nis_ratio, the distance beyond_window_inputs allows)
         self.driven_beyond_window = False
         if window_inputs is not None and window_inputs.shape[1] and window_inputs.shape[0]:
             center = np.median(window_inputs, axis=0)
@@ -300,7 +302,10 @@ class InnovationWatch:
         alone can take the window's largest error to the divergence's ratio.
         """
         center, reach = self._input_range
-        return bool(np.any(np.abs(u - center) > math.sqrt(self.params.divergence_nis_ratio) * reach))
+        ratio = self.params.divergence_nis_ratio
+        if self._input_limit[0] != ratio:  # (the ratio may change at run time)
+            self._input_limit = (ratio, math.sqrt(ratio) * reach)
+        return bool((np.abs(u - center) > self._input_limit[1]).any())
 
     def warm_state(self, model: IdentifiedModel, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """A model's predicted state after the buffered samples up to ``index``, from zero.
@@ -314,33 +319,36 @@ class InnovationWatch:
         diverged one.
         """
         buffer, max_gap = self._buffer, self.params.max_gap_samples
+        predictor, settle = self._predictor(model)
         open_loop_from = min([index + 1, *(i for i in self.diverged if i >= buffer.first)])
-        first = max(buffer.first, open_loop_from - self._settle_samples(model))
+        first = max(buffer.first, open_loop_from - settle)
         _, u, y, skipped = buffer.get(first, index + 1, predicted_glitches=True)
-        x, u_prev = np.zeros(model.n_states), None
+        # realization.advance_state and bridge_state, on the model's one predictor (its chunk powers made once).
+        predictor.x, u_prev = np.zeros(model.n_states), None
         lo = 0
         for k in sorted(i - first for i in self.diverged if first <= i <= index) + [u.shape[0]]:
             if k > lo:
-                x, u_prev = advance_state(model, x, u[lo:k], y[lo:k], skipped[lo:k], u_prev, max_gap=max_gap,
-                                          chunked=True)
+                u_prev = predictor.run_with_gaps(u[lo:k], y[lo:k], skipped[lo:k], u_prev, max_gap, chunked=True)
             if k < u.shape[0]:
                 if skipped[k]:
-                    x = bridge_state(model, x, u_prev, int(skipped[k]), max_gap)
-                x = bridge_state(model, x, u[k], 1, 1)  # the diverged sample predicted over, open loop
+                    predictor.bridge(u_prev, int(skipped[k]), max_gap)
+                predictor.bridge(u[k], 1, 1)  # the diverged sample predicted over, open loop
                 u_prev = u[k]
             lo = k + 1
+        x = predictor.x
         if not np.all(np.isfinite(x)):
             x = np.zeros(model.n_states)
         return x, u_prev
 
-    def _settle_samples(self, model: IdentifiedModel) -> int:
-        """:attr:`InnovationPredictor.settle_samples` of the model in use or the change test's (kept)."""
-        for known, samples in self._settle:
+    def _predictor(self, model: IdentifiedModel) -> tuple[InnovationPredictor, int]:
+        """The predictor of the model in use or the change test's and its ``settle_samples`` (kept)."""
+        for known, predictor, samples in self._settle:
             if known is model:
-                return samples
-        samples = InnovationPredictor(model).settle_samples
-        self._settle = [(model, samples), *self._settle[:1]]
-        return samples
+                return predictor, samples
+        predictor = InnovationPredictor(model)
+        samples = predictor.settle_samples
+        self._settle = [(model, predictor, samples), *self._settle[:1]]
+        return predictor, samples
 
     def _restart_from_buffer(self, active: ActiveModel, index: int) -> np.ndarray | None:
         """Restart the estimator after sustained divergence, warm-started over the buffer up to ``index``."""

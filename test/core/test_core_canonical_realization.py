@@ -8,7 +8,7 @@ from scipy import linalg, signal
 
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
 from okid_ros.core.canonical_realization import canonical_decomposition
-from okid_ros.core.output_covariance import RecordSums, output_correlations, record_correlations
+from okid_ros.core.output_covariance import RecordSums, _lag_sums, output_correlations, record_correlations
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.stochastic_realization import OrderRealizer
 from okid_ros.sim.models import modal_structure
@@ -103,6 +103,23 @@ def test_the_record_sums_less_a_span_equal_the_correlations_with_the_span_absent
     expected = record_correlations(y, 60, present=mask)
     np.testing.assert_allclose(RecordSums.of(y, 60, present).without(*span), expected, rtol=1e-10,
                                atol=1e-12 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("with_less", [False, True])
+def test_the_lag_sums_of_one_transform_per_channel_pair_are_the_direct_sums(with_less) -> None:
+    # Pairs i < j are read from the tail (negative lags) of the pair (j, i)'s inverse transform.
+    rng = np.random.default_rng(4)
+    y = rng.standard_normal((700, 4)) * [1.0, 3.0, 0.1, 20.0]
+    less = y.copy()
+    less[200:450] = 0.0
+    max_lag = 30
+    got = _lag_sums(y, max_lag, 1024, less=less if with_less else None)
+    for k in range(max_lag + 1):
+        expected = y[k:].T @ y[: y.shape[0] - k]
+        if with_less:
+            expected -= less[k:].T @ less[: less.shape[0] - k]
+        np.testing.assert_allclose(got[k], expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+    np.testing.assert_array_equal(got[0], got[0].T)  # exactly: the weights' Cholesky reads either triangle
 
 
 def _formed_realization(correlations: np.ndarray, block_rows: int, order: int, references: np.ndarray | None = None

@@ -542,6 +542,70 @@ def test_separate_twin_shapes_keeps_a_component_the_jackknife_resolves() -> None
             np.testing.assert_array_equal(modes[0].shape, before)
 
 
+@pytest.mark.parametrize(("index", "true_hz"), [(40, 84.010), (55, 191.326)])
+def test_the_stronger_of_a_close_pair_is_not_listed_with_its_partners_shape(index: int, true_hz: float) -> None:
+    """Twin chains of nearly equal strength: the stronger member took in the weaker's shape, the weaker kept its own.
+
+    Twin-chains 40 listed 83.85 Hz (true 84.01) with MAC 0.44 to its own true shape and 55 listed 191.40 Hz
+    with 0.19, each beside its partner (82.83, 188.31 Hz) at MAC 1.00 with its own; the jackknife resolves
+    the weaker's likeness to the stronger's (14, 391 stds) and not the stronger's to the weaker's (1.5, 0.8).
+    """
+    from okid_bench.physical_cases import physical_case
+    from okid_ros.core.modal import mac
+
+    case = physical_case(index)
+    modes = identify_output_only(case.simulate(index), case.sample_time_s).modes
+    truth = next(t for t in case.truth() if abs(t["frequency_hz"] - true_hz) < 0.01)
+    mode = min(modes, key=lambda m: abs(m.frequency_hz - true_hz))
+    assert abs(mode.frequency_hz / true_hz - 1) < 0.005
+    own = mac(mode.shape, truth["shape"])
+    assert own >= 0.9, f"{mode.frequency_hz:.3f} Hz: MAC {own:.3f} with its own true shape"
+
+
+def test_separate_twin_shapes_gives_the_stronger_member_its_part_where_only_the_weakers_likeness_is_resolved() -> None:
+    """The stronger's part along a weaker of resolved shape is taken out when its replicates scatter, kept when not."""
+    from types import SimpleNamespace
+
+    from okid_ros.core.modal import mac
+    from okid_ros.core.output_only_twins import separate_twin_shapes
+
+    rng = np.random.default_rng(1)
+    own, partner = np.array([1.0, 2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0, -1.0])
+
+    def unit(shape):
+        return np.asarray(shape, dtype=complex) / np.linalg.norm(shape)
+
+    def replicates(first, second, along):  # each replicate at its own scale and phase
+        rows = np.array([first + a * second for a in along], dtype=complex)
+        return rows * np.exp(1j * rng.uniform(0, 2 * np.pi, (len(rows), 1))) * rng.uniform(0.5, 2, (len(rows), 1))
+
+    steady, scattered = 0.01 * rng.standard_normal(8), 0.5 * rng.standard_normal(8)
+    for strong_along, separated in ((1.0 + scattered, True), (1.0 + steady, False)):
+        weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+        strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + own))
+        reps = {id(weak): replicates(own, partner, 0.3 + steady), id(strong): replicates(partner, own, strong_along)}
+        weak_before, strong_before = weak.shape.copy(), strong.shape.copy()
+        separate_twin_shapes([weak, strong], replicate_shapes=lambda mode, reps=reps: reps[id(mode)])
+        np.testing.assert_array_equal(weak.shape, weak_before)
+        if separated:
+            own_part = partner - np.vdot(weak_before, partner) * weak_before
+            assert mac(strong.shape, own_part) > 1 - 1e-12
+        else:
+            np.testing.assert_array_equal(strong.shape, strong_before)
+    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+    strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + own))
+    strong_before = strong.shape.copy()
+    separate_twin_shapes([weak, strong])  # no jackknife: no stronger member is separated
+    np.testing.assert_array_equal(strong.shape, strong_before)
+    # a stronger mostly of its own shape (MAC 0.35 with the weaker's, below STRONGER_TOOK_IN_MAC) keeps its part
+    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+    strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + 0.3 * own))
+    reps = {id(weak): replicates(own, partner, 0.3 + steady), id(strong): replicates(partner, own, 0.3 + scattered)}
+    strong_before = strong.shape.copy()
+    separate_twin_shapes([weak, strong], replicate_shapes=lambda mode, reps=reps: reps[id(mode)])
+    np.testing.assert_array_equal(strong.shape, strong_before)
+
+
 def test_two_modes_of_one_shape_holding_poles_side_by_side_are_a_close_pair() -> None:
     """Within the listed-twice band and of one shape, two modes with poles together from the first are two.
 
