@@ -430,8 +430,9 @@ def part_output_only(after_samples: int = 10_000) -> None:
           f"samples, armed at their end, calibrated over the next 1000, the change 3000 samples after the "
           f"arming; 'none' if not declared within {after_samples} samples after it")
     print()
-    print("| change | size | seed | declared after (samples) | change point error (samples) | noise changes |")
-    print("|---|---|---|---|---|---|")
+    print("| change | size | seed | declared after (samples) | change point error (samples) | noise changes | "
+          "excitation changes |")
+    print("|---|---|---|---|---|---|---|")
     start, change = WINDOW + ORDER, WINDOW + ORDER + 3000
     for kind, sizes in {**DELAY_SIZES, **FORCE_CHANGES}.items():
         for seed in _args.seeds:
@@ -445,7 +446,8 @@ def part_output_only(after_samples: int = 10_000) -> None:
                 alarm = monitor.process(no_inputs[start:], y[start:], start)
                 declared = "none" if alarm is None else str(alarm.alarm_index - change)
                 point = "-" if alarm is None else str(alarm.change_index - change)
-                print(f"| {kind} | {size:g} | {seed} | {declared} | {point} | {monitor.noise_changes} |")
+                print(f"| {kind} | {size:g} | {seed} | {declared} | {point} | {monitor.noise_changes} | "
+                      f"{getattr(monitor, 'excitation_changes', '-')} |")
                 sys.stdout.flush()
     print()
 

@@ -155,6 +155,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="declare an alarm without judging it as a change of the noise model (louder or quieter "
                         "excitation against the sensor noise): ~250 samples sooner, and such changes declared too "
                         "(node parameter change.noise_test)")
+    parser.add_argument("--no-mode-confirmation", dest="mode_confirmation", action="store_false",
+                        help="output-only: declare an alarm without waiting for the modes of the samples after it "
+                        "(40-100 periods of the slowest mode): sooner, and louder or recoloured ambient excitation "
+                        "declared too (node parameter change.mode_confirmation)")
     parser.add_argument("--false-alarm-samples", type=_samples, metavar="N",
                         default=NodeParameterDefault("change.false_alarm_samples"),
                         help="expected samples between false alarms of the change test on a stationary "
@@ -341,7 +345,7 @@ def _turned_off(args: argparse.Namespace) -> str:
     notes = []
     if args.regularization == "none" and args.penalty != "gcv":
         notes.append(f"--penalty {args.penalty:g} weighs a regularization: ignored with --regularization none")
-    given = {"--no-noise-test": not args.noise_test,
+    given = {"--no-noise-test": not args.noise_test, "--no-mode-confirmation": not args.mode_confirmation,
              "--false-alarm-samples": not isinstance(args.false_alarm_samples, NodeParameterDefault),
              "--restart-min-fill": not isinstance(args.restart_min_fill, NodeParameterDefault)}
     if not args.change_detection and any(given.values()):
@@ -431,7 +435,7 @@ def _record_watch(args: argparse.Namespace, record: "TrackedRecord", dt: float):
     defaults = ModalEstimationParams.from_parameters(resolve_parameters(ESTIMATOR_NODE))
     params = replace(defaults, sample_time_s=float(dt), n_inputs=record.u.shape[1], n_outputs=record.y.shape[1],
                      change_false_alarm_samples=float(args.false_alarm_samples), change_noise_test=args.noise_test,
-                     change_detection=bool(args.change_detection))
+                     change_mode_confirmation=args.mode_confirmation, change_detection=bool(args.change_detection))
     return RecordWatch(record, params, capacity=max(8192, 2 * (args.window + record.order)))
 
 

@@ -12,6 +12,7 @@ relative to the sensor noise), and one that such a change explains is not declar
 monitor re-arms with the reference's noise model refitted (and calibrates again). A glitch
 (:mod:`okid_ros.core.glitches`) is not tested: the predictor goes on from its prediction. The
 test: :mod:`okid_ros.core.change_detection`; the judgement of its alarms: :mod:`okid_ros.core.alarm_judgement`.
+An output-only reference's alarm none of them explains waits for its modes (:mod:`okid_ros.core.mode_confirmation`).
 
 No rclpy; numpy and scipy only.
 """
@@ -23,10 +24,10 @@ import dataclasses
 import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm, ChangeDetector, whitening_matrix
-from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
+from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, held_last, settled, without_glitches
+from okid_ros.core.mode_confirmation import ModeConfirmation
 from okid_ros.core.model_error_check import ModelErrorCheck
 from okid_ros.core.noise_change import NoiseChangeTest, NoiseVerdict, with_noise
-from okid_ros.core.output_spikes import most_spikes
 from okid_ros.core.output_step import output_step, step_response
 from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.state_jump import StateJump, StateJumpTest
@@ -57,11 +58,17 @@ class StructuralChangeMonitor:
     noise_change_test : (with the model-error check) judge each confirmed alarm that no state jump
         explains by a :class:`~okid_ros.core.noise_change.NoiseChangeTest` before declaring it;
         False: no such judgement.
+    mode_confirmation : a reference without inputs declares an alarm once the modes after it moved
+        (:mod:`~okid_ros.core.mode_confirmation`; else re-armed with theirs, ``excitation_changes``).
+    confirm_executor : runs the confirmations' identifications (``submit(fn) -> Future``; None: inline).
     detector_options : those of :class:`ChangeDetector`.
     """
 
     def __init__(self, n_outputs: int, *, model_error_check: bool = True, state_jump_test: bool = True,
-                 noise_change_test: bool = True, **detector_options) -> None:
+                 noise_change_test: bool = True, mode_confirmation: bool = True, confirm_executor=None,
+                 **detector_options) -> None:
+        self.mode_confirmation, self.confirm_executor = bool(mode_confirmation), confirm_executor
+        self.excitation_changes, self._confirm = 0, None  # alarms the modes explained (monitor's life); the modes' test
         self.detector = ChangeDetector(n_outputs, **detector_options)
         self._judgement = self.detector.judgement  # the detector's for its life: the tests attached to it here
         self.model_error_check = bool(model_error_check)
@@ -129,6 +136,37 @@ class StructuralChangeMonitor:
         self._judgement.noise_test = self._judge_noise if self.noise_change_test else None
         self._noise_excursion = -1
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
+        self._confirm = ModeConfirmation(model, self.reference_rows, executor=self.confirm_executor) if (
+            self.mode_confirmation and model.B.shape[1] == 0 and getattr(model, "modes", None)) else None
+
+    @property
+    def _holding(self) -> bool:
+        """Whether an alarm waits for its modes' verdict."""
+        return self._confirm is not None and self._confirm.alarm is not None
+
+    def _alarmed(self, alarm: ChangeAlarm, u: np.ndarray, y: np.ndarray, first_index: int) -> ChangeAlarm | None:
+        """An alarm to declare: held for its modes' verdict (the block's samples after it go to it), else declared."""
+        if self._confirm is None or not self._confirm.usable:
+            self.disarm()
+            return alarm
+        self._confirm.start(alarm, y, first_index)
+        k = alarm.alarm_index + 1 - first_index
+        return self._confirming(u[k:], y[k:], alarm.alarm_index + 1) if k < u.shape[0] else None
+
+    def _confirming(self, u: np.ndarray, y: np.ndarray, first_index: int) -> ChangeAlarm | None:
+        """Samples while an alarm waits for its modes' verdict: declared, or re-armed with the new modes' model."""
+        found = self._confirm.take(y, first_index)
+        if found is None:
+            return None
+        verdict, at = found
+        alarm = dataclasses.replace(self._confirm.alarm, alarm_index=at)
+        if verdict.structural:
+            self.disarm()
+            return alarm
+        self.excitation_changes += 1
+        self.arm(*self._confirm.new_reference(at), reference_rows=verdict.samples)
+        k = at + 1 - first_index
+        return self.process(u[k:], y[k:], at + 1) if k < u.shape[0] else None
 
     def _noise_test(self, whiten: np.ndarray) -> NoiseChangeTest:
         """The noise-change test, with the check's inputs and the ring holding the samples its verdict needs.
@@ -145,53 +183,6 @@ class StructuralChangeMonitor:
         if self._ring.capacity < needed:
             self._ring = SampleRing(check.n_outputs, needed)
         return test
-
-    def _without_glitches(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """The innovations ``e`` of a block (u (N, m), y (N, p)) run from state ``x0``, its glitches taken out.
-
-        A glitch's outputs are replaced by their prediction (its innovation 0) and the block run
-        again from ``x0``, the first one first (the later innovations depend on it); it stays
-        taken out when the next sample's innovation is then :func:`~okid_ros.core.glitches.settled`.
-        A block's last sample is not judged here (no next sample: :meth:`_hold_last`).
-
-        Returns
-        -------
-        e : (N, p) the innovations; y : (N, p) the outputs with the glitches' predictions in their place.
-        """
-        end_state, rejected = self.predictor.x.copy(), set()
-        for _ in range(most_spikes(e.shape[0])):  # more: heavy-tailed innovations, tested as they are
-            found = np.flatnonzero(glitch_candidates(e[:-1], self._innovation_std))
-            candidates = [k for k in found if k not in rejected]
-            if not candidates:
-                break
-            k = candidates[0]
-            trial = y.copy()
-            self.predictor.x = x0.copy()
-            self.predictor.advance(u[:k], y[:k])
-            trial[k] = self.predictor.predicted_output(u[k])  # its prediction in its place
-            self.predictor.x = x0.copy()
-            e_trial = self.predictor.run(u, trial)
-            if settled(e_trial[k + 1], self._innovation_std):
-                y, e, end_state = trial, e_trial, self.predictor.x.copy()
-                self.glitches += 1
-            else:
-                rejected.add(k)
-        self.predictor.x = end_state
-        return e, y
-
-    def _hold_last(self, u: np.ndarray, y: np.ndarray, e: np.ndarray, x0: np.ndarray, first_index: int) -> None:
-        """Hold a block's last sample, a glitch candidate, for the next sample's verdict, as :meth:`step` does.
-
-        ``u`` (N, m), ``y`` (N, p) the block run from ``x0``, its glitches' predictions in place;
-        ``e`` (N, p) its innovations. The predictor goes on from the last sample's prediction;
-        the next block's first sample (or :meth:`finish`) judges it. Tested as it came, an absurd
-        sample (1e200) overflowed the model-error check's squares or was declared a change.
-        """
-        as_came = self.predictor.x
-        self.predictor.x = x0.copy()
-        self.predictor.advance(u[:-1], y[:-1])
-        self.predictor.step(u[-1], self.predictor.predicted_output(u[-1]))  # its prediction in its place
-        self._pending = (e[-1], u[-1], first_index + e.shape[0] - 1, as_came)
 
     def _step_pending(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """The held sample's verdict, given the next one (u, y): its (whitened innovation, inputs, index) to test.
@@ -376,16 +367,22 @@ class StructuralChangeMonitor:
         """
         if not self.armed or len(u) == 0:
             return None
+        if self._confirm is not None:
+            if self._holding:
+                return self._confirming(u, y, first_index)
+            self._confirm.push(first_index, y)
+        whole = (u, y, first_index)
         if self._pending is not None:  # the last block's last sample, judged by this one's first
             alarm = self._test_one(*self._step_pending(u[0], y[0]), test=True)
-            if alarm is not None:
-                return alarm
+            if alarm is not None or self._holding:
+                return alarm or self._confirming(u, y, first_index)
         x0 = self.predictor.x.copy()
-        e, y_taken = self._without_glitches(u, y, self.predictor.run(u, y), x0)
+        e, y_taken, taken = without_glitches(self.predictor, self._innovation_std, u, y, self.predictor.run(u, y), x0)
+        self.glitches += taken
         block = (u, y_taken, first_index)  # as it came (u and first_index move below)
         end = first_index + e.shape[0]  # the predictor's state is that of sample `end`
         if test and self._hold < e.shape[0] and glitch_candidates(e[-1:], self._innovation_std)[0]:
-            self._hold_last(u, y_taken, e, x0, first_index)
+            self._pending = held_last(self.predictor, u, y_taken, e, x0, first_index)
             e, u = e[:-1], u[:-1]
         if not test:
             self._record(first_index, self._finite(e @ self.whiten.T))
@@ -405,8 +402,7 @@ class StructuralChangeMonitor:
                 self._judgement.check.push_inputs(first_index + lo, u[lo:hi])
             alarm = self.detector.process(z[lo:hi], first_index + lo)
             if alarm is not None:
-                self.disarm()
-                return alarm
+                return self._alarmed(alarm, *whole)
             self._calibrate_noise()
             if self._judgement.noise_at is not None:
                 if block is None:  # a jump corrected the state in this block: re-armed from its end
@@ -441,10 +437,14 @@ class StructuralChangeMonitor:
         """
         if not self.armed:
             return None
+        if self._confirm is not None:
+            if self._holding:
+                return self._confirming(u[None, :], y[None, :], index)
+            self._confirm.push_one(index, y)
         if self._pending is not None:
             alarm = self._test_one(*self._step_pending(u, y), test=True)
-            if alarm is not None:
-                return alarm
+            if alarm is not None or self._holding:
+                return alarm or self._confirming(u[None, :], y[None, :], index)
         before = self.predictor.x  # step() binds a new state: no copy
         e = self.predictor.step(u, y)
         if self._hold:
@@ -475,8 +475,7 @@ class StructuralChangeMonitor:
             self._judgement.check.push_sample(index, u=u)
         alarm = self.detector.push(z, index)
         if alarm is not None:
-            self.disarm()
-            return alarm
+            return self._alarmed(alarm, u[:0, None], u[:0, None], index)
         self._calibrate_noise()
         self._take_jump(index + 1)
         self._take_noise()

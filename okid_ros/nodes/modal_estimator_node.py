@@ -111,9 +111,13 @@ class ModalEstimatorNode(OkidNode):
         """Service, publishers, worker, timers, inputs (at the start, or on configure)."""
         values = self.values
         params = ModalEstimationParams.from_parameters(values)
+        # The change test's confirmations by the modes (output-only references): off the sample path.
+        self._confirm_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="confirm",
+                                                initializer=name_thread, initargs=("okid_confirm",))
         try:
-            self.service = ModalEstimationService(params)
+            self.service = ModalEstimationService(params, confirm_executor=self._confirm_pool)
         except ValueError as exc:
+            self._confirm_pool.shutdown(wait=False)  # (no thread started: none was submitted)
             raise ParameterError(str(exc)) from None
         self.types = ros_message_types()
         overrides = QoSOverridingOptions.with_default_policies()
@@ -339,6 +343,9 @@ class ModalEstimatorNode(OkidNode):
         return [make_status(f"{self.status_name}: estimation", level, message, d)]
 
     def close(self) -> None:
+        confirm = getattr(self, "_confirm_pool", None)
+        if confirm is not None:
+            confirm.shutdown(wait=False, cancel_futures=True)
         pool = getattr(self, "_pool", None)  # None: never configured (lifecycle)
         if pool is None:
             return

@@ -103,10 +103,12 @@ class ModalEstimationService:
     Parameters
     ----------
     params : :class:`ModalEstimationParams`.
+    confirm_executor : runs the change test's confirmations by the modes (:class:`InnovationWatch`; None: inline).
     """
 
-    def __init__(self, params: ModalEstimationParams) -> None:
+    def __init__(self, params: ModalEstimationParams, *, confirm_executor=None) -> None:
         self._params = params
+        self._confirm_executor = confirm_executor
         params.realization_options()  # raises ValueError with the reason on a bad option
         # The one lock: the waiting request, the job in flight, the delivered outcome and the
         # options, which the realization's thread and the sample path share; held by step() and
@@ -129,7 +131,8 @@ class ModalEstimationService:
             self._refused = 0  # samples refused since the last one stepped: a gap before the next
             self._inputs = InputGlitchGate(self.params.n_inputs)
             self._selection = ModelSelection(self.params, self._stats)
-            self._watch = InnovationWatch(self.params, self._buffer, self._stats)
+            self._watch = InnovationWatch(self.params, self._buffer, self._stats,
+                                          confirm_executor=self._confirm_executor)
             self._jump = SwitchJump(self._stats)
             self._held_update: ModelUpdate | None = None  # outputs of withheld samples, passed on
             self._held_change: StructuralChangeEvent | None = None

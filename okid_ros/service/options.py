@@ -244,6 +244,7 @@ class ModalEstimationParams:
     change_variance_ratio: float = _est("change_variance_ratio")
     change_reference_samples: int = _est("change_reference_samples")
     change_noise_test: bool = _est("change_noise_test")
+    change_mode_confirmation: bool = _est("change_mode_confirmation")
     divergence_window_samples: int = _est("divergence_window_samples")
     divergence_nis_ratio: float = _est("divergence_nis_ratio")
 

@@ -38,8 +38,8 @@ _STATS_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "dive
                  "estimator_restarts", "gaps_bridged")
 #: Node 2's counts of its model switch (service/model_switch.py), in the same place.
 _SWITCH_COUNTS = ("models_accepted", "models_rejected", "forced_accepts", "windows_refused_for_change", "modes_retired")
-_WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_unconfirmed",
-                 "output_level_steps")
+_WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_excitation",
+                 "change_alarms_unconfirmed", "output_level_steps")
 
 
 class RecordWatch:

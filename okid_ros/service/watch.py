@@ -68,9 +68,13 @@ class InnovationWatch:
     params : the service's options (read at each call: :meth:`configure` takes new ones).
     buffer : the service's sample buffer (stamps of change points, restarts from it).
     stats : the service's counters (divergence and change counts are kept there).
+    confirm_executor : runs the change test's confirmations of an output-only reference's alarms by their
+        modes (:mod:`okid_ros.core.mode_confirmation`; ``submit(fn) -> Future``): node 2's worker thread,
+        so its sample path only polls; None: inline, at the sample that completes them (``track``, ``process``).
     """
 
-    def __init__(self, params: ModalEstimationParams, buffer: SampleBuffer, stats: EstimationStats) -> None:
+    def __init__(self, params: ModalEstimationParams, buffer: SampleBuffer, stats: EstimationStats, *,
+                 confirm_executor=None) -> None:
         p = params.n_outputs
         self.params = params
         self._buffer = buffer
@@ -80,7 +84,8 @@ class InnovationWatch:
         self.monitor = StructuralChangeMonitor(
             p, false_alarm_samples=params.change_false_alarm_samples,
             variance_ratio=params.change_variance_ratio, reference_samples=params.change_reference_samples,
-            noise_change_test=params.change_noise_test,
+            noise_change_test=params.change_noise_test, mode_confirmation=params.change_mode_confirmation,
+            confirm_executor=confirm_executor,
         )
         self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
         self.changes = 0
@@ -365,6 +370,8 @@ class InnovationWatch:
             "change_alarms_unconfirmed": int(self.monitor.unconfirmed_alarms),
             "change_alarms_state_jump": int(self.monitor.state_jumps),
             "change_alarms_noise": int(self.monitor.noise_changes),  # excitation changed (core/noise_change.py)
+            # An output-only reference's alarm its modes called a change of the excitation (core/mode_confirmation.py).
+            "change_alarms_excitation": int(self.monitor.excitation_changes),
             "change_glitches": int(self.monitor.glitches),  # samples the test took for glitches
             "change_waiting_for_model": self.change is not None,
             "output_level_steps": self.level_steps_taken,  # sensor re-zeros taken off the samples (core/output_step.py)

@@ -23,7 +23,8 @@ N, GLITCH_AT, Q, WINDOW, EVERY = 6000, 3004, 20, 800, 250
 NODE_1 = {"arx.order": Q, "arx.window_length": WINDOW}
 #: The counts of node 2's watch that every line of `track` carries (its diagnostics' names).
 WATCH_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "divergences_beyond_window",
-                "change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_unconfirmed")
+                "change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_excitation",
+                "change_alarms_unconfirmed")
 
 
 def _quiet_record(output_only: bool):
