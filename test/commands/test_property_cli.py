@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _hypothesis_profiles import SLOW
-from hypothesis import given
+from hypothesis import event, given
 from hypothesis import strategies as st
 
 from okid_ros import cli
@@ -68,7 +68,9 @@ def _run_on_record(tmp_path_factory, capsys, arrays: dict, command: str, out_nam
     _assert_one_line_messages(err, command)
     if status == 2:
         assert not out.exists() and err.count("error:") == 1 and str(record) in err
+        event(f"{command}: refused")  # --hypothesis-show-statistics: how often each path ran
         return None
+    event(f"{command}: a model")
     return out
 
 
