@@ -221,10 +221,13 @@ class ModeConfirmation:
     def _judge(self, y: np.ndarray) -> ModeVerdict:
         """The modes of outputs ``y`` against the reference's."""
         method = self.reference.method if self.reference.method in OUTPUT_ONLY_METHODS else OUTPUT_ONLY_METHODS[0]
+        undecided = ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
         try:
             model = identify_output_only(y, self.reference.sample_time_s, method=method)
-        except IdentificationError:
-            return ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
+        except (IdentificationError, ValueError, np.linalg.LinAlgError):  # as a realization fails (service/realization)
+            return undecided  # (raised on node 2's thread, it would have come out of the sample path's poll)
+        if model.stability_problem():  # never the change test's reference (as node 2 refuses such a model)
+            return undecided
         verdict = compare_modes(self.reference.modes, model.modes)
         return dataclasses.replace(verdict, samples=y.shape[0], model=model)
 

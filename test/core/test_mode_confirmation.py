@@ -136,7 +136,10 @@ def _staged(monkeypatch, modes_by_samples):
     The identification of ``y`` gives ``modes_by_samples[len(y)]``.
     """
     def identify(y, sample_time_s, *, method):
-        return SimpleNamespace(modes=modes_by_samples[y.shape[0]])
+        found = modes_by_samples[y.shape[0]]
+        if isinstance(found, Exception):
+            raise found
+        return SimpleNamespace(modes=found, stability_problem=lambda: "")
     monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only", identify)
     reference = SimpleNamespace(modes=[_mode(5.0, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva")
     confirmation = ModeConfirmation(reference)
@@ -163,3 +166,21 @@ def test_unmoved_modes_on_the_last_stage_are_the_excitation(monkeypatch):
     confirmation = _staged(monkeypatch, {800: [_mode(5.0, 0.02)], 2000: [_mode(5.01, 0.02)]})
     verdict, at = confirmation.take(np.zeros((2000, 2)), 300)
     assert verdict.structural is False and verdict.samples == 2000 and at == 2099
+
+
+@pytest.mark.parametrize("failure", [ValueError("array must not contain infs or NaNs"),
+                                     np.linalg.LinAlgError("SVD did not converge")])
+def test_an_identification_that_fails_as_a_realization_may_is_undecided_and_declared_at_the_last_stage(
+        monkeypatch, failure):
+    confirmation = _staged(monkeypatch, {800: failure, 2000: failure})
+    verdict, at = confirmation.take(np.zeros((2000, 2)), 300)
+    assert verdict.structural is True and verdict.model is None and at == 2099
+
+
+def test_an_unstable_model_after_the_alarm_is_never_the_new_reference(monkeypatch):
+    confirmation = _staged(monkeypatch, {800: [_mode(5.0, 0.02)], 2000: [_mode(5.01, 0.02)]})
+    unstable = SimpleNamespace(modes=[_mode(5.01, 0.02)], stability_problem=lambda: "A unstable: rho(A) = 1.02")
+    monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only",
+                        lambda y, sample_time_s, *, method: unstable)
+    verdict, _ = confirmation.take(np.zeros((2000, 2)), 300)
+    assert verdict.structural is True and verdict.model is None  # undecided at the last stage: declared
