@@ -106,9 +106,11 @@ class StructuralChangeMonitor:
 
     @property
     def state(self) -> str:
-        """'disarmed', 'calibrating' or 'monitoring'."""
+        """'disarmed', 'calibrating', 'monitoring' or 'confirming' (an alarm waits for its modes' verdict)."""
         if not self.armed:
             return "disarmed"
+        if self.holding:
+            return "confirming"
         return "monitoring" if self.detector.calibrated else "calibrating"
 
     def arm(self, model, state: np.ndarray | None = None, *, reference_rows: int = 0) -> None:
@@ -140,8 +142,8 @@ class StructuralChangeMonitor:
             self.mode_confirmation and model.B.shape[1] == 0 and getattr(model, "modes", None)) else None
 
     @property
-    def _holding(self) -> bool:
-        """Whether an alarm waits for its modes' verdict."""
+    def holding(self) -> bool:
+        """Whether an alarm waits for its modes' verdict (:mod:`~okid_ros.core.mode_confirmation`)."""
         return self._confirm is not None and self._confirm.alarm is not None
 
     def _alarmed(self, alarm: ChangeAlarm, u: np.ndarray, y: np.ndarray, first_index: int) -> ChangeAlarm | None:
@@ -368,13 +370,13 @@ class StructuralChangeMonitor:
         if not self.armed or len(u) == 0:
             return None
         if self._confirm is not None:
-            if self._holding:
+            if self.holding:
                 return self._confirming(u, y, first_index)
             self._confirm.push(first_index, y)
         whole = (u, y, first_index)
         if self._pending is not None:  # the last block's last sample, judged by this one's first
             alarm = self._test_one(*self._step_pending(u[0], y[0]), test=True)
-            if alarm is not None or self._holding:
+            if alarm is not None or self.holding:
                 return alarm or self._confirming(u, y, first_index)
         x0 = self.predictor.x.copy()
         e, y_taken, taken = without_glitches(self.predictor, self._innovation_std, u, y, self.predictor.run(u, y), x0)
@@ -438,12 +440,12 @@ class StructuralChangeMonitor:
         if not self.armed:
             return None
         if self._confirm is not None:
-            if self._holding:
+            if self.holding:
                 return self._confirming(u[None, :], y[None, :], index)
             self._confirm.push_one(index, y)
         if self._pending is not None:
             alarm = self._test_one(*self._step_pending(u, y), test=True)
-            if alarm is not None or self._holding:
+            if alarm is not None or self.holding:
                 return alarm or self._confirming(u[None, :], y[None, :], index)
         before = self.predictor.x  # step() binds a new state: no copy
         e = self.predictor.step(u, y)

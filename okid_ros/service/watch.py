@@ -55,9 +55,12 @@ def is_new_reference(monitor: StructuralChangeMonitor, rows: int) -> bool:
     """Whether a model from a window of ``rows`` regressor rows becomes the change test's reference.
 
     The first model (of a structure: the monitor is disarmed after a change), then models of
-    windows at least twice as long as the reference's. (Node 2, and ``okid-ros track``.)
+    windows at least twice as long as the reference's, except while an alarm waits for its modes'
+    verdict (an output-only reference's, :mod:`okid_ros.core.mode_confirmation`): that alarm is judged
+    against the reference it was raised by, and a model of a window reaching past its change point
+    must not make a structural change vanish. (Node 2, and ``okid-ros track``.)
     """
-    return not monitor.armed or rows >= 2 * monitor.reference_rows
+    return not monitor.armed or (rows >= 2 * monitor.reference_rows and not monitor.holding)
 
 
 class InnovationWatch:
