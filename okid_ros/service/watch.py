@@ -92,7 +92,7 @@ class InnovationWatch:
         )
         self.change: StructuralChangeEvent | None = None  # declared, waiting for its new model
         self.changes = 0
-        self.diverged: list[int] = []  # buffer indices of diverged samples since the last restart
+        self.diverged: list[int] = []  # buffer indices of diverged samples since the last restart or new model
         self.restart_failed = False  # no good sample since the last divergence restart or jump
         self._innovations = SampleRing(p, _JUMP_RING_SAMPLES)
         self._jump_test: tuple[int, StateJumpTest] | None = None  # (model id, its test)
@@ -294,6 +294,9 @@ class InnovationWatch:
             self._input_range = (center, np.max(np.abs(window_inputs - center), axis=0))
         self.divergence.restart()
         self._innovations.clear()
+        # The samples the last model diverged on: the new one was warm-started over them, and a restart of it
+        # predicting over them (warm_state) would lose them and run from further back on the sample path.
+        self.diverged.clear()
         if self.params.change_detection and is_new_reference(self.monitor, rows):
             self.monitor.arm(model, state, reference_rows=rows)
 

@@ -5,7 +5,7 @@ unmeasured) loses 20 % of a stiffness at CHANGE; the change test's reference is 
 the outputs before WINDOW (core/mode_confirmation.py holds its alarm until the modes after the
 change point are identified). What node 2 and ``track`` do meanwhile goes through
 :class:`~okid_ros.service.watch.InnovationWatch`: a model of a longer window accepted then, its
-diagnostics, its divergence record.
+diagnostics, its divergence record at a new model.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from okid_bench.changes import change_case
+from okid_ros.core.change_detection import whitening_matrix
+from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.statespace import InnovationPredictor
 from okid_ros.service.options import ModalEstimationParams
@@ -79,3 +81,28 @@ def test_a_longer_window_accepted_while_an_alarm_is_held_keeps_the_hold_to_its_v
     assert watch.monitor.excitation_changes == 0 and watch.monitor.state == "disarmed"
     # After the change the next model is the first of the new structure: it arms the test.
     assert is_new_reference(watch.monitor, WINDOW)
+
+
+def test_a_new_models_restart_predicts_over_its_own_diverged_samples_only(stiffness_loss):
+    # The samples the last model diverged on stayed listed after a new model was accepted: a restart of
+    # the new model (its warm start over the buffer) ran open loop over them, though it was warm-started
+    # over them when accepted, and ran from further back (up to the whole buffer) on the sample path.
+    y, dt, (reference, state) = stiffness_loss
+    p, no_inputs = y.shape[1], np.zeros(0)
+    buffer = SampleBuffer(2 * WINDOW, 0, p)
+    watch = InnovationWatch(ModalEstimationParams(dt, 0, p, change_detection=False), buffer, EstimationStats())
+    watch.new_model(reference, state, WINDOW)
+    active = ActiveModel(reference, ModalStateEstimator.from_model(reference), 1, reference.modes,
+                         len(reference.modes), whitening_matrix(reference.innovation_covariance), WINDOW)
+    diverged_at = WINDOW - 40  # the old model's last diverged sample, shortly before the new model came
+    for k in range(WINDOW):
+        index = buffer.append(k * dt, no_inputs, y[k], 0)
+        innovation = np.full(p, np.nan) if k == diverged_at else np.zeros(p)  # a non-finite innovation: diverged
+        assert watch.observe(active, k * dt, index, no_inputs, y[k], innovation)[0] == (k == diverged_at)
+    new, new_state = _identified(y[:WINDOW], dt)
+    watch.new_model(new, new_state, WINDOW)
+    x, _ = watch.warm_state(new, index)  # what a restart of the new model at this sample starts from
+    predictor = InnovationPredictor(new)
+    first = index + 1 - predictor.settle_samples
+    predictor.run(np.zeros((index + 1 - first, 0)), y[first:index + 1])
+    np.testing.assert_allclose(x, predictor.x, rtol=1e-9, atol=1e-12 * np.abs(predictor.x).max())
