@@ -11,7 +11,8 @@ model's predictor, diverged samples predicted over: a spike).
 
 Structural change: every sample also goes to a
 :class:`okid_ros.core.change_detection.StructuralChangeMonitor` armed with a reference model
-(the first model of a structure, then models of windows twice as long). An alarm, or a
+(the first model of a structure, then models of windows twice as long; not while an output-only
+reference's alarm waits for its modes' verdict). An alarm, or a
 divergence that comes back right after a restart or a jump's correction, declares a
 :class:`~okid_ros.service.results.StructuralChangeEvent`, which waits (:attr:`InnovationWatch.change`)
 until a model of post-change data is accepted. A divergence that comes back after the model in use was
