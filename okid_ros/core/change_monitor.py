@@ -109,9 +109,7 @@ class StructuralChangeMonitor:
         """'disarmed', 'calibrating', 'monitoring' or 'confirming' (an alarm waits for its modes' verdict)."""
         if not self.armed:
             return "disarmed"
-        if self.holding:
-            return "confirming"
-        return "monitoring" if self.detector.calibrated else "calibrating"
+        return "confirming" if self.holding else "monitoring" if self.detector.calibrated else "calibrating"
 
     def arm(self, model, state: np.ndarray | None = None, *, reference_rows: int = 0) -> None:
         """Take ``model`` as the reference (its predicted state for the next sample: ``state``).
