@@ -18,7 +18,7 @@ import numpy as np
 
 from okid_ros.core.column_names import repeated_column_names
 from okid_ros.core.record_stamps import stamp_jump_problem
-from okid_ros.errors import DataError, OkidWarning, shown_path
+from okid_ros.errors import DataError, OkidWarning, os_reason, shown_path
 from okid_ros.record_keys import check_csv_extras, comment_hint, decimals_written
 
 __all__ = ["read_csv_record"]
@@ -61,7 +61,7 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray, 
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({exc})") from None
+        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({os_reason(exc)})") from None
     dt, settings = None, {}
     body, commented = [], []  # commented: (data rows before it, its text) of comment lines among the rows
     for line in lines:

@@ -302,6 +302,15 @@ def test_binary_csv_and_yaml_are_one_line(tmp_path: Path, capsys: pytest.Capture
     assert err.count("\n") == 1 and str(yaml_path) in err and "not UTF-8" in err
 
 
+@pytest.mark.parametrize("text", ["", "# nothing set yet\n\n"])
+def test_an_empty_parameter_file_is_named_empty(tmp_path: Path, capsys, text: str) -> None:
+    """Was ``has no node sections (expected a mapping ..., got NoneType)``."""
+    params = tmp_path / "empty.yaml"
+    params.write_text(text)
+    code, _, err = run_cli(capsys, "process", tmp_path / "no_bag", "--params", params, "--out", tmp_path / "out")
+    assert_one_line_error(code, err, f"parameter file {params} has no node sections", "got an empty file)")
+
+
 def test_record_without_inputs_loads_with_zero_input_channels(tmp_path: Path) -> None:
     _, y = _good_arrays()
     np.savez(tmp_path / "y_only.npz", y=y, sample_time_s=0.01)
