@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from okid_ros.core.record_stamps import MAX_STAMP_SLIP
 from okid_ros.errors import DataError, OkidWarning, shown_path
 
 __all__ = ["NPZ_KEYS", "check_npz_keys", "missing_key_hint", "check_csv_extras", "comment_hint", "decimals_written"]
@@ -40,6 +41,9 @@ _RATE_NAMES = {"fs", "fshz", "samplerate", "sampleratehz", "samplingrate", "samp
 _TIME_NAMES = {"dt", "dts", "ts", "sampletime", "sampletimes", "samplingtime", "samplingtimes", "sampleperiod",
                "sampleperiods", "samplingperiod", "samplingperiods", "timestep", "timesteps", "t", "time", "times",
                "timestamp", "timestamps", "stamps", "stamp", "tvec", "timevector"}
+#: A measured time vector's mean step may differ from the sample time by this share (100 ppm: a logger
+#: clock's drift; the frequencies it shifts by as much are far inside any mode's uncertainty).
+CLOCK_TOLERANCE = 1e-4
 #: Where a CSV record's sample time is read from.
 _CSV_TIME = "the sample_time_s comment (or the time_s column)"
 _CHANNELS = {"u": ("inputs", r"u|inputs?|u_?[0-9]+|inputs?_?[0-9]+"),
@@ -92,14 +96,18 @@ def _implied_sample_time(key: str, value: object, n_samples: int) -> tuple[float
 
 
 def _agrees(key: str, value: object, implied: float, sample_time_s: float, n_samples: int) -> bool:
-    """Whether the sample time a key gives is ``sample_time_s`` to the digits the key is written with."""
+    """Whether the sample time a key gives is ``sample_time_s``: to the digits a number is written with.
+
+    Times may be measured ones (a logger's clock): they agree when their span is the grid's within
+    :data:`~okid_ros.core.record_stamps.MAX_STAMP_SLIP` sample times (jitter at either end) or
+    :data:`CLOCK_TOLERANCE` of it (a clock's drift), whichever is more.
+    """
     arr = np.asarray(value, dtype=float).reshape(-1)
     if arr.size == 1:
         written = _rounding(float(arr[0]))
         slack = written / float(arr[0]) ** 2 if _plain_name(key) in _RATE_NAMES else written
-    else:  # times written to a few decimals: their mean step is that rounding over the record
-        decimals = decimals_written(arr)
-        slack = 0.5 * 10.0**-decimals / (n_samples - 1) if decimals < 12 else 0.0
+    else:
+        slack = max(MAX_STAMP_SLIP / (n_samples - 1), CLOCK_TOLERANCE) * sample_time_s
     return abs(implied - sample_time_s) <= max(1e-6 * sample_time_s, slack)
 
 

@@ -60,7 +60,8 @@ def test_a_sample_time_under_another_key_that_contradicts_sample_time_s_is_refus
 
 def test_keys_that_agree_with_sample_time_s_are_read_in_silence_and_others_are_named(tmp_path: Path, capsys) -> None:
     y = _arrays()[1]
-    agreeing = _npz(tmp_path / "agreeing.npz", fs=100, dt=0.01, Ts=np.float32(0.01), t=5.0 + DT * np.arange(N))
+    jitter = np.random.default_rng(5).uniform(-0.3, 0.3, N) * DT  # times a logger's clock stamped
+    agreeing = _npz(tmp_path / "agreeing.npz", fs=100, dt=0.01, Ts=np.float32(0.01), t=5.0 + DT * np.arange(N) + jitter)
     code, _, err = run_cli(capsys, "identify", agreeing, "--json", tmp_path / "a.json", "--order", "4")
     assert code == 0 and "agreeing.npz" not in err, err
     notes = np.array({"a": 1}, dtype=object)  # pickled: never opened
