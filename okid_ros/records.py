@@ -125,9 +125,10 @@ def transposed_problem(y: np.ndarray) -> str:
     n, p = np.shape(y)
     if n >= p:
         return ""
-    return (f"y holds {n} samples of {p} channels: fewer samples than channels, an array stored transposed? A "
-            f"record's arrays are (samples, channels): store y.T; read as it is stored, {n} samples are too few "
-            f"to identify {p} channels from")
+    samples = f"{n} sample{'s' if n != 1 else ''}"
+    return (f"y holds {samples} of {p} channels: fewer samples than channels, an array stored transposed? A "
+            f"record's arrays are (samples, channels): store y.T; read as it is stored, {samples} "
+            f"{'are' if n != 1 else 'is'} too few to identify {p} channels from")
 
 
 def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

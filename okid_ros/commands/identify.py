@@ -444,6 +444,9 @@ def _load_reference(path: str, n_outputs: int) -> list:
             text = stream.read(MAX_REFERENCE_BYTES + 1)
         if len(text) > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
+        if not text.strip():  # json said "Expecting value: line 1 column 1 (char 0)"
+            raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output (the "
+                                 f"file is empty)")
         document = json.loads(text)
     except (OSError, *NOT_JSON) as exc:
         raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output "

@@ -606,3 +606,18 @@ def test_a_line_break_in_a_file_name_keeps_the_error_on_one_line(tmp_path: Path,
     assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"error: {str(path)!r}: 2 samples of 2 outputs" in err, err
+
+
+def test_a_record_of_one_sample_and_an_empty_reference_are_said_plainly(tmp_path: Path, capsys) -> None:
+    """Were ``y holds 1 samples ... 1 samples are too few`` and ``(Expecting value: line 1 column 1 (char 0))``."""
+    u, y = _good_arrays()
+    record = tmp_path / "one.npz"
+    np.savez(record, u=u[:1], y=y[:1], sample_time_s=0.01)
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", tmp_path / "m.jsonl")
+    assert_one_line_error(code, err, "one.npz: y holds 1 sample of 2 channels", "1 sample is too few to identify 2")
+    np.savez(record, u=u, y=y, sample_time_s=0.01)
+    (tmp_path / "empty.json").write_text("")
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference",
+                           tmp_path / "empty.json")
+    assert_one_line_error(code, err, "empty.json: not an `okid-ros identify --json` output (the file is empty)")
+    assert not (tmp_path / "m.json").exists()
