@@ -108,3 +108,12 @@ def test_a_bag_that_cannot_be_created_is_named_once_with_the_reason(tmp_path: Pa
     code, _, err = run_cli(capsys, "simulate", "--out", "/proc/x\tbag", "--duration", "1")
     assert_one_line_error(code, err, "'/proc/x\\tbag': cannot create the bag (No such file or directory)")
     assert err.count("x\\tbag") == 1
+
+
+def test_a_remap_given_twice_shows_its_topics_quoted() -> None:
+    from okid_ros.tools.errors import ToolParameterError
+    from okid_ros.tools.replay import parse_remaps
+
+    with pytest.raises(ToolParameterError) as refused:
+        parse_remaps(["/a\tb:=/x", "/a\tb:=/y\x1b"])
+    assert str(refused.value) == "--remap '/a\\tb' is given twice, to /x and to '/y\\x1b': a topic is published on one"
