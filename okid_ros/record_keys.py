@@ -46,11 +46,13 @@ _TIME_NAMES = {"dt", "dts", "ts", "sampletime", "sampletimes", "samplingtime", "
 CLOCK_TOLERANCE = 1e-4
 #: Where a CSV record's sample time is read from.
 _CSV_TIME = "the sample_time_s comment (or the time_s column)"
+#: What each channel array holds, and the keys (any case) that look like it under another name.
 _CHANNELS = {"u": ("inputs", r"u|inputs?|u_?[0-9]+|inputs?_?[0-9]+"),
              "y": ("outputs", r"y|outputs?|y_?[0-9]+|outputs?_?[0-9]+")}
 
 
 def _plain_name(key: str) -> str:
+    """``key`` in lower case, letters and digits only: ``Sample_Rate_Hz`` and ``sample rate (Hz)`` alike."""
     return re.sub(r"[^a-z0-9]", "", key.lower())
 
 
@@ -131,8 +133,7 @@ def check_npz_keys(path: Path, files: Sequence[str], member: Callable[[str], np.
 
     ``member(key)``: the array stored under ``key`` (opened only for keys named like a rate or time).
     """
-    dt = sample_time_s
-    for channel, (kind, pattern) in _CHANNELS.items():
+    for channel, (_, pattern) in _CHANNELS.items():
         if channel not in files and (alike := [k for k in files if re.fullmatch(pattern, k, re.IGNORECASE)]):
             outputs_only = f" (for a record of outputs only, leave {', '.join(alike)} out)" if channel == "u" else ""
             raise DataError(f"{shown_path(path)}: no key {channel}, but {', '.join(alike)}: "
@@ -143,8 +144,8 @@ def check_npz_keys(path: Path, files: Sequence[str], member: Callable[[str], np.
         found = None if value is None else _implied_sample_time(key, value, n_samples)
         if found is None:
             unread.append(key)
-        elif not _agrees(key, value, found[0], dt, n_samples):
-            raise _contradiction(path, key, found, dt)
+        elif not _agrees(key, value, found[0], sample_time_s, n_samples):
+            raise _contradiction(path, key, found, sample_time_s)
     if unread:
         warnings.warn(f"{shown_path(path)}: not read: {_listed(unread, files)}; an .npz record is read from "
                       f"{', '.join(NPZ_KEYS)} alone", OkidWarning, stacklevel=3)
@@ -161,6 +162,7 @@ def _opened(member: Callable[[str], np.ndarray], key: str) -> np.ndarray | None:
 
 
 def _store_as(channel: str, alike: Sequence[str]) -> str:
+    """What to store where ``channel`` is missing and the keys ``alike`` seem to hold it."""
     kind = _CHANNELS[channel][0]
     if len(alike) > 1:
         return (f"{channel} is read alone, as one array (samples, {kind}): store them as {channel}, "
