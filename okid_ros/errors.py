@@ -132,6 +132,14 @@ def one_line(text: object) -> str:
     return collapsed if collapsed.isprintable() else "".join(_escaped(char) for char in collapsed)
 
 
+def os_reason(exc: BaseException) -> str:
+    """What went wrong, without the path an OSError's text repeats (``[Errno 30] ...: 'out/x'``), on one line.
+
+    The message names the path itself, through :func:`shown_path`; another exception is its text.
+    """
+    return (exc.strerror if isinstance(exc, OSError) and exc.strerror else None) or one_line(exc)
+
+
 def shown_path(path: str | bytes | os.PathLike) -> str:
     """``path`` or a topic name as a message shows it: as given, or its repr when it holds an unprintable character.
 

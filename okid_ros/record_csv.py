@@ -18,7 +18,8 @@ import numpy as np
 
 from okid_ros.core.column_names import repeated_column_names
 from okid_ros.core.record_stamps import stamp_jump_problem
-from okid_ros.errors import DataError, OkidWarning, shown_path
+from okid_ros.errors import DataError, OkidWarning, os_reason, shown_path
+from okid_ros.record_keys import check_csv_extras, comment_hint, decimals_written
 
 __all__ = ["read_csv_record"]
 
@@ -50,17 +51,18 @@ def _csv_sample_time(path: Path, comment: str) -> float:
         raise DataError(f"{shown_path(path)}: bad sample_time_s comment {comment!r}") from None
 
 
-def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
-    """The sample time of the comment (or None), the header and the (N, columns) values.
+def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray, dict[int, list[str]], dict[str, str]]:
+    """The sample time of the comment (or None), the header, the (N, columns) values and what is not read.
 
     ``wanted(header)``: the indices of the columns read as numbers; the others are ignored
-    (a text column of labels does not stop the record), their values NaN.
+    (a text column of labels does not stop the record), their values NaN, their texts returned by
+    index; last, the other ``# name=value`` comments' values by name.
     """
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({exc})") from None
-    dt = None
+        raise DataError(f"{shown_path(path)}: cannot read as UTF-8 text ({os_reason(exc)})") from None
+    dt, settings = None, {}
     body, commented = [], []  # commented: (data rows before it, its text) of comment lines among the rows
     for line in lines:
         stripped = line.strip()
@@ -73,6 +75,8 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
                     raise DataError(f"{shown_path(path)}: two different sample_time_s comments "
                                     f"({dt:g} and {given:g} s)")
                 dt = given
+            elif "=" in stripped or ":" in stripped:
+                settings.setdefault(*_comment_setting(stripped))
         elif stripped:
             body.append(line)
     if not body:
@@ -101,7 +105,9 @@ def _csv_rows(path: Path, wanted) -> tuple[float | None, list[str], np.ndarray]:
         if loose is not None:
             raise DataError(f"{shown_path(path)}: data row {loose}, column {header[column]!r}: "
                             f"{texts[loose - 1].strip()!r} is not a plain decimal number")
-    return dt, header, values
+    ignored = {column: [row[column] for row in rows[1:]] for column in range(len(header))
+               if column not in wanted(header)}
+    return dt, header, values, ignored, settings
 
 
 def _warn_commented_rows(path: Path, commented: list[tuple[int, str]], columns: int, n_rows: int) -> None:
@@ -159,7 +165,7 @@ def _csv_columns(header: list[str]) -> tuple[list[int], list[int], list[int]]:
 
 def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     """The inputs ``u`` (N, m), outputs ``y`` (N, p) and sample time of a .csv record, or DataError."""
-    dt, header, values = _csv_rows(path, lambda header: sorted(sum(_csv_columns(header), [])))
+    dt, header, values, ignored, settings = _csv_rows(path, lambda header: sorted(sum(_csv_columns(header), [])))
     u_cols, y_cols, _ = _csv_columns(header)
     if not y_cols:
         raise DataError(f"{shown_path(path)}: header needs output columns 'y...' (inputs 'u...' optional), "
@@ -171,7 +177,8 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
         warnings.warn(f"{shown_path(path)}: columns read as channels by their first letter: {', '.join(worded)}; "
                       f"rename or remove those that are not channels", OkidWarning, stacklevel=3)
     if dt is None and "time_s" not in header:
-        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column{_time_hint(header)}")
+        hint = _time_hint(header) or comment_hint(settings)
+        raise DataError(f"{shown_path(path)}: no '# sample_time_s=...' line and no time_s column{hint}")
     if "time_s" in header:
         times = values[:, header.index("time_s")]
         step, rounding, irregular = _uniform_step(times)
@@ -186,6 +193,7 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     if "stamp_s" in header and (jump := stamp_jump_problem(values[:, header.index("stamp_s")], dt,
                                                            n_samples=values.shape[0], rows=True)):
         raise DataError(f"{shown_path(path)}: {jump}")
+    check_csv_extras(path, header, ignored, settings, dt)
     return values[:, u_cols], values[:, y_cols], dt
 
 
@@ -211,19 +219,10 @@ def _uniform_step(times: np.ndarray) -> tuple[float, float, str]:
         return 0.0, 0.0, ("fewer than two times" if steps.size == 0 else
                           "NaN/Inf in it" if bad is None else f"data row {bad + 2} is not after row {bad + 1}")
     step = float((times[-1] - times[0]) / steps.size)
-    rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -_decimals(times))
+    rounding = max(4 * np.finfo(float).eps * np.max(np.abs(times)), 0.5 * 10.0 ** -decimals_written(times))
     off = np.abs(times - (times[0] + step * np.arange(times.size)))
     if np.max(off) <= max(1e-6 * step, 2 * rounding):
         return step, rounding, ""
     row = int(np.argmax(np.abs(steps - step) > max(1e-6 * step, 2 * rounding)))
     return step, rounding, (f"data row {row + 2} follows row {row + 1} by {steps[row]:g} s, the column's mean "
                             f"step is {step:g} s")
-
-
-def _decimals(times: np.ndarray) -> int:
-    """The fewest decimals (0-9) every value of ``times`` is written with (to float64's rounding), else 12."""
-    for decimals in range(10):
-        scaled = times * 10.0**decimals
-        if np.all(np.abs(scaled - np.round(scaled)) <= 1e-6):
-            return decimals
-    return 12

@@ -5,12 +5,17 @@
     ``y`` are read as a single channel. Without ``u`` (or with an empty one) the record has no inputs
     (``u`` (N, 0), for output-only identification). Arrays must be real numbers (bool, integer or float);
     pickled objects are never loaded. Stamps ``stamp_s`` (N,), as `export` writes them, may come too.
+    Other keys are not read (:mod:`okid_ros.record_keys`): one named like a sample rate (``fs``),
+    a sample time (``dt``) or the samples' times (``t``, ``time_s``) must agree with ``sample_time_s``;
+    the inputs or outputs under another spelling (``U``, ``inputs``, ``y1``) where ``u`` or ``y`` is
+    missing are refused, saying what to store; any other key is named in one warning.
 
 .csv
     A header line naming the columns, then one row per sample. Columns whose names start with
     ``u`` (``u1``, ``u_2``) are inputs, those starting with ``y`` are outputs, in the order they
     appear (no ``u`` column: a record without inputs; a name such as ``uptime_s`` is a channel
-    too, with a warning); other columns are ignored (text too), and a name read (a channel,
+    too, with a warning); other columns are ignored (text too; named in one warning, and one named
+    like the time, ``t``, must agree with the sample time, as a ``# fs=`` comment must), and a name read (a channel,
     ``time_s``, ``stamp_s``) given twice is refused. The sample time comes from a
     comment line ``# sample_time_s=0.008`` (or ``: 0.008``; two that differ are refused, and so
     is one that a ``time_s`` column contradicts) or, failing that, from a ``time_s`` column. A
@@ -28,6 +33,7 @@ The .csv reader is :mod:`okid_ros.record_csv`; the checks of a whole record, :me
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +46,7 @@ from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.core.regressors import real_array
 from okid_ros.errors import DataError, OkidWarning, one_line, shown_path, special_file_kind, write_atomically
 from okid_ros.record_csv import read_csv_record
+from okid_ros.record_keys import check_npz_keys, missing_key_hint
 
 __all__ = ["Record", "load_record", "require_inputs", "save_record", "transposed_problem"]
 
@@ -118,9 +125,10 @@ def transposed_problem(y: np.ndarray) -> str:
     n, p = np.shape(y)
     if n >= p:
         return ""
-    return (f"y holds {n} samples of {p} channels: fewer samples than channels, an array stored transposed? A "
-            f"record's arrays are (samples, channels): store y.T; read as it is stored, {n} samples are too few "
-            f"to identify {p} channels from")
+    samples = f"{n} sample{'s' if n != 1 else ''}"
+    return (f"y holds {samples} of {p} channels: fewer samples than channels, an array stored transposed? A "
+            f"record's arrays are (samples, channels): store y.T; read as it is stored, {samples} "
+            f"{'are' if n != 1 else 'is'} too few to identify {p} channels from")
 
 
 def present_runs(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -289,7 +297,8 @@ def _member(data, key: str, path: Path) -> np.ndarray:
             raise
         raise DataError(f"{shown_path(path)}: not a readable .npz file ({key} is stored as Python objects: an object "
                         f"array, as np.savez makes of a list of channels of unequal lengths or of a dict; pickled "
-                        f"objects are never loaded): store {key} as one numeric array {_MEMBER_FORMS[key]}") from None
+                        f"objects are never loaded): store {key} as one numeric array "
+                        f"{_MEMBER_FORMS.get(key, '')}".rstrip()) from None
 
 
 def _load_npz(path: Path) -> Record:
@@ -301,15 +310,23 @@ def _load_npz(path: Path) -> Record:
             raise DataError(f"{shown_path(path)}: a single array, not an .npz archive with y and sample_time_s")
         with data:
             missing = [k for k in ("y", "sample_time_s") if k not in data.files]
+            member = functools.partial(_member, data, path=path)
             if missing:
+                n_samples = np.shape(member("y"))[0] if "y" in data.files and np.ndim(member("y")) else 0
+                hint = missing_key_hint(data.files, member, missing, n_samples)
                 raise DataError(f"{shown_path(path)}: missing key(s) {', '.join(missing)} "
-                                f"(has {', '.join(data.files) or 'none'})")
+                                f"(has {', '.join(data.files) or 'none'}){': ' + hint if hint else ''}")
             y = _member(data, "y", path)
             u = _member(data, "u", path) if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
             sample_time_s = _member(data, "sample_time_s", path)
             if "stamp_s" in data.files and (jump := stamp_jump_problem(
                     _member(data, "stamp_s", path), sample_time_s, n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
                 raise DataError(f"{shown_path(path)}: {jump}")
+            arr = np.asarray(sample_time_s)
+            if arr.size == 1 and arr.dtype.kind in "iuf" and sample_time_problem(float(arr.reshape(()))) is None:
+                # (a sample time that is no such number is refused as it is, by Record.validate)
+                check_npz_keys(path, data.files, member, n_samples=np.shape(y)[0] if np.ndim(y) else 0,
+                               sample_time_s=float(arr.reshape(())))
             return Record(u, y, sample_time_s)
     except DataError:
         raise

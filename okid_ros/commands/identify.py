@@ -429,7 +429,7 @@ def _load_reference(path: str, n_outputs: int) -> list:
     import json
     import os
 
-    from okid_ros.errors import ParameterError, special_file_kind
+    from okid_ros.errors import ParameterError, os_reason, special_file_kind
     from okid_ros.jsonio import NOT_JSON
     from okid_ros.tools.validation_plots import reference_modes
 
@@ -444,10 +444,13 @@ def _load_reference(path: str, n_outputs: int) -> list:
             text = stream.read(MAX_REFERENCE_BYTES + 1)
         if len(text) > MAX_REFERENCE_BYTES:
             raise ParameterError(too_large)
+        if not text.strip():  # json said "Expecting value: line 1 column 1 (char 0)"
+            raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output (the "
+                                 f"file is empty)")
         document = json.loads(text)
     except (OSError, *NOT_JSON) as exc:
         raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output "
-                             f"({exc})") from None
+                             f"({os_reason(exc)})") from None
     if not isinstance(document, dict) or "modes" not in document:
         raise ParameterError(f"--reference {shown_path(path)}: not an `okid-ros identify --json` output (no 'modes')")
     return reference_modes(document["modes"], f"--reference {shown_path(path)}", n_outputs)

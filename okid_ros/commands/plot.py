@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_paths(bag_path, "bag", [(out_dir, "figure folder")])
     data = read_plot_data(bag_path, window_s=args.window, namespace=args.namespace)
     info = data.process_info or {}
-    input_bag, est_values, note = _read_input_bag(args, data, out_dir)
+    with _about_the_input_option(args.input):
+        input_bag, est_values, note = _read_input_bag(args, data, out_dir)
     if info.get("interrupted"):
         note += "; the run that wrote the bag was interrupted: its models and modal states end early"
     from okid_ros.tools.plots import FIGURES, refuse_existing
@@ -97,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
         if input_bag is not None:
             from okid_ros.tools.bag_record import record_from_bag
 
-            from_bag = record_from_bag(input_bag, est_values)
+            with _about_the_input_option(args.input):
+                from_bag = record_from_bag(input_bag, est_values)
             u, y = from_bag.record.u, from_bag.record.y
             if u.shape[1]:  # output-only: no inputs, no FRF drawn
                 note += f"; FRF from {from_bag.summary()}"
@@ -118,6 +120,25 @@ def run(args: argparse.Namespace) -> int:
     for path in written:
         print(f"  {shown_path(path)}")
     return 0
+
+
+@contextlib.contextmanager
+def _about_the_input_option(given: str | None):
+    """A bag given as ``--input`` that cannot be read: refused as that option, not prefixed with the plotted bag.
+
+    The CLI names the file a command reads (OUT) in a data error that does not: ``OUT: INPUT: not a
+    readable rosbag2 ...`` read as if OUT were at fault.
+    """
+    from okid_ros.errors import DataError
+    from okid_ros.tools.errors import ToolParameterError
+
+    try:
+        yield
+    except DataError as exc:
+        if given is None:  # the source `process` recorded: about OUT's run, named with it
+            raise
+        text = str(exc)
+        raise ToolParameterError(text if text.startswith("--input ") else f"--input {text}") from None
 
 
 def _read_input_bag(args: argparse.Namespace, data: Any, out_dir: Path) -> tuple[str | None, dict | None, str]:

@@ -366,7 +366,8 @@ def read_parameter_file(path: str | Path) -> Mapping:
         raise ParameterError(f"parameter file {shown_path(path)}: not a regular file ({kind})")
     repeated: list[str] = []
     try:
-        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {path}", repeated=repeated)
+        tree = load_yaml_as_rcl(path.read_text(encoding="utf-8"), f"parameter file {shown_path(path)}",
+                                repeated=repeated)
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {shown_path(path)}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
@@ -375,9 +376,10 @@ def read_parameter_file(path: str | Path) -> Mapping:
     except yaml.YAMLError as exc:
         raise ParameterError(f"parameter file {shown_path(path)} is not valid YAML: "
                              f"{' '.join(str(exc).split())}") from None
-    if not isinstance(tree, Mapping):
+    if not isinstance(tree, Mapping):  # None: nothing but blanks and comments (a zero-byte file, "got NoneType")
+        got = "an empty file" if tree is None else type(tree).__name__
         raise ParameterError(f"parameter file {shown_path(path)} has no node sections (expected a mapping "
-                             f"'NODE: {{ros__parameters: {{...}}}}', got {type(tree).__name__})")
+                             f"'NODE: {{ros__parameters: {{...}}}}', got {got})")
     try:
         list(_walk(tree))  # a name given twice, dotted and nested, is refused here, before any use
     except ParameterError as exc:

@@ -38,7 +38,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from okid_ros.errors import OkidWarning, one_line, shown_path, special_file_kind
+from okid_ros.errors import OkidWarning, one_line, os_reason, shown_path, special_file_kind
 from okid_ros.tools import mcap_salvage
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.interrupts import deferred
@@ -429,7 +429,7 @@ class BagWriter:
         try:
             self._writer.open()
         except Exception as exc:
-            raise BagWriteError(f"{shown_path(self.path)}: cannot create the bag ({one_line(exc)})") from None
+            raise BagWriteError(f"{shown_path(self.path)}: cannot create the bag ({os_reason(exc)})") from None
         self._open = True
         return self
 

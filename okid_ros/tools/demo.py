@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TextIO
 
-from okid_ros.errors import OkidError
+from okid_ros.errors import OkidError, shown_path
 from okid_ros.jsonio import dumps
 from okid_ros.service.param_files import files_for_nodes
 from okid_ros.tools.demo_options import (
@@ -168,11 +168,11 @@ def _new_run_dir(out_dir: Path) -> Path:
     """A new ``OUT_DIR/YYYYmmdd-HHMMSS``, with ``OUT_DIR/latest`` pointing to it."""
     run_dir = out_dir / time.strftime("%Y%m%d-%H%M%S")
     if run_dir.exists():
-        raise OkidError(f"{run_dir} exists already; wait a second and run again")
+        raise OkidError(f"{shown_path(run_dir)} exists already; wait a second and run again")
     try:  # OUT_DIR a file, or not writable: one line, as for every output (was an internal error)
         prepare_output(run_dir, force=False, kind="run folder").mkdir()
     except OSError as exc:
-        raise OkidError(f"{run_dir}: cannot create the run folder ({exc.strerror})") from None
+        raise OkidError(f"{shown_path(run_dir)}: cannot create the run folder ({exc.strerror})") from None
     latest = out_dir / "latest"
     if latest.is_symlink() or not latest.exists():
         latest.unlink(missing_ok=True)
@@ -261,8 +261,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
     simulate = simulate_ambient if options.output_only else simulate_experiment
     experiment = simulate(options.duration_s, seed=options.seed)  # before the run folder: none left on a refusal
     run = _DemoRun(Path(out_dir), options, stream or sys.stdout)
-    run.say(f"okid-ros demo: run folder {run.run_dir} (ROS_DOMAIN_ID={run.domain_id}; watch from another shell "
-            f"with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
+    run.say(f"okid-ros demo: run folder {shown_path(run.run_dir)} (ROS_DOMAIN_ID={run.domain_id}; watch from another "
+            f"shell with ROS_DOMAIN_ID={run.domain_id} okid-ros monitor)")
     try:
         experiment_bag, truth = _write_experiment(run, experiment)
         nodes = _start_nodes(run)
@@ -271,7 +271,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, stream: TextIO | None = None, 
         figures = _draw_figures(run, live_bag, experiment_bag)
         rows = _compare_with_truth(run, live_bag, truth)
         wall = time.monotonic() - started
-        run.say(f"okid-ros demo: done in {wall:.0f} s; outputs in {run.run_dir}")
+        run.say(f"okid-ros demo: done in {wall:.0f} s; outputs in {shown_path(run.run_dir)}")
         return DemoResult(run.run_dir, counts["models"], counts["states"], rows, figures, wall)
     finally:
         run.close()
@@ -297,7 +297,7 @@ def _write_experiment(run: _DemoRun, experiment: Experiment) -> tuple[Path, dict
     truth_text = ", ".join(f"{m['frequency_hz']:.3f} Hz {100 * m['damping_ratio']:.2f} %"
                            for m in experiment.truth["modes"])
     run.say(f"[1/5] simulated {experiment.n_samples * experiment.sample_time_s:g} s of {what} "
-            f"-> {experiment_bag} (true modes: {truth_text})")
+            f"-> {shown_path(experiment_bag)} (true modes: {truth_text})")
     return experiment_bag, experiment.truth
 
 
@@ -308,7 +308,7 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
 
     up_args = [arg for path in run.param_files for arg in ("--params", str(path))]
     nodes = run.start(["up", *up_args], "nodes.log")
-    run.say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {run.run_dir / 'nodes.log'})")
+    run.say(f"[2/5] started both nodes: okid-ros up {' '.join(up_args)} (log: {shown_path(run.run_dir / 'nodes.log')})")
     run.context = ros_context()
     run.node = rclpy.create_node("okid_demo", context=run.context)
     run.executor = SingleThreadedExecutor(context=run.context)
@@ -318,10 +318,11 @@ def _start_nodes(run: _DemoRun) -> subprocess.Popen:
     while not (all(run.node.count_subscribers(t) >= NODE_SUBSCRIPTIONS for t in input_topics)
                and all(run.node.count_publishers(t) >= 1 for t in OUTPUT_TOPICS)):
         if nodes.poll() is not None:
-            raise OkidError(f"the nodes exited with status {nodes.returncode}; see {run.run_dir / 'nodes.log'}")
+            raise OkidError(f"the nodes exited with status {nodes.returncode}; "
+                            f"see {shown_path(run.run_dir / 'nodes.log')}")
         if time.monotonic() > deadline:
             raise OkidError(f"the nodes did not come up within {run.options.startup_timeout_s:g} s; "
-                            f"see {run.run_dir / 'nodes.log'}")
+                            f"see {shown_path(run.run_dir / 'nodes.log')}")
         run.executor.spin_once(timeout_sec=0.2)
     return nodes
 
@@ -376,7 +377,7 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
                             "--subscribers", str(NODE_SUBSCRIPTIONS),
                             "--delay", "0.5", "--topics", *input_topics], "replay.log")
         run.say(f"[3/5] replaying {', '.join(input_topics)} live at rate {rate:g} "
-                f"({run.options.duration_s / rate:.0f} s); recording the nodes' outputs -> {live_bag}")
+                f"({run.options.duration_s / rate:.0f} s); recording the nodes' outputs -> {shown_path(live_bag)}")
         if monitor.ansi:
             run.say("")
         while replay.poll() is None:
@@ -384,9 +385,10 @@ def _replay_and_record(run: _DemoRun, nodes: subprocess.Popen, experiment_bag: P
             monitor.maybe_draw()
             if nodes.poll() is not None:
                 raise OkidError(f"the nodes exited with status {nodes.returncode} during the replay; "
-                                f"see {run.run_dir / 'nodes.log'}")
+                                f"see {shown_path(run.run_dir / 'nodes.log')}")
         if replay.returncode != 0:
-            raise OkidError(f"the replay failed with status {replay.returncode}; see {run.run_dir / 'replay.log'}")
+            raise OkidError(f"the replay failed with status {replay.returncode}; "
+                            f"see {shown_path(run.run_dir / 'replay.log')}")
         if not _wait_for_last_model(run, nodes, node_2):
             run.say(_unsettled_note(counts["valid_arx_models"], run.options.duration_s))
         settle = time.monotonic() + 5.0  # let the last outputs arrive: until 1 s without a model or modal states
@@ -431,7 +433,8 @@ def _draw_figures(run: _DemoRun, live_bag: Path, experiment_bag: Path) -> list:
     data = read_plot_data(live_bag, window_s=5.0)
     add_measured_outputs(data, experiment_bag, load_node_parameters(run.param_files)[1])
     figures = write_figures(data, run.run_dir / "figures")
-    run.say(f"[4/5] {len(figures)} figures -> {run.run_dir / 'figures'}: {', '.join(p.name for p in figures)}")
+    run.say(f"[4/5] {len(figures)} figures -> {shown_path(run.run_dir / 'figures')}: "
+            f"{', '.join(shown_path(p.name) for p in figures)}")
     run.last_model_id = data.state_space["model_id"] if data.state_space else "?"
     return figures
 

@@ -123,10 +123,10 @@ def read_unclosed(path: Path, open_reader: Callable[[list[Path]], Any]) -> tuple
             write_closed_copy(file, cuts[file].whole_bytes, readable[-1])
     reader = open_reader(readable)
     if not cut_files:
-        names = ", ".join(file.name for file in files)
-        return reader, (f"{path}: metadata.yaml missing or unreadable (a recording that was not closed?): "
+        names = ", ".join(shown_path(file.name) for file in files)
+        return reader, (f"{shown_path(path)}: metadata.yaml missing or unreadable (a recording that was not closed?): "
                         f"read its MCAP file{'s' if len(files) > 1 else ''} {names} alone"), None
-    names, were = ", ".join(file.name for file in cut_files), "were" if len(cut_files) > 1 else "was"
+    names, were = ", ".join(shown_path(file.name) for file in cut_files), "were" if len(cut_files) > 1 else "was"
     if reader is None or not reader.message_count:
         if reader is not None:
             reader.close()
@@ -135,9 +135,9 @@ def read_unclosed(path: Path, open_reader: Callable[[list[Path]], Any]) -> tuple
                            f"closed) and no message before the cut could be read")
     read = f"read the {reader.message_count} messages, {(reader.end_time - reader.start_time) * 1e-9:.1f} s"
     if all(cuts[file].data_complete for file in cut_files):
-        note = f"{path}: the MCAP file {names} {were} cut off in its index: {read}, every message whole"
+        note = f"{shown_path(path)}: the MCAP file {names} {were} cut off in its index: {read}, every message whole"
         return reader, note, scratch
     whole = sum(cuts[file].whole_bytes for file in cut_files) / sum(file.stat().st_size for file in cut_files)
-    return reader, (f"{path}: the MCAP file {names} {were} cut off (a recording that was not closed): {read}, "
-                    f"of the whole records ({whole:.0%} of the cut file{'s' if len(cut_files) > 1 else ''}); "
+    return reader, (f"{shown_path(path)}: the MCAP file {names} {were} cut off (a recording that was not closed): "
+                    f"{read}, of the whole records ({whole:.0%} of the cut file{'s' if len(cut_files) > 1 else ''}); "
                     f"the rest is lost"), scratch

@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from okid_ros.errors import OkidWarning, ParameterError
+from okid_ros.errors import OkidWarning, ParameterError, shown_path
 
 __all__ = ["load_node_parameters"]
 
@@ -61,7 +61,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     if sources:
         layered.append(("inputs.sources", list(sources)))
         given["inputs.sources"] = "--source"
-    trees = [(str(path), read_parameter_file(path)) for path in param_files]
+    trees = [(shown_path(path), read_parameter_file(path)) for path in param_files]  # labels of messages
     problems = [p for label, tree in trees for p in file_report(tree, label, names, namespace)]
     if problems and strict:
         raise ParameterError("; ".join(problems))

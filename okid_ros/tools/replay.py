@@ -80,8 +80,8 @@ def parse_remaps(items: Sequence[str]) -> dict[str, str]:
         if not sep or not source or not target:
             raise ToolParameterError(f"--remap {item!r} must be FROM:=TO, e.g. /okid/io_sample:=/rig/io")
         if remaps.get(source, target) != target:  # the later one was taken in silence
-            raise ToolParameterError(f"--remap {source} is given twice, to {remaps[source]} and to {target}: a topic "
-                                     f"is published on one")
+            raise ToolParameterError(f"--remap {shown_path(source)} is given twice, to {shown_path(remaps[source])} "
+                                     f"and to {shown_path(target)}: a topic is published on one")
         remaps[source] = target
     return remaps
 

@@ -195,7 +195,8 @@ def test_a_column_name_given_twice_is_refused_unless_the_column_is_ignored(tmp_p
         with pytest.raises(DataError, match=re.escape(f"{path}: the header names 2 columns {says} ")):
             load_record(path)
     path.write_text("# sample_time_s=0.01\nnote,u1,y1,note\na,1,2,b\nc,3,4,d\ne,5,7,f\n")
-    assert load_record(path).y.shape == (3, 1)
+    with pytest.warns(OkidWarning, match=re.escape("column(s) not read: 'note';")):
+        assert load_record(path).y.shape == (3, 1)
 
 
 def test_column_names_alike_but_for_their_case_are_refused_as_given_twice(tmp_path: Path) -> None:
@@ -249,12 +250,14 @@ def test_csv_with_epoch_stamps_and_a_text_column_loads(tmp_path: Path) -> None:
     rows = [f"{t!r},{a!r},{b!r},{c!r},run{k % 3}"
             for k, (t, a, b, c) in enumerate(zip(times.tolist(), u[:, 0].tolist(), *y.T.tolist()))]
     path.write_text("time_s,u1,y1,y2,label\n" + "\n".join(rows) + "\n")
-    record = load_record(path)
+    with pytest.warns(OkidWarning, match="column\\(s\\) not read: 'label'"):
+        record = load_record(path)
     assert abs(record.sample_time_s - 0.01) < 1e-9
     np.testing.assert_array_equal(record.u[:, 0], u[:, 0])
     np.testing.assert_array_equal(record.y, y)
     path.write_text("time_s,u1,y1,y2,label\n" + "\n".join(rows).replace(",run1", ",") + "\n")
-    assert load_record(path).y.shape == (N, 2)  # an empty cell of an ignored column too
+    with pytest.warns(OkidWarning, match="not read: 'label'"):
+        assert load_record(path).y.shape == (N, 2)  # an empty cell of an ignored column too
 
 
 def test_a_value_beyond_float64_is_a_missing_sample_to_identify_and_track(tmp_path: Path,
@@ -297,6 +300,15 @@ def test_binary_csv_and_yaml_are_one_line(tmp_path: Path, capsys: pytest.Capture
                      "--params", str(yaml_path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(yaml_path) in err and "not UTF-8" in err
+
+
+@pytest.mark.parametrize("text", ["", "# nothing set yet\n\n"])
+def test_an_empty_parameter_file_is_named_empty(tmp_path: Path, capsys, text: str) -> None:
+    """Was ``has no node sections (expected a mapping ..., got NoneType)``."""
+    params = tmp_path / "empty.yaml"
+    params.write_text(text)
+    code, _, err = run_cli(capsys, "process", tmp_path / "no_bag", "--params", params, "--out", tmp_path / "out")
+    assert_one_line_error(code, err, f"parameter file {params} has no node sections", "got an empty file)")
 
 
 def test_record_without_inputs_loads_with_zero_input_channels(tmp_path: Path) -> None:
@@ -594,3 +606,18 @@ def test_a_line_break_in_a_file_name_keeps_the_error_on_one_line(tmp_path: Path,
     assert cli.main(["identify", str(path), "--json", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"error: {str(path)!r}: 2 samples of 2 outputs" in err, err
+
+
+def test_a_record_of_one_sample_and_an_empty_reference_are_said_plainly(tmp_path: Path, capsys) -> None:
+    """Were ``y holds 1 samples ... 1 samples are too few`` and ``(Expecting value: line 1 column 1 (char 0))``."""
+    u, y = _good_arrays()
+    record = tmp_path / "one.npz"
+    np.savez(record, u=u[:1], y=y[:1], sample_time_s=0.01)
+    code, _, err = run_cli(capsys, "track", record, "--jsonl", tmp_path / "m.jsonl")
+    assert_one_line_error(code, err, "one.npz: y holds 1 sample of 2 channels", "1 sample is too few to identify 2")
+    np.savez(record, u=u, y=y, sample_time_s=0.01)
+    (tmp_path / "empty.json").write_text("")
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json", "--reference",
+                           tmp_path / "empty.json")
+    assert_one_line_error(code, err, "empty.json: not an `okid-ros identify --json` output (the file is empty)")
+    assert not (tmp_path / "m.json").exists()

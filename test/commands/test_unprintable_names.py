@@ -79,3 +79,41 @@ def test_a_name_that_is_no_utf8_is_shown_on_a_strict_utf8_stdout(tmp_path: Path)
                            "--order", "4"], capture_output=True, env=env, timeout=120)
     assert done.returncode == 0, done.stderr.decode(errors="replace")
     assert f"record: {repr(str(path))}\n".encode() in done.stdout, done.stdout
+
+
+def test_a_parameter_file_named_with_a_tab_is_shown_quoted_in_its_errors_and_warnings(tmp_path: Path, capsys) -> None:
+    """Was the name raw, its tab a blank in the one-line message: ``bad p.yaml: parameter arx.order ...``."""
+    bad = tmp_path / "bad\tp.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    arx.order: ten\n")
+    code, _, err = run_cli(capsys, "process", tmp_path / "no_bag", "--params", bad, "--out", tmp_path / "out")
+    assert_one_line_error(code, err, f"{repr(str(bad))}: parameter arx.order must be a number, got 'ten'")
+    unknown = tmp_path / "unknown\x1bp.yaml"
+    unknown.write_text("/**:\n  ros__parameters:\n    arx.ordr: 10\n")
+    code, _, err = run_cli(capsys, "process", tmp_path / "no_bag", "--params", unknown, "--out", tmp_path / "out")
+    assert f"warning: {repr(str(unknown))}: section '/**': unknown parameter(s) arx.ordr" in err, err
+    assert code == 2 and "\x1b" not in err
+
+
+def test_a_bag_named_with_a_tab_whose_metadata_is_missing_is_shown_quoted(tmp_path: Path, capsys) -> None:
+    """The warning of an MCAP read without its metadata.yaml showed the bag's name raw."""
+    bag = write_bag_without_inputs(tmp_path / "no\tmeta")
+    (bag / "metadata.yaml").unlink()
+    code, _, err = run_cli(capsys, "export", bag, "--npz", tmp_path / "r.npz")
+    assert f"warning: {repr(str(bag))}: metadata.yaml missing or unreadable" in err, err
+    assert code == 2 and "\t" not in err
+
+
+def test_a_bag_that_cannot_be_created_is_named_once_with_the_reason(tmp_path: Path, capsys) -> None:
+    """Was the path twice: ``cannot create the bag ([Errno 2] No such file or directory: '/proc/x<TAB>bag')``."""
+    code, _, err = run_cli(capsys, "simulate", "--out", "/proc/x\tbag", "--duration", "1")
+    assert_one_line_error(code, err, "'/proc/x\\tbag': cannot create the bag (No such file or directory)")
+    assert err.count("x\\tbag") == 1
+
+
+def test_a_remap_given_twice_shows_its_topics_quoted() -> None:
+    from okid_ros.tools.errors import ToolParameterError
+    from okid_ros.tools.replay import parse_remaps
+
+    with pytest.raises(ToolParameterError) as refused:
+        parse_remaps(["/a\tb:=/x", "/a\tb:=/y\x1b"])
+    assert str(refused.value) == "--remap '/a\\tb' is given twice, to /x and to '/y\\x1b': a topic is published on one"

@@ -99,6 +99,16 @@ def test_plot_refuses_a_figure_folder_inside_its_input_bag(run, tmp_path, capsys
     assert not (bag / "figures").exists()
 
 
+@pytest.mark.parametrize("spoilt", ["empty.mcap", "empty_folder"])
+def test_an_unreadable_input_bag_is_refused_as_the_option(run, tmp_path, capsys, spoilt):
+    """Was ``OUT: INPUT: not a readable rosbag2 ...``: prefixed with the plotted bag, as if it were at fault."""
+    bag = tmp_path / spoilt
+    bag.mkdir() if spoilt == "empty_folder" else bag.write_bytes(b"")
+    code, _, err = run_cli(capsys, "plot", run["out"], "--input", bag, "--out-dir", tmp_path / "figures")
+    assert_one_line_error(code, err, f"plot: error: --input {bag}: not a readable rosbag2 or ROS 1 bag")
+    assert str(run["out"]) not in err and not (tmp_path / "figures").exists()
+
+
 def test_a_folder_batch_may_not_enter_is_left_out_with_a_warning(run, tmp_path, monkeypatch):
     tree = tmp_path / "tree"
     shutil.copytree(run["bag"], tree / "ok")
