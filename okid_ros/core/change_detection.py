@@ -65,6 +65,15 @@ alarm within 20000 samples where 0.1 was expected at ``false_alarm_samples`` 1e7
 1000 samples). The threshold allows
 for the under-estimate that 90 % of calibrations stay below (:func:`calibration_scale`).
 
+A structural change within the calibration would become its baseline and never be declared.
+The calibration is therefore first tested against the reference's own ``Re`` by this CUSUM
+(:meth:`ChangeDetector.calibration_split`): when its power rose within it, beyond what the samples
+before the rise make of chance (their correlation factor and the threshold of their number), only
+the samples before the rise calibrate and the test runs from the rise on. A change within the first
+``min_calibration_samples`` (200 by default) has no such baseline before it and stays undeclared:
+its calibration cannot be told from a reference whose out-of-sample innovations are larger than its
+``Re`` says (models of short windows: up to 1.9 times).
+
 An alarm is declared only if no more mundane cause explains it: its judgement (a model error
 in the residuals, else a jump of the state or a change of the noise model) is
 :mod:`okid_ros.core.alarm_judgement`'s (:class:`~okid_ros.core.alarm_judgement.AlarmJudgement`,
@@ -187,7 +196,8 @@ class ChangeDetector:
     threshold : the CUSUM threshold in use [nats]: ``correlation_factor`` times
         ``base_threshold`` once calibrated.
     base_threshold : h of independent chi-square increments for ``false_alarm_samples``, allowing
-        for the calibration's under-estimate of the covariance (``scale``).
+        for the calibration's under-estimate of the covariance (``scale``; a split calibration's
+        for its own samples).
     correlation_factor : r >= 1 measured on the calibration samples (1 before).
     scale : :func:`calibration_scale` of ``reference_samples`` calibration samples.
     whitening_order : lags of the whitening AR chosen at the calibration (0: none).
@@ -195,6 +205,9 @@ class ChangeDetector:
         it is declared (its ``check``, ``jump_test`` and ``noise_test`` the caller attaches, their
         verdicts and counts); the detector feeds the check the tested residuals.
     calibrated_at : the last calibration sample (-1 before the calibration).
+    calibration_samples : the samples the calibration took (0 before it; fewer than ``reference_samples``
+        when :meth:`calibration_split` found the structure changed within it).
+    calibrations_split : calibrations cut short at a rise of their power, over the detector's life.
     """
 
     def __init__(self, n_outputs: int, *, false_alarm_samples: float = DEFAULT_FALSE_ALARM_SAMPLES,
@@ -219,8 +232,10 @@ class ChangeDetector:
         self.calibration_confidence = calibration_confidence
         self.whitening_max_order = min(int(whitening_max_order), int(
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
+        self.calibration_samples = 0
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.judgement = AlarmJudgement()
+        self.calibrations_split = 0
         self.restart()
 
     def retune(self, *, false_alarm_samples: float, variance_ratio: float) -> None:
@@ -228,19 +243,71 @@ class ChangeDetector:
         if not variance_ratio > 1.0:
             raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
         self.variance_ratio, self.false_alarm_samples = float(variance_ratio), float(false_alarm_samples)
-        self.scale = 1.0
-        if self.calibration_confidence is not None:
-            # Capped at half the design margin: at the margin the statistic of a stationary
-            # structure drifts upwards and no threshold keeps any false-alarm rate (a calibration
-            # that short cannot keep the rate; more reference_samples can).
-            margin = self.variance_ratio * math.log(self.variance_ratio) / (self.variance_ratio - 1.0) - 1.0
-            self.scale = min(calibration_scale(self.reference_samples, self.n_outputs, self.calibration_confidence),
-                             1.0 + 0.5 * margin)
-        self.base_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
-                                              scale=self.scale)
+        self.scale = self._scale(self.reference_samples)
+        self.base_threshold = self._threshold(self.calibration_samples or self.reference_samples)
         self.threshold = self.correlation_factor * self.base_threshold
         self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
         self._b = 0.5 * self.n_outputs * math.log(self.variance_ratio)
+
+    def _scale(self, samples: int) -> float:
+        """:func:`calibration_scale` of a calibration of ``samples`` samples (1 without the allowance)."""
+        if self.calibration_confidence is None:
+            return 1.0
+        # Capped at half the design margin: at the margin the statistic of a stationary
+        # structure drifts upwards and no threshold keeps any false-alarm rate (a calibration
+        # that short cannot keep the rate; more reference_samples can).
+        margin = self.variance_ratio * math.log(self.variance_ratio) / (self.variance_ratio - 1.0) - 1.0
+        return min(calibration_scale(samples, self.n_outputs, self.calibration_confidence), 1.0 + 0.5 * margin)
+
+    def _threshold(self, samples: int) -> float:
+        """The threshold for ``false_alarm_samples``, a calibration of ``samples`` allowed for."""
+        return cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
+                               scale=self._scale(samples))
+
+    @property
+    def min_calibration_samples(self) -> int:
+        """The fewest samples a calibration split at a rise of its power keeps (:meth:`calibration_split`).
+
+        Eight batches, the fewest whose batch means give the correlation factor; 10 p without batches.
+        """
+        return 8 * self.batch_samples if self.batch_samples else 10 * self.n_outputs
+
+    def calibration_split(self, ref: np.ndarray) -> int:
+        """How many of the calibration's samples ``ref`` (N, p) are a baseline: N, or those before a rise.
+
+        The calibration's innovations, whitened by the reference's own ``Re``, are tested for a rise
+        of their power by this CUSUM: its excursion at the calibration's end begins at sample ``c``
+        (after its last 0). When the samples before ``c`` (at least :attr:`min_calibration_samples`)
+        are taken as the baseline, and the CUSUM of the samples from ``c`` on against their power
+        crosses the threshold raised by their correlation factor, the structure changed within the
+        calibration: only the samples before ``c`` calibrate, and the test runs from ``c`` on (a
+        change there would otherwise become the baseline and never be declared).
+        """
+        n = ref.shape[0]
+        nis = np.einsum("ij,ij->i", ref, ref)
+        walk = np.concatenate([[0.0], np.cumsum(self._a * nis - self._b)])
+        c = n - int(np.argmin(walk[::-1]))  # the last minimum: the CUSUM's last 0
+        if c < self.min_calibration_samples or c >= n:
+            return n
+        power = float(nis[:c].mean()) / self.n_outputs  # the samples before c against Re
+        if not power > 0.0:
+            return n
+        factor = self._correlation(nis[:c] / power)
+        walk = np.cumsum(self._a * nis[c:] / power - self._b)
+        rise = float(np.max(walk - np.minimum.accumulate(np.minimum(walk, 0.0))))
+        # (A shorter calibration's threshold is higher: the full one's first, as it is at hand.)
+        if rise <= factor * self._threshold(n):
+            return n
+        return c if rise > factor * self._threshold(c) else n
+
+    def _correlation(self, nis: np.ndarray) -> float:
+        """The correlation factor r >= 1 of ``|w|^2`` (N,) by batch means (1 without batches)."""
+        if not self.batch_samples:
+            return 1.0
+        n_batches = nis.shape[0] // self.batch_samples
+        means = nis[: n_batches * self.batch_samples].reshape(n_batches, self.batch_samples).mean(axis=1)
+        ratio = self.batch_samples * float(np.var(means, ddof=1)) / (2.0 * self.n_outputs)
+        return max(1.0, ratio) if math.isfinite(ratio) else 1.0
 
     def restart(self) -> None:
         """Forget the calibration and the statistic: the next samples calibrate again."""
@@ -250,6 +317,7 @@ class ChangeDetector:
         self.rewhiten: np.ndarray | None = None
         self.statistic = 0.0
         self.correlation_factor = 1.0
+        self.base_threshold = self._threshold(self.reference_samples)  # (a split calibration's is its own)
         self.threshold = self.base_threshold
         self._last_zero = -1
         self._sum_nis = 0.0
@@ -260,6 +328,7 @@ class ChangeDetector:
         self.whitening = InnovationWhitening(self.n_outputs)
         self.judgement.restart()
         self.calibrated_at = -1
+        self.calibration_samples = 0
 
     @property
     def whitening_order(self) -> int:
@@ -292,23 +361,23 @@ class ChangeDetector:
         From the calibration samples ``ref``, the last of which is sample ``last_index``.
         """
         self.calibrated_at = int(last_index)
-        self.whitening, ref = InnovationWhitening.calibrate(ref, max_order=self.whitening_max_order)
+        self.calibration_samples = n = ref.shape[0]
+        # A calibration split at a rise of its power (calibration_split) is shorter: its AR's coefficients
+        # and the threshold's allowance follow from the samples it has.
+        max_order = min(self.whitening_max_order, int(WHITENING_MAX_COEFFICIENT_FRACTION * n / self.n_outputs))
+        self.whitening, ref = InnovationWhitening.calibrate(ref, max_order=max_order)
+        self.base_threshold = self._threshold(n)
         self.mean = ref.mean(axis=0)
         # The AR's residuals on new samples: Akaike's final prediction error, the calibration's
         # residual covariance times (N + d) / (N - d) for d coefficients per output (1 for d = 0).
-        n, dof = ref.shape[0], self.whitening.dof
+        dof = self.whitening.dof
         cov = np.atleast_2d(np.cov(ref, rowvar=False)) * (n + dof) / max(n - dof, 1.0)
         self.rewhiten = whitening_matrix(cov)
         w = (ref - self.mean) @ self.rewhiten.T
         if (check := self.judgement.check) is not None:
             check.push_residuals(last_index - n + 1, w)
             check.calibrate(last_index, n)
-        if self.batch_samples:
-            nis = np.einsum("ij,ij->i", w, w)
-            n_batches = nis.shape[0] // self.batch_samples
-            means = nis[: n_batches * self.batch_samples].reshape(n_batches, self.batch_samples).mean(axis=1)
-            ratio = self.batch_samples * float(np.var(means, ddof=1)) / (2.0 * self.n_outputs)
-            self.correlation_factor = max(1.0, ratio) if math.isfinite(ratio) else 1.0
+        self.correlation_factor = self._correlation(np.einsum("ij,ij->i", w, w))
         self.threshold = self.correlation_factor * self.base_threshold
 
     @property
@@ -330,8 +399,12 @@ class ChangeDetector:
             if self._ref_count >= self.reference_samples:
                 ref = np.concatenate(self._ref)
                 self._ref = []
-                self._last_zero = first_index + start - 1
-                self._calibrate(ref, self._last_zero)
+                split = self.calibration_split(ref)
+                first_index, start = first_index + start - ref.shape[0], split
+                z = np.concatenate([ref, z[take:]])
+                self.calibrations_split += split < ref.shape[0]
+                self._last_zero = first_index + split - 1
+                self._calibrate(ref[:split], self._last_zero)
         if start >= z.shape[0] or not self.calibrated:
             return None
         residuals, skipped = self.whitening.residuals(z[start:])

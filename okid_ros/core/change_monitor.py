@@ -210,6 +210,7 @@ class StructuralChangeMonitor:
 
     def _judge_noise(self, change_index: int, index: int) -> NoiseVerdict | None:
         """The detector's ``noise_test``: the excursion from ``change_index`` judged as a change of the noise model."""
+        self._calibrate_noise()  # (a split calibration's excursion is judged within the block that calibrated)
         if change_index != self._noise_excursion:  # a new excursion
             self._noise_excursion = change_index
             self._noise.restart()
@@ -227,7 +228,7 @@ class StructuralChangeMonitor:
         if self._noise is None or self._noise.baseline is not None or self.detector.calibrated_at < 0:
             return
         last = self.detector.calibrated_at
-        self._noise.calibrate(self._ring.since(last - self.detector.reference_samples + 1, last)[0], last)
+        self._noise.calibrate(self._ring.since(last - self.detector.calibration_samples + 1, last)[0], last)
 
     def _rest_after_noise(self, x0: np.ndarray, u: np.ndarray, y: np.ndarray, first_index: int, *,
                           test: bool) -> ChangeAlarm | None:
@@ -237,7 +238,7 @@ class StructuralChangeMonitor:
         the state it started from: the old predictor's state after the verdict's sample is the
         new reference's start.
         """
-        k = self._judgement.noise_at + 1 - first_index
+        k = max(self._judgement.noise_at + 1 - first_index, 0)
         self.predictor.x = x0.copy()
         self.predictor.advance(u[:k], y[:k])
         self._take_noise()
@@ -415,7 +416,7 @@ class StructuralChangeMonitor:
                 continue
             block = None  # its states before `end` are no longer those the jump corrected
             # The samples after the jump's alarm again, less the jump's response.
-            lo = at + 1 - first_index
+            lo = max(at + 1 - first_index, 0)  # (a split calibration's jump may lie in an earlier block)
             if lo < z.shape[0]:
                 z[lo:] -= self._jumps.response(self._judgement.last_jump, at + 1, z.shape[0] - lo)
                 if self._offset_taken is not None:  # an output step the caller takes off these samples

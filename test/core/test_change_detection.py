@@ -456,3 +456,51 @@ def test_a_glitch_at_a_blocks_last_sample_is_judged(identified, at, size):
         assert single.glitches == 1 and single.state == "monitoring"
         np.testing.assert_allclose(block.predictor.x, single.predictor.x, atol=1e-9 * np.abs(block.predictor.x).max())
         assert block.statistic == pytest.approx(single.statistic, rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_rise_of_power_within_the_calibration_is_tested_from_there(seed):
+    # White unit innovations whose power doubles 400 samples into the 1000 of the calibration: the samples
+    # before the rise calibrate, and the CUSUM alarms soon after it (it used to take the doubled power as the
+    # baseline and never alarm).
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal((5000, 3))
+    z[400:] *= np.sqrt(2.0)
+    detector = ChangeDetector(3, whitening_max_order=0)
+    alarm = detector.process(z, 0)
+    assert detector.calibrations_split == 1 and 200 <= detector.calibration_samples <= 400
+    assert alarm is not None and 400 <= alarm.alarm_index < 1000, alarm
+    assert abs(alarm.change_index - 400) <= 50
+
+
+def test_a_stationary_calibration_is_not_split():
+    # 100 calibrations of white innovations, and of innovations 1.3 times as loud as Re says throughout (a
+    # reference whose out-of-sample innovations are larger than its Re): none split.
+    split = []
+    for run in range(100):
+        z = np.random.default_rng(run).standard_normal((1000, 3)) * (1.0 if run % 2 else np.sqrt(1.3))
+        detector = ChangeDetector(3)
+        detector.process(z, 0)
+        if detector.calibrations_split or detector.calibration_samples != 1000:
+            split.append((run, detector.calibration_samples))
+    assert split == []
+
+
+def test_a_change_within_the_calibration_is_declared_on_both_paths(identified):
+    before, model, u, _ = identified
+    _, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
+    change, n = FIT + 400, FIT + 3000
+    y = simulate_switched([before, after], change, u[:n], seed=2)
+    block = _armed(model, u, y)
+    alarm = block.process(u[FIT:n], y[FIT:n], FIT)
+    assert alarm is not None and block.detector.calibrations_split == 1
+    assert abs(alarm.change_index - change) <= 50 and alarm.alarm_index < change + 1000
+    monitor = _armed(model, u, y)
+    single = None
+    for k in range(FIT, n):
+        single = monitor.step(u[k], y[k], k)
+        if single is not None:
+            break
+    assert single is not None
+    assert (single.alarm_index, single.change_index) == (alarm.alarm_index, alarm.change_index)
+    assert single.statistic == pytest.approx(alarm.statistic, rel=1e-9)
