@@ -40,6 +40,10 @@ Parts:
   low-passed (first order, pole a, unit variance) at the change sample, with the inputs unmeasured:
   the reference is ``identify_output_only`` of the first full window, the monitor that of node 2
   for a model without inputs (the detector's defaults), 10000 samples after the change.
+- ``in-calibration``: the delay part's changes (frequency -6 %, -2 %, damping x2, storey stiffness -20 %) placed 0,
+  100, 300 and 700 samples into the calibration of the reference (armed at the first full window's end), with
+  the inputs measured and unmeasured (the output-only part's reference and monitor), 10000 samples after the
+  change; the calibrations split at a rise of their power (``change_calibrations_split``).
 - ``calibration``: the detector alone on white unit innovations (2 outputs), calibrated on
   200 or 1000 samples: runs with an alarm within 20 000 samples, with the threshold of an exact
   calibration against the one that allows for the calibration's error (the default), 300 runs each.
@@ -56,7 +60,7 @@ import checkout
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 _parser.add_argument("--part", nargs="+",
                      choices=("track", "delay", "stationary", "jump", "calibration", "short-reference", "louder",
-                              "output-only"),
+                              "output-only", "in-calibration"),
                      default=["track", "delay", "stationary"], help="what to run (default: all)")
 _parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="noise seeds (default 0)")
 _parser.add_argument("--cases", nargs="+", default=["frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2"],
@@ -452,11 +456,51 @@ def part_output_only(after_samples: int = 10_000) -> None:
     print()
 
 
+def _in_calibration_record(text: str, case, seed: int, n_samples: int, change: int):
+    """``(u, y)``: the case's change at ``change``, or ("louder:F") its disturbance forces F times as strong."""
+    if not text.startswith("louder"):
+        return case.simulate(n_samples, change, seed)
+    factor = float(text.partition(":")[2])
+    louder = dataclasses.replace(case.before, process_noise_covariance=factor**2 * case.before.process_noise_covariance)
+    u = case.make_input(n_samples, 100 + seed)
+    return u, simulate_switched([case.before, louder], change, u, seed=200 + seed)
+
+
+def part_in_calibration(after_samples: int = 10_000) -> None:
+    print(f"## in-calibration: the change OFFSET samples after the reference is armed (its calibration: the next "
+          f"1000); 'none' if not declared within {after_samples} samples after it; splits: calibrations cut short")
+    print()
+    print("| change | route | seed | offset | declared after (samples) | change point error (samples) | splits |")
+    print("|---|---|---|---|---|---|---|")
+    start = WINDOW + ORDER
+    for text in ("frequency:0.06", "frequency:0.02", "damping:2", "stiffness:0.2", "louder:2", "louder:3"):
+        case = parse_case(text) if not text.startswith("louder") else change_case("frequency", 0.06)
+        for route in ("input-output", "output-only"):
+            for seed in _args.seeds:
+                model = None
+                for offset in (0, 100, 300, 700):
+                    u, y = _in_calibration_record(text, case, seed, start + offset + after_samples, start + offset)
+                    if route == "output-only":
+                        u = u[:, :0]
+                        model = model or identify_output_only(y[:start], case.sample_time_s)
+                    model = model or reference_model(case, u, y)
+                    monitor = armed(model, u[:start], y[:start])
+                    alarm = monitor.process(u[start:], y[start:], start)
+                    change = start + offset
+                    declared = "none" if alarm is None else str(alarm.alarm_index - change)
+                    point = "-" if alarm is None else str(alarm.change_index - change)
+                    splits = getattr(monitor.detector, "calibrations_split", "-")
+                    name = case.name if not text.startswith("louder") else f"disturbances x{text[7:]}"
+                    print(f"| {name} | {route} | {seed} | {offset} | {declared} | {point} | {splits} |")
+                    sys.stdout.flush()
+    print()
+
+
 def main() -> int:
     for part in _args.part:
         {"track": part_track, "delay": part_delay, "stationary": part_stationary, "jump": part_jump,
          "calibration": part_calibration, "short-reference": part_short_reference, "louder": part_louder,
-         "output-only": part_output_only}[part]()
+         "output-only": part_output_only, "in-calibration": part_in_calibration}[part]()
     return 0
 
 
