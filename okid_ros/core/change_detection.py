@@ -197,7 +197,7 @@ class ChangeDetector:
         ``base_threshold`` once calibrated.
     base_threshold : h of independent chi-square increments for ``false_alarm_samples``, allowing
         for the calibration's under-estimate of the covariance (``scale``; a split calibration's
-        for its own samples).
+        for ``min_calibration_samples``).
     correlation_factor : r >= 1 measured on the calibration samples (1 before).
     scale : :func:`calibration_scale` of ``reference_samples`` calibration samples.
     whitening_order : lags of the whitening AR chosen at the calibration (0: none).
@@ -244,6 +244,10 @@ class ChangeDetector:
             raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
         self.variance_ratio, self.false_alarm_samples = float(variance_ratio), float(false_alarm_samples)
         self.scale = self._scale(self.reference_samples)
+        # A split calibration's (calibration_split) allows for the fewest samples one keeps: computed here, as
+        # the threshold's bisection takes seconds, not on the sample path.
+        self._split_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
+                                                scale=self._scale(self.min_calibration_samples))
         self.base_threshold = self._threshold(self.calibration_samples or self.reference_samples)
         self.threshold = self.correlation_factor * self.base_threshold
         self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
@@ -260,7 +264,9 @@ class ChangeDetector:
         return min(calibration_scale(samples, self.n_outputs, self.calibration_confidence), 1.0 + 0.5 * margin)
 
     def _threshold(self, samples: int) -> float:
-        """The threshold for ``false_alarm_samples``, a calibration of ``samples`` allowed for."""
+        """The threshold for ``false_alarm_samples`` after a calibration of ``samples`` (fewer: a split one's)."""
+        if samples < self.reference_samples:
+            return self._split_threshold
         return cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
                                scale=self._scale(samples))
 
@@ -298,9 +304,6 @@ class ChangeDetector:
         w = (whitening.residuals(ref[c:])[0] - mean) @ rewhiten.T
         walk = np.cumsum(self._a * np.einsum("ij,ij->i", w, w) - self._b)
         rise = float(np.max(walk - np.minimum.accumulate(np.minimum(walk, 0.0))))
-        # (A shorter calibration's threshold is higher: the full one's first, as it is at hand.)
-        if rise <= factor * self._threshold(n):
-            return n
         return c if rise > factor * self._threshold(c) else n
 
     def _correlation(self, nis: np.ndarray) -> float:
