@@ -244,8 +244,7 @@ class ChangeDetector:
             raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
         self.variance_ratio, self.false_alarm_samples = float(variance_ratio), float(false_alarm_samples)
         self.scale = self._scale(self.reference_samples)
-        # A split calibration's (calibration_split) allows for the fewest samples one keeps: computed here, as
-        # the threshold's bisection takes seconds, not on the sample path.
+        # A split calibration's allows for the fewest samples it keeps: here, not on the sample path (seconds).
         self._split_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
                                                 scale=self._scale(self.min_calibration_samples))
         self.base_threshold = self._threshold(self.calibration_samples or self.reference_samples)
@@ -274,10 +273,8 @@ class ChangeDetector:
     def min_calibration_samples(self) -> int:
         """The fewest samples a calibration split at a rise of its power keeps (:meth:`calibration_split`).
 
-        Half the calibration: the stationary innovations of references that miss a mode (the paper's
-        structure, 1000-sample windows) rose 1.6-1.8-fold in power after 240 and 460 of 1000 calibration
-        samples (2 of 30), and a split there raised a false alarm. Eight batches at least, the fewest whose
-        batch means give the correlation factor.
+        Half: references missing a mode (the paper's structure, 1000-sample windows) rose 1.6-1.8-fold in power
+        after 240 and 460 stationary samples (2 of 30): a false alarm. At least the 8 batches of the factor.
         """
         return max(self.reference_samples // 2, 8 * self.batch_samples)
 
