@@ -82,6 +82,9 @@ _parser.add_argument("--no-state-jump-test", dest="state_jump_test", action="sto
 _parser.add_argument("--no-noise-change-test", dest="noise_change_test", action="store_false",
                      help="delay, stationary and louder parts: no noise-change judgement of confirmed alarms (the "
                      "test before it)")
+_parser.add_argument("--split-calibration", action="store_true",
+                     help="delay, stationary, louder, output-only and in-calibration parts: a calibration whose power "
+                     "rose is cut there (ChangeDetector's split_calibration, measured, not adopted)")
 _parser.add_argument("--jump-lengths", type=int, nargs="+", default=[90, 100, 150],
                      help="jump part: samples fitted from 5 before the seam or change (default 90 100 150)")
 _parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
@@ -191,6 +194,8 @@ def armed(model, u_window, y_window) -> StructuralChangeMonitor:
         options["variance_ratio"] = _args.variance_ratio
     if _args.false_alarm_samples is not None:
         options["false_alarm_samples"] = _args.false_alarm_samples
+    if _args.split_calibration:
+        options["split_calibration"] = True
     monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check,
                                       state_jump_test=_args.state_jump_test,
                                       noise_change_test=_args.noise_change_test, **options)

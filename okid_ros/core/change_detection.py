@@ -65,14 +65,9 @@ alarm within 20000 samples where 0.1 was expected at ``false_alarm_samples`` 1e7
 1000 samples). The threshold allows
 for the under-estimate that 90 % of calibrations stay below (:func:`calibration_scale`).
 
-A structural change within the calibration would become its baseline and never be declared.
-The calibration is therefore first tested against the reference's own ``Re`` by this CUSUM
-(:meth:`ChangeDetector.calibration_split`): when its power rose within it, beyond what the samples
-before the rise make of chance (their correlation factor and the threshold of their number), only
-the samples before the rise calibrate and the test runs from the rise on. A change within the first
-half of the calibration (``min_calibration_samples``) has no such baseline before it and stays
-undeclared: its calibration cannot be told from a reference whose out-of-sample innovations are
-larger than its ``Re`` says (models of short windows: up to 1.9 times), or whose power wanders.
+A structural change within the calibration becomes its baseline and is not declared. ``split_calibration``
+(measured, not adopted: bursty innovations and a bridged gap split stationary calibrations; docs/benchmarks-change.md)
+calibrates on the samples before a rise of the calibration's power (:meth:`ChangeDetector.calibration_split`).
 
 An alarm is declared only if no more mundane cause explains it: its judgement (a model error
 in the residuals, else a jump of the state or a change of the noise model) is
@@ -190,6 +185,7 @@ class ChangeDetector:
         (:func:`calibration_scale`); None: the threshold of an exact calibration.
     whitening_max_order : most lags of the AR that whitens the calibrated innovations (the
         order itself is chosen by BIC on the calibration samples); 0: no whitening.
+    split_calibration : cut a calibration where its power rose (:meth:`calibration_split`); off by default.
 
     Attributes
     ----------
@@ -216,7 +212,7 @@ class ChangeDetector:
                  mean_tracking_samples: int = DEFAULT_MEAN_TRACKING_SAMPLES,
                  batch_samples: int = DEFAULT_BATCH_SAMPLES,
                  calibration_confidence: float | None = CALIBRATION_CONFIDENCE,
-                 whitening_max_order: int = DEFAULT_WHITENING_MAX_ORDER) -> None:
+                 whitening_max_order: int = DEFAULT_WHITENING_MAX_ORDER, split_calibration: bool = False) -> None:
         if not variance_ratio > 1.0:
             raise ValueError(f"variance_ratio must be > 1, got {variance_ratio}")
         if int(reference_samples) < 10 * n_outputs:
@@ -232,7 +228,7 @@ class ChangeDetector:
         self.calibration_confidence = calibration_confidence
         self.whitening_max_order = min(int(whitening_max_order), int(
             WHITENING_MAX_COEFFICIENT_FRACTION * self.reference_samples / self.n_outputs))
-        self.calibration_samples = 0
+        self.calibration_samples, self.split_calibration = 0, bool(split_calibration)
         self.retune(false_alarm_samples=false_alarm_samples, variance_ratio=variance_ratio)
         self.judgement = AlarmJudgement()
         self.calibrations_split = 0
@@ -246,7 +242,8 @@ class ChangeDetector:
         self.scale = self._scale(self.reference_samples)
         # A split calibration's allows for the fewest samples it keeps: here, not on the sample path (seconds).
         self._split_threshold = cusum_threshold(self.false_alarm_samples, self.n_outputs, self.variance_ratio,
-                                                scale=self._scale(self.min_calibration_samples))
+                                                scale=self._scale(self.min_calibration_samples)) \
+            if self.split_calibration else math.nan
         self.base_threshold = self._threshold(self.calibration_samples or self.reference_samples)
         self.threshold = self.correlation_factor * self.base_threshold
         self._a = 0.5 * (1.0 - 1.0 / self.variance_ratio)
@@ -408,7 +405,7 @@ class ChangeDetector:
             if self._ref_count >= self.reference_samples:
                 ref = np.concatenate(self._ref)
                 self._ref = []
-                split = self.calibration_split(ref)
+                split = self.calibration_split(ref) if self.split_calibration else ref.shape[0]
                 first_index, start = first_index + start - ref.shape[0], split
                 z = np.concatenate([ref, z[take:]])
                 self.calibrations_split += split < ref.shape[0]

@@ -39,7 +39,7 @@ _STATS_COUNTS = ("diverged_samples", "divergence_restarts", "state_jumps", "dive
 #: Node 2's counts of its model switch (service/model_switch.py), in the same place.
 _SWITCH_COUNTS = ("models_accepted", "models_rejected", "forced_accepts", "windows_refused_for_change", "modes_retired")
 _WATCH_COUNTS = ("change_glitches", "change_alarms_state_jump", "change_alarms_noise", "change_alarms_excitation",
-                 "change_alarms_unconfirmed", "change_calibrations_split", "output_level_steps")
+                 "change_alarms_unconfirmed", "output_level_steps")
 
 
 class RecordWatch:

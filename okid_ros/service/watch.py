@@ -373,8 +373,6 @@ class InnovationWatch:
             # An output-only reference's alarm its modes called a change of the excitation (core/mode_confirmation.py).
             "change_alarms_excitation": int(self.monitor.excitation_changes),
             "change_glitches": int(self.monitor.glitches),  # samples the test took for glitches
-            # Calibrations cut short where their power rose: a change within them (core/change_detection.py).
-            "change_calibrations_split": int(self.monitor.detector.calibrations_split),
             "change_waiting_for_model": self.change is not None,
             "output_level_steps": self.level_steps_taken,  # sensor re-zeros taken off the samples (core/output_step.py)
         }

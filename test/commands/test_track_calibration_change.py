@@ -1,10 +1,10 @@
 """`okid-ros track` through a structural change during the reference's calibration.
 
 The change test calibrates on the first ``change.reference_samples`` (1000) innovations after its reference is
-armed; a change among them used to become the baseline and was never declared. The 2-mode structure of
-test_track_change.py (6 and 21 Hz, 250 Hz sampling, frequencies down 6 %), ARX order 40, window 2000: the first
-model arms the test at sample 2040, and the change comes 600 samples into its calibration (a change in its
-first half is not found: docs/benchmarks-change.md).
+armed; a change among them becomes the baseline and is declared late or never: strict expected failures (the
+split rule that declared it was measured, not adopted: docs/benchmarks-change.md, forty-sixth session). The
+2-mode structure of test_track_change.py (6 and 21 Hz, 250 Hz sampling, frequencies down 6 %), ARX order 40,
+window 2000: the first model arms the test at sample 2040, the change comes 600 samples into its calibration.
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ def _declared(path, out, *extra) -> list[dict]:
     return [e for e in lines if e["change_detected"]]
 
 
+@pytest.mark.xfail(strict=True, reason="the calibration takes the change in as its baseline; the split rule that "
+                   "declares it was measured, not adopted (docs/benchmarks-change.md, forty-sixth session)")
 def test_a_change_during_the_calibration_is_declared_input_output(tmp_path):
     declared = _declared(_record(tmp_path, CHANGE + 3000), tmp_path / "io.jsonl", "--states", "4")
     assert len(declared) == 1, declared
