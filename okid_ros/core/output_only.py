@@ -84,6 +84,7 @@ from okid_ros.core.output_only_support import (
     output_only_diagram,
     prepare_outputs,
     spectral_dominance,
+    stands_for_a_group,
 )
 from okid_ros.core.output_only_twins import separate_twin_shapes
 from okid_ros.core.output_only_var import (
@@ -212,6 +213,8 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     else:
         L, Re, gain_method = gain_from_var(A, C, y, *var)
     matched = match_clusters(modes, poles, n_model)
+    if ROUTES[method].drops_unresolved_groups:  # left unmatched, not dropped from the list: the modes keep their blocks
+        matched = [(pole, cluster) for pole, cluster in matched if not stands_for_a_group(cluster, poles)]
     model = _package(A, C, L, Re, matched, sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)

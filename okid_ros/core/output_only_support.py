@@ -96,6 +96,31 @@ def listed_within_limits(modes: list[Mode], scattered) -> list[Mode]:
     return kept
 
 
+#: A listed mode whose cluster's shapes are complex (median MPC below this) and whose damping falls as the
+#: order rises (:data:`GROUP_DAMPING_FALL`) stands for an unresolved group of modes, not for one
+#: (:func:`stands_for_a_group`).
+GROUP_MAX_MPC = 0.8
+#: The damping at a cluster's highest third of orders below ``1 -`` this of its lowest third's: not converged.
+GROUP_DAMPING_FALL = 0.18
+
+
+def stands_for_a_group(cluster: ModeCluster | None, poles: PoleSet) -> bool:
+    """Whether a listed mode's cluster is the pole of an unresolved group of modes rather than a mode.
+
+    Two real modes closer than the record resolves, read as one pole, give it a complex shape
+    (their shapes mixed with a phase between them) and a damping that falls as the order rises
+    (the model spends more states on the group); a complex structural mode (non-proportional
+    damping) keeps its damping across the orders, and a real mode whose damping drifts keeps a
+    real shape. Measured on every listed mode of the bench's sets: docs/benchmarks-output-only.md,
+    "The last spurious modes (forty-sixth session)".
+    """
+    if cluster is None or cluster.mpc >= GROUP_MAX_MPC:
+        return False
+    damping = poles.damping_ratio[[cluster.members[n] for n in sorted(cluster.members)]]
+    third = max(damping.size // 3, 1)
+    return bool(np.median(damping[-third:]) < (1 - GROUP_DAMPING_FALL) * np.median(damping[:third]))
+
+
 def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> list[tuple[complex, ModeCluster]]:
     """The eigenvalue of each mode's pole at order ``n_model`` (modes without one are left out)."""
     return [(complex(poles.eigenvalue[mode.members[n_model]]), mode) for mode in modes if n_model in mode.members]
