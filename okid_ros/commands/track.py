@@ -196,18 +196,17 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
-    from okid_ros.service.change_restarts import restart_window
     from okid_ros.service.tracked_record import TrackedRecord
+    from okid_ros.service.window_gates import ScreenedWindow
 
     out, (u, y, dt) = _output_and_record(args)
     (n_samples, m), p, window = u.shape, y.shape[1], args.window
-    options = RealizationOptions(
-        n_states=args.states, max_states=args.max_states,
-        max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
-    )
+    options = RealizationOptions(n_states=args.states, max_states=args.max_states, gain=args.gain,
+                                 max_states_limit=max(args.max_states, RealizationOptions.max_states_limit))
     q = _arx_order(args, u, y, options)
     record = TrackedRecord(u, y, q)
-    estimator = SlidingWindowArx(q, p, m, window=window)
+    estimator = SlidingWindowArx(q, p, m, window=window)  # fed through node 1's glitch gates (ScreenedWindow)
+    fed_window = ScreenedWindow(estimator, (u, y), record.present)
     watch = _record_watch(args, record, dt)
     restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     points = _update_points(args, n_samples, q)
@@ -222,9 +221,9 @@ def run(args: argparse.Namespace) -> int:
         for k in points:
             alarm = watch.run(fed, k + 1) if args.change_detection else None
             if alarm is None:
-                estimator.update(u[fed : k + 1], y[fed : k + 1])
+                fed_window.feed(k + 1)
             else:  # restart the window at the change point before this update's solve, as node 1 does
-                restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+                fed_window.restart(alarm.change_index, k + 1)
                 record.origin = alarm.change_index
                 changes.append(alarm)
             bar.update(k + 1 - fed)
@@ -242,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
                 handle.write(entry)
                 continue
             try:
-                fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
+                fields, model, u_w, y_w = _window_model(fed_window, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
                 _switch(watch, entry, model, (u_w, y_w), rows)
@@ -262,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes, points[-1], watch.counts() if args.change_detection else
-                   watch.switch_counts())  # (_arx_order: an update)
+                   watch.switch_counts(), fed_window.counts())  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -448,17 +447,19 @@ def _switch(watch, entry: dict, model, window: tuple, rows: int) -> None:
         entry["mode_ids"] = watch.mode_ids
 
 
-def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
+def _window_model(fed_window, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
                   options) -> tuple:
     """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
     from okid_ros.core.arx import fit_from_normal_equations
     from okid_ros.service.realization import identify_window
     from okid_ros.service.records import mode_record
 
+    estimator = fed_window.window
     p, m, q = estimator.n_outputs, estimator.n_inputs, record.order
     # With an intercept, as identify_from_arx removes the window's means (offsets).
-    fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
-                                    center=True)
+    normal = estimator.normal_equations()
+    fit = fit_from_normal_equations(normal, q, p, m, args.regularization, args.penalty, center=True)
+    fed_window.set_model(fit, normal)  # it judges the next samples' outputs in node 1's gate, as node 1's fit does
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
     model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
@@ -477,8 +478,8 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict) -> None:
-    """The changes found, node 2's watch's and switch's counts not 0 and the last update's modes, on stdout."""
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict, gated: dict) -> None:
+    """The changes found, node 2's watch's and switch's counts and node 1's gates' not 0, the last modes, on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
@@ -486,6 +487,8 @@ def _print_summary(changes: list, dt: float, last_modes: list, last_update: int,
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
     if counted := [f"{name} {n}" for name, n in counts.items() if n]:  # (--no-change-detection: the switch's only)
         print(f"node 2's {'watch' if 'diverged_samples' in counts else 'model switch'}: " + ", ".join(counted))
+    if counted := [f"{name} {n}" for name, n in gated.items() if n]:
+        print("node 1's glitch gates: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
