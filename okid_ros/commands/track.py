@@ -291,7 +291,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
     import numpy as np
 
-    from okid_ros.core.channels import group_scales
+    from okid_ros.core.channels import record_units
     from okid_ros.core.excitation import output_problem
     from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
     from okid_ros.core.scaling import covariance_range_problem
@@ -326,11 +326,12 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     problem = output_problem(present) or covariance_range_problem(present)  # identify's refusal, before the work
     if problem:
         raise DataError(problem)
-    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel lies beyond
-    # 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
-    # a group of ordinary size keeps its units. The record's faults are said once, in the record's units as
+    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel's typical size lies
+    # beyond 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
+    # a group of ordinary size keeps its units, and a sample beyond 1e150 in them is refused, as the nodes refuse it.
+    # The record's faults are said once, in the record's units as
     # identify says them (not the windows' scaled values), judged on the samples the windows accept.
-    scaled_u, scaled_y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
+    scaled_u, scaled_y = record_units(u, record.y).scale(u, record.y)
     # A record shorter than one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
     faults = tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)) \
         if record.y.shape[0] > args.window else []

@@ -73,3 +73,18 @@ def test_output_glitches_go_into_tracks_window_as_node_1s_prediction(record, tmp
     _same_windows(lines, snapshots)
     assert diagnostics["glitches"] == 5
     assert "node 1's glitch gates: glitches 5" in capsys.readouterr().out
+
+
+def test_an_output_beyond_1e150_is_refused_by_track_as_by_node_1(record, tmp_path, capsys):
+    # One output sample of 1e200 in a record of unit spread (a bit error in its exponent): node 1 refuses it for
+    # its size (a gap in its window); track divided the whole record by 2^332 for it (core/channels.py, the
+    # peaks' scale) and its windows took it in, its ordinary samples near 1e-100. Now track's units come from the
+    # channels' typical sizes (channels.record_units): the record keeps its units and the sample is refused.
+    u, y = record
+    far = y.copy()
+    far[2000, 1] = 1e200
+    lines, _ = _track(tmp_path, u, far)
+    snapshots, diagnostics = _node_1(u, far, [line["sample_index"] for line in lines])
+    _same_windows(lines, snapshots)
+    assert diagnostics["rejected_magnitude"] == 1
+    assert "(1 missing: NaN/Inf or beyond 1e150)" in capsys.readouterr().out
