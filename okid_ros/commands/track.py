@@ -295,6 +295,7 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     from okid_ros.core.excitation import output_problem
     from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
     from okid_ros.core.scaling import covariance_range_problem
+    from okid_ros.core.window_samples import WindowStatus, accepted_samples
     from okid_ros.errors import DataError
     from okid_ros.records import channel_without_values, transposed_problem
     from okid_ros.service.tracked_record import tracked_record_warnings
@@ -311,7 +312,14 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     u = record.u[:, :0] if args.output_only else record.u
     if problem := transposed_problem(record.y) or channel_without_values(u, record.y):
         raise DataError(problem)
-    u, glitches = without_input_glitches(u)  # as node 1's window takes them (core/input_glitches.py)
+    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel's typical size lies
+    # beyond 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
+    # a group of ordinary size keeps its units, and a sample beyond 1e150 in them is refused, as the nodes refuse it.
+    units = record_units(u, record.y)
+    scaled_u, scaled_y = units.scale(u, record.y)
+    # Input glitches judged as node 1's gate judges them, on the samples its window accepts (a refused one a gap).
+    scaled_u, glitches = without_input_glitches(scaled_u, accepted=accepted_samples(scaled_u, scaled_y, WindowStatus()))
+    u = scaled_u * units.input  # the record's units (powers of two: exact), in which its faults are said
     if glitches.size:
         print(f"okid-ros track: warning: {input_glitch_warning(glitches)}", file=sys.stderr)
     if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
@@ -326,13 +334,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     problem = output_problem(present) or covariance_range_problem(present)  # identify's refusal, before the work
     if problem:
         raise DataError(problem)
-    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel's typical size lies
-    # beyond 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
-    # a group of ordinary size keeps its units, and a sample beyond 1e150 in them is refused, as the nodes refuse it.
-    # The record's faults are said once, in the record's units as
-    # identify says them (not the windows' scaled values), judged on the samples the windows accept.
-    scaled_u, scaled_y = record_units(u, record.y).scale(u, record.y)
-    # A record shorter than one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
+    # The record's faults said once, in its units, judged on the samples the windows accept; a record shorter than
+    # one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
     faults = tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)) \
         if record.y.shape[0] > args.window else []
     for warning in faults:
