@@ -58,8 +58,8 @@ judged by the next), and the change test bridges them. ``window_first_index`` co
 
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
 (:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
-spikes, a drift, harmonic lines the inputs lack. The windows are what node 1 sees live; an output's
-re-zero the change test finds is taken off from where it lies, as node 2 does.
+spikes, a drift, harmonic lines the inputs lack. The windows take the samples as node 1 does (its glitch gates,
+:mod:`okid_ros.service.window_gates`); a re-zero the change test finds is taken off where it lies, as node 2 does.
 """
 
 from __future__ import annotations
@@ -204,11 +204,10 @@ def run(args: argparse.Namespace) -> int:
     options = RealizationOptions(n_states=args.states, max_states=args.max_states, gain=args.gain,
                                  max_states_limit=max(args.max_states, RealizationOptions.max_states_limit))
     q = _arx_order(args, u, y, options)
-    record = TrackedRecord(u, y, q)
+    record = TrackedRecord(u, y, q, window=window, restart_min_fill=args.restart_min_fill)
     estimator = SlidingWindowArx(q, p, m, window=window)  # fed through node 1's glitch gates (ScreenedWindow)
     fed_window = ScreenedWindow(estimator, (u, y), record.present)
     watch = _record_watch(args, record, dt)
-    restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     points = _update_points(args, n_samples, q)
     changes: list = []
     handle = JsonLines(out, replace=True)  # a failed run leaves an old OUT as it was; Ctrl-C keeps the lines
@@ -233,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
             if args.change_detection:
                 entry["watch"] = watch.counts()
-            why = record.waiting(k, rows, restart_rows, estimator.status, changes)
+            why = record.waiting(k, rows, estimator.status, changes)
             if why:
                 entry.update(n_states=None, modes=[], waiting=why)
                 first_reason, waits = first_reason or entry["waiting"], waits + 1

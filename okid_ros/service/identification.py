@@ -306,8 +306,7 @@ class ArxIdentificationService:
             window_fill=float(status.window_fill),
             samples_used=self._counters.samples_used,
             samples_rejected=self._counters.rejected,
-            params=replace(self.params, min_window_fill=min(self.params.min_window_fill, self.params.restart_min_fill))
-            if self._restarted else self.params,
+            params=replace(self.params, min_window_fill=self.params.fill_needed(self._restarted)),
             generation=self._generation,
         )
 
