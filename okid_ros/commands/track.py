@@ -58,8 +58,8 @@ judged by the next), and the change test bridges them. ``window_first_index`` co
 
 Before the tracking, the record's sensor faults are named once on stderr, by identify's rules
 (:mod:`okid_ros.service.tracked_record`): clipping, an output held alone, frozen outputs, level shifts,
-spikes, a drift, harmonic lines the inputs lack. The windows are what node 1 sees live; an output's
-re-zero the change test finds is taken off from where it lies, as node 2 does.
+spikes, a drift, harmonic lines the inputs lack. The windows take the samples as node 1 does (its glitch gates,
+:mod:`okid_ros.service.window_gates`); a re-zero the change test finds is taken off where it lies, as node 2 does.
 """
 
 from __future__ import annotations
@@ -196,20 +196,18 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
-    from okid_ros.service.change_restarts import restart_window
     from okid_ros.service.tracked_record import TrackedRecord
+    from okid_ros.service.window_gates import ScreenedWindow
 
     out, (u, y, dt) = _output_and_record(args)
     (n_samples, m), p, window = u.shape, y.shape[1], args.window
-    options = RealizationOptions(
-        n_states=args.states, max_states=args.max_states,
-        max_states_limit=max(args.max_states, RealizationOptions.max_states_limit), gain=args.gain,
-    )
+    options = RealizationOptions(n_states=args.states, max_states=args.max_states, gain=args.gain,
+                                 max_states_limit=max(args.max_states, RealizationOptions.max_states_limit))
     q = _arx_order(args, u, y, options)
-    record = TrackedRecord(u, y, q)
-    estimator = SlidingWindowArx(q, p, m, window=window)
+    record = TrackedRecord(u, y, q, window=window, restart_min_fill=args.restart_min_fill)
+    estimator = SlidingWindowArx(q, p, m, window=window)  # fed through node 1's glitch gates (ScreenedWindow)
+    fed_window = ScreenedWindow(estimator, (u, y), record.present)
     watch = _record_watch(args, record, dt)
-    restart_rows = max(int(np.ceil(float(args.restart_min_fill) * window)), 1)
     points = _update_points(args, n_samples, q)
     changes: list = []
     handle = JsonLines(out, replace=True)  # a failed run leaves an old OUT as it was; Ctrl-C keeps the lines
@@ -222,9 +220,9 @@ def run(args: argparse.Namespace) -> int:
         for k in points:
             alarm = watch.run(fed, k + 1) if args.change_detection else None
             if alarm is None:
-                estimator.update(u[fed : k + 1], y[fed : k + 1])
+                fed_window.feed(k + 1)
             else:  # restart the window at the change point before this update's solve, as node 1 does
-                restart_window(estimator, u[alarm.change_index : k + 1], y[alarm.change_index : k + 1])
+                fed_window.restart(alarm.change_index, k + 1)
                 record.origin = alarm.change_index
                 changes.append(alarm)
             bar.update(k + 1 - fed)
@@ -234,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
             if args.change_detection:
                 entry["watch"] = watch.counts()
-            why = record.waiting(k, rows, restart_rows, estimator.status, changes)
+            why = record.waiting(k, rows, estimator.status, changes)
             if why:
                 entry.update(n_states=None, modes=[], waiting=why)
                 first_reason, waits = first_reason or entry["waiting"], waits + 1
@@ -242,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
                 handle.write(entry)
                 continue
             try:
-                fields, model, u_w, y_w = _window_model(estimator, record, k, dt, args, options)
+                fields, model, u_w, y_w = _window_model(fed_window, record, k, dt, args, options)
                 entry.update(fields)
                 last_modes = model.modes
                 _switch(watch, entry, model, (u_w, y_w), rows)
@@ -262,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes, points[-1], watch.counts() if args.change_detection else
-                   watch.switch_counts())  # (_arx_order: an update)
+                   watch.switch_counts(), fed_window.counts())  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -292,10 +290,11 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
 
     import numpy as np
 
-    from okid_ros.core.channels import group_scales
+    from okid_ros.core.channels import record_units
     from okid_ros.core.excitation import output_problem
     from okid_ros.core.input_glitches import input_glitch_warning, without_input_glitches
     from okid_ros.core.scaling import covariance_range_problem
+    from okid_ros.core.window_samples import WindowStatus, accepted_samples
     from okid_ros.errors import DataError
     from okid_ros.records import channel_without_values, transposed_problem
     from okid_ros.service.tracked_record import tracked_record_warnings
@@ -312,7 +311,14 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     u = record.u[:, :0] if args.output_only else record.u
     if problem := transposed_problem(record.y) or channel_without_values(u, record.y):
         raise DataError(problem)
-    u, glitches = without_input_glitches(u)  # as node 1's window takes them (core/input_glitches.py)
+    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel's typical size lies
+    # beyond 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
+    # a group of ordinary size keeps its units, and a sample beyond 1e150 in them is refused, as the nodes refuse it.
+    units = record_units(u, record.y)
+    scaled_u, scaled_y = units.scale(u, record.y)
+    # Input glitches judged as node 1's gate judges them, on the samples its window accepts (a refused one a gap).
+    scaled_u, glitches = without_input_glitches(scaled_u, accepted=accepted_samples(scaled_u, scaled_y, WindowStatus()))
+    u = scaled_u * units.input  # the record's units (powers of two: exact), in which its faults are said
     if glitches.size:
         print(f"okid-ros track: warning: {input_glitch_warning(glitches)}", file=sys.stderr)
     if u.shape[1] == 0 and (ignored := ignored_for_output_only(args, INPUT_OUTPUT_ONLY)):
@@ -327,12 +333,8 @@ def _output_and_record(args: argparse.Namespace) -> tuple:
     problem = output_problem(present) or covariance_range_problem(present)  # identify's refusal, before the work
     if problem:
         raise DataError(problem)
-    # Inputs and outputs each divided by a power of two (exact: the same fits) where a channel lies beyond
-    # 2^+-64, so that values near 1e+-150 neither overflow nor underflow the window's sums (core/channels.py);
-    # a group of ordinary size keeps its units. The record's faults are said once, in the record's units as
-    # identify says them (not the windows' scaled values), judged on the samples the windows accept.
-    scaled_u, scaled_y = group_scales(u, record.y).where_needed(u, record.y).scale(u, record.y)
-    # A record shorter than one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
+    # The record's faults said once, in its units, judged on the samples the windows accept; a record shorter than
+    # one window is refused next (_arx_order): its faults (a "drift" of 5 samples) are noise.
     faults = tracked_record_warnings(u, record.y, record.sample_time_s, scaled=(scaled_u, scaled_y)) \
         if record.y.shape[0] > args.window else []
     for warning in faults:
@@ -448,17 +450,19 @@ def _switch(watch, entry: dict, model, window: tuple, rows: int) -> None:
         entry["mode_ids"] = watch.mode_ids
 
 
-def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
+def _window_model(fed_window, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
                   options) -> tuple:
     """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
     from okid_ros.core.arx import fit_from_normal_equations
     from okid_ros.service.realization import identify_window
     from okid_ros.service.records import mode_record
 
+    estimator = fed_window.window
     p, m, q = estimator.n_outputs, estimator.n_inputs, record.order
     # With an intercept, as identify_from_arx removes the window's means (offsets).
-    fit = fit_from_normal_equations(estimator.normal_equations(), q, p, m, args.regularization, args.penalty,
-                                    center=True)
+    normal = estimator.normal_equations()
+    fit = fit_from_normal_equations(normal, q, p, m, args.regularization, args.penalty, center=True)
+    fed_window.set_model(fit, normal)  # it judges the next samples' outputs in node 1's gate, as node 1's fit does
     samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
     model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
@@ -477,8 +481,8 @@ def _window_model(estimator, record: "TrackedRecord", k: int, dt: float, args: a
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict) -> None:
-    """The changes found, node 2's watch's and switch's counts not 0 and the last update's modes, on stdout."""
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict, gated: dict) -> None:
+    """The changes found, node 2's watch's and switch's counts and node 1's gates' not 0, the last modes, on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
@@ -486,6 +490,8 @@ def _print_summary(changes: list, dt: float, last_modes: list, last_update: int,
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
     if counted := [f"{name} {n}" for name, n in counts.items() if n]:  # (--no-change-detection: the switch's only)
         print(f"node 2's {'watch' if 'diverged_samples' in counts else 'model switch'}: " + ", ".join(counted))
+    if counted := [f"{name} {n}" for name, n in gated.items() if n]:
+        print("node 1's glitch gates: " + ", ".join(counted))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "

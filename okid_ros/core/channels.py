@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ChannelScales", "channel_mean", "channel_scales", "channel_spread", "channel_std", "column_peaks",
-           "group_scales", "power_of_two_scales"]
+           "group_scales", "power_of_two_scales", "record_units"]
 
 
 def column_peaks(x: np.ndarray) -> np.ndarray:
@@ -98,16 +98,18 @@ class ChannelScales:
         """``u`` (N, m) and ``y`` (N, p) divided channel by channel by the scales."""
         return u / self.input, y / self.output
 
-    def where_needed(self, u: np.ndarray, y: np.ndarray, *, limit: float = 2.0**64) -> ChannelScales:
+    def where_needed(self, u: np.ndarray, y: np.ndarray, *, limit: float = 2.0**64, sizes=None) -> ChannelScales:
         """These scales for a group (inputs, outputs) with a channel beyond ``[1 / limit, limit]``, else ones.
 
         Dividing by a power of two guards sums of squares near the float64 limits (values of
         1e+-150); a group of ordinary size needs no division and keeps its units, so that what is
         said of its windows (``constant 5`` for a stuck channel) is said in them. ``u`` (N, m),
-        ``y`` (N, p): the record the scales are of (NaN/Inf and dead channels do not count).
+        ``y`` (N, p): the record the scales are of (NaN/Inf and dead channels do not count); ``sizes``:
+        the size of each channel (a function of (N, k) giving the sizes of the channels not all zeros;
+        None: their peaks).
         """
         def extreme(x: np.ndarray) -> bool:
-            peaks = _channel_peaks(x)
+            peaks = (sizes or _channel_peaks)(x)
             return bool(np.any((peaks < 1.0 / limit) | (peaks > limit)))
 
         return ChannelScales(self.input if extreme(u) else np.ones_like(self.input),
@@ -145,6 +147,33 @@ def group_scales(u: np.ndarray, y: np.ndarray) -> ChannelScales:
         return float(_power_of_two(np.mean(np.log2(peaks)))) if peaks.size else 1.0
 
     return ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))
+
+
+def record_units(u: np.ndarray, y: np.ndarray) -> ChannelScales:
+    """One power of two for all inputs (N, m) and one for all outputs (N, p) of a record in far units, else ones.
+
+    As :func:`group_scales` with :meth:`ChannelScales.where_needed`, but each channel's size is its
+    typical magnitude (:func:`_typical_magnitudes`), not its peak: a record whose channels lie near
+    1e+-150 is divided into ordinary units, while one sample far beyond its channel (1e200 in a
+    record of unit spread, a glitch the nodes refuse for its size) neither divides the whole record
+    (its ordinary samples towards the float64 floor) nor comes within the windows' bound.
+    """
+    def power(x: np.ndarray) -> float:
+        sizes = _typical_magnitudes(x)
+        return float(_power_of_two(np.mean(np.log2(sizes)))) if sizes.size else 1.0
+
+    scales = ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))
+    return scales.where_needed(u, y, sizes=_typical_magnitudes)
+
+
+def _typical_magnitudes(x: np.ndarray) -> np.ndarray:
+    """The median magnitude of the finite non-zero samples of each channel of ``x`` (N, k) that has some."""
+    sizes = []
+    for column in np.abs(np.asarray(x, dtype=float)).T:
+        column = column[np.isfinite(column) & (column > 0)]
+        if column.size:
+            sizes.append(np.median(column))
+    return np.array(sizes)
 
 
 def _channel_peaks(x: np.ndarray) -> np.ndarray:

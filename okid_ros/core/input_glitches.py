@@ -139,14 +139,17 @@ class InputGlitchGate:
         return due + [(u, y, tag)]
 
 
-def without_input_glitches(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A record's inputs ``u`` (N, m) with each glitch replaced as node 1's window takes it (``track``).
+def without_input_glitches(u: np.ndarray, *, accepted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A record's inputs ``u`` (N, m) with each glitch replaced as node 1's window takes it (``track``, ``identify``).
 
-    Returns the inputs (a new array) and the glitches' samples (K,). A missing sample (NaN/Inf)
-    breaks the stream as a gap does on node 1; the record's last sample, held, goes on as it came.
+    Returns the inputs (a new array) and the glitches' samples (K,). ``accepted`` (N,): the samples
+    node 1's window accepts (finite and within its bound in inputs and outputs,
+    :func:`~okid_ros.core.window_samples.accepted_samples`; None: those with finite inputs); a refused
+    one breaks the stream as a gap does on node 1 (a glitch held before it goes on as it came); the
+    record's last sample, held, goes on as it came.
     """
     gate, out, glitches = InputGlitchGate(u.shape[1]), u.copy(), []
-    finite = np.isfinite(u).all(axis=1)
+    finite = np.isfinite(u).all(axis=1) if accepted is None else accepted
     for k in range(u.shape[0]):
         for u_due, _, j in gate.offer(u[k], u[k], k) if finite[k] else gate.gap():
             if not np.array_equal(u_due, u[j]):

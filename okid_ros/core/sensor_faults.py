@@ -183,8 +183,9 @@ def _shifts(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None, *, remove: b
     return (without_shifts(y, shifts.by_output, valid=valid) if shifts.by_output else y), warnings
 
 
-_KEPT_SPIKES = ("kept: track fits its windows as recorded, as node 1 sees them live (`okid-ros identify` leaves "
-                "them out); the windows holding them may list spurious modes")
+_KEPT_SPIKES = ("judged as the nodes judge them live: a glitch in some outputs goes into track's windows as the last "
+                "fit's prediction (node 1's gate), the realization leaves large spikes out (node 2's rule), others are "
+                "kept (`okid-ros identify` leaves them out); the windows holding those may list spurious modes")
 
 
 #: A spike is left out (``leave_out_spikes``) when it lies this many of its channel's standard

@@ -117,7 +117,7 @@ def solve_capture(capture: WindowCapture) -> SolveResult:
     # An input silent over the whole window (a disconnected sensor) is left out, as identify and
     # track leave it out (core.excitation.LiveInputs): its coefficients are zero, the warning names it.
     silent = silent_inputs(capture.normal, prm.order, prm.n_outputs, prm.n_inputs)
-    live = _live_columns(prm.order, prm.n_outputs, prm.n_inputs, silent)
+    live = live_columns(prm.order, prm.n_outputs, prm.n_inputs, silent)
     try:
         fit = fit_from_normal_equations(
             _columns(capture.normal, live), prm.order, prm.n_outputs, prm.n_inputs - len(silent),
@@ -152,7 +152,7 @@ def silent_inputs(normal: NormalEquations, order: int, n_outputs: int, n_inputs:
     return silent if len(silent) < n_inputs else []
 
 
-def _live_columns(order: int, n_outputs: int, n_inputs: int, silent: list[int]) -> np.ndarray:
+def live_columns(order: int, n_outputs: int, n_inputs: int, silent: list[int]) -> np.ndarray:
     """(m + q (p + m),) bool: the regressor columns (layout of ArxFit.theta) of all outputs and non-silent inputs."""
     live = ~np.isin(np.arange(n_inputs), silent)
     return np.concatenate([live, np.tile(np.concatenate([np.ones(n_outputs, bool), live]), order)])

@@ -43,8 +43,7 @@ from typing import Any
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
-from okid_ros.core.input_glitches import InputGlitchGate
+from okid_ros.core.arx_glitches import window_intercept
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service.arx_solve import ArxSnapshot, SolveResult, WindowCapture, solve_capture
@@ -59,6 +58,7 @@ from okid_ros.service.options import ArxIdentificationParams, check_runtime_chan
 from okid_ros.service.results import count_why, why_text
 from okid_ros.service.sample_buffer import SampleBuffer
 from okid_ros.service.sample_grid import StampSequence, StampStep
+from okid_ros.service.window_gates import WindowGates
 
 __all__ = ["ArxIdentificationParams", "ArxIdentificationService", "ArxSnapshot", "WindowCapture", "SolveResult",
            "restart_window", "solve_capture"]
@@ -128,8 +128,7 @@ class ArxIdentificationService:
         memory = params.window_length or int(min(3.0 / max(1.0 - params.forgetting_factor, 1e-6), 100_000))
         self._recent = SampleBuffer(memory + params.order + 64, params.n_inputs, params.n_outputs)
         self._stamps = StampSequence(params.sample_time_s)
-        self._gate = ArxGlitchGate(params.order, params.n_outputs, params.n_inputs)
-        self._inputs = InputGlitchGate(params.n_inputs)  # before the output gate: it judges by the inputs
+        self._gates = WindowGates(params.order, params.n_outputs, params.n_inputs)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -143,8 +142,7 @@ class ArxIdentificationService:
         self._counters = _Counters()
         self._health = _Health()
         self._stamps.reset()
-        self._gate.forget_model()
-        self._inputs.forget()
+        self._gates.forget()
         self._last_good: ArxFit | None = None
         self._last_good_penalty = math.nan
         self._model_id = 0
@@ -216,14 +214,13 @@ class ArxIdentificationService:
             c.rejected_magnitude += 1
             return False
         self._stamps.accept(stamp_s)
-        self._enter([out for due in self._inputs.offer(u, y, (stamp_s, c.gaps != gaps_before))
-                     for out in self._gate.offer(*due)])
+        self._enter(self._gates.offer(u, y, (stamp_s, c.gaps != gaps_before)))
         c.samples_used += 1
         return True
 
     def _flush(self) -> None:
         """The glitch gates' held samples into the window as they came, before its history breaks."""
-        self._enter([out for due in self._inputs.gap() for out in self._gate.offer(*due)] + self._gate.gap())
+        self._enter(self._gates.gap())
 
     def _enter(self, due: list) -> None:
         """Samples ``(u, y, (stamp_s, after a gap))`` the glitch gates let into the window."""
@@ -309,8 +306,7 @@ class ArxIdentificationService:
             window_fill=float(status.window_fill),
             samples_used=self._counters.samples_used,
             samples_rejected=self._counters.rejected,
-            params=replace(self.params, min_window_fill=min(self.params.min_window_fill, self.params.restart_min_fill))
-            if self._restarted else self.params,
+            params=replace(self.params, min_window_fill=self.params.fill_needed(self._restarted)),
             generation=self._generation,
         )
 
@@ -324,7 +320,7 @@ class ArxIdentificationService:
         if valid:
             self._last_good = result.fit
             self._last_good_penalty = float(result.fit.penalty)
-            self._gate.set_model(result.fit, window_intercept(capture.normal, result.fit)
+            self._gates.set_model(result.fit, window_intercept(capture.normal, result.fit)
                                  if capture.params.offsets == "remove" else None)
         h = self._health
         h.snapshots, h.valid_snapshots = h.snapshots + 1, h.valid_snapshots + int(valid)
@@ -395,8 +391,8 @@ class ArxIdentificationService:
             "rejected_out_of_order": c.rejected_out_of_order,
             "rejected_magnitude": c.rejected_magnitude,
             "gaps": c.gaps,
-            "glitches": self._gate.glitches,  # samples whose outputs went in as their prediction
-            "input_glitches": self._inputs.glitches,  # ... whose inputs went in as their neighbours' mean
+            "glitches": self._gates.glitches,  # samples whose outputs went in as their prediction
+            "input_glitches": self._gates.input_glitches,  # ... whose inputs went in as their neighbours' mean
             "window_restarts": c.window_restarts,
             "window_restarts_ignored": c.restarts_ignored,
             "window_restarts_ignored_why": why_text(c.restarts_ignored_why),

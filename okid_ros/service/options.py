@@ -122,6 +122,17 @@ class ArxIdentificationParams:
             raise ParameterError(problem)
         return params
 
+    def fill_needed(self, restarted: bool) -> float:
+        """The window fill from which a snapshot is valid (after a restart at a change: the smaller of two).
+
+        ``min_window_fill``; after a restart at a change the smaller of it and ``restart_min_fill``.
+        """
+        return min(self.min_window_fill, self.restart_min_fill) if restarted else self.min_window_fill
+
+    def rows_needed(self, restarted: bool) -> int:
+        """:meth:`fill_needed` in rows of a window of ``window_length`` rows (at least 1): fewer are refused."""
+        return max(math.ceil(self.fill_needed(restarted) * self.window_length), 1)
+
     def first_model_samples(self) -> float:
         """Samples node 1 takes in before its first valid model: ``min_window_fill`` of its window, plus ``order``.
 

@@ -75,9 +75,9 @@ class RecordWatch:
 
         The change's indices are the record's (``alarm_index``: the sample it was declared at).
         """
-        # The record's units may be scaled by powers of two (a record near 1e+-150, or one sample far beyond
-        # the others: core/channels.py), and a model of such windows squares a far sample's whitened
-        # innovation beyond the floats in its glitch gates: inf, which the gates judge as they should.
+        # The record's units may be scaled by powers of two (a record near 1e+-150: core/channels.record_units),
+        # and a model of such windows may square a far sample's whitened innovation beyond the floats in its
+        # glitch gates: inf, which the gates judge as they should.
         with np.errstate(over="ignore"):
             return self._run(lo, hi)
 

@@ -1,6 +1,6 @@
 """A record tracked offline (``okid-ros track``): what it holds besides the structure's response, and its samples.
 
-The windows are fitted on the record as recorded: they are what node 1 sees live. Only a sensor
+The windows are fitted on the record as node 1 takes it live (its glitch gates: service/window_gates.py). Only a sensor
 re-zero node 2's watch finds is taken off the samples from where it lies, as node 2 does
 (:class:`okid_ros.service.record_watch.RecordWatch`, which runs the watch over the record). :class:`TrackedRecord`
 keeps which samples are missing, where the window restarted, and hands the realization its samples. What is named
@@ -17,7 +17,7 @@ import numpy as np
 from okid_ros.core.realization_window import realization_window
 from okid_ros.core.sensor_faults import record_fault_warnings
 from okid_ros.core.window_samples import WindowStatus, accepted_samples
-from okid_ros.service.options import ModalEstimationParams
+from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 
 __all__ = ["TrackedRecord", "tracked_record_warnings"]
 
@@ -50,10 +50,14 @@ class TrackedRecord:
     Parameters
     ----------
     u : (N, m); y : (N, p) the record (divided by its powers of two where a group needs it); order : the ARX order q.
+    window : the window's rows when full; restart_min_fill : node 1's ``arx.restart_min_fill``.
     """
 
-    def __init__(self, u, y, order: int) -> None:
+    def __init__(self, u, y, order: int, *, window: int = 1, restart_min_fill: float | None = None) -> None:
         self.u, self.y, self.order = u, y, int(order)
+        # Node 1's rule of the rows a valid snapshot needs (min_window_fill; after a change restart_min_fill).
+        self.fills = ArxIdentificationParams(window_length=int(window), **(
+            {} if restart_min_fill is None else {"restart_min_fill": float(restart_min_fill)}))
         # The samples the window accepts (finite, within its magnitude limit): the others are missing.
         self.present = accepted_samples(u, y, WindowStatus())
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))
@@ -84,12 +88,14 @@ class TrackedRecord:
                                   need=rows + self.order, refit=any(start < i <= k for i in self.steps),
                                   next_sample=(self.u[k + 1], self.y[k + 1]) if after else None)
 
-    def waiting(self, k: int, rows: int, needed: int, status, changes: list) -> str:
+    def waiting(self, k: int, rows: int, status, changes: list) -> str:
         """Why the update at sample ``k`` gives no model, or "" (it is then the last realized).
 
-        Too few rows, or none since the last realized (the data stopped: that model again would read as new).
+        Too few rows for node 1 (:meth:`ArxIdentificationParams.rows_needed`: a snapshot of a window filled less than
+        ``arx.min_window_fill``, after a change ``arx.restart_min_fill``, is refused), or none since the last
+        realized (the data stopped: that model again would read as new).
         """
-        if rows < needed:
+        if rows < (needed := self.fills.rows_needed(bool(changes))):
             return _waiting(status, changes, rows, needed)
         # The last sample up to k that ends a regressor row (its q lags present).
         newest = int(self._rows_before.searchsorted(self._rows_before[k + 1], side="left")) - 1

@@ -1,0 +1,132 @@
+"""Node 1's glitch gates before its ARX window, in their order: the input gate, then the output gate.
+
+One object for node 1's service (:class:`~okid_ros.service.identification.ArxIdentificationService`)
+and ``okid-ros track``'s window (:class:`ScreenedWindow`): an input glitch is judged first
+(:class:`~okid_ros.core.input_glitches.InputGlitchGate`: its far inputs go in as their neighbours'
+mean), then the sample's outputs by the last fit's prediction
+(:class:`~okid_ros.core.arx_glitches.ArxGlitchGate`: a glitch's outputs go in as their prediction).
+Each sample waits at most one sample in each gate. No rclpy; numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from okid_ros.core.arx import ArxFit
+from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
+from okid_ros.core.input_glitches import InputGlitchGate
+from okid_ros.service.arx_solve import live_columns, silent_inputs
+from okid_ros.service.change_restarts import restart_window
+
+__all__ = ["ScreenedWindow", "WindowGates", "screened_block"]
+
+
+class WindowGates:
+    """The input gate, then the output gate, over the samples bound for an ARX window.
+
+    Parameters
+    ----------
+    order : q; n_outputs : p; n_inputs : m.
+    """
+
+    def __init__(self, order: int, n_outputs: int, n_inputs: int) -> None:
+        self.outputs = ArxGlitchGate(order, n_outputs, n_inputs)
+        self.inputs = InputGlitchGate(n_inputs)  # before the output gate: it judges by the inputs
+
+    def forget(self) -> None:
+        """No model, no spread, nothing held (a reset of the window)."""
+        self.outputs.forget_model()
+        self.inputs.forget()
+
+    def set_model(self, fit: ArxFit, intercept: np.ndarray | None = None) -> None:
+        """The output gate judges by ``fit`` (``intercept`` (p,): a centred fit's constant) from now on."""
+        self.outputs.set_model(fit, intercept)
+
+    def offer(self, u: np.ndarray, y: np.ndarray, tag: object = None) -> list[tuple[np.ndarray, np.ndarray, object]]:
+        """One sample ``u`` (m,), ``y`` (p,); the samples ``(u, y, tag)`` now due in the window, in order."""
+        return [out for due in self.inputs.offer(u, y, tag) for out in self.outputs.offer(*due)]
+
+    def gap(self) -> list[tuple[np.ndarray, np.ndarray, object]]:
+        """The sample stream breaks here: the held samples as they came, in order; the lag history forgotten."""
+        return [out for due in self.inputs.gap() for out in self.outputs.offer(*due)] + self.outputs.gap()
+
+    @property
+    def glitches(self) -> int:
+        """Samples whose outputs went in as their prediction."""
+        return self.outputs.glitches
+
+    @property
+    def input_glitches(self) -> int:
+        """Samples whose far inputs went in as their neighbours' mean."""
+        return self.inputs.glitches
+
+
+def screened_block(gates: WindowGates, record: tuple, accepted: np.ndarray, lo: int, hi: int) -> int:
+    """Samples ``lo .. hi - 1`` of a record through ``gates``, as node 1's service offers them.
+
+    ``record``: ``(u, y)`` (N, m), (N, p), written over in place where a gate replaces a sample;
+    ``accepted`` (N,): the samples the window accepts (a refused one breaks the stream: the held
+    samples go in as they came, as node 1 flushes its gates at a gap). Returns the first sample
+    not yet due (held by a gate): the samples before it are final.
+    """
+    u, y = record
+    due_to = lo
+    for k in range(lo, hi):
+        due = gates.offer(u[k], y[k], k) if accepted[k] else gates.gap()
+        for u_due, y_due, j in due:
+            u[j], y[j] = u_due, y_due
+            due_to = j + 1
+        if not accepted[k]:
+            due_to = k + 1
+    return due_to
+
+
+class ScreenedWindow:
+    """``okid-ros track``'s sliding ARX window fed as node 1 feeds its own: every sample through its gates.
+
+    Parameters
+    ----------
+    window : the :class:`~okid_ros.core.recursive.SlidingWindowArx`; record : ``(u, y)`` (N, m), (N, p)
+        (copied: the gates write their replacements into the copy); accepted : (N,) the samples the window accepts.
+    """
+
+    def __init__(self, window, record: tuple, accepted: np.ndarray) -> None:
+        self.window, self.accepted = window, accepted
+        self.gates = WindowGates(window.order, window.n_outputs, window.n_inputs)
+        self.u, self.y = record[0].copy(), record[1].copy()
+        self._fed = self._due = 0  # samples offered to the gates; samples the gates let into the window
+
+    def feed(self, hi: int) -> None:
+        """The samples up to ``hi - 1`` offered; those the gates let through into the window."""
+        newest = screened_block(self.gates, (self.u, self.y), self.accepted, self._fed, hi)
+        self.window.update(self.u[self._due : newest], self.y[self._due : newest])
+        self._fed, self._due = hi, newest
+
+    def restart(self, first: int, hi: int) -> None:
+        """The samples up to ``hi - 1`` offered, then the window restarted at sample ``first`` (a change), as node 1.
+
+        Node 1 flushes its gates first (the held samples as they came, which the copy holds), then
+        replays what its gates let through from the change on
+        (:func:`~okid_ros.service.change_restarts.restart_window`).
+        """
+        screened_block(self.gates, (self.u, self.y), self.accepted, self._fed, hi)
+        self.gates.gap()
+        restart_window(self.window, self.u[first:hi], self.y[first:hi])
+        self._fed = self._due = hi
+
+    def set_model(self, fit: ArxFit, normal) -> None:
+        """The window's fit (of its normal equations ``normal``, centred) judges the next samples, as node 1's.
+
+        An input silent over the window has no coefficients in node 1's fit (its solve leaves it out,
+        :func:`~okid_ros.service.arx_solve.silent_inputs`): zero here too, its constant in the intercept.
+        """
+        order, p, m = self.window.order, self.window.n_outputs, self.window.n_inputs
+        if silent := silent_inputs(normal, order, p, m):
+            fit = replace(fit, theta=np.where(live_columns(order, p, m, silent)[:, None], fit.theta, 0.0))
+        self.gates.set_model(fit, window_intercept(normal, fit))
+
+    def counts(self) -> dict:
+        """Node 1's counts of the gates (its diagnostics' names)."""
+        return {"glitches": self.gates.glitches, "input_glitches": self.gates.input_glitches}
