@@ -17,9 +17,14 @@ inputs every quantity is a product of output correlations ``R_k`` (reference cha
 correlations at any ``i``), ``C`` the first block row of the observability
 ``H(0) L_p^-T V S^-1/2`` (every output) and ``G`` the first block column of ``S^1/2 V^T L_p^T``.
 ``J`` reverses the block rows: the future is the past read backwards, so one Cholesky factor
-whitens both, and ``J H(0)`` is block Toeplitz (blocks ``R_(i-a+b)``). Any factor ``F`` of
-``Sigma_ff = F F^T`` gives the same ``S``, ``V`` and ``A``: ``F^-1 = Q L_f^-1`` (``L_f`` the
-future's Cholesky factor, ``Q`` orthogonal) only turns ``U`` into ``Q U``.
+whitens both. Any factor ``F`` of ``Sigma_ff = F F^T`` gives the same ``S``, ``V`` and ``A``:
+``F^-1 = Q L_f^-1`` (``L_f`` the future's Cholesky factor, ``Q`` orthogonal) only turns ``U``
+into ``Q U``. The factor used is ``L`` of the past in time order, ``J z_k``, whose covariance is
+the future's; with ``L = J L_p Q`` (``Q`` orthogonal) the weighted Hankel
+``L^-1 H(0) J L^-T = Q^T M Q`` and the past's directions ``J L^-T (Q^T V) = L_p^-T V`` are the
+module's. ``L`` and ``H(0) J L^-T`` are the first ``i`` block columns of the Cholesky factor of
+the block Toeplitz covariance of past and future together, which the block Schur algorithm
+makes without a dense factor or solve (:func:`_toeplitz_factor`).
 Every order's ``A`` is a corner of one matrix, so the same
 :class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
 the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
@@ -43,7 +48,7 @@ from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
 from okid_ros.core.stochastic_realization import CovarianceDecomposition, leading_eigh
 
-__all__ = ["CanonicalDecomposition", "CanonicalWeights", "canonical_decomposition", "canonical_replicates"]
+__all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
 
 
 def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
