@@ -42,13 +42,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
-from scipy.linalg import blas
+from scipy.linalg import blas, lapack
 
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
 from okid_ros.core.stochastic_realization import CovarianceDecomposition, leading_eigh
 
 __all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
+
+
+def _checked(result: tuple) -> np.ndarray:
+    """The array of a LAPACK call's ``(array, info)``; LinAlgError where ``info`` is not 0 (not definite, singular)."""
+    array, info = result
+    if info:
+        raise linalg.LinAlgError(f"LAPACK info {info}")
+    return array
 
 
 def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -80,19 +88,19 @@ def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, n
         generator = np.vstack([rows[:, : width - r], rows[:, r:]])  # P moved right one block, over Q
         for c in range(r, n, r):
             # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
+            # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
             p0, q0 = generator[:r, :r], generator[r:, :r]
-            top = np.linalg.cholesky(p0.T @ p0 - q0.T @ q0).T
-            step = linalg.solve_triangular(top, np.hstack([p0.T, -q0.T]), trans="T", check_finite=False)
+            top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
+            step = _checked(lapack.dtrtrs(top, np.hstack([p0.T, -q0.T]), lower=0, trans=1))
             if c + r < n:  # Q's update too (the last row needs none: only the past's covariance is factored)
-                ratio = linalg.solve_triangular(p0, q0.T, trans="T", check_finite=False).T  # Q0 P0^-1
-                low = np.linalg.cholesky(np.eye(r) - ratio @ ratio.T)
-                step = np.vstack([step, linalg.solve_triangular(low, np.hstack([-ratio, np.eye(r)]), lower=True,
-                                                                check_finite=False)])
+                ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
+                low = _checked(lapack.dpotrf(np.eye(r) - ratio @ ratio.T, lower=1, clean=1))
+                step = np.vstack([step, _checked(lapack.dtrtrs(low, np.hstack([-ratio, np.eye(r)]), lower=1))])
             moved = step @ generator
             moved[:r, :r] = top
             past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
             generator = np.vstack([moved[:r, : width - c - r], moved[r:, r:]])
-    except (linalg.LinAlgError, np.linalg.LinAlgError):
+    except linalg.LinAlgError:
         raise IdentificationError("the reference channels' covariance is not positive definite: "
                                   "no canonical-variate weighting") from None
     return past, cross
