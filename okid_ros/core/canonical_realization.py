@@ -17,9 +17,14 @@ inputs every quantity is a product of output correlations ``R_k`` (reference cha
 correlations at any ``i``), ``C`` the first block row of the observability
 ``H(0) L_p^-T V S^-1/2`` (every output) and ``G`` the first block column of ``S^1/2 V^T L_p^T``.
 ``J`` reverses the block rows: the future is the past read backwards, so one Cholesky factor
-whitens both, and ``J H(0)`` is block Toeplitz (blocks ``R_(i-a+b)``). Any factor ``F`` of
-``Sigma_ff = F F^T`` gives the same ``S``, ``V`` and ``A``: ``F^-1 = Q L_f^-1`` (``L_f`` the
-future's Cholesky factor, ``Q`` orthogonal) only turns ``U`` into ``Q U``.
+whitens both. Any factor ``F`` of ``Sigma_ff = F F^T`` gives the same ``S``, ``V`` and ``A``:
+``F^-1 = Q L_f^-1`` (``L_f`` the future's Cholesky factor, ``Q`` orthogonal) only turns ``U``
+into ``Q U``. The factor used is ``L`` of the past in time order, ``J z_k``, whose covariance is
+the future's; with ``L = J L_p Q`` (``Q`` orthogonal) the weighted Hankel
+``L^-1 H(0) J L^-T = Q^T M Q`` and the past's directions ``J L^-T (Q^T V) = L_p^-T V`` are the
+module's. ``L`` and ``H(0) J L^-T`` are the first ``i`` block columns of the Cholesky factor of
+the block Toeplitz covariance of past and future together, which the block Schur algorithm
+makes without a dense factor or solve (:func:`_toeplitz_factor`).
 Every order's ``A`` is a corner of one matrix, so the same
 :class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
 the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
@@ -37,55 +42,68 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
-from scipy.linalg import blas
+from scipy.linalg import blas, lapack
 
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
 from okid_ros.core.stochastic_realization import CovarianceDecomposition, leading_eigh
 
-__all__ = ["CanonicalDecomposition", "CanonicalWeights", "canonical_decomposition", "canonical_replicates"]
+__all__ = ["CanonicalDecomposition", "canonical_decomposition", "canonical_replicates"]
 
 
-@dataclass(frozen=True)
-class CanonicalWeights:
-    """The lower Cholesky factor ``L_p`` (i r square) of the past covariance, which whitens the future too.
+def _checked(result: tuple) -> np.ndarray:
+    """The array of a LAPACK call's ``(array, info)``; LinAlgError where ``info`` is not 0 (not definite, singular)."""
+    array, info = result
+    if info:
+        raise linalg.LinAlgError(f"LAPACK info {info}")
+    return array
 
-    The future's covariance is the past's with its block rows and columns reversed,
-    ``Sigma_ff = J Sigma_pp J`` (blocks ``R_(a-b)`` and ``R_(b-a)``), so ``J L_p`` is a factor of
-    it: ``L_p^-1 J`` whitens the future. It differs from ``L_f^-1`` by an orthogonal matrix on the
-    left (``L_p^-1 J L_f``), which leaves the weighted Hankel's singular values and right vectors,
-    and ``A``, ``C``, ``G``, as they are; one Cholesky factor instead of two.
+
+def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """``L^T`` and ``(Sigma_fp L^-T)^T`` (i r square each): the first i block columns of the past-and-future factor.
+
+    The covariance of ``[y_(k-i); ..; y_(k+i-1)]`` (past, then future, in time order) is block
+    Toeplitz, blocks ``R_(a-b)``; its lower Cholesky factor's first ``i`` block columns are
+    ``[L; Sigma_fp L^-T]``, ``L`` the factor of the past's (and, the same matrix, the future's)
+    covariance. The block Schur algorithm (Kailath & Sayed 1999, "Fast reliable algorithms for
+    matrices with structure", ch. 1) makes one block row of ``[L^T, L^-1 Sigma_pf]`` per step from
+    a generator of ``2 r`` rows: ``O(i^2 r^3)`` flops in products of ``r`` rows, where a dense
+    Cholesky factor and its triangular solve take ``4/3 (i r)^3`` (scipy and LAPACK have no block
+    Toeplitz factor: ``solve_toeplitz`` and ``matmul_toeplitz`` are scalar). Each step's
+    ``r``-square Cholesky factors fail exactly when the covariance is not positive definite.
+
+    Raises IdentificationError when it is not positive definite (references that are linearly dependent).
     """
-
-    low_past: np.ndarray
-
-    @classmethod
-    def of(cls, lagged: np.ndarray, block_rows: int) -> CanonicalWeights:
-        """The factor of the block Toeplitz past covariance of ``lagged`` (:func:`_lagged`).
-
-        Raises IdentificationError when it is not positive definite (references that are
-        linearly dependent).
-        """
-        try:  # blocks R_(b-a); symmetric, so its transpose is itself in Fortran order: factored in place
-            low_past = linalg.cholesky(_block_matrix(lagged, block_rows, block_rows, -1, 1).T, lower=True,
-                                       overwrite_a=True, check_finite=False)
-        except linalg.LinAlgError:
-            raise IdentificationError("the reference channels' covariance is not positive definite: "
-                                      "no canonical-variate weighting") from None
-        return cls(low_past)
-
-    def weighted_transpose(self, reversed_hankel: np.ndarray) -> np.ndarray:
-        """``(L_p^-1 J H L_p^-T)^T`` (i r square, Fortran order) of ``J H`` (the Hankel ``H``'s block rows reversed)."""
-        right = blas.dtrsm(1.0, self.low_past, reversed_hankel.T, side=1, lower=1, trans_a=1)  # H^T J L_p^-T
-        return blas.dtrsm(1.0, self.low_past, right, lower=1, overwrite_b=1)
-
-    def future_transform(self, x: np.ndarray) -> np.ndarray:
-        """``L_p^-1 x`` (i r, c): the future's whitening of ``x`` with its block rows reversed."""
-        return linalg.solve_triangular(self.low_past, x, lower=True, overwrite_b=True, check_finite=False)
-
-    def past_transform(self, x: np.ndarray) -> np.ndarray:
-        """``L_p^-T x`` (i r, c)."""
-        return linalg.solve_triangular(self.low_past, x, lower=True, trans="T", check_finite=False)
+    i, r = block_rows, lagged.shape[1]
+    n, width = i * r, 2 * i * r
+    try:
+        # Sigma - Z Sigma Z^T = P^T P - Q^T Q (Z: down one block): P the first block row R_0, R_-1 .. R_-(2i-1)
+        # scaled by R_0's factor, Q the same without its first block. Block row k of the factor is P then.
+        upper = linalg.cholesky(lagged[i], lower=False, check_finite=False)
+        rows = linalg.solve_triangular(upper, lagged[i : 3 * i].transpose(2, 0, 1).reshape(r, width), trans="T",
+                                       check_finite=False)
+        rows[:, :r] = upper  # the product's rounding below the diagonal left out, here and at every step
+        past, cross = np.zeros((n, n)), np.empty((n, n))  # [L^T, L^-1 Sigma_pf]: each block row's two parts
+        past[:r], cross[:r] = rows[:, :n], rows[:, n:]
+        generator = np.vstack([rows[:, : width - r], rows[:, r:]])  # P moved right one block, over Q
+        for c in range(r, n, r):
+            # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
+            # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
+            p0, q0 = generator[:r, :r], generator[r:, :r]
+            top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
+            step = _checked(lapack.dtrtrs(top, np.hstack([p0.T, -q0.T]), lower=0, trans=1))
+            if c + r < n:  # Q's update too (the last row needs none: only the past's covariance is factored)
+                ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
+                low = _checked(lapack.dpotrf(np.eye(r) - ratio @ ratio.T, lower=1, clean=1))
+                step = np.vstack([step, _checked(lapack.dtrtrs(low, np.hstack([-ratio, np.eye(r)]), lower=1))])
+            moved = step @ generator
+            moved[:r, :r] = top
+            past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
+            generator = np.vstack([moved[:r, : width - c - r], moved[r:, r:]])
+    except linalg.LinAlgError:
+        raise IdentificationError("the reference channels' covariance is not positive definite: "
+                                  "no canonical-variate weighting") from None
+    return past, cross
 
 
 @dataclass
@@ -167,24 +185,31 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     i = int(block_rows)
     lagged = _lagged(correlations, references, i)
     r = lagged.shape[1]
-    weights = CanonicalWeights.of(lagged, i)
-    reversed_hankel = _block_matrix(lagged, i, 2 * i, -1, 1)  # J H(0): block (a, b) is R_(i-a+b)
-    weighted = weights.weighted_transpose(reversed_hankel)  # M^T, M = L_p^-1 J H(0) L_p^-T
+    n = i * r
+    # Time order: L (lower, the past's factor, the future's too) and L^-1 Sigma_fp L^-T = L^-1 H(0) J L^-T, the
+    # module's M with the past's and the future's blocks both reversed (orthogonal changes: same S and A).
+    past_upper, cross = _toeplitz_factor(lagged, i)
+    low = past_upper.T  # Fortran order: no copies for BLAS
+    weighted = blas.dtrsm(1.0, low, cross.T, lower=1, overwrite_b=1)  # M, future x past
     # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
     # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
-    values, V = leading_eigh(blas.dsyrk(1.0, weighted, lower=1), int(min(max_states, i * r)), alone=True)
+    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True)
     s = np.sqrt(np.maximum(values, 0.0))
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
-    transform = weights.past_transform(V)
-    # U = M V / s, so U^T M(1) V = (M V)^T L_p^-1 J H(1) T / s: products with k columns, M(1) never formed.
-    # J H(1)'s block row 0 is H(1)'s last, R_(i+1) .. R_2i, its block row a J H(0)'s a - 1.
-    last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, i * r)
-    future = weights.future_transform(np.vstack([last_row @ transform, reversed_hankel[: (i - 1) * r] @ transform]))
-    shifted = ((weighted.T @ V).T @ future) / s[:, None]
-    first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], i * r)
+    # T = J L^-T V: the past's directions on z (the past read backwards, as the Hankel's columns).
+    transform = linalg.solve_triangular(past_upper, V, check_finite=False).reshape(i, r, -1)[::-1].reshape(n, -1)
+    # U = M V / s, so U^T L^-1 H(1) T = (M V)^T L^-1 H(1) T / s: products with k columns, M(1) never formed.
+    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
+    hankel = _block_matrix(lagged, i, i + 1, 1, 1)  # H(0): block (a, b) is R_(a+b+1)
+    last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, n)
+    future = linalg.solve_triangular(low, np.vstack([hankel[r:] @ transform, last_row @ transform]), lower=True,
+                                     overwrite_b=True, check_finite=False)
+    shifted = ((weighted @ V).T @ future) / s[:, None]
+    first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], n)
+    # V^T L^T at z's first block: Sigma_z T's first block row, L's last block row times V.
     return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,
-                                  Vt=V.T @ weights.low_past[:r].T, shifted=shifted,
+                                  Vt=(low[n - r :] @ V).T, shifted=shifted,
                                   first_rows=(first_row @ transform) / s, transform=transform)
 
 

@@ -7,7 +7,8 @@ import pytest
 from scipy import linalg, signal
 
 from okid_bench.output_only_cases import OutputOnlyCase, score_modes
-from okid_ros.core.canonical_realization import canonical_decomposition
+from okid_ros.core.canonical_realization import _lagged, _toeplitz_factor, canonical_decomposition
+from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_covariance import RecordSums, _lag_sums, output_correlations, record_correlations
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.stochastic_realization import OrderRealizer
@@ -183,3 +184,31 @@ def test_one_factor_whitening_the_past_and_the_future_realizes_what_two_did(clos
         expected = C @ np.linalg.matrix_power(A, power) @ G
         np.testing.assert_allclose(C_new @ np.linalg.matrix_power(A_new, power) @ G_new, expected, rtol=0,
                                    atol=1e-10 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("references", [np.arange(6), np.array([1, 4]), np.array([3])])
+def test_the_block_schur_factor_is_the_first_block_columns_of_the_dense_cholesky_factor(close_pair_case,
+                                                                                         references) -> None:
+    # [y_(k-i); ..; y_(k+i-1)] in time order has the block Toeplitz covariance of blocks R_(a-b); its lower
+    # Cholesky factor's first i block columns are [L; Sigma_fp L^-T], returned transposed.
+    _, y = close_pair_case
+    block_rows = 25
+    correlations = record_correlations(y - y.mean(axis=0), 2 * block_rows)
+    r, n = references.size, block_rows * references.size
+    lags = correlations[: 2 * block_rows][:, references][:, :, references]
+    covariance = np.block([[lags[a - b] if a >= b else lags[b - a].T for b in range(2 * block_rows)]
+                           for a in range(2 * block_rows)])
+    factor = linalg.cholesky(covariance, lower=True)
+    past, cross = _toeplitz_factor(_lagged(correlations, references, block_rows), block_rows)
+    assert past.shape == cross.shape == (n, n) and r * block_rows == n
+    np.testing.assert_allclose(past, factor[:n, :n].T, rtol=0, atol=1e-11 * np.abs(factor).max())
+    assert np.array_equal(past, np.triu(past))  # exactly triangular: read whole as L's last block row
+    np.testing.assert_allclose(cross, factor[n:, :n].T, rtol=0, atol=1e-11 * np.abs(factor).max())
+
+
+def test_linearly_dependent_references_have_no_canonical_weighting(close_pair_case) -> None:
+    _, y = close_pair_case
+    y = y - y.mean(axis=0)
+    twice = np.column_stack([y, y[:, 2]])  # reference 6 repeats reference 2: a singular past covariance
+    with pytest.raises(IdentificationError, match="not positive definite"):
+        canonical_decomposition(record_correlations(twice, 40), np.array([0, 2, 6]), 20, 10)
