@@ -11,9 +11,9 @@ a method told the rest. Whittle's asymptotic information of ``N`` samples::
     I_ij = N / (4 pi) int_{-pi}^{pi} tr(S^-1 dS_i S^-1 dS_j) dw
          = N / (2 pi) int_0^pi [2 Re tr(E_i E_j) + 2 Re tr(E_i E_j^H)] dw,   E_i = H^-1 dH_i.
 
-With few point forces the modes that share one respond coherently and, the others known, tell the force:
 :func:`independent_modal_forces` gives the same modes, shapes and energies with each mode driven by a force
-of its own, the excitation an output-only method assumes.
+of its own (the excitation an output-only method assumes) where a record's few point forces drive several
+modes coherently.
 """
 
 from __future__ import annotations
