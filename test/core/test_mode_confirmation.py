@@ -85,7 +85,7 @@ SHORT_ROWS = 1250  # node 1's first model of a window of 2000 samples: 26 period
 
 @pytest.mark.parametrize("factor", [2.0, 3.0])
 def test_louder_forces_after_a_reference_of_a_short_window_are_no_structural_change(factor):
-    # The reference's rows are fewer than the first stage's 40 periods; on 26 periods the 5.3 Hz mode was not found.
+    # The reference's rows are fewer than the first stage's 40 periods: capped at them, the confirmation declared these.
     y = _louder_forces(0, factor)
     alarm, monitor, reference = _first_alarm(y, SHORT_ROWS)
     slowest_period = 1 / (min(m.frequency_hz for m in reference.modes) * reference.sample_time_s)
