@@ -81,6 +81,8 @@ _parser.add_argument("--no-noise-change-test", dest="noise_change_test", action=
 _parser.add_argument("--jump-lengths", type=int, nargs="+", default=[90, 100, 150],
                      help="jump part: samples fitted from 5 before the seam or change (default 90 100 150)")
 _parser.add_argument("--reference-seeds", type=int, default=30, help="short-reference part: references (default 30)")
+_parser.add_argument("--output-only-window", type=int, default=None,
+                     help="output-only part: the reference from the last N samples before the arming (default: all)")
 _parser.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1)")
 _args = _parser.parse_args()
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -179,7 +181,7 @@ def reference_model(case, u, y):
                              n_states="auto", max_states=40)
 
 
-def armed(model, u_window, y_window) -> StructuralChangeMonitor:
+def armed(model, u_window, y_window, reference_rows: int = WINDOW) -> StructuralChangeMonitor:
     warm = InnovationPredictor(model)
     warm.run(u_window, y_window)
     options = {}
@@ -190,7 +192,7 @@ def armed(model, u_window, y_window) -> StructuralChangeMonitor:
     monitor = StructuralChangeMonitor(model.C.shape[0], model_error_check=_args.model_error_check,
                                       state_jump_test=_args.state_jump_test,
                                       noise_change_test=_args.noise_change_test, **options)
-    monitor.arm(model, warm.x, reference_rows=WINDOW)
+    monitor.arm(model, warm.x, reference_rows=reference_rows)
     return monitor
 
 
@@ -426,14 +428,16 @@ def _output_only_record(kind: str, size: float, seed: int, n_samples: int, chang
 
 
 def part_output_only(after_samples: int = 10_000) -> None:
-    print(f"## output-only: the inputs unmeasured; the reference identify_output_only of the first {WINDOW + ORDER} "
+    start, change = WINDOW + ORDER, WINDOW + ORDER + 3000
+    rows = _args.output_only_window or start
+    source = f"the first {start}" if rows == start else f"the {rows} before the arming, of the first {start}"
+    print(f"## output-only: the inputs unmeasured; the reference identify_output_only of {source} "
           f"samples, armed at their end, calibrated over the next 1000, the change 3000 samples after the "
           f"arming; 'none' if not declared within {after_samples} samples after it")
     print()
     print("| change | size | seed | declared after (samples) | change point error (samples) | noise changes | "
           "excitation changes |")
     print("|---|---|---|---|---|---|---|")
-    start, change = WINDOW + ORDER, WINDOW + ORDER + 3000
     for kind, sizes in {**DELAY_SIZES, **FORCE_CHANGES}.items():
         for seed in _args.seeds:
             model = None
@@ -441,8 +445,8 @@ def part_output_only(after_samples: int = 10_000) -> None:
                 case, y = _output_only_record(kind, size, seed, change + after_samples, change)
                 no_inputs = np.zeros((y.shape[0], 0))
                 if model is None:
-                    model = identify_output_only(y[:start], case.sample_time_s)
-                monitor = armed(model, no_inputs[:start], y[:start])
+                    model = identify_output_only(y[start - rows:start], case.sample_time_s)
+                monitor = armed(model, no_inputs[:start], y[:start], min(rows, WINDOW))
                 alarm = monitor.process(no_inputs[start:], y[start:], start)
                 declared = "none" if alarm is None else str(alarm.alarm_index - change)
                 point = "-" if alarm is None else str(alarm.change_index - change)

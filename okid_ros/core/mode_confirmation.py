@@ -9,7 +9,7 @@ test cannot explain (docs/benchmarks-change.md, fortieth session: forces x2 and 
 :class:`ModeConfirmation` holds the outputs from the alarm's change point on, identifies them
 (:func:`~okid_ros.core.output_only.identify_output_only`, the reference's route) once they hold
 :data:`FIRST_PERIODS` periods of the reference's slowest mode, and again at :data:`LAST_PERIODS`
-(at most the reference's own window) when the first found no mode moved, and :func:`compare_modes`
+when the first found no mode moved (whatever the rows the reference came from), and :func:`compare_modes`
 judges the new modes against the reference's:
 
 - some reference mode's nearest new mode (within :data:`MATCH_TOLERANCE` of its frequency) differs
@@ -124,7 +124,6 @@ class ModeConfirmation:
     Parameters
     ----------
     reference : the output-only reference (its ``modes`` with jackknife standard deviations).
-    reference_rows : samples the reference was identified from (0: unknown); the last stage holds at most these.
     executor : runs the identifications (None: inline).
 
     Attributes
@@ -134,14 +133,14 @@ class ModeConfirmation:
     last : the last verdict.
     """
 
-    def __init__(self, reference: IdentifiedModel, reference_rows: int = 0, *, executor=None) -> None:
+    def __init__(self, reference: IdentifiedModel, *, executor=None) -> None:
         self.reference = reference
         slowest = min((mode.frequency_hz for mode in reference.modes), default=math.nan)
         period = 1.0 / (slowest * reference.sample_time_s) if slowest > 0 else math.nan
+        # The design's periods, whatever the reference's rows: capped at a short reference's rows, the last
+        # stage missed the slowest mode and declared louder forces (docs/benchmarks-change.md, forty-sixth session).
         last = int(LAST_PERIODS * period) if math.isfinite(period) else 0
-        if reference_rows > 0:
-            last = min(last, int(reference_rows))
-        first = min(int(FIRST_PERIODS * period) if math.isfinite(period) else 0, last)
+        first = int(FIRST_PERIODS * period) if math.isfinite(period) else 0
         self.stages = sorted({first, last} - {0})
         self.executor = executor
         self._outputs = SampleRing(reference.C.shape[0], 2 * max(self.stages, default=1))

@@ -41,18 +41,18 @@ def _stiffness_loss(seed: int, size: float, n: int = CHANGE + 6000) -> np.ndarra
     return change_case("stiffness", size).simulate(n, CHANGE, seed)[1]
 
 
-def _monitor(y: np.ndarray, **options) -> tuple[StructuralChangeMonitor, object]:
-    """A monitor armed at WINDOW with ``identify_output_only`` of the samples before (the change bench's way)."""
-    model = identify_output_only(y[:WINDOW], change_case("frequency", 0.06).sample_time_s)
+def _monitor(y: np.ndarray, rows: int = WINDOW, **options) -> tuple[StructuralChangeMonitor, object]:
+    """A monitor armed at WINDOW with ``identify_output_only`` of the ``rows`` samples before (the bench's way)."""
+    model = identify_output_only(y[WINDOW - rows:WINDOW], change_case("frequency", 0.06).sample_time_s)
     warm = InnovationPredictor(model)
     warm.run(np.zeros((WINDOW, 0)), y[:WINDOW])
     monitor = StructuralChangeMonitor(y.shape[1], **options)
-    monitor.arm(model, warm.x, reference_rows=WINDOW)
+    monitor.arm(model, warm.x, reference_rows=min(rows, WINDOW))
     return monitor, model
 
 
-def _first_alarm(y: np.ndarray, **options):
-    monitor, model = _monitor(y, **options)
+def _first_alarm(y: np.ndarray, rows: int = WINDOW, **options):
+    monitor, model = _monitor(y, rows, **options)
     return monitor.process(np.zeros((y.shape[0] - WINDOW, 0)), y[WINDOW:], WINDOW), monitor, model
 
 
@@ -78,6 +78,26 @@ def test_a_stiffness_loss_output_only_is_still_declared(seed):
     slowest_period = 1 / (min(m.frequency_hz for m in reference.modes) * reference.sample_time_s)
     assert 0 <= alarm.alarm_index - CHANGE <= 2000
     assert alarm.alarm_index - alarm.change_index + 1 >= math.floor(40 * slowest_period)
+
+
+SHORT_ROWS = 1250  # node 1's first model of a window of 2000 samples: 26 periods of the slowest mode
+
+
+@pytest.mark.parametrize("factor", [2.0, 3.0])
+def test_louder_forces_after_a_reference_of_a_short_window_are_no_structural_change(factor):
+    # The reference's rows are fewer than the first stage's 40 periods: capped at them, the confirmation declared these.
+    y = _louder_forces(0, factor)
+    alarm, monitor, reference = _first_alarm(y, SHORT_ROWS)
+    slowest_period = 1 / (min(m.frequency_hz for m in reference.modes) * reference.sample_time_s)
+    assert monitor.excitation_changes == 1 and alarm is None, alarm
+    # Re-armed with the model of the samples identified: at least the first stage's 40 periods.
+    assert monitor.reference_rows >= math.floor(40 * slowest_period) > SHORT_ROWS
+
+
+def test_a_stiffness_loss_after_a_reference_of_a_short_window_is_still_declared():
+    alarm, monitor, _ = _first_alarm(_stiffness_loss(0, 0.2), SHORT_ROWS)
+    assert alarm is not None and monitor.excitation_changes == 0
+    assert 0 <= alarm.alarm_index - CHANGE <= 2000
 
 
 def test_through_an_executor_the_sample_path_only_polls_and_the_verdict_is_the_same():
