@@ -76,3 +76,12 @@ def test_modal_coordinates_of_a_listed_mode_are_its_blocks_states(dropped_first)
     for i, mode in enumerate(model.modes):
         block = _block_of(model.A, mode.eigenvalue)
         np.testing.assert_array_equal(coordinates[:, i], states[:, block:block + 2])
+
+
+def test_the_estimator_runs_an_output_only_models_record_as_sample_by_sample(dropped_first) -> None:
+    y, _, model = dropped_first
+    stepped = ModalStateEstimator.from_model(model, reject_glitches=False)
+    states = np.array([stepped.step(np.zeros(0), sample)[0] for sample in y[:200]])
+    out = ModalStateEstimator.from_model(model, reject_glitches=False).run(np.zeros((200, 0)), y[:200])
+    np.testing.assert_array_equal(out.states, states)
+    np.testing.assert_array_equal(out.modal_coordinates, stepped.modal_coordinates(states))
