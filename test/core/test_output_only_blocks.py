@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import linalg
 
 from okid_ros.core import output_only
 from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.identified_model import IdentifiedModel
+from okid_ros.core.modal import modal_form
+from okid_ros.core.options import ModeCriteria
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_support import listed_within_limits
 from okid_ros.sim.models import modal_structure
@@ -85,3 +89,25 @@ def test_the_estimator_runs_an_output_only_models_record_as_sample_by_sample(dro
     out = ModalStateEstimator.from_model(model, reject_glitches=False).run(np.zeros((200, 0)), y[:200])
     np.testing.assert_array_equal(out.states, states)
     np.testing.assert_array_equal(out.modal_coordinates, stepped.modal_coordinates(states))
+
+
+def test_keep_modes_moves_a_dropped_modes_block_behind_the_listed_ones_and_keeps_the_response() -> None:
+    rng = np.random.default_rng(0)
+    poles = 0.99 * np.exp(1j * np.array([0.3, 0.9, 1.7]))
+    A = linalg.block_diag(*[[[z.real, z.imag], [-z.imag, z.real]] for z in poles], [[0.5]])
+    C, K = rng.standard_normal((3, 7)), rng.standard_normal((7, 3))
+    criteria = ModeCriteria(max_damping=0.1, min_msv=0.0, min_mpc=0.0, min_dominance=0.0)
+    form = modal_form(A, K, C, K, 0.01, criteria=criteria)  # the noise input stands for B, as in output_only
+    model = IdentifiedModel(A=form.A, B=np.zeros((7, 0)), C=form.C, D=np.zeros((3, 0)), K=form.K,
+                            innovation_covariance=np.eye(3), sample_time_s=0.01, modes=form.modes,
+                            x0=rng.standard_normal(7))
+    markov, response = [model.C @ np.linalg.matrix_power(model.A, k) @ model.K for k in range(4)], model.C @ model.x0
+    first, _, last = model.modes
+    model.keep_modes([first, last])
+    assert [m.id for m in model.modes] == [0, 1] and model.n_physical_states == 4
+    for i, mode in enumerate(model.modes):
+        assert abs(_upper(model.A, 2 * i) - mode.eigenvalue) < 1e-12
+    assert abs(_upper(model.A, 4) - poles[1]) < 1e-12
+    np.testing.assert_allclose([model.C @ np.linalg.matrix_power(model.A, k) @ model.K for k in range(4)], markov,
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(model.C @ model.x0, response, rtol=0, atol=1e-12)
