@@ -245,8 +245,10 @@ class ModalStateEstimator:
         kf.y = z - dot(kf.H, kf.x)
 
     def run(self, u: np.ndarray, y: np.ndarray) -> EstimatorOutput:
-        """Process a block ``u`` (N, m), ``y`` (N, p)."""
-        u = np.asarray(u, dtype=float).reshape(-1, self.n_inputs)
+        """Process a block ``u`` (N, m), ``y`` (N, p); ``u`` (N, 0) for an output-only model."""
+        u = np.asarray(u, dtype=float)
+        # reshape(-1, 0) is ambiguous: an output-only model's (N, 0) inputs raised a ValueError.
+        u = u.reshape(-1, self.n_inputs) if self.n_inputs else u.reshape(u.shape[0] if u.ndim else 0, 0)
         y = np.asarray(y, dtype=float).reshape(-1, self.n_outputs)
         if u.shape[0] != y.shape[0]:
             raise ValueError(f"u and y have different lengths: {u.shape[0]} and {y.shape[0]}")

@@ -31,12 +31,14 @@ class IdentifiedModel(InnovationModel):
 
     ``x_{k+1} = A x_k + B u_k + A K e_k``, ``y_k = C x_k + D u_k + e_k`` for the offset-free
     signals ``u - input_offset``, ``y - output_offset``; ``cov(e) = innovation_covariance``.
-    The first ``2 len(modes)`` states are the physical modes' blocks.
+    The first ``2 len(modes)`` states are the physical modes' blocks, mode ``i``'s at states
+    ``2 i, 2 i + 1``: every consumer (modal coordinates, shapes, the units' re-normalization) reads
+    a mode's block by its place in the list, so a mode leaves the list by :meth:`keep_modes`.
 
     Attributes (beyond :class:`~okid_ros.core.statespace.InnovationModel`)
     ----------
     hankel_singular_values : singular values of the weighted Hankel matrix.
-    modes : the physical modes, in state order.
+    modes : the physical modes, in state order (changed by :meth:`keep_modes` only).
     arx : the ARX fit it was realized from.
     order_scores : BIC of each model order tried: of the completed model for the orders in
         ``completed_orders``, else of the screening from the window's Gram (output-equation
@@ -73,6 +75,25 @@ class IdentifiedModel(InnovationModel):
     @property
     def n_physical_states(self) -> int:
         return 2 * len(self.modes)
+
+    def keep_modes(self, kept: list[Mode]) -> None:
+        """List only ``kept`` (some of :attr:`modes`, in their order), each still at its own block, renumbered.
+
+        The states are permuted (exact; the model's response unchanged): the kept modes' blocks lead
+        in their order, the others' follow them as non-physical pairs.
+        """
+        position = {id(mode): i for i, mode in enumerate(self.modes)}
+        listed = [position[id(mode)] for mode in kept]
+        unlisted = [i for i in range(len(self.modes)) if i not in set(listed)]
+        if unlisted:
+            order = np.r_[[state for i in listed + unlisted for state in (2 * i, 2 * i + 1)],
+                          np.arange(self.n_physical_states, self.n_states)].astype(int)
+            self.A, self.B = self.A[np.ix_(order, order)], self.B[order]
+            self.C, self.K = self.C[:, order], self.K[order]
+            self.x0 = None if self.x0 is None else self.x0[order]
+        self.modes = list(kept)
+        for i, mode in enumerate(self.modes):
+            mode.id = i
 
     def stochastic_markov(self, n_terms: int) -> np.ndarray:
         """``C A^i K`` for i = 1..n_terms: (n_terms, p, p) (paper Fig. 3)."""

@@ -352,7 +352,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
     if ROUTES[model.method].screens_listed_std:
-        model.modes = listed_within_limits(model.modes, _scattered)
+        model.keep_modes(listed_within_limits(model.modes, _scattered))
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,

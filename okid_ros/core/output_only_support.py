@@ -85,15 +85,13 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_ga
 
 
 def listed_within_limits(modes: list[Mode], scattered) -> list[Mode]:
-    """The modes whose standard deviations ``scattered(f_std, z_std, f, zeta)`` takes for no noise, renumbered.
+    """The modes whose standard deviations ``scattered(f_std, z_std, f, zeta)`` takes for no noise.
 
     The standard deviations are those listed (at the model order, or at the home order where it
-    lost the mode's pole).
+    lost the mode's pole). A model lists them by :meth:`.identified_model.IdentifiedModel.keep_modes`
+    (each at its own state block).
     """
-    kept = [m for m in modes if not scattered(m.frequency_hz_std, m.damping_ratio_std, m.frequency_hz, m.damping_ratio)]
-    for i, mode in enumerate(kept):
-        mode.id = i
-    return kept
+    return [m for m in modes if not scattered(m.frequency_hz_std, m.damping_ratio_std, m.frequency_hz, m.damping_ratio)]
 
 
 #: A listed mode whose cluster's shapes are complex (median MPC below this) and whose damping falls as the
