@@ -336,7 +336,7 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
     tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
-    labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
+    labels = _join_chain_pieces(poles, index, hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance"))
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]
     accepted, rejected = [], []
@@ -368,6 +368,41 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
+
+
+def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """The linkage labels with the pieces of one chain of poles under one label.
+
+    ``index`` (S,): the stable poles; ``labels`` (S,): their linkage labels. The shape of a mode of a
+    close pair turns with the order (its partner's mixed in), so the shape distance cuts one chain of
+    its poles, one an order, into pieces of disjoint orders, each too short to be a mode. A linkage
+    cluster of one pole per order joins a larger one (or the chain that one has begun) when they
+    share no order (a mode has one pole per order; two modes resolved at once hold poles at the same
+    orders), their frequency ranges overlap (one chain wandering, not two chains side by side) and
+    their median frequencies lie within half the larger half-power width ``zeta f`` (the nearness of
+    :func:`_persists_near`).
+    """
+    order, frequency, damping = poles.order[index], poles.frequency_hz[index], poles.damping_ratio[index]
+    pieces = []  # [label, orders, lowest, highest frequency, median frequency, half width], the most poles first
+    for label in np.unique(labels):
+        held, f = order[labels == label], frequency[labels == label]
+        if np.unique(held).size == held.size:
+            median = _median(f)
+            pieces.append([int(label), set(held.tolist()), f.min(), f.max(), median,
+                           0.5 * _median(damping[labels == label]) * median])
+    pieces.sort(key=lambda piece: -len(piece[1]))
+    chains: list[list] = []
+    joined = labels.copy()
+    for label, held, low, high, median, width in pieces:
+        for chain in chains:
+            if (not held & chain[1] and low <= chain[3] and high >= chain[2]
+                    and abs(median - chain[4]) <= max(width, chain[5])):
+                joined[labels == label] = chain[0]
+                chain[1:4] = [chain[1] | held, min(low, chain[2]), max(high, chain[3])]
+                break
+        else:
+            chains.append([label, held, low, high, median, width])
+    return joined
 
 
 def noise_mpc_floor(n_outputs: int, share: float = NOISE_MPC_SHARE) -> float:
