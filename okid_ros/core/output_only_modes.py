@@ -9,20 +9,19 @@ The stabilization diagram without clicks:
    MAC >= ``MAC_TOLERANCE`` (:func:`mark_stable`);
 3. stable poles are grouped by average-linkage hierarchical clustering
    (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
-   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`); a cluster holding two poles at ``MIN_ORDERS``
-   orders or more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split
-   (a mode has one pole per order; :func:`_families`), and so is one whose two families are a
-   resolved close pair, two modes (:func:`_resolved_pair`);
+   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`), the pieces of one chain of poles a turning shape cut
+   apart joined (:func:`_join_chain_pieces`); a cluster holding two poles at ``MIN_ORDERS`` orders or
+   more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split (a mode has one pole
+   per order; :func:`_families`), and so is one whose families are a resolved pair (:func:`_resolved_pair`);
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
    more outputs its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise
-   alone exceed, :func:`mpc_floor`), its median share of the correlations'
-   energy (modal singular value relative to the order's strongest pole) is at least
-   ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
-   than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
-   across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
-   bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
+   alone exceed, :func:`mpc_floor`), its median share of the correlations' energy (modal singular value
+   relative to the order's strongest pole) is at least ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on
+   the coloured simulation, carries no more than some noise poles; the jackknife of :mod:`.output_only`
+   tells them apart), and its frequency scatters across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING``
+   times its half-power bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
    A cluster that fails only the first test still is a mode (the one with the most orders
    first) when no accepted one lies within half a width ``zeta f / 2`` of it and the orders
    with a stable pole that near its frequency pass it: at high orders a mode's poles may
@@ -371,37 +370,30 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
 
 
 def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """The linkage labels with the pieces of one chain of poles under one label.
+    """The linkage labels (S,) of the stable poles ``index`` (S,), the pieces of one chain of poles under one.
 
-    ``index`` (S,): the stable poles; ``labels`` (S,): their linkage labels. The shape of a mode of a
-    close pair turns with the order (its partner's mixed in), so the shape distance cuts one chain of
-    its poles, one an order, into pieces of disjoint orders, each too short to be a mode. A linkage
-    cluster of one pole per order joins a larger one (or the chain that one has begun) when they
-    share no order (a mode has one pole per order; two modes resolved at once hold poles at the same
-    orders), their frequency ranges overlap (one chain wandering, not two chains side by side) and
-    their median frequencies lie within half the larger half-power width ``zeta f`` (the nearness of
-    :func:`_persists_near`).
+    A close pair member's estimated shape turns with the order (its partner's mixed in): the shape
+    distance cuts its chain of poles into pieces of disjoint orders, each too short for a mode. A cluster
+    of one pole per order joins a larger one's chain when they share no order (two modes resolved at once
+    hold poles at the same orders), their frequency ranges overlap (one chain wandering, not two side by
+    side) and their medians lie within half the larger width ``zeta f`` (the nearness of :func:`_persists_near`).
     """
     order, frequency, damping = poles.order[index], poles.frequency_hz[index], poles.damping_ratio[index]
-    pieces = []  # [label, orders, lowest, highest frequency, median frequency, half width], the most poles first
-    for label in np.unique(labels):
-        held, f = order[labels == label], frequency[labels == label]
-        if np.unique(held).size == held.size:
-            median = _median(f)
-            pieces.append([int(label), set(held.tolist()), f.min(), f.max(), median,
-                           0.5 * _median(damping[labels == label]) * median])
-    pieces.sort(key=lambda piece: -len(piece[1]))
-    chains: list[list] = []
+    chains: list[list] = []  # [label, orders, lowest and highest frequency, median frequency, half width]
     joined = labels.copy()
-    for label, held, low, high, median, width in pieces:
-        for chain in chains:
-            if (not held & chain[1] and low <= chain[3] and high >= chain[2]
-                    and abs(median - chain[4]) <= max(width, chain[5])):
-                joined[labels == label] = chain[0]
-                chain[1:4] = [chain[1] | held, min(low, chain[2]), max(high, chain[3])]
-                break
+    for label in sorted(np.unique(labels), key=lambda label: -np.count_nonzero(labels == label)):
+        held, f = order[labels == label], frequency[labels == label]
+        if np.unique(held).size < held.size:
+            continue
+        low, high, median, orders = f.min(), f.max(), _median(f), set(held.tolist())
+        width = 0.5 * _median(damping[labels == label]) * median
+        chain = next((c for c in chains if not orders & c[1] and low <= c[3] and high >= c[2]
+                      and abs(median - c[4]) <= max(width, c[5])), None)
+        if chain is None:
+            chains.append([label, orders, low, high, median, width])
         else:
-            chains.append([label, held, low, high, median, width])
+            joined[labels == label] = chain[0]
+            chain[1:4] = [chain[1] | orders, min(low, chain[2]), max(high, chain[3])]
     return joined
 
 
