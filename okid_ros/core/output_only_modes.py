@@ -372,18 +372,18 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
 def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """The linkage labels (S,) of the stable poles ``index`` (S,), the pieces of one chain of poles under one.
 
-    A close pair member's estimated shape turns with the order (its partner's mixed in): the shape
-    distance cuts its chain of poles into pieces of disjoint orders, each too short for a mode. A cluster
-    of one pole per order joins a larger one's chain when they share no order (two modes resolved at once
-    hold poles at the same orders), their frequency ranges overlap (one chain wandering, not two side by
-    side) and their medians lie within half the larger width ``zeta f`` (the nearness of :func:`_persists_near`).
+    A close pair member's shape turns with the order (its partner's mixed in): the shape distance cuts its chain of
+    poles into pieces of disjoint orders, each too short for a mode (:func:`_too_few_orders`). Of such pieces of one
+    pole per order the larger begins a chain; a piece joins one that shares none of its orders (two modes resolved
+    at once hold poles at the same orders), whose frequency range it overlaps (one chain wandering, not two side by
+    side) and whose median is within half the larger width ``zeta f`` (:func:`_persists_near`'s nearness).
     """
     order, frequency, damping = poles.order[index], poles.frequency_hz[index], poles.damping_ratio[index]
     chains: list[list] = []  # [label, orders, lowest and highest frequency, median frequency, half width]
-    joined = labels.copy()
+    joined, n_orders = labels.copy(), np.unique(poles.order).size
     for label in sorted(np.unique(labels), key=lambda label: -np.count_nonzero(labels == label)):
         held, f = order[labels == label], frequency[labels == label]
-        if np.unique(held).size < held.size:
+        if np.unique(held).size < held.size or not _too_few_orders(held.size, n_orders):
             continue
         low, high, median, orders = f.min(), f.max(), _median(f), set(held.tolist())
         width = 0.5 * _median(damping[labels == label]) * median
