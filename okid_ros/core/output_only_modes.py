@@ -9,19 +9,20 @@ The stabilization diagram without clicks:
    MAC >= ``MAC_TOLERANCE`` (:func:`mark_stable`);
 3. stable poles are grouped by average-linkage hierarchical clustering
    (``scipy.cluster.hierarchy``) on the distance ``|df| / f + (1 - MAC)``, cut at
-   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`), the pieces of one chain of poles a turning shape cut
-   apart joined (:func:`_join_chain_pieces`); a cluster holding two poles at ``MIN_ORDERS`` orders or
-   more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split (a mode has one pole
-   per order; :func:`_families`), and so is one whose families are a resolved pair (:func:`_resolved_pair`);
+   ``CLUSTER_DISTANCE`` (:func:`cluster_modes`); a cluster holding two poles at ``MIN_ORDERS``
+   orders or more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split
+   (a mode has one pole per order; :func:`_families`), and so is one whose two families are a
+   resolved close pair, two modes (:func:`_resolved_pair`);
 4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
    more outputs its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise
-   alone exceed, :func:`mpc_floor`), its median share of the correlations' energy (modal singular value
-   relative to the order's strongest pole) is at least ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on
-   the coloured simulation, carries no more than some noise poles; the jackknife of :mod:`.output_only`
-   tells them apart), and its frequency scatters across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING``
-   times its half-power bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
+   alone exceed, :func:`mpc_floor`), its median share of the correlations'
+   energy (modal singular value relative to the order's strongest pole) is at least
+   ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
+   than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
+   across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
+   bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
    A cluster that fails only the first test still is a mode (the one with the most orders
    first) when no accepted one lies within half a width ``zeta f / 2`` of it and the orders
    with a stable pole that near its frequency pass it: at high orders a mode's poles may
@@ -335,7 +336,7 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
     tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
-    labels = _join_chain_pieces(poles, index, hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance"))
+    labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]
     accepted, rejected = [], []
@@ -367,34 +368,6 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
-
-
-def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """The linkage labels (S,) of the stable poles ``index`` (S,), the pieces of one chain of poles under one.
-
-    A close pair member's shape turns with the order (its partner's mixed in): the shape distance cuts its chain of
-    poles into pieces of disjoint orders, each too short for a mode (:func:`_too_few_orders`). Of such pieces of one
-    pole per order the larger begins a chain; a piece joins one that shares none of its orders (two modes resolved
-    at once hold poles at the same orders), whose frequency range it overlaps (one chain wandering, not two side by
-    side) and whose median is within half the larger width ``zeta f`` (:func:`_persists_near`'s nearness).
-    """
-    order, frequency, damping = poles.order[index], poles.frequency_hz[index], poles.damping_ratio[index]
-    chains: list[list] = []  # [label, orders, lowest and highest frequency, median frequency, half width]
-    joined, n_orders = labels.copy(), np.unique(poles.order).size
-    for label in sorted(np.unique(labels), key=lambda label: -np.count_nonzero(labels == label)):
-        held, f = order[labels == label], frequency[labels == label]
-        if np.unique(held).size < held.size or not _too_few_orders(held.size, n_orders):
-            continue
-        low, high, median, orders = f.min(), f.max(), _median(f), set(held.tolist())
-        width = 0.5 * _median(damping[labels == label]) * median
-        chain = next((c for c in chains if not orders & c[1] and low <= c[3] and high >= c[2]
-                      and abs(median - c[4]) <= max(width, c[5])), None)
-        if chain is None:
-            chains.append([label, orders, low, high, median, width])
-        else:
-            joined[labels == label] = chain[0]
-            chain[1:4] = [chain[1] | orders, min(low, chain[2]), max(high, chain[3])]
-    return joined
 
 
 def noise_mpc_floor(n_outputs: int, share: float = NOISE_MPC_SHARE) -> float:
