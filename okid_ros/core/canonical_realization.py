@@ -100,10 +100,30 @@ def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, n
             moved[:r, :r] = top
             past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
             generator = np.vstack([moved[:r, : width - c - r], moved[r:, r:]])
+    except linalg.LinAlgError:  # the generator's differences lose what a nearly singular covariance keeps
+        return _dense_factor(lagged, block_rows)
+    return past, cross
+
+
+def _dense_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_toeplitz_factor`'s result by a dense Cholesky factor of the past's covariance and a triangular solve.
+
+    Backward stable where the block Schur steps are not: their ``P0^T P0 - Q0^T Q0`` cancels on a
+    nearly singular covariance (outputs with little or no sensor noise) that a dense factor still
+    takes. Raises IdentificationError when the covariance is not positive definite.
+    """
+    i, r = block_rows, lagged.shape[1]
+    first = lagged[i : 3 * i].transpose(2, 0, 1).reshape(r, 2 * i * r)  # block d: Sigma's block (a, a + d)
+    blocks = [first[:, d * r : (d + 1) * r] for d in range(2 * i)]
+    rows = np.vstack([np.hstack([blocks[b - a] if b >= a else blocks[a - b].T for b in range(2 * i)])
+                      for a in range(i)])  # the past's block rows of the past-and-future covariance
+    n = i * r
+    try:
+        low = linalg.cholesky(rows[:, :n], lower=True, check_finite=False)
     except linalg.LinAlgError:
         raise IdentificationError("the reference channels' covariance is not positive definite: "
                                   "no canonical-variate weighting") from None
-    return past, cross
+    return low.T.copy(), linalg.solve_triangular(low, rows[:, n:], lower=True, check_finite=False)
 
 
 @dataclass

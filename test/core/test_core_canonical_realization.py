@@ -212,3 +212,22 @@ def test_linearly_dependent_references_have_no_canonical_weighting(close_pair_ca
     twice = np.column_stack([y, y[:, 2]])  # reference 6 repeats reference 2: a singular past covariance
     with pytest.raises(IdentificationError, match="not positive definite"):
         canonical_decomposition(record_correlations(twice, 40), np.array([0, 2, 6]), 20, 10)
+
+
+def test_outputs_without_sensor_noise_keep_their_canonical_weighting() -> None:
+    # Four modes seen by three accelerometers under one white force, no sensor noise: the past's covariance is
+    # nearly singular. The block Schur steps' differences P0^T P0 - Q0^T Q0 lost its definiteness there (refused:
+    # "not positive definite") where the dense factor the route used before takes it; the factor falls back to it.
+    rng = np.random.default_rng(0)
+    frequency_hz, damping = np.array([1.3, 3.1, 4.7, 7.9]), np.array([0.01, 0.02, 0.01, 0.015])
+    w, dt, n_modes = 2 * np.pi * frequency_hz, 0.02, 4
+    shapes = rng.standard_normal((3, n_modes))
+    a = np.block([[np.zeros((n_modes, n_modes)), np.eye(n_modes)], [-np.diag(w**2), -np.diag(2 * damping * w)]])
+    force = rng.standard_normal((n_modes, 1))
+    b = np.vstack([np.zeros((n_modes, 1)), force])
+    discrete = signal.cont2discrete((a, b, shapes @ a[n_modes:], shapes @ force), dt, method="zoh")
+    _, y, _ = signal.dlsim(discrete[:4] + (dt,), rng.standard_normal((20000, 1)))
+    model = identify_output_only(y, dt)
+    found = np.array(sorted(mode.frequency_hz for mode in model.modes))
+    assert found.size == n_modes
+    np.testing.assert_allclose(found, frequency_hz, rtol=0.005)  # zoh: the record's poles are exp(s dt)
