@@ -44,6 +44,8 @@ _TIME_NAMES = {"dt", "dts", "ts", "sampletime", "sampletimes", "samplingtime", "
 #: A measured time vector's mean step may differ from the sample time by this share (100 ppm: a logger
 #: clock's drift; the frequencies it shifts by as much are far inside any mode's uncertainty).
 CLOCK_TOLERANCE = 1e-4
+#: A sample_time_s written rounded agrees with an exact rate within its last digit, up to this share of it.
+ROUNDED_SAMPLE_TIME = 1e-3
 #: Where a CSV record's sample time is read from.
 _CSV_TIME = "the sample_time_s comment (or the time_s column)"
 #: What each channel array holds, and the keys (any case) that look like it under another name.
@@ -110,7 +112,10 @@ def _agrees(key: str, value: object, implied: float, sample_time_s: float, n_sam
         slack = written / float(arr[0]) ** 2 if _plain_name(key) in _RATE_NAMES else written
     else:
         slack = max(MAX_STAMP_SLIP / (n_samples - 1), CLOCK_TOLERANCE) * sample_time_s
-    return abs(implied - sample_time_s) <= max(1e-6 * sample_time_s, slack)
+    # sample_time_s to the digits it is written with too (0.0833 beside fs = 12), at most 0.1 % of it (0.001
+    # beside fs = 1024 still contradicts)
+    rounded = min(_rounding(sample_time_s), ROUNDED_SAMPLE_TIME * sample_time_s)
+    return abs(implied - sample_time_s) <= max(1e-6 * sample_time_s, slack, rounded)
 
 
 def _contradiction(path: Path, key: str, found: tuple[float, str], sample_time_s: float, *,

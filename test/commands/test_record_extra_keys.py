@@ -127,3 +127,17 @@ def test_csv_columns_not_read_are_named_once(tmp_path: Path, capsys) -> None:
     named = [line for line in err.splitlines() if "label.csv" in line]
     assert named == [f"okid-ros identify: warning: {record}: column(s) not read: 'label'; a CSV record is read from "
                      "its u... and y... columns, time_s and stamp_s alone"], err
+
+
+def test_a_rate_agrees_with_a_sample_time_written_rounded(tmp_path: Path, capsys) -> None:
+    # fs = 12 Hz beside sample_time_s = 0.0833 (1/12 to four decimals, 0.04 % off): the same sample time, written
+    # rounded; was refused as a contradiction. A rate 2.4 % off a sample time of one digit still contradicts.
+    u, y = _arrays()
+    rounded = tmp_path / "rounded.npz"
+    np.savez(rounded, u=u, y=y, sample_time_s=0.0833, fs=12)
+    code, _, err = run_cli(capsys, "identify", rounded, "--json", tmp_path / "r.json", "--order", "4")
+    assert code == 0 and "rounded.npz" not in err, err
+    apart = tmp_path / "apart.npz"
+    np.savez(apart, u=u, y=y, sample_time_s=0.001, fs=1024)
+    code, _, err = run_cli(capsys, "identify", apart, "--json", tmp_path / "p.json", "--order", "4")
+    assert_one_line_error(code, err, "apart.npz: fs = 1024 Hz", "they contradict")
