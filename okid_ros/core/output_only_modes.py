@@ -389,26 +389,13 @@ def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) ->
         low, high, median, orders = f.min(), f.max(), _median(f), set(held.tolist())
         width = 0.5 * _median(damping[labels == label]) * median
         chain = next((c for c in chains if not orders & c[1] and low <= c[3] and high >= c[2]
-                      and abs(median - c[4]) <= max(width, c[5])
-                      and _meets_smoothly(poles, index[joined == c[0]], index[labels == label])), None)
+                      and abs(median - c[4]) <= max(width, c[5])), None)
         if chain is None:
             chains.append([label, orders, low, high, median, width])
         else:
             joined[labels == label] = chain[0]
             chain[1:4] = [chain[1] | orders, min(low, chain[2]), max(high, chain[3])]
     return joined
-
-
-def _meets_smoothly(poles: PoleSet, chain: np.ndarray, piece: np.ndarray) -> bool:
-    """Whether at every order where the poles pass from a chain to a piece (one pole per order each) they are stable."""
-    both = np.concatenate([chain, piece])
-    both = both[np.argsort(poles.order[both], kind="stable")]
-    switch = np.flatnonzero(np.isin(both[:-1], piece) != np.isin(both[1:], piece))
-    a, b = both[switch], both[switch + 1]
-    mac = np.abs(np.sum(np.conj(poles.shape[a]) * poles.shape[b], axis=1)) ** 2
-    fa, za = poles.frequency_hz[a], poles.damping_ratio[a]
-    return bool(np.all((mac >= MAC_TOLERANCE) & (np.abs(poles.frequency_hz[b] - fa) <= FREQUENCY_TOLERANCE * fa)
-                       & (np.abs(poles.damping_ratio[b] - za) <= DAMPING_TOLERANCE * za)))
 
 
 def noise_mpc_floor(n_outputs: int, share: float = NOISE_MPC_SHARE) -> float:
