@@ -336,7 +336,7 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
     distance += np.subtract(1.0, shape_distance, out=shape_distance)
     np.fill_diagonal(distance, 0.0)
     tree = hierarchy.linkage(squareform(np.maximum(distance, 0.0, out=distance), checks=False), method="average")
-    labels = _join_chain_pieces(poles, index, hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance"))
+    labels = hierarchy.fcluster(tree, t=CLUSTER_DISTANCE, criterion="distance")
     orders = np.unique(poles.order)
     p = poles.shape.shape[1]
     accepted, rejected = [], []
@@ -368,34 +368,6 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
             accepted.append(cluster)
     accepted.sort(key=lambda c: c.frequency_hz)
     return accepted, rejected
-
-
-def _join_chain_pieces(poles: PoleSet, index: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """The linkage labels (S,) of the stable poles ``index`` (S,), the pieces of one chain of poles under one.
-
-    A close pair member's shape turns with the order (its partner's mixed in): the shape distance cuts its chain of
-    poles into pieces of disjoint orders, each too short for a mode (:func:`_too_few_orders`). Of such pieces of one
-    pole per order the larger begins a chain; a piece joins one that shares none of its orders (two modes resolved
-    at once hold poles at the same orders), whose frequency range it overlaps (one chain wandering, not two side by
-    side) and whose median is within half the larger width ``zeta f`` (:func:`_persists_near`'s nearness).
-    """
-    order, frequency, damping = poles.order[index], poles.frequency_hz[index], poles.damping_ratio[index]
-    chains: list[list] = []  # [label, orders, lowest and highest frequency, median frequency, half width]
-    joined, n_orders = labels.copy(), np.unique(poles.order).size
-    for label in sorted(np.unique(labels), key=lambda label: -np.count_nonzero(labels == label)):
-        held, f = order[labels == label], frequency[labels == label]
-        if np.unique(held).size < held.size or not _too_few_orders(held.size, n_orders):
-            continue
-        low, high, median, orders = f.min(), f.max(), _median(f), set(held.tolist())
-        width = 0.5 * _median(damping[labels == label]) * median
-        chain = next((c for c in chains if not orders & c[1] and low <= c[3] and high >= c[2]
-                      and abs(median - c[4]) <= max(width, c[5])), None)
-        if chain is None:
-            chains.append([label, orders, low, high, median, width])
-        else:
-            joined[labels == label] = chain[0]
-            chain[1:4] = [chain[1] | orders, min(low, chain[2]), max(high, chain[3])]
-    return joined
 
 
 def noise_mpc_floor(n_outputs: int, share: float = NOISE_MPC_SHARE) -> float:
