@@ -10,7 +10,11 @@ test cannot explain (docs/benchmarks-change.md, fortieth session: forces x2 and 
 (:func:`~okid_ros.core.output_only.identify_output_only`, the reference's route) once they hold
 :data:`FIRST_PERIODS` periods of the reference's slowest mode, and again at :data:`LAST_PERIODS`
 when the first found no mode moved (whatever the rows the reference came from), and :func:`compare_modes`
-judges the new modes against the reference's:
+judges the new modes against a baseline's: the reference's, or, when the reference came from fewer rows
+than the stage holds, the modes of the outputs just before the change point identified on as many samples
+as the stage (or as are held there, if more than the reference's rows and at least the first stage's). A
+reference of few rows reads a mode off by more than its jackknife deviation says; outputs as long before
+and after the change carry the same finite-sample error (docs/benchmarks-change.md, forty-seventh session):
 
 - some reference mode's nearest new mode (within :data:`MATCH_TOLERANCE` of its frequency) differs
   in frequency or damping by more than :data:`CONFIRM_STDS` combined jackknife standard deviations,
@@ -124,6 +128,8 @@ class ModeConfirmation:
     Parameters
     ----------
     reference : the output-only reference (its ``modes`` with jackknife standard deviations).
+    reference_rows : the rows it was identified from (0: unknown, the outputs before the change point
+        are the baseline wherever they hold at least the first stage).
     executor : runs the identifications (None: inline).
 
     Attributes
@@ -133,8 +139,8 @@ class ModeConfirmation:
     last : the last verdict.
     """
 
-    def __init__(self, reference: IdentifiedModel, *, executor=None) -> None:
-        self.reference = reference
+    def __init__(self, reference: IdentifiedModel, *, reference_rows: int = 0, executor=None) -> None:
+        self.reference, self.reference_rows = reference, int(reference_rows)
         slowest = min((mode.frequency_hz for mode in reference.modes), default=math.nan)
         period = 1.0 / (slowest * reference.sample_time_s) if slowest > 0 else math.nan
         # The design's periods, whatever the reference's rows: capped at a short reference's rows, the last
@@ -143,6 +149,7 @@ class ModeConfirmation:
         first = int(FIRST_PERIODS * period) if math.isfinite(period) else 0
         self.stages = sorted({first, last} - {0})
         self.executor = executor
+        # Room for the last stage after the change point and as many samples before it (the baseline's).
         self._outputs = SampleRing(reference.C.shape[0], 2 * max(self.stages, default=1))
         self.alarm = None
         self.last: ModeVerdict | None = None
@@ -199,7 +206,7 @@ class ModeConfirmation:
                 held, first = self._outputs.since(self.alarm.change_index, index)
                 if held.shape[0] < need:
                     return None
-                self._job, self._job_end = self._submit(held[:need]), first + need - 1
+                self._job, self._job_end = self._submit(held[:need], self._before(need)), first + need - 1
             if not self._job.done():
                 return None
             verdict, self._job = self._job.result(), None
@@ -210,24 +217,41 @@ class ModeConfirmation:
             at = self._job_end if self.executor is None else index
             return dataclasses.replace(verdict, structural=verdict.structural is not False), at
 
-    def _submit(self, y: np.ndarray) -> Future:
+    def _before(self, need: int) -> np.ndarray | None:
+        """The baseline's outputs for a stage of ``need`` samples: those just before the change point, or None.
+
+        None (the reference is the baseline) when the reference holds at least ``need`` rows, or fewer
+        samples than the first stage's, or than the reference's rows, are held before the change point.
+        """
+        if self.reference_rows >= need:
+            return None
+        before, _ = self._outputs.since(self.alarm.change_index - need, self.alarm.change_index - 1)
+        return before if before.shape[0] >= max(self.stages[0], self.reference_rows + 1) else None
+
+    def _submit(self, y: np.ndarray, before: np.ndarray | None = None) -> Future:
         if self.executor is not None:
-            return self.executor.submit(self._judge, y)
+            return self.executor.submit(self._judge, y, before)
         done = Future()
-        done.set_result(self._judge(y))
+        done.set_result(self._judge(y, before))
         return done
 
-    def _judge(self, y: np.ndarray) -> ModeVerdict:
-        """The modes of outputs ``y`` against the reference's."""
+    def _identify(self, y: np.ndarray) -> IdentifiedModel | None:
+        """The output-only model of ``y`` by the reference's route; None if it fails or is unstable."""
         method = self.reference.method if self.reference.method in OUTPUT_ONLY_METHODS else OUTPUT_ONLY_METHODS[0]
-        undecided = ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
         try:
             model = identify_output_only(y, self.reference.sample_time_s, method=method)
         except (IdentificationError, ValueError, np.linalg.LinAlgError):  # as a realization fails (service/realization)
-            return undecided  # (raised on node 2's thread, it would have come out of the sample path's poll)
-        if model.stability_problem():  # never the change test's reference (as node 2 refuses such a model)
-            return undecided
-        verdict = compare_modes(self.reference.modes, model.modes)
+            return None  # (raised on node 2's thread, it would have come out of the sample path's poll)
+        # An unstable model is never the change test's reference (as node 2 refuses such a model).
+        return None if model.stability_problem() else model
+
+    def _judge(self, y: np.ndarray, before: np.ndarray | None = None) -> ModeVerdict:
+        """The modes of outputs ``y`` against the baseline's: those of ``before``, else the reference's."""
+        model = self._identify(y)
+        if model is None:
+            return ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
+        baseline = self._identify(before) if before is not None else None
+        verdict = compare_modes((baseline or self.reference).modes, model.modes)
         return dataclasses.replace(verdict, samples=y.shape[0], model=model)
 
     def new_reference(self, index: int) -> tuple[IdentifiedModel, np.ndarray]:

@@ -204,3 +204,40 @@ def test_an_unstable_model_after_the_alarm_is_never_the_new_reference(monkeypatc
                         lambda y, sample_time_s, *, method: unstable)
     verdict, _ = confirmation.take(np.zeros((2000, 2)), 300)
     assert verdict.structural is True and verdict.model is None  # undecided at the last stage: declared
+
+
+def _judged_after_history(monkeypatch, reference_rows, before_modes, after_modes):
+    """A 5 Hz reference (read 4 % low, as a short window may) at 100 Hz, 2000 samples of history before the change.
+
+    The outputs before the change point are zeros, those after it ones; the identification of ``y``
+    gives ``before_modes`` for zeros and ``after_modes[len(y)]`` otherwise. Returns the verdict and its sample.
+    """
+    def identify(y, sample_time_s, *, method):
+        found = before_modes if not y.any() else after_modes[y.shape[0]]
+        return SimpleNamespace(modes=found, stability_problem=lambda: "")
+    monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only", identify)
+    reference = SimpleNamespace(modes=[_mode(4.8, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva")
+    confirmation = ModeConfirmation(reference, reference_rows=reference_rows)
+    assert confirmation.stages == [833, 2083]
+    confirmation.push(0, np.zeros((2100, 2)))
+    confirmation.start(SimpleNamespace(change_index=2100, alarm_index=2299), np.ones((200, 2)), 2100)
+    return confirmation.take(np.ones((2000, 2)), 2300)
+
+
+def test_a_short_reference_s_alarm_is_judged_against_the_outputs_before_the_change_point(monkeypatch):
+    # The reference of 500 rows reads the mode at 4.8 Hz; 833 samples before and after the change read it at 5.0:
+    # unmoved (the excitation), where against the reference it moved by 8 standard deviations.
+    after = {833: [_mode(5.0, 0.03)], 2083: [_mode(5.01, 0.015)]}
+    verdict, at = _judged_after_history(monkeypatch, 500, [_mode(5.0, 0.03)], after)
+    assert verdict.structural is False and verdict.samples == 2083 and at == 2100 + 2083 - 1
+    assert verdict.largest_std < CONFIRM_STDS
+    # A mode that moved against the outputs before is declared at the first stage.
+    moved, at = _judged_after_history(monkeypatch, 500, [_mode(5.3, 0.03)], after)
+    assert moved.structural is True and moved.samples == 833 and at == 2100 + 833 - 1
+
+
+def test_a_reference_of_as_many_rows_as_the_stage_is_the_baseline(monkeypatch):
+    # A reference of at least the last stage's rows is judged against, whatever the outputs before read.
+    after = {833: [_mode(5.0, 0.03)], 2083: [_mode(5.01, 0.015)]}
+    verdict, _ = _judged_after_history(monkeypatch, 2083, [_mode(5.0, 0.03)], after)
+    assert verdict.structural is True and verdict.samples == 833 and verdict.largest_std > CONFIRM_STDS
