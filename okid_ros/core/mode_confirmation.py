@@ -11,10 +11,12 @@ test cannot explain (docs/benchmarks-change.md, fortieth session: forces x2 and 
 :data:`FIRST_PERIODS` periods of the reference's slowest mode, and again at :data:`LAST_PERIODS`
 when the first found no mode moved (whatever the rows the reference came from), and :func:`compare_modes`
 judges the new modes against a baseline's: the reference's, or, when the reference came from fewer rows
-than the stage holds, the modes of the outputs just before the change point identified on as many samples
-as the stage (or as are held there, if more than the reference's rows and at least the first stage's). A
-reference of few rows reads a mode off by more than its jackknife deviation says; outputs as long before
-and after the change carry the same finite-sample error (docs/benchmarks-change.md, forty-seventh session):
+than the stage holds, the modes of the first outputs the test was armed on (before the change point), as
+many as the stage holds (or as came before the change point, if more than the reference's rows and at least
+the first stage's). A reference of few rows reads a mode off by more than its jackknife deviation says;
+outputs as long before and after the change carry the same finite-sample error. The first outputs, not those
+just before the change point: an output-only change point is often hundreds of samples late, and such a
+window read a stiffness loss's moved mode on both sides (docs/benchmarks-change.md, forty-seventh session):
 
 - some reference mode's nearest new mode (within :data:`MATCH_TOLERANCE` of its frequency) differs
   in frequency or damping by more than :data:`CONFIRM_STDS` combined jackknife standard deviations,
@@ -149,8 +151,10 @@ class ModeConfirmation:
         first = int(FIRST_PERIODS * period) if math.isfinite(period) else 0
         self.stages = sorted({first, last} - {0})
         self.executor = executor
-        # Room for the last stage after the change point and as many samples before it (the baseline's).
         self._outputs = SampleRing(reference.C.shape[0], 2 * max(self.stages, default=1))
+        # The first outputs after the arming, up to the last stage's samples: the baseline of a short reference.
+        self._armed_outputs = np.zeros((max(self.stages, default=0), reference.C.shape[0]))
+        self._armed_first, self._armed_held = -1, 0  # the first sample kept (-1: none yet), samples kept
         self.alarm = None
         self.last: ModeVerdict | None = None
         self._job: Future | None = None
@@ -165,10 +169,28 @@ class ModeConfirmation:
     def push(self, first_index: int, y: np.ndarray) -> None:
         """Outputs (N, p) of samples ``first_index ..``."""
         self._outputs.push(first_index, y)
+        self._keep_armed(first_index, y)
 
     def push_one(self, index: int, y: np.ndarray) -> None:
         """Outputs (p,) of sample ``index`` (the per-sample path)."""
         self._outputs.push_one(index, y)
+        if self._armed_held < self._armed_outputs.shape[0]:
+            self._keep_armed(index, y[None, :])
+
+    def _keep_armed(self, first_index: int, y: np.ndarray) -> None:
+        """Rows of ``y`` that continue the first outputs kept (a sample pushed again is skipped; a gap ends them)."""
+        room = self._armed_outputs.shape[0] - self._armed_held
+        if room <= 0 or y.shape[0] == 0:
+            return
+        if self._armed_first < 0:
+            self._armed_first = first_index
+        skip = self._armed_first + self._armed_held - first_index
+        if skip < 0:  # a gap: the outputs kept end before it
+            self._armed_outputs = self._armed_outputs[:self._armed_held]
+            return
+        rows = y[skip:skip + room]
+        self._armed_outputs[self._armed_held:self._armed_held + rows.shape[0]] = rows
+        self._armed_held += rows.shape[0]
 
     def start(self, alarm, y: np.ndarray, first_index: int) -> None:
         """Hold ``alarm`` until a verdict; ``y`` (N, p) the block of samples ``first_index ..`` it came in.
@@ -218,15 +240,15 @@ class ModeConfirmation:
             return dataclasses.replace(verdict, structural=verdict.structural is not False), at
 
     def _before(self, need: int) -> np.ndarray | None:
-        """The baseline's outputs for a stage of ``need`` samples: those just before the change point, or None.
+        """The baseline's outputs for a stage of ``need`` samples: the first kept before the change point, or None.
 
         None (the reference is the baseline) when the reference holds at least ``need`` rows, or fewer
-        samples than the first stage's, or than the reference's rows, are held before the change point.
+        samples than the first stage's, or than the reference's rows, were kept before the change point.
         """
-        if self.reference_rows >= need:
+        if self.reference_rows >= need or self._armed_first < 0:
             return None
-        before, _ = self._outputs.since(self.alarm.change_index - need, self.alarm.change_index - 1)
-        return before if before.shape[0] >= max(self.stages[0], self.reference_rows + 1) else None
+        held = min(need, self._armed_held, self.alarm.change_index - self._armed_first)
+        return self._armed_outputs[:held].copy() if held >= max(self.stages[0], self.reference_rows + 1) else None
 
     def _submit(self, y: np.ndarray, before: np.ndarray | None = None) -> Future:
         if self.executor is not None:

@@ -206,11 +206,12 @@ def test_an_unstable_model_after_the_alarm_is_never_the_new_reference(monkeypatc
     assert verdict.structural is True and verdict.model is None  # undecided at the last stage: declared
 
 
-def _judged_after_history(monkeypatch, reference_rows, before_modes, after_modes):
-    """A 5 Hz reference (read 4 % low, as a short window may) at 100 Hz, 2000 samples of history before the change.
+def _judged_after_history(monkeypatch, reference_rows, before_modes, after_modes, changed=2100):
+    """A 5 Hz reference (read 4 % low, as a short window may) at 100 Hz, 2100 samples held before the change point.
 
-    The outputs before the change point are zeros, those after it ones; the identification of ``y``
-    gives ``before_modes`` for zeros and ``after_modes[len(y)]`` otherwise. Returns the verdict and its sample.
+    The outputs are zeros before sample ``changed``, ones from it on (the change point: 2100); the
+    identification of ``y`` gives ``before_modes`` for zeros and ``after_modes[len(y)]`` otherwise.
+    Returns the verdict and its sample.
     """
     def identify(y, sample_time_s, *, method):
         found = before_modes if not y.any() else after_modes[y.shape[0]]
@@ -219,7 +220,7 @@ def _judged_after_history(monkeypatch, reference_rows, before_modes, after_modes
     reference = SimpleNamespace(modes=[_mode(4.8, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva")
     confirmation = ModeConfirmation(reference, reference_rows=reference_rows)
     assert confirmation.stages == [833, 2083]
-    confirmation.push(0, np.zeros((2100, 2)))
+    confirmation.push(0, (np.arange(2100) >= changed)[:, None] * np.ones((1, 2)))
     confirmation.start(SimpleNamespace(change_index=2100, alarm_index=2299), np.ones((200, 2)), 2100)
     return confirmation.take(np.ones((2000, 2)), 2300)
 
@@ -241,3 +242,11 @@ def test_a_reference_of_as_many_rows_as_the_stage_is_the_baseline(monkeypatch):
     after = {833: [_mode(5.0, 0.03)], 2083: [_mode(5.01, 0.015)]}
     verdict, _ = _judged_after_history(monkeypatch, 2083, [_mode(5.0, 0.03)], after)
     assert verdict.structural is True and verdict.samples == 833 and verdict.largest_std > CONFIRM_STDS
+
+
+def test_a_late_change_point_s_baseline_is_the_first_outputs_after_the_arming(monkeypatch):
+    # The structure changed at 1200, the change point 900 samples late: the 833 samples before it are the new
+    # structure's, the first 833 after the arming the old one's (at 5.3 Hz: moved, declared).
+    after = {833: [_mode(5.0, 0.03)], 2083: [_mode(5.01, 0.015)]}
+    moved, at = _judged_after_history(monkeypatch, 500, [_mode(5.3, 0.03)], after, changed=1200)
+    assert moved.structural is True and moved.samples == 833 and at == 2100 + 833 - 1
