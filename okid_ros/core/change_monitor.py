@@ -136,7 +136,7 @@ class StructuralChangeMonitor:
         self._judgement.noise_test = self._judge_noise if self.noise_change_test else None
         self._noise_excursion = -1
         self._innovation_std = np.sqrt(np.diag(model.innovation_covariance))
-        self._confirm = ModeConfirmation(model, reference_rows=reference_rows, executor=self.confirm_executor) if (
+        self._confirm = ModeConfirmation(model, executor=self.confirm_executor) if (
             self.mode_confirmation and model.B.shape[1] == 0 and getattr(model, "modes", None)) else None
 
     @property

@@ -10,13 +10,7 @@ test cannot explain (docs/benchmarks-change.md, fortieth session: forces x2 and 
 (:func:`~okid_ros.core.output_only.identify_output_only`, the reference's route) once they hold
 :data:`FIRST_PERIODS` periods of the reference's slowest mode, and again at :data:`LAST_PERIODS`
 when the first found no mode moved (whatever the rows the reference came from), and :func:`compare_modes`
-judges the new modes against a baseline's: the reference's, or, when the reference came from fewer rows
-than the stage holds, the modes of the first outputs the test was armed on (before the change point), as
-many as the stage holds (or as came before the change point, if more than the reference's rows and at least
-the first stage's). A reference of few rows reads a mode off by more than its jackknife deviation says;
-outputs as long before and after the change carry the same finite-sample error. The first outputs, not those
-just before the change point: an output-only change point is often hundreds of samples late, and such a
-window read a stiffness loss's moved mode on both sides (docs/benchmarks-change.md, forty-seventh session):
+judges the new modes against the reference's:
 
 - some reference mode's nearest new mode (within :data:`MATCH_TOLERANCE` of its frequency) differs
   in frequency or damping by more than :data:`CONFIRM_STDS` combined jackknife standard deviations,
@@ -130,8 +124,6 @@ class ModeConfirmation:
     Parameters
     ----------
     reference : the output-only reference (its ``modes`` with jackknife standard deviations).
-    reference_rows : the rows it was identified from (0: unknown, the outputs before the change point
-        are the baseline wherever they hold at least the first stage).
     executor : runs the identifications (None: inline).
 
     Attributes
@@ -141,8 +133,8 @@ class ModeConfirmation:
     last : the last verdict.
     """
 
-    def __init__(self, reference: IdentifiedModel, *, reference_rows: int = 0, executor=None) -> None:
-        self.reference, self.reference_rows = reference, int(reference_rows)
+    def __init__(self, reference: IdentifiedModel, *, executor=None) -> None:
+        self.reference = reference
         slowest = min((mode.frequency_hz for mode in reference.modes), default=math.nan)
         period = 1.0 / (slowest * reference.sample_time_s) if slowest > 0 else math.nan
         # The design's periods, whatever the reference's rows: capped at a short reference's rows, the last
@@ -152,9 +144,6 @@ class ModeConfirmation:
         self.stages = sorted({first, last} - {0})
         self.executor = executor
         self._outputs = SampleRing(reference.C.shape[0], 2 * max(self.stages, default=1))
-        # The first outputs after the arming, up to the last stage's samples: the baseline of a short reference.
-        self._armed_outputs = np.zeros((max(self.stages, default=0), reference.C.shape[0]))
-        self._armed_first, self._armed_held = -1, 0  # the first sample kept (-1: none yet), samples kept
         self.alarm = None
         self.last: ModeVerdict | None = None
         self._job: Future | None = None
@@ -169,28 +158,10 @@ class ModeConfirmation:
     def push(self, first_index: int, y: np.ndarray) -> None:
         """Outputs (N, p) of samples ``first_index ..``."""
         self._outputs.push(first_index, y)
-        self._keep_armed(first_index, y)
 
     def push_one(self, index: int, y: np.ndarray) -> None:
         """Outputs (p,) of sample ``index`` (the per-sample path)."""
         self._outputs.push_one(index, y)
-        if self._armed_held < self._armed_outputs.shape[0]:
-            self._keep_armed(index, y[None, :])
-
-    def _keep_armed(self, first_index: int, y: np.ndarray) -> None:
-        """Rows of ``y`` that continue the first outputs kept (a sample pushed again is skipped; a gap ends them)."""
-        room = self._armed_outputs.shape[0] - self._armed_held
-        if room <= 0 or y.shape[0] == 0:
-            return
-        if self._armed_first < 0:
-            self._armed_first = first_index
-        skip = self._armed_first + self._armed_held - first_index
-        if skip < 0:  # a gap: the outputs kept end before it
-            self._armed_outputs = self._armed_outputs[:self._armed_held]
-            return
-        rows = y[skip:skip + room]
-        self._armed_outputs[self._armed_held:self._armed_held + rows.shape[0]] = rows
-        self._armed_held += rows.shape[0]
 
     def start(self, alarm, y: np.ndarray, first_index: int) -> None:
         """Hold ``alarm`` until a verdict; ``y`` (N, p) the block of samples ``first_index ..`` it came in.
@@ -228,7 +199,7 @@ class ModeConfirmation:
                 held, first = self._outputs.since(self.alarm.change_index, index)
                 if held.shape[0] < need:
                     return None
-                self._job, self._job_end = self._submit(held[:need], self._before(need)), first + need - 1
+                self._job, self._job_end = self._submit(held[:need]), first + need - 1
             if not self._job.done():
                 return None
             verdict, self._job = self._job.result(), None
@@ -239,41 +210,24 @@ class ModeConfirmation:
             at = self._job_end if self.executor is None else index
             return dataclasses.replace(verdict, structural=verdict.structural is not False), at
 
-    def _before(self, need: int) -> np.ndarray | None:
-        """The baseline's outputs for a stage of ``need`` samples: the first kept before the change point, or None.
-
-        None (the reference is the baseline) when the reference holds at least ``need`` rows, or fewer
-        samples than the first stage's, or than the reference's rows, were kept before the change point.
-        """
-        if self.reference_rows >= need or self._armed_first < 0:
-            return None
-        held = min(need, self._armed_held, self.alarm.change_index - self._armed_first)
-        return self._armed_outputs[:held].copy() if held >= max(self.stages[0], self.reference_rows + 1) else None
-
-    def _submit(self, y: np.ndarray, before: np.ndarray | None = None) -> Future:
+    def _submit(self, y: np.ndarray) -> Future:
         if self.executor is not None:
-            return self.executor.submit(self._judge, y, before)
+            return self.executor.submit(self._judge, y)
         done = Future()
-        done.set_result(self._judge(y, before))
+        done.set_result(self._judge(y))
         return done
 
-    def _identify(self, y: np.ndarray) -> IdentifiedModel | None:
-        """The output-only model of ``y`` by the reference's route; None if it fails or is unstable."""
+    def _judge(self, y: np.ndarray) -> ModeVerdict:
+        """The modes of outputs ``y`` against the reference's."""
         method = self.reference.method if self.reference.method in OUTPUT_ONLY_METHODS else OUTPUT_ONLY_METHODS[0]
+        undecided = ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
         try:
             model = identify_output_only(y, self.reference.sample_time_s, method=method)
         except (IdentificationError, ValueError, np.linalg.LinAlgError):  # as a realization fails (service/realization)
-            return None  # (raised on node 2's thread, it would have come out of the sample path's poll)
-        # An unstable model is never the change test's reference (as node 2 refuses such a model).
-        return None if model.stability_problem() else model
-
-    def _judge(self, y: np.ndarray, before: np.ndarray | None = None) -> ModeVerdict:
-        """The modes of outputs ``y`` against the baseline's: those of ``before``, else the reference's."""
-        model = self._identify(y)
-        if model is None:
-            return ModeVerdict(None, math.nan, len(self.reference.modes), 0, y.shape[0])
-        baseline = self._identify(before) if before is not None else None
-        verdict = compare_modes((baseline or self.reference).modes, model.modes)
+            return undecided  # (raised on node 2's thread, it would have come out of the sample path's poll)
+        if model.stability_problem():  # never the change test's reference (as node 2 refuses such a model)
+            return undecided
+        verdict = compare_modes(self.reference.modes, model.modes)
         return dataclasses.replace(verdict, samples=y.shape[0], model=model)
 
     def new_reference(self, index: int) -> tuple[IdentifiedModel, np.ndarray]:
