@@ -85,21 +85,33 @@ def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, n
         rows[:, :r] = upper  # the product's rounding below the diagonal left out, here and at every step
         past, cross = np.zeros((n, n)), np.empty((n, n))  # [L^T, L^-1 Sigma_pf]: each block row's two parts
         past[:r], cross[:r] = rows[:, :n], rows[:, n:]
-        generator = np.vstack([rows[:, : width - r], rows[:, r:]])  # P moved right one block, over Q
+        # The generator (P moved right one block, over Q), contiguous, in one buffer, and each step's small arrays,
+        # made once: a Python step per block row, where fresh arrays (stacks, identities) cost more than the work.
+        generator_buffer = np.empty(2 * r * (width - r))
+        generator = generator_buffer.reshape(2 * r, width - r)
+        generator[:r], generator[r:] = rows[:, : width - r], rows[:, r:]
+        step, eye = np.empty((2 * r, 2 * r)), np.eye(r)
+        upper_rhs, lower_rhs = np.empty((r, 2 * r), order="F"), np.empty((r, 2 * r), order="F")
         for c in range(r, n, r):
             # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
             # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
             p0, q0 = generator[:r, :r], generator[r:, :r]
             top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
-            step = _checked(lapack.dtrtrs(top, np.hstack([p0.T, -q0.T]), lower=0, trans=1))
-            if c + r < n:  # Q's update too (the last row needs none: only the past's covariance is factored)
+            upper_rhs[:, :r], upper_rhs[:, r:] = p0.T, -q0.T
+            step[:r] = _checked(lapack.dtrtrs(top, upper_rhs, lower=0, trans=1, overwrite_b=1))
+            last = c + r >= n  # the last row needs no update of Q: only the past's covariance is factored
+            if not last:
                 ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
-                low = _checked(lapack.dpotrf(np.eye(r) - ratio @ ratio.T, lower=1, clean=1))
-                step = np.vstack([step, _checked(lapack.dtrtrs(low, np.hstack([-ratio, np.eye(r)]), lower=1))])
-            moved = step @ generator
+                low = _checked(lapack.dpotrf(eye - ratio @ ratio.T, lower=1, clean=1))
+                lower_rhs[:, :r], lower_rhs[:, r:] = -ratio, eye
+                step[r:] = _checked(lapack.dtrtrs(low, lower_rhs, lower=1, overwrite_b=1))
+            columns = width - c
+            moved = step[: r if last else 2 * r] @ generator
             moved[:r, :r] = top
             past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
-            generator = np.vstack([moved[:r, : width - c - r], moved[r:, r:]])
+            if not last:  # P keeps its columns, Q moves left one block
+                generator = generator_buffer[: 2 * r * (columns - r)].reshape(2 * r, columns - r)
+                generator[:r], generator[r:] = moved[:r, : columns - r], moved[r:, r:]
     except linalg.LinAlgError:  # the generator's differences lose what a nearly singular covariance keeps
         return _dense_factor(lagged, block_rows)
     return past, cross
