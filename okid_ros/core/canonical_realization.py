@@ -222,22 +222,25 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     # module's M with the past's and the future's blocks both reversed (orthogonal changes: same S and A).
     past_upper, cross = _toeplitz_factor(lagged, i)
     low = past_upper.T  # Fortran order: no copies for BLAS
-    weighted = blas.dtrsm(1.0, low, cross.T, lower=1, overwrite_b=1)  # M, future x past
+    weighted = blas.dtrsm(1.0, low, cross.T, lower=1)  # M, future x past (cross kept for its product with V)
     # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
     # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
-    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True)
+    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True,
+                             overwrite=True)
     s = np.sqrt(np.maximum(values, 0.0))
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
     # T = J L^-T V: the past's directions on z (the past read backwards, as the Hankel's columns).
     transform = linalg.solve_triangular(past_upper, V, check_finite=False).reshape(i, r, -1)[::-1].reshape(n, -1)
-    # U = M V / s, so U^T L^-1 H(1) T = (M V)^T L^-1 H(1) T / s: products with k columns, M(1) never formed.
-    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
-    hankel = _block_matrix(lagged, i, i + 1, 1, 1)  # H(0): block (a, b) is R_(a+b+1)
+    # H(0) T = Sigma_fp L^-T V (H(0)'s columns are the past read backwards) = cross^T V, so U = M V / s =
+    # L^-1 H(0) T / s, and U^T L^-1 H(1) T = (L^-1 H(0) T)^T L^-1 H(1) T / s: one product with k columns and one
+    # solve with 2 k (M V as a product costs twice that solve), M(1) never formed. H(1)'s block row a is H(0)'s
+    # a + 1, its last R_(i+1) .. R_2i.
+    hankel_t = cross.T @ V
     last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, n)
-    future = linalg.solve_triangular(low, np.vstack([hankel[r:] @ transform, last_row @ transform]), lower=True,
-                                     overwrite_b=True, check_finite=False)
-    shifted = ((weighted @ V).T @ future) / s[:, None]
+    both = np.hstack([hankel_t, np.vstack([hankel_t[r:], last_row @ transform])])
+    solved = linalg.solve_triangular(low, both, lower=True, overwrite_b=True, check_finite=False)
+    shifted = (solved[:, : V.shape[1]].T @ solved[:, V.shape[1] :]) / s[:, None]
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], n)
     # V^T L^T at z's first block: Sigma_z T's first block row, L's last block row times V.
     return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,
