@@ -85,21 +85,33 @@ def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, n
         rows[:, :r] = upper  # the product's rounding below the diagonal left out, here and at every step
         past, cross = np.zeros((n, n)), np.empty((n, n))  # [L^T, L^-1 Sigma_pf]: each block row's two parts
         past[:r], cross[:r] = rows[:, :n], rows[:, n:]
-        generator = np.vstack([rows[:, : width - r], rows[:, r:]])  # P moved right one block, over Q
+        # The generator (P moved right one block, over Q), contiguous, in one buffer, and each step's small arrays,
+        # made once: a Python step per block row, where fresh arrays (stacks, identities) cost more than the work.
+        generator_buffer = np.empty(2 * r * (width - r))
+        generator = generator_buffer.reshape(2 * r, width - r)
+        generator[:r], generator[r:] = rows[:, : width - r], rows[:, r:]
+        step, eye = np.empty((2 * r, 2 * r)), np.eye(r)
+        upper_rhs, lower_rhs = np.empty((r, 2 * r), order="F"), np.empty((r, 2 * r), order="F")
         for c in range(r, n, r):
             # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
             # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
             p0, q0 = generator[:r, :r], generator[r:, :r]
             top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
-            step = _checked(lapack.dtrtrs(top, np.hstack([p0.T, -q0.T]), lower=0, trans=1))
-            if c + r < n:  # Q's update too (the last row needs none: only the past's covariance is factored)
+            upper_rhs[:, :r], upper_rhs[:, r:] = p0.T, -q0.T
+            step[:r] = _checked(lapack.dtrtrs(top, upper_rhs, lower=0, trans=1, overwrite_b=1))
+            last = c + r >= n  # the last row needs no update of Q: only the past's covariance is factored
+            if not last:
                 ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
-                low = _checked(lapack.dpotrf(np.eye(r) - ratio @ ratio.T, lower=1, clean=1))
-                step = np.vstack([step, _checked(lapack.dtrtrs(low, np.hstack([-ratio, np.eye(r)]), lower=1))])
-            moved = step @ generator
+                low = _checked(lapack.dpotrf(eye - ratio @ ratio.T, lower=1, clean=1))
+                lower_rhs[:, :r], lower_rhs[:, r:] = -ratio, eye
+                step[r:] = _checked(lapack.dtrtrs(low, lower_rhs, lower=1, overwrite_b=1))
+            columns = width - c
+            moved = step[: r if last else 2 * r] @ generator
             moved[:r, :r] = top
             past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
-            generator = np.vstack([moved[:r, : width - c - r], moved[r:, r:]])
+            if not last:  # P keeps its columns, Q moves left one block
+                generator = generator_buffer[: 2 * r * (columns - r)].reshape(2 * r, columns - r)
+                generator[:r], generator[r:] = moved[:r, : columns - r], moved[r:, r:]
     except linalg.LinAlgError:  # the generator's differences lose what a nearly singular covariance keeps
         return _dense_factor(lagged, block_rows)
     return past, cross
@@ -210,22 +222,25 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     # module's M with the past's and the future's blocks both reversed (orthogonal changes: same S and A).
     past_upper, cross = _toeplitz_factor(lagged, i)
     low = past_upper.T  # Fortran order: no copies for BLAS
-    weighted = blas.dtrsm(1.0, low, cross.T, lower=1, overwrite_b=1)  # M, future x past
+    weighted = blas.dtrsm(1.0, low, cross.T, lower=1)  # M, future x past (cross kept for its product with V)
     # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
     # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
-    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True)
+    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True,
+                             overwrite=True)
     s = np.sqrt(np.maximum(values, 0.0))
     keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
     s, V = s[keep], V[:, keep]
     # T = J L^-T V: the past's directions on z (the past read backwards, as the Hankel's columns).
     transform = linalg.solve_triangular(past_upper, V, check_finite=False).reshape(i, r, -1)[::-1].reshape(n, -1)
-    # U = M V / s, so U^T L^-1 H(1) T = (M V)^T L^-1 H(1) T / s: products with k columns, M(1) never formed.
-    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
-    hankel = _block_matrix(lagged, i, i + 1, 1, 1)  # H(0): block (a, b) is R_(a+b+1)
+    # H(0) T = Sigma_fp L^-T V (H(0)'s columns are the past read backwards) = cross^T V, so U = M V / s =
+    # L^-1 H(0) T / s, and U^T L^-1 H(1) T = (L^-1 H(0) T)^T L^-1 H(1) T / s: one product with k columns and one
+    # solve with 2 k (M V as a product costs twice that solve), M(1) never formed. H(1)'s block row a is H(0)'s
+    # a + 1, its last R_(i+1) .. R_2i.
+    hankel_t = cross.T @ V
     last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, n)
-    future = linalg.solve_triangular(low, np.vstack([hankel[r:] @ transform, last_row @ transform]), lower=True,
-                                     overwrite_b=True, check_finite=False)
-    shifted = ((weighted @ V).T @ future) / s[:, None]
+    both = np.hstack([hankel_t, np.vstack([hankel_t[r:], last_row @ transform])])
+    solved = linalg.solve_triangular(low, both, lower=True, overwrite_b=True, check_finite=False)
+    shifted = (solved[:, : V.shape[1]].T @ solved[:, V.shape[1] :]) / s[:, None]
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], n)
     # V^T L^T at z's first block: Sigma_z T's first block row, L's last block row times V.
     return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,

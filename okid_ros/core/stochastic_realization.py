@@ -239,7 +239,8 @@ def hankel_grams(blocks: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarra
     return gram.reshape(i * r, i * r), cross.reshape(i * r, i * r)
 
 
-def leading_eigh(matrix: np.ndarray, k: int, *, alone: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def leading_eigh(matrix: np.ndarray, k: int, *, alone: bool = False, overwrite: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` largest eigenvalues (descending) and their eigenvectors of a symmetric matrix.
 
     ``matrix`` (m, m) -> values (k,), vectors (m, k). LAPACK's divide-and-conquer route
@@ -252,9 +253,10 @@ def leading_eigh(matrix: np.ndarray, k: int, *, alone: bool = False) -> tuple[np
     to rounding (test/core/test_core_output_only.py). ``alone``: the tridiagonal form's ``k``
     largest pairs alone where the matrix is large enough for that to be cheaper
     (:class:`~okid_ros.core.symmetric_eigen.SymmetricEigen`'s ``largest``; the same pairs to
-    rounding). ValueError on NaN or Inf.
+    rounding). ``overwrite``: ``matrix`` is a scratch array the reduction may overwrite (no copy).
+    ValueError on NaN or Inf.
     """
-    eigen = SymmetricEigen(matrix, largest=int(min(k, matrix.shape[0])) if alone else None)
+    eigen = SymmetricEigen(matrix, largest=int(min(k, matrix.shape[0])) if alone else None, overwrite=overwrite)
     count = eigen.values.size
     top = np.arange(count - 1, count - 1 - min(k, count), -1)
     return eigen.values[top], eigen.vectors(top)

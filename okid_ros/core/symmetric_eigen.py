@@ -35,13 +35,15 @@ class SymmetricEigen:
     largest : only the ``largest`` greatest pairs are wanted: ``values`` (ascending) and
         :meth:`vectors` hold just those where ``m >= LARGEST_ALONE_RATIO * largest`` (then
         :meth:`project` and :meth:`expand` are with those vectors alone); None: every pair.
+    overwrite : the reduction may use ``matrix``'s storage (no copy of a Fortran-ordered one); its
+        contents are then undefined.
 
     Raises
     ------
     ValueError on NaN or Inf (as ``scipy.linalg.eigh``); numpy.linalg.LinAlgError when LAPACK fails.
     """
 
-    def __init__(self, matrix: np.ndarray, *, largest: int | None = None) -> None:
+    def __init__(self, matrix: np.ndarray, *, largest: int | None = None, overwrite: bool = False) -> None:
         matrix = np.asarray_chkfinite(matrix, dtype=float)
         m = matrix.shape[0]
         self.size = m
@@ -50,7 +52,8 @@ class SymmetricEigen:
             self.values, self._z = linalg.eigh(matrix)
             return
         lwork = int(lapack.dsytrd_lwork(m, lower=1)[0])
-        self._reflectors, diagonal, off_diagonal, self._tau, info = lapack.dsytrd(matrix, lower=1, lwork=lwork)
+        self._reflectors, diagonal, off_diagonal, self._tau, info = lapack.dsytrd(
+            matrix, lower=1, lwork=lwork, overwrite_a=overwrite)
         if info:
             raise np.linalg.LinAlgError(f"symmetric eigendecomposition failed (dsytrd {info})")
         if largest is not None and 0 < largest and m >= LARGEST_ALONE_RATIO * largest:
