@@ -7,10 +7,11 @@ import pytest
 from okid_ros.errors import ParameterError
 from okid_ros.tools.node_parameters import load_node_parameters
 
+SOURCES = "    inputs:\n      sources: ['io_sample /okid/io_sample {}']\n"
 NODE_2_SECTIONS = {
     "sample_time_s": "    sample_time_s: 0.004\n",
-    "n_inputs": "    n_inputs: 0\n    inputs:\n      sources: ['io_sample /okid/io_sample y[0]=y0 y[1]=y1']\n",
-    "n_outputs": "    n_outputs: 1\n    inputs:\n      sources: ['io_sample /okid/io_sample u[0]=u0 u[1]=u1 y[0]=y0']\n",
+    "n_inputs": "    n_inputs: 0\n" + SOURCES.format("y[0]=y0 y[1]=y1"),
+    "n_outputs": "    n_outputs: 1\n" + SOURCES.format("u[0]=u0 u[1]=u1 y[0]=y0"),
 }
 
 

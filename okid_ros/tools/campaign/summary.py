@@ -71,5 +71,6 @@ def same_recordings(entries: list[dict], rows: list[dict]) -> str:
     if not copies:
         return ""
     listed = "; ".join(" and ".join(bags) for bags in copies)
-    return (f"{listed}: the same samples (first stamp, span and count) and modes, one recording given more than once? Its "
-            "modes are in the tables once per copy; take the copies out (okid-ros batch --forget BAG --out DIR)")
+    return (f"{listed}: the same samples (first stamp, span and count) and modes, one recording given more than "
+            "once? Its modes are in the tables once per copy; take the copies out (okid-ros batch --forget BAG --out "
+            "DIR)")
