@@ -8,6 +8,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from okid_ros.errors import OkidWarning
 from okid_ros.tools.bagio import okid_typestore, open_bag
+from okid_ros.tools.campaign.discovery import plan_bag
 from okid_ros.tools.errors import BagReadError
 
 IMU, ACCEL = "sensor_msgs/msg/Imu", "geometry_msgs/msg/AccelStamped"
@@ -62,3 +63,10 @@ def test_a_topic_of_neither_type_names_both(two_types_bag):
     said = "has type sensor_msgs/msg/Imu and geometry_msgs/msg/AccelStamped, expected"
     with open_bag(two_types_bag) as bag, pytest.raises(BagReadError, match=said):
         bag.require_topic("/imu", ["std_msgs/msg/Float64MultiArray"])
+
+
+def test_a_campaign_plan_names_both_types_of_a_topic(two_types_bag):
+    """`batch --plan` (metadata only) showed the topic as of its last type alone, with both types' messages."""
+    plan = plan_bag(two_types_bag)
+    assert plan.topics == {"/imu": f"{IMU} and {ACCEL}"}
+    assert plan.counts == {"/imu": sum(COUNTS.values())}
