@@ -74,7 +74,7 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     values, origins = [], []
     for node in (ARX_NODE, ESTIMATOR_NODE):
         merged: dict[str, Any] = {}
-        origin: dict[str, str] = {}
+        origins.append(origin := {})  # parameter -> the file or option that gave it
         for label, tree in trees:
             found = node_values_from_tree(tree, node_fqn(node, namespace))
             merged.update(found)
@@ -87,17 +87,15 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         except ParameterError as exc:
             label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
             raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
-        origins.append(origin)
-    if disagreement := _sizes_disagree(values, origins):
-        raise ParameterError(disagreement)
+    _check_sizes_agree(values, origins)
     for note in dict.fromkeys(time_jump_note(v) for v in values):  # a section of each node: said once
         if note:
             say(note)
     return values[0], values[1]
 
 
-def _sizes_disagree(values: list[dict], origins: list[dict[str, str]]) -> str:
-    """Why the nodes' values of a shared parameter that sizes the model differ ('' if they agree).
+def _check_sizes_agree(values: list[dict], origins: list[dict[str, str]]) -> None:
+    """Raise ParameterError where the nodes' values of a shared parameter that sizes the model differ.
 
     Node 2 refuses every ArxModel of another sample time or other dimensions than its own
     (``arx_fit_from_msg``, ``RealizationHandoff.arrival``): with such values no model ever comes.
@@ -112,10 +110,9 @@ def _sizes_disagree(values: list[dict], origins: list[dict[str, str]]) -> str:
             continue
         where = " and ".join(f"{node} {value!r} ({origin.get(spec.name, 'default')})" for node, value, origin
                              in zip((ARX_NODE, ESTIMATOR_NODE), (ours, theirs), origins))
-        return (f"parameter {spec.name} differs between the nodes: {where}; node 2 refuses every ArxModel of "
-                f"another sample time or size than its own, so no model would come: set {spec.name} once, in "
-                "the '/**' section both nodes read")
-    return ""
+        raise ParameterError(f"parameter {spec.name} differs between the nodes: {where}; node 2 refuses every "
+                             f"ArxModel of another sample time or size than its own, so no model would come: set "
+                             f"{spec.name} once, in the '/**' section both nodes read")
 
 
 def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tuple[str, Any]]:
