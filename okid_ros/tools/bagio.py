@@ -33,6 +33,7 @@ import os
 import shutil
 import sys
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -115,9 +116,7 @@ def msgtype_name(msgtype: str) -> str:
     return msgtype
 
 
-# --------------------------------------------------------------------------------------------
-# reading
-# --------------------------------------------------------------------------------------------
+# reading ------------------------------------------------------------------------------------
 
 
 class BagReader:
@@ -132,8 +131,15 @@ class BagReader:
         #: How the bag was read when not as a whole (a cut-off recording, its MCAP file alone).
         self.read_note = read_note
         self.topics: dict[str, str] = {}
+        self._read_type: dict[str, str] = {}  # a topic stored with several types: the one read (require_topic)
         for connection in reader.connections:
             self.topics.setdefault(connection.topic, msgtype_name(connection.msgtype))
+
+    def _connections(self, topics: Iterable[str] | None) -> list:
+        """The bag's connections on ``topics`` (all when None), of the type read where a topic has several."""
+        wanted = None if topics is None else set(topics)
+        return [c for c in self._reader.connections if (wanted is None or c.topic in wanted)
+                and self._read_type.get(c.topic, msgtype_name(c.msgtype)) == msgtype_name(c.msgtype)]
 
     @property
     def start_ns(self) -> int:
@@ -149,8 +155,7 @@ class BagReader:
 
     def message_count(self, topics: Iterable[str] | None = None) -> int:
         """Messages on ``topics`` (all topics when None)."""
-        wanted = None if topics is None else set(topics)
-        return sum(c.msgcount for c in self._reader.connections if wanted is None or c.topic in wanted)
+        return sum(c.msgcount for c in self._connections(topics))
 
     @property
     def custom_data(self) -> dict[str, str]:
@@ -189,16 +194,25 @@ class BagReader:
         if topic not in self.topics:
             have = ", ".join(f"{shown_path(t)} ({shown_path(m)})" for t, m in sorted(self.topics.items())) or "none"
             raise BagReadError(f"{shown_path(self.path)}: no topic {shown_path(topic)}; the bag has: {have}")
-        msgtype = self.topics[topic]
-        if msgtype not in {msgtype_name(m) for m in msgtypes}:
-            raise BagReadError(f"{shown_path(self.path)}: topic {shown_path(topic)} has type {shown_path(msgtype)}, "
-                               f"expected {' or '.join(msgtype_name(m) for m in msgtypes)}")
+        counts = Counter()  # message type -> messages on the topic
+        for c in (c for c in self._reader.connections if c.topic == topic):
+            counts[msgtype_name(c.msgtype)] += c.msgcount
+        expected = [msgtype_name(m) for m in msgtypes]
+        msgtype = next((t for t in counts if t in expected), self.topics[topic])
+        if msgtype not in expected:
+            raise BagReadError(f"{shown_path(self.path)}: topic {shown_path(topic)} has type "
+                               f"{' and '.join(map(shown_path, counts))}, expected {' or '.join(expected)}")
+        if len(counts) > 1:  # as live: a subscription of one type receives no message of another
+            self._read_type[topic] = msgtype
+            others = ", ".join(f"{n} {shown_path(t)}" for t, n in counts.items() if t != msgtype)
+            warnings.warn(f"{shown_path(self.path)}: topic {shown_path(topic)} carries {msgtype} and {others} "
+                          f"message(s): those passed over, as a node subscribed with {msgtype} receives none",
+                          OkidWarning, stacklevel=2)
         return msgtype
 
     def _stored(self, topics: Iterable[str] | None) -> Iterator[tuple[Any, int, bytes]]:
         """``(connection, log_time_ns, bytes as stored)`` in log-time order, errors as BagReadError."""
-        wanted = None if topics is None else set(topics)
-        connections = [c for c in self._reader.connections if wanted is None or c.topic in wanted]
+        connections = self._connections(topics)
         if not connections:
             return
         try:
@@ -384,9 +398,7 @@ def open_bag(path: str | os.PathLike) -> _OpenBag:
     return _OpenBag(Path(path))
 
 
-# --------------------------------------------------------------------------------------------
-# writing
-# --------------------------------------------------------------------------------------------
+# writing ------------------------------------------------------------------------------------
 
 
 class BagWriter:

@@ -71,10 +71,10 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
     # The nodes do not start on such a value (rclpy's typed parameters), strict or not: nor does this.
     if typed := _typed_problems(trees, namespace) + _typed_override_problems(layered, given):
         raise ParameterError("; ".join(typed))
-    values = []
+    values, origins = [], []
     for node in (ARX_NODE, ESTIMATOR_NODE):
         merged: dict[str, Any] = {}
-        origin: dict[str, str] = {}
+        origins.append(origin := {})  # parameter -> the file or option that gave it
         for label, tree in trees:
             found = node_values_from_tree(tree, node_fqn(node, namespace))
             merged.update(found)
@@ -87,10 +87,32 @@ def load_node_parameters(param_files: Sequence[str | Path] = (), overrides: Sequ
         except ParameterError as exc:
             label = next((origin[n] for n in origin if f"parameter {n} " in str(exc)), None)
             raise ParameterError(f"{label}: {exc}" if label else str(exc)) from None
+    _check_sizes_agree(values, origins)
     for note in dict.fromkeys(time_jump_note(v) for v in values):  # a section of each node: said once
         if note:
             say(note)
     return values[0], values[1]
+
+
+def _check_sizes_agree(values: list[dict], origins: list[dict[str, str]]) -> None:
+    """Raise ParameterError where the nodes' values of a shared parameter that sizes the model differ.
+
+    Node 2 refuses every ArxModel of another sample time or other dimensions than its own
+    (``arx_fit_from_msg``, ``RealizationHandoff.arrival``): with such values no model ever comes.
+    """
+    from math import isclose
+
+    from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, SHARED_PARAMS, SIZES
+
+    for spec in SHARED_PARAMS:
+        ours, theirs = (v[spec.name] for v in values)
+        if spec.fixed != SIZES or ours == theirs or isclose(ours, theirs, rel_tol=1e-9):  # the node's tolerance
+            continue
+        where = " and ".join(f"{node} {value!r} ({origin.get(spec.name, 'default')})" for node, value, origin
+                             in zip((ARX_NODE, ESTIMATOR_NODE), (ours, theirs), origins))
+        raise ParameterError(f"parameter {spec.name} differs between the nodes: {where}; node 2 refuses every "
+                             f"ArxModel of another sample time or size than its own, so no model would come: set "
+                             f"{spec.name} once, in the '/**' section both nodes read")
 
 
 def _overrides(overrides: Sequence[str], names: dict[str, set[str]]) -> list[tuple[str, Any]]:

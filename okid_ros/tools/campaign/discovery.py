@@ -198,7 +198,8 @@ def _plan_from_metadata(path: Path) -> BagPlan:
     plan = BagPlan(path=path)
     for entry in info.get("topics_with_message_count") or []:
         meta = entry["topic_metadata"]
-        plan.topics[str(meta["name"])] = str(meta["type"])
+        name, known = str(meta["name"]), plan.topics.get(str(meta["name"]))  # a topic stored with two types: both
+        plan.topics[name] = str(meta["type"]) if known in (None, str(meta["type"])) else f"{known} and {meta['type']}"
         plan.counts[str(meta["name"])] = plan.counts.get(str(meta["name"]), 0) + int(entry["message_count"])
     if plan.message_count() > 0:
         plan.start_s = int(info["starting_time"]["nanoseconds_since_epoch"]) * 1e-9

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 
 from okid_ros.errors import shown_path
 from okid_ros.tools.campaign.runner import CampaignOptions, CampaignReport
 
-__all__ = ["print_summary"]
+__all__ = ["print_summary", "same_recordings"]
 
 #: Failed bags listed by name; the rest are counted (summary.csv has them all).
 _MAX_LISTED = 10
@@ -43,5 +44,33 @@ def print_summary(report: CampaignReport, options: CampaignOptions, emit: Callab
         emit(f"  {entry['status']}: {entry['reason']}")
     if len(problems) > _MAX_LISTED:
         emit(f"  ... and {len(problems) - _MAX_LISTED} more (summary.csv)")
+    if twice := same_recordings(entries, report.rows):
+        print(f"okid-ros batch: warning: {twice}", file=sys.stderr)
     emit(f"wrote {', '.join(shown_path(p) for p in report.written)}; per-bag outputs in "
          f"{shown_path(options.out_dir / 'bags')}")
+
+
+def same_recordings(entries: list[dict], rows: list[dict]) -> str:
+    """Which bags of the campaign hold one recording twice ('' if none): their mode rows would count twice.
+
+    Two bags whose samples start at the same stamp, span the same time, number the same and give
+    the same modes to the last bit are copies (a bag copied to another folder, or under another
+    name; two rigs recorded at once differ in their modes): the campaign keeps both, as given, and
+    says so, since its medians and counts then weigh that recording twice.
+    """
+    modes: dict[str, list] = {}
+    for row in rows:
+        modes.setdefault(str(row["bag"]), []).append((row["stamp_s"], row["frequency_hz"], row["damping_ratio"]))
+    groups: dict[tuple, list[str]] = {}
+    for entry in entries:
+        if entry["status"] == "ok" and int(entry.get("samples", 0)) > 0:
+            key = (entry.get("start_s"), entry.get("duration_s"), int(entry["samples"]),
+                   tuple(modes.get(str(entry["bag"]), ())))
+            groups.setdefault(key, []).append(shown_path(entry["bag"]))
+    copies = [bags for bags in groups.values() if len(bags) > 1]
+    if not copies:
+        return ""
+    listed = "; ".join(" and ".join(bags) for bags in copies)
+    return (f"{listed}: the same samples (first stamp, span and count) and modes, one recording given more than "
+            "once? Its modes are in the tables once per copy; take the copies out (okid-ros batch --forget BAG --out "
+            "DIR)")
