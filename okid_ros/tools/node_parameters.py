@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
+from math import isclose
 from pathlib import Path
 from typing import Any
 
@@ -100,8 +101,6 @@ def _check_sizes_agree(values: list[dict], origins: list[dict[str, str]]) -> Non
     Node 2 refuses every ArxModel of another sample time or other dimensions than its own
     (``arx_fit_from_msg``, ``RealizationHandoff.arrival``): with such values no model ever comes.
     """
-    from math import isclose
-
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, SHARED_PARAMS, SIZES
 
     for spec in SHARED_PARAMS:
