@@ -172,7 +172,8 @@ def pair_modes(found: list[dict], truth: list[dict], tolerance: float) -> dict[i
     ft = np.array([t["frequency_hz"] for t in truth], float)
     ff = np.array([f["frequency_hz"] for f in found], float)
     distance = np.abs(ff[None, :] - ft[:, None]) / ft[:, None]
-    unlikeness = np.array([[1.0 - _mac(t.get("shape"), f.get("shape"), 1.0) for f in found] for t in truth])
+    macs = np.array([[_mac(t.get("shape"), f.get("shape"), 1.0) for f in found] for t in truth])
+    unlikeness = 1.0 - np.nan_to_num(macs, nan=0.0)  # a zero shape is like nothing
     admissible = distance <= tolerance
     # A cost above any sum of admissible ones: every extra admissible pair outweighs any cost of the others.
     excluded = 2.0 * min(ft.size, ff.size) + 1.0
@@ -186,7 +187,8 @@ def _mac(a, b, unknown: float = float("nan")) -> float:
     if a is None or b is None:
         return unknown
     a, b = np.asarray(a), np.asarray(b)
-    return float(abs(np.vdot(a, b)) ** 2 / (np.vdot(a, a).real * np.vdot(b, b).real))
+    with np.errstate(invalid="ignore"):  # a zero shape: NaN
+        return float(abs(np.vdot(a, b)) ** 2 / (np.vdot(a, a).real * np.vdot(b, b).real))
 
 
 def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float = 0.02) -> dict:

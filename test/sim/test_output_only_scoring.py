@@ -42,3 +42,10 @@ def test_without_shapes_the_pairing_is_by_frequency_and_leftovers_are_spurious()
     assert score["spurious"] == 1
     assert np.isnan(score["modes"][0]["mac"])
     np.testing.assert_allclose([row["damping_error"] for row in score["modes"]], [0.05, 0.1])
+
+
+def test_a_zero_shape_is_paired_by_frequency_as_unlike_every_true_shape():
+    truth = [_mode(4.0, 0.01, [1.0, 0.0]), _mode(4.01, 0.02, [0.0, 1.0])]
+    found = [_mode(4.0, 0.01, [0.0, 0.0]), _mode(4.011, 0.021, [0.0, 1.0])]
+    assert pair_modes(found, truth, 0.005) == {0: 0, 1: 1}
+    assert np.isnan(score_modes(found, truth, match_tolerance=0.005)["modes"][0]["mac"])
