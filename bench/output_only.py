@@ -27,7 +27,8 @@ Records:
 
 Every method gets the centred record; the peers get the Hankel block rows okid_ros chooses from
 the data and orders 2..``--max-order`` (step 2): ``bench/output_only_peers.py``. A true mode is
-*found* when an identified mode lies within 0.5 % of its frequency (nearest first, one each);
+*found* when an identified mode lies within 0.5 % of its frequency (one each: the most such pairs, those
+of least frequency distance and 1 - MAC, so a close pair's crossed poles are paired by shape);
 identified modes not paired one to one with a true mode within 2 % are *spurious* (a
 mode listed twice counts once spurious). Columns: found / true modes
 (summed over seeds), spurious (summed), RMS relative frequency and damping errors of the found

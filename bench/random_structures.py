@@ -4,7 +4,7 @@
 Each record is one structure of :func:`okid_bench.cases.random_case` (2-7 modes, 1-2 measured
 white inputs, 1-8 sensors, 50-1000 Hz), its input a white-noise seed equal to its index. A
 true mode (from the discrete system simulated) is *found* when a listed mode lies within 0.5 %
-of its frequency (nearest first, one each); listed modes not paired one to one with a true mode
+of its frequency (one each, paired by frequency and shape); listed modes not paired one to one with a true mode
 within 2 % are *spurious*. Prints the totals, the share of found modes with damping within
 30 %, the median time of one identification, and one line per record with a missed or
 spurious mode. The thresholds of the mode selection were set on the named cases

@@ -13,13 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg, optimize, signal
 
 from okid_bench.cases import random_frequencies
 from okid_ros.sim.models import NoisyStateSpace, modal_structure
 from okid_ros.sim.simulators import simulate_noisy
 
-__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "random_case", "system_modes",
+__all__ = ["OutputOnlyCase", "output_only_case", "output_only_cases", "random_case", "system_modes", "pair_modes",
            "OUTPUT_ONLY_CASES"]
 
 
@@ -159,6 +159,38 @@ def random_case(index: int) -> OutputOnlyCase:
                           f"{n_modes} modes, {p} {output} outputs, fs {fs:g} Hz, {n_samples / fs:.0f} s")
 
 
+def pair_modes(found: list[dict], truth: list[dict], tolerance: float) -> dict[int, int]:
+    """One-to-one pairing of found with true modes by frequency and shape: the found index of each paired true mode.
+
+    The most pairs within ``tolerance`` (relative frequency) are kept, and among them the assignment
+    (Hungarian algorithm) of least total ``|f - f_true| / (f_true tolerance) + (1 - MAC)``: two modes
+    whose frequencies cross within a close pair are paired by shape, so neither takes the other's
+    damping. The shape term is 0 where either shape is unknown (frequency alone).
+    """
+    if not found or not truth:
+        return {}
+    ft = np.array([t["frequency_hz"] for t in truth], float)
+    ff = np.array([f["frequency_hz"] for f in found], float)
+    distance = np.abs(ff[None, :] - ft[:, None]) / ft[:, None]
+    macs = np.array([[_mac(t.get("shape"), f.get("shape"), 1.0) for f in found] for t in truth])
+    unlikeness = 1.0 - np.nan_to_num(macs, nan=0.0)  # a zero shape is like nothing
+    admissible = distance <= tolerance
+    # A cost above any sum of admissible ones: every extra admissible pair outweighs any cost of the others.
+    excluded = 2.0 * min(ft.size, ff.size) + 1.0
+    cost = np.where(admissible, distance / tolerance + unlikeness, excluded)
+    rows, cols = optimize.linear_sum_assignment(cost)
+    return {int(j): int(i) for j, i in zip(rows, cols) if admissible[j, i]}
+
+
+def _mac(a, b, unknown: float = float("nan")) -> float:
+    """Modal assurance criterion of two (complex) shapes; ``unknown`` where either is missing."""
+    if a is None or b is None:
+        return unknown
+    a, b = np.asarray(a), np.asarray(b)
+    with np.errstate(invalid="ignore"):  # a zero shape: NaN
+        return float(abs(np.vdot(a, b)) ** 2 / (np.vdot(a, a).real * np.vdot(b, b).real))
+
+
 def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float = 0.02) -> dict:
     """Match identified modes to the true ones and score them.
 
@@ -167,8 +199,8 @@ def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float 
     found : identified modes, each with ``frequency_hz``, ``damping_ratio``, ``shape`` (p,) and
         optionally ``frequency_hz_std``, ``damping_ratio_std``.
     truth : true modes (:meth:`OutputOnlyCase.truth`, or ``shape`` None when unknown).
-    match_tolerance : a found mode within this relative frequency of a true mode is its candidate
-        (nearest first, one each); found modes left over are spurious.
+    match_tolerance : a found mode within this relative frequency of a true mode is its candidate;
+        the pairs are :func:`pair_modes` (frequency and shape, one each); found modes left over are spurious.
 
     Returns
     -------
@@ -176,16 +208,7 @@ def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float 
     (relative), ``mac``, ``frequency_covered`` / ``damping_covered`` (within 2 std, NaN without a
     std), and ``spurious`` (count).
     """
-    pairs = sorted(
-        (abs(f["frequency_hz"] - t["frequency_hz"]) / t["frequency_hz"], i, j)
-        for i, f in enumerate(found) for j, t in enumerate(truth)
-    )
-    match: dict[int, int] = {}
-    used: set[int] = set()
-    for df, i, j in pairs:
-        if df <= match_tolerance and j not in match and i not in used:
-            match[j] = i
-            used.add(i)
+    match = pair_modes(found, truth, match_tolerance)
     rows = []
     for j, t in enumerate(truth):
         if j not in match:
@@ -193,18 +216,15 @@ def score_modes(found: list[dict], truth: list[dict], *, match_tolerance: float 
                                                     "frequency_covered", "damping_covered")})
             continue
         f = found[match[j]]
-        shape = t.get("shape")
-        mac = float("nan") if shape is None else float(
-            abs(np.vdot(shape, f["shape"])) ** 2 / (np.vdot(shape, shape).real * np.vdot(f["shape"], f["shape"]).real))
         f_err = (f["frequency_hz"] - t["frequency_hz"]) / t["frequency_hz"]
         z_err = (f["damping_ratio"] - t["damping_ratio"]) / t["damping_ratio"]
         f_std, z_std = f.get("frequency_hz_std", np.nan), f.get("damping_ratio_std", np.nan)
         rows.append({
-            "frequency_error": f_err, "damping_error": z_err, "mac": mac,
+            "frequency_error": f_err, "damping_error": z_err, "mac": _mac(t.get("shape"), f.get("shape")),
             "frequency_covered": _covered(f["frequency_hz"] - t["frequency_hz"], f_std),
             "damping_covered": _covered(f["damping_ratio"] - t["damping_ratio"], z_std),
         })
-    return {"modes": rows, "spurious": len(found) - len(used)}
+    return {"modes": rows, "spurious": len(found) - len(match)}
 
 
 def _covered(error: float, std: float) -> float:
