@@ -45,10 +45,10 @@ grows back to W rows. This is what the nodes do live and ``okid-ros process`` of
 samples after the last update are tested too: a change declared there is said in the summary on
 stdout only (no update follows it to carry it in a line).
 
-The ARX fit of each update is the batch fit of the window's normal equations (as `identify` on
-those samples; prior scaled by the window's data, penalty by GCV unless ``--penalty`` fixes it),
-kept up to date in O(d^2) per sample. An update whose pipeline fails writes ``"modes": []`` and
-an ``"error"`` string instead of stopping the run.
+The ARX fit of each update is node 1's solve of the window's normal equations (kept up to date in
+O(d^2) per sample; :func:`~okid_ros.service.arx_solve.solve_capture`: prior scaled by the window's data, penalty by
+GCV unless ``--penalty`` fixes it, inputs silent over the window left out). An update whose window node 1 refuses (node
+1's reason) or whose pipeline fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run.
 
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
 the window leaves out the regressor rows that reach them, the realization fills gaps of up to
@@ -145,7 +145,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--regularization", choices=("ridge", "tc", "none"), default="ridge",
                         help="ARX regularization of each window (default: %(default)s)")
     parser.add_argument("--penalty", type=penalty_or_gcv, default="gcv", metavar="gcv|X",
-                        help="regularization penalty: chosen by GCV per update (default) or fixed")
+                        help="regularization penalty: chosen by GCV per update (default) or fixed (a TC prior's "
+                        "decay then fixed too: node 1's arx.tc_decay)")
     parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
