@@ -19,7 +19,7 @@ import numpy as np
 from okid_ros.core.column_names import repeated_column_names
 from okid_ros.core.record_stamps import stamp_jump_problem
 from okid_ros.errors import DataError, OkidWarning, os_reason, shown_path
-from okid_ros.record_keys import check_csv_extras, comment_hint, decimals_written
+from okid_ros.record_keys import check_csv_extras, comment_hint, decimals_written, named_like_time
 
 __all__ = ["read_csv_record"]
 
@@ -199,8 +199,7 @@ def read_csv_record(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def _time_hint(header: list[str]) -> str:
     """A hint naming a column that looks like the samples' times but is not read as them ("" if none)."""
-    named = next((name for name in header if re.fullmatch(r"t|times?|timestamps?|seconds|sec|s|t_s|time[ _\[(].*",
-                                                           name, re.IGNORECASE)), None)
+    named = next((name for name in header if named_like_time(name, in_a_unit=True)), None)
     if named is None:
         return ""
     return (f" (the column {named!r} is not read as the time: name it time_s, in seconds from any start, or give "

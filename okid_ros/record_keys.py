@@ -30,7 +30,8 @@ import numpy as np
 from okid_ros.core.record_stamps import MAX_STAMP_SLIP
 from okid_ros.errors import DataError, OkidWarning, shown_path
 
-__all__ = ["NPZ_KEYS", "check_npz_keys", "missing_key_hint", "check_csv_extras", "comment_hint", "decimals_written"]
+__all__ = ["NPZ_KEYS", "check_npz_keys", "missing_key_hint", "check_csv_extras", "comment_hint", "decimals_written",
+           "named_like_time"]
 
 #: The keys of an .npz record that are read.
 NPZ_KEYS = ("u", "y", "sample_time_s", "stamp_s")
@@ -41,6 +42,9 @@ _RATE_NAMES = {"fs", "fshz", "samplerate", "sampleratehz", "samplingrate", "samp
 _TIME_NAMES = {"dt", "dts", "ts", "sampletime", "sampletimes", "samplingtime", "samplingtimes", "sampleperiod",
                "sampleperiods", "samplingperiod", "samplingperiods", "timestep", "timesteps", "t", "time", "times",
                "timestamp", "timestamps", "stamps", "stamp", "tvec", "timevector"}
+#: A column of the samples' times in some unit, or named by its unit alone (``Time (ms)``, ``seconds``): pointed at
+#: where a CSV record has no sample time, never read as one (its unit need not be seconds).
+_TIME_IN_A_UNIT = re.compile(r"seconds|sec|s|time[ _\[(].*", re.IGNORECASE)
 #: A measured time vector's mean step may differ from the sample time by this share (100 ppm: a logger
 #: clock's drift; the frequencies it shifts by as much are far inside any mode's uncertainty).
 CLOCK_TOLERANCE = 1e-4
@@ -56,6 +60,15 @@ _CHANNELS = {"u": ("inputs", r"u|inputs?|u_?[0-9]+|inputs?_?[0-9]+"),
 def _plain_name(key: str) -> str:
     """``key`` in lower case, letters and digits only: ``Sample_Rate_Hz`` and ``sample rate (Hz)`` alike."""
     return re.sub(r"[^a-z0-9]", "", key.lower())
+
+
+def named_like_time(key: str, *, in_a_unit: bool = False) -> bool:
+    """Whether ``key`` names a sample rate, a sample time or the samples' times (``in_a_unit``: or times in a unit).
+
+    The one rule of both readers: the .npz keys and CSV comments and columns so named are checked against the
+    sample time; a CSV without one points at a column so named (or, ``in_a_unit``, named like ``Time (ms)``).
+    """
+    return _plain_name(key) in _RATE_NAMES | _TIME_NAMES or bool(in_a_unit and _TIME_IN_A_UNIT.fullmatch(key))
 
 
 def decimals_written(values: np.ndarray) -> int:
@@ -79,7 +92,7 @@ def _implied_sample_time(key: str, value: object, n_samples: int) -> tuple[float
     None too where the value is no such thing (text, a matrix, a vector of another length): the key is not read.
     """
     name = _plain_name(key)
-    if name not in _RATE_NAMES | _TIME_NAMES:
+    if not named_like_time(key):
         return None
     arr = np.asarray(value)
     if arr.dtype.kind not in "iuf":
@@ -158,7 +171,7 @@ def check_npz_keys(path: Path, files: Sequence[str], member: Callable[[str], np.
 
 def _opened(member: Callable[[str], np.ndarray], key: str) -> np.ndarray | None:
     """The member ``key`` where it is named like a sample rate or time and readable as an array, else None."""
-    if _plain_name(key) not in _RATE_NAMES | _TIME_NAMES:
+    if not named_like_time(key):
         return None
     try:
         return member(key)

@@ -45,10 +45,10 @@ grows back to W rows. This is what the nodes do live and ``okid-ros process`` of
 samples after the last update are tested too: a change declared there is said in the summary on
 stdout only (no update follows it to carry it in a line).
 
-The ARX fit of each update is the batch fit of the window's normal equations (as `identify` on
-those samples; prior scaled by the window's data, penalty by GCV unless ``--penalty`` fixes it),
-kept up to date in O(d^2) per sample. An update whose pipeline fails writes ``"modes": []`` and
-an ``"error"`` string instead of stopping the run.
+The ARX fit of each update is node 1's solve of the window's normal equations (kept up to date in
+O(d^2) per sample; :func:`~okid_ros.service.arx_solve.solve_capture`: prior scaled by the window's data, penalty by
+GCV unless ``--penalty`` fixes it, inputs silent over the window left out). An update whose window node 1 refuses (node
+1's reason) or whose pipeline fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run.
 
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
 the window leaves out the regressor rows that reach them, the realization fills gaps of up to
@@ -145,7 +145,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--regularization", choices=("ridge", "tc", "none"), default="ridge",
                         help="ARX regularization of each window (default: %(default)s)")
     parser.add_argument("--penalty", type=penalty_or_gcv, default="gcv", metavar="gcv|X",
-                        help="regularization penalty: chosen by GCV per update (default) or fixed")
+                        help="regularization penalty: chosen by GCV per update (default) or fixed (a TC prior's "
+                        "decay then fixed too: node 1's arx.tc_decay)")
     parser.add_argument("--gain", choices=GAINS, default=RealizationOptions.gain,
                         help="estimator gain: refit (default), riccati or whitening (see identify --help)")
     parser.add_argument("--no-change-detection", dest="change_detection", action="store_false",
@@ -196,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     from okid_ros.core.recursive import SlidingWindowArx
     from okid_ros.errors import DataError
     from okid_ros.jsonio import JsonLines
-    from okid_ros.service.tracked_record import TrackedRecord
+    from okid_ros.service.tracked_record import TrackedRecord, node_1_params
     from okid_ros.service.window_gates import ScreenedWindow
 
     out, (u, y, dt) = _output_and_record(args)
@@ -204,9 +205,11 @@ def run(args: argparse.Namespace) -> int:
     options = RealizationOptions(n_states=args.states, max_states=args.max_states, gain=args.gain,
                                  max_states_limit=max(args.max_states, RealizationOptions.max_states_limit))
     q = _arx_order(args, u, y, options)
-    record = TrackedRecord(u, y, q, window=window, restart_min_fill=args.restart_min_fill)
-    estimator = SlidingWindowArx(q, p, m, window=window)  # fed through node 1's glitch gates (ScreenedWindow)
-    fed_window = ScreenedWindow(estimator, (u, y), record.present)
+    node_1 = node_1_params(dt, q, p, m, window=window, regularization=args.regularization, penalty=args.penalty,
+                           restart_min_fill=float(args.restart_min_fill))
+    record = TrackedRecord(u, y, q, params=node_1)
+    estimator = SlidingWindowArx(q, p, m, window=window)  # fed and solved as node 1's (ScreenedWindow)
+    fed_window = ScreenedWindow(estimator, (u, y), record.present, params=node_1)
     watch = _record_watch(args, record, dt)
     points = _update_points(args, n_samples, q)
     changes: list = []
@@ -452,18 +455,16 @@ def _switch(watch, entry: dict, model, window: tuple, rows: int) -> None:
 
 def _window_model(fed_window, record: "TrackedRecord", k: int, dt: float, args: argparse.Namespace,
                   options) -> tuple:
-    """Fit and realize the window's model: (its fields of the JSON line, model, u, y of the window)."""
-    from okid_ros.core.arx import fit_from_normal_equations
+    """Node 1's fit of the window, realized: (its fields of the JSON line, model, u, y); refused: node 1's reason."""
+    from okid_ros.core.pipeline import IdentificationError
     from okid_ros.service.realization import identify_window
     from okid_ros.service.records import mode_record
 
-    estimator = fed_window.window
-    p, m, q = estimator.n_outputs, estimator.n_inputs, record.order
-    # With an intercept, as identify_from_arx removes the window's means (offsets).
-    normal = estimator.normal_equations()
-    fit = fit_from_normal_equations(normal, q, p, m, args.regularization, args.penalty, center=True)
-    fed_window.set_model(fit, normal)  # it judges the next samples' outputs in node 1's gate, as node 1's fit does
-    samples = record.window_samples(fit, k, int(estimator.status.rows_in_window))
+    q = record.order
+    solved = fed_window.solve()  # its fit judges the next samples' outputs in node 1's gate, as node 1's does
+    if solved.fit is None:
+        raise IdentificationError(solved.reason)
+    samples = record.window_samples(solved.fit, k, int(fed_window.window.status.rows_in_window))
     u_w, y_w, fit = samples.u, samples.y, samples.fit
     model = identify_window(fit, u_w, y_w, dt, options=options, valid=samples.valid,  # output-only when m = 0
                             output_only_method=args.output_only_method, max_gap=record.max_gap)

@@ -105,15 +105,14 @@ class ChannelScales:
         1e+-150); a group of ordinary size needs no division and keeps its units, so that what is
         said of its windows (``constant 5`` for a stuck channel) is said in them. ``u`` (N, m),
         ``y`` (N, p): the record the scales are of (NaN/Inf and dead channels do not count); ``sizes``:
-        the size of each channel (a function of (N, k) giving the sizes of the channels not all zeros;
-        None: their peaks).
+        the sizes of the inputs' and of the outputs' channels not all zeros, ((k_u,), (k_y,)); None: their peaks.
         """
-        def extreme(x: np.ndarray) -> bool:
-            peaks = (sizes or _channel_peaks)(x)
+        def extreme(peaks: np.ndarray) -> bool:
             return bool(np.any((peaks < 1.0 / limit) | (peaks > limit)))
 
-        return ChannelScales(self.input if extreme(u) else np.ones_like(self.input),
-                             self.output if extreme(y) else np.ones_like(self.output))
+        input_sizes, output_sizes = (_channel_peaks(u), _channel_peaks(y)) if sizes is None else sizes
+        return ChannelScales(self.input if extreme(input_sizes) else np.ones_like(self.input),
+                             self.output if extreme(output_sizes) else np.ones_like(self.output))
 
     def inverse(self) -> ChannelScales:
         """The reciprocal scales: ``inverse().restore_arx`` takes a fit to the scaled units."""
@@ -158,12 +157,12 @@ def record_units(u: np.ndarray, y: np.ndarray) -> ChannelScales:
     record of unit spread, a glitch the nodes refuse for its size) neither divides the whole record
     (its ordinary samples towards the float64 floor) nor comes within the windows' bound.
     """
-    def power(x: np.ndarray) -> float:
-        sizes = _typical_magnitudes(x)
+    def power(sizes: np.ndarray) -> float:
         return float(_power_of_two(np.mean(np.log2(sizes)))) if sizes.size else 1.0
 
-    scales = ChannelScales(np.full(u.shape[1], power(u)), np.full(y.shape[1], power(y)))
-    return scales.where_needed(u, y, sizes=_typical_magnitudes)
+    sizes = _typical_magnitudes(u), _typical_magnitudes(y)  # each channel's median once: its power and its bound
+    scales = ChannelScales(np.full(u.shape[1], power(sizes[0])), np.full(y.shape[1], power(sizes[1])))
+    return scales.where_needed(u, y, sizes=sizes)
 
 
 def _typical_magnitudes(x: np.ndarray) -> np.ndarray:

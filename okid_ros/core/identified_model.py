@@ -84,7 +84,8 @@ class IdentifiedModel(InnovationModel):
         """
         position = {id(mode): i for i, mode in enumerate(self.modes)}
         listed = [position[id(mode)] for mode in kept]
-        unlisted = [i for i in range(len(self.modes)) if i not in set(listed)]
+        listed_once = set(listed)
+        unlisted = [i for i in range(len(self.modes)) if i not in listed_once]
         if unlisted:
             order = np.r_[[state for i in listed + unlisted for state in (2 * i, 2 * i + 1)],
                           np.arange(self.n_physical_states, self.n_states)].astype(int)

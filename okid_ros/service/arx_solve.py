@@ -41,6 +41,19 @@ class WindowCapture:
     params: ArxIdentificationParams
     generation: int = -1  # the window's (:meth:`~okid_ros.service.identification.ArxIdentificationService.is_current`)
 
+    @classmethod
+    def of_window(cls, window, params: ArxIdentificationParams, *, restarted: bool, stamp_s: float = math.nan,
+                  samples_used: int = 0, samples_rejected: int = 0, generation: int = -1) -> WindowCapture:
+        """The capture of a :class:`~okid_ros.core.recursive.SlidingWindowArx` now, its fill judged by node 1's rule.
+
+        ``restarted``: the window restarted at a structural change since its reset (then the fill needed is
+        :meth:`~okid_ros.service.options.ArxIdentificationParams.fill_needed`'s after a restart).
+        """
+        status = window.status
+        return cls(normal=window.normal_equations(), stamp_s=stamp_s, window_rows=int(status.rows_in_window),
+                   window_fill=float(status.window_fill), samples_used=samples_used, samples_rejected=samples_rejected,
+                   params=replace(params, min_window_fill=params.fill_needed(restarted)), generation=generation)
+
 
 @dataclass
 class SolveResult:

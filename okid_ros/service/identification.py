@@ -37,13 +37,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.arx_glitches import window_intercept
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
 from okid_ros.service.arx_solve import ArxSnapshot, SolveResult, WindowCapture, solve_capture
@@ -297,18 +296,9 @@ class ArxIdentificationService:
     def capture(self) -> WindowCapture:
         """Copy the window's normal equations and counters (cheap next to the solve, but a pending restart's replay)."""
         self.apply_pending_restart()
-        normal = self._est.normal_equations()
-        status = self._est.status
-        return WindowCapture(
-            normal=normal,
-            stamp_s=self.newest_stamp_s,
-            window_rows=int(status.rows_in_window),
-            window_fill=float(status.window_fill),
-            samples_used=self._counters.samples_used,
-            samples_rejected=self._counters.rejected,
-            params=replace(self.params, min_window_fill=self.params.fill_needed(self._restarted)),
-            generation=self._generation,
-        )
+        return WindowCapture.of_window(self._est, self.params, restarted=self._restarted, stamp_s=self.newest_stamp_s,
+                                       samples_used=self._counters.samples_used,
+                                       samples_rejected=self._counters.rejected, generation=self._generation)
 
     def is_current(self, capture: WindowCapture) -> bool:
         """Whether ``capture`` is of this service's window as it is (not reset, restarted or another service's)."""
@@ -317,11 +307,10 @@ class ArxIdentificationService:
     def accept(self, capture: WindowCapture, result: SolveResult) -> ArxSnapshot:
         """Turn a solved capture into the next snapshot (keeps the last good fit on failure)."""
         valid = result.fit is not None
+        self._gates.accept(capture, result)
         if valid:
             self._last_good = result.fit
             self._last_good_penalty = float(result.fit.penalty)
-            self._gates.set_model(result.fit, window_intercept(capture.normal, result.fit)
-                                 if capture.params.offsets == "remove" else None)
         h = self._health
         h.snapshots, h.valid_snapshots = h.snapshots + 1, h.valid_snapshots + int(valid)
         if result.warning:

@@ -19,7 +19,7 @@ from okid_ros.core.sensor_faults import record_fault_warnings
 from okid_ros.core.window_samples import WindowStatus, accepted_samples
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 
-__all__ = ["TrackedRecord", "tracked_record_warnings"]
+__all__ = ["TrackedRecord", "node_1_params", "tracked_record_warnings"]
 
 
 def tracked_record_warnings(u: np.ndarray, y: np.ndarray, sample_time_s: float, *,
@@ -44,20 +44,33 @@ def tracked_record_warnings(u: np.ndarray, y: np.ndarray, sample_time_s: float, 
     return warnings + record_fault_warnings(u, y, valid=valid, sample_time_s=sample_time_s)
 
 
+def node_1_params(sample_time_s: float, order: int, n_outputs: int, n_inputs: int, *, window: int,
+                  regularization: str, penalty: float | str, restart_min_fill: float) -> ArxIdentificationParams:
+    """Node 1's options of ``track``'s window: the node's defaults but the window, ARX order and regularization.
+
+    ``penalty``: "gcv" (node 1's ``arx.penalty_by_gcv``: the penalty and TC decay by GCV at each solve) or a
+    fixed penalty (the TC decay then node 1's fixed ``arx.tc_decay``).
+    """
+    fixed = {} if penalty == "gcv" else {"penalty": float(penalty)}
+    return ArxIdentificationParams(sample_time_s=float(sample_time_s), order=int(order), n_outputs=n_outputs,
+                                   n_inputs=n_inputs, window_length=int(window), regularization=regularization,
+                                   penalty_by_gcv=not fixed, restart_min_fill=float(restart_min_fill), **fixed)
+
+
 class TrackedRecord:
     """The record as the window sees it: which samples are missing (NaN/Inf), where the window restarted.
 
     Parameters
     ----------
     u : (N, m); y : (N, p) the record (divided by its powers of two where a group needs it); order : the ARX order q.
-    window : the window's rows when full; restart_min_fill : node 1's ``arx.restart_min_fill``.
+    params : node 1's options of the window (its ``window_length``, ``min_window_fill`` and ``restart_min_fill``
+        say how many rows a model needs); None: node 1's defaults with a window of one row.
     """
 
-    def __init__(self, u, y, order: int, *, window: int = 1, restart_min_fill: float | None = None) -> None:
+    def __init__(self, u, y, order: int, *, params: ArxIdentificationParams | None = None) -> None:
         self.u, self.y, self.order = u, y, int(order)
         # Node 1's rule of the rows a valid snapshot needs (min_window_fill; after a change restart_min_fill).
-        self.fills = ArxIdentificationParams(window_length=int(window), **(
-            {} if restart_min_fill is None else {"restart_min_fill": float(restart_min_fill)}))
+        self.fills = ArxIdentificationParams(window_length=1) if params is None else params
         # The samples the window accepts (finite, within its magnitude limit): the others are missing.
         self.present = accepted_samples(u, y, WindowStatus())
         self.n_missing = int(self.present.size - np.count_nonzero(self.present))

@@ -10,15 +10,14 @@ Each sample waits at most one sample in each gate. No rclpy; numpy only.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.input_glitches import InputGlitchGate
-from okid_ros.service.arx_solve import live_columns, silent_inputs
+from okid_ros.service.arx_solve import SolveResult, WindowCapture, solve_capture
 from okid_ros.service.change_restarts import restart_window
+from okid_ros.service.options import ArxIdentificationParams
 
 __all__ = ["ScreenedWindow", "WindowGates", "screened_block"]
 
@@ -43,6 +42,12 @@ class WindowGates:
     def set_model(self, fit: ArxFit, intercept: np.ndarray | None = None) -> None:
         """The output gate judges by ``fit`` (``intercept`` (p,): a centred fit's constant) from now on."""
         self.outputs.set_model(fit, intercept)
+
+    def accept(self, capture: WindowCapture, result: SolveResult) -> None:
+        """A solved window's fit judges the next samples; a refused window's does not (the last good fit still does)."""
+        if result.fit is not None:
+            centred = capture.params.offsets == "remove"
+            self.set_model(result.fit, window_intercept(capture.normal, result.fit) if centred else None)
 
     def offer(self, u: np.ndarray, y: np.ndarray, tag: object = None) -> list[tuple[np.ndarray, np.ndarray, object]]:
         """One sample ``u`` (m,), ``y`` (p,); the samples ``(u, y, tag)`` now due in the window, in order."""
@@ -84,19 +89,25 @@ def screened_block(gates: WindowGates, record: tuple, accepted: np.ndarray, lo: 
 
 
 class ScreenedWindow:
-    """``okid-ros track``'s sliding ARX window fed as node 1 feeds its own: every sample through its gates.
+    """``okid-ros track``'s sliding ARX window fed and solved as node 1 feeds and solves its own.
+
+    Every sample goes through its gates; each update's window is solved by node 1's
+    :func:`~okid_ros.service.arx_solve.solve_capture` (refused where node 1 refuses it, inputs silent over
+    the window left out), and the fit of a window it takes judges the next samples.
 
     Parameters
     ----------
     window : the :class:`~okid_ros.core.recursive.SlidingWindowArx`; record : ``(u, y)`` (N, m), (N, p)
         (copied: the gates write their replacements into the copy); accepted : (N,) the samples the window accepts.
+    params : node 1's options of the window (its solve, its fill rule).
     """
 
-    def __init__(self, window, record: tuple, accepted: np.ndarray) -> None:
-        self.window, self.accepted = window, accepted
+    def __init__(self, window, record: tuple, accepted: np.ndarray, *, params: ArxIdentificationParams) -> None:
+        self.window, self.accepted, self.params = window, accepted, params
         self.gates = WindowGates(window.order, window.n_outputs, window.n_inputs)
         self.u, self.y = record[0].copy(), record[1].copy()
         self._fed = self._due = 0  # samples offered to the gates; samples the gates let into the window
+        self._restarted = False  # at a structural change: node 1's fill rule after a restart
 
     def feed(self, hi: int) -> None:
         """The samples up to ``hi - 1`` offered; those the gates let through into the window."""
@@ -115,17 +126,14 @@ class ScreenedWindow:
         self.gates.gap()
         restart_window(self.window, self.u[first:hi], self.y[first:hi])
         self._fed = self._due = hi
+        self._restarted = True
 
-    def set_model(self, fit: ArxFit, normal) -> None:
-        """The window's fit (of its normal equations ``normal``, centred) judges the next samples, as node 1's.
-
-        An input silent over the window has no coefficients in node 1's fit (its solve leaves it out,
-        :func:`~okid_ros.service.arx_solve.silent_inputs`): zero here too, its constant in the intercept.
-        """
-        order, p, m = self.window.order, self.window.n_outputs, self.window.n_inputs
-        if silent := silent_inputs(normal, order, p, m):
-            fit = replace(fit, theta=np.where(live_columns(order, p, m, silent)[:, None], fit.theta, 0.0))
-        self.gates.set_model(fit, window_intercept(normal, fit))
+    def solve(self) -> SolveResult:
+        """Node 1's solve of the window as it is; the fit of a window it takes judges the next samples, as node 1's."""
+        capture = WindowCapture.of_window(self.window, self.params, restarted=self._restarted)
+        result = solve_capture(capture)
+        self.gates.accept(capture, result)
+        return result
 
     def counts(self) -> dict:
         """Node 1's counts of the gates (its diagnostics' names)."""

@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 from cli_helpers import assert_one_line_error, run_cli
 
+from okid_ros.record_keys import _TIME_NAMES
+
 N = 400
 DT = 0.01
 
@@ -141,3 +143,17 @@ def test_a_rate_agrees_with_a_sample_time_written_rounded(tmp_path: Path, capsys
     np.savez(apart, u=u, y=y, sample_time_s=0.001, fs=1024)
     code, _, err = run_cli(capsys, "identify", apart, "--json", tmp_path / "p.json", "--order", "4")
     assert_one_line_error(code, err, "apart.npz: fs = 1024 Hz", "they contradict")
+
+
+@pytest.mark.parametrize("name", sorted(_TIME_NAMES) + ["Time Vector", "Sampling_Period", "Time [s]"])
+def test_a_time_vector_is_pointed_at_alike_under_an_npz_key_and_a_csv_column(tmp_path: Path, capsys, name) -> None:
+    # Both readers take the names of a time from one list (record_keys): the CSV pointed only at the columns of its own
+    # pattern (t, time, timestamps, ...), so that dt, stamp, tvec or sampling_period stood unnamed beside the refusal.
+    u, y = _arrays()
+    np.savez(tmp_path / "no_dt.npz", u=u, y=y, **{name: DT * np.arange(N)})
+    code, _, err = run_cli(capsys, "identify", tmp_path / "no_dt.npz", "--json", tmp_path / "m.json")
+    assert_one_line_error(code, err, "no_dt.npz: missing key(s) sample_time_s", f"{name} steps 0.01 s a sample")
+    record = _csv(tmp_path / "no_dt.csv", "", f"{name},u1,y1,y2", lambda k: f"{DT * k:.2f},")
+    code, _, err = run_cli(capsys, "identify", record, "--json", tmp_path / "m.json")
+    assert_one_line_error(code, err, "no_dt.csv: no '# sample_time_s=...' line and no time_s column",
+                          f"(the column {name!r} is not read as the time: name it time_s")

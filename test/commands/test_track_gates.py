@@ -121,3 +121,23 @@ def test_a_window_filled_less_than_node_1_asks_gives_no_model(record, tmp_path):
         "1000 samples rejected for NaN/Inf", lines[0]
     # (A window's sums after a gap are added in another order by node 1's per-sample push: penalties within 1e-5.)
     _same_windows(lines[1:], snapshots[1:], rtol=1e-4)
+
+
+def test_a_window_node_1_refuses_gives_track_no_model_and_node_1s_reason(record, tmp_path, capsys):
+    # Input 1 half of input 0 from sample 1000 on (one command sent to both actuators): the windows from the update
+    # at 2719 on hold the two inputs dependent, condition number inf, which node 1's solve refuses (naming the
+    # inputs, its fit kept from before). track fitted its own ARX model there and wrote its modes.
+    u, _ = record
+    dependent = u.copy()
+    dependent[1000:, 1] = 0.5 * dependent[1000:, 0]
+    y, _ = simulate_innovation(paper_model(), dependent, seed=6)
+    lines, _ = _track(tmp_path, dependent, y)
+    snapshots, diagnostics = _node_1(dependent, y, [line["sample_index"] for line in lines])
+    refused = [snapshot.reason for snapshot in snapshots if not snapshot.valid]
+    assert len(refused) == 3 and all("inputs 0, 1 are linearly dependent" in reason for reason in refused), refused
+    for line, snapshot in zip(lines, snapshots):
+        if snapshot.valid:
+            assert line["modes"] and line["arx_penalty"] == pytest.approx(snapshot.fit.penalty, rel=1e-9), line
+        else:
+            assert line["modes"] == [] and line["error"] == snapshot.reason, line
+    assert "6 updates (3 failed, 0 waiting for rows)" in capsys.readouterr().out

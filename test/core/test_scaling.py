@@ -151,3 +151,23 @@ def test_column_peaks_are_numpys_largest_magnitudes() -> None:
     peaks = column_peaks(x)
     assert np.isnan(peaks[1]) and np.array_equal(np.delete(peaks, 1), np.delete(np.max(np.abs(x), axis=0), 1))
     assert np.array_equal(column_peaks(np.zeros((0, 3))), np.zeros(3))
+
+
+def test_record_units_take_each_channels_typical_size_once(monkeypatch) -> None:
+    # The median magnitude of every channel was taken twice (for the group's power of two, then again for
+    # where_needed's bound): 4 passes over a record of two groups, now 2; the units are the same.
+    from okid_ros.core import channels
+
+    rng = np.random.default_rng(3)
+    u, y = 1e150 * rng.standard_normal((500, 2)), rng.standard_normal((500, 3))
+    passes = []
+
+    def counted(x: np.ndarray) -> np.ndarray:
+        passes.append(x.shape[1])
+        return typical(x)
+
+    typical = channels._typical_magnitudes
+    monkeypatch.setattr(channels, "_typical_magnitudes", counted)
+    units = channels.record_units(u, y)
+    assert passes == [2, 3]
+    assert units.input[0] == 2.0 ** round(np.log2(np.median(np.abs(u), axis=0)).mean()) and np.all(units.output == 1)
