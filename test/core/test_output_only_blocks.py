@@ -111,29 +111,3 @@ def test_keep_modes_moves_a_dropped_modes_block_behind_the_listed_ones_and_keeps
     np.testing.assert_allclose([model.C @ np.linalg.matrix_power(model.A, k) @ model.K for k in range(4)], markov,
                                rtol=0, atol=1e-12)
     np.testing.assert_allclose(model.C @ model.x0, response, rtol=0, atol=1e-12)
-
-
-def test_keep_modes_builds_the_set_of_listed_modes_once(monkeypatch) -> None:
-    # It was built anew for each mode the model holds (once per mode, here 12); the states' order is the same.
-    from okid_ros.core import identified_model
-
-    poles = 0.99 * np.exp(1j * np.linspace(0.1, 2.9, 12))
-    A = linalg.block_diag(*[[[z.real, z.imag], [-z.imag, z.real]] for z in poles])
-    C = np.random.default_rng(1).standard_normal((3, 24))
-    form = modal_form(A, C.T, C, C.T, 0.01, criteria=ModeCriteria(max_damping=0.1, min_msv=0.0, min_mpc=0.0,
-                                                                   min_dominance=0.0))
-    model = IdentifiedModel(A=form.A, B=np.zeros((24, 0)), C=form.C, D=np.zeros((3, 0)), K=form.K,
-                            innovation_covariance=np.eye(3), sample_time_s=0.01, modes=form.modes)
-    kept, eigenvalues = model.modes[::3], [mode.eigenvalue for mode in model.modes]
-    built = []
-
-    def counted(items=()):
-        built.append(1)
-        return set(items)
-
-    monkeypatch.setattr(identified_model, "set", counted, raising=False)
-    model.keep_modes(kept)
-    assert len(built) == 1
-    order = list(range(0, 12, 3)) + [i for i in range(12) if i % 3]
-    for block, i in enumerate(order):
-        assert abs(_upper(model.A, 2 * block) - eigenvalues[i]) < 1e-12
