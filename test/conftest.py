@@ -109,7 +109,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
     Modules that start nodes or rclpy otherwise say so: ``pytestmark = pytest.mark.dds``.
     `make test` runs the ``dds`` tests after the others and in one process: their fixed-rate
-    streams lose samples to a second test worker's load.
+    streams lose samples to a second test worker's load. A test that only starts nodes and checks
+    how they start, refuse or exit is marked ``dds_startup`` too and runs with the others, in
+    parallel: each test worker is a session with a domain of its own.
     """
     for item in items:
         if _DDS_FIXTURES & set(getattr(item, "fixturenames", ())) and item.get_closest_marker("dds") is None:

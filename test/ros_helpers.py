@@ -12,7 +12,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -111,6 +112,29 @@ def wait_ready(procs: Mapping[str, RosProcess], timeout_s: float = 30.0) -> None
     """Until every node has logged that it is ready."""
     for proc in procs.values():
         proc.wait_for_output(r"ready:", timeout_s=timeout_s)
+
+
+@contextmanager
+def io_sample_rig(probe_factory: Callable[[], ProbeNode], params_text: str, params_dir: Path,
+                  env: Mapping[str, str]) -> Iterator[tuple[dict[str, RosProcess], ProbeNode]]:
+    """Both nodes on config/okid.yaml and ``params_text``, ready, and a probe whose ``io`` both subscribe.
+
+    Yields ``(procs, probe)``; the probe is closed and the nodes stopped at exit.
+    """
+    params = params_dir / "params.yaml"
+    params.write_text(params_text)
+    procs = start_nodes(["--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)], env)
+    probe = None
+    try:
+        probe = probe_factory()
+        wait_ready(procs)
+        probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
+        yield procs, probe
+    finally:
+        if probe is not None:
+            probe.close()
+        for proc in procs.values():
+            proc.stop()
 
 
 class ProbeNode:

@@ -164,6 +164,7 @@ def test_monitor_refuses_an_invalid_topic_in_one_line(capsys, topic):
     assert f"--topic {topic!r}" in line and time.monotonic() - started < 10, line
 
 
+@pytest.mark.dds_startup
 def test_selftest_stops_publishing_at_its_timeout(ros_env):
     """100000 messages against a 0.5 s timeout: it once published on for minutes, ever slower."""
     started = time.monotonic()

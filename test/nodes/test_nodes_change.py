@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, publish_io_samples, start_nodes, subprocess_env, wait_ready
+from ros_helpers import ProbeNode, io_sample_rig, publish_io_samples, subprocess_env
 
 from okid_bench.switching import added_mass_structure, simulate_switched
 from okid_msgs.msg import ArxModel, IoSample, StructuralChange
@@ -86,14 +86,8 @@ class Probe(ProbeNode):
 
 @pytest.fixture(scope="module")
 def run(ros_domain_id, tmp_path_factory):
-    params = tmp_path_factory.mktemp("change") / "params.yaml"
-    params.write_text(PARAMS)
     env = subprocess_env(ros_domain_id)
-    procs = start_nodes(["--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)], env)
-    probe = Probe()
-    try:
-        wait_ready(procs)
-        probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
+    with io_sample_rig(Probe, PARAMS, tmp_path_factory.mktemp("change"), env) as (procs, probe):
         before, after = added_mass_structure([6.0, 21.0], [0.01, 0.015], 2, 2, DT, frequency_factor=0.94, seed=1)
         u = lowpass_input(N, 2, 40.0, DT, seed=3)
         y = simulate_switched([before, after], CHANGE, u, seed=4)
@@ -106,10 +100,6 @@ def run(ros_domain_id, tmp_path_factory):
         with probe.lock:
             seen = list(probe.changes), list(probe.arx), dict(probe.diagnostics)
         yield *seen, procs, probe  # the probe goes on receiving
-    finally:
-        probe.close()
-        for proc in procs.values():
-            proc.stop()
 
 
 def test_node2_declares_the_change_over_dds(run):

@@ -445,6 +445,7 @@ def test_imu_and_wrench_topics_converge_and_a_silent_topic_is_diagnosed(probe, r
         stop_nodes(procs)
 
 
+@pytest.mark.dds_startup
 @pytest.mark.parametrize("node, text, message", [
     ("okid_arx_identifier", "arx:\n      order: 0",
      r"parameter arx\.order = 0 is out of range; valid range \[1, 5000\]"),
@@ -465,6 +466,7 @@ def test_a_bad_parameter_is_refused_at_start(spawn_ros, tmp_path, node, text, me
     proc.wait_for_output(message, timeout_s=5)
 
 
+@pytest.mark.dds_startup
 def test_a_value_of_the_wrong_kind_in_a_later_file_is_refused_at_start(spawn_ros, tmp_path):
     bad = tmp_path / "override.yaml"
     bad.write_text("/**:\n  ros__parameters:\n    sample_time_s: 'abc'\n")  # rcl's merge kept okid.yaml's value
@@ -474,6 +476,7 @@ def test_a_value_of_the_wrong_kind_in_a_later_file_is_refused_at_start(spawn_ros
     proc.wait_for_output(r"error: .*override\.yaml: parameter sample_time_s must be a number, got 'abc'", timeout_s=5)
 
 
+@pytest.mark.dds_startup
 def test_a_parameter_file_rcl_cannot_parse_is_one_line_at_start(spawn_ros, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("this is: [not yaml\n")  # rcl parses --params-file before the node exists
@@ -484,6 +487,7 @@ def test_a_parameter_file_rcl_cannot_parse_is_one_line_at_start(spawn_ros, tmp_p
     assert "Traceback" not in proc.output()
 
 
+@pytest.mark.dds_startup
 def test_up_starts_both_nodes_and_stops_them_on_sigint(spawn_ros, tmp_path):
     up = spawn_ros("-m", "okid_ros.cli", "up", "--params", str(REPO_ROOT / "config" / "okid.yaml"))
     up.wait_for_output(r"\[okid_arx_identifier\]: ready", timeout_s=30)

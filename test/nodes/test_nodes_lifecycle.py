@@ -183,6 +183,7 @@ def test_lifecycle_transitions_over_dds(probe, ros_domain_id, tmp_path):
         up.stop()
 
 
+@pytest.mark.dds_startup
 @pytest.mark.parametrize("module, start, shutdown", [
     ("modal_estimator_node", (), Transition.TRANSITION_ACTIVE_SHUTDOWN),
     ("modal_estimator_node", ("--no-autostart",), Transition.TRANSITION_UNCONFIGURED_SHUTDOWN),

@@ -173,6 +173,7 @@ def test_the_output_only_example_is_read_strictly_by_both_nodes():
     assert arx["arx.order"] == 10 and est["realization.output_only_method"] == "ssi-cva"
 
 
+@pytest.mark.dds_startup
 def test_node_2_names_the_input_output_parameters_an_output_only_rig_ignores(spawn_ros, tmp_path):
     # `process` and `batch` said it; node 2 started with realization.n_states 2 and n_inputs 0 said
     # nothing and realized models of another order, as realization.output_only_method chose.

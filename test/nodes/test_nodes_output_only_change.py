@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, publish_io_samples, start_nodes, subprocess_env, wait_ready
+from ros_helpers import ProbeNode, io_sample_rig, publish_io_samples, subprocess_env
 
 from okid_bench.changes import change_case
 from okid_bench.switching import simulate_switched
@@ -77,14 +77,8 @@ class Probe(ProbeNode):
 
 @pytest.fixture(scope="module")
 def louder(ros_domain_id, tmp_path_factory):
-    params = tmp_path_factory.mktemp("output_only_change") / "params.yaml"
-    params.write_text(PARAMS)
-    procs = start_nodes(["--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)],
-                        subprocess_env(ros_domain_id))
-    probe = Probe()
-    try:
-        wait_ready(procs)
-        probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
+    with io_sample_rig(Probe, PARAMS, tmp_path_factory.mktemp("output_only_change"),
+                       subprocess_env(ros_domain_id)) as (procs, probe):
         case = change_case("frequency", 0.06)  # its structure before the change: forces only change here
         u = case.make_input(N, 100 + SEED)
         u[CHANGE:] *= 3.0
@@ -110,10 +104,6 @@ def louder(ros_domain_id, tmp_path_factory):
                          explain=lambda: (probe.estimation, procs["est"].output()[-3000:]))
         with probe.lock:
             yield list(probe.changes), dict(probe.estimation), set(probe.monitor_states), procs
-    finally:
-        probe.close()
-        for proc in procs.values():
-            proc.stop()
 
 
 def test_louder_ambient_forces_are_held_then_counted_as_the_excitation_not_declared(louder):

@@ -18,7 +18,7 @@ from okid_ros.errors import ParameterError
 from okid_ros.service.param_files import flatten, load_yaml_as_rcl
 from okid_ros.tools.node_parameters import load_node_parameters
 
-pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+pytestmark = [pytest.mark.dds, pytest.mark.dds_startup]  # start-ups and exits only: `make test` runs it in parallel
 
 SCALARS = {
     "exponent": "1e-3", "exponent_upper": "2E+2", "decimal": "0.25", "leading_dot": ".5", "trailing_dot": "3.",

@@ -301,6 +301,7 @@ def test_tunables_change_at_run_time_with_the_start_checks_and_structure_stays(p
     assert ok.successful
 
 
+@pytest.mark.dds_startup
 def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros, tmp_path):
     typo = tmp_path / "typo.yaml"
     typo.write_text("/**/okid_arx_identifier:\n  ros__parameters:\n    arx: {ordr: 50}\n")
@@ -315,6 +316,7 @@ def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros,
     strict.wait_for_output(r"unknown parameter\(s\) arx\.ordr .*strict_parameters", 5)
 
 
+@pytest.mark.dds_startup
 def test_a_parameter_given_dotted_and_nested_is_refused_and_a_low_time_jump_is_told(spawn_ros, tmp_path):
     # rcl takes the later of `inputs.sources` and `inputs: {sources}` in silence; the node refuses
     # the file as `okid-ros process` does. A time-jump threshold set below the grid's latency is

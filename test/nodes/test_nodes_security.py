@@ -262,6 +262,7 @@ def test_discovery_range_decides_who_sees_the_nodes_from_another_host(two_hosts,
 
 
 # ---------------------------------------------------------------------------------- DDS security
+@pytest.mark.dds_startup
 @pytest.mark.parametrize("keystore", ["no_enclave", "dummy_keys"])
 def test_enforced_security_that_cannot_be_had_stops_the_node_in_one_line(spawn_ros, ros_env, tmp_path, keystore):
     """ROS_SECURITY_STRATEGY=Enforce: a node never runs unsecured, and says why in one line.

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from ros_helpers import REPO_ROOT
 
-pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+pytestmark = [pytest.mark.dds, pytest.mark.dds_startup]  # start-ups and exits only: `make test` runs it in parallel
 
 MODULES = ("arx_identifier_node", "modal_estimator_node")
 FAST_DIAGNOSTICS = "/**:\n  ros__parameters:\n    diagnostics_rate_hz: 100.0\n"

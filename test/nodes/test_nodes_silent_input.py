@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import REPO_ROOT, ProbeNode, publish_io_samples, start_nodes, subprocess_env, wait_ready
+from ros_helpers import ProbeNode, io_sample_rig, publish_io_samples, subprocess_env
 
 from okid_msgs.msg import ArxModel, IoSample
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -56,14 +56,7 @@ class Probe(ProbeNode):
 
 
 def test_node_1_fits_without_a_silent_input_names_it_and_counts_it(ros_domain_id, tmp_path):
-    params = tmp_path / "params.yaml"
-    params.write_text(PARAMS)
-    procs = start_nodes(["--params-file", str(REPO_ROOT / "config" / "okid.yaml"), "--params-file", str(params)],
-                        subprocess_env(ros_domain_id))
-    probe = Probe()
-    try:
-        wait_ready(procs)
-        probe.wait_until("the nodes to subscribe the inputs", lambda: probe.io.get_subscription_count() >= 2, 20)
+    with io_sample_rig(Probe, PARAMS, tmp_path, subprocess_env(ros_domain_id)) as (procs, probe):
         truth = paper_model()
         u = lowpass_input(N, 2, 15.0, truth.sample_time_s, seed=7)
         u[:, 1] = 0.0
@@ -78,7 +71,3 @@ def test_node_1_fits_without_a_silent_input_names_it_and_counts_it(ros_domain_id
         assert not refused, (refused, ident["last_reason"])
         assert "no excitation on input 1 (all zeros) in this window" in ident["last_silent_input_warning"]
         assert "fitted without its silent input(s): no excitation on input 1 (all zeros)" in procs["arx"].output()
-    finally:
-        probe.close()
-        for proc in procs.values():
-            proc.stop()

@@ -194,6 +194,7 @@ def test_the_wait_flag_takes_no_value():
     assert build_parser().parse_args(["replay", "run", "--subscribers", "3"]).subscribers == 3
 
 
+@pytest.mark.dds_startup
 def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
     cases = (
         ([str(short_bag), "--topics", "/nope"], "no topic /nope"),

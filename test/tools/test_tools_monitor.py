@@ -159,6 +159,7 @@ def test_monitor_once_prints_the_modes_arriving_over_dds(ros_domain_id):
     assert row.split()[-1] == "5.000e+00" and "model 3" in lines[0] and not any("\x1b" in line for line in lines)
 
 
+@pytest.mark.dds_startup
 def test_monitor_once_without_messages_is_a_one_line_error(ros_domain_id):
     proc = RosProcess([sys.executable, "-m", "okid_ros.cli", "monitor", "--once", "--duration", "1",
                        "--topic", "/test/silent"], subprocess_env(ros_domain_id), REPO_ROOT)
