@@ -22,11 +22,13 @@ def _rows(bag: str, frequency_hz: float) -> list[dict]:
     (100.0, 5.9, True),  # a copy: same samples and modes
     (106.0, 5.9, False),  # another recording, started later
     (100.0, 6.1, False),  # two rigs recorded at once: same span, other modes
+    (100.0, None, False),  # neither bag gave a mode: equal stamps and counts alone are no copy
 ])
 def test_a_recording_given_twice_is_named(tmp_path, capsys, start_b, frequency_b, said):
     """Copies of a bag (another folder, another name) put its modes in the tables twice: named, not refused."""
     entries = [_entry("camp/a/run", 100.0), _entry("camp/d/run", start_b)]
-    report = CampaignReport(entries=entries, rows=_rows("camp/a/run", 5.9) + _rows("camp/d/run", frequency_b),
+    rows = [] if frequency_b is None else _rows("camp/a/run", 5.9) + _rows("camp/d/run", frequency_b)
+    report = CampaignReport(entries=entries, rows=rows,
                             elapsed_s=1.0, written=[tmp_path / "modes.parquet"])
     options = CampaignOptions(paths=["camp"], out_dir=Path(tmp_path), arx_values={}, est_values={})
     print_summary(report, options)

@@ -55,17 +55,19 @@ def same_recordings(entries: list[dict], rows: list[dict]) -> str:
 
     Two bags whose samples start at the same stamp, span the same time, number the same and give
     the same modes to the last bit are copies (a bag copied to another folder, or under another
-    name; two rigs recorded at once differ in their modes): the campaign keeps both, as given, and
-    says so, since its medians and counts then weigh that recording twice.
+    name; two rigs recorded at once differ in their modes; bags with no mode are never named): the
+    campaign keeps both, as given, and says so, since its medians and counts then weigh that
+    recording twice.
     """
     modes: dict[str, list] = {}
     for row in rows:
         modes.setdefault(str(row["bag"]), []).append((row["stamp_s"], row["frequency_hz"], row["damping_ratio"]))
     groups: dict[tuple, list[str]] = {}
     for entry in entries:
-        if entry["status"] == "ok" and int(entry.get("samples", 0)) > 0:
-            key = (entry.get("start_s"), entry.get("duration_s"), int(entry["samples"]),
-                   tuple(modes.get(str(entry["bag"]), ())))
+        found = tuple(modes.get(str(entry["bag"]), ()))
+        # Without modes, equal stamps and counts say nothing: simulated or rig bags share their start and length.
+        if entry["status"] == "ok" and int(entry.get("samples", 0)) > 0 and found:
+            key = (entry.get("start_s"), entry.get("duration_s"), int(entry["samples"]), found)
             groups.setdefault(key, []).append(shown_path(entry["bag"]))
     copies = [bags for bags in groups.values() if len(bags) > 1]
     if not copies:
