@@ -311,22 +311,21 @@ def _load_npz(path: Path) -> Record:
         with data:
             missing = [k for k in ("y", "sample_time_s") if k not in data.files]
             member = functools.partial(_member, data, path=path)
+            y = member("y") if "y" in data.files else None
+            n_samples = np.shape(y)[0] if np.ndim(y) else 0  # the records' checks judge a y of no rows themselves
             if missing:
-                n_samples = np.shape(member("y"))[0] if "y" in data.files and np.ndim(member("y")) else 0
                 hint = missing_key_hint(data.files, member, missing, n_samples)
                 raise DataError(f"{shown_path(path)}: missing key(s) {', '.join(missing)} "
                                 f"(has {', '.join(data.files) or 'none'}){': ' + hint if hint else ''}")
-            y = _member(data, "y", path)
-            u = _member(data, "u", path) if "u" in data.files else np.zeros((np.shape(y)[0] if np.ndim(y) else 0, 0))
-            sample_time_s = _member(data, "sample_time_s", path)
-            if "stamp_s" in data.files and (jump := stamp_jump_problem(
-                    _member(data, "stamp_s", path), sample_time_s, n_samples=np.shape(y)[0] if np.ndim(y) else 0)):
+            u = member("u") if "u" in data.files else np.zeros((n_samples, 0))
+            sample_time_s = member("sample_time_s")
+            if "stamp_s" in data.files and (jump := stamp_jump_problem(member("stamp_s"), sample_time_s,
+                                                                       n_samples=n_samples)):
                 raise DataError(f"{shown_path(path)}: {jump}")
             arr = np.asarray(sample_time_s)
             if arr.size == 1 and arr.dtype.kind in "iuf" and sample_time_problem(float(arr.reshape(()))) is None:
                 # (a sample time that is no such number is refused as it is, by Record.validate)
-                check_npz_keys(path, data.files, member, n_samples=np.shape(y)[0] if np.ndim(y) else 0,
-                               sample_time_s=float(arr.reshape(())))
+                check_npz_keys(path, data.files, member, n_samples=n_samples, sample_time_s=float(arr.reshape(())))
             return Record(u, y, sample_time_s)
     except DataError:
         raise
