@@ -26,7 +26,8 @@ from okid_ros.core.modal import Mode
 from okid_ros.core.regressors import regressor_length
 from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
-from okid_ros.service.inputs import SourceSpec
+from okid_ros.service.grid_samples import NO_DATA
+from okid_ros.service.inputs import SourceSpec, declares_no_data
 from okid_ros.service.options import ArxIdentificationParams
 from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
@@ -128,7 +129,9 @@ def source_values(msg: Any, spec: SourceSpec, n_inputs: int, n_outputs: int) -> 
 
     The stamp is None when the message has none (Float64MultiArray without a stamp element):
     the caller stamps it with the arrival time. Values of the wrong size come back as an
-    empty array, which :class:`okid_ros.service.sample_grid.SampleGrid` counts as wrong_size.
+    empty array, which :class:`okid_ros.service.sample_grid.SampleGrid` counts as wrong_size, those of
+    a message that declares no data (REP 145, :func:`~okid_ros.service.inputs.declares_no_data`) as
+    :data:`~okid_ros.service.grid_samples.NO_DATA`, counted no_data.
     """
     kind = spec.kind
     if kind == "io_sample":
@@ -151,6 +154,8 @@ def source_values(msg: Any, spec: SourceSpec, n_inputs: int, n_outputs: int) -> 
             return None, _EMPTY
         return stamp, values
     stamp = stamp_to_seconds(msg.header.stamp)
+    if spec.no_data_checks and declares_no_data(getattr(msg, name)[i] for name, i in spec.no_data_checks):
+        return stamp, NO_DATA
     values = np.empty(len(spec.fields))
     for i, path in enumerate(spec.fields):
         obj = msg

@@ -18,8 +18,8 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from okid_ros.nodes.common import SIM_CLOCK_SILENCE_S, SIM_TIME_WITHOUT_CLOCK, make_status, sensor_qos
 from okid_ros.nodes.conversions import source_values
 from okid_ros.nodes.raw_inputs import message_class, raw_reader
-from okid_ros.service.grid_samples import GridSample
-from okid_ros.service.inputs import sources_and_grid, time_jump_note
+from okid_ros.service.grid_samples import NO_DATA, GridSample
+from okid_ros.service.inputs import no_data_reason, sources_and_grid, time_jump_note
 
 __all__ = ["DRAIN_MAX", "InputFrontend"]
 
@@ -58,6 +58,7 @@ class InputFrontend:
         self.starved = False
         self._emission_mark = (self._clock.now().nanoseconds, 0, 0, self._refusals())
         self._counts = [0] * n
+        self._no_data_told: set[str] = set()  # topics whose messages declared no data (REP 145): told once each
         self._rate_mark = (self._clock.now().nanoseconds, [0] * n)
         self.rates_hz = [0.0] * n
         # Publishers of another message type on an input topic: DDS never matches them (their
@@ -132,8 +133,19 @@ class InputFrontend:
         self._counts[index] += 1
         if stamp is None:
             stamp = now_ns * 1e-9
+        if values is NO_DATA:
+            self._tell_no_data(self.specs[index])
         for sample in self.grid.add(index, stamp, values):
             self.on_sample(sample)
+
+    def _tell_no_data(self, spec: Any) -> None:
+        """Warn once per topic that its messages declare no data (counted as ``no_data`` by the grid)."""
+        if spec.topic in self._no_data_told:
+            return
+        self._no_data_told.add(spec.topic)
+        self.node.get_logger().warning(f"input {spec.topic}: a message rejected, never used as data: its "
+                                       f"{no_data_reason(spec)}; said once per topic, each counted in the "
+                                       "diagnostics ('grid no_data', the topic's 'rejected')")
 
     def note_clock_at_zero(self) -> None:
         """A message arrived with the node clock at 0 (``use_sim_time``, nothing on /clock yet): told once.

@@ -10,7 +10,8 @@ from the start of the data (after the 4-byte encapsulation header) and an empty 
 no padding.
 
 A source's reader is made only if it reads messages rclpy serialized (marker values in the
-source's fields, every padding a frame_id can leave, empty and filled sequences) exactly as
+source's fields, covariances that declare no data (REP 145) or hold a variance, every padding a
+frame_id can leave, empty and filled sequences) exactly as
 :func:`~okid_ros.nodes.conversions.source_values` reads the objects rclpy deserializes from
 the same bytes; otherwise the source's messages are taken as objects, as before. A message in
 another encoding (big-endian, another vendor's XCDR2) or whose bytes do not hold what its
@@ -27,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from okid_ros.nodes.conversions import source_values, stamp_seconds
-from okid_ros.service.inputs import SourceSpec
+from okid_ros.service.grid_samples import NO_DATA
+from okid_ros.service.inputs import NO_DATA_COVARIANCE, SourceSpec, declares_no_data
 
 __all__ = ["PLAIN_CDR_LE", "RawSourceReader", "message_class", "raw_reader"]
 
@@ -86,10 +88,12 @@ class RawSourceReader:
         parse = {"io_sample": self._io_sample, "array": self._array}.get(spec.kind)
         if parse is None:  # a header and a fixed block of doubles (imu, accel, wrench)
             places = self._double_places()
-            # Only the span of doubles that holds the source's fields is read.
+            # Only the span of doubles that holds the source's fields (and their covariances' element 0) is read.
             self._first = int(places.min())
             self._span = struct.Struct(f"<{int(places.max()) - self._first + 1}d")
-            self._picks = (places - self._first).tolist()
+            n_fields = len(spec.fields)
+            self._picks = (places[:n_fields] - self._first).tolist()
+            self._checks = (places[n_fields:] - self._first).tolist()
             parse = self._fixed
         self._parse = parse
 
@@ -117,6 +121,8 @@ class RawSourceReader:
     def _fixed(self, data: bytes) -> tuple[float, np.ndarray]:
         stamp, pos = _after_header(data)
         span = self._span.unpack_from(data, _aligned(pos, 8) + 8 * self._first)
+        if self._checks and declares_no_data(span[i] for i in self._checks):
+            return stamp, NO_DATA
         return stamp, np.array([span[i] for i in self._picks])
 
     def _io_sample(self, data: bytes) -> tuple[float, np.ndarray]:
@@ -149,9 +155,10 @@ class RawSourceReader:
         return stamp, picked
 
     def _double_places(self) -> np.ndarray:
-        """Where each field of the source sits among the doubles after the header (marker values)."""
+        """Where the source's fields, then the covariance elements it checks, sit among the doubles (marker values)."""
         msg = self.message_type()
-        markers = self._marked(msg, np.arange(len(self.spec.fields)))
+        paths = self.spec.fields + self.spec.no_data_checks
+        markers = self._marked(msg, np.arange(len(paths)), paths)
         data = self._serialize(msg)
         start = _aligned(_after_header(data)[1], 8)
         places = []
@@ -163,14 +170,17 @@ class RawSourceReader:
         return np.asarray(places)
 
     # ------------------------------------------------------------------------------ the check
-    def _marked(self, msg: Any, seeds: np.ndarray) -> list[float]:
-        """Write marker values (distinct, no other field's) into the source's fields of ``msg``."""
+    def _marked(self, msg: Any, seeds: np.ndarray, paths: tuple) -> list[float]:
+        """Write marker values (distinct, no other field's) at ``paths`` of ``msg`` (a final int: an element)."""
         markers = [float(v) for v in 1e-300 * (1.25 + seeds / 7.0 + 0.123456789)]
-        for path, value in zip(self.spec.fields, markers):
+        for path, value in zip(paths, markers):
             obj = msg
             for name in path[:-1]:
                 obj = getattr(obj, name)
-            setattr(obj, path[-1], value)
+            if isinstance(path[-1], int):
+                obj[path[-1]] = value
+            else:
+                setattr(obj, path[-1], value)
         return markers
 
     def test_messages(self) -> list[Any]:
@@ -185,12 +195,19 @@ class RawSourceReader:
             elif self.spec.kind == "array":
                 msg = self._array_message(len(frame_id), rng)
             else:
-                self._marked(msg, rng.integers(0, 1000, len(self.spec.fields)))
+                self._marked(msg, rng.integers(0, 1000, len(self.spec.fields)), self.spec.fields)
+                self._declare_variances(msg, len(frame_id))
             if self.spec.has_header:
                 msg.header.frame_id = frame_id
                 msg.header.stamp.sec, msg.header.stamp.nanosec = 1_700_000_000 + len(frame_id), 123_456_789
             out.append(msg)
         return out
+
+    def _declare_variances(self, msg: Any, k: int) -> None:
+        """Covariances of the checked fields: in turn one that declares no data (REP 145), else a variance."""
+        checks = self.spec.no_data_checks
+        for j, (name, index) in enumerate(checks):
+            getattr(msg, name)[index] = NO_DATA_COVARIANCE if k % 2 and j == k // 2 % len(checks) else 0.25 * k
 
     def _sequence_lengths(self) -> tuple[int, int]:
         if self.spec.whole_sample:
@@ -223,7 +240,9 @@ class RawSourceReader:
                 return False
             want_stamp, want = source_values(self._deserialize(data, self.message_type), self.spec,
                                              self.n_inputs, self.n_outputs)
-            if stamp != want_stamp or not np.array_equal(values, want) or values.size == 0:
+            if stamp != want_stamp or (values is NO_DATA) != (want is NO_DATA):
+                return False
+            if values is not NO_DATA and (not np.array_equal(values, want) or values.size == 0):
                 return False
         return True
 

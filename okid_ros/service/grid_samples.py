@@ -13,10 +13,15 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["GridCounters", "GridSample", "REJECTION_REASONS", "RESTART_SKIP"]
+__all__ = ["GridCounters", "GridSample", "NO_DATA", "REJECTION_REASONS", "RESTART_SKIP"]
 
 #: ``skipped`` value that stands for a restart (start, reset, time jump) where a count is expected.
 RESTART_SKIP = -1
+
+#: The values of a message that declares it carries no data (REP 145,
+#: :func:`okid_ros.service.inputs.declares_no_data`): the grid refuses it as ``no_data``; told apart by identity.
+NO_DATA = np.zeros(0)
+NO_DATA.flags.writeable = False
 
 
 @dataclass
@@ -49,7 +54,8 @@ class GridSample:
 
 
 #: The reasons a message is refused (fields of :class:`GridCounters`), the likeliest mistake first.
-REJECTION_REASONS = ("wrong_size", "nonfinite", "late", "duplicate", "out_of_order", "off_grid", "off_timeline")
+REJECTION_REASONS = ("wrong_size", "nonfinite", "no_data", "late", "duplicate", "out_of_order", "off_grid",
+                     "off_timeline")
 
 
 @dataclass
@@ -64,6 +70,7 @@ class GridCounters:
     out_of_order: int = 0
     nonfinite: int = 0
     wrong_size: int = 0
+    no_data: int = 0  # messages whose covariance declares no data (REP 145)
     off_grid: int = 0
     off_timeline: int = 0  # lone stamps far from the timeline that the next messages did not confirm
     time_jumps: int = 0

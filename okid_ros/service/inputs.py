@@ -30,6 +30,11 @@ Examples::
     wrench /truss/thruster_1 force.x=u0
     array /daq/frame data[0]=stamp data[1]=u0 data[2]=u1 data[3]=y0 data[4]=y1
 
+No data: REP 145 has a sensor that does not measure a field of ``sensor_msgs/Imu`` set element 0 of
+the field's covariance to -1. An imu message whose covariance declares so for a field the source
+reads is rejected whole, counted ``no_data`` (:func:`declares_no_data`); a covariance of zeros
+("unknown") is no such declaration. The orientation is never read, so its covariance is not looked at.
+
 Stamps: ``header.stamp`` of the message; a Float64MultiArray has no header, so without a
 ``stamp`` element it is stamped with its arrival time on the node clock, which is only as good
 as the transport jitter (use it with one source for all channels, or give a stamp element).
@@ -42,7 +47,8 @@ from dataclasses import dataclass
 
 from okid_ros.service.channels import channel_index, channel_name
 
-__all__ = ["SOURCE_KINDS", "SourceSpec", "parse_source", "parse_sources", "sources_and_grid", "time_jump_note"]
+__all__ = ["NO_DATA_COVARIANCE", "SOURCE_KINDS", "SourceSpec", "declares_no_data", "no_data_reason", "parse_source",
+           "parse_sources", "sources_and_grid", "time_jump_note"]
 
 #: kind -> (message type, field aliases -> canonical field path)
 SOURCE_KINDS: dict[str, str] = {
@@ -67,6 +73,11 @@ _FIELDS: dict[str, dict[str, tuple]] = {
         **{f"{g}.{a}": ("wrench", g, a) for g in ("force", "torque") for a in _AXES},
     },
 }
+#: imu field group -> its covariance, whose element 0 at :data:`NO_DATA_COVARIANCE` declares no data (REP 145).
+_COVARIANCES = {"linear_acceleration": "linear_acceleration_covariance",
+                "angular_velocity": "angular_velocity_covariance"}
+#: REP 145 (sensor_msgs/Imu): element 0 of a field's covariance at -1 declares that the field carries no data.
+NO_DATA_COVARIANCE = -1.0
 _INDEXED = re.compile(r"^(u|y|data)\[(\d+)\]$")
 
 
@@ -85,6 +96,8 @@ class SourceSpec:
     stamp_index : element of ``data`` holding the stamp in seconds (array sources), else None.
     text : the specification as given.
     whole_sample : an io_sample source without mappings (``u`` and ``y`` must have m and p values).
+    no_data_checks : per covariance of the fields read (imu), the path of its element 0
+        (``("linear_acceleration_covariance", 0)``): :func:`declares_no_data` reads them.
     """
 
     kind: str
@@ -95,6 +108,7 @@ class SourceSpec:
     stamp_index: int | None
     text: str
     whole_sample: bool = False  # io_sample without mappings: u and y as they are
+    no_data_checks: tuple[tuple, ...] = ()
 
     @property
     def has_header(self) -> bool:
@@ -152,10 +166,26 @@ def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
         channels.append(channel)
     if not channels:
         raise ValueError(f"input source {text!r}: maps no channel (add FIELD=CHANNEL)")
+    checks = tuple((_COVARIANCES[group], 0) for group in dict.fromkeys(path[0] for path in fields)
+                   if kind == "imu" and group in _COVARIANCES)
     return SourceSpec(
         kind, topic, SOURCE_KINDS[kind], tuple(fields), tuple(channels), stamp_index, text,
-        whole_sample=kind == "io_sample" and not mappings,
+        whole_sample=kind == "io_sample" and not mappings, no_data_checks=checks,
     )
+
+
+def declares_no_data(first_elements) -> bool:
+    """Whether a message's covariances (the values at ``spec.no_data_checks``) declare a field without data.
+
+    The one rule of the nodes and the offline tools, on message objects and on serialized bytes alike.
+    """
+    return any(value == NO_DATA_COVARIANCE for value in first_elements)
+
+
+def no_data_reason(spec: SourceSpec) -> str:
+    """Why a message of ``spec`` that :func:`declares_no_data` is refused, naming the covariances looked at."""
+    names = " or ".join(f"{name}[{index}]" for name, index in spec.no_data_checks)
+    return f"{names} is -1, which REP 145 reserves for a field the sensor does not measure (no data)"
 
 
 def _field_name(path: tuple) -> str:

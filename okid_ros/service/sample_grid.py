@@ -36,7 +36,8 @@ duplicates / out of order
 bad values
     A message whose values are not finite (NaN/Inf), whose stamp is not finite or beyond any ROS 2
     time (:data:`MAX_STAMP_S`; an array source's stamp field may hold anything), both counted
-    ``nonfinite``, or whose value count is not the source's (``wrong_size``) is rejected as a whole.
+    ``nonfinite``, whose value count is not the source's (``wrong_size``), or that declares it carries no
+    data (:data:`NO_DATA`, REP 145: ``no_data``) is rejected as a whole.
 timeline
     The *timeline* is the newest stamp of the stream (taken, or confirmed as below). A stamp
     more than the *jump threshold* before or after it is held as the *candidate* of a new
@@ -86,7 +87,7 @@ import numpy as np
 
 from okid_ros.core.options import sample_time_problem
 from okid_ros.service.channels import channel_name
-from okid_ros.service.grid_samples import REJECTION_REASONS, RESTART_SKIP, GridCounters, GridSample
+from okid_ros.service.grid_samples import NO_DATA, REJECTION_REASONS, RESTART_SKIP, GridCounters, GridSample
 from okid_ros.service.grid_sources import GridSource, grid_sources
 from okid_ros.service.stamp_steps import MAX_STAMP_S, StampSequence, StampStep, classify_step, least_time_jump_s
 
@@ -214,10 +215,13 @@ class SampleGrid:
         ----------
         source : index of the source (order of ``sources`` at construction).
         stamp_s : the message's stamp [s].
-        values : the source's channel values, in the order of its channel list.
+        values : the source's channel values, in the order of its channel list, or :data:`NO_DATA`.
         """
         src = self._sources[source]
         self._count(src, "messages")
+        if values is NO_DATA:
+            self._count(src, "no_data")
+            return []
         vals = np.asarray(values, dtype=float).reshape(-1)
         if vals.size != src.channels.size:
             self._count(src, "wrong_size")

@@ -52,6 +52,7 @@ class BagRecord:
     messages: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     missing: int = 0
+    no_data_note: str = ""  # per topic, its messages whose covariance declared no data (REP 145)
 
     @property
     def samples_left_out(self) -> int:
@@ -86,7 +87,7 @@ class BagRecord:
             notes.append(f"{self.missing} sample times dropped incomplete (a message missing on some source topic: "
                          "one that stopped or dropped messages?)")
         if sum(self.rejected.values()):
-            notes.append(_rejected_messages(self.rejected, self.messages, dt))
+            notes.append(_rejected_messages(self.rejected, self.messages, dt, {"no_data": self.no_data_note}))
         present = np.isfinite(self.record.y).all(axis=1)  # the dropped slots of a stretch are NaN rows
         alone = present & ~np.r_[False, present[:-1]] & ~np.r_[present[1:], False]
         notes.append(stand_alone_hint(samples=self.samples_total, runs=self.runs, alone=int(alone.sum()),
@@ -95,16 +96,16 @@ class BagRecord:
 
 
 def _rejected_messages(rejected: dict[str, int], messages: int, sample_time_s: float,
-                       wrong_size_note: str = "") -> str:
-    """"N of the M messages were rejected (n reason, ...)", with the sizes expected and the likely cause.
+                       notes: dict[str, str] | None = None) -> str:
+    """"N of the M messages were rejected (n reason, ...)", with the notes of the reasons and the likely cause.
 
     The cause: :func:`~okid_ros.tools.grid_hints.rejection_hint` (a sample time that is not the
-    stamps' spacing); the sizes after a wrong size.
+    stamps' spacing); ``notes`` by reason: the sizes after a wrong size, the covariances after no data.
     """
     from okid_ros.tools.grid_hints import rejection_hint
 
-    reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" + (f" ({wrong_size_note})" if reason == "wrong_size"
-                                                               and wrong_size_note else "")
+    notes = notes or {}
+    reasons = ", ".join(f"{n} {reason.replace('_', ' ')}" + (f" ({notes[reason]})" if notes.get(reason) else "")
                         for reason, n in rejected.items() if n)
     hint = rejection_hint(rejected, sample_time_s, messages=messages)
     text = f"{sum(rejected.values())} of the {messages} messages were rejected ({reasons})"
@@ -151,7 +152,8 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
         counters = inputs.grid.counters
         rejected = counters.rejections()
         dt = float(est_values["sample_time_s"])
-        why = (f": {_rejected_messages(rejected, int(counters.messages), dt, inputs.wrong_size_note)}"
+        notes = {"wrong_size": inputs.wrong_size_note, "no_data": inputs.no_data_note()}
+        why = (f": {_rejected_messages(rejected, int(counters.messages), dt, notes)}"
                if any(rejected.values()) else "")
         made = "no complete sample" if not samples else "one complete sample only"
         raise DataError(f"{shown_path(bag_path)}: {made} on the topics "
@@ -159,14 +161,15 @@ def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: b
     dt, grid = float(est_values["sample_time_s"]), inputs.grid.counters
     if missing_as_nan:
         record, stamps, runs = _longest_stretch(samples, dt)
-        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections(), int(grid.missing))
+        return BagRecord(record, stamps, len(samples), runs, int(grid.messages), grid.rejections(), int(grid.missing),
+                         inputs.no_data_note())
     starts = [0] + [k for k in range(1, len(samples)) if samples[k].gap_before] + [len(samples)]
     runs = list(zip(starts[:-1], starts[1:]))
     lo, hi = max(runs, key=lambda r: r[1] - r[0])
     chosen = samples[lo:hi]
     record = Record(np.array([s.u for s in chosen]), np.array([s.y for s in chosen]), dt).validate()
     found = BagRecord(record, np.array([s.stamp_s for s in chosen]), len(samples), len(runs), int(grid.messages),
-                      grid.rejections(), int(grid.missing))
+                      grid.rejections(), int(grid.missing), inputs.no_data_note())
     if hi - lo < 2:  # each sample alone between sample times without one: `export` wrote one sample, exit 0
         note = found.rejection_note()
         raise DataError(f"{shown_path(bag_path)}: no two complete samples in a row on the topics "

@@ -30,7 +30,8 @@ def loss_worth_saying(lost: int, total: int) -> bool:
 _WHERE = {"duplicate": "in a sample time already taken", "off_grid": "between sample times",
           "off_timeline": "more than the time-jump threshold from the stamps before them"}
 #: Refusals for a message's values: the sample times they leave empty are the data's doing.
-_VALUES = {"nonfinite": "with NaN or Inf values", "wrong_size": "of the wrong size"}
+_VALUES = {"nonfinite": "with NaN or Inf values", "wrong_size": "of the wrong size",
+           "no_data": "declaring no data (REP 145)"}
 
 
 def _question(sample_time_s: float) -> str:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from okid_ros.errors import ParameterError
-from okid_ros.service.grid_samples import REJECTION_REASONS
+from okid_ros.service.grid_samples import NO_DATA, REJECTION_REASONS
 
 __all__ = ["TOPIC_PARAMETERS", "NodeInputs", "OfflineNodes", "ProcessSummary"]
 
@@ -50,6 +50,7 @@ class ProcessSummary:
     grid_counters: dict = field(default_factory=dict)
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
+    no_data_note: str = ""  # per topic, its messages whose covariance declared no data (REP 145) and why
     sample_time_s: float = math.nan  # node 1's grid
     stretches: int = 0  # runs of samples between the stamps' jumps back in time (1 without)
     stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
@@ -147,7 +148,8 @@ class ProcessSummary:
         refused = f"node 1 refused {sum(values.values())} of the samples ({refused})" if refused else ""
         if not rejected and not counts.get("missing"):
             return refused
-        reasons = [f"{counts[key]} {key}" + (f" ({self.wrong_size_note})" if key == "wrong_size" else "")
+        notes = {"wrong_size": self.wrong_size_note, "no_data": self.no_data_note}
+        reasons = [f"{counts[key]} {key}" + (f" ({notes[key]})" if notes.get(key) else "")
                    for key in REJECTION_REASONS if counts.get(key)]
         missing = self._missing_text(counts.get("missing", 0), rejected)
         head = (f"all {messages} input messages were rejected" if rejected >= messages
@@ -218,10 +220,23 @@ class NodeInputs:
             if parsed is None:
                 parsed = source_values(msg.message if stored else msg, self.specs[i], self.m, self.p)
             stamp, values = parsed
-            if not len(values) and not self.wrong_size_note:  # empty: the message has the wrong size
+            # empty, not NO_DATA: the message has the wrong size
+            if values is not NO_DATA and not len(values) and not self.wrong_size_note:
                 self._note_wrong_size(topic, msg.message if stored else msg, self.specs[i])
             samples += self.grid.add(i, arrival_s if stamp is None else stamp, values)
         return samples
+
+    def no_data_note(self) -> str:
+        """Per topic whose messages declared no data (REP 145): how many of its messages and why ("" if none)."""
+        from okid_ros.service.inputs import no_data_reason
+
+        notes = {}
+        for i, spec in enumerate(self.specs):
+            counters = self.grid.source_counters(i)
+            if counters.no_data and spec.topic not in notes:
+                notes[spec.topic] = (f"{spec.topic}: {counters.no_data} of its {counters.messages} messages rejected, "
+                                     f"never used as data: {no_data_reason(spec)}")
+        return "; ".join(notes.values())
 
     def _note_wrong_size(self, topic: str, msg: Any, spec: Any) -> None:
         have = ", ".join(f"{name} of {len(getattr(msg, name))}" for name in ("u", "y", "data") if hasattr(msg, name))
@@ -336,6 +351,7 @@ class OfflineNodes:
         s.estimator_diagnostics = self.est.diagnostics()
         s.grid_counters = self.arx_inputs.grid.counters.as_dict()
         s.wrong_size_note = self.arx_inputs.wrong_size_note
+        s.no_data_note = self.arx_inputs.no_data_note()
         return out
 
     def _estimate(self, samples: list) -> list[tuple[str, Any]]:

@@ -16,6 +16,7 @@ import pytest
 
 from okid_ros.nodes import conversions as cv
 from okid_ros.service.estimation import ModalEstimationParams, ModalEstimationService
+from okid_ros.service.grid_samples import NO_DATA
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.service.inputs import parse_source
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
@@ -33,10 +34,13 @@ def vec(x, y, z):
 
 
 def test_source_values_of_every_kind():
-    imu = stamped(12.5, linear_acceleration=vec(1.0, 2.0, 3.0), angular_velocity=vec(4.0, 5.0, 6.0))
+    imu = stamped(12.5, linear_acceleration=vec(1.0, 2.0, 3.0), angular_velocity=vec(4.0, 5.0, 6.0),
+                  linear_acceleration_covariance=np.zeros(9), angular_velocity_covariance=np.zeros(9))
     source = parse_source("imu /a linear_acceleration.z=y1 angular_velocity.x=y0", 2, 2)
     stamp, values = cv.source_values(imu, source, 2, 2)
     assert stamp == pytest.approx(12.5) and values.tolist() == [3.0, 4.0]
+    imu.angular_velocity_covariance[0] = -1.0  # REP 145: no angular velocity
+    assert cv.source_values(imu, source, 2, 2)[1] is NO_DATA
     wrench = stamped(1.0, wrench=NS(force=vec(7.0, 8.0, 9.0), torque=vec(0.1, 0.2, 0.3)))
     _, values = cv.source_values(wrench, parse_source("wrench /w force.y=u0 torque.z=u1", 2, 2), 2, 2)
     assert values.tolist() == [8.0, 0.3]

@@ -7,6 +7,7 @@ second, independent one; no node (the nodes' DDS tests run the input thread on t
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
@@ -18,7 +19,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from okid_ros.nodes import raw_inputs
 from okid_ros.nodes.conversions import source_values
 from okid_ros.nodes.raw_inputs import RawSourceReader, message_class, raw_reader
-from okid_ros.service.inputs import parse_source
+from okid_ros.service.grid_samples import NO_DATA
+from okid_ros.service.inputs import parse_source, sources_and_grid
 from okid_ros.tools.bagio import okid_typestore
 
 STORE = okid_typestore()
@@ -52,6 +54,7 @@ def expected(reader: RawSourceReader, data: bytes) -> tuple:
 
 def assert_same(got: tuple, want: tuple) -> None:
     assert (got[0] is None) == (want[0] is None)
+    assert (got[1] is NO_DATA) == (want[1] is NO_DATA)
     if got[0] is not None:
         assert got[0] == want[0] or (math.isnan(got[0]) and math.isnan(want[0]))
     np.testing.assert_array_equal(got[1], want[1])  # NaN equal to NaN
@@ -83,6 +86,8 @@ def messages(draw, reader: RawSourceReader):
         for name in path[:-1]:
             obj = getattr(obj, name)
         setattr(obj, path[-1], draw(values))
+    for name, index in reader.spec.no_data_checks:  # REP 145's "no data" (-1), or any variance
+        getattr(msg, name)[index] = draw(st.one_of(st.just(-1.0), values))
     return msg
 
 
@@ -145,3 +150,50 @@ def test_a_reader_that_reads_otherwise_than_rclpy_is_not_used(monkeypatch):
     monkeypatch.setattr(raw_inputs, "PLAIN_CDR_LE", b"\x00\x02")  # an rmw of another encoding
     monkeypatch.setattr(RawSourceReader, "_fixed", real)
     assert raw_reader(spec, m, p, msg_type) is None
+
+
+@pytest.mark.parametrize(("text", "covariance", "no_data"), [
+    ("imu /s linear_acceleration.x=y0", "linear_acceleration_covariance", True),
+    ("imu /s linear_acceleration.x=y0", "angular_velocity_covariance", False),  # a field not read
+    ("imu /s linear_acceleration.x=y0", "orientation_covariance", False),  # never read
+    ("imu /s angular_velocity.z=y0 linear_acceleration.y=y1", "angular_velocity_covariance", True),
+])
+def test_a_covariance_declaring_no_data_refuses_the_message_where_its_field_is_read(text, covariance, no_data):
+    """REP 145: element 0 at -1 declares the field without data; zeros ("unknown") and variances do not."""
+    m, p = 0, text.count("=")
+    reader = reader_of(text, m, p)
+    _, grid = sources_and_grid({"n_inputs": m, "n_outputs": p, "inputs.sources": [text], "sample_time_s": 0.01,
+                                "inputs.stamp_tolerance": 0.25, "inputs.latency_samples": 5,
+                                "inputs.time_jump_s": 1.0})
+    for k, (first, declared) in enumerate([(0.0, False), (0.04, False), (-1.0, no_data), (-0.5, False)]):
+        msg = reader.test_messages()[0]
+        msg.linear_acceleration.x, msg.angular_velocity.z = 3.0 + k, 4.0 + k
+        getattr(msg, covariance)[0] = first
+        raw = serialize_message(msg)
+        for stamp, values in (reader._parse(raw), expected(reader, raw)):  # the bytes, the object
+            assert (values is NO_DATA) == declared, (first, values)
+            assert declared or 3.0 + k in values or 4.0 + k in values
+        grid.add(0, stamp + 0.01 * k, values)
+    assert grid.counters.no_data == int(no_data) and grid.counters.samples_emitted + grid.pending_slots == 4 - no_data
+
+
+def test_a_node_tells_each_topic_declaring_no_data_once():
+    from okid_ros.nodes.input_frontend import InputFrontend
+
+    sources = ["imu /a linear_acceleration.x=y0", "imu /b linear_acceleration.x=y1"]
+    warnings = []
+    frontend = InputFrontend.__new__(InputFrontend)  # its reading of messages, without subscriptions
+    frontend.node = NS(get_logger=lambda: NS(warning=warnings.append))
+    frontend.specs, frontend.grid = sources_and_grid({
+        "n_inputs": 0, "n_outputs": 2, "inputs.sources": sources, "sample_time_s": 0.01,
+        "inputs.stamp_tolerance": 0.25, "inputs.latency_samples": 5, "inputs.time_jump_s": 1.0})
+    frontend.m, frontend.p, frontend.on_sample = 0, 2, lambda sample: None
+    frontend.last_arrival_ns, frontend._counts, frontend._no_data_told = [None, None], [0, 0], set()
+    msg = reader_of(sources[1], 0, 2).test_messages()[0]
+    msg.linear_acceleration_covariance[0] = -1.0
+    for k in range(5):
+        frontend._handle(0, reader_of(sources[0], 0, 2).test_messages()[0], 1 + k)
+        frontend._handle(1, msg, 1 + k)
+    assert frontend.grid.source_counters(1).no_data == 5 and frontend.grid.source_counters(0).no_data == 0
+    assert len(warnings) == 1 and warnings[0].startswith("input /b: a message rejected, never used as data: its "
+                                                         "linear_acceleration_covariance[0] is -1"), warnings
