@@ -28,7 +28,7 @@ from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.grid_samples import NO_DATA
 from okid_ros.service.inputs import SourceSpec, declares_no_data
-from okid_ros.service.options import ArxIdentificationParams
+from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
 
@@ -42,6 +42,7 @@ __all__ = [
     "io_sample_msg",
     "arx_model_msg",
     "arx_fit_from_msg",
+    "estimator_arx_fit",
     "mode_msg",
     "mode_from_msg",
     "modal_states_msg",
@@ -267,6 +268,21 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
     if problem := markov_problem(fit):
         raise ValueError(f"ArxModel coefficients are absurd: {problem}")
     return fit, stamp_to_seconds(msg.header.stamp), int(msg.window_fill)
+
+
+def estimator_arx_fit(msg: Any, params: ModalEstimationParams) -> tuple[ArxFit, float, int]:
+    """An ``ArxModel`` as node 2 takes it: :func:`arx_fit_from_msg` at node 2's ``sample_time_s``.
+
+    The one reading of node 2 (``modal_estimator_node``) and ``okid-ros process`` (``tools/offline.py``).
+
+    Raises
+    ------
+    ValueError ``"ArxModel <id> ignored: <why>"``, the line node 2 logs.
+    """
+    try:
+        return arx_fit_from_msg(msg, params.sample_time_s)
+    except ValueError as exc:
+        raise ValueError(f"ArxModel {msg.model_id} ignored: {exc}") from None
 
 
 def _residual_covariance_from_msg(values: Any, p: int) -> np.ndarray:

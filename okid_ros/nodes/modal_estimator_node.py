@@ -63,7 +63,7 @@ from okid_ros.nodes.common import (
     reliable_qos,
 )
 from okid_ros.nodes.conversions import (
-    arx_fit_from_msg,
+    estimator_arx_fit,
     mode_msg,
     ros_message_types,
     state_space_model_msg,
@@ -237,10 +237,10 @@ class ModalEstimatorNode(OkidNode):
             self._arx_invalid += 1
             return
         try:
-            fit, stamp_s, rows = arx_fit_from_msg(msg, self.service.params.sample_time_s)
+            fit, stamp_s, rows = estimator_arx_fit(msg, self.service.params)
         except ValueError as exc:
             self._arx_malformed += 1
-            self.get_logger().warning(f"ArxModel {msg.model_id} ignored: {exc}")
+            self.get_logger().warning(str(exc))
             return
         with self.state_lock:  # the input thread may be starting a job too
             try:

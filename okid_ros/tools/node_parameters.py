@@ -99,7 +99,7 @@ def _check_sizes_agree(values: list[dict], origins: list[dict[str, str]]) -> Non
     """Raise ParameterError where the nodes' values of a shared parameter that sizes the model differ.
 
     Node 2 refuses every ArxModel of another sample time or other dimensions than its own
-    (``arx_fit_from_msg``, ``RealizationHandoff.arrival``): with such values no model ever comes.
+    (``estimator_arx_fit``, ``RealizationHandoff.arrival``): with such values no model ever comes.
     """
     from okid_ros.service.params import ARX_NODE, ESTIMATOR_NODE, SHARED_PARAMS, SIZES
 

@@ -7,7 +7,7 @@ node 1's window and its snapshots by sample time, node 2's estimator and realiza
 window restart at a structural change, the model still pending at the end of the record,
 :meth:`OfflineNodes.finish`). Here only the messages are built and read: every
 output with :mod:`okid_ros.nodes.conversions`, and every valid ``ArxModel`` goes back into
-node 2 through the same conversion the node uses (``arx_fit_from_msg``).
+node 2 through the node's own call (``estimator_arx_fit``: the conversion at node 2's sample time).
 """
 
 from __future__ import annotations
@@ -51,6 +51,8 @@ class ProcessSummary:
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
     no_data_note: str = ""  # per topic, its messages whose covariance declared no data (REP 145) and why
+    arx_malformed: int = 0  # valid ArxModels node 2 did not take (``estimator_arx_fit``), as the node counts them
+    arx_malformed_why: str = ""  # the first one's line, as node 2 logs it
     sample_time_s: float = math.nan  # node 1's grid
     stretches: int = 0  # runs of samples between the stamps' jumps back in time (1 without)
     stamp_span_s: float = 0.0  # the stamps the samples span, each stretch on its own, gaps included
@@ -127,11 +129,14 @@ class ProcessSummary:
         is said with its count and reasons, which the live node gives in its diagnostics.
         """
         d = self.estimator_diagnostics
+        ignored = (f"node 2 ignored {self.arx_malformed} of the {self.valid_arx_models} valid ArxModels of node 1, "
+                   f"the first: {self.arx_malformed_why}") if self.arx_malformed else ""
         refused = d.get("arx_models_refused", 0)
         if refused <= d.get("windows_refused_for_change", 0):
-            return ""
-        return (f"node 2 refused {refused} of the {d.get('arx_models_received', 0)} ArxModels of node 1: "
-                f"{d.get('arx_models_refused_why', '')}")
+            return ignored
+        refused_note = (f"node 2 refused {refused} of the {d.get('arx_models_received', 0)} ArxModels of node 1: "
+                        f"{d.get('arx_models_refused_why', '')}")
+        return "; ".join(note for note in (ignored, refused_note) if note)
 
     def rejection_note(self) -> str:
         """What node 1's sample grid and window refused, in one sentence ("" when nothing).
@@ -393,7 +398,7 @@ class OfflineNodes:
         Node 2 takes a valid ArxModel through the message conversion the node uses
         (modal_estimator_node._on_arx_model) and realizes it at once.
         """
-        from okid_ros.nodes.conversions import arx_fit_from_msg, arx_model_msg
+        from okid_ros.nodes.conversions import arx_model_msg
 
         s = self.summary
         out: list[tuple[str, Any]] = []
@@ -408,9 +413,22 @@ class OfflineNodes:
             if self.arx_input_topic != self.arx_topic or not arx_msg.valid:
                 continue  # the estimator listens elsewhere, or ignores invalid models (as live)
             s.valid_arx_models += 1
-            try:
-                fit, stamp_s, rows = arx_fit_from_msg(arx_msg)
-            except ValueError:
-                continue
-            self.pipeline.realize_now(fit, stamp_s, int(arx_msg.model_id), rows)
+            self.take_arx_model(arx_msg)
         return out
+
+    def take_arx_model(self, arx_msg: Any) -> str:
+        """Node 2 takes a valid ArxModel as the node does (``estimator_arx_fit``): realized now, or why it is not.
+
+        A refusal is counted as the node counts it (``arx_models_malformed``) and its first line kept
+        (:meth:`ProcessSummary.arx_refused_note`).
+        """
+        from okid_ros.nodes.conversions import estimator_arx_fit
+
+        try:
+            fit, stamp_s, rows = estimator_arx_fit(arx_msg, self.est.params)
+        except ValueError as exc:
+            self.summary.arx_malformed += 1
+            self.summary.arx_malformed_why = self.summary.arx_malformed_why or str(exc)
+            return str(exc)
+        self.pipeline.realize_now(fit, stamp_s, int(arx_msg.model_id), rows)
+        return ""

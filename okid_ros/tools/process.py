@@ -9,7 +9,7 @@ Per node, exactly what the live node does with its topics, minus the middleware:
 - estimation (``okid_modal_estimator``): input messages -> its own sample grid ->
   :class:`ModalEstimationService` ``step`` per sample -> ``ModalStates`` (and
   ``StateSpaceModel`` on each accepted model); every valid ``ArxModel`` goes back in through
-  the same message conversion the node uses (``arx_fit_from_msg``) and is realized at once
+  the same call the node makes (``estimator_arx_fit``) and is realized at once
   (``WindowedPipeline.realize_now``), so it takes over at the next sample; at the end of the
   record, one realized at (or near) the last sample takes over after it
   (``WindowedPipeline.finish``, as the live node's idle timer once a replay has ended): its

@@ -185,3 +185,30 @@ def test_arx_models_node_2_refuses_after_a_forward_jump_of_hours_are_said(tmp_pa
     assert said[0].startswith("okid-ros process: warning: node 2 refused 17 of the 43 ArxModels of node 1: 17 with too "
                               "few samples after a gap (or a time jump) in their window (the last: "), said
     assert "follow its last gap longer than 10 samples; the realization needs at least" in said[0]
+
+
+@pytest.mark.parametrize("factor", [2.0, 1 + 1e-6])
+def test_node_2_and_process_ignore_an_arx_model_of_another_sample_time_alike(factor):
+    # `process` read node 1's ArxModel without node 2's sample time: a model of another grid was realized.
+    from types import SimpleNamespace as NS
+
+    from okid_ros.nodes.modal_estimator_node import ModalEstimatorNode
+    from okid_ros.service.options import ModalEstimationParams
+    from okid_ros.tools.offline import OfflineNodes
+    from okid_ros.tools.process import load_node_parameters
+
+    arx_values, est_values = load_node_parameters([], [], [])
+    dt = float(est_values["sample_time_s"])
+    msg = NS(model_id=7, valid=True, sample_time_s=factor * dt, n_inputs=2, n_outputs=2, order=10)
+    logged: list[str] = []
+    node = NS(active=True, _arx_invalid=0, _arx_malformed=0, get_logger=lambda: NS(warning=logged.append),
+              service=NS(params=ModalEstimationParams.from_parameters(est_values)))
+    ModalEstimatorNode._on_arx_model(node, msg)  # node 2's callback, its DDS left out
+    offline = OfflineNodes(arx_values, est_values)
+    why = offline.take_arx_model(msg)
+    assert logged == [why] and node._arx_malformed == offline.summary.arx_malformed == 1
+    assert why == (f"ArxModel 7 ignored: ArxModel of sample time {factor * dt:g} s; this node's sample_time_s is "
+                   f"{dt:g} s")
+    offline.summary.valid_arx_models = 1
+    assert offline.summary.arx_refused_note() == (f"node 2 ignored 1 of the 1 valid ArxModels of node 1, the first: "
+                                                  f"{why}")
