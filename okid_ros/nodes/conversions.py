@@ -155,7 +155,7 @@ def source_values(msg: Any, spec: SourceSpec, n_inputs: int, n_outputs: int) -> 
             return None, _EMPTY
         return stamp, values
     stamp = stamp_to_seconds(msg.header.stamp)
-    if spec.no_data_checks and declares_no_data(getattr(msg, name)[i] for name, i in spec.no_data_checks):
+    if spec.no_data_checks and declares_no_data([getattr(msg, name)[i] for name, i in spec.no_data_checks]):
         return stamp, NO_DATA
     values = np.empty(len(spec.fields))
     for i, path in enumerate(spec.fields):

@@ -121,7 +121,7 @@ class RawSourceReader:
     def _fixed(self, data: bytes) -> tuple[float, np.ndarray]:
         stamp, pos = _after_header(data)
         span = self._span.unpack_from(data, _aligned(pos, 8) + 8 * self._first)
-        if self._checks and declares_no_data(span[i] for i in self._checks):
+        if self._checks and declares_no_data([span[i] for i in self._checks]):
             return stamp, NO_DATA
         return stamp, np.array([span[i] for i in self._picks])
 

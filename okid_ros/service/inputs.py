@@ -174,12 +174,12 @@ def parse_source(text: str, n_inputs: int, n_outputs: int) -> SourceSpec:
     )
 
 
-def declares_no_data(first_elements) -> bool:
+def declares_no_data(first_elements: list[float]) -> bool:
     """Whether a message's covariances (the values at ``spec.no_data_checks``) declare a field without data.
 
     The one rule of the nodes and the offline tools, on message objects and on serialized bytes alike.
     """
-    return any(value == NO_DATA_COVARIANCE for value in first_elements)
+    return NO_DATA_COVARIANCE in first_elements
 
 
 def no_data_reason(spec: SourceSpec) -> str:
