@@ -15,7 +15,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.input_glitches import InputGlitchGate
-from okid_ros.service.arx_solve import SolveResult, WindowCapture, solve_capture
+from okid_ros.service.arx_solve import SolveCounts, SolveResult, WindowCapture, solve_capture
 from okid_ros.service.change_restarts import restart_window
 from okid_ros.service.options import ArxIdentificationParams
 
@@ -108,6 +108,7 @@ class ScreenedWindow:
         self.u, self.y = record[0].copy(), record[1].copy()
         self._fed = self._due = 0  # samples offered to the gates; samples the gates let into the window
         self._restarted = False  # at a structural change: node 1's fill rule after a restart
+        self.solves = SolveCounts()  # the windows solved, as node 1 counts its snapshots
 
     def feed(self, hi: int) -> None:
         """The samples up to ``hi - 1`` offered; those the gates let through into the window."""
@@ -133,8 +134,13 @@ class ScreenedWindow:
         capture = WindowCapture.of_window(self.window, self.params, restarted=self._restarted)
         result = solve_capture(capture)
         self.gates.accept(capture, result)
+        self.solves.count(result)
         return result
 
-    def counts(self) -> dict:
+    def gate_counts(self) -> dict:
         """Node 1's counts of the gates (its diagnostics' names)."""
         return {"glitches": self.gates.glitches, "input_glitches": self.gates.input_glitches}
+
+    def counts(self) -> dict:
+        """Node 1's counts of the gates and of the windows solved (its diagnostics' names)."""
+        return {**self.gate_counts(), **self.solves.counts()}
