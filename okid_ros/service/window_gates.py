@@ -15,11 +15,15 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.input_glitches import InputGlitchGate
+from okid_ros.core.window_samples import accepted_run
 from okid_ros.service.arx_solve import SolveCounts, SolveResult, WindowCapture, solve_capture
 from okid_ros.service.change_restarts import restart_window
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ScreenedWindow", "WindowGates", "screened_block"]
+__all__ = ["BLOCK_SAMPLES", "ScreenedWindow", "WindowGates", "screened_block"]
+
+#: Samples judged at once by :func:`screened_block` (their lag rows held at once: q (p + m) values each).
+BLOCK_SAMPLES = 1024
 
 
 class WindowGates:
@@ -53,6 +57,16 @@ class WindowGates:
         """One sample ``u`` (m,), ``y`` (p,); the samples ``(u, y, tag)`` now due in the window, in order."""
         return [out for due in self.inputs.offer(u, y, tag) for out in self.outputs.offer(*due)]
 
+    def ordinary_run(self, u: np.ndarray, y: np.ndarray) -> int:
+        """How many of the next samples ``u`` (n, m), ``y`` (n, p) both gates would pass on at once as they came."""
+        n = self.inputs.ordinary_run(u)
+        return self.outputs.ordinary_run(u[:n], y[:n]) if n else 0
+
+    def pass_run(self, u: np.ndarray, y: np.ndarray) -> None:
+        """The samples of an :meth:`ordinary_run` passed on through both gates, as :meth:`offer` passes them."""
+        self.inputs.pass_run(u)
+        self.outputs.pass_run(u, y)
+
     def gap(self) -> list[tuple[np.ndarray, np.ndarray, object]]:
         """The sample stream breaks here: the held samples as they came, in order; the lag history forgotten."""
         return [out for due in self.inputs.gap() for out in self.outputs.offer(*due)] + self.outputs.gap()
@@ -77,14 +91,21 @@ def screened_block(gates: WindowGates, record: tuple, accepted: np.ndarray, lo: 
     not yet due (held by a gate): the samples before it are final.
     """
     u, y = record
-    due_to = lo
-    for k in range(lo, hi):
+    due_to = k = lo
+    while k < hi:
+        # A run of ordinary samples goes on at once, the gates left as one by one; the rest one by one.
+        end = accepted_run(accepted, k, min(k + BLOCK_SAMPLES, hi))
+        if end > k and (n := gates.ordinary_run(u[k:end], y[k:end])):
+            gates.pass_run(u[k : k + n], y[k : k + n])
+            k = due_to = k + n
+            continue
         due = gates.offer(u[k], y[k], k) if accepted[k] else gates.gap()
         for u_due, y_due, j in due:
             u[j], y[j] = u_due, y_due
             due_to = j + 1
         if not accepted[k]:
             due_to = k + 1
+        k += 1
     return due_to
 
 
