@@ -12,15 +12,13 @@ update writes one JSON object per line:
      "modes": [{"frequency_rad_s", "frequency_hz", "damping_ratio", "mpc", "msv", "emac", ...}],
      "arx_penalty": ..., "condition_number": ..., "rows": W, "elapsed_s": ...}
 
-The lines go to a temporary file beside OUT, renamed to OUT when the run ends or is interrupted
-(Ctrl-C, SIGTERM: the lines so far are kept); a run that fails leaves no OUT, or an old one as
-it was. ``--force`` replaces the name OUT (a link there, never the file it points to), as
-`identify --json` does.
+The lines go to a temporary file beside OUT, renamed to OUT when the run ends or is interrupted (Ctrl-C, SIGTERM: the
+lines so far are kept); a run that fails leaves no OUT, or an old one as it was. ``--force`` replaces the name OUT (a
+link there, never the file it points to), as `identify --json` does.
 
-``sample_index`` is the index in DATA of the newest sample used. Every line also carries
-``change_detected``: true on the update where a structural change is declared, with
-``change_sample_index`` (the estimated first sample of the new structure),
-``change_declared_index`` (the sample at which it was declared), ``change_statistic`` and
+``sample_index`` is the index in DATA of the newest sample used. Every line also carries ``change_detected``: true on
+the update where a structural change is declared, with ``change_sample_index`` (the estimated first sample of the new
+structure), ``change_declared_index`` (the sample at which it was declared), ``change_statistic`` and
 ``change_threshold`` [nats].
 
 Structural change (on unless ``--no-change-detection``): node 2's innovation watch runs over the
@@ -48,7 +46,10 @@ stdout only (no update follows it to carry it in a line).
 The ARX fit of each update is node 1's solve of the window's normal equations (kept up to date in
 O(d^2) per sample; :func:`~okid_ros.service.arx_solve.solve_capture`: prior scaled by the window's data, penalty by
 GCV unless ``--penalty`` fixes it, inputs silent over the window left out). An update whose window node 1 refuses (node
-1's reason) or whose pipeline fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run.
+1's reason) or whose pipeline fails writes ``"modes": []`` and an ``"error"`` string instead of stopping the run. Every
+line carries ``arx_identifier``, node 1's counts so far under its diagnostics' names: ``snapshots`` (windows its
+solve judged; an update waiting for rows is none), ``valid_snapshots`` (those it took), ``silent_input_snapshots``,
+``glitches``, ``input_glitches``; the summary on stdout says them.
 
 Samples holding NaN/Inf (a dropped sensor reading) are missing samples, as on the nodes' topics:
 the window leaves out the regressor rows that reach them, the realization fills gaps of up to
@@ -235,23 +236,20 @@ def run(args: argparse.Namespace) -> int:
             entry = _line_head(k, record.window_start(k, rows), rows, dt, alarm)
             if args.change_detection:
                 entry["watch"] = watch.counts()
-            why = record.waiting(k, rows, estimator.status, changes)
-            if why:
+            if why := record.waiting(k, rows, estimator.status, changes):
                 entry.update(n_states=None, modes=[], waiting=why)
                 first_reason, waits = first_reason or entry["waiting"], waits + 1
-                entry["elapsed_s"] = time.perf_counter() - t0
-                handle.write(entry)
-                continue
-            try:
-                fields, model, u_w, y_w = _window_model(fed_window, record, k, dt, args, options)
-                entry.update(fields)
-                last_modes = model.modes
-                _switch(watch, entry, model, (u_w, y_w), rows)
-            except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                first_reason, failures = first_reason or reason, failures + 1
-                entry.update(n_states=None, modes=[], error=reason)
-            entry["elapsed_s"] = time.perf_counter() - t0
+            else:
+                try:
+                    fields, model, u_w, y_w = _window_model(fed_window, record, k, dt, args, options)
+                    entry.update(fields)
+                    last_modes = model.modes
+                    _switch(watch, entry, model, (u_w, y_w), rows)
+                except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+                    reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                    first_reason, failures = first_reason or reason, failures + 1
+                    entry.update(n_states=None, modes=[], error=reason)
+            entry.update(arx_identifier=fed_window.counts(), elapsed_s=time.perf_counter() - t0)  # node 1's so far
             handle.write(entry)
         if failures + waits == len(points):  # a failure: the lines go with it, an old OUT stays (JsonLines)
             raise DataError(f"none of the {len(points)} updates gave a model ({failures} failed, {waits} waiting "
@@ -263,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
         bar.update(n_samples - fed)
     elapsed = time.perf_counter() - started
     _print_summary(changes, dt, last_modes, points[-1], watch.counts() if args.change_detection else
-                   watch.switch_counts(), fed_window.counts())  # (_arx_order: an update)
+                   watch.switch_counts(), fed_window)  # (_arx_order: an update)
     missing = f" ({record.n_missing} missing: NaN/Inf or beyond 1e150)" if record.n_missing else ""
     print(f"tracked {n_samples} samples{missing}: {len(points)} updates ({failures} failed, {waits} waiting for rows) "
           f"of window {window}, every {args.every} samples, in {elapsed:.1f} s -> {shown_path(out)}")
@@ -482,8 +480,8 @@ def _window_model(fed_window, record: "TrackedRecord", k: int, dt: float, args: 
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict, gated: dict) -> None:
-    """The changes found, node 2's watch's and switch's counts and node 1's gates' not 0, the last modes, on stdout."""
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict, window) -> None:
+    """The changes, node 2's watch's and switch's counts, node 1's gates' not 0 and solves (``window``'s), on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
             f"after the last update (sample {last_update}): no window of the new structure")
@@ -491,8 +489,10 @@ def _print_summary(changes: list, dt: float, last_modes: list, last_update: int,
               f"sample {alarm.alarm_index} (statistic {alarm.statistic:.1f} > {alarm.threshold:.1f}); {after}")
     if counted := [f"{name} {n}" for name, n in counts.items() if n]:  # (--no-change-detection: the switch's only)
         print(f"node 2's {'watch' if 'diverged_samples' in counts else 'model switch'}: " + ", ".join(counted))
-    if counted := [f"{name} {n}" for name, n in gated.items() if n]:
+    if counted := [f"{name} {n}" for name, n in window.gate_counts().items() if n]:
         print("node 1's glitch gates: " + ", ".join(counted))
+    if window.solves.snapshots:  # the windows node 1's solve judged (not those waiting for rows), how many it took
+        print("node 1's solve: " + ", ".join(f"{name} {n}" for name, n in window.solves.counts().items()))
     for mode in last_modes:
         print(
             f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "

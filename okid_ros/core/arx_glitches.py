@@ -18,6 +18,7 @@ are passed on as they come. No rclpy; numpy only.
 from __future__ import annotations
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.glitches import GLITCH_STD, glitch_candidates, settled
@@ -85,6 +86,42 @@ class ArxGlitchGate:
             h[at, p:] = u
         self._pos = (self._pos + 1) % self.order
         self._run += 1
+
+    def ordinary_run(self, u: np.ndarray, y: np.ndarray) -> int:
+        """How many of the next samples ``u`` (n, m), ``y`` (n, p) :meth:`offer` would pass on at once as they came.
+
+        Nothing held and no candidate: the block's predictions by one product, a sample taken as ordinary only where
+        its error lies within the limit by more than the rounding of any order of the sums (the product's and
+        :meth:`_prediction`'s differ in the last bits), the first other sample left to :meth:`offer`. The gate is
+        left as it was.
+        """
+        n, q = len(y), self.order
+        if self._theta_u is None or q == 0 or self.n_outputs < 2:
+            return n
+        if self._held is not None:
+            return 0
+        free = min(n, max(q - self._run, 0))  # no full lag history yet: passed on unjudged
+        if free == n:
+            return n
+        rows = np.concatenate([self._history[self._pos : self._pos + q], np.hstack([y, u])])
+        lags = sliding_window_view(rows, (q, rows.shape[1]))[free:n, 0].reshape(n - free, -1)  # oldest..newest
+        error = y[free:] - (u[free:] @ self._theta_u + lags @ self._theta_lags + self._intercept)
+        scale = np.abs(u[free:]) @ np.abs(self._theta_u) + np.abs(lags) @ np.abs(self._theta_lags) \
+            + np.abs(self._intercept) + np.abs(y[free:])
+        rounding = 4.0 * (lags.shape[1] + self.n_inputs + 3) * np.finfo(float).eps * scale
+        ordinary = (np.abs(error) + rounding <= self._limit).all(axis=1)  # NaN: not ordinary
+        return free + (int(np.argmin(ordinary)) if not ordinary.all() else n - free)
+
+    def pass_run(self, u: np.ndarray, y: np.ndarray) -> None:
+        """The samples ``u`` (n, m), ``y`` (n, p) of an :meth:`ordinary_run` passed on, as :meth:`offer` passes them."""
+        n, q = len(y), self.order
+        if self._theta_u is None or q == 0 or self.n_outputs < 2 or not n:
+            return
+        last = min(n, q)
+        at = (self._pos + np.arange(n - last, n)) % q  # :meth:`_remember`'s place of each of the last q samples
+        self._history[at] = self._history[at + q] = np.hstack([y[n - last :], u[n - last :]])
+        self._pos = (self._pos + n) % q
+        self._run += n
 
     def gap(self) -> list[tuple[np.ndarray, np.ndarray, object]]:
         """The lag history breaks here: the held sample, if any, as it came; the history forgotten."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.output_spikes import MAD_TO_STD
+from okid_ros.core.window_samples import accepted_run
 
 __all__ = ["FLOAT_NOISE_STEPS", "INPUT_GLITCH_SPREADS", "INPUT_SPREAD_SAMPLES", "InputGlitchGate",
            "float_noise_spread", "input_glitch_warning", "without_input_glitches"]
@@ -96,6 +97,31 @@ class InputGlitchGate:
             spread = MAD_TO_STD * np.median(np.abs(recent - self._centre), axis=0)
             self._limit = np.where(float_noise_spread(spread, self._centre), np.inf, INPUT_GLITCH_SPREADS * spread)
 
+    def ordinary_run(self, u: np.ndarray) -> int:
+        """How many of the next samples' inputs ``u`` (n, m) :meth:`offer` would each pass on at once as they came.
+
+        Nothing held and none beyond the bound, up to the spread's next refresh; the gate is left as it was.
+        """
+        if self._held is not None:
+            return 0
+        if self.n_inputs == 0:
+            return len(u)
+        n = min(len(u), INPUT_SPREAD_SAMPLES // 4 - self._seen % (INPUT_SPREAD_SAMPLES // 4))
+        if self._limit is None:
+            return n
+        far = (np.abs(u[:n] - self._centre) > self._limit).any(axis=1)  # :meth:`_far` of each sample
+        return int(np.argmax(far)) if far.any() else n
+
+    def pass_run(self, u: np.ndarray) -> None:
+        """The samples' inputs ``u`` (n, m) of an :meth:`ordinary_run` passed on, as :meth:`offer` passes them."""
+        if self.n_inputs == 0 or not len(u):
+            return
+        n = len(u)
+        self._recent[(self._seen + np.arange(n - 1)) % INPUT_SPREAD_SAMPLES] = u[:-1]
+        self._seen += n - 1
+        self._after_far = False
+        self._passed(u[-1])  # the last one refreshes the spread where it is due
+
     def refused(self, u: np.ndarray) -> bool:
         """Judge ``u`` (m,) at once, for a path that cannot wait for the next sample (node 2): True for a glitch.
 
@@ -150,11 +176,19 @@ def without_input_glitches(u: np.ndarray, *, accepted: np.ndarray | None = None)
     """
     gate, out, glitches = InputGlitchGate(u.shape[1]), u.copy(), []
     finite = np.isfinite(u).all(axis=1) if accepted is None else accepted
-    for k in range(u.shape[0]):
+    k = 0
+    while k < u.shape[0]:
+        # A run of ordinary samples goes on as it came at once; the rest one by one.
+        end = accepted_run(finite, k, min(k + INPUT_SPREAD_SAMPLES, u.shape[0]))
+        if end > k and (n := gate.ordinary_run(u[k:end])):
+            gate.pass_run(u[k : k + n])
+            k += n
+            continue
         for u_due, _, j in gate.offer(u[k], u[k], k) if finite[k] else gate.gap():
             if not np.array_equal(u_due, u[j]):
                 out[j] = u_due
                 glitches.append(j)
+        k += 1
     return out, np.array(glitches, dtype=np.int64)
 
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_samples", "block_arrays", "count_rejection", "in_bound",
-           "lag_runs", "needed_samples"]
+__all__ = ["MAX_SAMPLE_MAGNITUDE", "WindowStatus", "accepted_run", "accepted_samples", "block_arrays",
+           "count_rejection", "in_bound", "lag_runs", "needed_samples"]
 
 #: Largest |value| a sample may hold: W (p + m) squares of it still fit in float64 (1.8e308) for
 #: windows up to 1e7 rows. Records in such units are identified in batch after scaling
@@ -122,3 +122,9 @@ def needed_samples(n: int, order: int, rows: np.ndarray) -> np.ndarray:
         np.add.at(cover, rows + 1, -1)
         keep |= np.cumsum(cover) > 0
     return keep[:n].astype(bool)
+
+
+def accepted_run(accepted: np.ndarray, lo: int, hi: int) -> int:
+    """The end of the run of accepted samples from ``lo`` (``accepted`` (N,) bool): the first refused one, or ``hi``."""
+    refused = np.flatnonzero(~accepted[lo:hi])
+    return lo + int(refused[0]) if refused.size else hi

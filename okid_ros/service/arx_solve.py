@@ -21,7 +21,8 @@ from okid_ros.core.record_checks import BROADBAND_NEEDED
 from okid_ros.core.window_conditioning import input_collinearity
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ArxSnapshot", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal", "silent_inputs"]
+__all__ = ["ArxSnapshot", "SolveCounts", "SolveResult", "WindowCapture", "solve_capture", "condition_refusal",
+           "silent_inputs"]
 
 
 @dataclass
@@ -68,6 +69,27 @@ class SolveResult:
     reason: str
     solve_time_s: float
     warning: str = ""
+
+
+@dataclass
+class SolveCounts:
+    """Node 1's counts of the windows its solve judged, under its diagnostics' names (``track`` counts its own so)."""
+
+    snapshots: int = 0  # windows solved (or refused) at a snapshot
+    valid_snapshots: int = 0  # those whose fit was taken: the rest were refused, ``reason`` saying why
+    silent_input_snapshots: int = 0  # valid ones fitted without an input silent over their window
+    last_warning: str = ""  # the last such snapshot's warning, naming the inputs
+
+    def count(self, result: SolveResult) -> None:
+        """Count one solved window."""
+        self.snapshots, self.valid_snapshots = self.snapshots + 1, self.valid_snapshots + int(result.fit is not None)
+        if result.warning:
+            self.silent_input_snapshots, self.last_warning = self.silent_input_snapshots + 1, result.warning
+
+    def counts(self) -> dict:
+        """The three counts by their diagnostics' names."""
+        return {"snapshots": self.snapshots, "valid_snapshots": self.valid_snapshots,
+                "silent_input_snapshots": self.silent_input_snapshots}
 
 
 @dataclass

@@ -45,7 +45,7 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.recursive import SlidingWindowArx
 from okid_ros.core.window_samples import in_bound
-from okid_ros.service.arx_solve import ArxSnapshot, SolveResult, WindowCapture, solve_capture
+from okid_ros.service.arx_solve import ArxSnapshot, SolveCounts, SolveResult, WindowCapture, solve_capture
 from okid_ros.service.change_restarts import (
     change_refusal,
     replay_rows,
@@ -92,14 +92,10 @@ class _Counters:
 
 
 @dataclass
-class _Health:
+class _Health(SolveCounts):
     last_reason: str = ""
     last_condition_number: float = math.nan
     last_solve_time_s: float = 0.0
-    snapshots: int = 0
-    valid_snapshots: int = 0
-    silent_input_snapshots: int = 0  # valid ones fitted without an input silent over their window
-    last_warning: str = ""  # the last such snapshot's warning, naming the inputs
 
 
 class ArxIdentificationService:
@@ -312,9 +308,7 @@ class ArxIdentificationService:
             self._last_good = result.fit
             self._last_good_penalty = float(result.fit.penalty)
         h = self._health
-        h.snapshots, h.valid_snapshots = h.snapshots + 1, h.valid_snapshots + int(valid)
-        if result.warning:
-            h.silent_input_snapshots, h.last_warning = h.silent_input_snapshots + 1, result.warning
+        h.count(result)
         h.last_reason, h.last_condition_number, h.last_solve_time_s = (result.reason, result.condition_number,
                                                                       result.solve_time_s)
         self._model_id += 1
@@ -393,9 +387,7 @@ class ArxIdentificationService:
             "adaptation": bool(st.adapting),
             "condition_number": h.last_condition_number,
             "last_solve_time_s": h.last_solve_time_s,
-            "snapshots": h.snapshots,
-            "valid_snapshots": h.valid_snapshots,
-            "silent_input_snapshots": h.silent_input_snapshots,
+            **h.counts(),  # snapshots, valid_snapshots, silent_input_snapshots
             "last_silent_input_warning": h.last_warning,
             "model_id": self._model_id,
             "has_good_model": self._last_good is not None,

@@ -15,11 +15,15 @@ import numpy as np
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.arx_glitches import ArxGlitchGate, window_intercept
 from okid_ros.core.input_glitches import InputGlitchGate
-from okid_ros.service.arx_solve import SolveResult, WindowCapture, solve_capture
+from okid_ros.core.window_samples import accepted_run
+from okid_ros.service.arx_solve import SolveCounts, SolveResult, WindowCapture, solve_capture
 from okid_ros.service.change_restarts import restart_window
 from okid_ros.service.options import ArxIdentificationParams
 
-__all__ = ["ScreenedWindow", "WindowGates", "screened_block"]
+__all__ = ["BLOCK_SAMPLES", "ScreenedWindow", "WindowGates", "screened_block"]
+
+#: Samples judged at once by :func:`screened_block` (their lag rows held at once: q (p + m) values each).
+BLOCK_SAMPLES = 1024
 
 
 class WindowGates:
@@ -53,6 +57,16 @@ class WindowGates:
         """One sample ``u`` (m,), ``y`` (p,); the samples ``(u, y, tag)`` now due in the window, in order."""
         return [out for due in self.inputs.offer(u, y, tag) for out in self.outputs.offer(*due)]
 
+    def ordinary_run(self, u: np.ndarray, y: np.ndarray) -> int:
+        """How many of the next samples ``u`` (n, m), ``y`` (n, p) both gates would pass on at once as they came."""
+        n = self.inputs.ordinary_run(u)
+        return self.outputs.ordinary_run(u[:n], y[:n]) if n else 0
+
+    def pass_run(self, u: np.ndarray, y: np.ndarray) -> None:
+        """The samples of an :meth:`ordinary_run` passed on through both gates, as :meth:`offer` passes them."""
+        self.inputs.pass_run(u)
+        self.outputs.pass_run(u, y)
+
     def gap(self) -> list[tuple[np.ndarray, np.ndarray, object]]:
         """The sample stream breaks here: the held samples as they came, in order; the lag history forgotten."""
         return [out for due in self.inputs.gap() for out in self.outputs.offer(*due)] + self.outputs.gap()
@@ -77,14 +91,21 @@ def screened_block(gates: WindowGates, record: tuple, accepted: np.ndarray, lo: 
     not yet due (held by a gate): the samples before it are final.
     """
     u, y = record
-    due_to = lo
-    for k in range(lo, hi):
+    due_to = k = lo
+    while k < hi:
+        # A run of ordinary samples goes on at once, the gates left as one by one; the rest one by one.
+        end = accepted_run(accepted, k, min(k + BLOCK_SAMPLES, hi))
+        if end > k and (n := gates.ordinary_run(u[k:end], y[k:end])):
+            gates.pass_run(u[k : k + n], y[k : k + n])
+            k = due_to = k + n
+            continue
         due = gates.offer(u[k], y[k], k) if accepted[k] else gates.gap()
         for u_due, y_due, j in due:
             u[j], y[j] = u_due, y_due
             due_to = j + 1
         if not accepted[k]:
             due_to = k + 1
+        k += 1
     return due_to
 
 
@@ -108,6 +129,7 @@ class ScreenedWindow:
         self.u, self.y = record[0].copy(), record[1].copy()
         self._fed = self._due = 0  # samples offered to the gates; samples the gates let into the window
         self._restarted = False  # at a structural change: node 1's fill rule after a restart
+        self.solves = SolveCounts()  # the windows solved, as node 1 counts its snapshots
 
     def feed(self, hi: int) -> None:
         """The samples up to ``hi - 1`` offered; those the gates let through into the window."""
@@ -133,8 +155,13 @@ class ScreenedWindow:
         capture = WindowCapture.of_window(self.window, self.params, restarted=self._restarted)
         result = solve_capture(capture)
         self.gates.accept(capture, result)
+        self.solves.count(result)
         return result
 
-    def counts(self) -> dict:
+    def gate_counts(self) -> dict:
         """Node 1's counts of the gates (its diagnostics' names)."""
         return {"glitches": self.gates.glitches, "input_glitches": self.gates.input_glitches}
+
+    def counts(self) -> dict:
+        """Node 1's counts of the gates and of the windows solved (its diagnostics' names)."""
+        return {**self.gate_counts(), **self.solves.counts()}

@@ -140,4 +140,11 @@ def test_a_window_node_1_refuses_gives_track_no_model_and_node_1s_reason(record,
             assert line["modes"] and line["arx_penalty"] == pytest.approx(snapshot.fit.penalty, rel=1e-9), line
         else:
             assert line["modes"] == [] and line["error"] == snapshot.reason, line
-    assert "6 updates (3 failed, 0 waiting for rows)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "6 updates (3 failed, 0 waiting for rows)" in out
+    assert "node 1's solve: snapshots 6, valid_snapshots 3, silent_input_snapshots 0" in out
+    # Counted as node 1 counts them, under its names: each line node 1's counts up to its update, the summary the last.
+    counted = ("snapshots", "valid_snapshots", "silent_input_snapshots")
+    assert [line["arx_identifier"]["valid_snapshots"] for line in lines] == [1, 2, 3, 3, 3, 3]
+    assert {name: lines[-1]["arx_identifier"][name] for name in counted} == {n: diagnostics[n] for n in counted}
+    assert (diagnostics["snapshots"], diagnostics["valid_snapshots"]) == (6, 3)

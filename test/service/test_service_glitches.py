@@ -188,3 +188,39 @@ def test_a_warm_start_follows_a_glitch_as_the_estimator_left_it_out(record, glit
     errors = [np.linalg.norm(states[k][1] - clean[k][1]) / np.linalg.norm(clean[k][1])
               for k in range(3401, 3601) if k in states and states[k][0] == clean[k][0]]
     assert len(errors) == 200 and np.sqrt(np.mean(np.square(errors))) < 0.005
+
+
+@pytest.mark.parametrize("n_inputs", [0, 2])
+def test_a_block_of_samples_goes_through_node_1s_gates_as_one_sample_at_a_time(record, n_inputs):
+    # screened_block passes runs of ordinary samples at once (their predictions by one product, whose rounding
+    # differs from one sample's sum in the last bits): the samples out, the glitches and the gates' state must be
+    # those of each sample offered alone, for output and input glitches, refused samples, and errors at the limit.
+    from okid_ros.core.arx import fit_from_normal_equations
+    from okid_ros.core.recursive import SlidingWindowArx
+    from okid_ros.service.window_gates import WindowGates, screened_block
+
+    _, u, y = record
+    u, y = u[:, :n_inputs].copy(), _glitched(y, GLITCHES[:3], size=8.0)
+    u[[3300, 4500], :n_inputs] += 1e12
+    accepted = np.ones(len(y), bool)
+    accepted[[2500, 3900, 3901]] = False
+    window = SlidingWindowArx(5, 2, n_inputs, window=W)
+    window.update(u[:2000], y[:2000])
+    fit = fit_from_normal_equations(window.normal_equations(), 5, 2, n_inputs, "ridge", "gcv")
+    one, block = WindowGates(5, 2, n_inputs), WindowGates(5, 2, n_inputs)
+    alone, at_once = (u.copy(), y.copy()), (u.copy(), y.copy())
+    for lo, hi in [(0, 2000), (2000, 4200), (4200, 6000)]:
+        if lo == 2000:
+            one.set_model(fit), block.set_model(fit)
+        for k in range(lo, hi):  # each sample alone, as screened_block took them on main
+            for u_due, y_due, j in one.offer(alone[0][k], alone[1][k], k) if accepted[k] else one.gap():
+                alone[0][j], alone[1][j] = u_due, y_due
+            if k in (4100, 4150):  # an error at the limit to the last bits: each is judged alone
+                gate = one.outputs
+                limit = gate._limit[1] * (1.0 + (k - 4100) * 1e-16)
+                alone[1][k + 1, 1] = at_once[1][k + 1, 1] = gate._prediction(alone[0][k + 1])[1] + limit
+        screened_block(block, at_once, accepted, lo, hi)
+    assert block.glitches == one.glitches >= 3 and block.input_glitches == one.input_glitches == 2 * bool(n_inputs)
+    assert all(np.array_equal(a, b) for a, b in zip(alone, at_once))
+    assert np.array_equal(block.outputs._history, one.outputs._history)
+    assert (block.outputs._pos, block.outputs._run) == (one.outputs._pos, one.outputs._run)
