@@ -13,12 +13,11 @@ import numpy as np
 
 from okid_ros.core.modal import mac, phase_reference_row
 from okid_ros.core.mode_jackknife import stands_out
-from okid_ros.core.output_only_modes import MAC_TOLERANCE
 
 __all__ = ["separate_twin_shapes"]
 
 #: Two listed modes closer than this many summed half-power half-widths ``zeta1 f1 + zeta2 f2`` whose
-#: shapes read as one (MAC >= :data:`MAC_TOLERANCE`) are a close pair whose weaker pole's eigenvector
+#: shapes read more as one than apart (MAC >= :data:`TOOK_IN_MAC`) are a close pair whose weaker pole's eigenvector
 #: took in its partner's (:func:`separate_twin_shapes`) when they also lie within ``TWIN_SHAPE_DISTANCE``
 #: (relative). Twin chains, one chain forced (physical structures 0-59): the six weaker twins listed with
 #: the partner's shape stood 0.70-1.24 widths, 1.0-1.7 % apart; a building's true pair of one shape 8 %
@@ -28,11 +27,12 @@ TWIN_SHAPE_DISTANCE = 0.02
 #: Jackknife standard deviations a weaker twin's component along its partner's must reach to be kept
 #: (:func:`separate_twin_shapes`). Physical 0-59: the seven twins of orthogonal true shapes 0.2-2.6; random 5, 9.0.
 TWIN_COMPONENT_RESOLVED = 3.0
-#: MAC of a close pair's two estimated shapes from which the stronger's component along the weaker's outweighs
-#: the rest of it (MAC 0.5: equal parts); only then is the stronger a candidate for separation. The bench's
-#: close pair (true MAC 0.087) read 0.03-0.19, its stronger's true component unresolved (1.2-2.4 stds);
-#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81.
-STRONGER_TOOK_IN_MAC = 0.5
+#: MAC of a close pair's two estimated shapes from which either member's component along the other's outweighs
+#: the rest of it (MAC 0.5: equal parts); only then is a member a candidate for separation, the weaker or the
+#: stronger. The bench's close pair (true MAC 0.087) read 0.03-0.19, its stronger's true component unresolved
+#: (1.2-2.4 stds); twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81; the weaker
+#: twins of physical 0-119 listed with mixed shapes, 0.37-0.83 (docs/benchmarks-output-only.md).
+TOOK_IN_MAC = 0.5
 
 
 def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
@@ -49,7 +49,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     true component of a pair of nearly one shape does not (random 5: true MAC 0.955). The stronger
     pole's eigenvector errs along the weaker's too, and of two poles of nearly one strength its error
     can be the larger (twin-chains 55, 191.40 Hz: MAC 0.19 with its own, its partner's own at 1.000):
-    where the two shapes' MAC is at least :data:`STRONGER_TOOK_IN_MAC` (the stronger's component
+    where the two shapes' MAC is at least :data:`TOOK_IN_MAC` (the stronger's component
     along the weaker's outweighs the rest of it), the weaker's component along the stronger's is
     resolved (its shape is its own) and the stronger's along the weaker's is not, the stronger is
     listed with its shape less the weaker's component. Only the listed shape changes: the model's
@@ -60,7 +60,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     modes : listed modes (:class:`~okid_ros.core.modal.Mode`: ``frequency_hz``, ``damping_ratio``,
         ``msv`` the strength, ``shape`` unit norm, replaced in place) of two or more outputs; pairs
         within :data:`TWIN_SHAPE_BAND` summed widths and :data:`TWIN_SHAPE_DISTANCE`: the weaker separated
-        when their shapes' MAC is at least :data:`MAC_TOLERANCE`, the stronger as above.
+        when their shapes' MAC is at least :data:`TOOK_IN_MAC`, the stronger as above.
     replicate_shapes : ``replicate_shapes(mode) -> (S, p)`` the jackknife's S replicates' shapes of the
         mode's pole (:meth:`.output_only_support.Jackknife.shapes`); None: every weaker member of such a
         pair is separated, no stronger one.
@@ -72,7 +72,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     shapes = [mode.shape for mode in modes]  # as estimated: a shape once separated is no partner's
     separated = set()
     for i, weak in enumerate(modes):
-        close = [j for j in _stronger_close(modes, i) if mac(shapes[i], shapes[j]) >= MAC_TOLERANCE]
+        close = [j for j in _stronger_close(modes, i) if mac(shapes[i], shapes[j]) >= TOOK_IN_MAC]
         if not close:
             continue
         strong = shapes[min(close, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))]
@@ -86,7 +86,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
         return modes
     for i, weak in enumerate(modes):
         close = [j for j in _stronger_close(modes, i)
-                 if j not in separated and mac(shapes[i], shapes[j]) >= STRONGER_TOOK_IN_MAC]
+                 if j not in separated and mac(shapes[i], shapes[j]) >= TOOK_IN_MAC]
         if i in separated or not close:
             continue
         j = min(close, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))
