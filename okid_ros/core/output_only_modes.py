@@ -400,9 +400,10 @@ def mpc_floor(n_outputs: int) -> float:
 def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list[ModeCluster]) -> bool:
     """Whether a cluster's complex shape is its nearest close candidate's mixed in: coherent once that is taken out.
 
-    A close-pair member's estimated shape is its own plus its partner's, out of phase. The nearest
-    candidate within ``NEIGHBOUR_WIDTHS`` times the larger ``zeta f`` of the two is projected out at each
-    common order; the rest's median MPC must exceed half the noise shapes' at one output fewer.
+    A close-pair member's estimated shape is its own plus its partner's, out of phase. The partner is the
+    nearest candidate within ``NEIGHBOUR_WIDTHS`` times the larger ``zeta f`` of the two, side by side with it
+    (:func:`_side_by_side`: a group's pole beside a pair's member is not); projected out at each common
+    order, the rest's median MPC must exceed half the noise shapes' at one output fewer.
     """
     near = [o for o in candidates if o is not cluster and abs(o.frequency_hz - cluster.frequency_hz)
             <= NEIGHBOUR_WIDTHS * max(o.damping_ratio * o.frequency_hz, cluster.damping_ratio * cluster.frequency_hz)]
@@ -414,7 +415,7 @@ def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list
     for own, other in ((poles.shape[cluster.members[n]], poles.shape[neighbour.members[n]]) for n in common):
         other = other / np.linalg.norm(other)
         rest.append(mpc(own - other * np.vdot(other, own)))
-    return len(common) >= MIN_ORDERS and _median(rest) >= noise_mpc_floor(poles.shape.shape[1] - 1)
+    return _side_by_side(cluster, neighbour) and _median(rest) >= noise_mpc_floor(poles.shape.shape[1] - 1)
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:
