@@ -42,8 +42,9 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     eigenvector is mostly along its partner's, divided by the poles' distance, and where the
     partner's response is much the larger (twin chains, the force on one chain: 30 times in
     amplitude) that error outweighs the weaker mode's own shape, which then reads as the partner's
-    (twin-chains 7, 63.03 Hz: MAC 0.98 with 64.02 Hz, 0.007 with its own). The weaker pole's
-    shape with the stronger's component removed is what of it belongs to that pole (exact for
+    (twin-chains 7, 63.03 Hz: MAC 0.98 with 64.02 Hz, 0.007 with its own). Where the two estimated
+    shapes' MAC is at least :data:`TOOK_IN_MAC` (the partner's component outweighs the rest), the weaker
+    pole's shape with the stronger's component removed is what of it belongs to that pole (exact for
     twins: shapes on two chains, orthogonal), unless that component, per unit of the rest, stands
     out of the jackknife's scatter (:data:`TWIN_COMPONENT_RESOLVED`): an error changes with the data, a
     true component of a pair of nearly one shape does not (random 5: true MAC 0.955). The stronger
