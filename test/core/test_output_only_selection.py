@@ -464,27 +464,28 @@ def test_a_true_close_pair_keeps_both_modes(seed: int) -> None:
         assert mac(modes[k].shape, t["shape"]) >= 0.9
 
 
-@pytest.mark.parametrize(("own_part", "estimated_mac", "separated"), [(0.1, 0.976, True), (0.4, 0.714, True),
-                                                                       (0.8, 0.385, False)])
+@pytest.mark.parametrize(("own_part", "estimated_mac", "separated"), [
+    (0.1j, 0.976, True), (0.4j, 0.714, True), (0.4, 0.714, False), (0.8j, 0.385, False)])
 def test_separate_twin_shapes_gives_the_weaker_twin_the_part_its_partner_leaves(
-        own_part: float, estimated_mac: float, separated: bool) -> None:
-    """A weak twin read as its partner's shape + some of its own gets its own where that is the lesser part.
+        own_part: complex, estimated_mac: float, separated: bool) -> None:
+    """A weak twin read as its partner's shape + some of its own gets its own where it took in the partner's.
 
-    The lesser part: the estimated shapes' MAC at least ``TOOK_IN_MAC`` (0.5), the partner's component
-    outweighing the rest (0.714: twin chains 7's 29.97 Hz read 0.67 and kept its partner's shape under the
-    old test, MAC >= 0.9). Others keep theirs.
+    Took in: one shape (MAC >= 0.9), or the partner's component outweighing the rest (MAC >= ``TOOK_IN_MAC``,
+    0.5) of a shape complex below the MPC floor, its own mixed in out of phase (0.4j: MPC 0.18; twin chains
+    7's 29.97 Hz read MAC 0.65, MPC 0.12, and kept its partner's shape under the old test). A real mix
+    (0.4: MPC 1) of MAC 0.714 may be a true pair of like shapes: kept. Others keep theirs.
     """
     from types import SimpleNamespace
 
-    from okid_ros.core.modal import mac
+    from okid_ros.core.modal import mac, mpc
     from okid_ros.core.output_only_twins import separate_twin_shapes
 
     def mode(frequency_hz, msv, shape):
         unit = np.asarray(shape, dtype=complex) / np.linalg.norm(shape)
-        return SimpleNamespace(frequency_hz=frequency_hz, damping_ratio=0.007, msv=msv, shape=unit)
+        return SimpleNamespace(frequency_hz=frequency_hz, damping_ratio=0.007, msv=msv, shape=unit, mpc=mpc(unit))
 
     own, partner = np.array([1.0, 2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0, -1.0])
-    weak, strong = mode(63.0, 0.3, own_part * own + 1j * partner), mode(64.0, 1.0, partner)
+    weak, strong = mode(63.0, 0.3, partner + own_part * own), mode(64.0, 1.0, partner)
     far = mode(70.0, 0.2, partner + 0.1 * own)  # 7 Hz away: 8 summed widths, beyond TWIN_SHAPE_BAND
     lone = [mode(63.0, 0.3, [1.0]), mode(64.0, 1.0, [1.0])]
     weak_shape, far_shape, strong_shape = weak.shape.copy(), far.shape.copy(), strong.shape.copy()
@@ -592,7 +593,8 @@ def test_separate_twin_shapes_gives_the_stronger_member_its_part_where_only_the_
 
     steady, scattered = 0.01 * rng.standard_normal(8), 0.5 * rng.standard_normal(8)
     for strong_along, separated in ((1.0 + scattered, True), (1.0 + steady, False)):
-        weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+        weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner),
+                               mpc=1.0)
         strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + own))
         reps = {id(weak): replicates(own, partner, 0.3 + steady), id(strong): replicates(partner, own, strong_along)}
         weak_before, strong_before = weak.shape.copy(), strong.shape.copy()
@@ -603,13 +605,15 @@ def test_separate_twin_shapes_gives_the_stronger_member_its_part_where_only_the_
             assert mac(strong.shape, own_part) > 1 - 1e-12
         else:
             np.testing.assert_array_equal(strong.shape, strong_before)
-    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner),
+                           mpc=1.0)
     strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + own))
     strong_before = strong.shape.copy()
     separate_twin_shapes([weak, strong])  # no jackknife: no stronger member is separated
     np.testing.assert_array_equal(strong.shape, strong_before)
     # a stronger mostly of its own shape (MAC 0.35 with the weaker's, below TOOK_IN_MAC) keeps its part
-    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner))
+    weak = SimpleNamespace(frequency_hz=63.0, damping_ratio=0.007, msv=0.6, shape=unit(own + 0.3 * partner),
+                           mpc=1.0)
     strong = SimpleNamespace(frequency_hz=63.5, damping_ratio=0.007, msv=1.0, shape=unit(partner + 0.3 * own))
     reps = {id(weak): replicates(own, partner, 0.3 + steady), id(strong): replicates(partner, own, 0.3 + scattered)}
     strong_before = strong.shape.copy()
