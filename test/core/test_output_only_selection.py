@@ -423,14 +423,16 @@ def test_physical_structures_whose_noise_poles_were_listed_list_each_mode_once_a
         raise AssertionError(f"{a.frequency_hz:.3f} and {b.frequency_hz:.3f} Hz of one shape listed")
 
 
-@pytest.mark.parametrize("index", [4, 7, 49])
-def test_the_weaker_of_twin_modes_is_not_listed_with_its_partners_shape(index: int) -> None:
+@pytest.mark.parametrize(("index", "found_hz"), [(4, []), (7, [29.970]), (49, [])])
+def test_the_weaker_of_twin_modes_is_not_listed_with_its_partners_shape(index: int, found_hz: list[float]) -> None:
     """Twin chains, the forces on one chain: the other chain's modes were listed with their partners' shapes.
 
     Under ssi-cva twin-chains 4 (51.40, 76.95 Hz), 7 (46.82, 62.99 Hz) and 49 (44.39 Hz) listed a weaker twin
     with MAC 0.90-0.99 to its partner's true shape and 0.007-0.09 to its own (the pole's eigenvector took in
     its partner's). No listed mode now carries another true mode's shape (the twins of 4 and 49: their own at
-    MAC 0.93-0.96; 7's 0.84 and 0.39, nearer their own than any other).
+    MAC 0.93-0.96; 7's 0.84 and 0.39, nearer their own than any other). ``found_hz``: weaker twins below the
+    MPC floor, kept beside the partner mixed into their shape and listed with their own (7's 29.970 Hz: MPC
+    0.12 at 7 outputs, MAC 0.65 with its partner's estimated shape; missed before, then listed at 0.34).
     """
     from okid_bench.physical_cases import physical_case
     from okid_ros.core.modal import mac
@@ -446,6 +448,10 @@ def test_the_weaker_of_twin_modes_is_not_listed_with_its_partners_shape(index: i
         macs = np.array([mac(mode.shape, t["shape"]) for t in truth])
         others = np.delete(macs, own)  # above the own MAC, a listed mode reads as another true mode
         assert macs[own] > others.max(), f"{mode.frequency_hz:.3f} Hz: MAC {macs[own]:.3f}, another {others.max():.3f}"
+    for hz in found_hz:
+        mode = min(modes, key=lambda m: abs(m.frequency_hz - hz))
+        assert abs(mode.frequency_hz / hz - 1) < 0.005, f"{hz} Hz not found"
+        assert mac(mode.shape, truth[int(np.argmin(np.abs(true_hz - hz)))]["shape"]) >= 0.95
 
 
 @pytest.mark.parametrize("seed", [11, 5])
