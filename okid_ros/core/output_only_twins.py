@@ -1,10 +1,10 @@
 """A close pair's member listed with its partner's shape: of two close listed modes, the one that took it in.
 
 Applied to the listed modes of :func:`.output_only.identify_output_only` in the record's units (every
-route): the weaker of two such modes of one estimated shape is listed with the part of its shape its
-partner's leaves, unless the jackknife resolves its likeness to the partner's; the stronger, when the
-weaker's likeness is resolved and its own is not (docs/benchmarks-output-only.md, forty-third to
-forty-fifth sessions).
+route): the weaker of two such modes of one estimated shape (or of a complex mix of the two) is listed
+with the part of its shape its partner's leaves, unless the jackknife resolves its likeness to the
+partner's; the stronger, when the weaker's likeness is resolved and its own is not
+(docs/benchmarks-output-only.md, forty-third to forty-fifth and forty-eighth sessions).
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ TWIN_COMPONENT_RESOLVED = 3.0
 #: MAC of a close pair's two estimated shapes from which one member's component along the other's outweighs
 #: the rest of it (MAC 0.5: equal parts). Only then is the stronger a candidate for separation: the bench's
 #: close pair (true MAC 0.087) read 0.03-0.19, its stronger's true component unresolved (1.2-2.4 stds);
-#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81. A weaker member below
-#: :data:`MAC_TOLERANCE` is one from here when its shape is complex below the clustering's floor
+#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81. The weaker member is a
+#: candidate from here too (below :data:`MAC_TOLERANCE`) where its shape is complex below the clustering's floor
 #: (:func:`.output_only_modes.mpc_floor`): its own real shape with its partner's mixed in out of phase
 #: (twin chains 7's 29.97 Hz: 0.65, MPC 0.12 at 7 outputs); a real shape of MAC 0.5-0.9 with its
 #: partner's may be one of a true pair of like shapes (torsion frame 100's 0.634 Hz: 0.85, own MAC 0.98).
