@@ -17,7 +17,8 @@ The stabilization diagram without clicks:
    from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
    ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
    more outputs its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise
-   alone exceed, :func:`mpc_floor`), its median share of the correlations'
+   alone exceed, :func:`mpc_floor`; or a close candidate's shape mixed in, :func:`_mixed_with_neighbour`),
+   its median share of the correlations'
    energy (modal singular value relative to the order's strongest pole) is at least
    ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
    than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
@@ -67,6 +68,9 @@ MIN_MPC = 0.3
 #: with probability ``(1 - x) ** ((p - 1) / 2)``; a cluster's median MPC is read as no evidence against a
 #: mode where this share of such shapes reads more: 0.293 at 5 outputs (about ``MIN_MPC``), 0.06 at 23.
 NOISE_MPC_SHARE = 0.5
+#: A cluster below the MPC floor is a close-pair member whose partner's shape is mixed into its own when
+#: the partner lies within this many ``zeta f`` (:func:`_mixed_with_neighbour`).
+NEIGHBOUR_WIDTHS = 3.0
 MIN_ENERGY = 0.0
 #: A candidate that fails the spectral share and is not steady is a mode when, of what the other
 #: candidates' poles leave of the spectrum, it holds this share (``output_only._drop_noise_modes``).
@@ -348,13 +352,15 @@ def cluster_modes(poles: PoleSet, *, min_damping: float = MIN_DAMPING, keep_reje
                 clusters.append(_cluster(poles, family, p))
                 clusters[-1].group = int(label) * 2 ** MAX_SPLITS + k  # at most 2 ** MAX_SPLITS modes a label
     persisting_elsewhere = []  # clusters that fail only the persistence test
+    passes = [not _too_few_orders(len(c.members), orders.size) and c.damping_ratio >= min_damping
+              and c.energy >= MIN_ENERGY
+              and c.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * c.damping_ratio * c.frequency_hz
+              for c in clusters]  # every test but the MPC floor
+    candidates = [c for c, ok in zip(clusters, passes) if ok]
     floor = mpc_floor(p)
-    for cluster in clusters:
+    for cluster, ok in zip(clusters, passes):
         count = len(cluster.members)
-        ok = (not _too_few_orders(count, orders.size)
-              and cluster.damping_ratio >= min_damping and cluster.mpc >= floor and cluster.energy >= MIN_ENERGY
-              and cluster.frequency_hz_spread <= MAX_FREQUENCY_SPREAD_PER_DAMPING * cluster.damping_ratio
-              * cluster.frequency_hz)
+        ok = ok and (cluster.mpc >= floor or _mixed_with_neighbour(poles, cluster, candidates))
         persistent = count >= MIN_ORDER_FRACTION * np.sum(orders >= min(cluster.members))
         (accepted if ok and persistent else rejected).append(cluster)
         if ok and not persistent:
@@ -389,6 +395,27 @@ def mpc_floor(n_outputs: int) -> float:
     noise no better than that; the jackknife and the spectral share screen the clusters after.
     """
     return min(MIN_MPC, noise_mpc_floor(n_outputs))
+
+
+def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list[ModeCluster]) -> bool:
+    """Whether a cluster's complex shape is its nearest close candidate's mixed in: coherent once that is taken out.
+
+    A close-pair member's estimated shape is its own plus its partner's, out of phase. The partner is the
+    nearest candidate within ``NEIGHBOUR_WIDTHS`` times the larger ``zeta f`` of the two, side by side with it
+    (:func:`_side_by_side`: a group's pole beside a pair's member is not); projected out at each common
+    order, the rest's median MPC must exceed half the noise shapes' at one output fewer.
+    """
+    near = [o for o in candidates if o is not cluster and abs(o.frequency_hz - cluster.frequency_hz)
+            <= NEIGHBOUR_WIDTHS * max(o.damping_ratio * o.frequency_hz, cluster.damping_ratio * cluster.frequency_hz)]
+    if not near:
+        return False
+    neighbour = min(near, key=lambda o: abs(o.frequency_hz - cluster.frequency_hz))
+    common = sorted(cluster.members.keys() & neighbour.members.keys())
+    rest = []
+    for own, other in ((poles.shape[cluster.members[n]], poles.shape[neighbour.members[n]]) for n in common):
+        other = other / np.linalg.norm(other)
+        rest.append(mpc(own - other * np.vdot(other, own)))
+    return _side_by_side(cluster, neighbour) and _median(rest) >= noise_mpc_floor(poles.shape.shape[1] - 1)
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:

@@ -1,10 +1,10 @@
 """A close pair's member listed with its partner's shape: of two close listed modes, the one that took it in.
 
 Applied to the listed modes of :func:`.output_only.identify_output_only` in the record's units (every
-route): the weaker of two such modes of one estimated shape is listed with the part of its shape its
-partner's leaves, unless the jackknife resolves its likeness to the partner's; the stronger, when the
-weaker's likeness is resolved and its own is not (docs/benchmarks-output-only.md, forty-third to
-forty-fifth sessions).
+route): the weaker of two such modes of one estimated shape (or of a complex mix of the two) is listed
+with the part of its shape its partner's leaves, unless the jackknife resolves its likeness to the
+partner's; the stronger, when the weaker's likeness is resolved and its own is not
+(docs/benchmarks-output-only.md, forty-third to forty-fifth and forty-eighth sessions).
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import numpy as np
 
 from okid_ros.core.modal import mac, phase_reference_row
 from okid_ros.core.mode_jackknife import stands_out
-from okid_ros.core.output_only_modes import MAC_TOLERANCE
+from okid_ros.core.output_only_modes import MAC_TOLERANCE, mpc_floor
 
 __all__ = ["separate_twin_shapes"]
 
 #: Two listed modes closer than this many summed half-power half-widths ``zeta1 f1 + zeta2 f2`` whose
-#: shapes read as one (MAC >= :data:`MAC_TOLERANCE`) are a close pair whose weaker pole's eigenvector
+#: shapes read as one (:func:`_took_in`) are a close pair whose weaker pole's eigenvector
 #: took in its partner's (:func:`separate_twin_shapes`) when they also lie within ``TWIN_SHAPE_DISTANCE``
 #: (relative). Twin chains, one chain forced (physical structures 0-59): the six weaker twins listed with
 #: the partner's shape stood 0.70-1.24 widths, 1.0-1.7 % apart; a building's true pair of one shape 8 %
@@ -28,11 +28,15 @@ TWIN_SHAPE_DISTANCE = 0.02
 #: Jackknife standard deviations a weaker twin's component along its partner's must reach to be kept
 #: (:func:`separate_twin_shapes`). Physical 0-59: the seven twins of orthogonal true shapes 0.2-2.6; random 5, 9.0.
 TWIN_COMPONENT_RESOLVED = 3.0
-#: MAC of a close pair's two estimated shapes from which the stronger's component along the weaker's outweighs
-#: the rest of it (MAC 0.5: equal parts); only then is the stronger a candidate for separation. The bench's
+#: MAC of a close pair's two estimated shapes from which one member's component along the other's outweighs
+#: the rest of it (MAC 0.5: equal parts). Only then is the stronger a candidate for separation: the bench's
 #: close pair (true MAC 0.087) read 0.03-0.19, its stronger's true component unresolved (1.2-2.4 stds);
-#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81.
-STRONGER_TOOK_IN_MAC = 0.5
+#: twin-chains 40 and 55, whose stronger took in the weaker's shape, 0.53 and 0.81. The weaker member is a
+#: candidate from here too (below :data:`MAC_TOLERANCE`) where its shape is complex below the clustering's floor
+#: (:func:`.output_only_modes.mpc_floor`): its own real shape with its partner's mixed in out of phase
+#: (twin chains 7's 29.97 Hz: 0.65, MPC 0.12 at 7 outputs); a real shape of MAC 0.5-0.9 with its
+#: partner's may be one of a true pair of like shapes (torsion frame 100's 0.634 Hz: 0.85, own MAC 0.98).
+TOOK_IN_MAC = 0.5
 
 
 def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
@@ -42,14 +46,16 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     eigenvector is mostly along its partner's, divided by the poles' distance, and where the
     partner's response is much the larger (twin chains, the force on one chain: 30 times in
     amplitude) that error outweighs the weaker mode's own shape, which then reads as the partner's
-    (twin-chains 7, 63.03 Hz: MAC 0.98 with 64.02 Hz, 0.007 with its own). The weaker pole's
-    shape with the stronger's component removed is what of it belongs to that pole (exact for
-    twins: shapes on two chains, orthogonal), unless that component, per unit of the rest, stands
-    out of the jackknife's scatter (:data:`TWIN_COMPONENT_RESOLVED`): an error changes with the data, a
-    true component of a pair of nearly one shape does not (random 5: true MAC 0.955). The stronger
+    (twin-chains 7, 63.03 Hz: MAC 0.98 with 64.02 Hz, 0.007 with its own). Where the two estimated
+    shapes read as one, or the partner's component outweighs the rest of a complex shape
+    (:func:`_took_in`), the weaker pole's shape with the stronger's component removed is what of it
+    belongs to that pole (exact for twins: shapes on two chains, orthogonal), unless that component,
+    per unit of the rest, stands out of the jackknife's scatter (:data:`TWIN_COMPONENT_RESOLVED`): an
+    error changes with the data, a true component of a pair of nearly one shape does not (random 5:
+    true MAC 0.955). The stronger
     pole's eigenvector errs along the weaker's too, and of two poles of nearly one strength its error
     can be the larger (twin-chains 55, 191.40 Hz: MAC 0.19 with its own, its partner's own at 1.000):
-    where the two shapes' MAC is at least :data:`STRONGER_TOOK_IN_MAC` (the stronger's component
+    where the two shapes' MAC is at least :data:`TOOK_IN_MAC` (the stronger's component
     along the weaker's outweighs the rest of it), the weaker's component along the stronger's is
     resolved (its shape is its own) and the stronger's along the weaker's is not, the stronger is
     listed with its shape less the weaker's component. Only the listed shape changes: the model's
@@ -60,7 +66,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     modes : listed modes (:class:`~okid_ros.core.modal.Mode`: ``frequency_hz``, ``damping_ratio``,
         ``msv`` the strength, ``shape`` unit norm, replaced in place) of two or more outputs; pairs
         within :data:`TWIN_SHAPE_BAND` summed widths and :data:`TWIN_SHAPE_DISTANCE`: the weaker separated
-        when their shapes' MAC is at least :data:`MAC_TOLERANCE`, the stronger as above.
+        when the weaker's shape took in the stronger's (:func:`_took_in`), the stronger as above.
     replicate_shapes : ``replicate_shapes(mode) -> (S, p)`` the jackknife's S replicates' shapes of the
         mode's pole (:meth:`.output_only_support.Jackknife.shapes`); None: every weaker member of such a
         pair is separated, no stronger one.
@@ -72,7 +78,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
     shapes = [mode.shape for mode in modes]  # as estimated: a shape once separated is no partner's
     separated = set()
     for i, weak in enumerate(modes):
-        close = [j for j in _stronger_close(modes, i) if mac(shapes[i], shapes[j]) >= MAC_TOLERANCE]
+        close = [j for j in _stronger_close(modes, i) if _took_in(weak, shapes[i], shapes[j])]
         if not close:
             continue
         strong = shapes[min(close, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))]
@@ -86,7 +92,7 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
         return modes
     for i, weak in enumerate(modes):
         close = [j for j in _stronger_close(modes, i)
-                 if j not in separated and mac(shapes[i], shapes[j]) >= STRONGER_TOOK_IN_MAC]
+                 if j not in separated and mac(shapes[i], shapes[j]) >= TOOK_IN_MAC]
         if i in separated or not close:
             continue
         j = min(close, key=lambda j: abs(modes[j].frequency_hz - weak.frequency_hz))
@@ -97,6 +103,16 @@ def separate_twin_shapes(modes: list, *, replicate_shapes=None) -> list:
             modes[j].shape = strong_own
             separated.add(j)
     return modes
+
+
+def _took_in(weak, shape: np.ndarray, partner: np.ndarray) -> bool:
+    """Whether a weaker member's estimated ``shape`` took in its ``partner``'s: one shape, or a complex mix of the two.
+
+    One shape: MAC at least :data:`MAC_TOLERANCE`; a mix: at least :data:`TOOK_IN_MAC` with the weaker's
+    listed MPC below :func:`.output_only_modes.mpc_floor` at its outputs.
+    """
+    likeness = mac(shape, partner)
+    return likeness >= MAC_TOLERANCE or (likeness >= TOOK_IN_MAC and weak.mpc < mpc_floor(shape.size))
 
 
 def _stronger_close(modes: list, i: int) -> list[int]:
