@@ -13,9 +13,7 @@ when the first found no mode moved (whatever the rows the reference came from), 
 judges the new modes against the reference's:
 
 - some reference mode's nearest new mode (within :data:`MATCH_TOLERANCE` of its frequency) differs
-  in frequency or damping by more than :data:`CONFIRM_STDS` normal deviations (the difference over the
-  combined jackknife standard deviations, a Student's t of the jackknives' degrees of freedom, taken to the
-  normal deviate of the same tail: :func:`normal_equivalent`),
+  in frequency or damping by more than :data:`CONFIRM_STDS` combined jackknife standard deviations,
   or a reference mode has no new mode near it while a new mode has no reference mode near it (a
   mode moved beyond the tolerance): the structure changed, declared;
 - every reference mode has its new mode and none moved, at the last stage: the excitation changed,
@@ -39,8 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scipy import special
-
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
 from okid_ros.core.options import OUTPUT_ONLY_METHODS
 from okid_ros.core.output_only import identify_output_only
@@ -48,13 +44,11 @@ from okid_ros.core.sample_ring import SampleRing
 from okid_ros.core.statespace import InnovationPredictor
 
 __all__ = ["CONFIRM_STDS", "FIRST_PERIODS", "LAST_PERIODS", "MATCH_TOLERANCE", "ModeConfirmation", "ModeVerdict",
-           "compare_modes", "jackknife_dof", "normal_equivalent"]
+           "compare_modes"]
 
-#: Normal deviations beyond which a mode moved (frequency or damping): a difference over its combined jackknife
-#: standard deviation is Student's t with the variances' degrees of freedom (:func:`normal_equivalent`), and it
-#: moved when its tail is below the normal's beyond this many. On the change bench's structure, 2048-4096 samples
-#: after louder or low-passed forces, the largest raw ratio was 3.5; after a frequency drop of 4 %, the smallest
-#: largest 5.5.
+#: Combined jackknife standard deviations beyond which a mode moved (frequency or damping). On the change
+#: bench's structure, 2048-4096 samples after louder or low-passed forces, the largest was 3.5; after a
+#: frequency drop of 4 %, the smallest largest 5.5.
 CONFIRM_STDS = 4.0
 #: Relative frequency distance within which a new mode is a reference mode's (beyond it the mode moved away).
 MATCH_TOLERANCE = 0.15
@@ -96,32 +90,8 @@ def _near(frequency_hz: float, modes: list) -> object | None:
     return best
 
 
-def jackknife_dof(model: IdentifiedModel) -> float:
-    """Degrees of freedom of a model's jackknife variances: its replicates less one (inf: not counted)."""
-    replicates = model.uncertainty.replicates if model.uncertainty is not None else 0
-    return float(replicates - 1) if replicates > 1 else math.inf
-
-
-def normal_equivalent(ratio: float, stds: tuple[float, float], dofs: tuple[float, float]) -> float:
-    """The normal deviate whose tail is Student's t's beyond ``ratio``, a difference over ``hypot(*stds)``.
-
-    Each variance ``std**2`` estimated with its ``dofs`` degrees of freedom (a jackknife of S segments: S - 1),
-    the ratio is Student's t with Welch-Satterthwaite's degrees of freedom; infinite ones: the ratio itself.
-    """
-    variances = [std * std for std in stds]
-    spread = sum(v * v / dof for v, dof in zip(variances, dofs) if math.isfinite(dof))
-    if not spread > 0:
-        return ratio
-    dof = sum(variances) ** 2 / spread
-    return -float(special.ndtri(special.stdtr(dof, -abs(ratio))))
-
-
-def compare_modes(reference: list, new: list, *, dofs: tuple[float, float] = (math.inf, math.inf)) -> ModeVerdict:
-    """The verdict of ``new`` modes against the ``reference``'s (both with jackknife standard deviations).
-
-    ``dofs``: the degrees of freedom of the reference's and the new variances (:func:`jackknife_dof`); the
-    largest difference is in normal deviations (:func:`normal_equivalent`).
-    """
+def compare_modes(reference: list, new: list) -> ModeVerdict:
+    """The verdict of ``new`` modes against the ``reference``'s (both with jackknife standard deviations)."""
     largest, missing, unknown = -math.inf, 0, False
     for mode in reference:
         near = _near(mode.frequency_hz, new)
@@ -136,7 +106,7 @@ def compare_modes(reference: list, new: list, *, dofs: tuple[float, float] = (ma
             if not spread > 0:  # NaN or 0: no uncertainty to judge by
                 unknown = True
                 continue
-            largest = max(largest, normal_equivalent(abs(other - value) / spread, (std, other_std), dofs))
+            largest = max(largest, abs(other - value) / spread)
     appeared = sum(_near(mode.frequency_hz, reference) is None for mode in new)
     largest = largest if math.isfinite(largest) else math.nan
     if largest > CONFIRM_STDS or (missing and appeared):
@@ -257,8 +227,7 @@ class ModeConfirmation:
             return undecided  # (raised on node 2's thread, it would have come out of the sample path's poll)
         if model.stability_problem():  # never the change test's reference (as node 2 refuses such a model)
             return undecided
-        verdict = compare_modes(self.reference.modes, model.modes, dofs=(jackknife_dof(self.reference),
-                                                                         jackknife_dof(model)))
+        verdict = compare_modes(self.reference.modes, model.modes)
         return dataclasses.replace(verdict, samples=y.shape[0], model=model)
 
     def new_reference(self, index: int) -> tuple[IdentifiedModel, np.ndarray]:

@@ -350,8 +350,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     f_std, z_std = _jackknife_std(jackknife, by_pole, poles, n_model, model.sample_time_s)
     for mode, fs, zs in zip(model.modes, f_std, z_std):
         mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
-    replicates = len(jackknife.realizers)
-    model.uncertainty = UncertaintyResult(True, "", 0, replicates, method="jackknife", replicates=replicates)
+    model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
     if ROUTES[model.method].screens_listed_std:
         model.keep_modes(listed_within_limits(model.modes, _scattered))
 

@@ -85,8 +85,6 @@ class UncertaintyResult:
     rows_used : residual rows (samples x outputs) in the information matrix.
     method : how they were computed: "prediction-error covariance" (this module) or
         "jackknife" (:mod:`okid_ros.core.mode_jackknife`, where this module's cost is out of reach).
-    replicates : the jackknife's replicates (segments) behind the output-only route's standard deviations,
-        whose variances then have ``replicates - 1`` degrees of freedom; 0: not counted.
     """
 
     computed: bool
@@ -94,7 +92,6 @@ class UncertaintyResult:
     n_parameters: int = 0
     rows_used: int = 0
     method: str = "prediction-error covariance"
-    replicates: int = 0
 
 
 def _set_nan(modes: list) -> None:

@@ -20,13 +20,7 @@ from okid_bench.changes import change_case
 from okid_bench.switching import simulate_switched
 from okid_ros.core.arx import fit_arx
 from okid_ros.core.change_monitor import StructuralChangeMonitor
-from okid_ros.core.mode_confirmation import (
-    CONFIRM_STDS,
-    MATCH_TOLERANCE,
-    ModeConfirmation,
-    compare_modes,
-    normal_equivalent,
-)
+from okid_ros.core.mode_confirmation import CONFIRM_STDS, MATCH_TOLERANCE, ModeConfirmation, compare_modes
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.pipeline import identify_from_arx
 from okid_ros.core.statespace import InnovationPredictor
@@ -156,25 +150,18 @@ def test_compare_modes_moved_unmoved_missing():
     assert unknown.structural is None
 
 
-def _jackknife(replicates: int) -> SimpleNamespace:
-    """A model's ``uncertainty`` of a jackknife over ``replicates`` segments (0: not counted)."""
-    return SimpleNamespace(replicates=replicates)
-
-
-def _staged(monkeypatch, modes_by_samples, replicates: int = 0):
+def _staged(monkeypatch, modes_by_samples):
     """A confirmation of a 5 Hz reference at 100 Hz, its stages 800 and 2000 samples, its modes ``modes_by_samples``.
 
-    The identification of ``y`` gives ``modes_by_samples[len(y)]``; every model's standard deviations from a
-    jackknife of ``replicates`` segments.
+    The identification of ``y`` gives ``modes_by_samples[len(y)]``.
     """
     def identify(y, sample_time_s, *, method):
         found = modes_by_samples[y.shape[0]]
         if isinstance(found, Exception):
             raise found
-        return SimpleNamespace(modes=found, stability_problem=lambda: "", uncertainty=_jackknife(replicates))
+        return SimpleNamespace(modes=found, stability_problem=lambda: "")
     monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only", identify)
-    reference = SimpleNamespace(modes=[_mode(5.0, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva",
-                                uncertainty=_jackknife(replicates))
+    reference = SimpleNamespace(modes=[_mode(5.0, 0.02)], sample_time_s=0.01, C=np.zeros((2, 2)), method="ssi-cva")
     confirmation = ModeConfirmation(reference)
     assert confirmation.stages == [800, 2000]
     confirmation.start(SimpleNamespace(change_index=100, alarm_index=299), np.zeros((300, 2)), 0)
@@ -212,33 +199,8 @@ def test_an_identification_that_fails_as_a_realization_may_is_undecided_and_decl
 
 def test_an_unstable_model_after_the_alarm_is_never_the_new_reference(monkeypatch):
     confirmation = _staged(monkeypatch, {800: [_mode(5.0, 0.02)], 2000: [_mode(5.01, 0.02)]})
-    unstable = SimpleNamespace(modes=[_mode(5.01, 0.02)], stability_problem=lambda: "A unstable: rho(A) = 1.02",
-                               uncertainty=None)
+    unstable = SimpleNamespace(modes=[_mode(5.01, 0.02)], stability_problem=lambda: "A unstable: rho(A) = 1.02")
     monkeypatch.setattr("okid_ros.core.mode_confirmation.identify_output_only",
                         lambda y, sample_time_s, *, method: unstable)
     verdict, _ = confirmation.take(np.zeros((2000, 2)), 300)
     assert verdict.structural is True and verdict.model is None  # undecided at the last stage: declared
-
-
-def test_jackknife_ratios_taken_to_normal_deviates_keep_the_normal_tail():
-    # A difference over the jackknife deviations of two 5-segment jackknives (4 degrees of freedom each, the
-    # output-only route's on the change bench's records): as a raw ratio its tails are Student's, not the normal's.
-    rng = np.random.default_rng(0)
-    n, sa, sb = 20000, 1.0, 0.6
-    difference = rng.standard_normal(n) * math.hypot(sa, sb)
-    est_a, est_b = sa * np.sqrt(rng.chisquare(4, n) / 4), sb * np.sqrt(rng.chisquare(4, n) / 4)
-    ratio = np.abs(difference) / np.hypot(est_a, est_b)
-    deviates = np.array([normal_equivalent(r, (a, b), (4.0, 4.0)) for r, a, b in zip(ratio, est_a, est_b)])
-    for limit, tail in ((2.0, 0.0455), (3.0, 0.0027)):
-        assert abs(np.mean(deviates > limit) - tail) < 0.25 * tail + 0.001
-    assert np.mean(ratio > 3.0) > 5 * 0.0027  # the raw ratio: the normal's limit passed far more often
-    assert normal_equivalent(5.0, (0.02, 0.02), (math.inf, math.inf)) == 5.0  # variances not counted: the ratio
-
-
-def test_a_ratio_within_the_jackknifes_scatter_on_the_first_stage_waits_for_the_last(monkeypatch):
-    # 4.6 jackknife deviations of 5 segments on 40 periods (the normal's 3.1: within the stationary scatter);
-    # on 100 periods 14.6 (the normal's 4.02).
-    confirmation = _staged(monkeypatch, {800: [_mode(4.87, 0.02)], 2000: [_mode(4.7, 0.005)]}, replicates=5)
-    verdict, at = confirmation.take(np.zeros((2000, 2)), 300)
-    assert verdict.structural is True and verdict.samples == 2000 and at == 2099
-    assert compare_modes([_mode(5.0, 0.02)], [_mode(4.87, 0.02)]).structural is True  # not counted: moved
