@@ -80,7 +80,11 @@ def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
     ("okid_ros.truth", '{"A": [[1' + "0" * 400 + ']], "B": [[1]], "C": [[1]], "D": [[0]], "K": [[0]]}',
      "A is not a finite 2-D matrix"),
     ("okid_ros.stabilization", '[{"n_states": "x", "poles": []}]', "n_states is not an integer"),
-    ("okid_ros.process", '{"parameters": {"x": 1}}', "no object for okid_modal_estimator"),
+    ("okid_ros.process", '{"parameters": {"x": 1}}', "its parameters of okid_modal_estimator: no object"),
+    # exit 70 before: int(round(1e300 * 1e9)), and a ValueError assembling the input bag's samples
+    ("okid_ros.process", '{"first_stamp_s": 1e300}', "its first_stamp_s is not a ROS 2 time"),
+    ("okid_ros.process", '{"parameters": {"okid_modal_estimator": {"sample_time_s": "x"}}}',
+     "parameter sample_time_s must be a number, got 'x'; the input bag read with --params or the built-in defaults"),
 ])
 def test_plot_leaves_out_a_metadata_document_of_the_wrong_shape(run, tmp_path, capsys, key, value, reason):
     bag = tmp_path / "out"
