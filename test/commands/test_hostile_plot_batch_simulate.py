@@ -434,3 +434,17 @@ def test_batch_names_a_folder_without_bags_as_it_is_spelt(tmp_path, capsys, plan
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"no bags found in {str(folder)!r}" in err, err
+
+
+@pytest.mark.parametrize("options, named", [
+    (["--workers", "2", "--max-failures", "1", "--retry-failed"], "--workers, --max-failures, --retry-failed"),
+    (["--force", "--csv", "--storage", "sqlite3"], "--force, --csv, --storage"),
+])
+def test_batch_plan_names_the_options_of_processing_it_passes_over(tmp_path, capsys, options, named):
+    """Were passed over in silence: `--plan --force` read as if the bags were to be processed again."""
+    bag = write_good_bag(tmp_path / "run_000", 0, duration_s=1.0)
+    assert main(["batch", str(bag), "--plan", *options]) == 0
+    captured = capsys.readouterr()
+    assert f"okid-ros batch: warning: {named}: options of processing bags; ignored with --plan (it lists the bags " \
+           "and processes none)" in captured.err, captured.err
+    assert "run_000" in captured.out and not (tmp_path / "campaign").exists()
