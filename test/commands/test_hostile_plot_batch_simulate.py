@@ -448,3 +448,38 @@ def test_batch_plan_names_the_options_of_processing_it_passes_over(tmp_path, cap
     assert f"okid-ros batch: warning: {named}: options of processing bags; ignored with --plan (it lists the bags " \
            "and processes none)" in captured.err, captured.err
     assert "run_000" in captured.out and not (tmp_path / "campaign").exists()
+
+
+def _metadata(start_ns: object = 1_700_000_000_000_000_000, duration_ns: object = 20_000_000_000,
+              count: object = 2500) -> dict:
+    """A rosbag2 metadata.yaml's information, one topic."""
+    topic = {"name": "/okid/io_sample", "type": "okid_msgs/msg/IoSample"}
+    return {"rosbag2_bagfile_information": {
+        "starting_time": {"nanoseconds_since_epoch": start_ns}, "duration": {"nanoseconds": duration_ns},
+        "topics_with_message_count": [{"message_count": count, "topic_metadata": topic}]}}
+
+
+@pytest.mark.parametrize("spoilt, error", [
+    ({"start_ns": 10**30}, "starting_time is 1000000000000000000000000000000, not an integer from 0 to 2**63 - 1"),
+    ({"start_ns": -10**23}, "starting_time is -100000000000000000000000, not an integer"),
+    ({"duration_ns": -20_000_000_000}, "duration is -20000000000, not an integer"),
+    ({"count": -100000}, "the message_count of /okid/io_sample is -100000, not an integer"),
+    ({"count": 2500.7}, "the message_count of /okid/io_sample is 2500.7, not an integer"),
+])
+def test_batch_plan_flags_metadata_of_times_and_counts_rosbag2_never_writes(tmp_path, capsys, spoilt, error):
+    """Were exit 70 (a start beyond datetime's years), or negative counts and durations planned in silence.
+
+    A count of 2500.7 was planned as 2500.
+    """
+    import yaml
+
+    bag = tmp_path / "run"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(_metadata(**spoilt)))
+    assert main(["batch", str(bag), "--plan"]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith(str(bag)))
+    assert f"{bag}: metadata.yaml: {error}" in row and "1 would fail" in out, out
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(_metadata()))
+    assert main(["batch", str(bag), "--plan"]) == 0
+    assert "0 would fail" in capsys.readouterr().out
