@@ -198,6 +198,30 @@ def test_plot_of_a_campaign_with_a_spoilt_modes_table_is_one_line(tmp_path, caps
     assert f"{campaign / 'modes.parquet'}: not a" in err and not (campaign / "figures").exists()
 
 
+@pytest.mark.parametrize("column, value", [("frequency_hz", math.nan), ("frequency_hz", math.inf),
+                                           ("damping_ratio", math.nan), ("stamp_s", 1e300), ("stamp_s", None)])
+def test_plot_of_a_campaign_leaves_out_rows_it_cannot_draw(tmp_path, capsys, column, value):
+    """Rows of NaN or Inf were drawn as nothing, and a stamp of 1e300 as a time axis of 1e295 days, in silence."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    campaign = tmp_path / "camp"
+    campaign.mkdir()
+    (campaign / "manifest.jsonl").write_text("")
+    rows = {"mode_id": [1, 1, 2], "stamp_s": [1e9, 1e9 + 10, 1e9 + 10], "frequency_hz": [5.9, 5.91, 48.4],
+            "frequency_hz_std": [0.01, 0.01, None], "damping_ratio": [0.003, 0.003, 0.004],
+            "damping_ratio_std": [0.001, 0.001, None], "bag_index": [0, 0, 0]}
+    rows[column][1] = value
+    pq.write_table(pa.table(rows), campaign / "modes.parquet")
+    assert main(["plot", str(campaign)]) == 0
+    err = capsys.readouterr().err
+    assert f"{campaign / 'modes.parquet'}: 1 of the 3 rows left out, not drawn: " in err and "the first: row 1" in err
+    rows[column] = [value] * 3
+    pq.write_table(pa.table(rows), campaign / "modes.parquet")
+    _one_line_error(capsys, ["plot", str(campaign), "--out-dir", str(tmp_path / "f2")],
+                    f"{campaign / 'modes.parquet'}: none of its 3 rows can be drawn: a stamp_s beyond any ROS 2 time")
+
+
 def test_plot_of_a_campaign_names_the_options_of_a_bag_s_figures(tmp_path, capsys):
     """--input, --window, --frf-pairs ... draw an output bag's figures (were passed over in silence)."""
     campaign = tmp_path / "camp"
