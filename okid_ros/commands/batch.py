@@ -12,6 +12,9 @@ from okid_ros.commands._args import add_progress_arguments, namespace, path_text
 from okid_ros.tools.campaign import SCHEDULER_TIMEOUT_S
 from okid_ros.tools.cores import usable_cores
 
+#: Storage plugin of the output bags unless --storage is given.
+DEFAULT_STORAGE = "mcap"
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `batch`."""
@@ -40,7 +43,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="the rig's namespace, as for `okid-ros process`")
     parser.add_argument("--strict-params", action="store_true",
                         help="refuse a parameter file that sets a name no node declares (default: a warning)")
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default=DEFAULT_STORAGE,
                         help="storage plugin of the output bags (default: %(default)s)")
     engine = parser.add_mutually_exclusive_group()
     engine.add_argument("--workers", type=positive_int, default=None, metavar="N",
@@ -105,12 +108,17 @@ def _check_bags_given(args: argparse.Namespace) -> None:
                         "follow --forget)")
 
 
-def _ignored_with_forget(args: argparse.Namespace) -> list[str]:
-    """The options of processing bags given with --forget, which processes none (they were passed over in silence)."""
+def _ignored_without_processing(args: argparse.Namespace) -> list[str]:
+    """The options of processing bags given with --forget or --plan, which process none (passed over in silence).
+
+    ``--force`` and ``--csv`` mean something to --forget (remove the outputs, rebuild modes.csv), not to --plan.
+    """
     given = {"--workers": args.workers is not None, "--scheduler": args.scheduler is not None,
              "--scheduler-timeout": args.scheduler_timeout != SCHEDULER_TIMEOUT_S,
              "--max-failures": args.max_failures is not None, "--retry-failed": args.retry_failed,
              "--progress": args.progress is True}
+    if args.plan:
+        given |= {"--force": args.force, "--csv": args.csv, "--storage": args.storage != DEFAULT_STORAGE}
     return [option for option, value in given.items() if value]
 
 
@@ -133,9 +141,10 @@ def run(args: argparse.Namespace) -> int:
         ArxIdentificationParams.from_parameters(arx_values)
     if ignored := ModalEstimationParams.from_parameters(est_values).output_only_ignored():
         print(f"okid-ros batch: warning: {ignored}", file=sys.stderr)
-    if args.forget is not None and (ignored := _ignored_with_forget(args)):
-        print(f"okid-ros batch: warning: {', '.join(ignored)}: options of processing bags; ignored with --forget "
-              "(it processes no bag)", file=sys.stderr)
+    if (args.forget is not None or args.plan) and (ignored := _ignored_without_processing(args)):
+        print(f"okid-ros batch: warning: {', '.join(ignored)}: options of processing bags; ignored with "
+              f"{'--plan (it lists the bags and processes none)' if args.plan else '--forget (it processes no bag)'}",
+              file=sys.stderr)
     if args.plan:
         from okid_ros.tools.campaign.discovery import find_bags
         from okid_ros.tools.campaign.plan import format_plan, plan_campaign

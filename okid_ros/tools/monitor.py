@@ -119,8 +119,9 @@ class ModalStatesView:
             # keep one entry older than the trend window, drop the rest
             while len(track.history) > 2 and track.history[1][0] <= stamp - self.trend_window_s:
                 track.history.popleft()
-            if 2 * i + 1 < len(coords):
-                track.amplitude_sq.append(coords[2 * i] ** 2 + coords[2 * i + 1] ** 2)
+            if 2 * i + 1 < len(coords):  # products, not ** 2: a float's power beyond 1e308 raises OverflowError
+                c1, c2 = float(coords[2 * i]), float(coords[2 * i + 1])
+                track.amplitude_sq.append(c1 * c1 + c2 * c2)
             self.current_ids.append(mode_id)
         innovation = list(msg.innovation)
         if innovation:

@@ -3,9 +3,9 @@
 A bag's ``metadata.yaml`` is a text file anyone can edit, and its ``custom_data`` entries
 (:data:`~okid_ros.tools.bagio.TRUTH_KEY`, ``STABILIZATION_KEY``, ``PROCESS_KEY``) may parse as
 JSON and still not have the shape `simulate` and `process` write. Each check returns the
-document when every part a figure reads is there with the right type and size, else None and
-the reason; `plot` then draws without it and says so, instead of stopping half way through the
-figures.
+document when every part a figure reads is there with the right type and size, else None (the
+process record: without the parts it cannot use) and the reason; `plot` then draws without it
+and says so, instead of stopping half way through the figures.
 """
 
 from __future__ import annotations
@@ -95,16 +95,42 @@ def usable_stabilization(stabilization: Any) -> tuple[list | None, str]:
 
 
 def usable_process_info(info: Any, estimator_node: str) -> tuple[dict | None, str]:
-    """What `process` recorded of its run if usable: an object, its ``parameters`` the nodes' objects."""
+    """What `process` recorded of its run, without the parts plot cannot use: ``(info, "")`` or ``(info, reason)``.
+
+    Not an object: ``(None, reason)``. A ``first_stamp_s`` that is no ROS 2 time in seconds and
+    ``parameters`` whose estimator node's values the node would refuse are dropped from the
+    copy returned (the input bag is then read with ``--params`` or the built-in defaults); the
+    estimator's values kept are those :func:`~okid_ros.service.params.resolve_parameters` gives.
+    """
+    from okid_ros.errors import ParameterError
+    from okid_ros.service.inputs import parse_sources
+    from okid_ros.service.params import node_params, resolve_parameters
+    from okid_ros.service.stamp_steps import MAX_STAMP_S
+
     if info is None:
         return None, ""
     if not isinstance(info, dict):
         return None, "not a JSON object"
+    info, problems = dict(info), []
+    if "first_stamp_s" in info and not (finite_number(info["first_stamp_s"])
+                                        and abs(float(info["first_stamp_s"])) <= MAX_STAMP_S):
+        problems.append(f"its first_stamp_s is not a ROS 2 time (seconds up to {MAX_STAMP_S})")
+        del info["first_stamp_s"]
     parameters = info.get("parameters")
-    if parameters is not None and not (isinstance(parameters, dict)
-                                       and isinstance(parameters.get(estimator_node), dict)):
-        return None, f"its parameters hold no object for {estimator_node}"
-    return info, ""
+    if parameters is not None:
+        try:
+            if not (isinstance(parameters, dict) and isinstance(parameters.get(estimator_node), dict)):
+                raise ParameterError("no object")
+            known = {spec.name for spec in node_params(estimator_node)}
+            values = resolve_parameters(estimator_node, {k: v for k, v in parameters[estimator_node].items()
+                                                         if k in known})
+            parse_sources(values["inputs.sources"], values["n_inputs"], values["n_outputs"])
+            info["parameters"] = {**parameters, estimator_node: values}
+        except (ParameterError, ValueError) as exc:
+            problems.append(f"its parameters of {estimator_node}: {exc}; the input bag read with --params or the "
+                            "built-in defaults")
+            del info["parameters"]
+    return info, "; ".join(problems)
 
 
 def check_plot_metadata(path: Any, data: Any) -> None:

@@ -50,6 +50,7 @@ from okid_ros.core.markov import markov_from_state_space, stochastic_markov_from
 from okid_ros.errors import OutputError, shown_path, write_atomically
 from okid_ros.tools.bagio import PROCESS_KEY, STABILIZATION_KEY, TRUTH_KEY, open_bag
 from okid_ros.tools.errors import BagReadError, OutputExistsError, ToolParameterError
+from okid_ros.tools.plot_messages import LeftOut, arx_markov, state_space_model
 from okid_ros.tools.plot_metadata import check_plot_metadata
 
 __all__ = [
@@ -117,8 +118,20 @@ class PlotData:
         return (self.start_ns - origin_log_ns) * 1e-9
 
 
-def _matrix(values, rows: int, cols: int) -> np.ndarray:
-    return np.asarray(values, dtype=float).reshape(rows, cols)
+def _take_model(data: PlotData, msg, t_s: float, *, arx: bool) -> None:
+    """The ArxModel (``arx``) or StateSpaceModel ``msg`` as the last one drawn; ValueError when it cannot be drawn."""
+    if arx:
+        if msg.valid and msg.markov_parameters_count:
+            data.arx_markov, data.arx_model_id = arx_markov(msg), int(msg.model_id)
+        return
+    data.state_space = state_space_model(msg)
+    data.output_gain[int(msg.model_id)] = data.state_space["C"] @ data.state_space["K"]
+    for mode in msg.modes:
+        data.mode_history[int(mode.id)].append((
+            t_s, float(mode.frequency_hz), float(mode.damping_ratio),
+            float(getattr(mode, "frequency_hz_std", math.nan)),
+            float(getattr(mode, "damping_ratio_std", math.nan)),
+        ))
 
 
 def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None = None,
@@ -138,6 +151,7 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
         resolve_topic(name, namespace) for name in (ARX_MODEL, STATE_SPACE_MODEL, MODAL_STATES))
     data = PlotData(truth=truth)
     recent: deque = deque()
+    left_out = LeftOut()
     with open_bag(path) as bag:
         present = {t: bag.topics[t] for t in (ARX_TOPIC, STATE_SPACE_TOPIC, MODAL_STATES_TOPIC) if t in bag.topics}
         if not present:
@@ -159,30 +173,11 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
         data.counts = {t: bag.message_count([t]) for t in present}
         for topic, log_ns, msg in bag.messages(list(present)):
             t_s = (log_ns - data.start_ns) * 1e-9
-            if topic == ARX_TOPIC:
-                if msg.valid and msg.markov_parameters_count:
-                    data.arx_markov = _matrix(msg.markov_parameters, msg.markov_parameters_count,
-                                              msg.n_outputs * msg.n_inputs).reshape(
-                        msg.markov_parameters_count, msg.n_outputs, msg.n_inputs)
-                    data.arx_model_id = int(msg.model_id)
-            elif topic == STATE_SPACE_TOPIC:
-                n, p, m = int(msg.n_states), int(msg.n_outputs), int(msg.n_inputs)
-                data.state_space = {
-                    "A": _matrix(msg.a, n, n), "B": _matrix(msg.b, n, m), "C": _matrix(msg.c, p, n),
-                    "D": _matrix(msg.d, p, m), "K": _matrix(msg.k, n, p),
-                    "n": n, "model_id": int(msg.model_id), "sample_time_s": float(msg.sample_time_s),
-                    "modes": [{"id": int(mo.id), "frequency_hz": float(mo.frequency_hz),
-                               "damping_ratio": float(mo.damping_ratio),
-                               "shape": np.asarray(mo.shape_real, float) + 1j * np.asarray(mo.shape_imag, float)}
-                              for mo in msg.modes],
-                }
-                data.output_gain[int(msg.model_id)] = data.state_space["C"] @ data.state_space["K"]
-                for mode in msg.modes:
-                    data.mode_history[int(mode.id)].append((
-                        t_s, float(mode.frequency_hz), float(mode.damping_ratio),
-                        float(getattr(mode, "frequency_hz_std", math.nan)),
-                        float(getattr(mode, "damping_ratio_std", math.nan)),
-                    ))
+            if topic in (ARX_TOPIC, STATE_SPACE_TOPIC):
+                try:
+                    _take_model(data, msg, t_s, arx=topic == ARX_TOPIC)
+                except ValueError as exc:
+                    left_out.add(topic, msg, exc)
             else:
                 first = {int(mode.id): float(msg.modal_coordinates[2 * i])
                          for i, mode in enumerate(msg.modes) if 2 * i < len(msg.modal_coordinates)}
@@ -193,6 +188,7 @@ def read_plot_data(path: str | Path, window_s: float = 5.0, truth: dict | None =
                                np.asarray(msg.innovation, float), int(msg.model_id)))
                 while recent and recent[0][0] <= t_s - window_s:
                     recent.popleft()
+    left_out.warn(shown_path(path), data.counts)
     for t_s, stamp_ns, first, y_est, innov, model_id in recent:
         data.modal_t.append(t_s)
         data.modal_model_id.append(model_id)

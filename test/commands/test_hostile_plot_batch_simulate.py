@@ -198,6 +198,30 @@ def test_plot_of_a_campaign_with_a_spoilt_modes_table_is_one_line(tmp_path, caps
     assert f"{campaign / 'modes.parquet'}: not a" in err and not (campaign / "figures").exists()
 
 
+@pytest.mark.parametrize("column, value", [("frequency_hz", math.nan), ("frequency_hz", math.inf),
+                                           ("damping_ratio", math.nan), ("stamp_s", 1e300), ("stamp_s", None)])
+def test_plot_of_a_campaign_leaves_out_rows_it_cannot_draw(tmp_path, capsys, column, value):
+    """Rows of NaN or Inf were drawn as nothing, and a stamp of 1e300 as a time axis of 1e295 days, in silence."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    campaign = tmp_path / "camp"
+    campaign.mkdir()
+    (campaign / "manifest.jsonl").write_text("")
+    rows = {"mode_id": [1, 1, 2], "stamp_s": [1e9, 1e9 + 10, 1e9 + 10], "frequency_hz": [5.9, 5.91, 48.4],
+            "frequency_hz_std": [0.01, 0.01, None], "damping_ratio": [0.003, 0.003, 0.004],
+            "damping_ratio_std": [0.001, 0.001, None], "bag_index": [0, 0, 0]}
+    rows[column][1] = value
+    pq.write_table(pa.table(rows), campaign / "modes.parquet")
+    assert main(["plot", str(campaign)]) == 0
+    err = capsys.readouterr().err
+    assert f"{campaign / 'modes.parquet'}: 1 of the 3 rows left out, not drawn: " in err and "the first: row 1" in err
+    rows[column] = [value] * 3
+    pq.write_table(pa.table(rows), campaign / "modes.parquet")
+    _one_line_error(capsys, ["plot", str(campaign), "--out-dir", str(tmp_path / "f2")],
+                    f"{campaign / 'modes.parquet'}: none of its 3 rows can be drawn: a stamp_s beyond any ROS 2 time")
+
+
 def test_plot_of_a_campaign_names_the_options_of_a_bag_s_figures(tmp_path, capsys):
     """--input, --window, --frf-pairs ... draw an output bag's figures (were passed over in silence)."""
     campaign = tmp_path / "camp"
@@ -434,3 +458,52 @@ def test_batch_names_a_folder_without_bags_as_it_is_spelt(tmp_path, capsys, plan
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"no bags found in {str(folder)!r}" in err, err
+
+
+@pytest.mark.parametrize("options, named", [
+    (["--workers", "2", "--max-failures", "1", "--retry-failed"], "--workers, --max-failures, --retry-failed"),
+    (["--force", "--csv", "--storage", "sqlite3"], "--force, --csv, --storage"),
+])
+def test_batch_plan_names_the_options_of_processing_it_passes_over(tmp_path, capsys, options, named):
+    """Were passed over in silence: `--plan --force` read as if the bags were to be processed again."""
+    bag = write_good_bag(tmp_path / "run_000", 0, duration_s=1.0)
+    assert main(["batch", str(bag), "--plan", *options]) == 0
+    captured = capsys.readouterr()
+    assert f"okid-ros batch: warning: {named}: options of processing bags; ignored with --plan (it lists the bags " \
+           "and processes none)" in captured.err, captured.err
+    assert "run_000" in captured.out and not (tmp_path / "campaign").exists()
+
+
+def _metadata(start_ns: object = 1_700_000_000_000_000_000, duration_ns: object = 20_000_000_000,
+              count: object = 2500) -> dict:
+    """A rosbag2 metadata.yaml's information, one topic."""
+    topic = {"name": "/okid/io_sample", "type": "okid_msgs/msg/IoSample"}
+    return {"rosbag2_bagfile_information": {
+        "starting_time": {"nanoseconds_since_epoch": start_ns}, "duration": {"nanoseconds": duration_ns},
+        "topics_with_message_count": [{"message_count": count, "topic_metadata": topic}]}}
+
+
+@pytest.mark.parametrize("spoilt, error", [
+    ({"start_ns": 10**30}, "starting_time is 1000000000000000000000000000000, not an integer from 0 to 2**63 - 1"),
+    ({"start_ns": -10**23}, "starting_time is -100000000000000000000000, not an integer"),
+    ({"duration_ns": -20_000_000_000}, "duration is -20000000000, not an integer"),
+    ({"count": -100000}, "the message_count of /okid/io_sample is -100000, not an integer"),
+    ({"count": 2500.7}, "the message_count of /okid/io_sample is 2500.7, not an integer"),
+])
+def test_batch_plan_flags_metadata_of_times_and_counts_rosbag2_never_writes(tmp_path, capsys, spoilt, error):
+    """Were exit 70 (a start beyond datetime's years), or negative counts and durations planned in silence.
+
+    A count of 2500.7 was planned as 2500.
+    """
+    import yaml
+
+    bag = tmp_path / "run"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(_metadata(**spoilt)))
+    assert main(["batch", str(bag), "--plan"]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith(str(bag)))
+    assert f"{bag}: metadata.yaml: {error}" in row and "1 would fail" in out, out
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(_metadata()))
+    assert main(["batch", str(bag), "--plan"]) == 0
+    assert "0 would fail" in capsys.readouterr().out

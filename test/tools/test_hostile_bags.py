@@ -80,7 +80,11 @@ def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
     ("okid_ros.truth", '{"A": [[1' + "0" * 400 + ']], "B": [[1]], "C": [[1]], "D": [[0]], "K": [[0]]}',
      "A is not a finite 2-D matrix"),
     ("okid_ros.stabilization", '[{"n_states": "x", "poles": []}]', "n_states is not an integer"),
-    ("okid_ros.process", '{"parameters": {"x": 1}}', "no object for okid_modal_estimator"),
+    ("okid_ros.process", '{"parameters": {"x": 1}}', "its parameters of okid_modal_estimator: no object"),
+    # exit 70 before: int(round(1e300 * 1e9)), and a ValueError assembling the input bag's samples
+    ("okid_ros.process", '{"first_stamp_s": 1e300}', "its first_stamp_s is not a ROS 2 time"),
+    ("okid_ros.process", '{"parameters": {"okid_modal_estimator": {"sample_time_s": "x"}}}',
+     "parameter sample_time_s must be a number, got 'x'; the input bag read with --params or the built-in defaults"),
 ])
 def test_plot_leaves_out_a_metadata_document_of_the_wrong_shape(run, tmp_path, capsys, key, value, reason):
     bag = tmp_path / "out"
@@ -170,3 +174,68 @@ def test_a_window_beyond_the_address_space_limit_is_refused_naming_the_parameter
     assert result.stderr.count("\n") == 1, result.stderr
     assert "arx.window_length 100000000: buffering the window's samples needs about 15.3 GiB" in result.stderr
     assert not (tmp_path / "out").exists()
+
+
+def _spoil_state_space(msg) -> None:
+    msg.a = msg.a[:-1]
+
+
+def _spoil_sample_time(msg) -> None:
+    msg.sample_time_s = 0.0
+
+
+def _spoil_stability(msg) -> None:
+    msg.a = np.asarray(msg.a) * 3
+
+
+def _spoil_values(msg) -> None:
+    msg.k = np.full(len(msg.k), np.nan)
+
+
+def _spoil_shape(msg) -> None:
+    msg.modes[0].shape_real = np.zeros(7)
+
+
+def _spoil_markov(msg) -> None:
+    msg.markov_parameters = msg.markov_parameters[:-3]
+
+
+@pytest.mark.parametrize(("topic", "spoil", "reason"), [
+    ("/okid/state_space_model", _spoil_state_space, "a has 63 values, its sizes give 8 x 8"),
+    ("/okid/state_space_model", _spoil_sample_time, "sample_time_s 0.0 is not a positive number of seconds"),
+    ("/okid/state_space_model", _spoil_stability, "A is unstable (spectral radius 2.99"),
+    ("/okid/state_space_model", _spoil_values, "k holds values that are not finite"),
+    ("/okid/state_space_model", _spoil_shape, "its shape has 7 real and 2 imaginary values, the model 2 outputs"),
+    ("/okid/arx_model", _spoil_markov, "markov_parameters has 401 values, its sizes give 101 x 4"),
+])
+def test_plot_leaves_out_a_model_message_it_cannot_draw(run, tmp_path, topic, spoil, reason):
+    """A recording takes any publisher's models: one of the wrong sizes, not finite, of no sample time or unstable.
+
+    Was exit 70 (a reshape's ValueError, scipy's "array must not contain infs or NaNs", a ZeroDivisionError in the
+    FRF), or the unstable model's figures drawn in silence.
+    """
+    import copy
+
+    from okid_ros.tools.bagio import BagWriter, open_bag
+    from okid_ros.tools.plots import read_plot_data
+
+    with open_bag(run["out"]) as bag:
+        msgs = [(log_ns, msg) for _, log_ns, msg in bag.messages([topic])]
+        msgtype = bag.topics[topic]
+    log_ns, good = next((log_ns, msg) for log_ns, msg in reversed(msgs)
+                        if topic != "/okid/arx_model" or (msg.valid and msg.markov_parameters_count))
+    spoilt = copy.deepcopy(good)
+    spoilt.model_id += 1
+    spoil(spoilt)
+    msgs.append((log_ns + 1, spoilt))
+    with BagWriter(tmp_path / "spoilt") as out:
+        out.add_topic(topic, msgtype)
+        for log_ns, msg in msgs:
+            out.write(topic, log_ns, msg)
+    with pytest.warns(OkidWarning) as caught:
+        data = read_plot_data(tmp_path / "spoilt")
+    assert any(f"1 of the {len(msgs)} messages on {topic} left out, not drawn (the last: model "
+               f"{spoilt.model_id}: " in str(w.message) and reason in str(w.message) for w in caught), \
+        [str(w.message) for w in caught]
+    kept = data.state_space["model_id"] if topic == "/okid/state_space_model" else data.arx_model_id
+    assert kept == good.model_id

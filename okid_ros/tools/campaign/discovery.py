@@ -193,6 +193,14 @@ def _metadata(path: Path) -> dict:
     return info
 
 
+def _stored_integer(value: object, what: str) -> int:
+    """A count or time of metadata.yaml as rosbag2 stores it: an integer from 0 to 2**63 - 1 (ValueError if not)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2**63:
+        raise ValueError(f"metadata.yaml: {what} is {value!r}, not an integer from 0 to 2**63 - 1 as rosbag2 "
+                         "writes it")
+    return value
+
+
 def _plan_from_metadata(path: Path) -> BagPlan:
     info = _metadata(path)
     plan = BagPlan(path=path)
@@ -200,10 +208,11 @@ def _plan_from_metadata(path: Path) -> BagPlan:
         meta = entry["topic_metadata"]
         name, known = str(meta["name"]), plan.topics.get(str(meta["name"]))  # a topic stored with two types: both
         plan.topics[name] = str(meta["type"]) if known in (None, str(meta["type"])) else f"{known} and {meta['type']}"
-        plan.counts[str(meta["name"])] = plan.counts.get(str(meta["name"]), 0) + int(entry["message_count"])
+        count = _stored_integer(entry["message_count"], f"the message_count of {name}")
+        plan.counts[name] = plan.counts.get(name, 0) + count
     if plan.message_count() > 0:
-        plan.start_s = int(info["starting_time"]["nanoseconds_since_epoch"]) * 1e-9
-        plan.duration_s = int(info["duration"]["nanoseconds"]) * 1e-9
+        plan.start_s = _stored_integer(info["starting_time"]["nanoseconds_since_epoch"], "starting_time") * 1e-9
+        plan.duration_s = _stored_integer(info["duration"]["nanoseconds"], "duration") * 1e-9
     return plan
 
 

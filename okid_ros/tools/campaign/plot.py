@@ -31,15 +31,43 @@ def campaign_series(out_dir: Path) -> dict[int, dict[str, np.ndarray]]:
     names = ("stamp_s", "frequency_hz", "frequency_hz_std", "damping_ratio", "damping_ratio_std", "bag_index")
     table = read_modes(out_dir, ("mode_id", *names)).to_pydict()
     series: dict[int, dict[str, list]] = {}
+    left_out: list[int] = []
     try:
         for i, mode_id in enumerate(table["mode_id"]):
+            if not _drawable(table, i):
+                left_out.append(i)
+                continue
             entry = series.setdefault(int(mode_id), {name: [] for name in names})
             for name in names:
                 entry[name].append(table[name][i])
-        return {mid: {k: np.asarray(v, float) for k, v in entry.items()} for mid, entry in sorted(series.items())}
+        arrays = {mid: {k: np.asarray(v, float) for k, v in entry.items()} for mid, entry in sorted(series.items())}
     except (TypeError, ValueError) as exc:  # a null mode id, text where numbers belong
         raise DataError(f"{Path(out_dir) / 'modes.parquet'}: not a modes table of okid-ros batch "
                         f"({' '.join(str(exc).split())})") from None
+    if left_out:
+        import warnings
+
+        from okid_ros.errors import OkidWarning, shown_path
+
+        why = (f"a stamp_s beyond any ROS 2 time, or a frequency_hz or damping_ratio not finite (okid-ros batch "
+               f"writes none; the first: row {left_out[0]})")
+        if not arrays:
+            raise DataError(f"{shown_path(Path(out_dir) / 'modes.parquet')}: none of its {len(left_out)} rows can "
+                            f"be drawn: {why}")
+        warnings.warn(f"{shown_path(Path(out_dir) / 'modes.parquet')}: {len(left_out)} of the "
+                      f"{len(table['mode_id'])} rows left out, not drawn: {why}", OkidWarning, stacklevel=2)
+    return arrays
+
+
+def _drawable(table: dict, row: int) -> bool:
+    """Whether a row of the table has a stamp, frequency and damping to draw (a frequency > 0: the axis is log)."""
+    from okid_ros.service.stamp_steps import MAX_STAMP_S
+
+    values = [table[name][row] for name in ("stamp_s", "frequency_hz", "damping_ratio")]
+    if any(value is None for value in values):  # a null: NaN as the Parquet table holds it
+        return False
+    stamp, frequency, damping = map(float, values)
+    return abs(stamp) <= MAX_STAMP_S and 0 < frequency < math.inf and math.isfinite(damping)
 
 
 def _time_axis(span_s: float) -> tuple[float, str]:
