@@ -22,6 +22,9 @@ Records:
 * ``new-families`` (idem): structures of kinds no selection rule was tuned on
   (:func:`okid_bench.new_families.new_family_case`: plate grids, torsion frames with local dashpots,
   buildings under coloured forces), scored by family like ``physical``;
+* ``families-2`` (idem): round two of such kinds (:func:`okid_bench.families_two.family_two_case`:
+  buildings with local dampers and tuned mass dampers (complex true shapes), towers with bending pairs
+  0.2-1 % apart under Kaimal-like gusts, long-span decks of 20-30 channels under traffic), scored by family;
 * ``koma-frame`` (idem): the koma frame's own recipe with ``--seeds`` noise seeds
   (:func:`okid_bench.physical_cases.koma_frame_case`), scored against its discrete modes.
 
@@ -59,6 +62,7 @@ import blas_threads  # noqa: F401  (sets the BLAS threads before numpy loads)
 import numpy as np
 from output_only_peers import METHODS, run_method
 
+from okid_bench.families_two import FAMILIES_TWO_CASES, family_two_case
 from okid_bench.new_families import NEW_FAMILY_CASES, new_family_case
 from okid_bench.output_only_cases import OUTPUT_ONLY_CASES, output_only_case, random_case, score_modes
 from okid_bench.physical_cases import KOMA_FRAME, koma_frame_case, physical_case
@@ -71,6 +75,8 @@ SUBFRAME = DATA / "real" / "daisy-steel-subframe"
 #: A found mode whose shape has at least this MAC with the true one is found with its shape too: within
 #: 0.5 % of one of a close pair, a pole with the other's shape is "found" by frequency alone.
 SHAPE_MAC = 0.9
+#: The case groups scored by family: each seed one structure.
+FAMILY_BUILDERS = {"physical": physical_case, NEW_FAMILY_CASES: new_family_case, FAMILIES_TWO_CASES: family_two_case}
 
 
 def _koma():
@@ -98,8 +104,8 @@ def _runs(args):
         yield name, 0, y, dt, truth, uncertain
     for name in args.cases:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            if name in ("physical", NEW_FAMILY_CASES):  # scored by family; the modes it does not show not counted
-                case = physical_case(seed) if name == "physical" else new_family_case(seed)
+            if name in FAMILY_BUILDERS:  # scored by family; the modes it does not show not counted
+                case = FAMILY_BUILDERS[name](seed)
                 yield case.family, seed, case.simulate(seed), case.sample_time_s, case.truth(), case.hidden_hz()
                 continue
             if name == KOMA_FRAME:  # koma's recipe, noise seeds of one structure
@@ -186,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--records", default="koma,subframe", help="koma,subframe or none")
     parser.add_argument("--cases", default=",".join(OUTPUT_ONLY_CASES),
-                        help="simulated cases (or random, physical, new-families, koma-frame), or none")
+                        help="simulated cases (or random, physical, new-families, families-2, koma-frame), or none")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"subset of {','.join(METHODS)}")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0,
