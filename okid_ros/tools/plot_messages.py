@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from okid_ros.errors import OkidWarning
+
 __all__ = ["LeftOut", "arx_markov", "state_space_model"]
 
 
@@ -79,8 +81,6 @@ class LeftOut:
 
     def warn(self, bag: str, totals: dict[str, int]) -> None:
         """One warning per topic with messages left out (nothing when none was)."""
-        from okid_ros.errors import OkidWarning
-
         for topic, count in self.counts.items():
             warnings.warn(f"{bag}: {count} of the {totals.get(topic, count)} messages on {topic} left out, not drawn "
                           f"(the last: {self.last[topic]})", OkidWarning, stacklevel=3)
