@@ -16,8 +16,6 @@ import time
 import pytest
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 
-pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
-
 PROBE = r"""
 import json, os, threading, time
 from okid_ros.nodes.common import realtime_threads
@@ -119,6 +117,7 @@ def _worker(pid: int) -> int | None:
     return None
 
 
+@pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process (the helper's tests with the rest)
 def test_node_2_serves_its_samples_at_fifo_and_realizes_at_ordinary_priority(ros_domain_id, tmp_path):
     params = tmp_path / "rt.yaml"
     params.write_text("/**/okid_modal_estimator:\n  ros__parameters:\n    realtime_priority: 10\n")

@@ -34,7 +34,8 @@ from okid_ros.service.options import ArxIdentificationParams, ModalEstimationPar
 from okid_ros.sim import lowpass_input, paper_model, simulate_innovation
 from okid_ros.tools.node_parameters import load_node_parameters
 
-pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
+# Each test over DDS says so (`make test` runs it after the rest, in one process); the check of every
+# window of the rigs' stream runs node 1's and node 2's services in this process and runs with the rest.
 
 DT = 0.008
 RIGS = {"/rig1": 1000.0, "/rig2": 5000.0}  # namespace -> first stamp of its samples [s]
@@ -150,6 +151,7 @@ def probe(ros_domain_id):
     p.close()
 
 
+@pytest.mark.dds
 def test_two_namespaced_rigs_in_one_domain_never_cross(probe, rigs):
     probe.wait_until("both rigs to subscribe their io_sample",
                      lambda: all(pub.get_subscription_count() >= 2 for pub in probe.io.values()), 30)
@@ -258,6 +260,7 @@ def get_param(probe: RigProbe, node: str, name: str) -> ParameterValue:
     return probe.call(GetParameters, f"{node}/get_parameters", GetParameters.Request(names=[name])).values[0]
 
 
+@pytest.mark.dds
 def test_tunables_change_at_run_time_with_the_start_checks_and_structure_stays(probe, rigs):
     est, arx = "/rig2/okid_modal_estimator", "/rig2/okid_arx_identifier"
     [ok] = set_params(probe, est, tracking__min_mac=("double", 0.8))
@@ -301,6 +304,7 @@ def test_tunables_change_at_run_time_with_the_start_checks_and_structure_stays(p
     assert ok.successful
 
 
+@pytest.mark.dds
 @pytest.mark.dds_startup
 def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros, tmp_path):
     typo = tmp_path / "typo.yaml"
@@ -316,6 +320,7 @@ def test_unknown_parameter_names_are_reported_and_refused_when_strict(spawn_ros,
     strict.wait_for_output(r"unknown parameter\(s\) arx\.ordr .*strict_parameters", 5)
 
 
+@pytest.mark.dds
 @pytest.mark.dds_startup
 def test_a_parameter_given_dotted_and_nested_is_refused_and_a_low_time_jump_is_told(spawn_ros, tmp_path):
     # rcl takes the later of `inputs.sources` and `inputs: {sources}` in silence; the node refuses
@@ -334,6 +339,7 @@ def test_a_parameter_given_dotted_and_nested_is_refused_and_a_low_time_jump_is_t
     low.wait_for_output(r"ready:", 30)
 
 
+@pytest.mark.dds
 def test_use_sim_time_switched_on_without_a_clock_is_told(spawn_ros, probe):
     # The node clock then stands at 0 and node 1's ArxModel and both nodes' diagnostics stop: the
     # change was answered `successful` and the node fell silent with nothing said.
@@ -357,6 +363,7 @@ def test_use_sim_time_switched_on_without_a_clock_is_told(spawn_ros, probe):
     probe.node.destroy_publisher(clock)
 
 
+@pytest.mark.dds
 def test_use_sim_time_given_at_the_start_without_a_clock_is_told_once_samples_come(spawn_ros, probe):
     # Given at the start (-p, a parameter file) the clock stood at 0 from the first moment: the
     # node's timers never ran (no ArxModel, no diagnostics) and nothing was said, as samples came.

@@ -210,6 +210,11 @@ def test_replay_errors_are_one_line(ros_domain_id, short_bag, tmp_path):
         assert len(lines) == 1 and lines[0].startswith("okid-ros replay: error: ") and fragment in lines[0], lines
 
 
+# Pass 1 (6 s at rate 2) brings the first models (a window of 1000 rows is valid from 4 s of data); pass 2
+# runs 3 s (750 samples, of which the test asks 200 ModalStates).
+LOOP_BAG_S = 12.0
+
+
 def _states_after_a_jump(received: list) -> int:
     """ModalStates received after the first jump back of their stamps (0 before it)."""
     stamps = np.array([stamp_ns(m) for _, m in list(received)], dtype=np.int64)
@@ -218,7 +223,7 @@ def _states_after_a_jump(received: list) -> int:
 
 
 def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domain_id, tmp_path):
-    """Pass 1 brings the first models; the loop sends the stamps 16 s back.
+    """Pass 1 brings the first models; the loop sends the stamps LOOP_BAG_S back.
 
     With reset_on_time_jump false the nodes go on with their models (the default restart at a
     jump: test_nodes_time_jump.py).
@@ -234,11 +239,11 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
     listener = Listener({"/okid/modal_states": ModalStates})
     try:
         bag = tmp_path / "loop"  # written while the nodes start
-        write_experiment_bag(bag, simulate_experiment(16.0, start_ns=START_NS))
+        write_experiment_bag(bag, simulate_experiment(LOOP_BAG_S, start_ns=START_NS))
         for proc in nodes.values():
             proc.wait_for_output(r"ready:", timeout_s=60)
         listener.wait_for_publishers(["/okid/modal_states"])
-        player = replay(ros_domain_id, str(bag), "--rate", "2", "--loop", "--duration", "13",
+        player = replay(ros_domain_id, str(bag), "--rate", "2", "--loop", "--duration", f"{LOOP_BAG_S / 2 + 3:g}",
                         "--topics", IO_SAMPLE_TOPIC, "--subscribers", "2", "--delay", "0.5")
         assert wait_exit(player, 90) == 0, player.output()
         assert "pass 2 (stamps jump back" in player.output()
@@ -250,7 +255,7 @@ def test_a_looped_replay_jumps_back_in_time_and_the_nodes_keep_running(ros_domai
         jumps = np.flatnonzero(np.diff(stamps) < -1_000_000_000)
         assert len(jumps) == 1, (len(states), stamps[:3], stamps[-3:])
         before, after = states[: jumps[0] + 1], states[jumps[0] + 1:]
-        assert stamp_ns(before[-1]) > START_NS + 10 * 1_000_000_000  # pass 1 ran to its end
+        assert stamp_ns(before[-1]) > START_NS + (LOOP_BAG_S - 2) * 1e9  # pass 1 ran to its end
         assert stamp_ns(after[0]) < START_NS + 2 * 1_000_000_000     # pass 2 from the start again
         assert len(after) > 200, len(after)  # and the estimates went on through the jump
         assert all(np.diff([stamp_ns(m) for m in after]) > 0)
