@@ -24,7 +24,10 @@ the future's; with ``L = J L_p Q`` (``Q`` orthogonal) the weighted Hankel
 ``L^-1 H(0) J L^-T = Q^T M Q`` and the past's directions ``J L^-T (Q^T V) = L_p^-T V`` are the
 module's. ``L`` and ``H(0) J L^-T`` are the first ``i`` block columns of the Cholesky factor of
 the block Toeplitz covariance of past and future together, which the block Schur algorithm
-makes without a dense factor or solve (:func:`_toeplitz_factor`).
+makes without a dense factor or solve (:func:`_toeplitz_factor`). Its last ``i`` block columns,
+``L2``, factor the future's covariance given the past, so ``M M^T = I - W W^T`` with ``W = L^-1
+L2`` a product of triangular matrices: ``U`` comes from that Gram at a third of the flops of
+``M`` and ``M^T M`` (:func:`_reversed_conditional_gram`), ``V = M^T U / s``.
 Every order's ``A`` is a corner of one matrix, so the same
 :class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
 the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
@@ -37,7 +40,7 @@ means are not (their past covariance is indefinite on a one-channel record).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,7 +62,7 @@ def _checked(result: tuple) -> np.ndarray:
     return array
 
 
-def _schur_rows(lagged: np.ndarray, block_rows: int, count: int):
+def _schur_rows(lagged: np.ndarray, block_rows: int, count: int) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(c, row)``: the block Toeplitz covariance's upper Cholesky factor's block row at column ``c``.
 
     The covariance of ``[y_(k-i); ..; y_(k+i-1)]`` (past, then future, in time order) is block
