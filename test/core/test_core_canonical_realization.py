@@ -210,6 +210,22 @@ def test_the_block_schur_factor_is_the_first_block_columns_of_the_dense_cholesky
     assert _toeplitz_factor(_lagged(correlations, references, block_rows), block_rows)[2] is None
 
 
+def test_a_future_the_past_does_not_factor_leaves_the_gram_to_the_past_side() -> None:
+    # R_0 = I outweighs the past's other lags, R_5 = 2 I makes the past-and-future covariance indefinite: the
+    # continued Schur steps fail, the past's factor stands, and M^T M (dtrsm, dsyrk) gives the canonical
+    # correlations in place of I - W W^T.
+    block_rows, p = 3, 2
+    correlations = 0.1 * np.random.default_rng(1).standard_normal((2 * block_rows + 1, p, p))
+    correlations[0], correlations[5] = np.eye(p), 2 * np.eye(p)
+    past, cross, future = _toeplitz_factor(_lagged(correlations, np.arange(p), block_rows), block_rows,
+                                           conditional=True)
+    assert future is None and past.shape == cross.shape == (6, 6)
+    decomposition = canonical_decomposition(correlations, np.arange(p), block_rows, 6)
+    s = _formed_realization(correlations, block_rows, 2)[0]
+    assert decomposition.s.size >= 4
+    np.testing.assert_allclose(decomposition.s, s[: decomposition.s.size], rtol=1e-10)
+
+
 def test_linearly_dependent_references_have_no_canonical_weighting(close_pair_case) -> None:
     _, y = close_pair_case
     y = y - y.mean(axis=0)
