@@ -24,7 +24,10 @@ the future's; with ``L = J L_p Q`` (``Q`` orthogonal) the weighted Hankel
 ``L^-1 H(0) J L^-T = Q^T M Q`` and the past's directions ``J L^-T (Q^T V) = L_p^-T V`` are the
 module's. ``L`` and ``H(0) J L^-T`` are the first ``i`` block columns of the Cholesky factor of
 the block Toeplitz covariance of past and future together, which the block Schur algorithm
-makes without a dense factor or solve (:func:`_toeplitz_factor`).
+makes without a dense factor or solve (:func:`_toeplitz_factor`). Its last ``i`` block columns,
+``L2``, factor the future's covariance given the past, so ``M M^T = I - W W^T`` with ``W = L^-1
+L2`` a product of triangular matrices: ``U`` comes from that Gram at a third of the flops of
+``M`` and ``M^T M`` (:func:`_reversed_conditional_gram`), ``V = M^T U / s``.
 Every order's ``A`` is a corner of one matrix, so the same
 :class:`~.stochastic_realization.OrderRealizer` reads the orders, the diagram, the screening and
 the jackknife. ``A`` by regression on the states ``x_k = S^1/2 V^T L_p^-1 z_k`` (the textbook
@@ -37,7 +40,7 @@ means are not (their past covariance is indefinite on a one-channel record).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,62 +62,117 @@ def _checked(result: tuple) -> np.ndarray:
     return array
 
 
-def _toeplitz_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """``L^T`` and ``(Sigma_fp L^-T)^T`` (i r square each): the first i block columns of the past-and-future factor.
+def _schur_rows(lagged: np.ndarray, block_rows: int, count: int) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield ``(c, row)``: the block Toeplitz covariance's upper Cholesky factor's block row at column ``c``.
 
     The covariance of ``[y_(k-i); ..; y_(k+i-1)]`` (past, then future, in time order) is block
-    Toeplitz, blocks ``R_(a-b)``; its lower Cholesky factor's first ``i`` block columns are
-    ``[L; Sigma_fp L^-T]``, ``L`` the factor of the past's (and, the same matrix, the future's)
-    covariance. The block Schur algorithm (Kailath & Sayed 1999, "Fast reliable algorithms for
-    matrices with structure", ch. 1) makes one block row of ``[L^T, L^-1 Sigma_pf]`` per step from
-    a generator of ``2 r`` rows: ``O(i^2 r^3)`` flops in products of ``r`` rows, where a dense
-    Cholesky factor and its triangular solve take ``4/3 (i r)^3`` (scipy and LAPACK have no block
-    Toeplitz factor: ``solve_toeplitz`` and ``matmul_toeplitz`` are scalar). Each step's
-    ``r``-square Cholesky factors fail exactly when the covariance is not positive definite.
-
-    Raises IdentificationError when it is not positive definite (references that are linearly dependent).
+    Toeplitz, blocks ``R_(a-b)``. The block Schur algorithm (Kailath & Sayed 1999, "Fast reliable
+    algorithms for matrices with structure", ch. 1) makes one block row of its upper factor per
+    step from a generator of ``2 r`` rows: ``O(i^2 r^3)`` flops in products of ``r`` rows, where a
+    dense Cholesky factor takes ``(2 i r)^3 / 3`` (scipy and LAPACK have no block Toeplitz factor:
+    ``solve_toeplitz`` and ``matmul_toeplitz`` are scalar). ``row`` (r, 2 i r - c) holds the
+    columns from ``c`` on, for the first ``count`` block rows; it is a buffer the next step
+    overwrites. Each step's ``r``-square Cholesky factors raise LinAlgError exactly when the
+    leading ``c + r`` rows' covariance is not positive definite.
     """
     i, r = block_rows, lagged.shape[1]
-    n, width = i * r, 2 * i * r
+    width = 2 * i * r
+    # Sigma - Z Sigma Z^T = P^T P - Q^T Q (Z: down one block): P the first block row R_0, R_-1 .. R_-(2i-1)
+    # scaled by R_0's factor, Q the same without its first block. Block row k of the factor is P then.
+    upper = linalg.cholesky(lagged[i], lower=False, check_finite=False)
+    rows = linalg.solve_triangular(upper, lagged[i : 3 * i].transpose(2, 0, 1).reshape(r, width), trans="T",
+                                   check_finite=False)
+    rows[:, :r] = upper  # the product's rounding below the diagonal left out, here and at every step
+    yield 0, rows
+    # The generator (P moved right one block, over Q), contiguous, in one buffer, and each step's small arrays,
+    # made once: a Python step per block row, where fresh arrays (stacks, identities) cost more than the work.
+    generator_buffer = np.empty(2 * r * (width - r))
+    generator = generator_buffer.reshape(2 * r, width - r)
+    generator[:r], generator[r:] = rows[:, : width - r], rows[:, r:]
+    step, eye = np.empty((2 * r, 2 * r)), np.eye(r)
+    upper_rhs, lower_rhs = np.empty((r, 2 * r), order="F"), np.empty((r, 2 * r), order="F")
+    end = count * r
+    for c in range(r, end, r):
+        # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
+        # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
+        p0, q0 = generator[:r, :r], generator[r:, :r]
+        top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
+        upper_rhs[:, :r], upper_rhs[:, r:] = p0.T, -q0.T
+        step[:r] = _checked(lapack.dtrtrs(top, upper_rhs, lower=0, trans=1, overwrite_b=1))
+        last = c + r >= end  # the last row needs no update of Q
+        if not last:
+            ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
+            low = _checked(lapack.dpotrf(eye - ratio @ ratio.T, lower=1, clean=1))
+            lower_rhs[:, :r], lower_rhs[:, r:] = -ratio, eye
+            step[r:] = _checked(lapack.dtrtrs(low, lower_rhs, lower=1, overwrite_b=1))
+        columns = width - c
+        moved = step[: r if last else 2 * r] @ generator
+        moved[:r, :r] = top
+        yield c, moved[:r]
+        if not last:  # P keeps its columns, Q moves left one block
+            generator = generator_buffer[: 2 * r * (columns - r)].reshape(2 * r, columns - r)
+            generator[:r], generator[r:] = moved[:r, : columns - r], moved[r:, r:]
+
+
+def _toeplitz_factor(lagged: np.ndarray, block_rows: int, *, conditional: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``L^T``, ``(Sigma_fp L^-T)^T`` and ``L2^T`` (i r square each) of the past-and-future factor.
+
+    The lower Cholesky factor of the past-and-future covariance (:func:`_schur_rows`) is
+    ``[[L, 0], [Sigma_fp L^-T, L2]]``: ``L`` the factor of the past's (and, the same matrix, the
+    future's) covariance, ``L2 L2^T = Sigma_ff - Sigma_fp Sigma_pp^-1 Sigma_pf`` the future's
+    covariance given the past. ``L2^T`` only where ``conditional`` and its steps succeed, else None.
+    Raises IdentificationError when the past's covariance is not positive definite (references
+    that are linearly dependent).
+    """
+    i, r = block_rows, lagged.shape[1]
+    n = i * r
+    past, cross = np.zeros((n, n)), np.empty((n, n))  # [L^T, L^-1 Sigma_pf]: each block row's two parts
+    future, made = (np.zeros((n, n)) if conditional else None), 0
     try:
-        # Sigma - Z Sigma Z^T = P^T P - Q^T Q (Z: down one block): P the first block row R_0, R_-1 .. R_-(2i-1)
-        # scaled by R_0's factor, Q the same without its first block. Block row k of the factor is P then.
-        upper = linalg.cholesky(lagged[i], lower=False, check_finite=False)
-        rows = linalg.solve_triangular(upper, lagged[i : 3 * i].transpose(2, 0, 1).reshape(r, width), trans="T",
-                                       check_finite=False)
-        rows[:, :r] = upper  # the product's rounding below the diagonal left out, here and at every step
-        past, cross = np.zeros((n, n)), np.empty((n, n))  # [L^T, L^-1 Sigma_pf]: each block row's two parts
-        past[:r], cross[:r] = rows[:, :n], rows[:, n:]
-        # The generator (P moved right one block, over Q), contiguous, in one buffer, and each step's small arrays,
-        # made once: a Python step per block row, where fresh arrays (stacks, identities) cost more than the work.
-        generator_buffer = np.empty(2 * r * (width - r))
-        generator = generator_buffer.reshape(2 * r, width - r)
-        generator[:r], generator[r:] = rows[:, : width - r], rows[:, r:]
-        step, eye = np.empty((2 * r, 2 * r)), np.eye(r)
-        upper_rhs, lower_rhs = np.empty((r, 2 * r), order="F"), np.empty((r, 2 * r), order="F")
-        for c in range(r, n, r):
-            # One J-unitary step zeroes Q's first block and leaves P's triangular: the new P is the factor's row.
-            # LAPACK's own calls on these r-square blocks: scipy's checks cost more than the work here.
-            p0, q0 = generator[:r, :r], generator[r:, :r]
-            top = _checked(lapack.dpotrf(p0.T @ p0 - q0.T @ q0, lower=0, clean=1))
-            upper_rhs[:, :r], upper_rhs[:, r:] = p0.T, -q0.T
-            step[:r] = _checked(lapack.dtrtrs(top, upper_rhs, lower=0, trans=1, overwrite_b=1))
-            last = c + r >= n  # the last row needs no update of Q: only the past's covariance is factored
-            if not last:
-                ratio = _checked(lapack.dtrtrs(p0, q0.T, lower=0, trans=1)).T  # Q0 P0^-1
-                low = _checked(lapack.dpotrf(eye - ratio @ ratio.T, lower=1, clean=1))
-                lower_rhs[:, :r], lower_rhs[:, r:] = -ratio, eye
-                step[r:] = _checked(lapack.dtrtrs(low, lower_rhs, lower=1, overwrite_b=1))
-            columns = width - c
-            moved = step[: r if last else 2 * r] @ generator
-            moved[:r, :r] = top
-            past[c : c + r, c:], cross[c : c + r] = moved[:r, : n - c], moved[:r, n - c :]
-            if not last:  # P keeps its columns, Q moves left one block
-                generator = generator_buffer[: 2 * r * (columns - r)].reshape(2 * r, columns - r)
-                generator[:r], generator[r:] = moved[:r, : columns - r], moved[r:, r:]
+        for c, row in _schur_rows(lagged, i, 2 * i if conditional else i):
+            if c < n:
+                past[c : c + r, c:], cross[c : c + r] = row[:, : n - c], row[:, n - c :]
+            else:
+                future[c - n : c - n + r, c - n :] = row
+            made = c + r
     except linalg.LinAlgError:  # the generator's differences lose what a nearly singular covariance keeps
-        return _dense_factor(lagged, block_rows)
-    return past, cross
+        if made < n:
+            return (*_dense_factor(lagged, block_rows), None)
+        future = None
+    return past, cross, future
+
+
+def _reversed_conditional_gram(past: np.ndarray, future: np.ndarray, *, panel: int = 128) -> np.ndarray:
+    """(n, n) Fortran order, lower triangle ``J (I - W W^T) J``, ``W = L^-1 L2`` (``J`` reverses the order).
+
+    ``past`` and ``future`` are ``L^T`` and ``L2^T`` of :func:`_toeplitz_factor`. With ``M = L^-1
+    Sigma_fp L^-T`` (``X = Sigma_fp L^-T``), ``M M^T = L^-1 X X^T L^-T = L^-1 (L L^T - L2 L2^T)
+    L^-T = I - W W^T``: ``M``'s Gram on the future's side from two triangular matrices. ``W`` is
+    lower triangular, made by panels of ``panel`` rows (forward substitution, the products with
+    the rows already made read only their nonzero columns): ``n^3 / 3`` flops, where ``dtrsm``
+    treats a right-hand side as full (``M`` by ``dtrsm`` and its Gram by ``dsyrk``: ``2 n^3``).
+    ``W W^T`` by LAPACK's ``dlauum`` (the product of a triangular matrix with its transpose, ``n^3
+    / 3``), which takes ``X^T X`` of a lower ``X``: ``X = J W^T J``, whose memory in Fortran order
+    is ``W``'s in C order read backwards.
+    """
+    n = past.shape[0]
+    low, low_future = past.T, future.T  # L, L2 (views)
+    w = np.zeros((n, n))
+    for start in range(0, n, panel):
+        stop = min(start + panel, n)
+        # Rows start:stop of W: L_pp^-1 (L2_p - L_pb W_b), b the rows before; columns from stop on are zero, and
+        # W_b's panel of columns from q on is zero above row q.
+        rhs = low_future[start:stop, :stop].copy()
+        for column in range(0, start, panel):
+            rhs[:, column : column + panel] -= low[start:stop, column:start] @ w[column:start, column : column + panel]
+        w[start:stop, :stop] = blas.dtrsm(1.0, low[start:stop, start:stop], rhs.T, side=1, lower=1, trans_a=1,
+                                          overwrite_b=1).T
+    reversed_w = w.ravel()[::-1].copy().reshape((n, n), order="F")
+    gram = _checked(lapack.dlauum(reversed_w, lower=1, overwrite_c=1))
+    np.negative(gram, out=gram)
+    gram.flat[:: n + 1] += 1.0
+    return gram
 
 
 def _dense_factor(lagged: np.ndarray, block_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -199,6 +257,35 @@ def _lagged(correlations: np.ndarray, references: np.ndarray, block_rows: int) -
     return np.concatenate([ref[i:0:-1].transpose(0, 2, 1), ref])
 
 
+def _leading_pairs(past: np.ndarray, cross: np.ndarray, future: np.ndarray | None, count: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``s`` (descending), ``V`` and ``U s`` (or None) of ``M = L^-1 Sigma_fp L^-T``'s ``count`` leading triplets.
+
+    ``past``, ``cross`` and ``future`` as :func:`_toeplitz_factor` returns them. With the future's
+    conditional factor, ``U`` from ``M M^T`` (:func:`_reversed_conditional_gram`) and ``V = M^T U /
+    s = cross L^-T U / s``; without it (its steps failed), ``V`` from ``M^T M``: ``M`` by ``dtrsm``,
+    its Gram's lower triangle by ``dsyrk`` (half a product's flops), and ``U`` is left to the caller.
+    The leading pairs come alone from the tridiagonal form where that is cheaper (a long record's
+    lags). Singular values below ``1e-7`` of the first are dropped (the Gram squares the condition
+    number).
+    """
+    if future is None:
+        weighted = blas.dtrsm(1.0, past.T, cross.T, lower=1)  # M, future x past (cross kept for its product with V)
+        values, right = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), count, alone=True, overwrite=True)
+        left = None
+    else:
+        values, left = leading_eigh(_reversed_conditional_gram(past, future), count, alone=True, overwrite=True)
+        left = left[::-1]  # the Gram's rows and columns were reversed
+    s = np.sqrt(np.maximum(values, 0.0))
+    keep = s > s[0] * 1e-7 if s.size else s.astype(bool)
+    s = s[keep]
+    if left is None:
+        return s, right[:, keep], None
+    left = left[:, keep] * s
+    right = (cross @ linalg.solve_triangular(past, left, check_finite=False)) / s**2
+    return s, right, left
+
+
 def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, block_rows: int,
                             max_states: int) -> CanonicalDecomposition:
     """The CVA-weighted realization of the module docstring from the record's biased correlations.
@@ -220,27 +307,25 @@ def canonical_decomposition(correlations: np.ndarray, references: np.ndarray, bl
     n = i * r
     # Time order: L (lower, the past's factor, the future's too) and L^-1 Sigma_fp L^-T = L^-1 H(0) J L^-T, the
     # module's M with the past's and the future's blocks both reversed (orthogonal changes: same S and A).
-    past_upper, cross = _toeplitz_factor(lagged, i)
+    past_upper, cross, future = _toeplitz_factor(lagged, i, conditional=True)
     low = past_upper.T  # Fortran order: no copies for BLAS
-    weighted = blas.dtrsm(1.0, low, cross.T, lower=1)  # M, future x past (cross kept for its product with V)
-    # M^T M's lower triangle, all the eigensolver reads (dsyrk: half a product's flops); its
-    # leading pairs alone from the tridiagonal form where that is cheaper (a long record's lags).
-    values, V = leading_eigh(blas.dsyrk(1.0, weighted, trans=1, lower=1), int(min(max_states, n)), alone=True,
-                             overwrite=True)
-    s = np.sqrt(np.maximum(values, 0.0))
-    keep = s > s[0] * 1e-7 if s.size else s.astype(bool)  # the Gram squares the condition number
-    s, V = s[keep], V[:, keep]
+    s, V, left = _leading_pairs(past_upper, cross, future, int(min(max_states, n)))
     # T = J L^-T V: the past's directions on z (the past read backwards, as the Hankel's columns).
     transform = linalg.solve_triangular(past_upper, V, check_finite=False).reshape(i, r, -1)[::-1].reshape(n, -1)
-    # H(0) T = Sigma_fp L^-T V (H(0)'s columns are the past read backwards) = cross^T V, so U = M V / s =
-    # L^-1 H(0) T / s, and U^T L^-1 H(1) T = (L^-1 H(0) T)^T L^-1 H(1) T / s: one product with k columns and one
-    # solve with 2 k (M V as a product costs twice that solve), M(1) never formed. H(1)'s block row a is H(0)'s
-    # a + 1, its last R_(i+1) .. R_2i.
-    hankel_t = cross.T @ V
+    # H(0) T = Sigma_fp L^-T V (H(0)'s columns are the past read backwards) = cross^T V = L M V = L U s, so
+    # U^T L^-1 H(1) T = (U s)^T L^-1 H(1) T / s: with U known, a triangular product and a solve with k columns
+    # (without, cross^T V and a solve with 2 k: M V as a product costs twice that solve), M(1) never formed.
+    # H(1)'s block row a is H(0)'s a + 1, its last R_(i+1) .. R_2i.
+    hankel_t = cross.T @ V if left is None else blas.dtrmm(1.0, low, left, lower=1)
     last_row = lagged[2 * i + 1 :].transpose(1, 0, 2).reshape(r, n)
-    both = np.hstack([hankel_t, np.vstack([hankel_t[r:], last_row @ transform])])
-    solved = linalg.solve_triangular(low, both, lower=True, overwrite_b=True, check_finite=False)
-    shifted = (solved[:, : V.shape[1]].T @ solved[:, V.shape[1] :]) / s[:, None]
+    shifted_t = np.vstack([hankel_t[r:], last_row @ transform])
+    if left is None:
+        solved = linalg.solve_triangular(low, np.hstack([hankel_t, shifted_t]), lower=True, overwrite_b=True,
+                                         check_finite=False)
+        left, solved = solved[:, : V.shape[1]], solved[:, V.shape[1] :]
+    else:
+        solved = linalg.solve_triangular(low, shifted_t, lower=True, overwrite_b=True, check_finite=False)
+    shifted = (left.T @ solved) / s[:, None]
     first_row = correlations[1 : i + 1].transpose(1, 0, 2)[:, :, references].reshape(correlations.shape[1], n)
     # V^T L^T at z's first block: Sigma_z T's first block row, L's last block row times V.
     return CanonicalDecomposition(blocks=correlations[1 : 2 * i + 1][:, :, references], block_rows=i, s=s,

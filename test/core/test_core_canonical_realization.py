@@ -190,7 +190,7 @@ def test_one_factor_whitening_the_past_and_the_future_realizes_what_two_did(clos
 def test_the_block_schur_factor_is_the_first_block_columns_of_the_dense_cholesky_factor(close_pair_case,
                                                                                          references) -> None:
     # [y_(k-i); ..; y_(k+i-1)] in time order has the block Toeplitz covariance of blocks R_(a-b); its lower
-    # Cholesky factor's first i block columns are [L; Sigma_fp L^-T], returned transposed.
+    # Cholesky factor is [[L, 0], [Sigma_fp L^-T, L2]], returned transposed by blocks (L2 only where asked for).
     _, y = close_pair_case
     block_rows = 25
     correlations = record_correlations(y - y.mean(axis=0), 2 * block_rows)
@@ -199,11 +199,31 @@ def test_the_block_schur_factor_is_the_first_block_columns_of_the_dense_cholesky
     covariance = np.block([[lags[a - b] if a >= b else lags[b - a].T for b in range(2 * block_rows)]
                            for a in range(2 * block_rows)])
     factor = linalg.cholesky(covariance, lower=True)
-    past, cross = _toeplitz_factor(_lagged(correlations, references, block_rows), block_rows)
-    assert past.shape == cross.shape == (n, n) and r * block_rows == n
+    past, cross, future = _toeplitz_factor(_lagged(correlations, references, block_rows), block_rows,
+                                           conditional=True)
+    assert past.shape == cross.shape == future.shape == (n, n) and r * block_rows == n
     np.testing.assert_allclose(past, factor[:n, :n].T, rtol=0, atol=1e-11 * np.abs(factor).max())
-    assert np.array_equal(past, np.triu(past))  # exactly triangular: read whole as L's last block row
     np.testing.assert_allclose(cross, factor[n:, :n].T, rtol=0, atol=1e-11 * np.abs(factor).max())
+    np.testing.assert_allclose(future, factor[n:, n:].T, rtol=0, atol=1e-11 * np.abs(factor).max())
+    for upper in (past, future):  # exactly triangular: read whole as triangular factors
+        assert np.array_equal(upper, np.triu(upper))
+    assert _toeplitz_factor(_lagged(correlations, references, block_rows), block_rows)[2] is None
+
+
+def test_a_future_the_past_does_not_factor_leaves_the_gram_to_the_past_side() -> None:
+    # R_0 = I outweighs the past's other lags, R_5 = 2 I makes the past-and-future covariance indefinite: the
+    # continued Schur steps fail, the past's factor stands, and M^T M (dtrsm, dsyrk) gives the canonical
+    # correlations in place of I - W W^T.
+    block_rows, p = 3, 2
+    correlations = 0.1 * np.random.default_rng(1).standard_normal((2 * block_rows + 1, p, p))
+    correlations[0], correlations[5] = np.eye(p), 2 * np.eye(p)
+    past, cross, future = _toeplitz_factor(_lagged(correlations, np.arange(p), block_rows), block_rows,
+                                           conditional=True)
+    assert future is None and past.shape == cross.shape == (6, 6)
+    decomposition = canonical_decomposition(correlations, np.arange(p), block_rows, 6)
+    s = _formed_realization(correlations, block_rows, 2)[0]
+    assert decomposition.s.size >= 4
+    np.testing.assert_allclose(decomposition.s, s[: decomposition.s.size], rtol=1e-10)
 
 
 def test_linearly_dependent_references_have_no_canonical_weighting(close_pair_case) -> None:
