@@ -10,6 +10,7 @@ model, in seconds, hours or days by the campaign's span.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ def campaign_series(out_dir: Path) -> dict[int, dict[str, np.ndarray]]:
     Keys: ``stamp_s``, ``frequency_hz``, ``frequency_hz_std``, ``damping_ratio``, ``damping_ratio_std``,
     ``bag_index``.
     """
-    from okid_ros.errors import DataError
+    from okid_ros.errors import DataError, OkidWarning, shown_path
     from okid_ros.tools.campaign.table import read_modes
 
     names = ("stamp_s", "frequency_hz", "frequency_hz_std", "damping_ratio", "damping_ratio_std", "bag_index")
@@ -45,10 +46,6 @@ def campaign_series(out_dir: Path) -> dict[int, dict[str, np.ndarray]]:
         raise DataError(f"{Path(out_dir) / 'modes.parquet'}: not a modes table of okid-ros batch "
                         f"({' '.join(str(exc).split())})") from None
     if left_out:
-        import warnings
-
-        from okid_ros.errors import OkidWarning, shown_path
-
         why = (f"a stamp_s beyond any ROS 2 time, or a frequency_hz or damping_ratio not finite (okid-ros batch "
                f"writes none; the first: row {left_out[0]})")
         if not arrays:
