@@ -6,10 +6,12 @@ shape, `batch` searching a tree with a folder it may not enter.
 
 from __future__ import annotations
 
+import json
 import pathlib
 import shutil
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from ros_helpers import REPO_ROOT
 from okid_ros.cli import main
 from okid_ros.errors import OkidWarning
 from okid_ros.tools.campaign.discovery import find_bags
+from okid_ros.tools.plot_metadata import check_plot_metadata
 
 CONFIG = REPO_ROOT / "config" / "okid.yaml"
 FAST = ["--param", "publish_rate_hz=0.25", "--param", "realization.max_states=8"]  # as test_bags.py
@@ -60,14 +63,15 @@ def test_plot_dot_from_inside_the_bag_puts_the_figures_beside_it(run, tmp_path, 
     assert_one_line_error(code, err, "no folder to put the figures beside", "--out-dir")
 
 
-def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
+def _with_custom_data(source: Path, bag: Path, documents: dict[str, str]) -> None:
     shutil.copytree(source, bag)
     metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
-    metadata["rosbag2_bagfile_information"]["custom_data"][key] = value
+    metadata["rosbag2_bagfile_information"]["custom_data"].update(documents)
     (bag / "metadata.yaml").write_text(yaml.safe_dump(metadata))
 
 
-@pytest.mark.parametrize(("key", "value", "reason"), [
+#: Metadata documents of the wrong shape: (key, JSON text, the reason plot gives when it leaves the document out).
+SPOILT_DOCUMENTS = [
     ("okid_ros.truth", "[1, 2]", "not a JSON object"),
     ("okid_ros.truth", '{"modes": [1]}', "modes is not a list of objects"),
     ("okid_ros.truth", '{"modes": [{"frequency_hz": null, "damping_ratio": 0.1}]}', "frequency_hz"),
@@ -85,13 +89,38 @@ def _with_custom_data(source: Path, bag: Path, key: str, value: str) -> None:
     ("okid_ros.process", '{"first_stamp_s": 1e300}', "its first_stamp_s is not a ROS 2 time"),
     ("okid_ros.process", '{"parameters": {"okid_modal_estimator": {"sample_time_s": "x"}}}',
      "parameter sample_time_s must be a number, got 'x'; the input bag read with --params or the built-in defaults"),
-])
-def test_plot_leaves_out_a_metadata_document_of_the_wrong_shape(run, tmp_path, capsys, key, value, reason):
+]
+
+
+@pytest.mark.parametrize(("key", "value", "reason"), SPOILT_DOCUMENTS)
+def test_a_metadata_document_of_the_wrong_shape_is_left_out_with_its_reason(key, value, reason):
+    """Each document as plot reads it from metadata.yaml (``custom_json``: JSON text), judged by plot's check."""
+    documents = {"okid_ros.truth": "truth", "okid_ros.stabilization": "stabilization",
+                 "okid_ros.process": "process_info"}
+    data = SimpleNamespace(truth=None, stabilization=None, process_info=None)
+    setattr(data, documents[key], json.loads(value))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_plot_metadata("out", data)
+    said = [str(w.message) for w in caught if issubclass(w.category, OkidWarning)]
+    assert len(said) == 1 and f"{key} is not what plot can draw (" in said[0] and reason in said[0], said
+    assert "left out" in said[0]
+
+
+def test_plot_leaves_out_the_metadata_documents_of_the_wrong_shape_and_draws(run, tmp_path, capsys):
+    """One plot of a bag with a spoilt document under each key (each left out, the process record's bad parts)."""
     bag = tmp_path / "out"
-    _with_custom_data(run["out"], bag, key, value)
+    spoilt = {"okid_ros.truth": '{"modes": [1]}', "okid_ros.stabilization": '[{"n_states": "x", "poles": []}]',
+              "okid_ros.process": '{"first_stamp_s": 1e300, "parameters": {"okid_modal_estimator": '
+                                  '{"sample_time_s": "x"}}}'}
+    _with_custom_data(run["out"], bag, spoilt)
     code, stdout, err = run_cli(capsys, "plot", bag, "--out-dir", tmp_path / "figures")
     assert code == 0, err
-    assert f"{key} is not what plot can draw (" in err and reason in err and "left out" in err
+    for key, reason in (("okid_ros.truth", "modes is not a list of objects"),
+                        ("okid_ros.stabilization", "n_states is not an integer"),
+                        ("okid_ros.process", "its first_stamp_s is not a ROS 2 time"),
+                        ("okid_ros.process", "its parameters of okid_modal_estimator")):
+        assert f"{key} is not what plot can draw (" in err and reason in err, (key, reason, err)
     assert "wrote" in stdout and (tmp_path / "figures" / "modes_over_time.png").is_file()
 
 
