@@ -228,8 +228,9 @@ def arx_fit_from_msg(msg: Any, sample_time_s: float | None = None) -> tuple[ArxF
     """
     m, p, q = int(msg.n_inputs), int(msg.n_outputs), int(msg.order)
     if sample_time_s is not None and not abs(float(msg.sample_time_s) - sample_time_s) <= 1e-9 * sample_time_s:
-        raise ValueError(f"ArxModel of sample time {float(msg.sample_time_s):g} s; this node's sample_time_s is "
-                         f"{sample_time_s:g} s")
+        # repr, not :g: times 1e-6 apart read as one (0.008 and 0.008) at six digits
+        raise ValueError(f"ArxModel of sample time {float(msg.sample_time_s)!r} s; this node's sample_time_s is "
+                         f"{float(sample_time_s)!r} s")
     # Limits of node 1's own parameters: a message beyond them (from anyone on the domain) would
     # size node 2's sample buffer (4e9 rows: a 33 GB allocation that ended the node).
     limits = {spec.name: spec.high for spec in ARX_PARAMS if spec.name in ("arx.order", "arx.window_length")}

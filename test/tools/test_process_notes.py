@@ -7,6 +7,7 @@ warning, never a figure that reads wrong.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -207,8 +208,10 @@ def test_node_2_and_process_ignore_an_arx_model_of_another_sample_time_alike(fac
     offline = OfflineNodes(arx_values, est_values)
     why = offline.take_arx_model(msg)
     assert logged == [why] and node._arx_malformed == offline.summary.arx_malformed == 1
-    assert why == (f"ArxModel 7 ignored: ArxModel of sample time {factor * dt:g} s; this node's sample_time_s is "
-                   f"{dt:g} s")
+    assert why == (f"ArxModel 7 ignored: ArxModel of sample time {factor * dt!r} s; this node's sample_time_s is "
+                   f"{dt!r} s")
+    told = re.search(r"sample time (\S+) s; this node's sample_time_s is (\S+) s", why)
+    assert told and told[1] != told[2]  # the two times told apart, however close (:g said 0.008 and 0.008)
     offline.summary.valid_arx_models = 1
     assert offline.summary.arx_refused_note() == (f"node 2 ignored 1 of the 1 valid ArxModels of node 1, the first: "
                                                   f"{why}")
