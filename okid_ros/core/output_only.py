@@ -77,7 +77,6 @@ from okid_ros.core.output_only_modes import (
 from okid_ros.core.output_only_routes import ROUTES
 from okid_ros.core.output_only_support import (
     Jackknife,
-    chance_of_bump,
     check_channel_sizes,
     check_output_only_options,
     listed_within_limits,
@@ -120,9 +119,6 @@ MIN_SPECTRAL_DOMINANCE = 0.4
 #: A candidate whose jackknife damping scatter is below this times ``zeta`` (and its frequency's below
 #: its route's ``steady_frequency_std_per_width``, :mod:`.output_only_routes`) needs no spectral share.
 STEADY_DAMPING_CV = 0.3
-#: One output: a candidate whose band of the record's periodogram holds its excess with at least this chance
-#: (:func:`.output_only_support.chance_of_bump`) is a bump of the noise, not a mode.
-MAX_CHANCE_OF_BUMP = 0.05
 
 
 def identify_output_only(
@@ -289,8 +285,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     modes, _ = cluster_modes(poles, keep_rejected=False)
     candidates = len(modes)
     if jackknife is not None:
-        bump = partial(chance_of_bump, realizer, r0=r_mean[0], y=y) if y.shape[1] == 1 else None
-        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once, bump=bump,
+        modes = _drop_noise_modes(modes, poles, jackknife, sample_time_s, once=once,
                                   steady_width=route.steady_frequency_std_per_width,
                                   dominance=partial(spectral_dominance, spectrum, r0=r_mean[0], references=references))
     n_model = lowest_complete_order(modes)
@@ -403,7 +398,7 @@ def _scattered(f_std: float, z_std: float, frequency_hz: float, damping_ratio: f
 
 
 def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackknife, sample_time_s: float, *,
-                      dominance, once: bool, steady_width: float, bump=None) -> list[ModeCluster]:
+                      dominance, once: bool, steady_width: float) -> list[ModeCluster]:
     """The candidate modes whose jackknife scatter and spectral share say they are structural (step 4).
 
     Each candidate is judged at its own median order (a mode's pole is best resolved where its
@@ -414,7 +409,6 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
     and the noise pole beside it) the one that passes with the largest share is kept; ``once``:
     and of twins from two clusters too (:func:`.output_only_modes.drop_listed_twice`).
     ``steady_width``: the route's :attr:`.output_only_routes.OutputOnlyRoute.steady_frequency_std_per_width`.
-    ``bump(n, pole)``: one output, the chance of the pole's spectral excess (:data:`MAX_CHANCE_OF_BUMP`).
     """
     best: dict[int, tuple[float, ModeCluster, bool]] = {}
     for mode in modes:
@@ -433,8 +427,6 @@ def _drop_noise_modes(modes: list[ModeCluster], poles: PoleSet, jackknife: Jackk
             # a flat noise floor: of what their poles leave, a mode stands out again, a noise pole not.
             others = [poles.eigenvalue[m.members[n_home]] for m in modes if m is not mode and n_home in m.members]
             stands_out = dominance(n_home, target, others=others) >= MIN_REMAINING_DOMINANCE
-        if bump is not None and bump(n_home, target) > MAX_CHANCE_OF_BUMP:
-            continue
         if (stands_out or steady) and share > best.get(mode.group, (-np.inf,))[0]:
             best[mode.group] = (share, mode, steady)
     if not once:

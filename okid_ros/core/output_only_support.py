@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy import linalg, special
+from scipy import linalg
 
 from okid_ros.core.channels import channel_mean, channel_std, column_peaks
 from okid_ros.core.excitation import output_problem
@@ -332,32 +332,3 @@ def spectral_dominance(realizer: OrderRealizer, n_states: int, target: complex, 
         if rest:
             spectrum -= along(terms[sorted(rest)].sum(axis=0))
     return along(own) / spectrum if spectrum > 0 else 0.0
-
-
-def chance_of_bump(realizer: OrderRealizer, n_states: int, target: complex, r0: np.ndarray, y: np.ndarray) -> float:
-    """Chance that a one-output record's periodogram holds a pole's excess over its half-power band by chance.
-
-    The null is the covariance model's spectrum without the pole's pair (the partial fractions of
-    :func:`spectral_dominance`); under it the periodogram's bins are independent exponentials of those
-    means, their sum over the band a Gamma of the same mean and variance. The chance of the band's sum
-    is taken over the ``pi / (2 half-width)`` bands a pole of this width could have been found in.
-    """
-    _, C, G = realizer.realize(n_states)
-    eigenvalues, vectors = realizer.eigen(n_states)
-    left, right = linalg.solve(vectors, G)[:, 0], (C @ vectors)[0]
-    j = int(np.argmin(np.abs(eigenvalues - target)))
-    pair = [j, int(np.argmin(np.abs(eigenvalues - np.conj(eigenvalues[j]))))]
-    centre, half = float(np.angle(eigenvalues[j])), float(-np.log(abs(eigenvalues[j])))
-    n = y.shape[0]
-    bins = np.arange(max(1, int(np.ceil((centre - half) * n / (2 * np.pi)))),
-                     min((n + 1) // 2, int(np.floor((centre + half) * n / (2 * np.pi))) + 1))
-    if bins.size == 0:
-        return 0.0  # a band narrower than the record's resolution: nothing to judge it by
-    periodogram = np.abs(np.fft.rfft(y[:, 0])[bins]) ** 2 / n
-    terms = (right * left)[:, None] / (np.exp(2j * np.pi * bins / n)[None, :] - eigenvalues[:, None])
-    null = float(r0[0, 0]) + 2 * np.real(np.delete(terms, pair, axis=0).sum(axis=0))
-    if null.sum() <= 0:
-        return 0.0  # the pole is all the model's spectrum there
-    count = float(null.sum() ** 2 / np.sum(null ** 2))
-    chance = float(special.gammaincc(count, count * periodogram.sum() / null.sum()))
-    return float(-np.expm1(np.pi / (2 * half) * np.log1p(-min(chance, 1.0 - 1e-16))))
