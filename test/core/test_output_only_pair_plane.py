@@ -1,4 +1,4 @@
-"""A close pair's member whose complex shape lies in its complex partner's real plane: kept above the MPC floor's refusal."""
+"""A close pair's member whose complex shape lies in its complex partner's real plane: kept below the MPC floor."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def _pair(own: np.ndarray) -> list[float]:
 
 
 def test_a_pair_member_mixed_within_its_partners_real_plane_is_kept() -> None:
-    """Tower 4's 16.83 Hz (4 outputs, MPC 0.10 at 45 orders, its partner 0.37): both members' shapes mix the plane's two.
+    """Tower 4's 16.83 Hz (4 outputs, MPC 0.10 at 45 orders, its partner 0.37): both members mix the plane's two shapes.
 
     With the partner's shape projected out the rest is as complex as the partner (MPC 0.36, under the
     0.5 of noise at 3 outputs): refused before; it lies wholly in the partner's real plane.
