@@ -17,7 +17,7 @@ from scipy.optimize import brentq
 __all__ = ["PAIR_PLANE_NOISE_SHARE", "pair_plane_floor", "share_in_real_plane"]
 
 #: A shape lies in its partner's real plane as one of a pair when noise alone would lie in it as much only this
-#: often (:func:`pair_plane_floor`): 0.94 of its energy at 4 outputs, 0.77 at 6, 0.65 at 8. Towers of
+#: often (:func:`pair_plane_floor`): 0.94 of its energy at 4 outputs, 0.78 at 6, 0.64 at 8. Towers of
 #: families-2 seeds 0-89: the members the MPC floor refused read 0.99-1.00 at 4-8 outputs.
 PAIR_PLANE_NOISE_SHARE = 0.01
 
