@@ -75,6 +75,7 @@ from okid_ros.core.output_only_modes import (
     mark_stable,
 )
 from okid_ros.core.output_only_routes import ROUTES
+from okid_ros.core.output_only_std import STD_SEGMENTS, std_replicates, std_segment_count
 from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
@@ -134,6 +135,7 @@ def identify_output_only(
     valid: np.ndarray | None = None,
     workers: int = 1,
     max_gap: int = MAX_GAP_SAMPLES,
+    std_segments: int = STD_SEGMENTS,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -162,6 +164,9 @@ def identify_output_only(
     max_gap : the longest run of filled samples taken (node 2's ``estimator.max_gap_samples``).
     workers : threads for the orders' and the jackknife's decompositions (:mod:`.worker_threads`):
         the same model for any number, sooner with more cores (``okid-ros identify``: every core).
+    std_segments : (ssi-cva) most segments of the listed modes' standard deviations' jackknife, each
+        at least :data:`.output_only_std.MIN_SEGMENT_LAGS` lag windows (:mod:`.output_only_std`);
+        0, or no more than the screening's: the screening's jackknife's (5-8 segments).
 
     Returns
     -------
@@ -172,7 +177,8 @@ def identify_output_only(
     IdentificationError with a one-line reason.
     """
     check_output_only_options(method, harmonics, methods=OUTPUT_ONLY_METHODS, max_states=max_states,
-                              block_rows=block_rows, low_band=low_band, workers=workers, max_gap=max_gap)
+                              block_rows=block_rows, low_band=low_band, workers=workers, max_gap=max_gap,
+                              std_segments=std_segments)
     y, present, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=valid, max_gap=max_gap)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
@@ -184,7 +190,7 @@ def identify_output_only(
     with WorkerThreads(workers) as threads:
         model, replicate_shapes = _identified(
             y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES), block_rows=block_rows,
-            present=present, low_band=low_band, threads=threads, warnings=warnings)
+            present=present, low_band=low_band, threads=threads, warnings=warnings, std_segments=std_segments)
         model = restore_model(model, scales)  # one scale for every output: the replicates' shapes keep their ratios
         model.modes = separate_twin_shapes(model.modes, replicate_shapes=replicate_shapes)
     model.output_offset, model.warnings = offset, warnings
@@ -192,15 +198,15 @@ def identify_output_only(
 
 
 def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str]
-                ) -> tuple[IdentifiedModel, Callable | None]:
+                present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str],
+                std_segments: int = 0) -> tuple[IdentifiedModel, Callable | None]:
     """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``).
 
     Also ``replicate_shapes(mode)``, the jackknife's replicates' shapes of a listed mode's pole
     (:meth:`.output_only_support.Jackknife.shapes`; None without a jackknife).
     """
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
-                           threads=threads)
+                           threads=threads, std_segments=std_segments)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
     if chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
@@ -218,7 +224,7 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     model = _package(A, C, L, Re, matched, sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
-    _attach_std(model, chosen.jackknife, n_model, matched, poles)
+    _attach_std(model, chosen.jackknife, n_model, matched, poles, finer=chosen.std_jackknife)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
@@ -239,16 +245,18 @@ class _Selection:
     jackknife: Jackknife | None
     var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
     n_model: int
+    std_jackknife: Jackknife | None = None  # the listed modes' standard deviations' (None: ``jackknife``)
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                  once: bool = True, present: np.ndarray | None = None, threads: WorkerThreads = SERIAL
-                  ) -> _Selection:
+                  once: bool = True, present: np.ndarray | None = None, threads: WorkerThreads = SERIAL,
+                  std_segments: int = 0) -> _Selection:
     """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
 
     ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
     where a true pair of one shape was taken for twins). ``present``: (N,) False at samples
     filled in gaps, left out of the correlations (the VAR route fits the filled record).
+    ``std_segments``: (ssi-cva) the standard deviations' jackknife's most segments (:mod:`.output_only_std`).
     """
     references = reference_channels(y, MAX_REFERENCES)
     route = ROUTES[method]
@@ -275,6 +283,11 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
             replicates = var_replicates(y, block_rows, n_segments, top)
         jackknife = Jackknife(correlations, references, block_rows, top, threads=threads, decompose=replicates,
                               start=None if var is not None else decomposition.basis)
+    finer = std_segment_count(y.shape[0], 2 * block_rows, std_segments) if method == "ssi-cva" else 0
+    std_jackknife = None
+    if jackknife is not None and finer > n_segments:
+        spans, replicates = std_replicates(record, finer, present, references, block_rows, top)
+        std_jackknife = Jackknife(spans, references, block_rows, top, threads=threads, decompose=replicates)
     realizer = OrderRealizer(decomposition, top)
     # The spectral share reads a covariance model: the VAR route's A, C with G from the record's correlations.
     spectrum = realizer if var is None else VarCovarianceModel(realizer, r_mean, references, block_rows)
@@ -291,7 +304,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError(_no_mode_reason(candidates, route.warning))
-    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model, std_jackknife)
 
 
 def _no_mode_reason(candidates: int, route_warning: str) -> str:
@@ -341,8 +354,8 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,
-                matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
-    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go."""
+                matched: list[tuple[complex, ModeCluster]], poles: PoleSet, *, finer: Jackknife | None = None) -> None:
+    """Jackknife deviations (``finer``'s if given: :mod:`.output_only_std`); what ``jackknife`` calls noise goes."""
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
@@ -353,6 +366,12 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
     if ROUTES[model.method].screens_listed_std:
         model.keep_modes(listed_within_limits(model.modes, _scattered))
+    if finer is not None and model.modes:
+        by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
+        f_std, z_std = _jackknife_std(finer, by_pole, poles, n_model, model.sample_time_s)
+        for mode, fs, zs in zip(model.modes, f_std, z_std):
+            mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
+        model.uncertainty = UncertaintyResult(True, "", 0, len(finer.realizers), method="jackknife")
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
