@@ -75,7 +75,7 @@ from okid_ros.core.output_only_modes import (
     mark_stable,
 )
 from okid_ros.core.output_only_routes import ROUTES
-from okid_ros.core.output_only_std import STD_SEGMENTS, std_replicates, std_segment_count
+from okid_ros.core.output_only_std import STD_SEGMENTS, attach_finer_std, std_replicates, std_segment_count
 from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
@@ -224,10 +224,15 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     model = _package(A, C, L, Re, matched, sample_time_s,
                      method=method, gain_method=gain_method, arx=None if var is None else var[0],
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
-    _attach_std(model, chosen.jackknife, n_model, matched, poles, finer=chosen.std_jackknife)
+    _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
-            _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
+            _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads,
+                          std_segments=std_segments), dt))
+    if chosen.std_jackknife is not None and model.modes:
+        by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
+        attach_finer_std(model, *_jackknife_std(chosen.std_jackknife, by_pole, poles, n_model, sample_time_s),
+                         segments=len(chosen.std_jackknife.realizers))
     if chosen.jackknife is None:
         return model, None
     return model, lambda mode: chosen.jackknife.shapes(mode.eigenvalue, n_model, sample_time_s)
@@ -327,9 +332,12 @@ def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
         return []
     targets = np.array([ev for ev, _ in pairs])
     f_std, z_std = _jackknife_std(chosen.jackknife, pairs, chosen.poles, chosen.n_model, sample_time_s)
+    finer = zip(*(_jackknife_std(chosen.std_jackknife, pairs, chosen.poles, chosen.n_model, sample_time_s)
+                  if chosen.std_jackknife is not None else (f_std, z_std)))  # the values the low band lists
     s = np.log(targets) / sample_time_s
-    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si),
-             "frequency_hz_std": float(fs), "damping_ratio_std": float(zs)} for si, fs, zs in zip(s, f_std, z_std)]
+    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si), "frequency_hz_std": float(fs),
+             "damping_ratio_std": float(zs), "finer_std": tuple(map(float, fine))}
+            for si, fs, zs, fine in zip(s, f_std, z_std, finer)]
 
 
 def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None,
@@ -354,8 +362,8 @@ def _usable_order(top: int, hankel_rank: int) -> int:
 
 
 def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: int,
-                matched: list[tuple[complex, ModeCluster]], poles: PoleSet, *, finer: Jackknife | None = None) -> None:
-    """Jackknife deviations (``finer``'s if given: :mod:`.output_only_std`); what ``jackknife`` calls noise goes."""
+                matched: list[tuple[complex, ModeCluster]], poles: PoleSet) -> None:
+    """The jackknife's standard deviations (kept: the clusters' spread without one); modes they call noise go."""
     if jackknife is None:
         model.uncertainty = UncertaintyResult(True, "", 0, 0, method="spread across model orders")
         return
@@ -366,12 +374,7 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
     model.uncertainty = UncertaintyResult(True, "", 0, len(jackknife.realizers), method="jackknife")
     if ROUTES[model.method].screens_listed_std:
         model.keep_modes(listed_within_limits(model.modes, _scattered))
-    if finer is not None and model.modes:
-        by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
-        f_std, z_std = _jackknife_std(finer, by_pole, poles, n_model, model.sample_time_s)
-        for mode, fs, zs in zip(model.modes, f_std, z_std):
-            mode.frequency_hz_std, mode.damping_ratio_std = float(fs), float(zs)
-        model.uncertainty = UncertaintyResult(True, "", 0, len(finer.realizers), method="jackknife")
+
 
 
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,

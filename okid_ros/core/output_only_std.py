@@ -16,9 +16,11 @@ from __future__ import annotations
 import numpy as np
 
 from okid_ros.core.canonical_realization import canonical_replicates
+from okid_ros.core.identified_model import IdentifiedModel
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
+from okid_ros.core.uncertainty import UncertaintyResult
 
-__all__ = ["STD_SEGMENTS", "MIN_SEGMENT_LAGS", "std_segment_count", "std_spans", "std_replicates"]
+__all__ = ["STD_SEGMENTS", "MIN_SEGMENT_LAGS", "std_segment_count", "std_spans", "std_replicates", "attach_finer_std"]
 
 #: Most segments of the listed modes' standard deviations' jackknife (0: the screening's, as before).
 STD_SEGMENTS = 20
@@ -49,3 +51,19 @@ def std_replicates(record: RecordSums, n_segments: int, present: np.ndarray | No
     """(spans, ``replicate(j)``) of the standard deviations' jackknife (:func:`std_spans`)."""
     spans = std_spans(record, n_segments, present)
     return spans, canonical_replicates(record, spans, references, block_rows, max_states)
+
+
+def attach_finer_std(model: IdentifiedModel, f_std: np.ndarray, z_std: np.ndarray, *, segments: int) -> None:
+    """The listed modes' deviations ``f_std``, ``z_std`` (M,) from ``segments`` segments, where the low band gave none.
+
+    A mode the decimated record re-estimated (:mod:`.output_only_low_band`, ``extras["decimation"]``)
+    keeps that record's damping deviation, and its frequency's when it lists that record's frequency.
+    Which modes are listed, their values and the low band's choice are the screening jackknife's.
+    """
+    for mode, fs, zs in zip(model.modes, f_std, z_std):
+        low = "decimation" in mode.extras
+        if not low or mode.frequency_hz == mode.extras["full_rate_frequency_hz"]:
+            mode.frequency_hz_std = float(fs)
+        if not low:
+            mode.damping_ratio_std = float(zs)
+    model.uncertainty = UncertaintyResult(True, "", 0, int(segments), method="jackknife")

@@ -25,7 +25,8 @@ def test_a_first_stage_record_gets_deviations_of_more_segments_and_the_same_mode
     screening = identify_output_only(y, dt, std_segments=0)
     assert screening.uncertainty.rows_used == 5
     assert finer.uncertainty.rows_used == STD_SEGMENTS
-    assert [m.eigenvalue for m in finer.modes] == [m.eigenvalue for m in screening.modes]
+    assert [(m.eigenvalue, m.frequency_hz, m.damping_ratio) for m in finer.modes] == [
+        (m.eigenvalue, m.frequency_hz, m.damping_ratio) for m in screening.modes]
     np.testing.assert_array_equal(finer.A, screening.A)
     np.testing.assert_array_equal(finer.K, screening.K)
     f_finer = np.array([m.frequency_hz_std for m in finer.modes])
