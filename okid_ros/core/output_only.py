@@ -376,7 +376,6 @@ def _attach_std(model: IdentifiedModel, jackknife: Jackknife | None, n_model: in
         model.keep_modes(listed_within_limits(model.modes, _scattered))
 
 
-
 def _jackknife_std(jackknife: Jackknife, matched: list[tuple[complex, ModeCluster | None]], poles: PoleSet,
                    n_model: int, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Standard deviations of the poles ``matched`` (eigenvalue at ``n_model``, its cluster).
