@@ -75,6 +75,7 @@ from okid_ros.core.output_only_modes import (
     mark_stable,
 )
 from okid_ros.core.output_only_routes import ROUTES
+from okid_ros.core.output_only_std import STD_SEGMENTS, attach_finer_std, std_replicates, std_segment_count
 from okid_ros.core.output_only_support import (
     Jackknife,
     check_channel_sizes,
@@ -135,6 +136,7 @@ def identify_output_only(
     valid: np.ndarray | None = None,
     workers: int = 1,
     max_gap: int = MAX_GAP_SAMPLES,
+    std_segments: int = STD_SEGMENTS,
 ) -> IdentifiedModel:
     """Identify an innovation model and its modes from outputs alone.
 
@@ -163,6 +165,9 @@ def identify_output_only(
     max_gap : the longest run of filled samples taken (node 2's ``estimator.max_gap_samples``).
     workers : threads for the orders' and the jackknife's decompositions (:mod:`.worker_threads`):
         the same model for any number, sooner with more cores (``okid-ros identify``: every core).
+    std_segments : (ssi-cva) most segments of the listed modes' standard deviations' jackknife, each
+        at least :data:`.output_only_std.MIN_SEGMENT_LAGS` lag windows (:mod:`.output_only_std`);
+        0, or no more than the screening's: the screening's jackknife's (5-8 segments).
 
     Returns
     -------
@@ -173,7 +178,8 @@ def identify_output_only(
     IdentificationError with a one-line reason.
     """
     check_output_only_options(method, harmonics, methods=OUTPUT_ONLY_METHODS, max_states=max_states,
-                              block_rows=block_rows, low_band=low_band, workers=workers, max_gap=max_gap)
+                              block_rows=block_rows, low_band=low_band, workers=workers, max_gap=max_gap,
+                              std_segments=std_segments)
     y, present, offset, warnings = prepare_outputs(y, sample_time_s, offsets, valid=valid, max_gap=max_gap)
     # One power of two for every output (exact, and every step below is unchanged by a common
     # factor): records near the float64 limits neither overflow nor underflow the correlations.
@@ -185,7 +191,7 @@ def identify_output_only(
     with WorkerThreads(workers) as threads:
         model, replicate_shapes = _identified(
             y, sample_time_s, method=method, top=int(max_states or DEFAULT_MAX_STATES), block_rows=block_rows,
-            present=present, low_band=low_band, threads=threads, warnings=warnings)
+            present=present, low_band=low_band, threads=threads, warnings=warnings, std_segments=std_segments)
         model = restore_model(model, scales)  # one scale for every output: the replicates' shapes keep their ratios
         model.modes = separate_twin_shapes(model.modes, replicate_shapes=replicate_shapes)
     model.output_offset, model.warnings = offset, warnings
@@ -193,15 +199,15 @@ def identify_output_only(
 
 
 def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str]
-                ) -> tuple[IdentifiedModel, Callable | None]:
+                present: np.ndarray | None, low_band: bool, threads: WorkerThreads, warnings: list[str],
+                std_segments: int = 0) -> tuple[IdentifiedModel, Callable | None]:
     """Steps 2-6 of the module on the prepared record, in its scaled units (its notes added to ``warnings``).
 
     Also ``replicate_shapes(mode)``, the jackknife's replicates' shapes of a listed mode's pole
     (:meth:`.output_only_support.Jackknife.shapes`; None without a jackknife).
     """
     chosen = _select_modes(y, sample_time_s, method=method, top=top, block_rows=block_rows, present=present,
-                           threads=threads)
+                           threads=threads, std_segments=std_segments)
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
     if chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
@@ -222,7 +228,12 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
         refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(_select_modes(
-            low, dt, method=method, top=top, block_rows=rows, once=False, screened_only=True, threads=threads), dt))
+            low, dt, method=method, top=top, block_rows=rows, once=False, screened_only=True, threads=threads,
+            std_segments=std_segments), dt))
+    if chosen.std_jackknife is not None and model.modes:
+        by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
+        attach_finer_std(model, *_jackknife_std(chosen.std_jackknife, by_pole, poles, n_model, sample_time_s),
+                         segments=len(chosen.std_jackknife.realizers))
     if chosen.jackknife is None:
         return model, None
     return model, lambda mode: chosen.jackknife.shapes(mode.eigenvalue, n_model, sample_time_s)
@@ -240,11 +251,12 @@ class _Selection:
     jackknife: Jackknife | None
     var: tuple | None  # the VAR and its stochastic Markov parameters (method "var")
     n_model: int
+    std_jackknife: Jackknife | None = None  # the listed modes' standard deviations' (None: ``jackknife``)
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
                   once: bool = True, screened_only: bool = False, present: np.ndarray | None = None,
-                  threads: WorkerThreads = SERIAL) -> _Selection:
+                  threads: WorkerThreads = SERIAL, std_segments: int = 0) -> _Selection:
     """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
 
     ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
@@ -253,6 +265,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     :func:`_mode_values`), so a record of fewer than :data:`MIN_JACKKNIFE_SEGMENTS` segments
     raises IdentificationError before any decomposition. ``present``: (N,) False at samples
     filled in gaps, left out of the correlations (the VAR route fits the filled record).
+    ``std_segments``: (ssi-cva) the standard deviations' jackknife's most segments (:mod:`.output_only_std`).
     """
     references = reference_channels(y, MAX_REFERENCES)
     route = ROUTES[method]
@@ -281,6 +294,11 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
             replicates = var_replicates(y, block_rows, n_segments, top)
         jackknife = Jackknife(correlations, references, block_rows, top, threads=threads, decompose=replicates,
                               start=None if var is not None else decomposition.basis)
+    finer = std_segment_count(y.shape[0], 2 * block_rows, std_segments) if method == "ssi-cva" else 0
+    std_jackknife = None
+    if jackknife is not None and finer > n_segments:
+        spans, replicates = std_replicates(record, finer, present, references, block_rows, top)
+        std_jackknife = Jackknife(spans, references, block_rows, top, threads=threads, decompose=replicates)
     realizer = OrderRealizer(decomposition, top)
     # The spectral share reads a covariance model: the VAR route's A, C with G from the record's correlations.
     spectrum = realizer if var is None else VarCovarianceModel(realizer, r_mean, references, block_rows)
@@ -297,7 +315,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
     n_model = lowest_complete_order(modes)
     if n_model is None:
         raise IdentificationError(_no_mode_reason(candidates, route.warning))
-    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model)
+    return _Selection(modes, poles, realizer, r_mean, block_rows, jackknife, var, n_model, std_jackknife)
 
 
 def _no_mode_reason(candidates: int, route_warning: str) -> str:
@@ -320,9 +338,12 @@ def _mode_values(chosen: _Selection, sample_time_s: float) -> list[dict]:
         return []
     targets = np.array([ev for ev, _ in pairs])
     f_std, z_std = _jackknife_std(chosen.jackknife, pairs, chosen.poles, chosen.n_model, sample_time_s)
+    finer = zip(*(_jackknife_std(chosen.std_jackknife, pairs, chosen.poles, chosen.n_model, sample_time_s)
+                  if chosen.std_jackknife is not None else (f_std, z_std)))  # the values the low band lists
     s = np.log(targets) / sample_time_s
-    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si),
-             "frequency_hz_std": float(fs), "damping_ratio_std": float(zs)} for si, fs, zs in zip(s, f_std, z_std)]
+    return [{"frequency_hz": abs(si) / (2 * np.pi), "damping_ratio": -si.real / abs(si), "frequency_hz_std": float(fs),
+             "damping_ratio_std": float(zs), "finer_std": tuple(map(float, fine))}
+            for si, fs, zs, fine in zip(s, f_std, z_std, finer)]
 
 
 def _block_rows(y: np.ndarray, sample_time_s: float, references: np.ndarray, top: int, block_rows: int | None,

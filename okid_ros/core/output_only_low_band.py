@@ -97,7 +97,9 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
         mode.extras.update(full_rate_frequency_hz=mode.frequency_hz, full_rate_damping_ratio=mode.damping_ratio,
                            decimation=factor, block_rows=block_rows)
         # The longer lags are for the decay; a frequency the full rate already holds more tightly stands.
+        # Judged by the screening jackknife's deviations; listed with ``finer_std`` where given (the deviations').
+        f_std, z_std = better.get("finer_std", (better["frequency_hz_std"], better["damping_ratio_std"]))
         if not better["frequency_hz_std"] >= mode.frequency_hz_std:
             mode.frequency_hz, mode.frequency_rad_s = better["frequency_hz"], 2 * np.pi * better["frequency_hz"]
-            mode.frequency_hz_std = better["frequency_hz_std"]
-        mode.damping_ratio, mode.damping_ratio_std = better["damping_ratio"], better["damping_ratio_std"]
+            mode.frequency_hz_std = f_std
+        mode.damping_ratio, mode.damping_ratio_std = better["damping_ratio"], z_std

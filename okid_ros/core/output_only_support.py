@@ -125,7 +125,7 @@ def match_clusters(modes: list[ModeCluster], poles: PoleSet, n_model: int) -> li
 
 
 def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str, ...], max_states, block_rows,
-                              low_band, workers, max_gap) -> None:
+                              low_band, workers, max_gap, std_segments=0) -> None:
     """IdentificationError naming an unknown method or harmonics option, a bad count or a non-bool ``low_band``.
 
     ``max_states`` 0 was taken for the default, a negative one said "the Hankel matrix has rank below
@@ -141,8 +141,9 @@ def check_output_only_options(method: str, harmonics: str, *, methods: tuple[str
     for name, value, least, why in (("max_states", max_states, 2, "a mode takes two states; or None"),
                                     ("block_rows", block_rows, 2, "Hankel block rows; or None"),
                                     ("workers", workers, 1, "threads"),
-                                    ("max_gap", max_gap, 0, "the longest run of filled samples")):
-        if (value is not None or name in ("workers", "max_gap")) and (
+                                    ("max_gap", max_gap, 0, "the longest run of filled samples"),
+                                    ("std_segments", std_segments, 0, "the deviations' jackknife's segments")):
+        if (value is not None or name in ("workers", "max_gap", "std_segments")) and (
                 isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least):
             raise IdentificationError(f"{name} must be an integer >= {least} ({why}), got {value!r}")
 
