@@ -220,8 +220,11 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
-        refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
+        merged = refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
             _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
+        if merged:  # a pole standing for a pair the longer lags resolve is not a mode
+            model.keep_modes([mode for mode in model.modes if all(mode is not pair.mode for pair in merged)])
+            warnings += [pair.warning() for pair in merged]
     if chosen.jackknife is None:
         return model, None
     return model, lambda mode: chosen.jackknife.shapes(mode.eigenvalue, n_model, sample_time_s)
