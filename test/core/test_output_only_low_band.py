@@ -3,6 +3,9 @@
 Random records 82, 91 and 38 of ``bench/output_only.py --cases random`` (ssi-cva) lost a slow mode
 found within 0.5 % at the full rate to a decimated estimate 0.56-0.63 % off with a larger
 jackknife frequency standard deviation (docs/benchmarks-output-only.md, forty-third session).
+
+A tuned mass damper's pair of modes, which the full rate reads as one pole between them and the
+decimated record's longer lags resolve, is not listed (forty-ninth session).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from okid_bench.families_two import family_two_case
 from okid_bench.output_only_cases import random_case
 from okid_ros.core.modal import Mode
 from okid_ros.core.output_only import identify_output_only
@@ -40,3 +44,35 @@ def test_a_slow_mode_found_at_the_full_rate_is_kept(index: int) -> None:
     listed = np.array([m.frequency_hz for m in model.modes])
     for true in case.truth():
         assert np.min(np.abs(listed / true["frequency_hz"] - 1)) <= 0.005, f"{true['frequency_hz']:.3f} Hz missed"
+
+
+def _slow_mode(frequency_hz: float, damping_ratio: float) -> Mode:
+    pole = np.exp(0.01 * 2 * np.pi * frequency_hz * (-damping_ratio + 1j * np.sqrt(1 - damping_ratio ** 2)))
+    return Mode(2 * np.pi * frequency_hz, frequency_hz, damping_ratio, pole, np.ones(2, complex) / np.sqrt(2),
+                1.0, 1.0, 1.0, True, True, frequency_hz_std=1e-3, damping_ratio_std=2e-3)
+
+
+@pytest.mark.parametrize(("decimated_hz", "other_hz", "pair"), [
+    ((0.95, 1.07, 3.0), 1.2, (0.95, 1.07)),  # one on each side, within one bandwidth (0.1 Hz): a pair
+    ((0.95, 1.12, 3.0), 1.2, None),  # the upper one beyond a bandwidth
+    ((0.95, 1.07, 3.0), 1.12, None),  # the upper one nearer the other listed mode
+    ((0.95, 1.005, 1.07), 1.2, None),  # found again within 1 %: refined, not a pair
+    ((0.92, 0.95, 3.0), 1.2, None),  # both below
+])
+def test_a_slow_mode_the_decimated_record_resolves_into_a_pair_is_returned(decimated_hz, other_hz, pair) -> None:
+    y = np.random.default_rng(0).standard_normal((20000, 2))
+    modes = [_slow_mode(1.0, 0.05), _slow_mode(other_hz, 0.01)]
+    decimated = [{"frequency_hz": f, "damping_ratio": 0.05, "frequency_hz_std": 1e-3, "damping_ratio_std": 1e-3}
+                 for f in decimated_hz]
+    merged = refine_low_modes(SimpleNamespace(modes=modes), y, 0.01, lambda low, dt, rows: decimated)
+    assert [(m.mode.frequency_hz, m.below_hz, m.above_hz) for m in merged] == ([] if pair is None else [(1.0, *pair)])
+
+
+def test_a_tuned_mass_dampers_pair_read_as_one_pole_is_not_listed() -> None:
+    case = family_two_case(87)  # a 3 % TMD on mode 1: 21.68 and 25.04 Hz, both about 5.4 % damped
+    model = identify_output_only(case.simulate(87, 35000), case.sample_time_s)
+    structural = np.sort(np.abs(case.structural_poles)) / (2 * np.pi)
+    listed = np.array([m.frequency_hz for m in model.modes])
+    off = np.min(np.abs(listed[:, None] / structural[None, :] - 1), axis=1)
+    assert np.all(off <= 0.02), f"{listed[off > 0.02]} Hz: not a mode of the structure"
+    assert any("resolve at 21.7" in w and "and 24.6" in w for w in model.warnings), model.warnings
