@@ -31,6 +31,11 @@ $(SETUP_STAMP): $(SETUP_INPUTS)
 	VENV="$(VENV)" PYTHON="$(PYTHON)" bash scripts/setup_venv.sh
 	touch "$@"
 
+# The test runs write bytecode though the environment may say not to (PYTHONDONTWRITEBYTECODE, set
+# on the CI machines): without it every pytest session rewrote the asserts of all test modules again
+# (most of its collection's CPU) and every node or CLI process compiled okid_ros again. The .pyc
+# files go to __pycache__ folders, which git ignores. (Python reads an empty value as unset.)
+test: export PYTHONDONTWRITEBYTECODE :=
 test: setup
 	status=0; \
 	$(VENV)/bin/python -m pytest -m "$(PARALLEL_TESTS)" -n $(TEST_WORKERS) --dist loadscope $(PYTEST_ARGS) || [ $$? -eq 5 ] || status=1; \

@@ -102,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     # The likely cause, models of a wrong grid, or a share of the bag lost (a topic that stopped half-way)
     if note and (not summary.updates or summary.grid_hints() or summary.losses_worth_saying() or summary.no_data_note):
         print(f"okid-ros process: warning: {note}", file=sys.stderr)
+    if summary.unjudged_alarm:
+        print(f"okid-ros process: warning: {summary.unjudged_alarm}", file=sys.stderr)
     if refused := summary.arx_refused_note():
         print(f"okid-ros process: warning: {refused}", file=sys.stderr)
     return 0

@@ -85,6 +85,7 @@ from okid_ros.errors import shown_path
 
 if TYPE_CHECKING:
     from okid_ros.service.tracked_record import TrackedRecord
+    from okid_ros.service.window_gates import ScreenedWindow
 
 
 #: The options an output-only window passes over (its model comes from the outputs alone); --order,
@@ -480,7 +481,8 @@ def _window_model(fed_window, record: "TrackedRecord", k: int, dt: float, args: 
     return fields, model, u_w, y_w
 
 
-def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict, window) -> None:
+def _print_summary(changes: list, dt: float, last_modes: list, last_update: int, counts: dict,
+                   window: ScreenedWindow) -> None:
     """The changes, node 2's watch's and switch's counts, node 1's gates' not 0 and solves (``window``'s), on stdout."""
     for alarm in changes:
         after = "the window restarted there" if alarm.alarm_index <= last_update else (
@@ -494,7 +496,5 @@ def _print_summary(changes: list, dt: float, last_modes: list, last_update: int,
     if window.solves.snapshots:  # the windows node 1's solve judged (not those waiting for rows), how many it took
         print("node 1's solve: " + ", ".join(f"{name} {n}" for name, n in window.solves.counts().items()))
     for mode in last_modes:
-        print(
-            f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
-            f"damping {100 * mode.damping_ratio:6.3f} %"
-        )
+        print(f"  last update, mode {mode.id}: {mode.frequency_rad_s:10.4f} rad/s {mode.frequency_hz:9.4f} Hz "
+              f"damping {100 * mode.damping_ratio:6.3f} %")

@@ -144,6 +144,11 @@ class StructuralChangeMonitor:
         """Whether an alarm waits for its modes' verdict (:mod:`~okid_ros.core.mode_confirmation`)."""
         return self._confirm is not None and self._confirm.alarm is not None
 
+    @property
+    def held_alarm(self) -> tuple[ChangeAlarm, int] | None:
+        """The alarm waiting for its modes' verdict and the samples from its change point that verdict needs."""
+        return (self._confirm.alarm, self._confirm.samples_needed) if self.holding else None
+
     def _alarmed(self, alarm: ChangeAlarm, u: np.ndarray, y: np.ndarray, first_index: int) -> ChangeAlarm | None:
         """An alarm to declare: held for its modes' verdict (the block's samples after it go to it), else declared."""
         if self._confirm is None or not self._confirm.usable:

@@ -155,6 +155,11 @@ class ModeConfirmation:
         """Whether the reference has modes to confirm by."""
         return bool(self.stages) and bool(self.reference.modes)
 
+    @property
+    def samples_needed(self) -> int:
+        """Samples from the held alarm's change point on that its current stage identifies."""
+        return self.stages[self._stage]
+
     def push(self, first_index: int, y: np.ndarray) -> None:
         """Outputs (N, p) of samples ``first_index ..``."""
         self._outputs.push(first_index, y)

@@ -105,8 +105,9 @@ MAX_REFERENCES = 12
 #: Highest model order tried by default, and the damping limit of a candidate pole.
 DEFAULT_MAX_STATES = 100
 MAX_DAMPING = 0.1
-#: Segments of the record for the correlations' jackknife.
+#: Segments of the record for the correlations' jackknife, and the fewest it is made from.
 N_SEGMENTS = 8
+MIN_JACKKNIFE_SEGMENTS = 3
 #: A mode is noise when its jackknife frequency std exceeds this times ``zeta f``, or its damping
 #: std this times ``zeta`` (structural modes: up to 0.9 and 1.0 on the simulated cases and the
 #: subframe; noise poles 1-20, nearly always caught by the frequency).
@@ -204,9 +205,9 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
     modes, poles, realizer, var, n_model = chosen.modes, chosen.poles, chosen.realizer, chosen.var, chosen.n_model
     if chosen.jackknife is None:
         segment = 2 * chosen.block_rows / MAX_LAG_FRACTION_OF_SEGMENT
-        warnings.append(f"the record holds fewer than 3 segments of {segment:.0f} samples ({chosen.block_rows} "
-                        f"Hankel block rows): no jackknife, so the modes are not screened for noise poles and "
-                        f"their standard deviations are the clusters' spread across orders")
+        warnings.append(f"the record holds fewer than {MIN_JACKKNIFE_SEGMENTS} segments of {segment:.0f} samples "
+                        f"({chosen.block_rows} Hankel block rows): no jackknife, so the modes are not screened for "
+                        f"noise poles and their standard deviations are the clusters' spread across orders")
     A, C, gamma = _stable_part(*realizer.realize(n_model)[:2], realizer.observability(n_model))
     if var is None:
         L, Re, gain_method = covariance_innovation(A, C, gamma, chosen.correlations, chosen.block_rows, y)
@@ -220,8 +221,8 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
-        merged = refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(
-            _select_modes(low, dt, method=method, top=top, block_rows=rows, once=False, threads=threads), dt))
+        merged = refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(_select_modes(
+            low, dt, method=method, top=top, block_rows=rows, once=False, screened_only=True, threads=threads), dt))
         if merged:  # a pole standing for a pair the longer lags resolve is not a mode
             model.keep_modes([mode for mode in model.modes if all(mode is not pair.mode for pair in merged)])
             warnings += [pair.warning() for pair in merged]
@@ -245,18 +246,24 @@ class _Selection:
 
 
 def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int, block_rows: int | None,
-                  once: bool = True, present: np.ndarray | None = None, threads: WorkerThreads = SERIAL
-                  ) -> _Selection:
+                  once: bool = True, screened_only: bool = False, present: np.ndarray | None = None,
+                  threads: WorkerThreads = SERIAL) -> _Selection:
     """Correlations (or the VAR), the realization of every order, the modes selected (steps 2-4).
 
     ``once``: a mode listed twice is listed once (not in the decimated pass of the low band,
-    where a true pair of one shape was taken for twins). ``present``: (N,) False at samples
+    where a true pair of one shape was taken for twins). ``screened_only``: a selection without
+    a jackknife is of no use (the decimated pass's modes take its standard deviations,
+    :func:`_mode_values`), so a record of fewer than :data:`MIN_JACKKNIFE_SEGMENTS` segments
+    raises IdentificationError before any decomposition. ``present``: (N,) False at samples
     filled in gaps, left out of the correlations (the VAR route fits the filled record).
     """
     references = reference_channels(y, MAX_REFERENCES)
     route = ROUTES[method]
     block_rows = _block_rows(y, sample_time_s, references, top, block_rows, canonical=route.canonical_lags)
     correlations = output_correlations(y, 2 * block_rows, N_SEGMENTS, present=present)
+    n_segments = correlations.segments.shape[0]
+    if screened_only and n_segments < MIN_JACKKNIFE_SEGMENTS:
+        raise IdentificationError(f"{n_segments} segments of {block_rows} block rows' lags: no jackknife")
     r_mean = correlations.mean
     var = None
     if method == "ssi-cov":
@@ -269,8 +276,7 @@ def _select_modes(y: np.ndarray, sample_time_s: float, *, method: str, top: int,
         decomposition = decompose_hankel(var[1], block_rows, block_rows)
     top = _usable_order(top, decomposition.max_states)
     jackknife = None
-    n_segments = correlations.segments.shape[0]
-    if n_segments >= 3:  # its replicates made beside the diagram
+    if n_segments >= MIN_JACKKNIFE_SEGMENTS:  # its replicates made beside the diagram
         replicates = None  # ssi-cov: the Jackknife's own, from the correlations' segments
         if method == "ssi-cva":
             replicates = canonical_replicates(record, correlations, references, block_rows, top)

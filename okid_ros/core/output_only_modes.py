@@ -13,29 +13,26 @@ The stabilization diagram without clicks:
    orders or more whose two families differ in damping by ``TWIN_DAMPING_FACTOR`` is split
    (a mode has one pole per order; :func:`_families`), and so is one whose two families are a
    resolved close pair, two modes (:func:`_resolved_pair`);
-4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders
-   from its first one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
-   ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or
-   more outputs its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise
-   alone exceed, :func:`mpc_floor`; or a close candidate's shape mixed in, :func:`_mixed_with_neighbour`),
-   its median share of the correlations'
-   energy (modal singular value relative to the order's strongest pole) is at least
-   ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more
-   than some noise poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters
-   across orders by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power
-   bandwidth-like width ``zeta f`` (a structural pole stays put; a split or noise pole wanders).
-   A cluster that fails only the first test still is a mode (the one with the most orders
-   first) when no accepted one lies within half a width ``zeta f / 2`` of it and the orders
-   with a stable pole that near its frequency pass it: at high orders a mode's poles may
-   fall into other clusters (their damping and shape pulled by noise poles beside them),
-   which left no cluster of that mode at all (:func:`_persists_near`).
+4. a cluster is a mode when it holds a pole in at least ``MIN_ORDER_FRACTION`` of the orders from its first
+   one on, in ``MIN_TOTAL_FRACTION`` of all orders and in ``MIN_ORDERS``, its median damping is at least
+   ``MIN_DAMPING`` (a harmonic disturbance is an undamped, perfectly stable pole), with 3 or more outputs
+   its median MPC is at least ``MIN_MPC`` (with many outputs: what half the shapes of noise alone exceed,
+   :func:`mpc_floor`; or a close candidate's shape mixed in, :func:`_mixed_with_neighbour`), its median
+   share of the correlations' energy (modal singular value relative to the order's strongest pole) is at least
+   ``MIN_ENERGY`` (0: a weak structural mode, 0.4 % on the coloured simulation, carries no more than some noise
+   poles; the jackknife of :mod:`.output_only` tells them apart), and its frequency scatters across orders
+   by less than ``MAX_FREQUENCY_SPREAD_PER_DAMPING`` times its half-power bandwidth-like width ``zeta f``
+   (a structural pole stays put; a split or noise pole wanders).
+   A cluster that fails only the first test still is a mode (the one with the most orders first) when no
+   accepted one lies within ``zeta f / 2`` of it and the orders with a stable pole that near its frequency
+   pass it: at high orders a mode's poles may fall into other clusters (damping and shape pulled by noise
+   poles beside them), which left no cluster of that mode at all (:func:`_persists_near`).
 
-Each mode keeps one pole per order (the one nearest the cluster's median); the model order is
-the lowest at which every mode has its pole. Of two modes of one shape within their half-power
-bands the weaker goes (a mode listed twice) unless the two hold poles side by side across the orders
-(a close pair, :func:`drop_listed_twice`). Of two close listed modes of one estimated shape the
-weaker is listed with the part of its shape its partner's leaves, and a stronger that took in its
-weaker partner's shape likewise (:mod:`.output_only_twins`).
+Each mode keeps one pole per order (the one nearest the cluster's median); the model order is the lowest
+at which every mode has its pole. Of two modes of one shape within their half-power bands the weaker goes
+(a mode listed twice) unless the two hold poles side by side across the orders (a close pair,
+:func:`drop_listed_twice`). Of two close listed modes of one estimated shape the weaker is listed with
+the part of its shape its partner's leaves, a stronger that took in its weaker's likewise (:mod:`.output_only_twins`).
 """
 
 from __future__ import annotations
@@ -47,6 +44,7 @@ from scipy.cluster import hierarchy
 from scipy.spatial.distance import squareform
 
 from okid_ros.core.modal import modes_listed_once, mpc
+from okid_ros.core.output_only_pair_plane import pair_plane_floor, share_in_real_plane
 
 __all__ = ["PoleSet", "ModeCluster", "collect_poles", "mark_stable", "cluster_modes", "lowest_complete_order",
            "drop_listed_twice"]
@@ -82,18 +80,17 @@ MAX_FREQUENCY_SPREAD_PER_DAMPING = 1.0
 MIN_OUTPUTS_FOR_MPC = 3
 #: Times a linkage cluster may be split into families of poles (:func:`_families`).
 MAX_SPLITS = 2
-#: Two families of one cluster are a mode and its noise twin only when their median dampings
-#: differ by this factor (the 186.5 Hz mode of docs/benchmarks-output-only.md: 3.1 % and 0.2 %).
-#: Closer, they are one mode's poles scattered by noise: split, the family kept was the worse
-#: estimate on 2 of 120 random records the rule was not built on (10.43 Hz against 10.49 true,
-#: the cluster's median 10.51).
+#: Two families of one cluster are a mode and its noise twin only when their median dampings differ by this
+#: factor (the 186.5 Hz mode of docs/benchmarks-output-only.md: 3.1 % and 0.2 %). Closer, they are one mode's
+#: poles scattered by noise: split, the family kept was the worse estimate on 2 of 120 random records the
+#: rule was not built on (10.43 Hz against 10.49 true, the cluster's median 10.51).
 TWIN_DAMPING_FACTOR = 3.0
-#: Two families of one cluster, close in damping, are a resolved close pair (two modes) when each holds
-#: one pole per order, they hold a pole each at this share of the orders from their first common one to
-#: the cluster's last (a pair once resolved stays resolved as the order grows; a mode split by noise into
-#: two families comes and goes), and their median frequencies lie ``PAIR_SEPARATION_PER_SPREAD`` times
-#: their summed frequency scatters apart (each family stays put). Twin chains and buildings 60-119: the
-#: six pairs one cluster held at every order from 10-16 on, 6-34 scatters apart.
+#: Two families of one cluster, close in damping, are a resolved close pair (two modes) when each holds one
+#: pole per order, they hold a pole each at this share of the orders from their first common one to the
+#: cluster's last (a pair once resolved stays resolved as the order grows; a mode split by noise into two
+#: families comes and goes), and their median frequencies lie ``PAIR_SEPARATION_PER_SPREAD`` times their
+#: summed frequency scatters apart (each family stays put). Twin chains and buildings 60-119: the six pairs
+#: one cluster held at every order from 10-16 on, 6-34 scatters apart.
 PAIR_COMMON_ORDERS = 0.9
 PAIR_SEPARATION_PER_SPREAD = 5.0
 #: Two candidates within the listed-twice band and of one shape are two modes, not one listed twice,
@@ -219,8 +216,8 @@ def mark_stable(poles: PoleSet) -> None:
 def _median(values) -> float:
     """``np.median`` of a short 1-D array, the same value without its generic machinery.
 
-    The clustering takes a dozen medians of a few to a hundred poles per cluster, hundreds of
-    clusters per record: ``np.median``'s overhead per call was a seventh of the selection's time.
+    A dozen medians of a few to a hundred poles per cluster, hundreds of clusters per record:
+    ``np.median``'s overhead was a seventh of the selection's time.
     """
     ordered = np.sort(np.asarray(values, dtype=float))
     half = ordered.size // 2
@@ -270,12 +267,12 @@ def _cluster(poles: PoleSet, index: np.ndarray, n_outputs: int) -> ModeCluster:
 def _families(poles: PoleSet, index: np.ndarray, depth: int = MAX_SPLITS) -> list[list[np.ndarray]]:
     """The poles of one linkage cluster as the modes it holds, each a list of families: one mode has one pole per order.
 
-    A cluster with two poles at :data:`MIN_ORDERS` orders or more may hold two families (a mode
-    and a noise pole beside it with nearly its shape, or two modes of a close pair): it is split
-    in two by Ward linkage on log frequency, in units of the cluster's damping ratio (half-power
-    bandwidths), and log damping. When the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR`
-    they are one mode's families (a mode and its noise twin: the screening keeps one); else when
-    they are a resolved pair (:func:`_resolved_pair`) two modes; each part is looked at again.
+    A cluster with two poles at :data:`MIN_ORDERS` orders or more may hold two families (a mode and a noise
+    pole beside it with nearly its shape, or two modes of a close pair): it is split in two by Ward linkage
+    on log frequency, in units of the cluster's damping ratio (half-power bandwidths), and log damping. When
+    the parts' dampings differ by :data:`TWIN_DAMPING_FACTOR` they are one mode's families (a mode and its
+    noise twin: the screening keeps one); else when they are a resolved pair (:func:`_resolved_pair`) two
+    modes; each part is looked at again.
     """
     if depth == 0 or index.size < 2 * MIN_ORDERS:  # too few poles for two at MIN_ORDERS orders
         return [[index]]
@@ -403,7 +400,8 @@ def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list
     A close-pair member's estimated shape is its own plus its partner's, out of phase. The partner is the
     nearest candidate within ``NEIGHBOUR_WIDTHS`` times the larger ``zeta f`` of the two, side by side with it
     (:func:`_side_by_side`: a group's pole beside a pair's member is not); projected out at each common
-    order, the rest's median MPC must exceed half the noise shapes' at one output fewer.
+    order, the rest's median MPC must exceed half the noise shapes' at one output fewer, or (a complex partner:
+    two real modes' mixes) its median share in the partner's real plane pass :func:`.pair_plane_floor`.
     """
     near = [o for o in candidates if o is not cluster and abs(o.frequency_hz - cluster.frequency_hz)
             <= NEIGHBOUR_WIDTHS * max(o.damping_ratio * o.frequency_hz, cluster.damping_ratio * cluster.frequency_hz)]
@@ -411,11 +409,13 @@ def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list
         return False
     neighbour = min(near, key=lambda o: abs(o.frequency_hz - cluster.frequency_hz))
     common = sorted(cluster.members.keys() & neighbour.members.keys())
-    rest = []
+    rest, plane, p = [], [], poles.shape.shape[1]
     for own, other in ((poles.shape[cluster.members[n]], poles.shape[neighbour.members[n]]) for n in common):
         other = other / np.linalg.norm(other)
         rest.append(mpc(own - other * np.vdot(other, own)))
-    return _side_by_side(cluster, neighbour) and _median(rest) >= noise_mpc_floor(poles.shape.shape[1] - 1)
+        plane.append(share_in_real_plane(own, other))
+    return _side_by_side(cluster, neighbour) and (_median(rest) >= noise_mpc_floor(p - 1)
+                                                  or _median(plane) > pair_plane_floor(p))
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:

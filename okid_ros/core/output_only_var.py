@@ -21,7 +21,7 @@ from okid_ros.core.era import HankelDecomposition
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.kalman_gain import kalman_gain_from_residuals
 from okid_ros.core.refit import innovation_covariance
-from okid_ros.core.statespace import simulate
+from okid_ros.core.statespace import driven_states
 from okid_ros.core.stochastic_realization import (
     CovarianceDecomposition,
     OrderRealizer,
@@ -119,10 +119,11 @@ def prediction_error_covariance(A, C, L, y) -> np.ndarray | None:
 
     The first :data:`BURN_IN_FRACTION` of the record is left out.
     """
-    if np.max(np.abs(linalg.eigvals(A - L @ C)), initial=0.0) >= 1.0:
+    predictor = A - L @ C
+    if np.max(np.abs(linalg.eigvals(predictor)), initial=0.0) >= 1.0:
         return None
-    errors = simulate(A - L @ C, L, -C, np.eye(C.shape[0]), y)[int(BURN_IN_FRACTION * y.shape[0]):]
-    return innovation_covariance(errors)
+    errors = y - driven_states(predictor, y @ L.T) @ C.T
+    return innovation_covariance(errors[int(BURN_IN_FRACTION * y.shape[0]):])
 
 
 def gain_from_var(A, C, y, var, markov):
@@ -144,8 +145,7 @@ def gain_from_var(A, C, y, var, markov):
     # stable by construction (as :mod:`.state_completion`).
     targets = y[var.order :]
     drive = (targets - arx_regressor_product(np.zeros((y.shape[0], 0)), y, var.order, var.theta)) @ L.T
-    n = A.shape[0]
-    states = simulate(A, np.eye(n), np.eye(n), np.zeros((n, n)), drive)  # x_0 = 0
+    states = driven_states(A, drive)  # x_0 = 0
     try:
         L, _ = kalman_gain_from_residuals(A, C, states[1:] - states[:-1] @ A.T, targets[:-1] - states[:-1] @ C.T)
     except ValueError as exc:

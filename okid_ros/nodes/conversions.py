@@ -33,25 +33,10 @@ from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
 
 __all__ = [
-    "MessageTypes",
-    "ros_message_types",
-    "stamp_to_seconds",
-    "stamp_parts",
-    "seconds_to_stamp",
-    "source_values",
-    "io_sample_msg",
-    "arx_model_msg",
-    "arx_fit_from_msg",
-    "estimator_arx_fit",
-    "mode_msg",
-    "mode_from_msg",
-    "modal_states_msg",
-    "fill_modal_states",
-    "modal_states_from_msg",
-    "state_space_model_msg",
-    "state_space_from_msg",
-    "structural_change_msg",
-    "structural_change_from_msg",
+    "MessageTypes", "ros_message_types", "stamp_to_seconds", "stamp_parts", "seconds_to_stamp", "source_values",
+    "io_sample_msg", "arx_model_msg", "arx_fit_from_msg", "estimator_arx_fit", "mode_msg", "mode_from_msg",
+    "modal_states_msg", "fill_modal_states", "modal_states_from_msg", "state_space_model_msg",
+    "state_space_from_msg", "message_array", "structural_change_msg", "structural_change_from_msg",
 ]
 
 _EMPTY = np.zeros(0)
@@ -334,13 +319,24 @@ def mode_msg(mode: Mode, types: MessageTypes) -> Any:
     return types.Mode(**fields, shape_real=_f64(shape_real), shape_imag=_f64(shape_imag))
 
 
-def mode_from_msg(msg: Any) -> dict[str, Any]:
-    """``Mode`` -> dict with the message's field names (shape as a complex array)."""
+def mode_from_msg(msg: Any, *, n_outputs: int | None = None) -> dict[str, Any]:
+    """``Mode`` -> dict with the message's field names (shape as a complex array; no imaginary part: real).
+
+    ``n_outputs``: the model's; then ValueError unless the frequency and damping are finite and the shape has
+    ``n_outputs`` real values and as many imaginary ones or none.
+    """
+    frequency_hz, damping_ratio = float(msg.frequency_hz), float(msg.damping_ratio)
+    real, imag = np.asarray(msg.shape_real, dtype=float), np.asarray(msg.shape_imag, dtype=float)
+    if n_outputs is not None and not (math.isfinite(frequency_hz) and math.isfinite(damping_ratio)):
+        raise ValueError(f"mode {int(msg.id)}: frequency_hz {frequency_hz!r}, damping_ratio {damping_ratio!r}")
+    if n_outputs is not None and (real.size != n_outputs or imag.size not in (0, n_outputs)):
+        raise ValueError(f"mode {int(msg.id)}: its shape has {real.size} real and {imag.size} imaginary values, "
+                         f"the model {n_outputs} outputs")
     return {
         "id": int(msg.id),
-        "frequency_hz": float(msg.frequency_hz),
+        "frequency_hz": frequency_hz,
         "frequency_rad_s": float(msg.frequency_rad_s),
-        "damping_ratio": float(msg.damping_ratio),
+        "damping_ratio": damping_ratio,
         "emac": float(msg.emac),
         "mpc": float(msg.mpc),
         "msv": float(msg.msv),
@@ -348,7 +344,7 @@ def mode_from_msg(msg: Any) -> dict[str, Any]:
         "stable": bool(msg.stable),
         "frequency_hz_std": float(getattr(msg, "frequency_hz_std", math.nan)),
         "damping_ratio_std": float(getattr(msg, "damping_ratio_std", math.nan)),
-        "shape": np.asarray(msg.shape_real, dtype=float) + 1j * np.asarray(msg.shape_imag, dtype=float),
+        "shape": real + 1j * (imag if imag.size else 0.0),
     }
 
 
@@ -430,33 +426,39 @@ def state_space_model_msg(update: ModelUpdate, types: MessageTypes, frame_id: st
     )
 
 
-def _offset_from_msg(values, size: int) -> np.ndarray:
-    """An offset field of StateSpaceModel; zeros when empty (a message from before the field)."""
-    return np.asarray(values, dtype=float).reshape(size) if len(values) else np.zeros(size)
+def message_array(msg: Any, name: str, shape: tuple[int, ...], *, empty_is_zero: bool = False) -> np.ndarray:
+    """Field ``name`` as a float array of ``shape``; ValueError unless of its size (or empty_is_zero: 0) and finite."""
+    values = np.asarray(getattr(msg, name), dtype=float)
+    if empty_is_zero and values.size == 0:
+        return np.zeros(shape)
+    if values.size != math.prod(shape):
+        raise ValueError(f"{name} has {values.size} values, its sizes give {' x '.join(map(str, shape))}")
+    if not np.isfinite(values).all():
+        raise ValueError(f"{name} holds values that are not finite")
+    return values.reshape(shape)
 
 
 def state_space_from_msg(msg: Any) -> dict[str, Any]:
-    """``StateSpaceModel`` -> dict.
+    """``StateSpaceModel`` -> dict; ValueError with the reason when the message is not a model.
 
-    Keys: stamp_s, model_id, arx_model_id, sample_time_s, A, B, C, D, K,
-    innovation_covariance, hankel_singular_values, input_offset, output_offset, modes (dicts).
+    Keys: stamp_s, model_id, arx_model_id, sample_time_s, A, B, C, D, K, innovation_covariance, hankel_singular_values,
+    input_offset, output_offset (empty: zeros, a message from before the fields), modes (:func:`mode_from_msg`).
+    Refused: an array not of the size its counts give or not finite, a sample time that is not a positive number of
+    seconds, a mode :func:`mode_from_msg` refuses for the model's outputs.
     """
     n, m, p = int(msg.n_states), int(msg.n_inputs), int(msg.n_outputs)
+    if not 0 < (sample_time_s := float(msg.sample_time_s)) < math.inf:
+        raise ValueError(f"sample_time_s {sample_time_s!r} is not a positive number of seconds")
+    shapes = {"a": (n, n), "b": (n, m), "c": (p, n), "d": (p, m), "k": (n, p), "innovation_covariance": (p, p),
+              "hankel_singular_values": (len(msg.hankel_singular_values),)}
+    arrays = {name.upper() if len(name) == 1 else name: message_array(msg, name, shape)
+              for name, shape in shapes.items()}
     return {
-        "stamp_s": stamp_to_seconds(msg.header.stamp),
-        "model_id": int(msg.model_id),
-        "arx_model_id": int(msg.arx_model_id),
-        "sample_time_s": float(msg.sample_time_s),
-        "A": np.asarray(msg.a, dtype=float).reshape(n, n),
-        "B": np.asarray(msg.b, dtype=float).reshape(n, m),
-        "C": np.asarray(msg.c, dtype=float).reshape(p, n),
-        "D": np.asarray(msg.d, dtype=float).reshape(p, m),
-        "K": np.asarray(msg.k, dtype=float).reshape(n, p),
-        "innovation_covariance": np.asarray(msg.innovation_covariance, dtype=float).reshape(p, p),
-        "hankel_singular_values": np.asarray(msg.hankel_singular_values, dtype=float),
-        "input_offset": _offset_from_msg(msg.input_offset, m),
-        "output_offset": _offset_from_msg(msg.output_offset, p),
-        "modes": [mode_from_msg(mo) for mo in msg.modes],
+        "stamp_s": stamp_to_seconds(msg.header.stamp), "model_id": int(msg.model_id),
+        "arx_model_id": int(msg.arx_model_id), "sample_time_s": sample_time_s, **arrays,
+        "input_offset": message_array(msg, "input_offset", (m,), empty_is_zero=True),
+        "output_offset": message_array(msg, "output_offset", (p,), empty_is_zero=True),
+        "modes": [mode_from_msg(mo, n_outputs=p) for mo in msg.modes],
     }
 
 

@@ -407,6 +407,11 @@ class ModalEstimationService:
     def current_modes(self) -> list[Mode]:
         return [] if self._active is None else list(self._active.modes)
 
+    def unjudged_alarm(self) -> str:
+        """An alarm of the change test still waiting for its modes' verdict (:meth:`InnovationWatch.unjudged_alarm`)."""
+        with self._lock:
+            return self._watch.unjudged_alarm()
+
     def diagnostics(self) -> dict[str, Any]:
         """Counters and health as a flat dict (:mod:`okid_ros.service.estimation_diagnostics`)."""
         return estimation_diagnostics(self._stats, self._buffer, self._watch.diagnostics(), self._active,

@@ -40,6 +40,7 @@ __all__ = [
     "rcl_scalar",
     "node_fqn",
     "read_parameter_file",
+    "not_a_parameter_file",
     "files_for_nodes",
     "ParameterTree",
     "section_matches",
@@ -384,7 +385,36 @@ def read_parameter_file(path: str | Path) -> Mapping:
         list(_walk(tree))  # a name given twice, dotted and nested, is refused here, before any use
     except ParameterError as exc:
         raise ParameterError(f"parameter file {shown_path(path)}: {exc}") from None
+    if what := not_a_parameter_file(tree):
+        raise ParameterError(f"{shown_path(path)} is not a parameter file: {what}")
     return ParameterTree(tree, repeated)
+
+
+#: Top-level keys every `okid-ros identify --json` model has (IdentifiedModel.to_json_dict), to name such a file.
+_IDENTIFY_MODEL_KEYS = frozenset(("sample_time_s", "n_states", "A", "C", "modes"))
+
+
+def not_a_parameter_file(tree: Mapping) -> str | None:
+    """What a YAML mapping none of whose top-level keys is a node section looks like, or None for a parameter file.
+
+    A top-level key is a node section when a ``ros__parameters`` mapping is under it (``NODE``,
+    ``/**/NODE``, a namespace holding them) or it is spelt as a node name with a leading slash
+    (``/**``: a section with a mistake in it, which :func:`file_report` names key by key). A
+    file with no such key (a model JSON passed as ``--params``) is refused whole, by every
+    command and ``up`` alike, instead of a warning for each of its keys and a run on defaults.
+    """
+    def is_section(key: Any, value: Any) -> bool:
+        return str(key).startswith("/") or any(values is not None for _, values in _walk({key: value}))
+
+    if not tree or any(is_section(key, value) for key, value in tree.items()):
+        return None
+    keys = [str(key) for key in tree]
+    shown = ", ".join(repr(key) for key in keys[:3]) + (", ..." if len(keys) > 3 else "")
+    text = (f"none of its {len(keys)} top-level key(s) ({shown}) is a node section "
+            "('/**/NODE: {ros__parameters: {...}}')")
+    if _IDENTIFY_MODEL_KEYS <= set(keys):
+        text += "; it looks like a model written by `okid-ros identify --json`"
+    return text
 
 
 def read_files(paths: Sequence[str | Path]) -> list[tuple[str, Mapping]]:

@@ -19,11 +19,14 @@ windows are fitted on the record).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from okid_ros.core.change_detection import ChangeAlarm
 from okid_ros.core.estimator import ModalStateEstimator
 from okid_ros.core.pipeline import IdentifiedModel
+from okid_ros.errors import OkidWarning
 from okid_ros.service.model_switch import ModelSelection
 from okid_ros.service.options import ModalEstimationParams
 from okid_ros.service.realization import model_problem, warm_start
@@ -150,8 +153,13 @@ class RecordWatch:
         return [] if self.active is None else [int(mode.id) for mode in self.active.modes]
 
     def finish(self) -> None:
-        """The record ends: a glitch candidate the change test holds at its last sample is one."""
+        """The record ends: a glitch candidate the change test holds at its last sample is one.
+
+        An alarm still waiting for its modes' verdict is said (an OkidWarning: `okid-ros track` prints it).
+        """
         self.monitor.finish()
+        if note := self.watch.unjudged_alarm():
+            warnings.warn(note, OkidWarning, stacklevel=2)
 
     def counts(self) -> dict:
         """Node 2's counts of the watch and the model switch so far (its diagnostics' names)."""

@@ -368,6 +368,26 @@ class InnovationWatch:
         self._stats.divergence_restarts += 1
         return u_prev
 
+    def unjudged_alarm(self) -> str:
+        """An alarm still waiting for its modes' verdict where the samples end, in one sentence ('' if none).
+
+        Neither declared nor dismissed: at the end of a record (``process``, ``track``) nothing
+        else would say it. Its verdict is taken inline, once its samples are in, so a record that
+        ends first leaves it unjudged; judged on fewer samples, a mode's estimate may scatter
+        enough to hide a move (:meth:`~okid_ros.core.mode_confirmation.ModeConfirmation.take`).
+        """
+        held = self.monitor.held_alarm if self.params.change_detection else None
+        if held is None:
+            return ""
+        alarm, need = held
+        have = self._buffer.count - alarm.change_index
+        why = (f"the samples end {have} after its change point, and its modes' identification needs {need}"
+               if have < need else "its modes' identification had not ended")
+        return (f"the change test's alarm at {self._buffer.stamp_at(alarm.alarm_index):.3f} s (change point "
+                f"{self._buffer.stamp_at(alarm.change_index):.3f} s, statistic {alarm.statistic:.1f} > "
+                f"{alarm.threshold:.1f}) was never judged: {why}; neither declared a structural change nor "
+                "dismissed as a change of the excitation")
+
     def diagnostics(self) -> dict:
         """The change test's part of the service's diagnostics."""
         return {

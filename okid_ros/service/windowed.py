@@ -88,6 +88,7 @@ class WindowedPipeline:
         self.updates: list[dict] = []  # update_record of every accepted model, in order
         self.changes: list[dict] = []  # change_record of every change declared or re-identified
         self._change_since_update: dict | None = None
+        self.unjudged_alarm = ""  # set by finish: an alarm the record ended before its verdict, in one sentence
         self._fits: dict[int, dict] = {}  # id(model) -> prediction fits on its window
 
     def estimate(self, sample: GridSample) -> ModalStatesResult | None:
@@ -108,7 +109,8 @@ class WindowedPipeline:
         request still waiting (its window's last samples never reached node 2, or it came while
         the outcome was pending) is taken, realized and switched in the same way. Each accepted
         model and its change are recorded as at a sample, applied at the newest sample's stamp
-        (``applied_after_last_sample`` true).
+        (``applied_after_last_sample`` true). An alarm of the change test still waiting for its
+        modes' verdict is said in :attr:`unjudged_alarm` (neither declared nor dismissed).
 
         Returns
         -------
@@ -119,6 +121,7 @@ class WindowedPipeline:
         if self._realize_due_job() is not None:  # the waiting request: now taken even a few samples short
             switches.append(self.est.apply_ready_at_end())
         accepted = [switch for switch in switches if switch is not None]
+        self.unjudged_alarm = self.est.unjudged_alarm()
         for switch in accepted:
             self._record(switch.update, switch.change, applied_at_stamp_s=switch.stamp_s, after_last_sample=True)
         return accepted

@@ -1,29 +1,26 @@
 """Bag input and output on the `rosbags` library: any rosbag2 in, new rosbag2 out, no ROS needed.
 
-Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader``: rosbag2
-directories with sqlite3 or MCAP storage (also a bare ``.mcap`` / ``.db3`` file, the only storage
-file of a bag directory read as that directory, with its metadata, and a directory named
-``*.bag``) and ROS 1 bags, deserialized with the definitions stored in the bag (bags without
-definitions fall back to :func:`okid_typestore`). Every failure of the third-party readers, up to a corrupt file in
-the middle of the messages, becomes a one-line :class:`BagReadError` naming the path. A
-recording that was not closed (an MCAP file cut off, or without its ``metadata.yaml``) is read as
-far as it is whole, with a warning (:mod:`okid_ros.tools.mcap_salvage`).
+Reading (:class:`BagReader`, :func:`open_bag`) goes through rosbags' ``AnyReader``: rosbag2 directories with sqlite3
+or MCAP storage (also a bare ``.mcap`` / ``.db3`` file, the only storage file of a bag directory read as that
+directory, with its metadata, and a directory named ``*.bag``) and ROS 1 bags, deserialized with the definitions
+stored in the bag (bags without definitions fall back to :func:`okid_typestore`). Every failure of the third-party
+readers, up to a corrupt file in the middle of the messages, becomes a one-line :class:`BagReadError` naming the
+path. A recording that was not closed (an MCAP file cut off, or without its ``metadata.yaml``) is read as far as it
+is whole, with a warning (:mod:`okid_ros.tools.mcap_salvage`). Messages are counted as the storage holds them
+(:mod:`okid_ros.tools.bag_counts`).
 
-Writing (:class:`BagWriter`) creates a rosbag2 of format version 9 (Jazzy) with the message
-definitions embedded, so any reader can decode it, and refuses an existing path unless
-``force`` is given (then it only removes what is recognizably a bag, see
-:func:`prepare_output`). Messages are built with the typestore's classes (the nodes'
+Writing (:class:`BagWriter`) creates a rosbag2 of format version 9 (Jazzy) with the message definitions embedded, so
+any reader can decode it, and refuses an existing path unless ``force`` is given (then it only removes what is
+recognizably a bag, see :func:`prepare_output`). Messages are built with the typestore's classes (the nodes'
 :mod:`okid_ros.nodes.conversions` accepts them) and serialized by rosbags, not by
-``rclpy.serialization.serialize_message``: rmw_fastrtps sizes that buffer by an upper-bound
-estimate and does not clear it, so for messages with empty arrays (an invalid ArxModel: 132
-bytes for 124 bytes of CDR) the bytes end in uninitialized memory, which strict CDR readers
-(rosbags' own ``deserialize_cdr`` among them) reject as a size mismatch. Bytes taken from the wire (an rclpy
-subscription with ``raw=True``) have their exact size and are written as they are
-(:meth:`BagWriter.write_raw`).
+``rclpy.serialization.serialize_message``: rmw_fastrtps sizes that buffer by an upper-bound estimate and does not
+clear it, so for messages with empty arrays (an invalid ArxModel: 132 bytes for 124 bytes of CDR) the bytes end in
+uninitialized memory, which strict CDR readers (rosbags' own ``deserialize_cdr`` among them) reject as a size
+mismatch. Bytes taken from the wire (an rclpy subscription with ``raw=True``) have their exact size and are written
+as they are (:meth:`BagWriter.write_raw`).
 
-Custom data: rosbag2 metadata (version >= 6) has a ``custom_data`` map of strings; the tools
-store JSON documents there under keys starting with ``okid_ros.`` (the simulated truth:
-:data:`TRUTH_KEY`).
+Custom data: rosbag2 metadata (version >= 6) has a ``custom_data`` map of strings; the tools store JSON documents
+there under keys starting with ``okid_ros.`` (the simulated truth: :data:`TRUTH_KEY`).
 """
 
 from __future__ import annotations
@@ -135,10 +132,11 @@ class BagReader:
         for connection in reader.connections:
             self.topics.setdefault(connection.topic, msgtype_name(connection.msgtype))
 
-    def _connections(self, topics: Iterable[str] | None) -> list:
-        """The bag's connections on ``topics`` (all when None), of the type read where a topic has several."""
+    def _connections(self, topics: Iterable[str] | None, connections: Iterable | None = None) -> list:
+        """The bag's connections (or of ``connections``) on ``topics`` (all when None), of the type read."""
         wanted = None if topics is None else set(topics)
-        return [c for c in self._reader.connections if (wanted is None or c.topic in wanted)
+        return [c for c in (self._reader.connections if connections is None else connections)
+                if (wanted is None or c.topic in wanted)
                 and self._read_type.get(c.topic, msgtype_name(c.msgtype)) == msgtype_name(c.msgtype)]
 
     @property
@@ -153,9 +151,12 @@ class BagReader:
     def duration_s(self) -> float:
         return max(0, self.end_ns - self.start_ns) * 1e-9
 
-    def message_count(self, topics: Iterable[str] | None = None) -> int:
-        """Messages on ``topics`` (all topics when None)."""
-        return sum(c.msgcount for c in self._connections(topics))
+    def message_count(self, topics: Iterable[str] | None = None, *, as_metadata: bool = False) -> int:
+        """Messages stored on ``topics`` (all when None); ``as_metadata``: as metadata.yaml says (maybe spoilt)."""
+        from okid_ros.tools.bag_counts import stored_connections
+
+        stored = None if as_metadata else stored_connections(self._reader)
+        return sum(c.msgcount for c in self._connections(topics, stored))
 
     @property
     def custom_data(self) -> dict[str, str]:

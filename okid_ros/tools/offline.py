@@ -50,6 +50,7 @@ class ProcessSummary:
     grid_counters: dict = field(default_factory=dict)
     input_note: str = ""  # how the input bag was read when not as a whole (a cut-off recording)
     wrong_size_note: str = ""  # the sizes expected and those of the first message of a wrong size
+    unjudged_alarm: str = ""  # the change test's alarm the record ended before its modes' verdict (one sentence)
     no_data_note: str = ""  # per topic, its messages whose covariance declared no data (REP 145) and why
     arx_malformed: int = 0  # valid ArxModels node 2 did not take (``estimator_arx_fit``), as the node counts them
     arx_malformed_why: str = ""  # the first one's line, as node 2 logs it
@@ -357,6 +358,7 @@ class OfflineNodes:
         s.grid_counters = self.arx_inputs.grid.counters.as_dict()
         s.wrong_size_note = self.arx_inputs.wrong_size_note
         s.no_data_note = self.arx_inputs.no_data_note()
+        s.unjudged_alarm = self.pipeline.unjudged_alarm
         return out
 
     def _estimate(self, samples: list) -> list[tuple[str, Any]]:

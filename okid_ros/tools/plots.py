@@ -89,7 +89,7 @@ class PlotData:
     start_ns: int = 0
     arx_markov: np.ndarray | None = None  # (count, p, m) of the last valid ArxModel
     arx_model_id: int | None = None
-    state_space: dict | None = None  # last StateSpaceModel: A, B, C, D, K, n, model_id, sample_time_s, modes
+    state_space: dict | None = None  # last StateSpaceModel (conversions.state_space_from_msg: A, C, K, model_id, ...)
     # id -> [(t_s, f_hz, zeta, f_hz_std, zeta_std)], std NaN where unknown
     mode_history: dict = field(default_factory=lambda: defaultdict(list))
     modal_t: list = field(default_factory=list)  # log time [s] of the recent ModalStates
@@ -316,7 +316,7 @@ def _figure_stochastic_markov(plt, data: PlotData, truth: dict | None, n_stochas
     i = np.arange(1, n_stochastic + 1)
     # Only element (1,1) is drawn: C[:1] A^i K[:, :1], not all p x p of every term.
     M = stochastic_markov_from_state_space(ss["A"], ss["C"][:1], ss["K"][:, :1], n_stochastic)
-    ax.plot(i, M[:, 0, 0], ".-", ms=3, lw=0.8, label=f"identified (model {ss['model_id']}, n = {ss['n']})")
+    ax.plot(i, M[:, 0, 0], ".-", ms=3, lw=0.8, label=f"identified (model {ss['model_id']}, n = {ss['A'].shape[0]})")
     if truth is not None:
         Mt = stochastic_markov_from_state_space(truth["A"], truth["C"][:1], truth["K"][:, :1], n_stochastic)
         ax.plot(i, Mt[:, 0, 0], "--", lw=0.8, color="k", label="truth")

@@ -215,7 +215,8 @@ class BagPlayer:
                 raise BagReadError(f"{shown_path(self.path)}: no topic {', '.join(unknown)}; the bag has: "
                                    f"{', '.join(sorted(bag.topics)) or 'none'}")
             self.topics = wanted
-            self.message_count = bag.message_count(wanted)
+            self.message_count = bag.message_count(wanted)  # as stored: what is played
+            self.metadata_count = bag.message_count(wanted, as_metadata=True)
         if not self.message_count:  # "replayed 0 messages", exit 0, was all it said (after waiting for subscribers)
             where = f"on {', '.join(map(shown_path, wanted))}" if wanted else "(the bag has no topic)"
             warnings.warn(f"{shown_path(self.path)}: no message to replay {where}: nothing is published",
@@ -238,6 +239,14 @@ class BagPlayer:
                 if topic.startswith(prefix) and topic not in self.remaps:
                     self.remaps[topic] = resolve_topic(topic[len(prefix):], namespace)
         self.classes = {t: message_class(self.bag_topics[t]) for t in self.topics}
+
+    def plan(self) -> str:
+        """The line said before playing: the messages stored (and played), the metadata's count where it differs."""
+        differs = self.metadata_count != self.message_count
+        return (f"replay {self.path}: {self.message_count} messages"
+                + (f" (metadata.yaml says {self.metadata_count})" if differs else "")
+                + f" on {len(self.topics)} topics, {self.duration_bag_s:.1f} s at rate {self.rate:g}"
+                + (" (loop)" if self.loop else ""))
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (thread-safe)."""
@@ -355,8 +364,7 @@ class BagPlayer:
         node = rclpy.create_node(self.node_name, context=context)
         try:
             publishers, clock_pub = self._publishers(node)
-            self.log(f"replay {self.path}: {self.message_count} messages on {len(self.topics)} topics, "
-                     f"{self.duration_bag_s:.1f} s at rate {self.rate:g}{' (loop)' if self.loop else ''}")
+            self.log(self.plan())
             self._wait_for_subscriptions(publishers.values())
             if self.delay_s:
                 self._sleep_until(time.monotonic() + self.delay_s, None)

@@ -117,6 +117,37 @@ def test_a_topic_listed_twice_is_replayed_as_one(short_bag):
     assert player.topics == [IO_SAMPLE_TOPIC]
 
 
+@pytest.mark.parametrize("spoilt", [-90000, 0])
+def test_the_replay_plan_counts_the_stored_messages_and_names_a_spoilt_metadata_count(tmp_path, short_bag, spoilt):
+    """Was: "replay BAG: -90000 messages on 1 topics" while every stored message was played.
+
+    A count of 0 also warned "no message to replay" before playing them.
+    """
+    import shutil
+    import warnings
+
+    import yaml
+
+    from okid_ros.tools.bagio import open_bag
+
+    bag = tmp_path / "spoilt"
+    shutil.copytree(short_bag, bag)
+    with open_bag(bag) as opened:
+        stored = sum(1 for _ in opened.raw_messages([IO_SAMPLE_TOPIC]))
+    meta = bag / "metadata.yaml"
+    info = yaml.safe_load(meta.read_text())
+    for entry in info["rosbag2_bagfile_information"]["topics_with_message_count"]:
+        if entry["topic_metadata"]["name"] == IO_SAMPLE_TOPIC:
+            entry["message_count"] = spoilt
+    meta.write_text(yaml.safe_dump(info))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        player = BagPlayer(bag, topics=[IO_SAMPLE_TOPIC], log=lambda line: None)
+    assert stored > 0 and player.message_count == stored
+    assert player.plan().startswith(f"replay {bag}: {stored} messages (metadata.yaml says {spoilt}) on 1 topics")
+    assert "metadata.yaml" not in BagPlayer(short_bag, topics=[IO_SAMPLE_TOPIC], log=lambda line: None).plan()
+
+
 @pytest.mark.dds  # a node and its publisher, nothing published
 def test_a_bag_without_messages_on_its_topics_is_said(capsys, tmp_path, short_bag):
     """Was: "replayed 0 messages on 1 topics", exit 0, and not a word more."""

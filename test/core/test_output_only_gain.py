@@ -11,7 +11,8 @@ from okid_bench.physical_cases import koma_frame_case
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_gain import prediction_log_det
 from okid_ros.core.output_only_var import BURN_IN_FRACTION, prediction_error_covariance
-from okid_ros.core.statespace import one_step_prediction
+from okid_ros.core.refit import innovation_covariance
+from okid_ros.core.statespace import driven_states, one_step_prediction, simulate
 
 
 def _exact_error_covariance(system, A, C, L) -> np.ndarray:
@@ -100,3 +101,16 @@ def test_prediction_error_covariance_is_that_of_the_errors_after_the_burn_in() -
     kept = errors[int(BURN_IN_FRACTION * y.shape[0]):]
     np.testing.assert_allclose(covariance, kept.T @ kept / kept.shape[0], rtol=1e-9, atol=1e-12)
     assert prediction_error_covariance(oracle.A, oracle.C, -20.0 * L, y) is None  # an unstable predictor
+
+
+@pytest.mark.parametrize(("n", "p", "samples"), [(72, 28, 3000), (6, 2, 500), (1, 1, 10)])
+def test_the_driven_states_and_prediction_errors_are_simulate_s_with_identities_bit_for_bit(n, p, samples) -> None:
+    # The gain's state runs skip simulate's products with identity and zero matrices (N n^2 flops each).
+    rng = np.random.default_rng(n)
+    A = rng.standard_normal((n, n))
+    A *= 0.9 / np.max(np.abs(np.linalg.eigvals(A)))
+    C, drive, y = rng.standard_normal((p, n)), rng.standard_normal((samples, n)), rng.standard_normal((samples, p))
+    L = 1e-3 * rng.standard_normal((n, p)) / max(np.linalg.norm(C), 1.0)
+    assert np.array_equal(driven_states(A, drive), simulate(A, np.eye(n), np.eye(n), np.zeros((n, n)), drive))
+    errors = simulate(A - L @ C, L, -C, np.eye(p), y)[int(BURN_IN_FRACTION * samples):]
+    assert np.array_equal(prediction_error_covariance(A, C, L, y), innovation_covariance(errors))

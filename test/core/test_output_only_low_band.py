@@ -14,12 +14,16 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ros_helpers import REPO_ROOT
 
+import okid_ros.core.output_only as oo
 from okid_bench.families_two import family_two_case
 from okid_bench.output_only_cases import random_case
 from okid_ros.core.modal import Mode
 from okid_ros.core.output_only import identify_output_only
 from okid_ros.core.output_only_low_band import refine_low_modes
+
+KOMA = REPO_ROOT.parent / "shared" / "data" / "oma" / "koma-shear-frame"
 
 
 @pytest.mark.parametrize(("decimated_std", "frequency_replaced"), [(0.5e-3, True), (2e-3, False)])
@@ -44,6 +48,25 @@ def test_a_slow_mode_found_at_the_full_rate_is_kept(index: int) -> None:
     listed = np.array([m.frequency_hz for m in model.modes])
     for true in case.truth():
         assert np.min(np.abs(listed / true["frequency_hz"] - 1)) <= 0.005, f"{true['frequency_hz']:.3f} Hz missed"
+
+
+def test_a_decimated_record_too_short_for_a_jackknife_is_not_decomposed(monkeypatch) -> None:
+    # The koma frame's decimated record holds 2 segments of its lags: a selection without a jackknife, whose
+    # modes _mode_values discards (no standard deviations to weigh them by), so it is not made at all.
+    record = np.load(KOMA / "shear_frame.npz")
+    selections, decompositions = [], []
+    select, decompose = oo._select_modes, oo.canonical_decomposition
+
+    def counted_select(*args, **options):
+        selections.append(options.get("once", True))
+        return select(*args, **options)
+
+    monkeypatch.setattr(oo, "_select_modes", counted_select)
+    monkeypatch.setattr(oo, "canonical_decomposition", lambda *args: decompositions.append(args[2]) or decompose(*args))
+    model = identify_output_only(record["y"], float(record["sample_time_s"]))
+    assert selections == [True, False]  # the full rate's, then the decimated band's was asked for
+    assert len(decompositions) == 1  # the record's alone (its replicates are canonical_replicates')
+    assert len(model.modes) == 5 and not any("decimation" in mode.extras for mode in model.modes)
 
 
 def _slow_mode(frequency_hz: float, damping_ratio: float) -> Mode:

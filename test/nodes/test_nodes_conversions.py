@@ -6,6 +6,7 @@ imports no ROS package).
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 from dataclasses import replace
@@ -217,3 +218,50 @@ def test_state_space_and_modal_states_round_trip(identified):
     again = cv.modal_states_from_msg(reused)
     np.testing.assert_array_equal(again["coordinates"], result.coordinates)
     assert again["stamp_s"] == pytest.approx(result.stamp_s) and reused.modes is modes
+
+
+def _state_space_msg(identified):
+    _, est, _ = identified
+    update = NS(model=est.current_model, model_id=3, arx_model_id=7, stamp_s=4.0, modes=est.current_modes)
+    return cv.state_space_model_msg(update, TYPES)
+
+
+def _set(name, value):
+    return lambda msg: setattr(msg, name, value(getattr(msg, name)))
+
+
+def _set_mode(name, value):
+    return lambda msg: setattr(msg.modes[0], name, value(getattr(msg.modes[0], name)))
+
+
+@pytest.mark.parametrize("spoil, reason", [
+    (_set("a", lambda a: a[:-1]), "a has 35 values, its sizes give 6 x 6"),
+    (_set("n_states", lambda n: n + 1), "a has 36 values, its sizes give 7 x 7"),
+    (_set("b", lambda b: np.r_[b, 0.0]), "b has 13 values, its sizes give 6 x 2"),
+    (_set("c", lambda c: np.where(np.arange(c.size) == 3, np.nan, c)), "c holds values that are not finite"),
+    (_set("k", lambda k: np.full(k.size, np.inf)), "k holds values that are not finite"),
+    (_set("innovation_covariance", lambda v: v[:0]), "innovation_covariance has 0 values, its sizes give 2 x 2"),
+    (_set("hankel_singular_values", lambda v: np.r_[v, np.nan]), "hankel_singular_values holds values that are not"),
+    (_set("output_offset", lambda v: v[:1]), "output_offset has 1 values, its sizes give 2"),
+    (_set("sample_time_s", lambda t: math.nan), "sample_time_s nan is not a positive number of seconds"),
+    (_set("sample_time_s", lambda t: 0.0), "sample_time_s 0.0 is not a positive number of seconds"),
+    (_set_mode("shape_real", lambda v: v[:0]), "its shape has 0 real and 2 imaginary values, the model 2 outputs"),
+    (_set_mode("damping_ratio", lambda z: math.nan), "frequency_hz .*, damping_ratio nan"),
+])
+def test_a_state_space_model_not_of_its_sizes_or_not_finite_is_refused_with_the_reason(identified, spoil, reason):
+    """Was decoded in silence (NaN, a short shape, a sample time of 0) or refused by a reshape naming no field."""
+    msg = _state_space_msg(identified)
+    spoil(msg)
+    with pytest.raises(ValueError, match=reason):
+        cv.state_space_from_msg(msg)
+
+
+def test_a_state_space_model_without_offsets_or_imaginary_shapes_is_read_as_zeros_and_real_shapes(identified):
+    """A message from before the offsets, or of real shapes, is a model (the real shapes were a broadcast error)."""
+    msg = _state_space_msg(identified)
+    msg.input_offset, msg.output_offset = np.zeros(0), np.zeros(0)
+    for mode in msg.modes:
+        mode.shape_imag = np.zeros(0)
+    back = cv.state_space_from_msg(msg)
+    assert back["input_offset"].shape == (2,) and not back["output_offset"].any()
+    np.testing.assert_array_equal(back["modes"][0]["shape"], msg.modes[0].shape_real)

@@ -40,6 +40,7 @@ from rosbags.highlevel import AnyReader
 
 from okid_ros.cli import main
 from okid_ros.core.pipeline import identify
+from okid_ros.nodes.conversions import state_space_from_msg
 
 ORDER, WINDOW, MAX_STATES = 20, 6000, 60
 SETTINGS = dict(order=ORDER, window=WINDOW, max_states=MAX_STATES, publish_rate_hz=1.0, n_outputs=28)
@@ -108,10 +109,9 @@ def test_every_model_published_is_stable(processed):
     models = processed["models"]
     assert models
     for msg in models:
-        n, p = msg.n_states, msg.n_outputs
-        assert p == 28 and msg.n_inputs == 2
-        a = msg.a.reshape(n, n)
-        c, k = msg.c.reshape(p, n), msg.k.reshape(n, p)
+        assert msg.n_outputs == 28 and msg.n_inputs == 2
+        model = state_space_from_msg(msg)  # of its sizes and finite, or ValueError
+        a, c, k = model["A"], model["C"], model["K"]
         assert msg.spectral_radius < 1.0 and msg.predictor_spectral_radius < 1.0, msg.model_id
         # and the fields say what the published matrices are
         assert msg.spectral_radius == pytest.approx(np.max(np.abs(np.linalg.eigvals(a))), rel=1e-9)

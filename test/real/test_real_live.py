@@ -74,6 +74,7 @@ from real_helpers import (
 from ros_helpers import REPO_ROOT, RosProcess, subprocess_env
 
 from okid_msgs.msg import ModalStates, StateSpaceModel
+from okid_ros.nodes.conversions import state_space_from_msg
 
 pytestmark = pytest.mark.dds  # over DDS: `make test` runs it after the rest, in one process
 
@@ -364,9 +365,8 @@ def test_every_live_model_is_stable(live):
     assert models
     assert [m.model_id for m in models] == list(range(1, len(models) + 1))  # none missed (transient local, reliable)
     for msg in models:
-        n, p = msg.n_states, msg.n_outputs
-        a = np.array(msg.a).reshape(n, n)
-        c, k = np.array(msg.c).reshape(p, n), np.array(msg.k).reshape(n, p)
+        model = state_space_from_msg(msg)  # of its sizes and finite, or ValueError
+        a, c, k = model["A"], model["C"], model["K"]
         assert msg.spectral_radius < 1.0 and msg.predictor_spectral_radius < 1.0, msg.model_id
         # the fields say what the matrices are
         assert msg.spectral_radius == pytest.approx(np.max(np.abs(np.linalg.eigvals(a))), rel=1e-9)

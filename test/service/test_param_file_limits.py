@@ -162,3 +162,38 @@ def test_up_refuses_a_file_with_a_key_no_node_reads_before_a_node_starts(tmp_pat
     assert_one_line_error(code, err, "bare.yaml: section")
     assert "started" not in out + err
     assert read_parameter_file(path) is not None  # the commands that read it themselves warn (file_report)
+
+
+# The first keys of an `identify --json` model (IdentifiedModel.to_json_dict) and a YAML of plain settings.
+NOT_PARAMETER_FILES = {
+    "identify_model": ('{"sample_time_s": 0.008, "n_states": 2, "n_inputs": 1, "n_outputs": 1, "A": [[0.5, 0], '
+                       '[0, 0.4]], "C": [[1, 0]], "modes": [], "warnings": []}\n',
+                       "none of its 8 top-level key(s) ('sample_time_s', 'n_states', 'n_inputs', ...)",
+                       "looks like a model written by `okid-ros identify --json`"),
+    "plain_settings": ("rate: 5\nsolver: {order: 50}\n", "none of its 2 top-level key(s) ('rate', 'solver')",
+                       "is a node section"),
+}
+
+
+@pytest.mark.parametrize("command", ["process", "up"])
+@pytest.mark.parametrize("case", sorted(NOT_PARAMETER_FILES))
+def test_a_file_with_no_node_section_is_refused_in_one_line_by_process_as_by_up(tmp_path, capsys, case, command):
+    # process warned once per key (37 lines for a model JSON) and ran on the defaults; up refused it.
+    text, *fragments = NOT_PARAMETER_FILES[case]
+    path = tmp_path / "model.json"
+    path.write_text(text)
+    args = ["--params", path] + (["--out", tmp_path / "out"] if command == "process" else [])
+    code, out, err = run_cli(capsys, command, *([tmp_path / "no_bag"] if command == "process" else []), *args)
+    assert_one_line_error(code, err, f"{path} is not a parameter file: ", *fragments)
+    assert "started" not in out + err and not (tmp_path / "out").exists()
+
+
+def test_a_file_with_a_section_and_a_stray_key_is_still_read_with_a_warning(tmp_path):
+    from okid_ros.tools.node_parameters import load_node_parameters
+
+    path = tmp_path / "okid.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    publish_rate_hz: 2.0\nnote: 5\n")
+    reported: list[str] = []
+    arx, _ = load_node_parameters([path], report=reported.append)
+    assert arx["publish_rate_hz"] == 2.0
+    assert len(reported) == 1 and "section 'note' holds no 'ros__parameters'" in reported[0], reported

@@ -106,3 +106,27 @@ def test_a_new_models_restart_predicts_over_its_own_diverged_samples_only(stiffn
     first = index + 1 - predictor.settle_samples
     predictor.run(np.zeros((index + 1 - first, 0)), y[first:index + 1])
     np.testing.assert_allclose(x, predictor.x, rtol=1e-9, atol=1e-12 * np.abs(predictor.x).max())
+
+
+def test_an_alarm_the_samples_end_before_its_verdict_is_said_never_judged(stiffness_loss):
+    # Was: a record (process, track) ending while an alarm waited for its modes left it so, and nothing said it.
+    y, dt, (reference, state) = stiffness_loss
+    p, no_inputs = y.shape[1], np.zeros(0)
+    buffer = SampleBuffer(4 * WINDOW, 0, p)
+    watch = InnovationWatch(ModalEstimationParams(dt, 0, p), buffer, EstimationStats())
+    for k in range(WINDOW):
+        buffer.append(k * dt, no_inputs, y[k], 0)
+    watch.new_model(reference, state, WINDOW)
+    assert watch.unjudged_alarm() == ""
+    for k in range(WINDOW, y.shape[0]):
+        assert watch.monitor.step(no_inputs, y[k], buffer.append(k * dt, no_inputs, y[k], 0)) is None
+        if watch.monitor.holding:
+            break
+    alarm, need = watch.monitor.held_alarm
+    have = k + 1 - alarm.change_index
+    assert 0 < have < need and alarm.alarm_index == k
+    assert watch.unjudged_alarm() == (
+        f"the change test's alarm at {k * dt:.3f} s (change point {alarm.change_index * dt:.3f} s, statistic "
+        f"{alarm.statistic:.1f} > {alarm.threshold:.1f}) was never judged: the samples end {have} after its change "
+        f"point, and its modes' identification needs {need}; neither declared a structural change nor dismissed as "
+        "a change of the excitation")

@@ -16,7 +16,6 @@ import sys
 import time
 from pathlib import Path
 
-import distributed  # the okid_ros[dask] extra, installed by `make setup`
 import pytest
 from batch_helpers import batch, build_campaign, read_summary, table_rows
 from ros_helpers import REPO_ROOT
@@ -39,6 +38,8 @@ def _assert_same_as_serial(out: Path, campaign: dict) -> None:
 
 
 def test_local_cluster_of_worker_processes_gives_the_serial_table(campaign, tmp_path):
+    import distributed  # the okid_ros[dask] extra; imported here, not by every pytest session's collection
+
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None) as cluster:
         out = tmp_path / "dask"
@@ -100,6 +101,8 @@ def _stop(process: subprocess.Popen) -> None:
 @pytest.fixture
 def dask_programs(tmp_path):
     """`dask scheduler` and `dask worker` (2 processes) as separate programs; yields the address."""
+    import distributed  # the okid_ros[dask] extra; imported here, not by every pytest session's collection
+
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     scheduler = _dask_program("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",

@@ -13,7 +13,6 @@ import io
 import json
 
 import numpy as np
-import pandas as pd
 import pytest
 from ros_helpers import REPO_ROOT
 
@@ -97,6 +96,8 @@ def test_process_bag_holds_state_space_models_without_inputs(processed):
 
 
 def test_batch_takes_the_output_only_parameters(bag, tmp_path):
+    import pandas as pd  # imported here, not by every pytest session's collection
+
     out = tmp_path / "campaign"
     assert okid_ros_main(["batch", str(bag), *PARAMS, "--out", str(out), "--workers", "1"]) == 0
     table = pd.read_parquet(out / "modes.parquet")
