@@ -19,22 +19,20 @@ Steps (one module each):
    ``C A^(k-1) A K`` realized by the same ERA (the paper's route, :mod:`.output_only_var`; every
    such model carries a warning of what the route lacks);
 3. the poles of every order, stable ones clustered into modes (:mod:`.output_only_modes`);
-4. each candidate mode re-identified with each segment of the record left out (jackknife; the
-   var route's VAR refitted without the segment, its spectral share read with ``G`` fitted to the
-   record's correlations, :mod:`.output_only_var`): a mode whose frequency scatters by more than
-   its half-power half-width ``zeta f`` or whose damping scatters by more than itself is noise
-   and dropped, and so is one that accounts for less than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own
-   frequency along its own shape (a pole fitted to correlation noise under a flat spectrum)
-   unless its pole is steady (scatter below ``STEADY_*``); of the candidates split from one
-   cluster one is kept, and of two of one shape within their half-power bands (a mode listed
-   twice, :func:`.output_only_modes.drop_listed_twice`) unless the two hold poles side by side
-   across the orders (a close pair); the jackknife's standard deviations
-   are the modes' (ssi-cva drops one listed beyond the limits);
-5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model
-   by the stochastic Riccati equation or a VAR's Markov parameters, the better predictor of the record
-   (ssi-cva, ssi-cov, :mod:`.output_only_gain`), or read from the VAR (var);
-6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated,
-   with longer lags (:mod:`.output_only_low_band`).
+4. each candidate mode re-identified with each segment of the record left out (jackknife; the var route's VAR
+   refitted without the segment, its spectral share read with ``G`` fitted to the record's correlations,
+   :mod:`.output_only_var`): a mode whose frequency scatters by more than its half-power half-width ``zeta f``
+   or whose damping scatters by more than itself is noise and dropped, and so is one that accounts for less
+   than ``MIN_SPECTRAL_DOMINANCE`` of the output spectrum at its own frequency along its own shape (a pole
+   fitted to correlation noise under a flat spectrum) unless its pole is steady (scatter below ``STEADY_*``);
+   of the candidates split from one cluster one is kept, and of two of one shape within their half-power bands
+   (a mode listed twice, :func:`.output_only_modes.drop_listed_twice`) unless the two hold poles side by side
+   across the orders (a close pair); the jackknife's standard deviations are the modes' (ssi-cva drops one
+   listed beyond the limits);
+5. the model at the lowest order (with a stable ``A``) holding every mode; its innovation model by the Riccati
+   equation or a VAR's, the record's better predictor (ssi-cva, ssi-cov, :mod:`.output_only_gain`), or the VAR's;
+6. (ssi-cva, ssi-cov) modes far below the sampling rate re-estimated from the record decimated, with longer lags
+   (:mod:`.output_only_low_band`; a slow mode the longer lags resolve into a pair not listed).
 """
 
 from __future__ import annotations
@@ -88,12 +86,7 @@ from okid_ros.core.output_only_support import (
     stands_for_a_group,
 )
 from okid_ros.core.output_only_twins import separate_twin_shapes
-from okid_ros.core.output_only_var import (
-    VarCovarianceModel,
-    gain_from_var,
-    var_markov,
-    var_replicates,
-)
+from okid_ros.core.output_only_var import VarCovarianceModel, gain_from_var, var_markov, var_replicates
 from okid_ros.core.scaling import restore_model
 from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
 from okid_ros.core.uncertainty import UncertaintyResult
@@ -165,9 +158,8 @@ def identify_output_only(
     max_gap : the longest run of filled samples taken (node 2's ``estimator.max_gap_samples``).
     workers : threads for the orders' and the jackknife's decompositions (:mod:`.worker_threads`):
         the same model for any number, sooner with more cores (``okid-ros identify``: every core).
-    std_segments : (ssi-cva) most segments of the listed modes' standard deviations' jackknife, each
-        at least :data:`.output_only_std.MIN_SEGMENT_LAGS` lag windows (:mod:`.output_only_std`);
-        0, or no more than the screening's: the screening's jackknife's (5-8 segments).
+    std_segments : (ssi-cva) most segments of a second jackknife for the listed modes' deviations
+        (:mod:`.output_only_std`); 0 (default) or no more than the screening's 5-8: the screening's.
 
     Returns
     -------
@@ -227,9 +219,12 @@ def _identified(y: np.ndarray, sample_time_s: float, *, method: str, top: int, b
                      diagram=output_only_diagram(poles), singular_values=realizer.decomposition.s)
     _attach_std(model, chosen.jackknife, n_model, matched, poles)
     if low_band and ROUTES[method].low_band and chosen.jackknife is not None:
-        refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(_select_modes(
+        merged = refine_low_modes(model, y, sample_time_s, lambda low, dt, rows: _mode_values(_select_modes(
             low, dt, method=method, top=top, block_rows=rows, once=False, screened_only=True, threads=threads,
             std_segments=std_segments), dt))
+        if merged:  # a pole standing for a pair the longer lags resolve is not a mode
+            model.keep_modes([mode for mode in model.modes if all(mode is not pair.mode for pair in merged)])
+            warnings += [pair.warning() for pair in merged]
     if chosen.std_jackknife is not None and model.modes:
         by_pole = [(mode.eigenvalue, _cluster_of(mode.eigenvalue, matched)) for mode in model.modes]
         attach_finer_std(model, *_jackknife_std(chosen.std_jackknife, by_pole, poles, n_model, sample_time_s),

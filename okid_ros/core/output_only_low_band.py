@@ -21,16 +21,27 @@ random records lost a mode found there within 0.5 % to a decimated frequency 0.6
 larger standard deviation (docs/benchmarks-output-only.md, forty-third session). Their shapes and
 the model stay those of the full-rate identification (``extras["full_rate_frequency_hz"]`` and
 ``extras["full_rate_damping_ratio"]`` keep its values).
+
+The longer lags also resolve what the full rate's cannot: a tuned mass damper splits a mode into two
+of nearly one measured shape, 1-1.4 half-power bandwidths apart, which the full-rate window (two
+periods) reads as one real-shaped pole between them, stable at every order. A slow full-rate mode
+that the decimated identification finds again at no frequency within :data:`MATCH_TOLERANCE`, but
+as two modes, one on each side of it, each nearer to it than to any other listed mode and within
+:data:`MERGED_PAIR_BANDWIDTHS` of its half-power bandwidths (``2 zeta f``), stands for that pair
+and is not listed (a warning names the pair; docs/benchmarks-output-only.md, forty-ninth session).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
 from okid_ros.core.identified_model import IdentificationError, IdentifiedModel
+from okid_ros.core.modal import Mode
 
-__all__ = ["refine_low_modes"]
+__all__ = ["MergedPair", "refine_low_modes"]
 
 #: Samples per period of the slowest mode after decimation (decimation only when it saves 4x).
 SAMPLES_PER_PERIOD = 10
@@ -47,6 +58,35 @@ BAND_FRACTION = 0.4
 SLOWEST_FACTOR = 1.5
 #: A decimated mode replaces a full-rate one within this relative frequency.
 MATCH_TOLERANCE = 0.01
+#: Farthest a resolved pair member lies from the full-rate pole standing for both, in its half-power bandwidths.
+MERGED_PAIR_BANDWIDTHS = 1.0
+
+
+@dataclass(frozen=True)
+class MergedPair:
+    """A full-rate mode the decimated identification resolves into two modes on either side of it."""
+
+    mode: Mode
+    below_hz: float
+    above_hz: float
+
+    def warning(self) -> str:
+        """The note of the mode left unlisted."""
+        return (f"the pole at {self.mode.frequency_hz:.4g} Hz stands for two modes the longer lags of the decimated "
+                f"record resolve at {self.below_hz:.4g} and {self.above_hz:.4g} Hz: not listed (an unresolved pair)")
+
+
+def _merged_pair(mode: Mode, found: np.ndarray, listed: np.ndarray) -> MergedPair | None:
+    """``mode`` as a pair of the decimated modes ``found`` (module docstring), None when it is not one."""
+    f = mode.frequency_hz
+    below, above = found[found < f], found[found > f]
+    if below.size == 0 or above.size == 0:
+        return None
+    pair = np.array([below.max(), above.min()])
+    nearest_listed = listed[np.argmin(np.abs(pair[:, None] - listed[None, :]), axis=1)]
+    if np.any(nearest_listed != f) or np.any(np.abs(pair - f) > MERGED_PAIR_BANDWIDTHS * 2 * mode.damping_ratio * f):
+        return None
+    return MergedPair(mode, float(pair[0]), float(pair[1]))
 
 
 def _decimate(y: np.ndarray, factor: int) -> tuple[np.ndarray, int]:
@@ -59,8 +99,8 @@ def _decimate(y: np.ndarray, factor: int) -> tuple[np.ndarray, int]:
     return y, used
 
 
-def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float, select) -> None:
-    """Re-estimate ``model``'s slow modes in place (module docstring); nothing when none is slow.
+def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float, select) -> list[MergedPair]:
+    """Re-estimate ``model``'s slow modes in place (module docstring), the modes that stand for a pair returned.
 
     Parameters
     ----------
@@ -68,30 +108,37 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
     y : (N, p) the record it was identified from (means and harmonics removed).
     select : ``select(y, sample_time_s, block_rows)`` -> the selected modes of a record, dicts
         with ``frequency_hz``, ``damping_ratio`` and their ``_std`` (the full-rate selection).
+
+    Returns
+    -------
+    The slow modes the decimated record resolves into two (left in ``model.modes``; empty when none).
     """
     if not model.modes:
-        return
+        return []
     slowest_hz = min(mode.frequency_hz for mode in model.modes)
     factor = int(1.0 / (sample_time_s * SAMPLES_PER_PERIOD * slowest_hz))
     if factor < MIN_DECIMATION or y.shape[0] // factor < MIN_DECIMATED_SAMPLES:
-        return
+        return []
     try:
         low, factor = _decimate(y, factor)
     except ValueError:  # a stage's record shorter than its filter's padding
-        return
+        return []
     low_dt = sample_time_s * factor
     block_rows = int(np.ceil(PERIODS_PER_BLOCK_ROWS / (low_dt * slowest_hz)))
     try:
         decimated = select(low, low_dt, block_rows)
     except IdentificationError:
-        return  # the record is too short for the longer lags: the full-rate values stand
+        return []  # the record is too short for the longer lags: the full-rate values stand
     band_hz = min(BAND_FRACTION * 0.5 / low_dt, SLOWEST_FACTOR * slowest_hz)
     found = np.array([m["frequency_hz"] for m in decimated])
+    listed = np.array([mode.frequency_hz for mode in model.modes])
+    merged = []
     for mode in model.modes:
         if mode.frequency_hz > band_hz or found.size == 0:
             continue
         j = int(np.argmin(np.abs(found - mode.frequency_hz)))
         if abs(found[j] / mode.frequency_hz - 1) > MATCH_TOLERANCE:
+            merged += [pair for pair in [_merged_pair(mode, found, listed)] if pair is not None]
             continue
         better = decimated[j]
         mode.extras.update(full_rate_frequency_hz=mode.frequency_hz, full_rate_damping_ratio=mode.damping_ratio,
@@ -103,3 +150,4 @@ def refine_low_modes(model: IdentifiedModel, y: np.ndarray, sample_time_s: float
             mode.frequency_hz, mode.frequency_rad_s = better["frequency_hz"], 2 * np.pi * better["frequency_hz"]
             mode.frequency_hz_std = f_std
         mode.damping_ratio, mode.damping_ratio_std = better["damping_ratio"], z_std
+    return merged

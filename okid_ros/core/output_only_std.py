@@ -20,10 +20,14 @@ from okid_ros.core.identified_model import IdentifiedModel
 from okid_ros.core.output_covariance import OutputCorrelations, RecordSums
 from okid_ros.core.uncertainty import UncertaintyResult
 
-__all__ = ["STD_SEGMENTS", "MIN_SEGMENT_LAGS", "std_segment_count", "std_spans", "std_replicates", "attach_finer_std"]
+__all__ = ["STD_SEGMENTS", "FINER_SEGMENTS", "MIN_SEGMENT_LAGS", "std_segment_count", "std_spans", "std_replicates",
+           "attach_finer_std"]
 
-#: Most segments of the listed modes' standard deviations' jackknife (0: the screening's, as before).
-STD_SEGMENTS = 20
+#: Most segments of the listed modes' standard deviations' jackknife by default: 0, the screening's. With
+#: :data:`FINER_SEGMENTS` the change test's stationary tails beyond 4 deviations vanish, but the identification
+#: takes 1.2-2.2 times the CPU (koma record 0.44 -> 0.78 s, behind koma's), docs/benchmarks-change.md.
+STD_SEGMENTS = 0
+FINER_SEGMENTS = 20
 #: A segment of that jackknife spans at least this many of the Hankel's largest lag (2 block rows).
 MIN_SEGMENT_LAGS = 2
 

@@ -3,6 +3,9 @@
 Random records 82, 91 and 38 of ``bench/output_only.py --cases random`` (ssi-cva) lost a slow mode
 found within 0.5 % at the full rate to a decimated estimate 0.56-0.63 % off with a larger
 jackknife frequency standard deviation (docs/benchmarks-output-only.md, forty-third session).
+
+A tuned mass damper's pair of modes, which the full rate reads as one pole between them and the
+decimated record's longer lags resolve, is not listed (forty-ninth session).
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import pytest
 from ros_helpers import REPO_ROOT
 
 import okid_ros.core.output_only as oo
+from okid_bench.families_two import family_two_case
 from okid_bench.output_only_cases import random_case
 from okid_ros.core.modal import Mode
 from okid_ros.core.output_only import identify_output_only
@@ -79,3 +83,35 @@ def test_a_decimated_record_too_short_for_a_jackknife_is_not_decomposed(monkeypa
     assert selections == [True, False]  # the full rate's, then the decimated band's was asked for
     assert len(decompositions) == 1  # the record's alone (its replicates are canonical_replicates')
     assert len(model.modes) == 5 and not any("decimation" in mode.extras for mode in model.modes)
+
+
+def _slow_mode(frequency_hz: float, damping_ratio: float) -> Mode:
+    pole = np.exp(0.01 * 2 * np.pi * frequency_hz * (-damping_ratio + 1j * np.sqrt(1 - damping_ratio ** 2)))
+    return Mode(2 * np.pi * frequency_hz, frequency_hz, damping_ratio, pole, np.ones(2, complex) / np.sqrt(2),
+                1.0, 1.0, 1.0, True, True, frequency_hz_std=1e-3, damping_ratio_std=2e-3)
+
+
+@pytest.mark.parametrize(("decimated_hz", "other_hz", "pair"), [
+    ((0.95, 1.07, 3.0), 1.2, (0.95, 1.07)),  # one on each side, within one bandwidth (0.1 Hz): a pair
+    ((0.95, 1.12, 3.0), 1.2, None),  # the upper one beyond a bandwidth
+    ((0.95, 1.07, 3.0), 1.12, None),  # the upper one nearer the other listed mode
+    ((0.95, 1.005, 1.07), 1.2, None),  # found again within 1 %: refined, not a pair
+    ((0.92, 0.95, 3.0), 1.2, None),  # both below
+])
+def test_a_slow_mode_the_decimated_record_resolves_into_a_pair_is_returned(decimated_hz, other_hz, pair) -> None:
+    y = np.random.default_rng(0).standard_normal((20000, 2))
+    modes = [_slow_mode(1.0, 0.05), _slow_mode(other_hz, 0.01)]
+    decimated = [{"frequency_hz": f, "damping_ratio": 0.05, "frequency_hz_std": 1e-3, "damping_ratio_std": 1e-3}
+                 for f in decimated_hz]
+    merged = refine_low_modes(SimpleNamespace(modes=modes), y, 0.01, lambda low, dt, rows: decimated)
+    assert [(m.mode.frequency_hz, m.below_hz, m.above_hz) for m in merged] == ([] if pair is None else [(1.0, *pair)])
+
+
+def test_a_tuned_mass_dampers_pair_read_as_one_pole_is_not_listed() -> None:
+    case = family_two_case(87)  # a 3 % TMD on mode 1: 21.68 and 25.04 Hz, both about 5.4 % damped
+    model = identify_output_only(case.simulate(87, 35000), case.sample_time_s)
+    structural = np.sort(np.abs(case.structural_poles)) / (2 * np.pi)
+    listed = np.array([m.frequency_hz for m in model.modes])
+    off = np.min(np.abs(listed[:, None] / structural[None, :] - 1), axis=1)
+    assert np.all(off <= 0.02), f"{listed[off > 0.02]} Hz: not a mode of the structure"
+    assert any("resolve at 21.7" in w and "and 24.6" in w for w in model.warnings), model.warnings

@@ -9,7 +9,7 @@ from okid_bench.changes import change_case
 from okid_bench.switching import simulate_switched
 from okid_ros.core.identified_model import IdentificationError
 from okid_ros.core.output_only import identify_output_only
-from okid_ros.core.output_only_std import MIN_SEGMENT_LAGS, STD_SEGMENTS, std_segment_count
+from okid_ros.core.output_only_std import FINER_SEGMENTS, MIN_SEGMENT_LAGS, STD_SEGMENTS, std_segment_count
 
 
 def _stationary(n: int, seed: int = 0) -> tuple[np.ndarray, float]:
@@ -21,10 +21,10 @@ def test_a_first_stage_record_gets_deviations_of_more_segments_and_the_same_mode
     # 40 periods of the structure's 5.2 Hz mode, the mode confirmation's first stage: the screening's
     # jackknife holds five segments there (four degrees of freedom per variance); main gave those.
     y, dt = _stationary(1923)
-    finer = identify_output_only(y, dt)
-    screening = identify_output_only(y, dt, std_segments=0)
+    finer = identify_output_only(y, dt, std_segments=FINER_SEGMENTS)
+    screening = identify_output_only(y, dt)  # the default: the screening's deviations
     assert screening.uncertainty.rows_used == 5
-    assert finer.uncertainty.rows_used == STD_SEGMENTS
+    assert STD_SEGMENTS == 0 and finer.uncertainty.rows_used == FINER_SEGMENTS
     assert [(m.eigenvalue, m.frequency_hz, m.damping_ratio) for m in finer.modes] == [
         (m.eigenvalue, m.frequency_hz, m.damping_ratio) for m in screening.modes]
     np.testing.assert_array_equal(finer.A, screening.A)
@@ -35,9 +35,9 @@ def test_a_first_stage_record_gets_deviations_of_more_segments_and_the_same_mode
 
 
 @pytest.mark.parametrize(("n", "max_lag", "most", "expected"), [
-    (1923, 38, STD_SEGMENTS, min(STD_SEGMENTS, 1923 // (MIN_SEGMENT_LAGS * 38))),
-    (1000, 100, STD_SEGMENTS, 1000 // (MIN_SEGMENT_LAGS * 100)),
-    (10 ** 6, 10, STD_SEGMENTS, STD_SEGMENTS),
+    (1923, 38, FINER_SEGMENTS, min(FINER_SEGMENTS, 1923 // (MIN_SEGMENT_LAGS * 38))),
+    (1000, 100, FINER_SEGMENTS, 1000 // (MIN_SEGMENT_LAGS * 100)),
+    (10 ** 6, 10, FINER_SEGMENTS, FINER_SEGMENTS),
     (1923, 38, 0, 0),
 ])
 def test_segment_count_is_bounded_by_the_lag_windows_and_the_most(n, max_lag, most, expected):
