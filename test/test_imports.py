@@ -7,7 +7,12 @@ service) import no rclpy, as docs/architecture.md states.
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "okid_ros"
 
@@ -73,3 +78,23 @@ def test_numerical_layers_import_no_rclpy():
             imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
             imported |= {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
             assert not {m for m in imported if m.split(".")[0] in ("rclpy", "okid_msgs")}, path
+
+
+# What each start-up must not import: the parameter table is read by every node and most commands
+# (declarations, defaults, checks), node 1 fits ARX windows only. scipy.stats and scipy.signal are
+# about 0.8 s of CPU per process (filterpy imports scipy.stats); they belong to node 2's estimator,
+# change test and realizations.
+_NOT_AT_START = {
+    "okid_ros.service.params": ("scipy.stats", "scipy.signal", "scipy.optimize", "filterpy"),
+    "okid_ros.nodes.arx_identifier_node": ("scipy.stats", "scipy.signal", "filterpy"),
+}
+
+
+@pytest.mark.parametrize("module", sorted(_NOT_AT_START))
+def test_start_up_imports_no_numerical_module_it_does_not_use(module):
+    code = f"import sys, {module}; print(' '.join(sorted(sys.modules)))"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(PACKAGE.parent), os.environ.get("PYTHONPATH", "")])}
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                            env=env).stdout.split()
+    assert module in loaded
+    assert [m for m in _NOT_AT_START[module] if m in loaded] == []
