@@ -364,8 +364,8 @@ def _arx_order(args: argparse.Namespace, u, y, options) -> int:
 
     from okid_ros.core.arx_order import choose_arx_order, states_problem
     from okid_ros.core.options import ArxOrderOptions
-    from okid_ros.core.realization_window import window_minimum
     from okid_ros.core.regressors import regressor_length
+    from okid_ros.core.window_minimum import window_minimum
     from okid_ros.errors import DataError, ParameterError
     from okid_ros.records import first_present_run
 

@@ -102,6 +102,7 @@ from okid_ros.core.innovation_whitening import (
     WHITENING_MAX_COEFFICIENT_FRACTION,
     InnovationWhitening,
 )
+from okid_ros.core.options import DEFAULT_FALSE_ALARM_SAMPLES, DEFAULT_REFERENCE_SAMPLES
 
 __all__ = [
     "DEFAULT_FALSE_ALARM_SAMPLES", "DEFAULT_VARIANCE_RATIO", "DEFAULT_REFERENCE_SAMPLES",
@@ -110,8 +111,6 @@ __all__ = [
     "predictor_spectral_radius", "whitening_matrix",
 ]
 
-DEFAULT_FALSE_ALARM_SAMPLES = 1e7  # expected samples between false alarms (11 h at 250 Hz)
-DEFAULT_REFERENCE_SAMPLES = 1000  # calibration samples after each (re)arming
 DEFAULT_MEAN_TRACKING_SAMPLES = 200  # time constant of the innovations' tracked mean
 DEFAULT_BATCH_SAMPLES = 25  # batch length of the serial-correlation estimate
 

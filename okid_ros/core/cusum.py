@@ -19,6 +19,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import stats
 
+from okid_ros.core.options import DEFAULT_VARIANCE_RATIO
+
 __all__ = [
     "CALIBRATION_CONFIDENCE",
     "DEFAULT_VARIANCE_RATIO",
@@ -27,7 +29,6 @@ __all__ = [
     "cusum_threshold",
 ]
 
-DEFAULT_VARIANCE_RATIO = 1.5  # gamma, the covariance increase the CUSUM is tuned to
 #: Fraction of calibrations for which the false-alarm rate holds (:func:`calibration_scale`).
 CALIBRATION_CONFIDENCE = 0.9
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit, fit_from_normal_equations
 from okid_ros.core.arx_gram import arx_normal_equations
+from okid_ros.core.options import MAX_GAP_SAMPLES
 from okid_ros.core.regressors import real_array, regressor_at
 
 __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "fill_missing", "fill_short_gaps", "fit_and_fill",
@@ -32,10 +33,6 @@ __all__ = ["MAX_FILLED_FRACTION", "MAX_GAP_SAMPLES", "fill_missing", "fill_short
 #: Largest fraction of a window's samples that may be filled: beyond it the realization would
 #: fit the ARX model's predictions more than the data.
 MAX_FILLED_FRACTION = 0.1
-#: Longest run of missing samples bridged by prediction (node 2's ``estimator.max_gap_samples``
-#: default; a whole record in ``identify``): the prediction of a lightly damped structure stays
-#: close over a few samples, not over a decay time.
-MAX_GAP_SAMPLES = 10
 #: Order of the vector autoregression that frames an output-only window (``track --order auto``
 #: without an input) and fills an output-only record's gaps: its model comes from the output
 #: correlations, the VAR only predicts a sample or a few, so it stays small.

@@ -32,6 +32,10 @@ __all__ = [
     "SAMPLE_TIME_RANGE_S",
     "HIGHEST_FREQUENCY_HZ",
     "sample_time_problem",
+    "MAX_GAP_SAMPLES",
+    "DEFAULT_FALSE_ALARM_SAMPLES",
+    "DEFAULT_VARIANCE_RATIO",
+    "DEFAULT_REFERENCE_SAMPLES",
 ]
 
 AUTO = "auto"
@@ -47,6 +51,15 @@ OUTPUT_ONLY_METHODS = ("ssi-cva", "ssi-cov", "var")
 SAMPLE_TIME_RANGE_S = (1e-6, 3600.0)
 #: The highest frequency a record read can hold [Hz]: the Nyquist frequency of the shortest sample time.
 HIGHEST_FREQUENCY_HZ = 0.5 / SAMPLE_TIME_RANGE_S[0]
+#: Longest run of missing samples bridged by prediction (node 2's ``estimator.max_gap_samples``
+#: default; a whole record in ``identify``; :mod:`.gap_fill`): the prediction of a lightly
+#: damped structure stays close over a few samples, not over a decay time.
+MAX_GAP_SAMPLES = 10
+# The change test's defaults (:mod:`.change_detection`, :mod:`.cusum`), here so that the nodes'
+# parameter table reads them without importing the test's numerical modules (scipy.stats).
+DEFAULT_FALSE_ALARM_SAMPLES = 1e7  # expected samples between false alarms (11 h at 250 Hz)
+DEFAULT_VARIANCE_RATIO = 1.5  # gamma, the covariance increase the CUSUM is tuned to
+DEFAULT_REFERENCE_SAMPLES = 1000  # calibration samples after each (re)arming
 
 
 def sample_time_problem(sample_time_s: Any) -> str | None:

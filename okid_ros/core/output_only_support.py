@@ -20,13 +20,13 @@ from okid_ros.core.regressors import real_array
 from okid_ros.core.sensor_faults import record_faults
 from okid_ros.core.stabilization import StabilizationOrder, StabilizationPole
 from okid_ros.core.stochastic_realization import OrderRealizer, covariance_decomposition
+from okid_ros.core.window_minimum import OUTPUT_ONLY_MIN_SAMPLES
 from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 
 __all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife", "spectral_dominance",
            "check_channel_sizes", "check_output_only_options", "listed_within_limits"]
 
-#: Fewest samples per output channel and per Hankel lag worth identifying from.
-MIN_SAMPLES = 200
+MIN_SAMPLES = OUTPUT_ONLY_MIN_SAMPLES
 
 
 def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_gap: int = MAX_GAP_SAMPLES

@@ -20,11 +20,10 @@ import numpy as np
 
 from okid_ros.core.arx import ArxFit
 from okid_ros.core.gap_fill import fill_short_gaps, fit_and_fill
-from okid_ros.core.output_only_support import MIN_SAMPLES as OUTPUT_ONLY_MIN_SAMPLES
 from okid_ros.core.sensor_faults import spikes_left_out
+from okid_ros.core.window_minimum import realization_minimum
 
-__all__ = ["RealizationWindow", "newest_run_start", "realization_minimum", "realization_window", "run_breaks",
-           "window_minimum"]
+__all__ = ["RealizationWindow", "newest_run_start", "realization_window", "run_breaks"]
 
 
 @dataclass(frozen=True)
@@ -148,21 +147,3 @@ def _spikes_left_out(u: np.ndarray, y: np.ndarray, valid: np.ndarray | None,
     if spiked is judged or spiked[:n].all():
         return valid
     return spiked[:n]
-
-
-def realization_minimum(order: int, need: int) -> int:
-    """Samples a realization needs of an ARX window of ``need`` samples at ARX order ``order``.
-
-    Four times the order (the Markov parameters and the state regression after the ARX's lags),
-    and half the window's samples.
-    """
-    return max(4 * order, need // 2)
-
-
-def window_minimum(order: int, need: int, n_inputs: int) -> int:
-    """Samples a full ARX window of ``need`` samples must hold for its realization to run at all.
-
-    :func:`realization_minimum`, and with no input (``n_inputs`` 0) the fewest samples of an
-    output-only identification: a smaller window has every model refused.
-    """
-    return max(realization_minimum(order, need), OUTPUT_ONLY_MIN_SAMPLES if n_inputs == 0 else 0)

@@ -45,7 +45,7 @@ from okid_ros.service.arx_solve import SolveResult, WindowCapture, solve_capture
 from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.identification import ArxIdentificationParams, ArxIdentificationService
 from okid_ros.service.params import ARX_NODE
-from okid_ros.service.windowed import identification_step
+from okid_ros.service.sample_steps import identification_step
 
 NODE_NAME = ARX_NODE
 #: At most one line per this many seconds of structural changes ignored (each is counted).

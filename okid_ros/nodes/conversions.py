@@ -25,12 +25,12 @@ from okid_ros.core.markov import markov_from_arx, markov_problem
 from okid_ros.core.modal import Mode
 from okid_ros.core.regressors import regressor_length
 from okid_ros.service.arx_solve import ArxSnapshot
-from okid_ros.service.estimation import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 from okid_ros.service.grid_samples import NO_DATA
 from okid_ros.service.inputs import SourceSpec, declares_no_data
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.params import ARX_PARAMS
 from okid_ros.service.records import MESSAGE_MODE_FIELDS, mode_record, mode_shape
+from okid_ros.service.results import ModalStatesResult, ModelUpdate, StructuralChangeEvent
 
 __all__ = [
     "MessageTypes", "ros_message_types", "stamp_to_seconds", "stamp_parts", "seconds_to_stamp", "source_values",

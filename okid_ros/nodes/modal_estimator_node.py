@@ -83,7 +83,7 @@ from okid_ros.service.estimation import (
 )
 from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.params import ESTIMATOR_NODE
-from okid_ros.service.windowed import estimation_step
+from okid_ros.service.sample_steps import estimation_step
 from okid_ros.tools.parent_death import die_with_parent
 
 NODE_NAME = ESTIMATOR_NODE

@@ -14,7 +14,8 @@ import math
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.realization_window import realization_minimum, run_breaks
+from okid_ros.core.realization_window import run_breaks
+from okid_ros.core.window_minimum import realization_minimum
 from okid_ros.service.options import MAX_ARX_LEAD_S, MAX_BUFFER_SAMPLES, ModalEstimationParams
 from okid_ros.service.results import RefusedArx
 from okid_ros.service.sample_buffer import SampleBuffer

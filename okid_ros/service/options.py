@@ -21,8 +21,8 @@ from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
 from okid_ros.core.options import AUTO, ArxOrderOptions, ModeCriteria, RealizationOptions
-from okid_ros.core.realization_window import window_minimum
 from okid_ros.core.regressors import regressor_length
+from okid_ros.core.window_minimum import window_minimum
 from okid_ros.errors import ParameterError
 from okid_ros.service.params import (
     ARX_NODE,

@@ -31,16 +31,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from okid_ros.core.change_detection import (
+from okid_ros.core.divergence import DivergenceMonitor
+from okid_ros.core.modal import match_modes
+from okid_ros.core.options import (
     DEFAULT_FALSE_ALARM_SAMPLES,
     DEFAULT_REFERENCE_SAMPLES,
     DEFAULT_VARIANCE_RATIO,
-    DivergenceMonitor,
+    GAINS,
+    MAX_GAP_SAMPLES,
+    OFFSETS,
+    OUTPUT_ONLY_METHODS,
+    SAMPLE_TIME_RANGE_S,
+    RealizationOptions,
 )
-from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
-from okid_ros.core.modal import match_modes
-from okid_ros.core.options import GAINS, OFFSETS, SAMPLE_TIME_RANGE_S, RealizationOptions
-from okid_ros.core.output_only import OUTPUT_ONLY_METHODS
 from okid_ros.errors import ParameterError, shown_path
 from okid_ros.service.param_files import node_fqn, node_values_from_tree, read_parameter_file
 from okid_ros.service.topics import ARX_MODEL, IO_SAMPLE, MODAL_STATES, STATE_SPACE_MODEL, STRUCTURAL_CHANGE

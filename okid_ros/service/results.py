@@ -13,14 +13,17 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from okid_ros.core.arx import ArxFit
-from okid_ros.core.estimator import ModalStateEstimator
+from okid_ros.core.identified_model import IdentifiedModel
 from okid_ros.core.modal import Mode
-from okid_ros.core.pipeline import IdentifiedModel
 from okid_ros.service.options import ModalEstimationParams
+
+if TYPE_CHECKING:  # a field's type only: the estimator's filterpy pulls in scipy.stats, which node 1 never needs
+    from okid_ros.core.estimator import ModalStateEstimator
 
 __all__ = [
     "ActiveModel",

@@ -1,10 +1,9 @@
 """The windowed pipeline of both nodes on one sample stream, written once.
 
 Per sample, what each node does with an assembled
-:class:`~okid_ros.service.grid_samples.GridSample` (:func:`identification_step` for node 1,
-:func:`estimation_step` for node 2; the live nodes call these), and, in
-:class:`WindowedPipeline`, the two services in step without a middleware, as ``okid-ros
-process`` runs them over a bag:
+:class:`~okid_ros.service.grid_samples.GridSample` (:mod:`okid_ros.service.sample_steps`, which
+the live nodes call too), and, in :class:`WindowedPipeline`, the two services in step without a
+middleware, as ``okid-ros process`` runs them over a bag:
 
 - node 1: the sample goes into the ARX window; a snapshot is due every ``publish_period_s``
   of *sample* time (the live node: its timer on the node clock);
@@ -30,24 +29,14 @@ from okid_ros.core.arx import ArxFit
 from okid_ros.core.validation import prediction_fits
 from okid_ros.service.arx_solve import ArxSnapshot
 from okid_ros.service.estimation import ModalEstimationService, ModalStatesResult
-from okid_ros.service.grid_samples import RESTART_SKIP, GridSample
+from okid_ros.service.grid_samples import GridSample
 from okid_ros.service.identification import ArxIdentificationService
 from okid_ros.service.options import ArxIdentificationParams, ModalEstimationParams
 from okid_ros.service.records import change_record, update_record
 from okid_ros.service.results import IdleSwitch, ModelUpdate, StructuralChangeEvent
+from okid_ros.service.sample_steps import estimation_step, identification_step
 
-__all__ = ["WindowedPipeline", "PipelineSettings", "estimation_step", "identification_step"]
-
-
-def identification_step(service: ArxIdentificationService, sample: GridSample) -> bool:
-    """Node 1 with one sample: into the window (a gap breaks the lag history); accepted or not."""
-    return service.push(sample.stamp_s, sample.u, sample.y, gap_before=sample.gap_before)
-
-
-def estimation_step(service: ModalEstimationService, sample: GridSample) -> ModalStatesResult | None:
-    """Node 2 with one sample: the estimator's step (a restart of the grid restarts it too)."""
-    skipped = RESTART_SKIP if sample.restart else sample.skipped
-    return service.step(sample.stamp_s, sample.u, sample.y, skipped)
+__all__ = ["WindowedPipeline", "PipelineSettings"]
 
 
 @dataclass(frozen=True)
