@@ -111,10 +111,13 @@ install_wheels() {
         requirements/test.txt requirements/lock.txt)"
     stage_done wheels "$h" && return 0
     log "installing pinned wheels from PyPI (requirements/*.txt)"
-    "$VENV/bin/python" -m pip install -q -r "$REQ/bootstrap.txt"
+    # --no-compile: pip would write the bytecode of every module of every wheel, their tests
+    # included (38 s of CPU, more than the rest of the install); compile_imported writes that of
+    # what okid_ros imports, Python the rest at first import.
+    "$VENV/bin/python" -m pip install -q --no-compile -r "$REQ/bootstrap.txt"
     # Runtime (python.txt) and test/benchmark (test.txt) dependencies: `make test` needs both.
-    "$VENV/bin/python" -m pip install -q -r "$REQ/ros-jazzy.txt" -r "$REQ/python.txt" -r "$REQ/test.txt" \
-        -c "$REQ/lock.txt"
+    "$VENV/bin/python" -m pip install -q --no-compile -r "$REQ/ros-jazzy.txt" -r "$REQ/python.txt" \
+        -r "$REQ/test.txt" -c "$REQ/lock.txt"
     fix_cmake_paths
     mark_done wheels "$h"
 }
@@ -180,6 +183,20 @@ install_okid_ros() {
     mark_done okid_ros "$h"
 }
 
+# The bytecode of every module of okid_ros and of what they import (rclpy, scipy, matplotlib, ...),
+# written even where the environment says not to (PYTHONDONTWRITEBYTECODE, as on CI machines):
+# else each node and command would compile them again at every start.
+compile_imported() {
+    local h
+    h="$(cat "$STAMPS/wheels" "$STAMPS/msgs" "$STAMPS/okid_ros" | sha256sum | cut -c1-64)"
+    stage_done bytecode "$h" && return 0
+    log "writing the bytecode of okid_ros and of the modules it imports"
+    env PYTHONDONTWRITEBYTECODE= "$VENV/bin/python" -c 'import importlib, pkgutil, okid_ros
+for module in pkgutil.walk_packages(okid_ros.__path__, "okid_ros."):
+    importlib.import_module(module.name)' || die "okid_ros's modules do not import; see the error above"
+    mark_done bytecode "$h"
+}
+
 check_result() {
     env -u AMENT_PREFIX_PATH -u CMAKE_PREFIX_PATH \
         "$VENV/bin/python" -c 'import rclpy, okid_msgs.msg, okid_ros' ||
@@ -194,6 +211,7 @@ main() {
     install_wheels
     build_msgs
     install_okid_ros
+    compile_imported
     check_result
     log "ready: $VENV"
 }
