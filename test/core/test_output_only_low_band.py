@@ -26,35 +26,23 @@ from okid_ros.core.output_only_low_band import refine_low_modes
 KOMA = REPO_ROOT.parent / "shared" / "data" / "oma" / "koma-shear-frame"
 
 
+@pytest.mark.parametrize("finer_std", [None, (3e-3, 4e-3)])
 @pytest.mark.parametrize(("decimated_std", "frequency_replaced"), [(0.5e-3, True), (2e-3, False)])
 def test_a_slow_mode_takes_the_decimated_frequency_only_with_a_smaller_std_and_its_damping_always(
-        decimated_std: float, frequency_replaced: bool) -> None:
+        decimated_std: float, frequency_replaced: bool, finer_std: tuple | None) -> None:
+    # The choice is by the screening jackknife's deviations; a second jackknife's (okid_ros/core/output_only_std.py,
+    # here larger than the full rate's) are the ones listed where given.
     y = np.random.default_rng(0).standard_normal((20000, 2))
     mode = Mode(2 * np.pi, 1.0, 0.02, 0.99 + 0.06j, np.ones(2, complex) / np.sqrt(2), 1.0, 1.0, 1.0, True, True,
                 frequency_hz_std=1e-3, damping_ratio_std=2e-3)
     decimated = {"frequency_hz": 1.004, "damping_ratio": 0.025, "frequency_hz_std": decimated_std,
-                 "damping_ratio_std": 1e-3}
+                 "damping_ratio_std": 1e-3} | ({} if finer_std is None else {"finer_std": finer_std})
     refine_low_modes(SimpleNamespace(modes=[mode]), y, 0.01, lambda low, dt, rows: [decimated])
-    frequency = (1.004, decimated_std) if frequency_replaced else (1.0, 1e-3)
+    listed_f_std, listed_z_std = finer_std or (decimated_std, 1e-3)
+    frequency = (1.004, listed_f_std) if frequency_replaced else (1.0, 1e-3)
     assert (mode.frequency_hz, mode.frequency_hz_std, mode.frequency_rad_s) == (*frequency, 2 * np.pi * frequency[0])
-    assert (mode.damping_ratio, mode.damping_ratio_std) == (0.025, 1e-3)
+    assert (mode.damping_ratio, mode.damping_ratio_std) == (0.025, listed_z_std)
     assert (mode.extras["full_rate_frequency_hz"], mode.extras["full_rate_damping_ratio"]) == (1.0, 0.02)
-
-
-@pytest.mark.parametrize(("decimated_std", "frequency_replaced"), [(0.5e-3, True), (2e-3, False)])
-def test_the_choice_is_the_screening_deviations_and_the_finer_ones_are_listed(
-        decimated_std: float, frequency_replaced: bool) -> None:
-    # the finer jackknife's deviations (okid_ros/core/output_only_std.py) are larger here than the full rate's
-    # screening one: the choice stays the screening deviations', as without them; main listed decimated_std
-    y = np.random.default_rng(0).standard_normal((20000, 2))
-    mode = Mode(2 * np.pi, 1.0, 0.02, 0.99 + 0.06j, np.ones(2, complex) / np.sqrt(2), 1.0, 1.0, 1.0, True, True,
-                frequency_hz_std=1e-3, damping_ratio_std=2e-3)
-    decimated = {"frequency_hz": 1.004, "damping_ratio": 0.025, "frequency_hz_std": decimated_std,
-                 "damping_ratio_std": 1e-3, "finer_std": (3e-3, 4e-3)}
-    refine_low_modes(SimpleNamespace(modes=[mode]), y, 0.01, lambda low, dt, rows: [decimated])
-    frequency = (1.004, 3e-3) if frequency_replaced else (1.0, 1e-3)
-    assert (mode.frequency_hz, mode.frequency_hz_std) == frequency
-    assert (mode.damping_ratio, mode.damping_ratio_std) == (0.025, 4e-3)
 
 
 @pytest.mark.parametrize("index", [38, 82])
