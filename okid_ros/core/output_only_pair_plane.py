@@ -12,7 +12,7 @@ outputs only by chance (:func:`pair_plane_floor`). The clustering's MPC floor ke
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy import stats
 
 __all__ = ["PAIR_PLANE_NOISE_SHARE", "pair_plane_floor", "share_in_real_plane"]
 
@@ -32,10 +32,10 @@ def pair_plane_floor(n_outputs: int, share: float = PAIR_PLANE_NOISE_SHARE) -> f
     """The share of a fixed real plane a noise shape at ``n_outputs`` outputs exceeds with probability ``share``.
 
     A shape of independent complex Gaussian components holds a Beta(2, p - 2) share of its energy in a
-    fixed two-dimensional subspace, whose tail is ``(1 - x) ** (p - 2) * (1 + (p - 2) x)``. At 2 outputs or
-    fewer every shape lies in the plane: 1 (no shape passes above it).
+    fixed real plane (its real and imaginary parts two chi-square(2) there, of chi-square(2p) in all).
+    At 2 outputs or fewer every shape lies in the plane: 1 (no shape passes above it).
     """
     rest = n_outputs - 2
     if rest <= 0:
         return 1.0
-    return float(brentq(lambda x: (1 - x) ** rest * (1 + rest * x) - share, 0.0, 1.0))
+    return float(stats.beta.isf(share, 2, rest))
