@@ -26,8 +26,6 @@ from okid_ros.core.worker_threads import SERIAL, WorkerThreads
 __all__ = ["prepare_outputs", "match_clusters", "output_only_diagram", "Jackknife", "spectral_dominance",
            "check_channel_sizes", "check_output_only_options", "listed_within_limits"]
 
-MIN_SAMPLES = OUTPUT_ONLY_MIN_SAMPLES
-
 
 def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_gap: int = MAX_GAP_SAMPLES
                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, list[str]]:
@@ -53,15 +51,17 @@ def prepare_outputs(y, sample_time_s: float, offsets: str, *, valid=None, max_ga
         raise IdentificationError(f"y must be 2-D (N, p) with at least one channel, got shape {y.shape}")
     if problem := sample_time_problem(sample_time_s):
         raise IdentificationError(problem)
-    if y.shape[0] < MIN_SAMPLES:
-        raise IdentificationError(f"too few samples for output-only identification: {y.shape[0]} < {MIN_SAMPLES}")
+    if y.shape[0] < OUTPUT_ONLY_MIN_SAMPLES:
+        raise IdentificationError(
+            f"too few samples for output-only identification: {y.shape[0]} < {OUTPUT_ONLY_MIN_SAMPLES}")
     try:
         valid = None if valid is None else missing_mask(valid, y.shape[0])
     except ValueError as exc:
         raise IdentificationError(str(exc)) from None
-    if valid is not None and valid.sum() < MIN_SAMPLES:  # their correlations were 0 / 0: NaN, then a ValueError
+    # fewer: their correlations were 0 / 0, NaN, then a ValueError
+    if valid is not None and valid.sum() < OUTPUT_ONLY_MIN_SAMPLES:
         raise IdentificationError(f"too few measured samples for output-only identification: {int(valid.sum())} of "
-                                  f"the {valid.size} (valid True) < {MIN_SAMPLES}")
+                                  f"the {valid.size} (valid True) < {OUTPUT_ONLY_MIN_SAMPLES}")
     if valid is not None and (problem := missing_problem(valid, max_gap=max_gap)):  # 90 % filled was taken
         raise IdentificationError(problem)
     if not np.all(np.isfinite(y)):

@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from okid_ros.core.gap_fill import MAX_GAP_SAMPLES
+from okid_ros.core.window_minimum import OUTPUT_ONLY_MIN_SAMPLES
 from okid_ros.errors import DataError, OkidWarning, shown_path
 from okid_ros.records import Record, bridged_bounds, load_record
 
@@ -117,12 +118,12 @@ def fewest_usable_samples(n_outputs: int, n_inputs: int) -> int:
 
     identify's rule with inputs (:func:`~okid_ros.core.arx_order.fewest_samples_to_identify`: ARX
     order 2 and its realization), or output-only identification's
-    :data:`~okid_ros.core.output_only_support.MIN_SAMPLES`.
+    :data:`~okid_ros.core.window_minimum.OUTPUT_ONLY_MIN_SAMPLES`.
     """
     from okid_ros.core.arx_order import fewest_samples_to_identify
-    from okid_ros.core.output_only_support import MIN_SAMPLES
 
-    return min(fewest_samples_to_identify(n_outputs, n_inputs), MIN_SAMPLES) if n_inputs else MIN_SAMPLES
+    return (min(fewest_samples_to_identify(n_outputs, n_inputs), OUTPUT_ONLY_MIN_SAMPLES) if n_inputs
+            else OUTPUT_ONLY_MIN_SAMPLES)
 
 
 def record_from_bag(bag_path: str | Path, est_values: dict, *, missing_as_nan: bool = False) -> BagRecord:
