@@ -38,6 +38,7 @@ from typing import Any
 
 from okid_ros.errors import OkidWarning, one_line, os_reason, shown_path, special_file_kind
 from okid_ros.tools import mcap_salvage
+from okid_ros.tools.bag_counts import stored_connections
 from okid_ros.tools.errors import BagReadError, BagWriteError
 from okid_ros.tools.interrupts import deferred
 from okid_ros.tools.output_paths import bag_folder, prepare_output
@@ -153,8 +154,6 @@ class BagReader:
 
     def message_count(self, topics: Iterable[str] | None = None, *, as_metadata: bool = False) -> int:
         """Messages stored on ``topics`` (all when None); ``as_metadata``: as metadata.yaml says (maybe spoilt)."""
-        from okid_ros.tools.bag_counts import stored_connections
-
         stored = None if as_metadata else stored_connections(self._reader)
         return sum(c.msgcount for c in self._connections(topics, stored))
 
