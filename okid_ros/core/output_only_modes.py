@@ -405,17 +405,16 @@ def _mixed_with_neighbour(poles: PoleSet, cluster: ModeCluster, candidates: list
     """
     near = [o for o in candidates if o is not cluster and abs(o.frequency_hz - cluster.frequency_hz)
             <= NEIGHBOUR_WIDTHS * max(o.damping_ratio * o.frequency_hz, cluster.damping_ratio * cluster.frequency_hz)]
-    if not near:
+    neighbour = min(near, key=lambda o: abs(o.frequency_hz - cluster.frequency_hz)) if near else None
+    if neighbour is None or not _side_by_side(cluster, neighbour):  # before the shapes' work at each common order
         return False
-    neighbour = min(near, key=lambda o: abs(o.frequency_hz - cluster.frequency_hz))
     common = sorted(cluster.members.keys() & neighbour.members.keys())
     rest, plane, p = [], [], poles.shape.shape[1]
     for own, other in ((poles.shape[cluster.members[n]], poles.shape[neighbour.members[n]]) for n in common):
         other = other / np.linalg.norm(other)
         rest.append(mpc(own - other * np.vdot(other, own)))
         plane.append(share_in_real_plane(own, other))
-    return _side_by_side(cluster, neighbour) and (_median(rest) >= noise_mpc_floor(p - 1)
-                                                  or _median(plane) > pair_plane_floor(p))
+    return _median(rest) >= noise_mpc_floor(p - 1) or _median(plane) > pair_plane_floor(p)
 
 
 def _too_few_orders(count: int | np.ndarray, n_orders: int) -> bool | np.ndarray:
